@@ -1,0 +1,1 @@
+"""p/tau-adaptive computed-torque controller of the planar biped (Chevallereau & Adouane)."""
