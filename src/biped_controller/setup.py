@@ -1,0 +1,24 @@
+from setuptools import find_packages, setup
+
+package_name = 'biped_controller'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'tests']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='Biped developers',
+    maintainer_email='biped@example.com',
+    description='Gait controller of the planar biped: gait family q_d(p, tau), PIQP-based adaptation of p and tau under 17 constraints, as a ROS 2 node.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'controller = biped_controller.controller_node:main',
+        ],
+    },
+)
