@@ -1,0 +1,252 @@
+"""Read rosbag2 MCAP bags back (pure: no ROS import).
+
+- :func:`read_bag` reads a finished bag (directory or ``.mcap`` file) through its summary.
+- :func:`read_truncated` reads a file that lost its tail (recorder killed with SIGKILL, disk
+  full): it keeps every complete record, so the messages of every complete chunk, and stops at
+  the first incomplete one without raising.
+
+Both return plain dicts; times are nanoseconds (``log_time``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import os
+import struct
+import zlib
+from pathlib import Path
+from typing import Any, Dict, List, Optional
+
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Footer, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+__all__ = ["BagReadError", "find_mcap", "read_bag", "read_truncated", "complete_prefix_length"]
+
+_MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length
+_OPCODE_FOOTER = 0x02
+
+
+class BagReadError(Exception):
+    """The path holds no readable MCAP bag."""
+
+
+def find_mcap(path: os.PathLike | str) -> Path:
+    """The MCAP file of a bag: ``path`` itself, or the first file of the bag directory.
+
+    In a directory, ``metadata.yaml``'s ``relative_file_paths`` wins over a glob.
+    """
+    path = Path(path)
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise BagReadError(f"no such bag: {path}")
+    meta = path / "metadata.yaml"
+    if meta.is_file():
+        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        files = info.get("relative_file_paths") or []
+        if files:
+            return path / files[0]
+    found = sorted(path.glob("*.mcap"))
+    if not found:
+        raise BagReadError(f"no .mcap file in {path}")
+    return found[0]
+
+
+def _decoder_factories(decode: bool) -> list:
+    if not decode:
+        return []
+    from mcap_ros2.decoder import DecoderFactory  # imported lazily: only needed to decode
+    return [DecoderFactory()]
+
+
+def read_bag(path: os.PathLike | str, decode: bool = False) -> Dict[str, Any]:
+    """Read a finished bag.
+
+    :returns: ``{"path", "counts": {topic: n}, "types": {topic: pkg/msg/Type},
+        "message_count", "start_ns", "end_ns", "compression": set of chunk compressions,
+        "chunk_count", "has_summary", "metadata": parsed metadata.yaml or None,
+        "messages": [(topic, log_time, publish_time, decoded)]}`` (``messages`` only with
+        ``decode=True``; decoded with ``mcap_ros2.decoder``).
+    """
+    mcap_path = find_mcap(path)
+    bag_dir = mcap_path.parent
+    metadata = None
+    if (bag_dir / "metadata.yaml").is_file():
+        metadata = yaml.safe_load((bag_dir / "metadata.yaml").read_text(encoding="utf-8"))
+    counts: Dict[str, int] = {}
+    types: Dict[str, str] = {}
+    start: Optional[int] = None
+    end: Optional[int] = None
+    messages: List[tuple] = []
+    with open(mcap_path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=_decoder_factories(decode))
+        summary = reader.get_summary()
+        if summary is None:
+            raise BagReadError(f"{mcap_path} has no summary (truncated? use read_truncated)")
+        for channel in summary.channels.values():
+            schema = summary.schemas.get(channel.schema_id)
+            types[channel.topic] = schema.name if schema else ""
+            counts.setdefault(channel.topic, 0)
+        compression = {ci.compression for ci in summary.chunk_indexes}
+        if decode:
+            iterator = reader.iter_decoded_messages(log_time_order=True)
+        else:
+            iterator = ((s, c, m, None) for s, c, m in reader.iter_messages(log_time_order=True))
+        for _schema, channel, message, decoded in iterator:
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            start = message.log_time if start is None else min(start, message.log_time)
+            end = message.log_time if end is None else max(end, message.log_time)
+            if decode:
+                messages.append((channel.topic, message.log_time, message.publish_time, decoded))
+    result = {
+        "path": mcap_path,
+        "counts": counts,
+        "types": types,
+        "message_count": sum(counts.values()),
+        "start_ns": start,
+        "end_ns": end,
+        "compression": compression,
+        "chunk_count": len(summary.chunk_indexes),
+        "has_summary": True,
+        "metadata": metadata,
+    }
+    if decode:
+        result["messages"] = messages
+    return result
+
+
+def complete_prefix_length(data: bytes) -> int:
+    """Length of the longest prefix of ``data`` made of the magic and whole records."""
+    if not data.startswith(_MAGIC):
+        return 0
+    pos = len(_MAGIC)
+    while pos + _RECORD_HEAD.size <= len(data):
+        opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+        end = pos + _RECORD_HEAD.size + length
+        if end > len(data):
+            break
+        pos = end
+        if opcode == _OPCODE_FOOTER:
+            break
+    return pos
+
+
+def read_truncated(path: os.PathLike | str, decode: bool = False) -> Dict[str, Any]:
+    """Read the complete records of an MCAP file that may lack its summary and footer.
+
+    The file is first cut at its last whole record; the mcap ``StreamReader`` then reads that
+    prefix. Chunks whose CRC or decompression fails are counted in ``"bad_chunks"`` and skipped.
+    A chunk that reached the disk whole therefore yields all its messages, and nothing raises on
+    a cut anywhere (an empty dict of counts if not even the header survived).
+
+    :returns: ``{"path", "counts", "types", "message_count", "start_ns", "end_ns",
+        "complete_chunks", "bad_chunks", "truncated": bool, "messages": [...]}`` where messages
+        are ``(topic, log_time, publish_time, data_or_decoded)``.
+    """
+    mcap_path = find_mcap(path)
+    data = mcap_path.read_bytes()
+    prefix = complete_prefix_length(data)
+    counts: Dict[str, int] = {}
+    types: Dict[str, str] = {}
+    schemas: Dict[int, Schema] = {}
+    channels: Dict[int, Channel] = {}
+    messages: List[tuple] = []
+    start: Optional[int] = None
+    end: Optional[int] = None
+    complete_chunks = 0
+    bad_chunks = 0
+    saw_footer = False
+    decoders: Dict[int, Any] = {}
+    factories = _decoder_factories(decode)
+
+    def handle(record: Any) -> None:
+        nonlocal start, end
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+            schema = schemas.get(record.schema_id)
+            types[record.topic] = schema.name if schema else ""
+            counts.setdefault(record.topic, 0)
+        elif isinstance(record, Message):
+            channel = channels.get(record.channel_id)
+            if channel is None:
+                return  # its channel was in a lost chunk: cannot attribute it
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            start = record.log_time if start is None else min(start, record.log_time)
+            end = record.log_time if end is None else max(end, record.log_time)
+            payload: Any = record.data
+            if factories:
+                decoder = decoders.get(channel.id)
+                if decoder is None:
+                    decoder = factories[0].decoder_for(channel.message_encoding,
+                                                       schemas.get(channel.schema_id))
+                    decoders[channel.id] = decoder
+                payload = decoder(record.data) if decoder else None
+            messages.append((channel.topic, record.log_time, record.publish_time, payload))
+
+    if prefix > 0:
+        reader = StreamReader(io.BytesIO(data[:prefix]), emit_chunks=True)
+        try:
+            for record in reader.records:
+                if isinstance(record, Chunk):
+                    inner = _chunk_records(record)
+                    if inner is None:
+                        bad_chunks += 1
+                        continue
+                    complete_chunks += 1
+                    for inner_record in inner:
+                        handle(inner_record)
+                else:
+                    handle(record)
+                    if isinstance(record, Footer):
+                        saw_footer = True
+        except (McapError, struct.error, ValueError, EOFError):
+            pass  # end of the complete prefix (EndOfFile) or a damaged record: stop there
+    result = {
+        "path": mcap_path,
+        "counts": counts,
+        "types": types,
+        "message_count": sum(counts.values()),
+        "start_ns": start,
+        "end_ns": end,
+        "complete_chunks": complete_chunks,
+        "bad_chunks": bad_chunks,
+        "truncated": not saw_footer,
+        "messages": messages,
+    }
+    return result
+
+
+def _chunk_records(chunk: Chunk) -> Optional[List[Any]]:
+    """The records inside a chunk, or None if it does not decompress or fails its CRC."""
+    try:
+        if chunk.compression == "":
+            raw = chunk.data
+        elif chunk.compression == "zstd":
+            import zstandard
+            try:
+                raw = zstandard.ZstdDecompressor().decompress(
+                    chunk.data, max_output_size=chunk.uncompressed_size)
+            except zstandard.ZstdError:
+                return None
+        elif chunk.compression == "lz4":
+            import lz4.frame
+            raw = lz4.frame.decompress(chunk.data)  # raises RuntimeError on bad data
+        else:
+            return None
+    except (RuntimeError, ValueError):
+        return None
+    if len(raw) != chunk.uncompressed_size:
+        return None
+    if chunk.uncompressed_crc and zlib.crc32(raw) != chunk.uncompressed_crc:
+        return None
+    try:
+        return breakup_chunk(dataclasses.replace(chunk, compression="", data=raw))
+    except (McapError, ValueError, struct.error, UnicodeDecodeError):
+        return None
