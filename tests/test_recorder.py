@@ -542,3 +542,43 @@ def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal
     topics = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
     fall_qos = topics[graph_names.FALL]["topic_metadata"]["offered_qos_profiles"][0]
     assert fall_qos["durability"] == "transient_local"
+
+
+# ------------------------------------------------------------------------------ Node.js reader
+JS_DIR = Path(__file__).resolve().parent / "js"
+
+
+@pytest.mark.parametrize("compression", ["zstd", "none"])
+def test_foxglove_js_reader_decodes_every_message(tmp_path, prefix, compression):
+    """The npm libraries Foxglove uses (@mcap/core, @foxglove/rosmsg, rosmsg2-serialization)."""
+    import shutil
+    if shutil.which("node") is None:
+        pytest.skip("node is not installed")
+    if not (JS_DIR / "node_modules" / "@mcap" / "core").is_dir():
+        pytest.skip("tests/js/node_modules absent: run `npm ci` in tests/js (scripts/setup)")
+    import json
+    _, written = write_bag(tmp_path / "js", [prefix, VENV], compression=compression, n=60)
+    proc = subprocess.run(
+        ["node", str(JS_DIR / "read_bag.mjs"), str(tmp_path / "js" / "js_0.mcap")],
+        capture_output=True, text=True, timeout=120, cwd=JS_DIR)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["profile"] == "ros2"
+    assert out["compression"] == ["" if compression == "none" else compression]
+    assert out["chunkCount"] >= 1 and out["messageCount"] == "60"
+    assert out["counts"] == {"/gait": 20, "/chatter": 40}
+    assert out["metadataNames"] == ["rosbag2"]
+    assert len(out["messages"]) == len(written)
+    for got, (topic, t, pt, _data, expect) in zip(out["messages"], written):
+        assert (got["topic"], int(got["logTime"]), int(got["publishTime"])) == (topic, t, pt)
+        msg = got["msg"]
+        if topic == "/chatter":
+            assert got["schema"] == "std_msgs/msg/String" and msg["data"] == expect["data"]
+        else:
+            assert msg["b"] == expect["b"]
+            assert msg["header"]["frame_id"] == expect["frame"]
+            assert msg["header"]["stamp"]["sec"] == expect["sec"]
+            assert [tr["child_frame_id"] for tr in msg["transforms"]] == ["link0", "link1"]
+            assert msg["transforms"][1]["transform"]["translation"]["x"] == 2.0
+            assert msg["phase"]["tau"] == expect["tau"] and msg["label"] == expect["label"]
+            assert [p["index"] for p in msg["phases"]] == [0, 1]
