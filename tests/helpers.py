@@ -1,0 +1,153 @@
+"""Shared test helpers: tolerant comparison that prints both sides, central finite differences,
+and access to the project's pure-Python packages when they are not installed."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+for _pkg in ("biped_sim", "biped_controller"):
+    _p = str(ROOT / "src" / _pkg)
+    try:
+        __import__(_pkg)
+    except ImportError:
+        if _p not in sys.path:
+            sys.path.insert(0, _p)
+
+CONFIG = ROOT / "config" / "biped.yaml"
+
+
+def assert_close(a, b, tol: float, what: str, rel: bool = False) -> None:
+    """Assert max |a - b| <= tol (or <= tol * max(1, |b|_inf) with rel=True); print both on failure."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    assert a.shape == b.shape, f"{what}: shape {a.shape} != {b.shape}"
+    err = float(np.max(np.abs(a - b))) if a.size else 0.0
+    bound = tol * max(1.0, float(np.max(np.abs(b)))) if rel and b.size else tol
+    if not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)) or err > bound:
+        with np.printoptions(precision=12, suppress=False, linewidth=150):
+            raise AssertionError(
+                f"{what}: max |a - b| = {err:.3e} > {bound:.3e}\n  a = {a}\n  b = {b}\n  a - b = {a - b}"
+            )
+
+
+def central_diff(f: Callable[[np.ndarray], np.ndarray], x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """Jacobian of f at x by central differences: column j = (f(x + h e_j) - f(x - h e_j)) / 2h.
+
+    Returns shape f(x).shape + (len(x),); a scalar f gives the gradient (len(x),)."""
+    x = np.asarray(x, dtype=float)
+    f0 = np.asarray(f(x), dtype=float)
+    out = np.empty(f0.shape + (x.size,))
+    for j in range(x.size):
+        e = np.zeros_like(x)
+        e[j] = h
+        out[..., j] = (np.asarray(f(x + e), dtype=float) - np.asarray(f(x - e), dtype=float)) / (2 * h)
+    return out
+
+
+def directional_diff(f: Callable[[float], np.ndarray], h: float = 1e-5) -> np.ndarray:
+    """d/dt f(t) at t = 0 by a 4th-order central difference."""
+    return (8 * (np.asarray(f(h)) - np.asarray(f(-h))) - (np.asarray(f(2 * h)) - np.asarray(f(-2 * h)))) / (12 * h)
+
+
+def random_posture(rng: np.random.Generator, scale: float = 0.6) -> np.ndarray:
+    """A moderate random q1..q6 [rad] (knees within their flexion range is not required for dynamics)."""
+    return rng.uniform(-scale, scale, 6)
+
+
+def rk4_step(f: Callable[[np.ndarray], np.ndarray], y: np.ndarray, dt: float) -> np.ndarray:
+    k1 = f(y)
+    k2 = f(y + 0.5 * dt * k1)
+    k3 = f(y + 0.5 * dt * k2)
+    k4 = f(y + dt * k3)
+    return y + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+# --------------------------------------------------------------------------------------------------
+# Independent hand-written reference for the fixed-stance-foot chain (no Pinocchio): planar kinematics
+# of the seven bodies from the paper's relative angles q1..q6. u(t) = (-sin t, cos t) is "up" rotated
+# counter-clockwise by t; a leg segment hanging from the hip points along -u.
+def _u(t: float) -> np.ndarray:
+    return np.array([-np.sin(t), np.cos(t)])
+
+
+def _du(t: float) -> np.ndarray:
+    return np.array([-np.cos(t), -np.sin(t)])
+
+
+def _bodies(desc):
+    """(mass, inertia, terms, angle index) per body; a point = sum coef * u(theta[idx] + offset),
+    theta = cumsum(q), idx -1 meaning the fixed stance foot (angle 0)."""
+    ft, sh, th, to = desc.foot, desc.shin, desc.thigh, desc.torso
+    half = -0.5 * np.pi  # u(t - pi/2) = (cos t, sin t): along the foot
+    knee1 = [(sh.length, 0, 0.0)]
+    hip = knee1 + [(th.length, 1, 0.0)]
+    knee2 = hip + [(-th.length, 3, 0.0)]
+    ankle2 = knee2 + [(-sh.length, 4, 0.0)]
+    return [
+        (ft.mass, ft.inertia, [(ft.com_forward, -1, half)], -1),
+        (sh.mass, sh.inertia, [(sh.length - sh.com, 0, 0.0)], 0),
+        (th.mass, th.inertia, knee1 + [(th.length - th.com, 1, 0.0)], 1),
+        (to.mass, to.inertia, hip + [(to.com, 2, 0.0)], 2),
+        (th.mass, th.inertia, hip + [(-th.com, 3, 0.0)], 3),
+        (sh.mass, sh.inertia, knee2 + [(-sh.com, 4, 0.0)], 4),
+        (ft.mass, ft.inertia, ankle2 + [(ft.com_forward, 5, half)], 5),
+    ], ankle2
+
+
+def _point(terms, theta, thetad=None):
+    p = np.zeros(2)
+    v = np.zeros(2)
+    for coef, idx, off in terms:
+        t = 0.0 if idx < 0 else theta[idx]
+        p += coef * _u(t + off)
+        if thetad is not None and idx >= 0:
+            v += coef * _du(t + off) * thetad[idx]
+    return p, v
+
+
+def hand_kinetic_energy(desc, q, qd) -> float:
+    theta, thetad = np.cumsum(q), np.cumsum(qd)
+    ke = 0.0
+    bodies, _ = _bodies(desc)
+    for m, inertia, terms, idx in bodies:
+        _, v = _point(terms, theta, thetad)
+        w = 0.0 if idx < 0 else thetad[idx]
+        ke += 0.5 * m * float(v @ v) + 0.5 * inertia * w * w
+    return ke
+
+
+def hand_potential_energy(desc, q) -> float:
+    theta = np.cumsum(q)
+    bodies, _ = _bodies(desc)
+    return sum(m * desc.gravity * _point(terms, theta)[0][1] for m, _, terms, _ in bodies)
+
+
+def hand_com(desc, q) -> np.ndarray:
+    theta = np.cumsum(q)
+    bodies, _ = _bodies(desc)
+    tot = sum(b[0] for b in bodies)
+    return sum(m * _point(terms, theta)[0] for m, _, terms, _ in bodies) / tot
+
+
+def hand_swing_foot(desc, q) -> np.ndarray:
+    """(x, z, absolute angle) of the swing ankle relative to the stance ankle."""
+    _, ankle2 = _bodies(desc)
+    p, _ = _point(ankle2, np.cumsum(q))
+    return np.array([p[0], p[1], float(np.sum(q))])
+
+
+def hand_mass_matrix(desc, q) -> np.ndarray:
+    """A(q) from the hand kinetic energy by polarisation (exact up to rounding: KE is quadratic in q')."""
+    n = len(q)
+    E = np.eye(n)
+    k = [hand_kinetic_energy(desc, q, E[i]) for i in range(n)]
+    A = np.empty((n, n))
+    for i in range(n):
+        A[i, i] = 2 * k[i]
+        for j in range(i + 1, n):
+            A[i, j] = A[j, i] = hand_kinetic_energy(desc, q, E[i] + E[j]) - k[i] - k[j]
+    return A
