@@ -214,6 +214,18 @@ class FixedFootModel:
         out[2] = 1.0
         return out
 
+    def torso_point_jacobian(self, q: np.ndarray, height: float) -> np.ndarray:
+        """(2, 9) Jacobian of the world (x, z) velocity of the torso point ``height`` [m] above the hip,
+        w.r.t. the 9 coordinates of the locked-root chain (3 root + q1..q6)."""
+        self._full(q)
+        pin.computeJointJacobians(self.model, self.data, self._q)
+        jid = self.model.frames[self.hip_frame].parentJoint
+        J = pin.getJointJacobian(self.model, self.data, jid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        th = float(q[0] + q[1] + q[2])
+        r = np.array([-height * np.sin(th), 0.0, height * np.cos(th)])
+        lin = J[:3] - pin.skew(r) @ J[3:]
+        return lin[[0, 2]]
+
     def kinetic_energy(self, q: np.ndarray, qd: np.ndarray) -> float:
         self._full(q, qd)
         return float(pin.computeKineticEnergy(self.model, self.data, self._q, self._v))

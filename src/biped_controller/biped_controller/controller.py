@@ -1,0 +1,289 @@
+"""p/tau-adaptive computed-torque controller (paper section 4). Pure Python, no ROS.
+
+At each control period, from the measured (q, q') and the controller's own parameter state
+(p, p', tau, tau'):
+
+  reference (eq. 11)   q_d = q_d(p, tau), q_d' = dq/dp p' + dq/dtau tau'
+  joint law (eqs. 16-17)  w = dq/dp p'' + dq/dtau tau'' + v,
+      v = d2q/dp2 p'^2 + d2q/dtau2 tau'^2 + 2 d2q/dp dtau p' tau' + Kv (q_d' - q') + Kp (q_d - q)
+  second task (eq. 20) p''* = -k_v p' + k_p (p_d - p),  tau''* = k_v (1 - tau')
+  QP (eq. 21)          min (x - x*)^T W (x - x*)  s.t.  A_q (D x + v) + b_q <= -margin,  D = [dq/dp, dq/dtau]
+                       over the adapted parameters x (p'' and/or tau'' by mode); the others stay at x*.
+  torque (eq. 15)      Gamma = A(q) w + H(q, q')
+
+Then (p, p', tau, tau') advance over the period with constant p'', tau'' (exact integration).
+At an impact (the measured stance leg changes) tau goes back to 0 (tau -= T is not used: the gait
+restarts), p and p' are carried over; the measured q is already relabelled by the simulator.
+
+Fallback when the QP is infeasible: the least-violation answer of ``AdaptationQP`` (status
+INFEASIBLE_FALLBACK). The controller never raises inside the loop: a numerical failure gives
+status SOLVER_ERROR and x = x*.
+
+p is kept inside the family's valid range by two extra QP rows (p after one period within
+[p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from biped_sim.description import RobotDescription, default_config_dir, load_description
+
+from .gait_family import GaitFamily
+from .model import CONSTRAINT_NAMES, N_CONSTRAINTS, FixedFootModel
+from .qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP
+
+MODES = ("none", "tau", "p", "both")
+NO_ADAPTATION = 4
+
+
+class ControllerConfigError(ValueError):
+    """A controller setting is missing or out of range (message names it)."""
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    mode: str = "both"
+    Kp: float = 400.0
+    Kv: float = 40.0
+    kp: float = 25.0
+    kv: float = 10.0
+    weight_p: float = 1.0
+    weight_tau: float = 1.0
+    margin_normal_force: float = 20.0
+    margin_friction: float = 0.9
+    margin_zmp: float = 0.005
+    margin_torque: float = 0.0
+    tau_dot_min: float = 0.05
+    disturbance_observer: bool = True
+    observer_height: float = 0.3125
+    period: float = 0.001
+
+    def validate(self) -> "ControllerConfig":
+        if self.mode not in MODES:
+            raise ControllerConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
+        for name in ("Kp", "Kv", "kp", "kv", "weight_p", "weight_tau", "period", "tau_dot_min"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ControllerConfigError(f"{name} must be a finite number > 0, got {v!r}")
+        for name in ("margin_normal_force", "margin_zmp", "margin_torque"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
+        if not (0 < self.margin_friction <= 1):
+            raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
+        return self
+
+
+def load_controller_config(path: str | Path | None = None, **overrides) -> ControllerConfig:
+    p = Path(path) if path is not None else default_config_dir() / "controller.yaml"
+    with open(p, encoding="utf-8") as fh:
+        tree = yaml.safe_load(fh)
+    kw = {}
+    for f in ControllerConfig.__dataclass_fields__:
+        if f in tree:
+            kw[f] = tree[f]["value"] if isinstance(tree[f], dict) else tree[f]
+    kw.update(overrides)
+    return ControllerConfig(**kw).validate()
+
+
+@dataclass
+class ParamState:
+    """The trajectory parameters: stride p [m], p' [m/s], phase tau [s], tau' [-]."""
+
+    p: float
+    p_dot: float
+    tau: float
+    tau_dot: float
+
+
+@dataclass(frozen=True)
+class ControllerStatusData:
+    """Every field of biped_msgs_py/ControllerStatus (pure-Python mirror)."""
+
+    step: int
+    t: float
+    mode: str
+    p: float
+    p_dot: float
+    tau: float
+    tau_dot: float
+    p_ddot: float
+    tau_ddot: float
+    p_ddot_star: float
+    tau_ddot_star: float
+    qp_status: int
+    qp_message: str
+    margins: np.ndarray
+    tightest: int
+    zmp: float
+    stance: int
+    max_tracking_error: float
+    predicted_reaction: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    torque: np.ndarray            # paper q1..q6 [N m]
+    status: ControllerStatusData
+    G: np.ndarray | None = None   # the QP instance (for benchmarks/tests); None in mode 'none'
+    h: np.ndarray | None = None
+    x_star: np.ndarray | None = None
+
+
+class AdaptiveController:
+    """Owns its FixedFootModel (own Pinocchio Data) and its PIQP solver object."""
+
+    def __init__(self, config: ControllerConfig | None = None, family: GaitFamily | None = None,
+                 desc: RobotDescription | None = None, keep_qp: bool = False):
+        self.cfg = (config if config is not None else ControllerConfig()).validate()
+        self.desc = desc if desc is not None else load_description()
+        self.family = family if family is not None else GaitFamily.load()
+        self.model = FixedFootModel(self.desc)
+        self.keep_qp = keep_qp
+        m = self.model
+        mg = m.mass * self.desc.gravity
+        c = self.cfg
+        # constraint margins (subtracted from the right-hand side), in the row order of CONSTRAINT_NAMES
+        self.margin = np.concatenate([
+            [c.margin_normal_force, 0.0, 0.0, 0.0, 0.0], np.full(12, c.margin_torque)])
+        self._mu_ratio = c.margin_friction
+        self.adapted = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1)}[c.mode]
+        n = len(self.adapted)
+        self.qp = AdaptationQP(n, N_CONSTRAINTS + 3, np.array([c.weight_p, c.weight_tau])[list(self.adapted)]) if n else None
+        self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
+        self.stance: int | None = None
+        self.step_index = 0
+        self._decision = (0.0, 0.0)
+        self._prev = None              # (q', w commanded, A, stance) of the previous period
+        self.force_estimate = 0.0      # estimated horizontal force on the torso [N]
+
+    def reset(self, stance: int | None = None) -> None:
+        self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
+        self.stance = stance
+        self.step_index = 0
+        self._prev = None
+        self.force_estimate = 0.0
+
+    # --------------------------------------------------------------- helpers
+    def _constraint_rows(self, q, qd, dyn):
+        """A_q, b_q with the controller's margins folded in: A_q w + b_q + margin <= 0."""
+        cm = self.model.constraints(q, qd, dyn)
+        A, b = cm.A_q.copy(), cm.b_q.copy()
+        # tighter friction and ZMP rows (same algebra as model.constraints with mu' and l')
+        mu = self._mu_ratio * self.model.mu
+        lm = self.model.l_min + self.cfg.margin_zmp
+        lM = self.model.l_max - self.cfg.margin_zmp
+        Bx, By, hx, hy = dyn.B[0], dyn.B[1], dyn.h_b[0], dyn.h_b[1]
+        A[1], b[1] = -mu * By - Bx, -mu * hy - hx
+        A[2], b[2] = -mu * By + Bx, -mu * hy + hx
+        A[3], b[3] = lm * By - dyn.A[0], lm * hy - dyn.H[0]
+        A[4], b[4] = dyn.A[0] - lM * By, dyn.H[0] - lM * hy
+        return A, b + self.margin, cm
+
+    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
+        """One control period: decide (p'', tau''), the torque, and advance the parameter state."""
+        q = np.asarray(q, dtype=float)
+        qd = np.asarray(qd, dtype=float)
+        if self.stance is not None and stance != self.stance:
+            self.state.tau = 0.0  # impact: the next step starts; p, p', tau' carried over
+        self.stance = stance
+        s = self.state
+        c = self.cfg
+        fam = self.family
+        g = fam.evaluate(s.p, s.tau)
+        qd_des = g.dq_dp * s.p_dot + g.dq_dtau * s.tau_dot
+        e, ed = g.q - q, qd_des - qd
+        v = (g.d2q_dp2 * s.p_dot**2 + g.d2q_dtau2 * s.tau_dot**2 + 2.0 * g.d2q_dp_dtau * s.p_dot * s.tau_dot
+             + c.Kv * ed + c.Kp * e)
+        D = np.column_stack([g.dq_dp, g.dq_dtau])
+        p_star = -c.kv * s.p_dot + c.kp * (fam.p_d - s.p)
+        t_star = c.kv * (1.0 - s.tau_dot)
+        x_full = np.array([p_star, t_star])
+        dyn = self.model.dynamics(q, qd)
+        # Disturbance observer: the joint-space residual of the last period, A (a_measured - w_commanded),
+        # explained by a horizontal force F on the torso at observer_height (least squares, 1 unknown).
+        # The prediction of torques and reaction then includes -J^T [F, 0]. One period of lag.
+        F = 0.0
+        Jp = None
+        if c.disturbance_observer:
+            Jp = self.model.torso_point_jacobian(q, c.observer_height)[0]   # (9,) x-row
+            if self._prev is not None and self._prev[3] == stance:
+                qd_prev, w_prev, A_prev = self._prev[:3]
+                r = A_prev @ ((qd - qd_prev) / c.period - w_prev)
+                j6 = Jp[3:]
+                nrm = float(j6 @ j6)
+                F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
+            dyn = replace(dyn, H=dyn.H - Jp[3:] * F, h_b=dyn.h_b - Jp[:3] * F)
+        self.force_estimate = F
+        G = h = xs = None
+        status, msg = NO_ADAPTATION, "mode none: classical computed torque"
+        if self.adapted:
+            try:
+                A, b, _ = self._constraint_rows(q, qd, dyn)
+                Gfull = A @ D                      # (17, 2)
+                hfull = -(A @ v + b)
+                # parameter range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max]; tau' + tau'' dt >= min
+                dt = c.period
+                extra_G = np.array([[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]])
+                extra_h = np.array([fam.p_max - s.p - s.p_dot * dt, s.p + s.p_dot * dt - fam.p_min,
+                                    s.tau_dot - c.tau_dot_min])
+                Gall = np.vstack([Gfull, extra_G])
+                hall = np.concatenate([hfull, extra_h])
+                idx = list(self.adapted)
+                fixed = [i for i in (0, 1) if i not in idx]
+                h_red = hall - Gall[:, fixed] @ x_full[fixed] if fixed else hall
+                G, h, xs = Gall[:, idx], h_red, x_full[idx]
+                res = self.qp.solve(G, h, xs)
+                status, msg = res.status, res.message
+                x_full = x_full.copy()
+                x_full[idx] = res.x
+                if not np.all(np.isfinite(x_full)):
+                    raise FloatingPointError("non-finite QP answer")
+            except Exception as exc:  # the loop never throws: fall back to the desired accelerations
+                status, msg = SOLVER_ERROR, f"{type(exc).__name__}: {exc}"
+                x_full = np.array([p_star, t_star])
+        p_dd, t_dd = float(x_full[0]), float(x_full[1])
+        w = D @ x_full + v
+        torque = dyn.A @ w + dyn.H
+        cm = self.model.constraints(q, qd, dyn)
+        margins = -(cm.A_q @ w + cm.b_q)
+        R = dyn.B[:2] @ w + dyn.h_b[:2]
+        zmp = float(torque[0] / R[1]) if R[1] != 0 else math.nan
+        status_rec = ControllerStatusData(
+            step=self.step_index, t=t, mode=c.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
+            p_ddot=p_dd, tau_ddot=t_dd, p_ddot_star=p_star, tau_ddot_star=t_star, qp_status=int(status),
+            qp_message=msg, margins=margins, tightest=int(np.argmin(margins / self.model.row_scale)), zmp=zmp,
+            stance=int(stance), max_tracking_error=float(np.max(np.abs(e))), predicted_reaction=R,
+        )
+        self._prev = (qd.copy(), w.copy(), dyn.A, stance)
+        self._decision = (p_dd, t_dd)
+        self._period_start = ParamState(s.p, s.p_dot, s.tau, s.tau_dot)
+        # advance the parameter state over one period (constant p'', tau'': exact)
+        dt = c.period
+        s.p += s.p_dot * dt + 0.5 * p_dd * dt * dt
+        s.p_dot += p_dd * dt
+        s.tau += s.tau_dot * dt + 0.5 * t_dd * dt * dt
+        s.tau_dot += t_dd * dt
+        self.step_index += 1
+        return ControlOutput(torque=torque, status=status_rec, G=G if self.keep_qp else None,
+                             h=h if self.keep_qp else None, x_star=xs if self.keep_qp else None)
+
+    def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
+        """Computed torque at time s_time into the current period, with (p, tau) propagated by the
+        period's decision (p'', tau'') and no new QP: the controller "at the integration rate"."""
+        s0 = self._period_start
+        p_dd, t_dd = self._decision
+        p = s0.p + s0.p_dot * s_time + 0.5 * p_dd * s_time**2
+        pdot = s0.p_dot + p_dd * s_time
+        tau = s0.tau + s0.tau_dot * s_time + 0.5 * t_dd * s_time**2
+        taud = s0.tau_dot + t_dd * s_time
+        qr, qdr, qddr = self.family.reference(p, pdot, tau, taud, p_dd, t_dd)
+        c = self.cfg
+        w = qddr + c.Kv * (qdr - qd) + c.Kp * (qr - q)
+        dyn = self.model.dynamics(q, qd)
+        return dyn.A @ w + dyn.H

@@ -1,0 +1,123 @@
+"""The family of reference trajectories q_d(p, tau) (paper eqs. 13-14) and its partial derivatives.
+
+Pure Python, no ROS.   q_i(tau, p) = sum_{j=0..4} ( sum_{k=0..7} b_ijk p^k ) tau^j,
+p: stride [m], tau: time-scaled phase [s] in [0, T]. All the partial derivatives that eq. (11) needs
+are evaluated in closed form from b_ijk.
+
+The fit (``fit_family``) is an equality-constrained least-squares fit of every time coefficient a_ij by
+a degree-7 polynomial in p, forced through the preferred gait p_d exactly: in u = p - p_d,
+a_ij(u) = a_ij(p_d) + sum_{k=1..7} beta_ijk u^k, then expanded in powers of p.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from biped_sim.description import default_config_dir
+
+
+class GaitFamilyError(ValueError):
+    """The gait-family file is missing, malformed, or inconsistent with the robot."""
+
+
+@dataclass(frozen=True)
+class GaitSample:
+    """q_d and its partial derivatives at (p, tau); every array has shape (6,) [rad, rad/m, rad/s, ...]."""
+
+    q: np.ndarray
+    dq_dp: np.ndarray
+    dq_dtau: np.ndarray
+    d2q_dp2: np.ndarray
+    d2q_dtau2: np.ndarray
+    d2q_dp_dtau: np.ndarray
+
+
+class GaitFamily:
+    """b_ijk (6 x 5 x 8) with the step duration T, the preferred stride p_d and the valid stride range."""
+
+    def __init__(self, b: np.ndarray, T: float, p_d: float, p_min: float, p_max: float, meta: dict | None = None):
+        b = np.asarray(b, dtype=float)
+        if b.ndim != 3 or b.shape[0] != 6 or b.shape[1] != 5:
+            raise GaitFamilyError(f"gait family: b must have shape (6, 5, K), got {b.shape}")
+        if not np.all(np.isfinite(b)):
+            raise GaitFamilyError("gait family: b contains non-finite values")
+        if not (p_min <= p_d <= p_max) or not T > 0:
+            raise GaitFamilyError(f"gait family: need p_min <= p_d <= p_max and T > 0 (got {p_min}, {p_d}, {p_max}, {T})")
+        self.b = b
+        self.T = float(T)
+        self.p_d = float(p_d)
+        self.p_min = float(p_min)
+        self.p_max = float(p_max)
+        self.meta = meta or {}
+        K = b.shape[2]
+        self._k = np.arange(K, dtype=float)
+        self._j = np.arange(5, dtype=float)
+
+    def coefficients(self, p: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(a(p), da/dp, d2a/dp2), each (6, 5): time coefficients of eq. (12) at stride p."""
+        k = self._k
+        pk = p ** k
+        dpk = np.where(k >= 1, k * p ** np.maximum(k - 1, 0), 0.0)
+        ddpk = np.where(k >= 2, k * (k - 1) * p ** np.maximum(k - 2, 0), 0.0)
+        return self.b @ pk, self.b @ dpk, self.b @ ddpk
+
+    def evaluate(self, p: float, tau: float) -> GaitSample:
+        a, da, dda = self.coefficients(p)
+        j = self._j
+        tj = tau ** j
+        dtj = np.where(j >= 1, j * tau ** np.maximum(j - 1, 0), 0.0)
+        ddtj = np.where(j >= 2, j * (j - 1) * tau ** np.maximum(j - 2, 0), 0.0)
+        return GaitSample(q=a @ tj, dq_dp=da @ tj, dq_dtau=a @ dtj, d2q_dp2=dda @ tj, d2q_dtau2=a @ ddtj,
+                          d2q_dp_dtau=da @ dtj)
+
+    def reference(self, p: float, p_dot: float, tau: float, tau_dot: float,
+                  p_ddot: float = 0.0, tau_ddot: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q_d, q_d', q_d'') of eq. (11)."""
+        g = self.evaluate(p, tau)
+        qd = g.dq_dp * p_dot + g.dq_dtau * tau_dot
+        qdd = (g.dq_dp * p_ddot + g.dq_dtau * tau_ddot + g.d2q_dp2 * p_dot**2 + g.d2q_dtau2 * tau_dot**2
+               + 2.0 * g.d2q_dp_dtau * p_dot * tau_dot)
+        return g.q, qd, qdd
+
+    # ------------------------------------------------------------------ I/O
+    def to_dict(self) -> dict:
+        return {"b": self.b.tolist(), "T": self.T, "p_d": self.p_d, "p_min": self.p_min, "p_max": self.p_max}
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> "GaitFamily":
+        p = Path(path) if path is not None else default_config_dir() / "gait_family.json"
+        if not p.is_file():
+            raise GaitFamilyError(f"gait family: file not found: {p} (run scripts/generate_gait_family)")
+        try:
+            with open(p, encoding="utf-8") as fh:
+                data = json.load(fh)
+            fam = data["family"]
+            return cls(np.array(fam["b"]), fam["T"], fam["p_d"], fam["p_min"], fam["p_max"], meta=data)
+        except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+            raise GaitFamilyError(f"gait family: malformed file {p}: {exc}") from exc
+
+
+def fit_family(strides: np.ndarray, a: np.ndarray, p_d: float, degree: int = 7) -> np.ndarray:
+    """Least-squares fit of a_ij(p) (a: (S, 6, 5) at the S strides) by degree-``degree`` polynomials,
+    passing exactly through the stride p_d (which must be one of ``strides``). Returns b (6, 5, degree+1)."""
+    strides = np.asarray(strides, dtype=float)
+    idx = np.flatnonzero(np.isclose(strides, p_d, rtol=0, atol=1e-12))
+    if idx.size != 1:
+        raise GaitFamilyError("fit_family: p_d must appear exactly once among the strides")
+    a_d = a[idx[0]]
+    others = np.delete(np.arange(len(strides)), idx[0])
+    u = strides[others] - p_d
+    V = u[:, None] ** np.arange(1, degree + 1)[None, :]          # (S-1, degree)
+    Y = (a[others] - a_d[None]).reshape(len(others), -1)         # (S-1, 30)
+    beta, *_ = np.linalg.lstsq(V, Y, rcond=None)                  # (degree, 30)
+    # expand sum_k beta_k (p - p_d)^k in powers of p
+    coef_u = np.vstack([a_d.reshape(1, -1), beta])               # (degree+1, 30) in powers of u
+    coef_p = np.zeros_like(coef_u)
+    for k in range(degree + 1):
+        for m in range(k + 1):
+            coef_p[m] += coef_u[k] * math.comb(k, m) * (-p_d) ** (k - m)
+    return coef_p.T.reshape(6, 5, degree + 1)

@@ -1,0 +1,97 @@
+"""In-process closed loop (no ROS, no DDS): Simulator + AdaptiveController, lockstep per control period.
+
+The node graph does exactly this over DDS; ``run`` is the reference the DDS run is compared with.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from biped_sim.description import LEFT, RobotDescription, load_description
+from biped_sim.simulator import SimConfig, Simulator, StepRecord, load_sim_config
+
+from .controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
+from .gait_family import GaitFamily
+
+
+@dataclass(frozen=True)
+class PushSpec:
+    start: float
+    duration: float
+    force: float
+    height: float | None = None
+
+
+@dataclass
+class RunResult:
+    records: list[StepRecord]
+    statuses: list[ControllerStatusData]
+    steps_walked: int
+    fallen: bool
+    fall_cause: str
+    fall_detail: str
+    fall_time: float
+    impacts: list[dict]
+    qp_instances: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+
+    def series(self, name: str) -> np.ndarray:
+        return np.array([getattr(s, name) for s in self.statuses])
+
+
+def initial_state(family: GaitFamily) -> tuple[np.ndarray, np.ndarray]:
+    """Start of the preferred step: q_d(p_d, 0), q_d' = dq/dtau (tau' = 1)."""
+    g = family.evaluate(family.p_d, 0.0)
+    return g.q.copy(), g.dq_dtau.copy()
+
+
+def run(steps: int = 10, mode: str = "both", pushes: tuple[PushSpec, ...] = (), *,
+        sim_config: SimConfig | None = None, ctrl_config: ControllerConfig | None = None,
+        family: GaitFamily | None = None, desc: RobotDescription | None = None,
+        integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,
+        extra_time_after_steps: float = 0.0) -> RunResult:
+    """Walk ``steps`` steps (impacts) or until a fall. ``integration_rate``: the controller's torque law is
+    evaluated at every RK4 stage (no QP re-solve inside a period)."""
+    desc = desc if desc is not None else load_description()
+    family = family if family is not None else GaitFamily.load()
+    scfg = sim_config if sim_config is not None else load_sim_config()
+    ccfg = ctrl_config if ctrl_config is not None else load_controller_config(mode=mode, period=scfg.control_period)
+    if ccfg.period != scfg.control_period:
+        ccfg = ControllerConfig(**{**ccfg.__dict__, "period": scfg.control_period})
+    sim = Simulator(desc, scfg)
+    ctrl = AdaptiveController(ccfg, family, desc, keep_qp=keep_qp)
+    q0, qd0 = initial_state(family)
+    sim.reset(q0, qd0, LEFT)
+    ctrl.reset(LEFT)
+    for p in pushes:
+        sim.schedule_push(p.start, p.duration, p.force, p.height)
+    limit = max_time if max_time is not None else (steps + 3) * family.T * 3
+    records, statuses, qps = [], [], []
+    while True:
+        obs = sim.observe()
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance)
+        statuses.append(out.status)
+        if keep_qp and out.G is not None:
+            qps.append((out.G, out.h, out.x_star, out.status.qp_status))
+        if integration_rate:
+            rec = sim.step(lambda s, q, qd, st: ctrl.torque_within_period(s, q, qd, st))
+        else:
+            rec = sim.step(out.torque)
+        records.append(rec)
+        if rec.fallen or sim.fall is not None:
+            break
+        if sim.impact_count >= steps:
+            if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1]["t"] + extra_time_after_steps:
+                break
+        if sim.t >= limit:
+            break
+    fall = sim.fall
+    return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
+                     fallen=fall is not None, fall_cause=fall.cause if fall else "",
+                     fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
+                     impacts=list(sim.impact_log), qp_instances=qps)
+
+
+def tracking_error(result: RunResult) -> float:
+    return float(max(s.max_tracking_error for s in result.statuses))

@@ -1,0 +1,406 @@
+"""Physical simulator of the planar biped: floating base, rigid flat stance contact, impacts, pushes.
+
+Pure Python (NumPy + Pinocchio through ``floating.FloatingModel``), no ROS.
+
+Integration scheme: classical RK4 on the floating state (x, v) with ``substeps`` steps per control
+period; joint torques are held constant over a period (zero-order hold) unless a torque *function* is
+given (then it is evaluated at every RK4 stage: "controller at the integration rate"). In single
+support the stance foot's (x, z, pitch) are held by a rigid contact: at every stage the contact
+wrench comes from the Schur complement of the full dynamics (``FloatingModel.contact_dynamics``);
+after every RK4 step the state is projected back onto the contact manifold (base pose corrected so the
+foot sits exactly on its anchor, velocity projected onto J_c v = 0), which removes integration drift.
+
+Physics decides everything, never the controller's bookkeeping:
+  * fall checks on the actual wrench at each substep start: F_z > 0 (take-off), |F_x| <= mu F_z (slip),
+    l = m / F_z inside [l_min, l_max] (tipping over heel or toe); the first violation ends the run;
+  * touchdown: the lowest sole point of the swing foot reaches the ground while moving down, after the
+    foot has cleared ``clearance_before_touchdown`` since the last impact; the crossing time is located
+    by bisection, the foot is laid flat by its ankle angle (the paper's flat-foot impact), the inelastic
+    impact map is applied and the legs exchange roles;
+  * pushes: horizontal forces at a height on the torso, applied through that point's Jacobian over
+    exactly [start, start + duration) (integration intervals are split at push boundaries).
+Deterministic: no randomness, fixed operation order; the same inputs give bit-identical records.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+
+from .description import LEFT, RIGHT, RobotDescription, default_config_dir, load_description
+from .floating import FloatingModel, paper_from_urdf, urdf_from_paper
+
+TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
+
+
+class SimConfigError(ValueError):
+    """A simulator setting is missing or out of range (message names it)."""
+
+
+class PushError(ValueError):
+    """A push request is invalid (message names the field and the allowed range)."""
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    control_period: float = 0.001
+    substeps: int = 2
+    touchdown_tolerance: float = 1e-9
+    clearance_before_touchdown: float = 1e-4
+    liftoff_penetration: float = 1e-3
+    event_time_tolerance: float = 1e-9
+    push_height: float = 0.3125
+
+    def validate(self) -> "SimConfig":
+        if not (math.isfinite(self.control_period) and 0 < self.control_period <= 0.05):
+            raise SimConfigError(f"control_period must be in (0, 0.05] s, got {self.control_period}")
+        if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 1000):
+            raise SimConfigError(f"substeps must be an integer in [1, 1000], got {self.substeps}")
+        for name in ("touchdown_tolerance", "clearance_before_touchdown", "liftoff_penetration", "event_time_tolerance"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise SimConfigError(f"{name} must be finite and > 0, got {v}")
+        if not math.isfinite(self.push_height):
+            raise SimConfigError("push_height must be finite")
+        return self
+
+
+def load_sim_config(path: str | Path | None = None) -> SimConfig:
+    p = Path(path) if path is not None else default_config_dir() / "simulator.yaml"
+    with open(p, encoding="utf-8") as fh:
+        tree = yaml.safe_load(fh)
+    kw = {}
+    for f in SimConfig.__dataclass_fields__:
+        if f in tree:
+            kw[f] = tree[f]["value"] if isinstance(tree[f], dict) else tree[f]
+    if "substeps" in kw:
+        kw["substeps"] = int(kw["substeps"])
+    return SimConfig(**kw).validate()
+
+
+@dataclass(frozen=True)
+class Push:
+    """Horizontal force ``force`` [N] (+ forward) on the torso at ``height`` [m] above the hip, over
+    [start, start + duration) in sim time [s]."""
+
+    id: int
+    start: float
+    duration: float
+    force: float
+    height: float
+
+    @property
+    def end(self) -> float:
+        return self.start + self.duration
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What the controller may measure at the start of a control period (paper coordinates)."""
+
+    step: int
+    t: float
+    stance: int
+    q: np.ndarray
+    qd: np.ndarray
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """State record of one control period, taken at its start (after any impact of the previous one).
+
+    ``wrench`` = [F_x, F_z, m] the ground's action on the stance foot at the ankle [N, N, N m] under the
+    torque applied during this period; ``cop`` = m / F_z [m] ahead of the stance ankle;
+    ``push_force`` the horizontal push acting at the period start [N].
+    """
+
+    step: int
+    t: float
+    stance: int
+    q: np.ndarray
+    qd: np.ndarray
+    base: np.ndarray
+    base_dot: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    torque: np.ndarray
+    wrench: np.ndarray
+    cop: float
+    push_force: float
+    impacts: int
+    fallen: bool
+    fall_cause: str
+    fall_detail: str
+
+
+@dataclass
+class FallInfo:
+    cause: str
+    t: float
+    detail: str
+    values: dict = field(default_factory=dict)
+
+
+class Simulator:
+    """Owns its FloatingModel (own Pinocchio Data)."""
+
+    def __init__(self, desc: RobotDescription | None = None, config: SimConfig | None = None):
+        self.desc = desc if desc is not None else load_description()
+        self.cfg = (config if config is not None else SimConfig()).validate()
+        self.fm = FloatingModel(self.desc)
+        self.pushes: list[Push] = []
+        self.x = np.zeros(9)
+        self.v = np.zeros(9)
+        self.stance = LEFT
+        self.anchor = np.zeros(3)
+        self.t = 0.0
+        self.step_index = 0
+        self.fall: FallInfo | None = None
+        self.impact_count = 0
+        self.cleared = False
+        self.impact_log: list[dict] = []
+        self._next_push_id = 1
+
+    # ------------------------------------------------------------ setup
+    def reset(self, q: np.ndarray, qd: np.ndarray, stance: int = LEFT, ankle_x: float = 0.0) -> None:
+        """Start from paper (q, q') with the stance foot flat at (ankle_x, 0)."""
+        self.x, self.v = self.fm.state_from_paper(np.asarray(q, float), np.asarray(qd, float), stance, ankle_x)
+        self.stance = stance
+        self.anchor = np.array([ankle_x, 0.0, 0.0])
+        self.t = 0.0
+        self.step_index = 0
+        self.fall = None
+        self.impact_count = 0
+        self.cleared = False
+        self.impact_log = []
+        self.pushes = []
+        self._next_push_id = 1
+
+    def validate_push(self, start: float, duration: float, force: float, height: float) -> None:
+        vals = dict(start=start, duration=duration, force=force, height=height)
+        for k, v in vals.items():
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise PushError(f"push {k} must be a finite number, got {v!r}")
+        if duration <= 0:
+            raise PushError(f"push duration must be > 0 s, got {duration}")
+        if not 0.0 <= height <= self.desc.torso.length:
+            raise PushError(f"push height must be within the torso, [0, {self.desc.torso.length}] m, got {height}")
+
+    def schedule_push(self, start: float, duration: float, force: float, height: float | None = None,
+                      push_id: int | None = None) -> Push:
+        h = self.cfg.push_height if height is None or (isinstance(height, float) and math.isnan(height)) else height
+        self.validate_push(start, duration, force, h)
+        pid = self._next_push_id if push_id is None else int(push_id)
+        self._next_push_id = max(self._next_push_id, pid) + 1
+        p = Push(pid, float(start), float(duration), float(force), float(h))
+        self.pushes.append(p)
+        return p
+
+    # ------------------------------------------------------------ queries
+    def observe(self) -> Observation:
+        q, qd = self.fm.paper_from_state(self.x, self.v, self.stance)
+        return Observation(self.step_index, self.t, self.stance, q, qd)
+
+    def push_force_at(self, t: float) -> list[tuple[float, float]]:
+        return [(p.force, p.height) for p in self.pushes if p.start <= t < p.end]
+
+    def _generalized_force(self, x: np.ndarray, tau_j: np.ndarray, t: float) -> np.ndarray:
+        tau = np.zeros(9)
+        tau[3:] = tau_j
+        for f, h in self.push_force_at(t):
+            tau += self.fm.push_jacobian(x, h).T @ np.array([f, 0.0])
+        return tau
+
+    def _accel(self, x, v, tau_j, t):
+        sol = self.fm.contact_dynamics(x, v, self._generalized_force(x, tau_j, t), self.stance)
+        return sol.a, sol.wrench
+
+    def _check_wrench(self, w: np.ndarray, t: float) -> FallInfo | None:
+        fx, fz, m = w
+        mu = self.desc.mu
+        if not np.all(np.isfinite(w)):
+            return FallInfo("numerical", t, f"non-finite contact wrench {w}")
+        if fz <= 0.0:
+            return FallInfo("take_off", t, f"normal force F_z = {fz:.3f} N <= 0", dict(fx=fx, fz=fz, m=m))
+        if abs(fx) > mu * fz:
+            side = "forward" if fx > 0 else "backward"
+            return FallInfo("slip", t, f"|F_x| = {abs(fx):.3f} N > mu F_z = {mu * fz:.3f} N (friction {side})",
+                            dict(fx=fx, fz=fz, m=m))
+        l = m / fz
+        if l < self.desc.foot.l_min:
+            return FallInfo("tip_heel", t, f"centre of pressure l = {l:.4f} m behind the heel ({self.desc.foot.l_min} m)",
+                            dict(fx=fx, fz=fz, m=m, l=l))
+        if l > self.desc.foot.l_max:
+            return FallInfo("tip_toe", t, f"centre of pressure l = {l:.4f} m beyond the toe ({self.desc.foot.l_max} m)",
+                            dict(fx=fx, fz=fz, m=m, l=l))
+        return None
+
+    # ------------------------------------------------------------ integration
+    def _project(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Put the stance foot exactly on its anchor and remove the velocity normal to the manifold."""
+        x = x.copy()
+        pose = self.fm.foot_pose(x, self.stance)
+        x[2] += self.anchor[2] - pose[2]
+        pose = self.fm.foot_pose(x, self.stance)
+        x[0] += self.anchor[0] - pose[0]
+        x[1] += self.anchor[1] - pose[1]
+        M = self.fm.mass_matrix(x)
+        J = self.fm.contact_jacobian(x, self.stance)
+        MiJt = np.linalg.solve(M, J.T)
+        v = v - MiJt @ np.linalg.solve(J @ MiJt, J @ v)
+        return x, v
+
+    def _rk4(self, x, v, tau_src, t, h):
+        def f(xx, vv, tt):
+            tj = tau_src(tt, xx, vv)
+            a, _ = self._accel(xx, vv, tj, tt)
+            return vv, a
+        k1x, k1v = f(x, v, t)
+        k2x, k2v = f(x + 0.5 * h * k1x, v + 0.5 * h * k1v, t + 0.5 * h)
+        k3x, k3v = f(x + 0.5 * h * k2x, v + 0.5 * h * k2v, t + 0.5 * h)
+        k4x, k4v = f(x + h * k3x, v + h * k3v, t + h)
+        xn = x + (h / 6.0) * (k1x + 2 * k2x + 2 * k3x + k4x)
+        vn = v + (h / 6.0) * (k1v + 2 * k2v + 2 * k3v + k4v)
+        return self._project(xn, vn)
+
+    def _lowest_sole(self, x: np.ndarray, foot: int) -> float:
+        return float(np.min(self.fm.sole_points(x, foot)[:, 1]))
+
+    def _touchdown(self, x: np.ndarray, v: np.ndarray) -> bool:
+        swing = 1 - self.stance
+        z = self._lowest_sole(x, swing)
+        if not self.cleared:
+            return False
+        if z > self.cfg.touchdown_tolerance:
+            return False
+        vz = self.fm.foot_velocity(x, v, swing)[1]
+        pts = self.fm.sole_points(x, swing)
+        # moving down at the lowest point (ankle vertical rate plus rotation effect is captured by the
+        # lowest point's height decreasing; use the ankle rate and the pitch rate together)
+        fv = self.fm.foot_velocity(x, v, swing)
+        i = int(np.argmin(pts[:, 1]))
+        l = (self.desc.foot.l_min, self.desc.foot.l_max)[i]
+        th = self.fm.foot_pose(x, swing)[2]
+        vz_pt = fv[1] + l * math.cos(th) * fv[2]
+        return vz_pt < 0.0 or vz < 0.0
+
+    def _apply_impact(self, x: np.ndarray, v: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        swing = 1 - self.stance
+        pose = self.fm.foot_pose(x, swing)
+        x = x.copy()
+        tilt = pose[2]
+        ankle_idx = 5 if swing == LEFT else 8
+        x[ankle_idx] -= tilt  # lay the foot flat by its ankle (flat-foot impact, paper section 3.2)
+        res = self.fm.impact(x, v, swing)
+        old = self.stance
+        self.stance = swing
+        ank = self.fm.foot_pose(x, swing)
+        self.anchor = np.array([ank[0], 0.0, 0.0])
+        xn, vn = self._project(x, res.v_plus)
+        self.impact_count += 1
+        self.cleared = False
+        self.impact_log.append(dict(t=t, new_stance=swing, old_stance=old, tilt=float(tilt),
+                                    impulse=res.impulse.tolist(), energy_loss=res.energy_loss,
+                                    old_foot_velocity=res.old_foot_velocity.tolist(), ankle_x=float(ank[0])))
+        return xn, vn
+
+    def _advance(self, x, v, tau_src, t0, t1):
+        """Integrate [t0, t1] in one RK4 step with touchdown detection (bisection on the step length)."""
+        xn, vn = self._rk4(x, v, tau_src, t0, t1 - t0)
+        if not self._touchdown(xn, vn):
+            self._update_clearance(xn)
+            return xn, vn, t1
+        swing = 1 - self.stance
+        lo, hi = 0.0, t1 - t0
+        while hi - lo > self.cfg.event_time_tolerance:
+            mid = 0.5 * (lo + hi)
+            xm, _ = self._rk4(x, v, tau_src, t0, mid)
+            if self._lowest_sole(xm, swing) > self.cfg.touchdown_tolerance:
+                lo = mid
+            else:
+                hi = mid
+        xe, ve = self._rk4(x, v, tau_src, t0, hi)
+        xi, vi = self._apply_impact(xe, ve, t0 + hi)
+        if t0 + hi < t1:
+            xi, vi = self._rk4(xi, vi, tau_src, t0 + hi, t1 - (t0 + hi))
+            self._update_clearance(xi)
+        return xi, vi, t1
+
+    def _update_clearance(self, x: np.ndarray) -> None:
+        swing = 1 - self.stance
+        z = self._lowest_sole(x, swing)
+        if z > self.cfg.clearance_before_touchdown:
+            self.cleared = True
+        elif not self.cleared and z < -self.cfg.liftoff_penetration and self.fall is None:
+            self.fall = FallInfo("no_liftoff", self.t, f"the released foot sank {-z * 1e3:.2f} mm into the ground "
+                                 "before clearing it (double support is not modelled)")
+
+    def step(self, torque: np.ndarray | TorqueFn) -> StepRecord:
+        """Advance one control period. ``torque``: paper-order joint torques [N m] for the current stance
+        (held over the period; the actuators keep their physical torque if an impact relabels the legs),
+        or a function ``(s, q, qd, stance) -> torques`` evaluated at every RK4 stage (s = time since the
+        period start)."""
+        if self.fall is not None:
+            raise RuntimeError("the robot has fallen; reset() the simulator")
+        dt = self.cfg.control_period
+        t_start = self.t
+        obs_stance = self.stance
+        lo_tq, hi_tq = self.desc.torque_limits()
+        lo_tq, hi_tq = np.array(lo_tq), np.array(hi_tq)
+        if callable(torque):
+            fn = torque
+
+            def tau_src(tt, xx, vv):
+                q, qd = self.fm.paper_from_state(xx, vv, obs_stance)
+                g = np.clip(fn(tt - t_start, q, qd, obs_stance), lo_tq, hi_tq)
+                return urdf_from_paper(g, obs_stance)
+            applied = np.clip(fn(0.0, *self.fm.paper_from_state(self.x, self.v, obs_stance), obs_stance), lo_tq, hi_tq)
+        else:
+            applied = np.clip(np.asarray(torque, dtype=float), lo_tq, hi_tq)
+            tj = urdf_from_paper(applied, obs_stance)
+
+            def tau_src(tt, xx, vv):
+                return tj
+        # record at the period start
+        _, w0 = self._accel(self.x, self.v, tau_src(t_start, self.x, self.v), t_start)
+        q, qd = self.fm.paper_from_state(self.x, self.v, self.stance)
+        pf = sum(f for f, _ in self.push_force_at(t_start))
+        fall = self._check_wrench(w0, t_start)
+        rec_args = dict(step=self.step_index, t=t_start, stance=self.stance, q=q, qd=qd, base=self.x[:3].copy(),
+                        base_dot=self.v[:3].copy(), x=self.x.copy(), v=self.v.copy(), torque=applied, wrench=w0,
+                        cop=float(w0[2] / w0[1]) if w0[1] != 0 else math.nan, push_force=pf,
+                        impacts=self.impact_count)
+        if fall is not None:
+            self.fall = fall
+            return StepRecord(**rec_args, fallen=True, fall_cause=fall.cause, fall_detail=fall.detail)
+        # integrate the period in substeps, split at push boundaries
+        h = dt / self.cfg.substeps
+        x, v = self.x, self.v
+        for i in range(self.cfg.substeps):
+            a, b = t_start + i * h, t_start + (i + 1) * h
+            cuts = sorted({c for p in self.pushes for c in (p.start, p.end) if a < c < b})
+            knots = [a, *cuts, b]
+            for t0, t1 in zip(knots[:-1], knots[1:]):
+                if i > 0 or t0 > a:
+                    _, w = self._accel(x, v, tau_src(t0, x, v), t0)
+                    f = self._check_wrench(w, t0)
+                    if f is not None:
+                        self.fall = f
+                        break
+                x, v, _ = self._advance(x, v, tau_src, t0, t1)
+                if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+                    self.fall = FallInfo("numerical", t1, "non-finite state")
+                    break
+            if self.fall is not None:
+                break
+        self.x, self.v = x, v
+        self.step_index += 1
+        self.t = t_start + dt if self.fall is None else self.t
+        if self.fall is None:
+            self.t = (self.step_index) * dt  # no accumulated rounding: t_k = k dt
+        return StepRecord(**rec_args, fallen=self.fall is not None, fall_cause=self.fall.cause if self.fall else "",
+                          fall_detail=self.fall.detail if self.fall else "")
