@@ -22,3 +22,9 @@ _biped_prepend AMENT_PREFIX_PATH "$BIPED_VENV"
 _biped_prepend CMAKE_PREFIX_PATH "$BIPED_VENV"
 _biped_prepend PATH "$BIPED_VENV/bin"
 unset -f _biped_prepend
+# The ROS wheels' bootstrapper re-executes Python once with LD_LIBRARY_PATH set and marks that with
+# _ROS_WHEELS_BOOTSTRAP_COMPLETE, which children inherit. If we were started from another venv's
+# Python (guard set, but not for this venv's lib/), let this venv's Python bootstrap itself again.
+if [[ -n "${_ROS_WHEELS_BOOTSTRAP_COMPLETE:-}" && ":${LD_LIBRARY_PATH:-}:" != *":$BIPED_VENV/lib:"* ]]; then
+  unset _ROS_WHEELS_BOOTSTRAP_COMPLETE
+fi
