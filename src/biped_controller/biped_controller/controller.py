@@ -205,26 +205,29 @@ class AdaptiveController:
         t_star = c.kv * (1.0 - s.tau_dot)
         x_full = np.array([p_star, t_star])
         dyn = self.model.dynamics(q, qd)
-        # Disturbance observer: the joint-space residual of the last period, A (a_measured - w_commanded),
-        # explained by a horizontal force F on the torso at observer_height (least squares, 1 unknown).
-        # The prediction of torques and reaction then includes -J^T [F, 0]. One period of lag.
+        # Disturbance observer: the joint-space residual of the last period, r = A (a_measured - w_applied),
+        # explained by a horizontal force F on the torso at observer_height (least squares, 1 unknown):
+        # r = J6^T F. The torque law is NOT changed by F (Gamma = A w + H, as in eq. 15); F only enters the
+        # prediction of the ground reaction used by the QP: with F acting, the real joint acceleration is
+        # w + A^-1 J6^T F, so R = B (w + A^-1 J6^T F) + h_b - Jb^T F. One period of lag.
         F = 0.0
-        Jp = None
+        dyn_c = dyn
         if c.disturbance_observer:
             Jp = self.model.torso_point_jacobian(q, c.observer_height)[0]   # (9,) x-row
+            j6 = Jp[3:]
             if self._prev is not None and self._prev[3] == stance:
                 qd_prev, w_prev, A_prev = self._prev[:3]
                 r = A_prev @ ((qd - qd_prev) / c.period - w_prev)
-                j6 = Jp[3:]
                 nrm = float(j6 @ j6)
                 F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
-            dyn = replace(dyn, H=dyn.H - Jp[3:] * F, h_b=dyn.h_b - Jp[:3] * F)
+            delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
+            dyn_c = replace(dyn, h_b=dyn.h_b + delta)
         self.force_estimate = F
         G = h = xs = None
         status, msg = NO_ADAPTATION, "mode none: classical computed torque"
         if self.adapted:
             try:
-                A, b, _ = self._constraint_rows(q, qd, dyn)
+                A, b, _ = self._constraint_rows(q, qd, dyn_c)
                 Gfull = A @ D                      # (17, 2)
                 hfull = -(A @ v + b)
                 # parameter range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max]; tau' + tau'' dt >= min
@@ -250,9 +253,9 @@ class AdaptiveController:
         p_dd, t_dd = float(x_full[0]), float(x_full[1])
         w = D @ x_full + v
         torque = dyn.A @ w + dyn.H
-        cm = self.model.constraints(q, qd, dyn)
+        cm = self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
-        R = dyn.B[:2] @ w + dyn.h_b[:2]
+        R = dyn_c.B[:2] @ w + dyn_c.h_b[:2]
         zmp = float(torque[0] / R[1]) if R[1] != 0 else math.nan
         status_rec = ControllerStatusData(
             step=self.step_index, t=t, mode=c.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
