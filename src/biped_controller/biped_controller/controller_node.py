@@ -1,0 +1,183 @@
+"""ROS 2 node ``controller``: the p/tau-adaptive controller answering the simulator's lockstep.
+
+Owns an :class:`biped_controller.controller.AdaptiveController`; its configuration comes from the
+parameters, which have the keys of ``config/controller.yaml`` (defaults from that file) plus
+``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
+``mode`` is validated against none | tau | p | both.
+
+For every ``/sim/state`` (SimState) it computes the torque and publishes
+- ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
+  ``effort`` = paper torques q1..q6 [N m], ``header.stamp`` = the state's stamp;
+- ``/controller/status`` (ControllerStatus): every field of ``ControllerStatusData``.
+
+A state repeating the last sequence number is answered with the same torque (no second
+computation, the parameter state advances once per step). A state with ``fallen`` set is not
+answered. If no state arrives for ``state_timeout`` seconds (wall) after the first one, the node
+logs once that ``/sim/state`` is silent and idles (the simulator ended or died; the launcher stops
+the controller); it exits 0 on SIGINT / SIGTERM.
+
+Bad parameters: logged naming the parameter, exit status 2, nothing published.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Optional
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+
+from biped_msgs_py.msg import ControllerStatus, SimState
+from biped_sim import graph_names as gn
+from biped_sim.description import PAPER_JOINTS, load_description
+from biped_sim.node_params import (
+    EXIT_BAD_PARAMETER,
+    ParameterError,
+    get_bool,
+    get_float,
+    get_str,
+    install_stop_handlers,
+    restore_handlers,
+)
+from biped_sim.simulator import load_sim_config
+
+from .controller import MODES, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
+from .gait_family import GaitFamily
+
+
+def read_controller_config(node: Node) -> ControllerConfig:
+    base = load_controller_config()
+    kw = {}
+    for name in ControllerConfig.__dataclass_fields__:
+        if name == 'period':
+            continue
+        default = getattr(base, name)
+        if name == 'mode':
+            kw[name] = get_str(node, name, default, choices=MODES)
+        elif isinstance(default, bool):
+            kw[name] = get_bool(node, name, default)
+        else:
+            kw[name] = get_float(node, name, default)
+    kw['period'] = get_float(node, 'control_period', load_sim_config().control_period, lo=0.0, lo_open=True)
+    try:
+        return ControllerConfig(**kw).validate()
+    except ControllerConfigError as exc:
+        name = str(exc).split()[0]
+        raise ParameterError('control_period' if name == 'period' else name, str(exc)) from exc
+
+
+def status_message(s, stamp) -> ControllerStatus:
+    m = ControllerStatus()
+    m.stamp = stamp
+    m.step = int(s.step)
+    m.mode = s.mode
+    m.p = float(s.p)
+    m.p_dot = float(s.p_dot)
+    m.tau = float(s.tau)
+    m.tau_dot = float(s.tau_dot)
+    m.p_ddot = float(s.p_ddot)
+    m.tau_ddot = float(s.tau_ddot)
+    m.p_ddot_star = float(s.p_ddot_star)
+    m.tau_ddot_star = float(s.tau_ddot_star)
+    m.qp_status = int(s.qp_status)
+    m.qp_message = str(s.qp_message)
+    m.margins = np.asarray(s.margins, dtype=float).tolist()
+    m.tightest = int(s.tightest)
+    m.zmp = float(s.zmp)
+    m.stance = int(s.stance)
+    m.max_tracking_error = float(s.max_tracking_error)
+    return m
+
+
+class ControllerNode(Node):
+
+    def __init__(self, **kwargs):
+        super().__init__(gn.CONTROLLER_NODE, **kwargs)
+        self.cfg = read_controller_config(self)
+        self.state_timeout = get_float(self, 'state_timeout', 2.0, lo=0.0, lo_open=True)
+        self.ctrl = AdaptiveController(self.cfg, GaitFamily.load(), load_description())
+        self.ctrl.reset()
+        self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
+        self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
+        self.create_subscription(SimState, gn.SIM_STATE, self._on_state, gn.QOS_LOCKSTEP)
+        self.last_sequence: Optional[int] = None
+        self.last_reply: Optional[JointState] = None
+        self.last_state_wall: Optional[float] = None
+        self.silent_reported = False
+        self.steps = 0
+        self.create_timer(0.25, self._on_timer)
+        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s')
+
+    def _on_state(self, msg: SimState):
+        self.last_state_wall = time.monotonic()
+        if self.silent_reported:
+            self.get_logger().info(f'{gn.SIM_STATE} is back')
+            self.silent_reported = False
+        if self.last_sequence is not None and msg.sequence == self.last_sequence:
+            if self.last_reply is not None:
+                self.pub_torque.publish(self.last_reply)
+            return
+        self.last_sequence = msg.sequence
+        if msg.fallen:
+            self.get_logger().info(f'simulator reports a fall ({msg.fall_cause}) at step {msg.step}')
+            return
+        t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
+        out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
+                                int(msg.stance))
+        js = JointState()
+        js.header.stamp = msg.stamp
+        js.name = list(PAPER_JOINTS)
+        js.effort = np.asarray(out.torque, dtype=float).tolist()
+        self.pub_torque.publish(js)
+        self.last_reply = js
+        self.pub_status.publish(status_message(out.status, msg.stamp))
+        self.steps += 1
+
+    def _on_timer(self):
+        if self.last_state_wall is None or self.silent_reported:
+            return
+        if time.monotonic() - self.last_state_wall > self.state_timeout:
+            self.silent_reported = True
+            pubs = self.count_publishers(gn.SIM_STATE)
+            self.get_logger().warning(
+                f'{gn.SIM_STATE} is silent for {self.state_timeout} s after {self.steps} steps '
+                f'({pubs} publisher(s) left): idling')
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node: Optional[ControllerNode] = None
+    try:
+        try:
+            node = ControllerNode()
+        except ParameterError as exc:
+            print(f'controller: {exc}', file=sys.stderr)
+            return EXIT_BAD_PARAMETER
+        stop = {'signal': None}
+        previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        try:
+            while stop['signal'] is None and rclpy.ok(context=node.context):
+                executor.spin_once(timeout_sec=0.1)
+        except (ExternalShutdownException, KeyboardInterrupt):
+            pass
+        finally:
+            restore_handlers(previous)
+        node.get_logger().info(f'controller stopping after {node.steps} steps')
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

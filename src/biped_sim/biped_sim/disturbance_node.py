@@ -1,0 +1,209 @@
+"""ROS 2 node ``disturbance``: validates push requests and publishes the accepted ones.
+
+Service ``/apply_push`` (biped_msgs_py/srv/ApplyPush). A request is checked, in this order:
+every used number finite (``force``, ``duration``, ``start`` or ``delay``; ``height`` may be NaN =
+default), ``0 < duration <= max_duration``, ``|force| <= max_force``, ``delay >= 0``, start not
+before the current sim time (``/clock``; this node runs with ``use_sim_time`` true), ``height``
+within [0, torso length] (NaN: ``push_height``), and no overlap with a push already scheduled.
+Rejected: ``accepted = false``, a message naming the field and the allowed range, nothing published
+on ``/push_events``. Accepted: a PushEvent with a new id (1, 2, ...) on ``/push_events`` (reliable,
+transient local: a simulator joining late still gets it); the response gives the id and the
+scheduled start and end.
+
+Every call, accepted or rejected, is published on ``/push_requests`` as YAML
+(``graph_names.push_request_yaml``).
+
+A schedule can also come from parameters: ``schedule_forces``, ``schedule_starts``,
+``schedule_durations`` and ``schedule_heights`` (same length; heights may be omitted = default),
+validated like requests at start (a bad entry: the node exits 2 naming the parameter) and
+published at start.
+
+Parameters: ``max_force`` (N, default 2000), ``max_duration`` (s, default 1.0), ``push_height``
+(m, default config/simulator.yaml), the schedule arrays; ``use_sim_time`` is forced true.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Optional
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+
+from biped_msgs_py.msg import PushEvent
+from biped_msgs_py.srv import ApplyPush
+from biped_sim import graph_names as gn
+from biped_sim.description import load_description
+from biped_sim.node_params import (
+    EXIT_BAD_PARAMETER,
+    ParameterError,
+    get_float,
+    get_float_list,
+    install_stop_handlers,
+    restore_handlers,
+)
+from biped_sim.simulator import load_sim_config
+
+
+class Rejected(ValueError):
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+
+class PushBook:
+    """Pure validation and bookkeeping of the scheduled pushes (no ROS)."""
+
+    def __init__(self, max_force: float, max_duration: float, torso_length: float, default_height: float):
+        self.max_force = max_force
+        self.max_duration = max_duration
+        self.torso_length = torso_length
+        self.default_height = default_height
+        self.pushes: list[tuple[int, float, float, float, float]] = []   # (id, start, end, force, height)
+        self.next_id = 1
+
+    def check(self, force: float, duration: float, start: float, height: float, now: float) -> tuple[float, float]:
+        """Validate; returns (start, resolved height). Raises Rejected naming the field."""
+        for name, v in (('force', force), ('duration', duration), ('start', start)):
+            if not math.isfinite(v):
+                raise Rejected(name, f'{name} must be a finite number, got {v}')
+        if not 0.0 < duration <= self.max_duration:
+            raise Rejected('duration', f'duration must be in (0, {self.max_duration}] s, got {duration}')
+        if abs(force) > self.max_force:
+            raise Rejected('force', f'force must be in [-{self.max_force}, {self.max_force}] N, got {force}')
+        if start < now:
+            raise Rejected('start', f'start must not be in the past: >= current sim time {now:.6f} s, got {start}')
+        if math.isnan(height):
+            height = self.default_height
+        elif not (math.isfinite(height) and 0.0 <= height <= self.torso_length):
+            raise Rejected('height', f'height must be NaN (default {self.default_height} m) or within '
+                                     f'[0, {self.torso_length}] m (the torso), got {height}')
+        end = start + duration
+        for pid, s, e, _f, _h in self.pushes:
+            if start < e and s < end:
+                raise Rejected('start', f'[start, start + duration) = [{start}, {end}) s overlaps push {pid} '
+                                        f'[{s}, {e}) s: must start >= {e} s or end <= {s} s')
+        return start, height
+
+    def add(self, force: float, duration: float, start: float, height: float) -> int:
+        pid = self.next_id
+        self.next_id += 1
+        self.pushes.append((pid, start, start + duration, force, height))
+        return pid
+
+
+class DisturbanceNode(Node):
+
+    def __init__(self, **kwargs):
+        overrides = [p for p in kwargs.pop('parameter_overrides', []) if p.name != 'use_sim_time']
+        overrides.append(Parameter('use_sim_time', Parameter.Type.BOOL, True))
+        super().__init__(gn.DISTURBANCE_NODE, parameter_overrides=overrides, **kwargs)
+        desc = load_description()
+        max_force = get_float(self, 'max_force', 2000.0, lo=0.0, lo_open=True)
+        max_duration = get_float(self, 'max_duration', 1.0, lo=0.0, lo_open=True)
+        default_height = get_float(self, 'push_height', load_sim_config().push_height, lo=0.0,
+                                   hi=desc.torso.length)
+        self.book = PushBook(max_force, max_duration, desc.torso.length, default_height)
+        forces = get_float_list(self, 'schedule_forces')
+        starts = get_float_list(self, 'schedule_starts')
+        durations = get_float_list(self, 'schedule_durations')
+        heights = get_float_list(self, 'schedule_heights')
+        n = len(forces)
+        for name, arr in (('schedule_starts', starts), ('schedule_durations', durations)):
+            if len(arr) != n:
+                raise ParameterError(name, f'must have as many entries as schedule_forces ({n}), got {len(arr)}')
+        if heights and len(heights) != n:
+            raise ParameterError('schedule_heights', f'must be empty or have {n} entries, got {len(heights)}')
+        schedule = []
+        for i in range(n):
+            h = heights[i] if heights else math.nan
+            try:
+                s, hh = self.book.check(forces[i], durations[i], starts[i], h, 0.0)
+            except Rejected as exc:
+                pname = {'force': 'schedule_forces', 'duration': 'schedule_durations', 'start': 'schedule_starts',
+                         'height': 'schedule_heights'}[exc.field]
+                raise ParameterError(pname, f'entry {i}: {exc}') from exc
+            pid = self.book.add(forces[i], durations[i], s, hh)
+            schedule.append(PushEvent(id=pid, start=s, duration=durations[i], force=forces[i], height=hh))
+
+        self.pub_events = self.create_publisher(PushEvent, gn.PUSH_EVENTS, gn.QOS_EVENTS)
+        self.pub_requests = self.create_publisher(String, gn.PUSH_REQUESTS, gn.QOS_EVENTS)
+        for ev in schedule:
+            self.pub_events.publish(ev)
+            self.get_logger().info(f'scheduled push {ev.id} from parameters: {ev.force} N over '
+                                   f'[{ev.start}, {ev.start + ev.duration}) s')
+        self.create_service(ApplyPush, gn.APPLY_PUSH, self._on_apply_push)
+        self.get_logger().info(f'serving {gn.APPLY_PUSH} (|force| <= {max_force} N, duration <= {max_duration} s)')
+
+    def sim_time(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _on_apply_push(self, request, response):
+        now = self.sim_time()
+        try:
+            if request.use_delay:
+                if not math.isfinite(request.delay):
+                    raise Rejected('delay', f'delay must be a finite number, got {request.delay}')
+                if request.delay < 0:
+                    raise Rejected('delay', f'delay must be >= 0 s, got {request.delay}')
+                start = now + request.delay
+            else:
+                start = request.start
+            start, height = self.book.check(request.force, request.duration, start, request.height, now)
+        except Rejected as exc:
+            response.accepted = False
+            response.message = f'rejected: {exc}'
+            response.push_id = 0
+            response.scheduled_start = math.nan
+            response.scheduled_end = math.nan
+            self.get_logger().warning(f'{gn.APPLY_PUSH}: {response.message}')
+        else:
+            pid = self.book.add(request.force, request.duration, start, height)
+            ev = PushEvent(id=pid, start=start, duration=request.duration, force=request.force, height=height)
+            self.pub_events.publish(ev)
+            response.accepted = True
+            response.push_id = pid
+            response.scheduled_start = start
+            response.scheduled_end = start + request.duration
+            response.message = (f'push {pid}: {request.force} N at {height} m above the hip over '
+                                f'[{start}, {start + request.duration}) s sim time')
+            self.get_logger().info(f'{gn.APPLY_PUSH}: accepted {response.message}')
+        self.pub_requests.publish(String(data=gn.push_request_yaml(request, response, now)))
+        return response
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node: Optional[DisturbanceNode] = None
+    try:
+        try:
+            node = DisturbanceNode()
+        except ParameterError as exc:
+            print(f'disturbance: {exc}', file=sys.stderr)
+            return EXIT_BAD_PARAMETER
+        stop = {'signal': None}
+        previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        try:
+            while stop['signal'] is None and rclpy.ok(context=node.context):
+                executor.spin_once(timeout_sec=0.1)
+        except (ExternalShutdownException, KeyboardInterrupt):
+            pass
+        finally:
+            restore_handlers(previous)
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

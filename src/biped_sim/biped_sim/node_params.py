@@ -1,0 +1,110 @@
+"""Declared-parameter helpers shared by the biped's ROS 2 nodes (ROS layer).
+
+Every parameter is declared with ``dynamic_typing`` so that a wrong type in a parameters file never
+raises inside rclpy with an unrelated message: :func:`declare_and_read` reads each value back,
+checks its type and range and raises :class:`ParameterError` naming the parameter. Nodes catch it in
+``main()``, log it and exit with status 2 before anything is published.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+from typing import Any, Callable, Iterable, Optional, Sequence
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+
+EXIT_BAD_PARAMETER = 2
+
+
+class ParameterError(ValueError):
+    """A node parameter has an invalid value; ``name`` says which one."""
+
+    def __init__(self, name: str, message: str) -> None:
+        super().__init__(f"invalid parameter '{name}': {message}")
+        self.name = name
+
+
+def _declare(node: Node, name: str, default: Any):
+    desc = ParameterDescriptor(name=name, dynamic_typing=True)
+    try:
+        return node.declare_parameter(name, default, desc).value
+    except Exception as exc:  # rclpy raises its own exception types for malformed overrides
+        raise ParameterError(name, str(exc)) from exc
+
+
+def get_float(node: Node, name: str, default: float, *, lo: float | None = None, hi: float | None = None,
+              lo_open: bool = False, allow_nan: bool = False) -> float:
+    v = _declare(node, name, float(default))
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ParameterError(name, f"expected a number, got {v!r}")
+    v = float(v)
+    if math.isnan(v) and allow_nan:
+        return v
+    if not math.isfinite(v):
+        raise ParameterError(name, f"must be finite, got {v}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise ParameterError(name, f"must be {'>' if lo_open else '>='} {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise ParameterError(name, f"must be <= {hi}, got {v}")
+    return v
+
+
+def get_int(node: Node, name: str, default: int, *, lo: int | None = None, hi: int | None = None) -> int:
+    v = _declare(node, name, int(default))
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ParameterError(name, f"expected an integer, got {v!r}")
+    if lo is not None and v < lo:
+        raise ParameterError(name, f"must be >= {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise ParameterError(name, f"must be <= {hi}, got {v}")
+    return int(v)
+
+
+def get_bool(node: Node, name: str, default: bool) -> bool:
+    v = _declare(node, name, bool(default))
+    if not isinstance(v, bool):
+        raise ParameterError(name, f"expected true or false, got {v!r}")
+    return v
+
+
+def get_str(node: Node, name: str, default: str, *, choices: Sequence[str] | None = None) -> str:
+    v = _declare(node, name, str(default))
+    if not isinstance(v, str):
+        raise ParameterError(name, f"expected a string, got {v!r}")
+    if choices is not None and v not in choices:
+        raise ParameterError(name, f"must be one of {' | '.join(choices)}, got {v!r}")
+    return v
+
+
+def get_float_list(node: Node, name: str) -> list[float]:
+    """A list of numbers (default: empty). An empty list in YAML has no type: accepted too."""
+    desc = ParameterDescriptor(name=name, dynamic_typing=True)
+    try:
+        v = node.declare_parameter(name, None, desc).value
+    except Exception as exc:
+        raise ParameterError(name, str(exc)) from exc
+    if v is None:
+        return []
+    if isinstance(v, (str, bytes, bool)) or not hasattr(v, '__iter__'):
+        raise ParameterError(name, f"expected a list of numbers, got {v!r}")
+    out = []
+    for x in v:
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise ParameterError(name, f"expected a list of numbers, got element {x!r}")
+        out.append(float(x))
+    return out
+
+
+def install_stop_handlers(callback: Callable[[int], None]) -> dict:
+    """SIGINT and SIGTERM call ``callback(signum)``; returns the previous handlers."""
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, lambda signum, _frame: callback(signum))
+    return previous
+
+
+def restore_handlers(previous: dict) -> None:
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)

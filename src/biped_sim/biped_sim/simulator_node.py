@@ -1,0 +1,417 @@
+"""ROS 2 node ``simulator``: the physical simulator in lockstep with the controller over DDS.
+
+Owns a :class:`biped_sim.simulator.Simulator` (robot from ``config/biped.yaml``, ``SimConfig`` from
+the parameters below, which have the keys of ``config/simulator.yaml``). Initial state: the start of
+the preferred gait (``runner.initial_state(GaitFamily.load())``), LEFT stance, as the in-process
+``runner.run``.
+
+Lockstep, per control step k (event-driven: the next state is published from inside the torque
+callback, no polling):
+
+1. publish the state at t_k = k * control_period: ``/clock``, ``/sim/state`` (sequence k + 1),
+   ``/tf``, ``/stance``;
+2. wait for ``/controller/torque`` whose ``header.stamp`` equals the state's stamp (others are
+   ignored with a warning); effort = paper torques q1..q6, names ``description.PAPER_JOINTS``;
+3. ``sim.step(torque)``; publish what that period produced, stamped t_k: ``/joint_states`` (URDF
+   joint order, ``effort`` = the applied, clipped torque mapped by ``floating.urdf_from_paper``),
+   ``/ground_reaction`` and ``/ground_reaction/cop``; then state k + 1.
+
+Signs of ``/ground_reaction`` (``geometry_msgs/WrenchStamped``, frame ``<stance>_foot``, which is
+flat on the ground in single support, so its axes are the world's): ``force.x = F_x``,
+``force.z = F_z`` (the ground's force on the stance foot, up positive: DESIGN.md's R_x, R_y) and
+``torque.y = -m`` where m is the counter-clockwise moment about the ankle in the sagittal view
+(DESIGN.md: Gamma_1 = l R_y). A counter-clockwise rotation in the view x right / z up is a rotation
+about -y in ROS' right-handed frame, hence the minus sign. ``/ground_reaction/cop`` is the centre of
+pressure in ``world``: x = ankle x + l, z = 0, l = m / F_z.
+
+The run ends when ``max_steps`` impacts were walked (0 = no limit), when sim time reaches
+``max_time`` (0 = no limit), on a fall (``/fall`` latched YAML {cause, time, detail, step}) or when no
+torque arrives within ``command_timeout`` wall seconds (logged naming ``/controller/torque``,
+``/fall`` cause ``controller timeout``, exit status 1). The final state is published (``fallen`` set
+on a fall), then the node lingers ``linger`` seconds (default 0.5) so that the recorder receives
+the last messages, and exits 0 (steps, time, fall) or 1 (controller timeout). SIGINT/SIGTERM end it
+cleanly (status 0).
+
+Start: the first state is published once ``/sim/state`` has a subscriber and ``/controller/torque``
+a publisher, plus optionally (``wait_for_recorder``) the node ``recorder`` subscribed to every topic
+the simulator publishes, and (``wait_for_pushes``) that many PushEvents received; then
+``start_delay`` wall seconds. If that takes longer than ``start_timeout``: error naming what is
+missing, exit 1.
+
+Pushes: ``/push_events`` (PushEvent, transient local) are scheduled with ``sim.schedule_push`` with
+the event's id; a repeated id is ignored.
+
+Parameters are validated at start; a bad one is logged naming it and the node exits 2 before
+anything is published.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+import xml.etree.ElementTree as ET
+from typing import Optional
+
+import numpy as np
+import rclpy
+import yaml
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PointStamped, TransformStamped, WrenchStamped
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String, UInt8
+from tf2_msgs.msg import TFMessage
+
+from biped_msgs_py.msg import PushEvent, SimState
+from biped_sim import graph_names as gn
+from biped_sim.description import LEFT, PAPER_JOINTS, URDF_JOINTS, load_description, make_urdf
+from biped_sim.floating import urdf_from_paper
+from biped_sim.node_params import (
+    EXIT_BAD_PARAMETER,
+    ParameterError,
+    get_bool,
+    get_float,
+    get_int,
+    install_stop_handlers,
+    restore_handlers,
+)
+from biped_sim.simulator import PushError, SimConfig, SimConfigError, Simulator, load_sim_config
+
+SIDES = ('left', 'right')
+WORLD_FRAME = 'world'
+EXIT_OK = 0
+EXIT_FAILURE = 1
+
+
+def stamp_of(t: float) -> Time:
+    ns = int(round(t * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def quat_about_minus_y(angle: float):
+    """(x, y, z, w) of a rotation by ``angle`` about (0, -1, 0)."""
+    return 0.0, -math.sin(0.5 * angle), 0.0, math.cos(0.5 * angle)
+
+
+def joint_origins(urdf: str) -> dict[str, tuple[str, str, tuple[float, float, float]]]:
+    """joint name -> (parent link, child link, origin xyz) read from the URDF text."""
+    out = {}
+    for j in ET.fromstring(urdf).iter('joint'):
+        xyz = tuple(float(v) for v in j.find('origin').get('xyz').split())
+        out[j.get('name')] = (j.find('parent').get('link'), j.find('child').get('link'), xyz)
+    return out
+
+
+class TransformBuilder:
+    """world -> torso from the floating base, torso -> thigh -> shin -> foot from the joint angles."""
+
+    def __init__(self, urdf: str):
+        self.joints = joint_origins(urdf)
+        missing = [n for n in URDF_JOINTS if n not in self.joints]
+        if missing:
+            raise ValueError(f'URDF lacks joints {missing}')
+
+    @staticmethod
+    def _tf(stamp, parent, child, xyz, angle) -> TransformStamped:
+        m = TransformStamped()
+        m.header.stamp = stamp
+        m.header.frame_id = parent
+        m.child_frame_id = child
+        m.transform.translation.x, m.transform.translation.y, m.transform.translation.z = xyz
+        r = m.transform.rotation
+        r.x, r.y, r.z, r.w = quat_about_minus_y(angle)
+        return m
+
+    def message(self, stamp, x: np.ndarray) -> TFMessage:
+        tfs = [self._tf(stamp, WORLD_FRAME, 'torso', (float(x[0]), 0.0, float(x[1])), float(x[2]))]
+        for i, name in enumerate(URDF_JOINTS):
+            parent, child, xyz = self.joints[name]
+            tfs.append(self._tf(stamp, parent, child, xyz, float(x[3 + i])))
+        return TFMessage(transforms=tfs)
+
+
+def read_sim_config(node: Node) -> SimConfig:
+    """SimConfig from the parameters (defaults: config/simulator.yaml)."""
+    base = load_sim_config()
+    kw = {}
+    for name in SimConfig.__dataclass_fields__:
+        default = getattr(base, name)
+        if name == 'substeps':
+            kw[name] = get_int(node, name, default, lo=1, hi=1000)
+        else:
+            kw[name] = get_float(node, name, default)
+    try:
+        return SimConfig(**kw).validate()
+    except SimConfigError as exc:
+        name = str(exc).split()[0]
+        raise ParameterError(name, str(exc)) from exc
+
+
+class SimulatorNode(Node):
+
+    def __init__(self, **kwargs):
+        super().__init__(gn.SIMULATOR_NODE, **kwargs)
+        self.declare_parameter_errors()
+        from biped_controller.gait_family import GaitFamily
+        from biped_controller.runner import initial_state
+
+        self.desc = load_description()
+        self.sim = Simulator(self.desc, self.cfg)
+        q0, qd0 = initial_state(GaitFamily.load())
+        self.sim.reset(q0, qd0, LEFT)
+        self.urdf = make_urdf(self.desc)
+        self.tfb = TransformBuilder(self.urdf)
+
+        self.pub_clock = self.create_publisher(Clock, gn.CLOCK, gn.QOS_CLOCK)
+        self.pub_state = self.create_publisher(SimState, gn.SIM_STATE, gn.QOS_LOCKSTEP)
+        self.pub_joints = self.create_publisher(JointState, gn.JOINT_STATES, gn.QOS_SENSOR)
+        self.pub_wrench = self.create_publisher(WrenchStamped, gn.GROUND_REACTION, gn.QOS_SENSOR)
+        self.pub_cop = self.create_publisher(PointStamped, gn.GROUND_REACTION_COP, gn.QOS_SENSOR)
+        self.pub_stance = self.create_publisher(UInt8, gn.STANCE, gn.QOS_SENSOR)
+        self.pub_tf = self.create_publisher(TFMessage, gn.TF, gn.QOS_TF)
+        self.pub_desc = self.create_publisher(String, gn.ROBOT_DESCRIPTION, gn.QOS_LATCHED)
+        self.pub_fall = self.create_publisher(String, gn.FALL, gn.QOS_LATCHED)
+        self.published_topics = [gn.CLOCK, gn.SIM_STATE, gn.JOINT_STATES, gn.GROUND_REACTION,
+                                 gn.GROUND_REACTION_COP, gn.STANCE, gn.TF, gn.ROBOT_DESCRIPTION]
+        self.create_subscription(JointState, gn.CONTROLLER_TORQUE, self._on_torque, gn.QOS_LOCKSTEP)
+        self.create_subscription(PushEvent, gn.PUSH_EVENTS, self._on_push, gn.QOS_EVENTS)
+
+        self.pub_desc.publish(String(data=self.urdf))
+        self.push_ids: set[int] = set()
+        self.sequence = 0
+        self.started = False
+        self.waiting_since = time.monotonic()
+        self.ready_since: Optional[float] = None
+        self.current_stamp_ns: Optional[int] = None
+        self.last_state_wall = 0.0
+        self.anchor_x = 0.0
+        self.finished = False          # the run is over (lingering)
+        self.done = False              # leave the spin loop
+        self.exit_code = EXIT_OK
+        self.end_reason = ''
+        self.finish_wall: Optional[float] = None
+        self.run_start_wall: Optional[float] = None
+        self.steps_done = 0
+        self.create_timer(0.02, self._on_timer)
+        self.get_logger().info(
+            f'simulator ready: control_period {self.cfg.control_period} s, substeps {self.cfg.substeps}, '
+            f'max_steps {self.max_steps}, max_time {self.max_time} s; waiting for the controller')
+
+    # ------------------------------------------------------------------ parameters
+    def declare_parameter_errors(self):
+        if self.get_parameter('use_sim_time').value:
+            raise ParameterError('use_sim_time', 'the simulator is the clock source: must be false')
+        self.cfg = read_sim_config(self)
+        self.max_steps = get_int(self, 'max_steps', 0, lo=0)
+        self.max_time = get_float(self, 'max_time', 0.0, lo=0.0)
+        self.command_timeout = get_float(self, 'command_timeout', 5.0, lo=0.0, lo_open=True)
+        self.start_timeout = get_float(self, 'start_timeout', 60.0, lo=0.0, lo_open=True)
+        self.start_delay = get_float(self, 'start_delay', 0.2, lo=0.0)
+        self.linger = get_float(self, 'linger', 0.5, lo=0.0, hi=60.0)
+        self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
+        self.wait_for_pushes = get_int(self, 'wait_for_pushes', 0, lo=0)
+
+    # ------------------------------------------------------------------ start
+    def _missing_for_start(self) -> list[str]:
+        missing = []
+        if self.count_subscribers(gn.SIM_STATE) < 1:
+            missing.append(f'a subscriber on {gn.SIM_STATE} (controller)')
+        if self.count_publishers(gn.CONTROLLER_TORQUE) < 1:
+            missing.append(f'a publisher on {gn.CONTROLLER_TORQUE} (controller)')
+        if self.wait_for_recorder:
+            for topic in self.published_topics:
+                nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(topic)}
+                if gn.RECORDER_NODE not in nodes:
+                    missing.append(f'the recorder subscribed to {topic}')
+        if len(self.push_ids) < self.wait_for_pushes:
+            missing.append(f'{self.wait_for_pushes - len(self.push_ids)} more push event(s) on {gn.PUSH_EVENTS}')
+        return missing
+
+    def _on_timer(self):
+        now = time.monotonic()
+        if self.finished:
+            if now - self.finish_wall >= self.linger:
+                self.done = True
+            return
+        if not self.started:
+            missing = self._missing_for_start()
+            if missing:
+                self.ready_since = None
+                if now - self.waiting_since > self.start_timeout:
+                    self.get_logger().error(
+                        f'not started after {self.start_timeout} s: waiting for {"; ".join(missing)}')
+                    self._finish(EXIT_FAILURE, 'start timeout')
+                return
+            if self.ready_since is None:
+                self.ready_since = now
+            if now - self.ready_since >= self.start_delay:
+                self.started = True
+                self.run_start_wall = now
+                self.get_logger().info('controller connected: starting the lockstep run')
+                self._publish_state()
+            return
+        if now - self.last_state_wall > self.command_timeout:
+            self.get_logger().error(
+                f'no command on {gn.CONTROLLER_TORQUE} for step {self.sim.step_index} within '
+                f'{self.command_timeout} s: {gn.CONTROLLER_TORQUE} is silent, stopping')
+            self._publish_fall('controller timeout', self.sim.t,
+                               f'no message on {gn.CONTROLLER_TORQUE} within {self.command_timeout} s (wall)')
+            self._publish_state(fallen=True, cause='controller timeout')
+            self._finish(EXIT_FAILURE, 'controller timeout')
+
+    # ------------------------------------------------------------------ publishing
+    def _publish_state(self, fallen: bool = False, cause: str = ''):
+        sim = self.sim
+        obs = sim.observe()
+        stamp = stamp_of(obs.t)
+        self.sequence += 1
+        self.current_stamp_ns = stamp_ns(stamp)
+        self.anchor_x = float(sim.anchor[0])
+        self.pub_clock.publish(Clock(clock=stamp))
+        m = SimState()
+        m.stamp = stamp
+        m.step = obs.step
+        m.stance = obs.stance
+        m.q = obs.q.tolist()
+        m.q_dot = obs.qd.tolist()
+        m.base = sim.x[:3].tolist()
+        m.base_dot = sim.v[:3].tolist()
+        m.fallen = fallen
+        m.fall_cause = cause
+        m.sequence = self.sequence
+        self.pub_state.publish(m)
+        self.pub_tf.publish(self.tfb.message(stamp, sim.x))
+        self.pub_stance.publish(UInt8(data=obs.stance))
+        self.last_state_wall = time.monotonic()
+
+    def _publish_record(self, rec):
+        stamp = stamp_of(rec.t)
+        js = JointState()
+        js.header.stamp = stamp
+        js.name = list(URDF_JOINTS)
+        js.position = urdf_from_paper(rec.q, rec.stance).tolist()
+        js.velocity = urdf_from_paper(rec.qd, rec.stance).tolist()
+        js.effort = urdf_from_paper(rec.torque, rec.stance).tolist()
+        self.pub_joints.publish(js)
+        fx, fz, mom = (float(v) for v in rec.wrench)
+        w = WrenchStamped()
+        w.header.stamp = stamp
+        w.header.frame_id = f'{SIDES[rec.stance]}_foot'
+        w.wrench.force.x = fx
+        w.wrench.force.z = fz
+        w.wrench.torque.y = -mom  # counter-clockwise (sagittal view) = about -y
+        self.pub_wrench.publish(w)
+        c = PointStamped()
+        c.header.stamp = stamp
+        c.header.frame_id = WORLD_FRAME
+        c.point.x = self.anchor_x + (float(rec.cop) if math.isfinite(rec.cop) else 0.0)
+        self.pub_cop.publish(c)
+
+    def _publish_fall(self, cause: str, t: float, detail: str):
+        doc = {'cause': cause, 'time': float(t), 'detail': detail, 'step': int(self.sim.step_index),
+               'impacts': int(self.sim.impact_count)}
+        self.pub_fall.publish(String(data=yaml.safe_dump(doc, sort_keys=False)))
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_torque(self, msg: JointState):
+        if not self.started or self.finished:
+            return
+        if stamp_ns(msg.header.stamp) != self.current_stamp_ns:
+            self.get_logger().warning(
+                f'{gn.CONTROLLER_TORQUE}: stamp {stamp_ns(msg.header.stamp)} ns is not the current state\'s '
+                f'({self.current_stamp_ns} ns): ignored')
+            return
+        if len(msg.effort) != 6:
+            self.get_logger().error(f'{gn.CONTROLLER_TORQUE}: expected 6 efforts, got {len(msg.effort)}: ignored')
+            return
+        sim = self.sim
+        rec = sim.step(np.asarray(msg.effort, dtype=float))
+        self.steps_done += 1
+        self._publish_record(rec)
+        if sim.fall is not None:
+            f = sim.fall
+            self.get_logger().info(f'fall at t = {f.t:.4f} s: {f.cause} ({f.detail})')
+            self._publish_fall(f.cause, f.t, f.detail)
+            self._publish_state(fallen=True, cause=f.cause)
+            self._finish(EXIT_OK, f'fall: {f.cause}')
+            return
+        self._publish_state()
+        if self.max_steps and sim.impact_count >= self.max_steps:
+            self._finish(EXIT_OK, f'{sim.impact_count} steps walked')
+        elif self.max_time and sim.t >= self.max_time - 1e-12:
+            self._finish(EXIT_OK, f'max_time {self.max_time} s reached')
+
+    def _on_push(self, msg: PushEvent):
+        pid = int(msg.id)
+        if pid in self.push_ids:
+            return
+        try:
+            p = self.sim.schedule_push(msg.start, msg.duration, msg.force, msg.height, push_id=pid)
+        except PushError as exc:
+            self.get_logger().error(f'{gn.PUSH_EVENTS}: push {pid} not scheduled: {exc}')
+            return
+        self.push_ids.add(pid)
+        late = '' if p.start >= self.sim.t else f' (WARNING: starts before the current sim time {self.sim.t:.4f} s)'
+        self.get_logger().info(f'push {pid} scheduled: {p.force} N over [{p.start}, {p.end}) s '
+                               f'at {p.height} m{late}')
+
+    # ------------------------------------------------------------------ end
+    def _finish(self, code: int, reason: str):
+        if self.finished:
+            return
+        self.finished = True
+        self.exit_code = code
+        self.end_reason = reason
+        self.finish_wall = time.monotonic()
+        wall = self.finish_wall - self.run_start_wall if self.run_start_wall else 0.0
+        rate = self.steps_done / wall if wall > 0 else 0.0
+        self.get_logger().info(
+            f'run over: {reason}; {self.steps_done} control steps, sim time {self.sim.t:.3f} s, '
+            f'{self.sim.impact_count} impacts, wall {wall:.2f} s ({rate:.0f} steps/s)')
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node: Optional[SimulatorNode] = None
+    try:
+        try:
+            node = SimulatorNode()
+        except ParameterError as exc:
+            print(f'simulator: {exc}', file=sys.stderr)
+            return EXIT_BAD_PARAMETER
+        stop = {'signal': None}
+
+        def on_signal(signum):
+            stop['signal'] = signum
+
+        previous = install_stop_handlers(on_signal)
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        try:
+            while not node.done and stop['signal'] is None and rclpy.ok(context=node.context):
+                executor.spin_once(timeout_sec=0.1)
+        except (ExternalShutdownException, KeyboardInterrupt):
+            pass
+        finally:
+            restore_handlers(previous)
+        if stop['signal'] is not None and not node.finished:
+            node.get_logger().info(f'stopped by signal {stop["signal"]} at sim time {node.sim.t:.3f} s')
+            return EXIT_OK
+        return node.exit_code
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())
