@@ -11,7 +11,8 @@ At each control period, from the measured (q, q') and the controller's own param
                        over the adapted parameters x (p'' and/or tau'' by mode); the others stay at x*.
   torque (eq. 15)      Gamma = A(q) w + H(q, q')
 
-Then (p, p', tau, tau') advance over the period with constant p'', tau'' (exact integration).
+Then (p, p', tau, tau') advance with constant p'', tau'' (exact integration) over the time that has
+actually elapsed when the next decision is taken (a period cut short by an impact is shorter).
 At an impact (the measured stance leg changes) tau goes back to 0 (tau -= T is not used: the gait
 restarts), p and p' are carried over; the measured q is already relabelled by the simulator.
 
@@ -160,6 +161,7 @@ class AdaptiveController:
         self.step_index = 0
         self._decision = (0.0, 0.0)
         self._prev = None              # (q', w commanded, A, stance) of the previous period
+        self._t_last = None            # time of the last decision [s]
         self.force_estimate = 0.0      # estimated horizontal force on the torso [N]
 
     def reset(self, stance: int | None = None) -> None:
@@ -168,6 +170,7 @@ class AdaptiveController:
         self.step_index = 0
         self._prev = None
         self.force_estimate = 0.0
+        self._t_last = None
 
     # --------------------------------------------------------------- helpers
     def _constraint_rows(self, q, qd, dyn):
@@ -189,6 +192,17 @@ class AdaptiveController:
         """One control period: decide (p'', tau''), the torque, and advance the parameter state."""
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
+        if self._t_last is not None:
+            # advance (p, p', tau, tau') over the time actually elapsed since the last decision, with the
+            # constant p'', tau'' chosen then (exact); a period cut short by an impact is shorter.
+            h_el = t - self._t_last
+            s0 = self.state
+            p_dd0, t_dd0 = self._decision
+            s0.p += s0.p_dot * h_el + 0.5 * p_dd0 * h_el * h_el
+            s0.p_dot += p_dd0 * h_el
+            s0.tau += s0.tau_dot * h_el + 0.5 * t_dd0 * h_el * h_el
+            s0.tau_dot += t_dd0 * h_el
+        self._t_last = t
         if self.stance is not None and stance != self.stance:
             self.state.tau = 0.0  # impact: the next step starts; p, p', tau' carried over
         self.stance = stance
@@ -217,7 +231,7 @@ class AdaptiveController:
             j6 = Jp[3:]
             if self._prev is not None and self._prev[3] == stance:
                 qd_prev, w_prev, A_prev = self._prev[:3]
-                r = A_prev @ ((qd - qd_prev) / c.period - w_prev)
+                r = A_prev @ ((qd - qd_prev) / (t - self._prev[4]) - w_prev)
                 nrm = float(j6 @ j6)
                 F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
             delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
@@ -263,15 +277,9 @@ class AdaptiveController:
             qp_message=msg, margins=margins, tightest=int(np.argmin(margins / self.model.row_scale)), zmp=zmp,
             stance=int(stance), max_tracking_error=float(np.max(np.abs(e))), predicted_reaction=R,
         )
-        self._prev = (qd.copy(), w.copy(), dyn.A, stance)
+        self._prev = (qd.copy(), w.copy(), dyn.A, stance, t)
         self._decision = (p_dd, t_dd)
         self._period_start = ParamState(s.p, s.p_dot, s.tau, s.tau_dot)
-        # advance the parameter state over one period (constant p'', tau'': exact)
-        dt = c.period
-        s.p += s.p_dot * dt + 0.5 * p_dd * dt * dt
-        s.p_dot += p_dd * dt
-        s.tau += s.tau_dot * dt + 0.5 * t_dd * dt * dt
-        s.tau_dot += t_dd * dt
         self.step_index += 1
         return ControlOutput(torque=torque, status=status_rec, G=G if self.keep_qp else None,
                              h=h if self.keep_qp else None, x_star=xs if self.keep_qp else None)

@@ -3,7 +3,8 @@
 Pure Python (NumPy + Pinocchio through ``floating.FloatingModel``), no ROS.
 
 Integration scheme: classical RK4 on the floating state (x, v) with ``substeps`` steps per control
-period; joint torques are held constant over a period (zero-order hold) unless a torque *function* is
+period; control periods end on the grid k * control_period, except that a touchdown ends the current
+period at the impact instant (an event-triggered control update right after every impact); joint torques are held constant over a period (zero-order hold) unless a torque *function* is
 given (then it is evaluated at every RK4 stage: "controller at the integration rate"). In single
 support the stance foot's (x, z, pitch) are held by a rigid contact: at every stage the contact
 wrench comes from the Schur complement of the full dynamics (``FloatingModel.contact_dynamics``);
@@ -325,10 +326,9 @@ class Simulator:
                 hi = mid
         xe, ve = self._rk4(x, v, tau_src, t0, hi)
         xi, vi = self._apply_impact(xe, ve, t0 + hi)
-        if t0 + hi < t1:
-            xi, vi = self._rk4(xi, vi, tau_src, t0 + hi, t1 - (t0 + hi))
-            self._update_clearance(xi)
-        return xi, vi, t1
+        # The control period ends at the impact: the controller is called right after it (event-triggered
+        # update), so no held torque of the old stance is applied to the relabelled legs.
+        return xi, vi, t0 + hi
 
     def _update_clearance(self, x: np.ndarray) -> None:
         swing = 1 - self.stance
@@ -346,8 +346,11 @@ class Simulator:
         period start)."""
         if self.fall is not None:
             raise RuntimeError("the robot has fallen; reset() the simulator")
-        dt = self.cfg.control_period
+        dt_nom = self.cfg.control_period
         t_start = self.t
+        # periods end on the grid k * control_period, except a period cut short by an impact
+        t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+        dt = t_grid_end - t_start
         obs_stance = self.stance
         lo_tq, hi_tq = self.desc.torque_limits()
         lo_tq, hi_tq = np.array(lo_tq), np.array(hi_tq)
@@ -378,10 +381,13 @@ class Simulator:
             self.fall = fall
             return StepRecord(**rec_args, fallen=True, fall_cause=fall.cause, fall_detail=fall.detail)
         # integrate the period in substeps, split at push boundaries
-        h = dt / self.cfg.substeps
+        n_sub = max(1, int(math.ceil(self.cfg.substeps * dt / dt_nom - 1e-9)))
+        h = dt / n_sub
         x, v = self.x, self.v
-        for i in range(self.cfg.substeps):
-            a, b = t_start + i * h, t_start + (i + 1) * h
+        t_end = t_grid_end
+        impacts_before = self.impact_count
+        for i in range(n_sub):
+            a, b = t_start + i * h, (t_start + (i + 1) * h if i + 1 < n_sub else t_grid_end)
             cuts = sorted({c for p in self.pushes for c in (p.start, p.end) if a < c < b})
             knots = [a, *cuts, b]
             for t0, t1 in zip(knots[:-1], knots[1:]):
@@ -395,16 +401,18 @@ class Simulator:
                     if f is not None:
                         self.fall = f
                         break
-                x, v, _ = self._advance(x, v, tau_src, t0, t1)
+                x, v, t_reached = self._advance(x, v, tau_src, t0, t1)
                 if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
                     self.fall = FallInfo("numerical", t1, "non-finite state")
                     break
-            if self.fall is not None:
+                if self.impact_count != impacts_before:
+                    t_end = t_reached
+                    break
+            if self.fall is not None or self.impact_count != impacts_before:
                 break
         self.x, self.v = x, v
         self.step_index += 1
-        self.t = t_start + dt if self.fall is None else self.t
         if self.fall is None:
-            self.t = (self.step_index) * dt  # no accumulated rounding: t_k = k dt
+            self.t = t_end
         return StepRecord(**rec_args, fallen=self.fall is not None, fall_cause=self.fall.cause if self.fall else "",
                           fall_detail=self.fall.detail if self.fall else "")
