@@ -257,6 +257,7 @@ class SimulatorNode(Node):
                 self.run_start_wall = now
                 self.get_logger().info('controller connected: starting the lockstep run')
                 self._publish_state()
+                self._publish_visuals()
             return
         if now - self.last_state_wall > self.command_timeout:
             self.get_logger().error(
@@ -265,6 +266,7 @@ class SimulatorNode(Node):
             self._publish_fall('controller timeout', self.sim.t,
                                f'no message on {gn.CONTROLLER_TORQUE} within {self.command_timeout} s (wall)')
             self._publish_state(fallen=True, cause='controller timeout')
+            self._publish_visuals()
             self._finish(EXIT_FAILURE, 'controller timeout')
 
     # ------------------------------------------------------------------ publishing
@@ -275,7 +277,6 @@ class SimulatorNode(Node):
         self.sequence += 1
         self.current_stamp_ns = stamp_ns(stamp)
         self.anchor_x = float(sim.anchor[0])
-        self.pub_clock.publish(Clock(clock=stamp))
         m = SimState()
         m.stamp = stamp
         m.step = obs.step
@@ -287,12 +288,22 @@ class SimulatorNode(Node):
         m.fallen = fallen
         m.fall_cause = cause
         m.sequence = self.sequence
+        # /clock first (the recorder's log time), then the state the controller waits for; the
+        # visualisation topics go out while the controller computes (publish_visuals).
+        self.pub_clock.publish(Clock(clock=stamp))
         self.pub_state.publish(m)
-        self.pub_tf.publish(self.tfb.message(stamp, sim.x))
-        self.pub_stance.publish(UInt8(data=obs.stance))
         self.last_state_wall = time.monotonic()
+        self._visual_stamp = stamp
+        self._visual_stance = obs.stance
+        self._visual_x = sim.x.copy()
 
-    def _publish_record(self, rec):
+    def _publish_visuals(self):
+        """/tf and /stance of the state just published (after /sim/state, so they overlap with the
+        controller's computation)."""
+        self.pub_tf.publish(self.tfb.message(self._visual_stamp, self._visual_x))
+        self.pub_stance.publish(UInt8(data=self._visual_stance))
+
+    def _publish_record(self, rec, anchor_x: float):
         stamp = stamp_of(rec.t)
         js = JointState()
         js.header.stamp = stamp
@@ -312,7 +323,7 @@ class SimulatorNode(Node):
         c = PointStamped()
         c.header.stamp = stamp
         c.header.frame_id = WORLD_FRAME
-        c.point.x = self.anchor_x + (float(rec.cop) if math.isfinite(rec.cop) else 0.0)
+        c.point.x = anchor_x + (float(rec.cop) if math.isfinite(rec.cop) else 0.0)
         self.pub_cop.publish(c)
 
     def _publish_fall(self, cause: str, t: float, detail: str):
@@ -333,17 +344,21 @@ class SimulatorNode(Node):
             self.get_logger().error(f'{gn.CONTROLLER_TORQUE}: expected 6 efforts, got {len(msg.effort)}: ignored')
             return
         sim = self.sim
+        anchor_x = self.anchor_x
         rec = sim.step(np.asarray(msg.effort, dtype=float))
         self.steps_done += 1
-        self._publish_record(rec)
         if sim.fall is not None:
             f = sim.fall
             self.get_logger().info(f'fall at t = {f.t:.4f} s: {f.cause} ({f.detail})')
+            self._publish_record(rec, anchor_x)
             self._publish_fall(f.cause, f.t, f.detail)
             self._publish_state(fallen=True, cause=f.cause)
+            self._publish_visuals()
             self._finish(EXIT_OK, f'fall: {f.cause}')
             return
         self._publish_state()
+        self._publish_record(rec, anchor_x)
+        self._publish_visuals()
         if self.max_steps and sim.impact_count >= self.max_steps:
             self._finish(EXIT_OK, f'{sim.impact_count} steps walked')
         elif self.max_time and sim.t >= self.max_time - 1e-12:

@@ -1,0 +1,183 @@
+"""The demo over DDS: ``python -m biped_sim.demo [--steps N] [--force F] [--duration D] [--start T]
+[--bag DIR] [--json FILE]``.
+
+1. launches the node graph (``biped_sim.launch``) with the bag under ``runs/demo_<timestamp>/``; the
+   simulator is started paused (``wait_for_pushes:=1``) so that sim time cannot run past the push;
+2. calls ``/apply_push`` (default 250 N for 0.025 s at t = 0.2315 s, the middle of the first step);
+3. waits for the run (default 10 steps, or a fall) and the graph's clean stop;
+4. reads the bag back (``bag_reader``) and prints a summary: survived or fell and why, max |l| (the
+   simulator's centre of pressure), p and tau excursions, message counts per topic, MCAP path and
+   size, wall time, lockstep steps/s. ``--json FILE`` writes the summary too.
+
+Exit status 0 when the demo ran (whatever the robot did); 1 when the graph or the push failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def summarize_bag(bag: Path, expected_steps: int | None = None) -> dict:
+    """Summary of a recorded run (pure: reads the MCAP with bag_reader, decodes with mcap_ros2)."""
+    from biped_sim.bag_reader import read_bag
+    data = read_bag(bag, decode=True)
+    msgs = data['messages']
+    states = [m for (t, _lt, _pt, m) in msgs if t == '/sim/state']
+    state_pub = [pt for (t, _lt, pt, _m) in msgs if t == '/sim/state']
+    status = [m for (t, _lt, _pt, m) in msgs if t == '/controller/status']
+    wrenches = [m for (t, _lt, _pt, m) in msgs if t == '/ground_reaction']
+    falls = [m for (t, _lt, _pt, m) in msgs if t == '/fall']
+    pushes = [m for (t, _lt, _pt, m) in msgs if t == '/push_events']
+    import yaml
+    last = states[-1] if states else None
+    fall = yaml.safe_load(falls[-1].data) if falls else None
+    ls = [-w.wrench.torque.y / w.wrench.force.z for w in wrenches if w.wrench.force.z > 0]
+    impacts = sum(1 for a, b in zip(states, states[1:]) if a.stance != b.stance)
+    sim_t = (last.stamp.sec + 1e-9 * last.stamp.nanosec) if last else 0.0
+    pub_span = (max(state_pub) - min(state_pub)) * 1e-9 if len(state_pub) > 1 else 0.0
+    size = os.path.getsize(data['path'])
+
+    def rng(name):
+        v = [getattr(s, name) for s in status]
+        return [min(v), max(v)] if v else None
+
+    return {
+        'outcome': 'fell' if fall else 'survived',
+        'fall_cause': fall['cause'] if fall else '',
+        'fall_detail': fall['detail'] if fall else '',
+        'fall_time': fall['time'] if fall else None,
+        'steps_walked': impacts,
+        'control_steps': len(states),
+        'sim_time': sim_t,
+        'max_abs_cop_l': max((abs(x) for x in ls), default=None),
+        'max_abs_zmp_controller': max((abs(s.zmp) for s in status if math.isfinite(s.zmp)), default=None),
+        'p_range': rng('p'),
+        'p_dot_range': rng('p_dot'),
+        'tau_range': rng('tau'),
+        'tau_dot_range': rng('tau_dot'),
+        'max_tracking_error': max((s.max_tracking_error for s in status), default=None),
+        'pushes': [dict(id=p.id, start=p.start, duration=p.duration, force=p.force, height=p.height) for p in pushes],
+        'counts': dict(sorted(data['counts'].items())),
+        'message_count': data['message_count'],
+        'mcap_path': str(data['path']),
+        'mcap_bytes': size,
+        'mcap_bytes_per_sim_second': size / sim_t if sim_t > 0 else None,
+        'log_time_range': [data['start_ns'] * 1e-9 if data['start_ns'] is not None else None,
+                           data['end_ns'] * 1e-9 if data['end_ns'] is not None else None],
+        'lockstep_wall_time': pub_span,
+        'lockstep_steps_per_second': (len(state_pub) - 1) / pub_span if pub_span > 0 else None,
+    }
+
+
+def print_summary(s: dict) -> None:
+    def f(x, fmt='{:.4f}'):
+        return 'n/a' if x is None else fmt.format(x)
+    print('==== demo summary ====')
+    if s['outcome'] == 'fell':
+        print(f"outcome: FELL at t = {f(s['fall_time'])} s: {s['fall_cause']} ({s['fall_detail']})")
+    else:
+        print(f"outcome: survived ({s['steps_walked']} steps walked)")
+    for p in s['pushes']:
+        print(f"push {p['id']}: {p['force']} N over [{p['start']}, {p['start'] + p['duration']}) s at {p['height']} m")
+    print(f"control steps {s['control_steps']}, sim time {f(s['sim_time'], '{:.3f}')} s")
+    print(f"max |l| (simulator CoP) {f(s['max_abs_cop_l'])} m (limit 0.1); controller zmp max "
+          f"{f(s['max_abs_zmp_controller'])} m")
+    for k in ('p_range', 'p_dot_range', 'tau_range', 'tau_dot_range'):
+        v = s[k]
+        print(f"{k[:-6]}: [{f(v[0]) if v else 'n/a'}, {f(v[1]) if v else 'n/a'}]")
+    print(f"max tracking error {f(s['max_tracking_error'])} rad")
+    print('messages per topic:')
+    for t, n in s['counts'].items():
+        print(f'  {t:24s} {n}')
+    print(f"MCAP {s['mcap_path']}: {s['mcap_bytes']} B ({f(s['mcap_bytes_per_sim_second'], '{:.0f}')} B per sim second)")
+    print(f"wall time {f(s.get('wall_time'), '{:.2f}')} s (lockstep part {f(s['lockstep_wall_time'], '{:.2f}')} s), "
+          f"lockstep {f(s['lockstep_steps_per_second'], '{:.0f}')} steps/s")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='demo', description='Push demo over the ROS 2 node graph.')
+    ap.add_argument('--steps', type=int, default=10)
+    ap.add_argument('--force', type=float, default=250.0)
+    ap.add_argument('--duration', type=float, default=0.025)
+    ap.add_argument('--start', type=float, default=0.2315, help='sim time of the push onset [s]')
+    ap.add_argument('--bag', type=Path, default=None)
+    ap.add_argument('--json', type=Path, default=None)
+    ap.add_argument('--timeout', type=float, default=600.0, help='wall s for the whole run')
+    a = ap.parse_args(argv)
+    from biped_sim.description import repo_root
+    bag = (a.bag or repo_root() / 'runs' / f'demo_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory() as tmp:
+        ready = Path(tmp) / 'ready'
+        cmd = [sys.executable, '-m', 'biped_sim.launch', '--bag', str(bag), '--steps', str(a.steps),
+               '--sim-param', 'wait_for_pushes:=1', '--ready-file', str(ready)]
+        launcher = subprocess.Popen(cmd)
+        forwarded = {'n': 0}
+
+        def forward(signum, _frame):
+            forwarded['n'] += 1
+            if launcher.poll() is None:
+                launcher.send_signal(signum)
+
+        prev = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            while not ready.exists() and launcher.poll() is None and time.monotonic() - t0 < 120:
+                time.sleep(0.05)
+            if launcher.poll() is not None or not ready.exists():
+                print('demo: the graph did not come up', file=sys.stderr)
+                launcher.send_signal(signal.SIGINT)
+                launcher.wait(60)
+                return 1
+            from biped_sim.push_client import call_apply_push, response_dict
+            try:
+                res = call_apply_push(a.force, a.duration, start=a.start, timeout=30.0)
+            except TimeoutError as exc:
+                print(f'demo: {exc}', file=sys.stderr)
+                launcher.send_signal(signal.SIGINT)
+                launcher.wait(60)
+                return 1
+            print(f'demo: /apply_push -> {response_dict(res)}', flush=True)
+            if not res.accepted:
+                launcher.send_signal(signal.SIGINT)
+                launcher.wait(60)
+                return 1
+            try:
+                rc = launcher.wait(a.timeout)
+            except subprocess.TimeoutExpired:
+                print(f'demo: run longer than {a.timeout} s: stopping', file=sys.stderr)
+                launcher.send_signal(signal.SIGINT)
+                rc = launcher.wait(60)
+        finally:
+            for s, h in prev.items():
+                signal.signal(s, h)
+    wall = time.monotonic() - t0
+    if rc != 0:
+        print(f'demo: the launcher exited with {rc}', file=sys.stderr)
+    try:
+        summary = summarize_bag(bag)
+    except Exception as exc:  # noqa: BLE001 - report any reading problem plainly
+        print(f'demo: cannot read the bag {bag}: {exc}', file=sys.stderr)
+        return 1
+    summary['wall_time'] = wall
+    summary['launcher_exit_code'] = rc
+    summary['bag'] = str(bag)
+    print_summary(summary)
+    if a.json:
+        a.json.write_text(json.dumps(summary, indent=2) + '\n')
+        print(f'summary written to {a.json}')
+    return 0 if rc == 0 else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
