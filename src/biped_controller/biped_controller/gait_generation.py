@@ -193,18 +193,64 @@ def speed_question(opt: StepOptimizer, strides: list[float], v: float, warm: np.
             "best_stride_parabolic": est}
 
 
+def clean_interval(between: list[dict], p_d: float) -> tuple[float, float]:
+    """Largest interval of probe strides around p_d on which the fitted family keeps every true
+    constraint margin > 0 and the swing foot above the ground."""
+    ps = [b["stride"] for b in between]
+    ok = [b["min_margin"] > 0 and b["min_clearance"] > 0 for b in between]
+    i = int(np.argmin(np.abs(np.array(ps) - p_d)))
+    if not ok[i]:
+        return p_d, p_d
+    lo = i
+    while lo - 1 >= 0 and ok[lo - 1]:
+        lo -= 1
+    hi = i
+    while hi + 1 < len(ps) and ok[hi + 1]:
+        hi += 1
+    return ps[lo], ps[hi]
+
+
+def fit_and_restrict(records: list[dict], st, opt: StepOptimizer) -> GaitFamily:
+    """Fit b_ijk over the successful strides around p_d, then restrict the range the controller may use
+    to where the *fitted* family passes the constraint and clearance checks (probes at and between the
+    optimised strides)."""
+    sols_ok = {r["stride"]: r for r in records}
+    ps = sorted(sols_ok)
+    i = ps.index(st.p_d)
+    lo, hi = i, i
+    while lo - 1 >= 0 and sols_ok[ps[lo - 1]]["success"]:
+        lo -= 1
+    while hi + 1 < len(ps) and sols_ok[ps[hi + 1]]["success"]:
+        hi += 1
+    used = ps[lo:hi + 1]
+    a = np.array([np.array(sols_ok[p]["a"]) for p in used])
+    b = fit_family(np.array(used), a, st.p_d, st.stride_degree)
+    wide = GaitFamily(b, st.T, st.p_d, used[0], used[-1])
+    between = check_family(wide, records, opt)["fitted_family"]
+    p_min, p_max = clean_interval(between, st.p_d)
+    return GaitFamily(b, st.T, st.p_d, p_min, p_max, meta={"fit_range": (used[0], used[-1])})
+
+
+def refit(path: Path) -> dict:
+    """Re-fit and re-validate the committed stride solutions without re-optimising."""
+    data = json.loads(path.read_text(encoding="utf-8"))
+    opt = StepOptimizer()
+    fam = fit_and_restrict(data["strides"], opt.st, opt)
+    data["family"] = fam.to_dict()
+    data["validation"] = check_family(fam, data["strides"], opt)
+    data["validation"]["fit_range"] = list(fam.meta.get("fit_range", []))
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    return data
+
+
 def generate(path: Path, progress: bool = True) -> dict:
     opt = StepOptimizer()
     st = opt.st
     t0 = time.perf_counter()
     sols = solve_family(opt, list(st.strides), st.p_d, progress)
     t_family = time.perf_counter() - t0
-    p_min, p_max = valid_range(sols, st.p_d)
-    used = [p for p in sorted(sols) if p_min <= p <= p_max]
-    a = np.array([sols[p].a for p in used])
-    b = fit_family(np.array(used), a, st.p_d, st.stride_degree)
-    fam = GaitFamily(b, st.T, st.p_d, p_min, p_max)
     records = [_solution_record(sols[p]) for p in sorted(sols)]
+    fam = fit_and_restrict(records, st, opt)
     t1 = time.perf_counter()
     speed = speed_question(opt, [0.35, 0.40, 0.45, 0.50, 0.55, 0.60, 0.65], 1.0, sols[st.p_d].c, progress)
     t_speed = time.perf_counter() - t1
@@ -218,6 +264,7 @@ def generate(path: Path, progress: bool = True) -> dict:
         "speed_1mps": speed,
     }
     data["validation"] = check_family(fam, records, opt)
+    data["validation"]["fit_range"] = list(fam.meta.get("fit_range", []))
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     print(f"family: {t_family:.1f} s, 1 m/s sweep: {t_speed:.1f} s, total {time.perf_counter() - t0:.1f} s")
     return data
@@ -225,7 +272,8 @@ def generate(path: Path, progress: bool = True) -> dict:
 
 def print_report(data: dict, validation: dict) -> None:
     fam = data["family"]
-    print(f"valid stride range: [{fam['p_min']:.3f}, {fam['p_max']:.3f}] m, p_d = {fam['p_d']}, T = {fam['T']} s")
+    print(f"valid stride range (fitted family checked clean): [{fam['p_min']:.4f}, {fam['p_max']:.4f}] m, "
+          f"fitted over {validation.get('fit_range')}, p_d = {fam['p_d']}, T = {fam['T']} s")
     print(f"{'p [m]':>7} {'ok':>3} {'C [N2m2s/m]':>12} {'period.res':>10} {'min margin':>10} {'(row)':<14} {'clear [mm]':>10} {'impact loss':>11} {'fit q':>9} {'fit qd':>9}")
     fit = {r["stride"]: r for r in validation["strides"]}
     for r in data["strides"]:
@@ -245,10 +293,14 @@ def print_report(data: dict, validation: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--check", action="store_true", help="reload the committed file and print validation figures")
+    ap.add_argument("--refit", action="store_true", help="re-fit b_ijk and the valid range from the stored strides (no re-optimisation)")
     ap.add_argument("--json", type=Path, help="write the validation figures as JSON")
     ap.add_argument("--out", type=Path, default=default_config_dir() / "gait_family.json")
     args = ap.parse_args(argv)
-    if args.check:
+    if args.refit:
+        data = refit(args.out)
+        validation = data["validation"]
+    elif args.check:
         data = json.loads(args.out.read_text(encoding="utf-8"))
         fam = GaitFamily.load(args.out)
         validation = check_family(fam, data["strides"], StepOptimizer())
