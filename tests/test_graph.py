@@ -1,0 +1,262 @@
+"""The node graph over real DDS (Fast DDS on loopback, isolated domain from the ros_domain fixture).
+
+One short walk (2 steps, a push through /apply_push) is launched once per module and shared by
+(a)-(d); (e) launches its own graph and interrupts it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = ROOT / '.venv' / 'bin' / 'python'
+STEPS = 2
+PUSH = dict(force=250.0, duration=0.025, start=0.2315)
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def _descendants(pid: int) -> set[int]:
+    out, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            with open(f'/proc/{p}/task/{p}/children') as fh:
+                kids = [int(x) for x in fh.read().split()]
+        except OSError:
+            kids = []
+        out.update(kids)
+        todo.extend(kids)
+    return out
+
+
+def _alive(pids) -> list[int]:
+    alive = []
+    for p in pids:
+        try:
+            with open(f'/proc/{p}/stat') as fh:
+                if fh.read().split(')')[-1].split()[0] != 'Z':
+                    alive.append(p)
+        except OSError:
+            pass
+    return alive
+
+
+def _kill_tree(proc: subprocess.Popen, pids: set[int]) -> None:
+    for p in _alive(pids | {proc.pid}):
+        try:
+            os.kill(p, signal.SIGKILL)
+        except OSError:
+            pass
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        pass
+
+
+def _launch(tmp: Path, env: dict, *extra: str) -> tuple[subprocess.Popen, Path, Path]:
+    bag = tmp / 'bag'
+    ready = tmp / 'ready'
+    cmd = [str(PY), '-m', 'biped_sim.launch', '--bag', str(bag), '--ready-file', str(ready), *extra]
+    proc = subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return proc, bag, ready
+
+
+def _wait_ready(proc, ready: Path, timeout=90.0):
+    t0 = time.monotonic()
+    while not ready.exists():
+        assert proc.poll() is None, f'launcher died: {proc.communicate()[0][-3000:]}'
+        assert time.monotonic() - t0 < timeout, 'graph did not come up'
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope='module')
+def walk(tmp_path_factory):
+    """Launch the graph (2 steps, simulator paused until one push), probe the graph, push, wait."""
+    import rclpy
+    from biped_sim import graph_names as gn
+    from biped_sim.push_client import call_apply_push
+
+    mp = pytest.MonkeyPatch()
+    try:
+        from domain_coordinator import domain_id
+        dom_cm = domain_id()
+        did = dom_cm.__enter__()
+    except ImportError:  # pragma: no cover
+        dom_cm, did = None, 1 + os.getpid() % 100
+    mp.setenv('ROS_DOMAIN_ID', str(did))
+    mp.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env = dict(os.environ)
+    tmp = tmp_path_factory.mktemp('walk')
+    proc, bag, ready = _launch(tmp, env, '--steps', str(STEPS), '--sim-param', 'wait_for_pushes:=1')
+    pids: set[int] = set()
+    result = {'bag': bag, 'domain': did}
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        _wait_ready(proc, ready)
+        node = rclpy.create_node('test_probe', context=ctx)
+        # (a) every topic has a publisher and a subscriber (the recorder subscribes to all)
+        deadline = time.monotonic() + 60
+        while True:
+            pids |= _descendants(proc.pid)
+            topics = {}
+            for t in gn.TOPICS:
+                topics[t] = (len(node.get_publishers_info_by_topic(t)), len(node.get_subscriptions_info_by_topic(t)))
+            missing_pub = [t for t, (p, s) in topics.items() if p == 0 and t != gn.FALL]
+            if not missing_pub or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
+        services = dict(node.get_service_names_and_types())
+        result['topics'] = topics
+        result['services'] = services
+        result['nodes'] = set(node.get_node_names())
+        node.destroy_node()
+        # (b) a NaN force is rejected naming 'force'; then the real push
+        bad = call_apply_push(math.nan, 0.025, start=0.3, timeout=30, context=ctx)
+        result['rejected'] = bad
+        res = call_apply_push(PUSH['force'], PUSH['duration'], start=PUSH['start'], timeout=30, context=ctx)
+        result['accepted'] = res
+        out, _ = proc.communicate(timeout=240)
+        result['launcher_rc'] = proc.returncode
+        result['launcher_out'] = out
+        result['orphans'] = _alive(pids)
+        yield result
+    finally:
+        if proc.poll() is None:
+            _kill_tree(proc, pids | _descendants(proc.pid))
+        else:
+            _kill_tree(proc, pids)
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+        if dom_cm is not None:
+            dom_cm.__exit__(None, None, None)
+        mp.undo()
+
+
+def _decoded(bag):
+    from biped_sim.bag_reader import read_bag
+    return read_bag(bag, decode=True)
+
+
+def test_a_graph_comes_up(walk):
+    from biped_sim import graph_names as gn
+    for name in ('simulator', 'controller', 'disturbance', 'recorder'):
+        assert name in walk['nodes'], walk['nodes']
+    for topic, (pubs, subs) in walk['topics'].items():
+        assert subs >= 1, f'{topic} has no subscriber'
+        if topic != gn.FALL:  # /fall is published only on a fall (latched); its publisher exists anyway
+            assert pubs >= 1, f'{topic} has no publisher'
+    assert gn.APPLY_PUSH in walk['services']
+    assert walk['launcher_rc'] == 0, walk['launcher_out'][-3000:]
+    assert walk['orphans'] == []
+
+
+def test_b_push_applied_at_requested_time_and_nan_rejected(walk):
+    bad = walk['rejected']
+    assert not bad.accepted and 'force' in bad.message and bad.push_id == 0
+    ok = walk['accepted']
+    assert ok.accepted and ok.push_id == 1, ok.message
+    assert ok.scheduled_start == PUSH['start'] and ok.scheduled_end == PUSH['start'] + PUSH['duration']
+    d = _decoded(walk['bag'])
+    msgs = d['messages']
+    events = [m for t, _, _, m in msgs if t == '/push_events']
+    assert len(events) == 1 and events[0].start == PUSH['start'] and events[0].force == PUSH['force']
+    reqs = [m.data for t, _, _, m in msgs if t == '/push_requests']
+    assert len(reqs) == 2 and 'accepted: false' in reqs[0] and 'accepted: true' in reqs[1]
+    # the effect: compare with the same walk without a push, in process
+    from biped_controller import runner
+    free = runner.run(steps=STEPS)
+    states = [m for t, _, _, m in msgs if t == '/sim/state']
+    k0 = int(round(PUSH['start'] / 1e-3))
+    for k in range(0, k0 + 1):   # identical up to the push onset (inclusive: the push acts from t_k0 on)
+        assert np.array_equal(np.array(states[k].q_dot), free.records[k].qd), k
+    assert not np.array_equal(np.array(states[k0 + 1].q_dot), free.records[k0 + 1].qd)
+
+
+def test_c_dds_run_equals_in_process_run(walk):
+    from biped_controller import runner
+    ref = runner.run(steps=STEPS, pushes=(runner.PushSpec(PUSH['start'], PUSH['duration'], PUSH['force']),))
+    d = _decoded(walk['bag'])
+    states = [m for t, _, _, m in d['messages'] if t == '/sim/state']
+    torques = [m for t, _, _, m in d['messages'] if t == '/controller/torque']
+    assert len(states) == len(ref.records) + 1   # + the final state
+    for k, rec in enumerate(ref.records):
+        s = states[k]
+        assert s.step == rec.step == k
+        assert s.stance == rec.stance
+        assert np.array_equal(np.array(s.q), rec.q), k           # bit-identical
+        assert np.array_equal(np.array(s.q_dot), rec.qd), k
+        assert torques[k].header.stamp == s.stamp
+        # the simulator applies the clipped torque: the same as in process
+        assert np.array_equal(np.clip(np.array(torques[k].effort), -150.0, 150.0), rec.torque), k
+    assert sum(1 for a, b in zip(states, states[1:]) if a.stance != b.stance) == STEPS
+
+
+def test_d_bag_reads_and_decodes_counts_and_time_range(walk):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from biped_sim.bag_reader import find_mcap
+    path = find_mcap(walk['bag'])
+    per_channel = {}
+    with open(path, 'rb') as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None and summary.chunk_indexes
+        for _s, ch, msg, dec in reader.iter_decoded_messages():
+            assert dec is not None
+            per_channel[ch.topic] = per_channel.get(ch.topic, 0) + 1
+    assert set(per_channel) == set(summary.channels[c].topic for c in summary.channels)
+    n = per_channel['/sim/state']
+    steps = n - 1   # control steps simulated (the last state is the final one)
+    for topic in ('/clock', '/tf', '/stance', '/controller/torque', '/controller/status'):
+        assert per_channel[topic] == n, (topic, per_channel)
+    for topic in ('/joint_states', '/ground_reaction', '/ground_reaction/cop'):
+        assert per_channel[topic] == steps, (topic, per_channel)
+    assert per_channel['/robot_description'] == 1 and per_channel['/push_events'] == 1
+    d = _decoded(walk['bag'])
+    states = [(lt, m) for t, lt, _, m in d['messages'] if t == '/sim/state']
+    last_t = states[-1][1].stamp.sec + 1e-9 * states[-1][1].stamp.nanosec
+    assert abs(last_t - steps * 1e-3) < 1e-9
+    # log time = sim time (recorder on /clock): the range covers [0, t_final] within one period
+    assert d['start_ns'] <= 1_000_000
+    assert abs(d['end_ns'] * 1e-9 - last_t) <= 1e-3 + 1e-9
+
+
+def test_e_sigint_leaves_finished_bag_and_no_orphans(ros_domain, tmp_path):
+    env = dict(os.environ)
+    proc, bag, ready = _launch(tmp_path, env, '--steps', '0')   # walk until stopped
+    pids: set[int] = set()
+    try:
+        _wait_ready(proc, ready)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 30:
+            pids |= _descendants(proc.pid)
+            if list(bag.glob('*.mcap')) and len(pids) >= 4:
+                break
+            time.sleep(0.1)
+        time.sleep(3.0)   # let it walk a little
+        pids |= _descendants(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+        assert proc.returncode == 128 + signal.SIGINT, out[-3000:]
+        assert _alive(pids) == [], out[-3000:]
+        from biped_sim.bag_reader import read_bag
+        d = read_bag(bag)
+        assert d['has_summary'] and d['chunk_count'] >= 1
+        assert d['counts']['/sim/state'] > 10
+        assert (bag / 'metadata.yaml').is_file()
+    finally:
+        if proc.poll() is None:
+            _kill_tree(proc, pids | _descendants(proc.pid))
+        else:
+            _kill_tree(proc, pids)
