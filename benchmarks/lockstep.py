@@ -1,0 +1,47 @@
+"""DDS lockstep of the real nodes: biped_sim.simulator_node + biped_controller.controller_node.
+
+Both are started as subprocesses in an isolated domain (no recorder: wait_for_recorder false), walk a
+short run (max_time sim seconds), and the rate is read from the simulator's own end-of-run log line
+``run over: ...; N control steps, ... wall W s (R steps/s)`` (its wall clock starts at the first
+published state, so discovery and start-up are excluded).
+"""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+_LINE = re.compile(r"run over: (?P<reason>[^;]*); (?P<steps>\d+) control steps, sim time (?P<sim>[0-9.]+) s, "
+                   r"(?P<imp>\d+) impacts, wall (?P<wall>[0-9.]+) s")
+
+
+def measure(sim_seconds: float, domain_cls, timeout: float = 180.0) -> dict:
+    with domain_cls() as dom:
+        ctrl = subprocess.Popen([sys.executable, "-m", "biped_controller.controller_node", "--ros-args",
+                                 "-p", "use_sim_time:=true"],
+                                cwd=ROOT, env=dom.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            sim = subprocess.run([sys.executable, "-m", "biped_sim.simulator_node", "--ros-args",
+                                  "-p", "wait_for_recorder:=false", "-p", "max_steps:=0",
+                                  "-p", f"max_time:={sim_seconds}", "-p", "linger:=0.0",
+                                  "-p", "start_delay:=0.5"],
+                                 cwd=ROOT, env=dom.env, capture_output=True, text=True, timeout=timeout)
+        finally:
+            ctrl.terminate()
+            try:
+                out_c, _ = ctrl.communicate(timeout=10)
+            except subprocess.TimeoutExpired:
+                ctrl.kill()
+                out_c, _ = ctrl.communicate()
+        text = sim.stdout + sim.stderr
+        m = _LINE.search(text)
+        if sim.returncode != 0 or m is None:
+            return {"available": False, "reason": f"not available: simulator_node exit {sim.returncode}: "
+                    + text[-300:].replace("\n", " | "), "controller_log_tail": (out_c or "")[-300:]}
+        steps, wall, simt = int(m["steps"]), float(m["wall"]), float(m["sim"])
+        return {"available": True, "end_reason": m["reason"], "steps": steps, "wall_s": wall, "sim_s": simt,
+                "impacts": int(m["imp"]), "steps_per_s": steps / wall, "realtime_factor": simt / wall,
+                "domain_id": dom.id}

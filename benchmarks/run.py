@@ -1,0 +1,639 @@
+"""Benchmarks of the controller, the adaptation QP, the DDS lockstep and the in-process loop.
+
+    python -m benchmarks.run [--quick] [--json FILE] [--md FILE] [--no-readme]
+
+Writes benchmarks/results.json (or --json), benchmarks/results.md and refreshes the README section
+between ``<!-- bench:start -->`` and ``<!-- bench:end -->``. Every timing is a median (p50) and a
+99th percentile (p99) of per-call times measured with time.perf_counter_ns; the ratios compare
+figures measured side by side in this one run (the machine is shared and noisy). Targets are
+printed beside the results, never asserted. ``--quick``: a few hundred steps / instances (tests).
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import importlib.util
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from time import perf_counter_ns
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # `python benchmarks/run.py`
+    sys.path.insert(0, str(ROOT))
+
+PUSH_START, PUSH_DURATION = 0.2315, 0.025
+MATCH_TOL = 1e-6
+TARGETS = {
+    "controller_step_p50_us": 60.0,
+    "production_qp_vs_fastest_ratio": 1.5,
+    "lockstep_vs_pingpong_fraction": 0.90,
+    "lockstep_rate_hz": 1000.0,
+    "inprocess_realtime_factor": 50.0,
+    "max_push_table_s": 30.0,
+}
+
+
+def log(msg: str) -> None:
+    print(f"bench: {msg}", file=sys.stderr, flush=True)
+
+
+def pct(a) -> dict:
+    a = np.asarray(a, dtype=float)
+    if a.size == 0:
+        return {"n": 0, "p50": None, "p99": None, "mean": None}
+    return {"n": int(a.size), "p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "mean": float(a.mean())}
+
+
+# ------------------------------------------------------------------------------------------------
+# 0. the recorded hard run
+# ------------------------------------------------------------------------------------------------
+
+def _push_run(force: float, steps: int, mode: str = "both", keep_qp: bool = True):
+    from biped_controller.runner import PushSpec, run
+    return run(steps=steps, mode=mode, pushes=(PushSpec(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp)
+
+
+def _qp_counts(res) -> dict:
+    st = np.array([q[3] for q in res.qp_instances], dtype=int)
+    return {k: int(np.sum(st == v)) for k, v in (("unconstrained", 0), ("active", 1), ("infeasible", 2),
+                                                  ("solver_error", 3))}
+
+
+def find_hard_run(quick: bool) -> dict:
+    """Largest forward push (start 0.2315 s, 25 ms, mode both) the robot survives, by bisection.
+
+    Each probe runs with keep_qp=True; the QP instances of every probe (surviving or not) are
+    kept for the solver comparison, tagged with their force.
+    """
+    probes, instances = [], []
+    if quick:
+        lo, hi, iters, steps = 40.0, 40.0, 0, 1
+    else:
+        lo, hi, iters, steps = 0.0, 100.0, 7, 3
+    def probe(F, st):
+        t0 = time.perf_counter()
+        r = _push_run(F, st)
+        info = {"force": F, "steps": st, "survived": not r.fallen, "fall_cause": r.fall_cause,
+                "periods": len(r.records), "wall_s": time.perf_counter() - t0, **_qp_counts(r)}
+        probes.append(info)
+        instances.extend((F, q) for q in r.qp_instances)
+        log(f"probe F={F:.2f} N: {'survived' if info['survived'] else 'fell (' + r.fall_cause + ')'}, "
+            f"active QPs {info['active']}, infeasible {info['infeasible']}")
+        return r
+    if quick:   # one falling probe: active (and possibly infeasible) QPs for the solver table
+        probe(100.0, 1)
+    else:
+        r = probe(hi, steps)
+        if not r.fallen:
+            lo = hi
+        for _ in range(iters):
+            if hi - lo < 0.5:
+                break
+            mid = round(0.5 * (lo + hi), 2)
+            r = probe(mid, steps)
+            if r.fallen:
+                hi = mid
+            else:
+                lo = mid
+    return {"force": lo, "probes": probes, "instances": instances, "bracket": [lo, hi]}
+
+
+# ------------------------------------------------------------------------------------------------
+# 1. controller step split
+# ------------------------------------------------------------------------------------------------
+
+def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
+    """Replay the recorded states (t, q, q', stance) through fresh controllers.
+
+    Pass A (unwrapped): AdaptiveController.compute per step -> total.
+    Pass B (instrumented): the same replay with timers around FixedFootModel.dynamics (model
+    terms), the controller's _constraint_rows, the torso jacobian of the disturbance observer and
+    AdaptationQP.solve, plus, out of band on the same data, the rest of the assembly of eq. (21):
+    G = A D, h = -(A v + b) and the three parameter-range rows.
+    Passes repeat the recording until >= min_steps steps each.
+    """
+    from biped_controller.controller import AdaptiveController, load_controller_config
+    from biped_controller.gait_family import GaitFamily
+    from biped_sim.description import LEFT, load_description
+    from biped_sim.simulator import load_sim_config
+
+    desc, family, scfg = load_description(), GaitFamily.load(), load_sim_config()
+    ccfg = load_controller_config(mode=mode, period=scfg.control_period)
+    states = [(r.t, np.array(r.q), np.array(r.qd), r.stance) for r in records]
+    reps = max(1, math.ceil(min_steps / len(states)))
+
+    def fresh():
+        c = AdaptiveController(ccfg, family, desc)
+        c.reset(LEFT)
+        return c
+
+    # pass A: total only
+    total = []
+    decisions = []
+    gc.collect()
+    for rep in range(reps):
+        ctrl = fresh()
+        for t, q, qd, st in states:
+            t0 = perf_counter_ns()
+            out = ctrl.compute(t, q, qd, st)
+            total.append(perf_counter_ns() - t0)
+            if rep == 0:
+                decisions.append((out.status.p_ddot, out.status.tau_ddot, out.status.qp_status))
+    # pass B: instrumented
+    acc = {"model": 0, "rows": 0, "observer": 0, "qp": 0}
+    keep = {}
+    piece = {k: [] for k in ("model", "rows", "tail", "observer", "qp", "total_instr", "rest")}
+    qp_called = []
+
+    def wrap(obj, name, key, capture=False):
+        f = getattr(obj, name)
+
+        def w(*a, **k):
+            t0 = perf_counter_ns()
+            r = f(*a, **k)
+            acc[key] += perf_counter_ns() - t0
+            if capture:
+                keep[key] = r
+            return r
+        setattr(obj, name, w)
+
+    gc.collect()
+    for rep in range(reps):
+        ctrl = fresh()
+        wrap(ctrl.model, "dynamics", "model")
+        wrap(ctrl.model, "torso_point_jacobian", "observer")
+        wrap(ctrl, "_constraint_rows", "rows", capture=True)
+        wrap(ctrl.qp, "solve", "qp", capture=True)
+        dt = ccfg.period
+        for t, q, qd, st in states:
+            s = ctrl.state
+            g = family.evaluate(s.p, 0.0 if (ctrl.stance is not None and st != ctrl.stance) else s.tau)
+            D = np.column_stack([g.dq_dp, g.dq_dtau])
+            v = g.d2q_dp2 * s.p_dot ** 2 + ccfg.Kp * (g.q - q)
+            p, p_dot, tau_dot = s.p, s.p_dot, s.tau_dot
+            for k in acc:
+                acc[k] = 0
+            keep.clear()
+            t0 = perf_counter_ns()
+            ctrl.compute(t, q, qd, st)
+            tot = perf_counter_ns() - t0
+            # the rest of the eq. (21) assembly, as in controller.compute, on this step's A, b
+            A, b, _ = keep["rows"]
+            t1 = perf_counter_ns()
+            Gfull = A @ D
+            hfull = -(A @ v + b)
+            extra_G = np.array([[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]])
+            extra_h = np.array([family.p_max - p - p_dot * dt, p + p_dot * dt - family.p_min,
+                                tau_dot - ccfg.tau_dot_min])
+            Gall = np.vstack([Gfull, extra_G])
+            hall = np.concatenate([hfull, extra_h])
+            tail = perf_counter_ns() - t1
+            del Gall, hall
+            for k in acc:
+                piece[k].append(acc[k])
+            piece["tail"].append(tail)
+            piece["total_instr"].append(tot)
+            piece["rest"].append(tot - sum(acc.values()))
+            qp_called.append(keep["qp"].status in (1, 2))
+    us = lambda a: np.asarray(a, dtype=float) / 1000.0  # noqa: E731
+    qp_called = np.array(qp_called)
+    assembly = us(piece["rows"]) + us(piece["tail"])
+    st = np.array([d[2] for d in decisions])
+    res = {
+        "steps_recorded": len(states), "replays": reps, "steps_timed": len(total),
+        "qp_status_counts": {"unconstrained": int(np.sum(st == 0)), "active": int(np.sum(st == 1)),
+                             "infeasible": int(np.sum(st == 2)), "solver_error": int(np.sum(st == 3))},
+        "pieces_us": {
+            "model_terms": pct(us(piece["model"])),
+            "constraint_assembly": pct(assembly),
+            "constraint_rows_only": pct(us(piece["rows"])),
+            "assembly_tail_G_h": pct(us(piece["tail"])),
+            "qp_solve_all_steps": pct(us(piece["qp"])),
+            "qp_solve_piqp_called": pct(us(piece["qp"])[qp_called]),
+            "qp_solve_x_star_feasible": pct(us(piece["qp"])[~qp_called]),
+            "observer_jacobian": pct(us(piece["observer"])),
+            "rest_of_compute": pct(us(piece["rest"])),
+            "total_instrumented": pct(us(piece["total_instr"])),
+            "total": pct(us(total)),
+        },
+        "decisions": decisions,
+    }
+    return res
+
+
+# ------------------------------------------------------------------------------------------------
+# 2. small-QP solvers side by side
+# ------------------------------------------------------------------------------------------------
+
+SOLVER_KW = {
+    "daqp": {},
+    "quadprog": {},
+    "osqp": {"eps_abs": 1e-10, "eps_rel": 1e-10, "max_iter": 20000, "polish": True},
+    "proxqp": {"eps_abs": 1e-10, "eps_rel": 0.0},
+    "piqp": {},
+}
+
+
+def _solvers(W):
+    from biped_controller.qp import AdaptationQP, solve_with_qpsolvers
+    from biped_controller.qp_exact import solve_exact
+
+    held = AdaptationQP(len(W), 20, W)   # the controller's production object (n = 2, m = 17 + 3)
+    out = {
+        "exact (qp_exact)": lambda G, h, x: solve_exact(G, h, x, W),
+        "PIQP held (AdaptationQP)": lambda G, h, x: held.solve(G, h, x),
+        "PIQP via qpsolvers": lambda G, h, x: solve_with_qpsolvers(G, h, x, W, "piqp", **SOLVER_KW["piqp"]),
+    }
+    for name, key in (("DAQP", "daqp"), ("quadprog", "quadprog"), ("OSQP", "osqp"), ("ProxQP", "proxqp")):
+        out[f"{name} via qpsolvers"] = (lambda k: lambda G, h, x: solve_with_qpsolvers(G, h, x, W, k, **SOLVER_KW[k]))(key)
+    return out
+
+
+def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
+    from biped_controller.qp_exact import solve_exact
+
+    constrained, unconstrained, forces = [], 0, set()
+    for F, (G, h, xs, _status) in instances:
+        if np.all(G @ xs - h <= 0.0):
+            unconstrained += 1
+            continue
+        constrained.append((F, G, h, xs))
+        forces.add(F)
+    solvers = _solvers(W)
+    names = list(solvers)
+    times = {n: [] for n in names}
+    fails = {n: 0 for n in names}
+    fail_detail = {n: [] for n in names}
+    n_inf = 0
+    reps = 0
+    if constrained:
+        reps = int(min(max_repeats, max(1, math.ceil(min_samples / len(constrained)))))
+    gc.collect()
+    for F, G, h, xs in constrained:
+        ex = solve_exact(G, h, xs, W)
+        n_inf += int(ex.status == 2)
+        scale = max(1.0, float(np.max(np.abs(ex.x))))
+        ok = {}
+        for n in names:
+            try:
+                r = solvers[n](G, h, xs)
+                err = float(np.max(np.abs(r.x - ex.x)))
+            except Exception as exc:  # noqa: BLE001
+                err, r = math.inf, None
+                fail_detail[n].append(f"{type(exc).__name__}: {exc}")
+            ok[n] = err <= MATCH_TOL * scale
+            if not ok[n]:
+                fails[n] += 1
+                if len(fail_detail[n]) < 5:
+                    fail_detail[n].append(f"F={F} |dx|={err:.3g} status={getattr(r, 'status', None)}")
+        # side by side: round-robin over the solvers, reps times
+        for _ in range(reps):
+            for n in names:
+                if not ok[n]:
+                    continue
+                f = solvers[n]
+                t0 = perf_counter_ns()
+                f(G, h, xs)
+                times[n].append(perf_counter_ns() - t0)
+    table = {}
+    for n in names:
+        table[n] = {**pct(np.asarray(times[n], dtype=float) / 1000.0), "failures": fails[n],
+                    "failure_examples": fail_detail[n]}
+    correct = [n for n in names if fails[n] == 0 and table[n]["n"]] or [n for n in names if table[n]["n"]]
+    fastest = min(correct, key=lambda n: table[n]["p50"]) if correct else None
+    for n in names:
+        p = table[n]["p50"]
+        table[n]["ratio_to_fastest"] = (p / table[fastest]["p50"]) if (fastest and p) else None
+    # unconstrained instances: what the production object costs when x* is feasible (no solver call)
+    from biped_controller.qp import AdaptationQP
+    held = AdaptationQP(len(W), 20, W)
+    un_t = []
+    k = 0
+    for F, (G, h, xs, _s) in instances:
+        if np.all(G @ xs - h <= 0.0):
+            t0 = perf_counter_ns()
+            held.solve(G, h, xs)
+            un_t.append(perf_counter_ns() - t0)
+            k += 1
+            if k >= min_samples:
+                break
+    return {"instances_total": len(instances), "instances_constrained": len(constrained),
+            "instances_infeasible": n_inf, "instances_unconstrained": unconstrained,
+            "repeats_per_instance": reps, "forces_contributing": sorted(forces), "match_tol": MATCH_TOL,
+            "solver_settings": SOLVER_KW, "fastest_correct": fastest, "table_us": table,
+            "unconstrained_early_out_us": pct(np.asarray(un_t, dtype=float) / 1000.0)}
+
+
+# ------------------------------------------------------------------------------------------------
+# 3. DDS: bare ping-pong and the node lockstep
+# ------------------------------------------------------------------------------------------------
+
+class _Domain:
+    """A free ROS_DOMAIN_ID from domain_coordinator (port lock) for the duration of the block."""
+
+    def __enter__(self):
+        self._cm = None
+        try:
+            from domain_coordinator import domain_id
+            self._cm = domain_id()
+            did = self._cm.__enter__()
+        except Exception:  # noqa: BLE001
+            did = 101 + os.getpid() % 100
+        env = dict(os.environ)
+        env.update(ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        env.pop("ROS_STATIC_PEERS", None)
+        env.pop("ROS_LOCALHOST_ONLY", None)
+        env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        self.env, self.id = env, did
+        return self
+
+    def __exit__(self, *exc):
+        if self._cm is not None:
+            self._cm.__exit__(*exc)
+
+
+def bench_pingpong(count: int) -> dict:
+    with _Domain() as dom:
+        pong = subprocess.Popen([sys.executable, "-m", "benchmarks.pingpong", "pong", "--timeout", "10"],
+                                cwd=ROOT, env=dom.env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            p = subprocess.run([sys.executable, "-m", "benchmarks.pingpong", "ping", "--count", str(count),
+                                "--warmup", "200"], cwd=ROOT, env=dom.env, capture_output=True, text=True,
+                               timeout=120 + count / 100)
+        finally:
+            pong.terminate()
+            try:
+                pong.wait(5)
+            except subprocess.TimeoutExpired:
+                pong.kill()
+                pong.wait()
+        lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
+        if p.returncode != 0 or not lines:
+            return {"available": False, "error": (p.stdout + p.stderr)[-500:], "domain_id": dom.id}
+        out = json.loads(lines[-1])
+        out.update(available=True, domain_id=dom.id)
+        return out
+
+
+def bench_lockstep(seconds: float, pingpong: dict | None) -> dict:
+    mods = ("biped_sim.simulator_node", "biped_controller.controller_node")
+    missing = [m for m in mods if importlib.util.find_spec(m) is None]
+    if missing:
+        return {"available": False, "reason": f"not available: {', '.join(missing)} not written yet"}
+    from benchmarks.lockstep import measure
+    try:
+        res = measure(seconds, _Domain)
+    except Exception as exc:  # noqa: BLE001
+        return {"available": False, "reason": f"not available: {type(exc).__name__}: {exc}"}
+    if res.get("available") and pingpong and pingpong.get("available"):
+        res["fraction_of_pingpong"] = res["steps_per_s"] / pingpong["rate_hz"]
+    return res
+
+
+# ------------------------------------------------------------------------------------------------
+# 4. in-process simulation speed
+# ------------------------------------------------------------------------------------------------
+
+def bench_inprocess(steps: int) -> dict:
+    from biped_controller.runner import run
+    out = {}
+    for mode in ("none", "both"):
+        t0 = time.perf_counter()
+        r = run(steps=steps, mode=mode)
+        wall = time.perf_counter() - t0
+        sim_t = len(r.records) * 0.001 if not r.records else r.records[-1].t + 0.001
+        out[mode] = {"steps_walked": r.steps_walked, "fallen": r.fallen, "periods": len(r.records),
+                     "sim_s": sim_t, "wall_s": wall, "realtime_factor": sim_t / wall,
+                     "us_per_period": wall / len(r.records) * 1e6}
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# 5. max-push table
+# ------------------------------------------------------------------------------------------------
+
+def bench_experiment(quick: bool) -> dict:
+    if importlib.util.find_spec("biped_controller.experiment") is None:
+        return {"available": False, "reason": "not available: biped_controller.experiment not written yet"}
+    from benchmarks.experiment_bench import time_table
+    if quick:   # the table takes minutes even with coarse settings: only check the API is there
+        import inspect
+        from biped_controller import experiment
+        sig = inspect.signature(experiment.max_push_modes)
+        missing = [k for k in ("resolution", "fmax", "coarse", "workers", "progress") if k not in sig.parameters]
+        return {"available": False, "reason": "skipped in --quick" + (f" (API changed: {missing})" if missing else "")}
+    try:
+        return time_table(quick)
+    except Exception as exc:  # noqa: BLE001
+        return {"available": False, "reason": f"not available: {type(exc).__name__}: {exc}"}
+
+
+# ------------------------------------------------------------------------------------------------
+# report
+# ------------------------------------------------------------------------------------------------
+
+def _f(x, nd=1):
+    return "n/a" if x is None else (f"{x:.{nd}f}" if isinstance(x, (int, float)) else str(x))
+
+
+def markdown(R: dict) -> str:
+    L = []
+    meta = R["meta"]
+    L.append(f"Run {meta['date']} on {meta['cpus']} CPUs ({meta['machine']}), "
+             f"{'quick' if meta['quick'] else 'full'} mode, {meta['wall_s']:.0f} s. "
+             "p50/p99 of per-call times (time.perf_counter_ns); ratios are side by side in this run. "
+             "Targets are printed, never asserted.")
+    L.append("")
+    c = R["controller"]
+    hr = R["hard_run"]
+    L.append(f"**1. Controller step** (mode `both`), replay of the hard run: push {hr['force']:.2f} N at "
+             f"t = {PUSH_START} s for {PUSH_DURATION * 1000:.0f} ms (largest survived; bracket "
+             f"{hr['bracket'][0]:.2f}-{hr['bracket'][1]:.2f} N), {c['steps_recorded']} periods x "
+             f"{c['replays']} replays = {c['steps_timed']} steps; QP status over the run: "
+             + ", ".join(f"{k} {v}" for k, v in c["qp_status_counts"].items()) + ".")
+    L.append("")
+    L.append("| piece | p50 [us] | p99 [us] | steps |")
+    L.append("| --- | ---: | ---: | ---: |")
+    labels = [("model_terms", "model terms (FixedFootModel.dynamics: A, H, reaction rows)"),
+              ("constraint_assembly", "constraint assembly (eq. 21: _constraint_rows + G = A D, h)"),
+              ("constraint_rows_only", "  of which _constraint_rows"),
+              ("assembly_tail_G_h", "  of which G = A D, h, range rows"),
+              ("qp_solve_all_steps", "QP solve (AdaptationQP.solve), all steps"),
+              ("qp_solve_piqp_called", "  steps where PIQP ran"),
+              ("qp_solve_x_star_feasible", "  steps with x* feasible (no solver call)"),
+              ("observer_jacobian", "disturbance-observer jacobian"),
+              ("rest_of_compute", "rest of compute (reference, status, margins, ...)"),
+              ("total", f"**total AdaptiveController.compute** (target p50 <= {TARGETS['controller_step_p50_us']:.0f})"),
+              ("total_instrumented", "  total with the timers in place")]
+    for k, lab in labels:
+        p = c["pieces_us"][k]
+        L.append(f"| {lab} | {_f(p['p50'])} | {_f(p['p99'])} | {p['n']} |")
+    L.append("")
+    s = R["solvers"]
+    L.append(f"**2. Small-QP solvers** on the QPs recorded from the push probes "
+             f"({s['instances_total']} instances: {s['instances_constrained']} constrained, of which "
+             f"{s['instances_infeasible']} infeasible, from forces {', '.join(f'{x:g}' for x in s['forces_contributing'])} N; "
+             f"{s['instances_unconstrained']} with x* feasible are skipped — they never call a solver: "
+             f"AdaptationQP early-out p50 {_f(s['unconstrained_early_out_us']['p50'], 2)} us). "
+             f"Each answer checked against the exact solver (|dx| <= {MATCH_TOL:g} max(1, |x|)) before "
+             f"timing; {s['repeats_per_instance']} timed calls per instance, round-robin.")
+    L.append("")
+    L.append("| solver | p50 [us] | p99 [us] | ratio to fastest correct | failures | calls timed |")
+    L.append("| --- | ---: | ---: | ---: | ---: | ---: |")
+    for n, row in sorted(s["table_us"].items(), key=lambda kv: (kv[1]["p50"] is None, kv[1]["p50"] or 0)):
+        L.append(f"| {n} | {_f(row['p50'])} | {_f(row['p99'])} | {_f(row['ratio_to_fastest'], 2)} | "
+                 f"{row['failures']} | {row['n']} |")
+    prod = s["table_us"].get("PIQP held (AdaptationQP)", {})
+    L.append("")
+    L.append(f"Production QP (PIQP held) p50 is {_f(prod.get('ratio_to_fastest'), 2)}x the fastest correct "
+             f"({s['fastest_correct']}); target <= {TARGETS['production_qp_vs_fastest_ratio']}x.")
+    L.append("")
+    d = R["dds"]
+    pp, ls = d["pingpong"], d["lockstep"]
+    L.append("**3. DDS lockstep** (1 kHz control period, isolated ROS_DOMAIN_ID, LOCALHOST discovery)")
+    L.append("")
+    L.append("| loop | rate [steps/s] | real-time factor | round trip p50 [us] | p99 [us] |")
+    L.append("| --- | ---: | ---: | ---: | ---: |")
+    if pp.get("available"):
+        L.append(f"| bare rclpy ping-pong (SimState -> JointState, 2 processes) | {_f(pp['rate_hz'], 0)} | "
+                 f"{_f(pp['rate_hz'] / 1000.0, 2)} | {_f(pp['rtt_p50_us'])} | {_f(pp['rtt_p99_us'])} |")
+    else:
+        L.append(f"| bare rclpy ping-pong | failed: {pp.get('error', '')[:80]} | | | |")
+    if ls.get("available"):
+        L.append(f"| simulator_node + controller_node | {_f(ls['steps_per_s'], 0)} | "
+                 f"{_f(ls['realtime_factor'], 2)} | {_f(ls.get('period_p50_us'))} | {_f(ls.get('period_p99_us'))} |")
+        L.append("")
+        L.append(f"Lockstep / ping-pong = {_f(ls.get('fraction_of_pingpong'), 2)} (target >= "
+                 f"{TARGETS['lockstep_vs_pingpong_fraction']:.2f}, and >= 1 kHz).")
+    else:
+        L.append(f"| simulator_node + controller_node | {ls.get('reason', 'not available')} | | | |")
+        L.append("")
+        L.append(f"Targets: lockstep >= {TARGETS['lockstep_vs_pingpong_fraction']:.0%} of the ping-pong and >= 1 kHz.")
+    L.append("")
+    ip = R["inprocess"]
+    L.append(f"**4. In-process loop** (runner.run, no push, 5 steps; target >= {TARGETS['inprocess_realtime_factor']:.0f}x real time)")
+    L.append("")
+    L.append("| mode | simulated s | wall s | sim s / wall s | us per 1 ms period |")
+    L.append("| --- | ---: | ---: | ---: | ---: |")
+    for mode, v in ip.items():
+        L.append(f"| {mode} | {_f(v['sim_s'], 3)} | {_f(v['wall_s'], 2)} | {_f(v['realtime_factor'], 2)} | "
+                 f"{_f(v['us_per_period'], 0)} |")
+    L.append("")
+    e = R["experiment"]
+    L.append(f"**5. Four-mode max-push table** (target <= {TARGETS['max_push_table_s']:.0f} s on 2 cores): "
+             + (f"serial {_f(e['serial_s'])} s, parallel ({e['workers']} processes) {_f(e['parallel_s'])} s."
+                if e.get("available") else e.get("reason", "not available") + "."))
+    return "\n".join(L) + "\n"
+
+
+def update_readme(md: str, path: Path) -> None:
+    start, end = "<!-- bench:start -->", "<!-- bench:end -->"
+    text = path.read_text(encoding="utf-8")
+    block = f"{start}\n{md}{end}"
+    if start in text and end in text:
+        a = text.index(start)
+        b = text.index(end) + len(end)
+        new = text[:a] + block + text[b:]
+    else:
+        new = text.rstrip("\n") + "\n\n## Benchmarks\n\n`scripts/bench [--quick] [--json FILE]` " \
+              "(benchmarks/run.py) refreshes this section.\n\n" + block + "\n"
+    if new != text:
+        path.write_text(new, encoding="utf-8")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="biped benchmarks")
+    ap.add_argument("--quick", action="store_true", help="a few hundred steps / instances")
+    ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results.json"))
+    ap.add_argument("--md", default=None, help="Markdown table (default: results.md beside the JSON)")
+    ap.add_argument("--readme", default=None, help="README to refresh (default: the repository's, "
+                    "full runs writing the default JSON only)")
+    ap.add_argument("--no-readme", action="store_true")
+    a = ap.parse_args(argv)
+    json_path = Path(a.json)
+    md_path = Path(a.md) if a.md else json_path.with_suffix(".md")
+    T0 = time.perf_counter()
+    quick = a.quick
+    R = {"meta": {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "quick": quick, "cpus": os.cpu_count(),
+                  "machine": platform.processor() or platform.machine(), "python": platform.python_version()},
+         "targets": TARGETS}
+    from biped_controller.controller import load_controller_config
+    log("0. searching the hard run (largest surviving push, mode both)")
+    hard = find_hard_run(quick)
+    steps = 1 if quick else 22
+    t0 = time.perf_counter()
+    rec = _push_run(hard["force"], steps)
+    log(f"recorded F={hard['force']:.2f} N: {len(rec.records)} periods, fallen={rec.fallen} "
+        f"[{time.perf_counter() - t0:.1f} s]")
+    instances = [(hard["force"], q) for q in rec.qp_instances] + hard["instances"]
+    R["hard_run"] = {"force": hard["force"], "bracket": hard["bracket"], "probes": hard["probes"],
+                     "recorded": {"steps": steps, "periods": len(rec.records), "fallen": rec.fallen,
+                                  "steps_walked": rec.steps_walked, **_qp_counts(rec)}}
+    log("1. controller step split")
+    records = rec.records[:300] if quick else rec.records
+    c = bench_controller(records, 300 if quick else 10_000)
+    rec_dec = [(s.p_ddot, s.tau_ddot) for s in rec.statuses[:len(records)]]
+    c["replay_matches_run"] = bool(np.allclose([d[:2] for d in c.pop("decisions")], rec_dec, rtol=1e-9, atol=1e-9))
+    R["controller"] = c
+    log(f"   total p50 {c['pieces_us']['total']['p50']:.1f} us; replay matches run: {c['replay_matches_run']}")
+    log("2. QP solvers")
+    cfg = load_controller_config(mode="both")
+    W = np.array([cfg.weight_p, cfg.weight_tau])
+    if quick:   # every constrained instance (a few hundred at most) and 200 with x* feasible
+        con = [i for i in instances if not np.all(i[1][0] @ i[1][2] - i[1][1] <= 0.0)]
+        unc = [i for i in instances if np.all(i[1][0] @ i[1][2] - i[1][1] <= 0.0)]
+        instances = con[:300] + unc[:200]
+    R["solvers"] = bench_solvers(instances, W, 200 if quick else 10_000, 20 if quick else 500)
+    log(f"   fastest correct: {R['solvers']['fastest_correct']}")
+    log("3. DDS ping-pong and lockstep")
+    pp = bench_pingpong(300 if quick else 5000)
+    R["dds"] = {"pingpong": pp, "lockstep": bench_lockstep(0.5 if quick else 5.0, pp)}
+    log(f"   ping-pong {pp.get('rate_hz', 'failed')}; lockstep {R['dds']['lockstep'].get('steps_per_s', R['dds']['lockstep'].get('reason'))}")
+    log("4. in-process speed")
+    R["inprocess"] = bench_inprocess(1 if quick else 5)
+    log("5. max-push table")
+    R["experiment"] = bench_experiment(quick)
+    R["meta"]["wall_s"] = time.perf_counter() - T0
+    p50 = c["pieces_us"]["total"]["p50"]
+    prod = R["solvers"]["table_us"]["PIQP held (AdaptationQP)"]["ratio_to_fastest"]
+    ls = R["dds"]["lockstep"]
+    e = R["experiment"]
+    R["target_check"] = {
+        "controller_step_p50_us": {"value": p50, "target": "<= 60", "met": p50 <= 60},
+        "production_qp_vs_fastest_ratio": {"value": prod, "target": "<= 1.5", "met": prod is not None and prod <= 1.5},
+        "lockstep_vs_pingpong_fraction": {"value": ls.get("fraction_of_pingpong"), "target": ">= 0.90",
+                                          "met": None if not ls.get("available") else ls.get("fraction_of_pingpong", 0) >= 0.9},
+        "lockstep_rate_hz": {"value": ls.get("steps_per_s"), "target": ">= 1000",
+                             "met": None if not ls.get("available") else ls["steps_per_s"] >= 1000},
+        "inprocess_realtime_factor": {"value": R["inprocess"]["both"]["realtime_factor"], "target": ">= 50",
+                                      "met": R["inprocess"]["both"]["realtime_factor"] >= 50},
+        "max_push_table_s": {"value": e.get("parallel_s"), "target": "<= 30",
+                             "met": None if not e.get("available") else e["parallel_s"] <= 30},
+    }
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(R, indent=1, default=float) + "\n", encoding="utf-8")
+    md = markdown(R)
+    md_path.write_text(md, encoding="utf-8")
+    readme = Path(a.readme) if a.readme else None
+    if readme is None and not a.no_readme and not quick and json_path == ROOT / "benchmarks" / "results.json":
+        readme = ROOT / "README.md"
+    if readme is not None and not a.no_readme:
+        update_readme(md, readme)
+        log(f"refreshed {readme}")
+    print(md)
+    log(f"wrote {json_path} and {md_path} [{R['meta']['wall_s']:.0f} s]")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,163 @@
+"""The benchmark harness in quick mode (so it never rots: completes, writes well-formed JSON with the
+expected keys; timings are never asserted), and exact-vs-PIQP agreement on seeded random instances
+of the controller's shape (m = 20 rows) with degenerate rows mixed in: parallel / anti-parallel /
+duplicated rows, zero-norm rows, rows scaled over many decades (N next to N m), feasible and
+infeasible -- complementing tests/test_qp.py, which covers each degenerate case on its own."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from biped_controller.qp import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, AdaptationQP
+from biped_controller.qp_exact import solve_exact
+
+ROOT = Path(__file__).resolve().parents[1]
+M = 20  # 17 constraints + 3 parameter-range rows, as in the controller
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_quick_benchmark_writes_json(tmp_path, ros_env):
+    out = tmp_path / "results.json"
+    p = subprocess.run([sys.executable, "-m", "benchmarks.run", "--quick", "--json", str(out), "--no-readme"],
+                       cwd=ROOT, env=ros_env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    R = json.loads(out.read_text())
+    assert set(R) >= {"meta", "targets", "hard_run", "controller", "solvers", "dds", "inprocess", "experiment",
+                      "target_check"}
+    pieces = R["controller"]["pieces_us"]
+    for k in ("model_terms", "constraint_assembly", "qp_solve_all_steps", "total"):
+        assert pieces[k]["n"] >= 300 and pieces[k]["p50"] > 0 and pieces[k]["p99"] >= pieces[k]["p50"]
+    assert R["controller"]["replay_matches_run"] is True
+    tab = R["solvers"]["table_us"]
+    assert set(tab) == {"exact (qp_exact)", "PIQP held (AdaptationQP)", "PIQP via qpsolvers", "DAQP via qpsolvers",
+                        "quadprog via qpsolvers", "OSQP via qpsolvers", "ProxQP via qpsolvers"}
+    assert R["solvers"]["instances_constrained"] > 0
+    for row in tab.values():
+        assert {"p50", "p99", "failures", "ratio_to_fastest", "n"} <= set(row)
+    assert tab["exact (qp_exact)"]["failures"] == 0
+    assert {"pingpong", "lockstep"} <= set(R["dds"])
+    assert "available" in R["dds"]["pingpong"] and "available" in R["dds"]["lockstep"]
+    for mode in ("none", "both"):
+        assert R["inprocess"][mode]["realtime_factor"] > 0
+    assert "available" in R["experiment"]
+    md = (tmp_path / "results.md").read_text()
+    assert "| solver |" in md and "| piece |" in md
+
+
+# ------------------------------------------------------------------------------------------------
+# exact 2-variable solver vs PIQP (AdaptationQP) on random instances with degenerate rows
+# ------------------------------------------------------------------------------------------------
+
+def _degenerate_instance(rng, feasible: bool):
+    """Random rows through a random feasible point x0 (or not), then degenerate rows mixed in."""
+    n = 2
+    G = rng.normal(size=(M, n))
+    x0 = rng.normal(scale=5.0, size=n)
+    slack = rng.exponential(1.0, size=M) * rng.choice([0.0, 1.0], p=[0.2, 0.8], size=M)  # some rows tight at x0
+    h = G @ x0 + slack
+    kind = rng.integers(0, 5)
+    i, j = rng.choice(M, size=2, replace=False)
+    if kind == 0:                       # duplicated row (possibly rescaled)
+        c = rng.uniform(0.1, 10.0)
+        G[j], h[j] = c * G[i], c * h[i]
+    elif kind == 1:                     # anti-parallel pair: a strip around x0
+        G[j] = -rng.uniform(0.1, 10.0) * G[i]
+        h[j] = G[j] @ x0 + rng.exponential(0.5)
+    elif kind == 2:                     # zero-norm rows with h >= 0 (always satisfied)
+        G[j] = 0.0
+        h[j] = abs(h[j])
+    elif kind == 3:                     # rows scaled over many decades (N vs N m)
+        s = 10.0 ** rng.uniform(-3, 3, size=M)
+        G, h = G * s[:, None], h * s
+    else:                               # nearly parallel pair through x0
+        G[j] = G[i] + 1e-7 * rng.normal(size=n)
+        h[j] = G[j] @ x0
+    # x* well outside so that some rows are active
+    x_star = x0 + rng.normal(scale=20.0, size=n)
+    if not feasible:
+        # a row contradicting an existing one: g x <= h_i and -g x <= -h_i - d (d > 0)
+        k = rng.choice([r for r in range(M) if r not in (i, j)])
+        if np.linalg.norm(G[i]) == 0.0:
+            G[i], h[i] = rng.normal(size=n), 0.0
+        G[k] = -G[i]
+        h[k] = -h[i] - rng.uniform(0.5, 5.0) * np.linalg.norm(G[i])
+        if rng.random() < 0.3:          # or a zero-norm row with h < 0
+            G[k], h[k] = 0.0, -1.0
+    return G, h, x_star
+
+
+@pytest.mark.parametrize("feasible", [True, False])
+def test_exact_agrees_with_piqp_on_random_degenerate_instances(feasible):
+    rng = np.random.default_rng(20260 + int(feasible))
+    W = np.array([1.0, 1.0])
+    held = AdaptationQP(2, M, W)
+    statuses = []
+    for _ in range(300):
+        G, h, x_star = _degenerate_instance(rng, feasible)
+        W = rng.uniform(0.1, 10.0, size=2)
+        held.set_weights(W)
+        ex = solve_exact(G, h, x_star, W)
+        pq = held.solve(G, h, x_star)
+        statuses.append(ex.status)
+        if not np.all(np.isfinite(ex.x)):   # known bug, see test_least_violation_is_finite_known_bug
+            continue
+        if feasible:
+            assert ex.status in (ACTIVE, UNCONSTRAINED)
+        else:
+            assert ex.status == INFEASIBLE_FALLBACK
+        assert pq.status == ex.status, (pq.message, ex.message)
+        scale = max(1.0, float(np.max(np.abs(ex.x))))
+        assert np.max(np.abs(pq.x - ex.x)) <= 1e-6 * scale, (pq.x, ex.x, pq.message, ex.message)
+        if ex.status == ACTIVE:   # both are feasible to rounding and equally good
+            tol = 1e-9 * (np.abs(G) @ np.abs(ex.x) + np.abs(h) + 1.0)
+            assert np.all(G @ pq.x - h <= 1e-6 * (np.abs(G) @ np.abs(pq.x) + np.abs(h) + 1.0))
+            assert np.all(G @ ex.x - h <= tol)
+    if feasible:
+        assert statuses.count(ACTIVE) > 200
+
+
+def test_exact_agrees_with_piqp_on_recorded_controller_instances():
+    """QPs the controller built in a run pushed past the `both`-mode limit (falls): real scaling."""
+    from biped_controller.controller import load_controller_config
+    from biped_controller.runner import PushSpec, run
+
+    res = run(steps=1, mode="both", pushes=(PushSpec(0.2315, 0.025, 150.0),), keep_qp=True)
+    cfg = load_controller_config(mode="both")
+    W = np.array([cfg.weight_p, cfg.weight_tau])
+    held = AdaptationQP(2, M, W)
+    n_con = 0
+    for G, h, x_star, status in res.qp_instances:
+        ex = solve_exact(G, h, x_star, W)
+        pq = held.solve(G, h, x_star)
+        assert pq.status == ex.status == status
+        scale = max(1.0, float(np.max(np.abs(ex.x))))
+        assert np.max(np.abs(pq.x - ex.x)) <= 1e-6 * scale
+        n_con += status != UNCONSTRAINED
+    assert n_con > 10
+
+
+def _nonfinite_least_violation_cases():
+    out = []
+    for feasible in (True, False):
+        rng = np.random.default_rng(20260 + int(feasible))
+        for _ in range(300):
+            G, h, x_star = _degenerate_instance(rng, feasible)
+            W = rng.uniform(0.1, 10.0, size=2)
+            ex = solve_exact(G, h, x_star, W)
+            if not np.all(np.isfinite(ex.x)):
+                out.append((G, h, x_star, W, ex.message))
+    return out
+
+
+@pytest.mark.xfail(strict=True, reason="qp_exact.least_violation_exact returns x = NaN (status INFEASIBLE_FALLBACK) "
+                   "when a zero-norm row has h < 0 and the other rows span ~6 decades of scale; "
+                   "AdaptationQP falls back to it, so the controller would report SOLVER_ERROR")
+def test_least_violation_is_finite_known_bug():
+    bad = _nonfinite_least_violation_cases()
+    assert not bad, f"{len(bad)} instance(s), e.g. {bad[0][4]}"
