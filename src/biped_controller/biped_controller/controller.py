@@ -195,7 +195,9 @@ class AdaptiveController:
         if self._t_last is not None:
             # advance (p, p', tau, tau') over the time actually elapsed since the last decision, with the
             # constant p'', tau'' chosen then (exact); a period cut short by an impact is shorter.
-            h_el = t - self._t_last
+            # elapsed time from integer nanoseconds, so that a time that travelled through a ROS stamp
+            # (sec, nanosec) gives bit-identical arithmetic to the in-process float time
+            h_el = (round(t * 1e9) - round(self._t_last * 1e9)) * 1e-9
             s0 = self.state
             p_dd0, t_dd0 = self._decision
             s0.p += s0.p_dot * h_el + 0.5 * p_dd0 * h_el * h_el
@@ -231,7 +233,7 @@ class AdaptiveController:
             j6 = Jp[3:]
             if self._prev is not None and self._prev[3] == stance:
                 qd_prev, w_prev, A_prev = self._prev[:3]
-                r = A_prev @ ((qd - qd_prev) / (t - self._prev[4]) - w_prev)
+                r = A_prev @ ((qd - qd_prev) / ((round(t * 1e9) - round(self._prev[4] * 1e9)) * 1e-9) - w_prev)
                 nrm = float(j6 @ j6)
                 F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
             delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
