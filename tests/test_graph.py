@@ -255,7 +255,14 @@ def test_e_sigint_leaves_finished_bag_and_no_orphans(ros_domain, tmp_path):
             if list(bag.glob('*.mcap')) and len(pids) >= 4:
                 break
             time.sleep(0.1)
-        time.sleep(3.0)   # let it walk a little
+        # let it walk until the recorder has flushed at least one chunk (robust to a loaded machine,
+        # where the lockstep run may start seconds after the graph is up)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 90:
+            files = list(bag.glob('*.mcap'))
+            if files and files[0].stat().st_size > 300_000:
+                break
+            time.sleep(0.2)
         pids |= _descendants(proc.pid)
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)

@@ -27,23 +27,18 @@ import time
 from typing import Optional
 
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
 from biped_msgs_py.msg import ControllerStatus, SimState
 from biped_sim import graph_names as gn
 from biped_sim.description import PAPER_JOINTS, load_description
 from biped_sim.node_params import (
-    EXIT_BAD_PARAMETER,
     ParameterError,
     get_bool,
     get_float,
     get_str,
-    install_stop_handlers,
-    restore_handlers,
+    run_node,
 )
 from biped_sim.simulator import load_sim_config
 
@@ -151,32 +146,7 @@ class ControllerNode(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node: Optional[ControllerNode] = None
-    try:
-        try:
-            node = ControllerNode()
-        except ParameterError as exc:
-            print(f'controller: {exc}', file=sys.stderr)
-            return EXIT_BAD_PARAMETER
-        stop = {'signal': None}
-        previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
-        executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        try:
-            while stop['signal'] is None and rclpy.ok(context=node.context):
-                executor.spin_once(timeout_sec=0.1)
-        except (ExternalShutdownException, KeyboardInterrupt):
-            pass
-        finally:
-            restore_handlers(previous)
-        node.get_logger().info(f'controller stopping after {node.steps} steps')
-        return 0
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+    return run_node('controller', ControllerNode, args, on_stop=lambda n: n.get_logger().info(f'controller stopping after {n.steps} steps'))
 
 
 if __name__ == '__main__':

@@ -28,11 +28,8 @@ import math
 import sys
 from typing import Optional
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from biped_msgs_py.msg import PushEvent
@@ -40,12 +37,10 @@ from biped_msgs_py.srv import ApplyPush
 from biped_sim import graph_names as gn
 from biped_sim.description import load_description
 from biped_sim.node_params import (
-    EXIT_BAD_PARAMETER,
     ParameterError,
     get_float,
     get_float_list,
-    install_stop_handlers,
-    restore_handlers,
+    run_node,
 )
 from biped_sim.simulator import load_sim_config
 
@@ -178,31 +173,7 @@ class DisturbanceNode(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node: Optional[DisturbanceNode] = None
-    try:
-        try:
-            node = DisturbanceNode()
-        except ParameterError as exc:
-            print(f'disturbance: {exc}', file=sys.stderr)
-            return EXIT_BAD_PARAMETER
-        stop = {'signal': None}
-        previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
-        executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        try:
-            while stop['signal'] is None and rclpy.ok(context=node.context):
-                executor.spin_once(timeout_sec=0.1)
-        except (ExternalShutdownException, KeyboardInterrupt):
-            pass
-        finally:
-            restore_handlers(previous)
-        return 0
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+    return run_node('disturbance', DisturbanceNode, args, on_stop=None)
 
 
 if __name__ == '__main__':

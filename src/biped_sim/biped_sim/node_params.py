@@ -9,6 +9,7 @@ checks its type and range and raises :class:`ParameterError` naming the paramete
 from __future__ import annotations
 
 import math
+import sys
 import signal
 from typing import Any, Callable, Iterable, Optional, Sequence
 
@@ -108,3 +109,41 @@ def install_stop_handlers(callback: Callable[[int], None]) -> dict:
 def restore_handlers(previous: dict) -> None:
     for sig, handler in previous.items():
         signal.signal(sig, handler)
+
+
+def run_node(name: str, factory: Callable[[], Node], args=None,
+             on_stop: Callable[[Node], None] | None = None) -> int:
+    """The ``main()`` shared by the nodes: init rclpy without its signal handlers, build the node
+    (a ``ParameterError`` -> message naming the parameter on stderr and exit code EXIT_BAD_PARAMETER,
+    nothing half-started), spin until SIGINT/SIGTERM or external shutdown, then clean up. Returns 0."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node: Node | None = None
+    try:
+        try:
+            node = factory()
+        except ParameterError as exc:
+            print(f'{name}: {exc}', file=sys.stderr)
+            return EXIT_BAD_PARAMETER
+        stop = {'signal': None}
+        previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        try:
+            while stop['signal'] is None and rclpy.ok(context=node.context):
+                executor.spin_once(timeout_sec=0.1)
+        except (ExternalShutdownException, KeyboardInterrupt):
+            pass
+        finally:
+            restore_handlers(previous)
+        if on_stop is not None:
+            on_stop(node)
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
