@@ -79,7 +79,7 @@ def find_hard_run(quick: bool) -> dict:
     if quick:
         lo, hi, iters, steps = 40.0, 40.0, 0, 1
     else:
-        lo, hi, iters, steps = 0.0, 100.0, 7, 3
+        lo, hi, iters, steps = 0.0, 100.0, 8, 3
     def probe(F, st):
         t0 = time.perf_counter()
         r = _push_run(F, st)
@@ -94,8 +94,9 @@ def find_hard_run(quick: bool) -> dict:
         probe(100.0, 1)
     else:
         r = probe(hi, steps)
-        if not r.fallen:
-            lo = hi
+        while not r.fallen and hi < 3200.0:   # upper edge not bracketed yet: double
+            lo, hi = hi, 2.0 * hi
+            r = probe(hi, steps)
         for _ in range(iters):
             if hi - lo < 0.5:
                 break
