@@ -266,7 +266,15 @@ def least_violation_exact(G, h, x_star, W, eps_reg: float = DEFAULT_EPS_REG, max
         H = AS.T @ AS
         h00, h01, h11 = H[0, 0] + e, H[0, 1], H[1, 1] + e
         dH = h00 * h11 - h01 * h01
-        d = -np.array([h11 * g[0] - h01 * g[1], h00 * g[1] - h01 * g[0]]) / dH
+        if dH > 1e-13 * h00 * h11 and np.isfinite(dH):
+            d = -np.array([h11 * g[0] - h01 * g[1], h00 * g[1] - h01 * g[0]]) / dH
+        else:
+            # numerically singular piece (one active row and a regularisation below rounding, e.g.
+            # rows spanning many decades): minimum-norm Newton step; the exact line search below
+            # still decreases F, so the iteration stays monotone and finite.
+            d = -np.linalg.lstsq(np.array([[h00, h01], [h01, h11]]), g, rcond=1e-13)[0]
+            if not np.all(np.isfinite(d)):
+                break
         dd = float(d @ d)
         if not dd > (4e-16 * max(float(np.linalg.norm(y)), 1e-300)) ** 2:
             break
