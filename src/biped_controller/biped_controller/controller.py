@@ -240,10 +240,11 @@ class AdaptiveController:
             dyn_c = replace(dyn, h_b=dyn.h_b + delta)
         self.force_estimate = F
         G = h = xs = None
+        cm_true = None
         status, msg = NO_ADAPTATION, "mode none: classical computed torque"
         if self.adapted:
             try:
-                A, b, _ = self._constraint_rows(q, qd, dyn_c)
+                A, b, cm_true = self._constraint_rows(q, qd, dyn_c)
                 Gfull = A @ D                      # (17, 2)
                 hfull = -(A @ v + b)
                 # parameter range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max]; tau' + tau'' dt >= min
@@ -269,7 +270,7 @@ class AdaptiveController:
         p_dd, t_dd = float(x_full[0]), float(x_full[1])
         w = D @ x_full + v
         torque = dyn.A @ w + dyn.H
-        cm = self.model.constraints(q, qd, dyn_c)
+        cm = cm_true if cm_true is not None else self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
         R = dyn_c.B[:2] @ w + dyn_c.h_b[:2]
         zmp = float(torque[0] / R[1]) if R[1] != 0 else math.nan

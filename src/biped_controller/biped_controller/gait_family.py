@@ -57,22 +57,31 @@ class GaitFamily:
         self._k = np.arange(K, dtype=float)
         self._j = np.arange(5, dtype=float)
 
+    @staticmethod
+    def _powers(x: float, n: int) -> np.ndarray:
+        """(3, n): rows x^k, d/dx x^k = k x^(k-1), d2/dx2 x^k = k (k-1) x^(k-2), k = 0..n-1."""
+        out = np.zeros((3, n))
+        pw = 1.0
+        for k in range(n):
+            out[0, k] = pw
+            if k + 1 < n:
+                out[1, k + 1] = (k + 1) * pw
+            if k + 2 < n:
+                out[2, k + 2] = (k + 2) * (k + 1) * pw
+            pw *= x
+        return out
+
     def coefficients(self, p: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(a(p), da/dp, d2a/dp2), each (6, 5): time coefficients of eq. (12) at stride p."""
-        k = self._k
-        pk = p ** k
-        dpk = np.where(k >= 1, k * p ** np.maximum(k - 1, 0), 0.0)
-        ddpk = np.where(k >= 2, k * (k - 1) * p ** np.maximum(k - 2, 0), 0.0)
-        return self.b @ pk, self.b @ dpk, self.b @ ddpk
+        c = self.b @ self._powers(float(p), self.b.shape[2]).T   # (6, 5, 3)
+        return c[:, :, 0], c[:, :, 1], c[:, :, 2]
 
     def evaluate(self, p: float, tau: float) -> GaitSample:
-        a, da, dda = self.coefficients(p)
-        j = self._j
-        tj = tau ** j
-        dtj = np.where(j >= 1, j * tau ** np.maximum(j - 1, 0), 0.0)
-        ddtj = np.where(j >= 2, j * (j - 1) * tau ** np.maximum(j - 2, 0), 0.0)
-        return GaitSample(q=a @ tj, dq_dp=da @ tj, dq_dtau=a @ dtj, d2q_dp2=dda @ tj, d2q_dtau2=a @ ddtj,
-                          d2q_dp_dtau=da @ dtj)
+        c = self.b @ self._powers(float(p), self.b.shape[2]).T   # (6, 5, 3): a, da/dp, d2a/dp2
+        tp = self._powers(float(tau), 5)                          # (3, 5): tau^j and derivatives
+        m = np.einsum("ijk,lj->ikl", c, tp)                       # (6, 3 [p-deriv], 3 [tau-deriv])
+        return GaitSample(q=m[:, 0, 0], dq_dp=m[:, 1, 0], dq_dtau=m[:, 0, 1], d2q_dp2=m[:, 2, 0],
+                          d2q_dtau2=m[:, 0, 2], d2q_dp_dtau=m[:, 1, 1])
 
     def reference(self, p: float, p_dot: float, tau: float, tau_dot: float,
                   p_ddot: float = 0.0, tau_ddot: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

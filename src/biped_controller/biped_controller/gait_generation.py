@@ -24,6 +24,11 @@ from .gait_optimizer import StepOptimizer, StepSolution, basis, load_gait_settin
 from .model import CONSTRAINT_NAMES, relabel
 
 
+# Smoothing passes (weight of |c - c_fit(p)|^2 against the criterion scaled by 1e-4): increasing, so the
+# family first relaxes towards the fit and is then held to it.
+SMOOTHING_WEIGHTS = (1.0, 10.0, 100.0, 1000.0, 1000.0, 1.0e4, 1.0e4, 1.0e4, 1.0e4, 1.0e4)
+
+
 def _bar(i: int, n: int, label: str) -> None:
     width = 30
     done = int(width * i / max(n, 1))
@@ -87,6 +92,42 @@ def solve_family(opt: StepOptimizer, strides: list[float], p_d: float, progress:
         if changed == 0:
             break
     return out
+
+
+def _fit_from_solutions(sols: dict[float, StepSolution], p_d: float, degree: int) -> np.ndarray:
+    ps = sorted(p for p in sols if sols[p].success)
+    return fit_family(np.array(ps), np.array([sols[p].a for p in ps]), p_d, degree)
+
+
+def smooth_family(opt: StepOptimizer, sols: dict[float, StepSolution], p_d: float, weights: tuple[float, ...],
+                  progress: bool = True) -> dict[float, StepSolution]:
+    """Make the family smooth in p so that the degree-7 fit reproduces it: alternate (i) the fit b_ijk
+    through p_d and (ii) re-solving every stride p != p_d with the smoothing term
+    weight * |c - c_fit(p)|^2 added to the (scaled) criterion, warm-started at c_fit(p). Every stride
+    stays an exactly feasible cyclic step; it trades a little criterion for smoothness (the paper's
+    family is "sub-optimal" too). p_d itself is never changed: it stays the true optimum."""
+    st = opt.st
+    T = st.T
+    scale = T ** np.arange(5)[None, :]
+    for it, w in enumerate(weights):
+        b = _fit_from_solutions(sols, p_d, st.stride_degree)
+        fam = GaitFamily(b, T, p_d, min(sols), max(sols))
+        changed = 0
+        for p in sorted(sols):
+            if p == p_d or not sols[p].success:
+                continue
+            target = fam.coefficients(p)[0] * scale
+            cand = opt.solve(p, c0=target, target=target, weight=w)
+            if cand.success:
+                sols[p] = cand
+                changed += 1
+        if progress:
+            b = _fit_from_solutions(sols, p_d, st.stride_degree)
+            fam = GaitFamily(b, T, p_d, min(sols), max(sols))
+            err = max(float(np.max(np.abs(fam.coefficients(p)[0] * scale - sols[p].c))) for p in sols if sols[p].success)
+            sys.stderr.write(f"smoothing pass {it + 1} (weight {w:g}): {changed} strides re-solved, "
+                             f"max coefficient misfit {err:.2e}\n")
+    return sols
 
 
 def valid_range(sols: dict[float, StepSolution], p_d: float) -> tuple[float, float]:
@@ -248,6 +289,7 @@ def generate(path: Path, progress: bool = True) -> dict:
     st = opt.st
     t0 = time.perf_counter()
     sols = solve_family(opt, list(st.strides), st.p_d, progress)
+    sols = smooth_family(opt, sols, st.p_d, SMOOTHING_WEIGHTS, progress)
     t_family = time.perf_counter() - t0
     records = [_solution_record(sols[p]) for p in sorted(sols)]
     fam = fit_and_restrict(records, st, opt)

@@ -184,6 +184,9 @@ class StepOptimizer:
         self._cache_key: bytes | None = None
         self._cache: dict[str, np.ndarray] = {}
         self.p = st.p_d
+        # optional smoothing term rho |z - z_target|^2 (normalised coefficients), see gait_generation
+        self.penalty_target: np.ndarray | None = None
+        self.penalty_weight = 0.0
 
     # -------------------------------------------------------------- evaluation
     def _endpoint(self, qT: np.ndarray, qdT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -249,6 +252,11 @@ class StepOptimizer:
                     clear_jac.append((row[:, None] * self.phi[k][None, :]).ravel() / 0.01)
         obj *= self.obj_scale / self.p
         gobj *= self.obj_scale / self.p
+        crit = obj
+        if self.penalty_target is not None and self.penalty_weight > 0:
+            dz = z - self.penalty_target
+            obj = obj + self.penalty_weight * float(dz @ dz)
+            gobj = gobj + 2.0 * self.penalty_weight * dz
         # knee limits (linear): q2 flexion = q2, swing flexion = -q5
         kmin = max(st.knee_min_flexion, self.desc.knee_min_flexion)
         kmax = self.desc.knee_max_flexion
@@ -295,7 +303,7 @@ class StepOptimizer:
         ineq = np.concatenate([np.concatenate(g_rows), np.array(clear_rows), knee_rows, end_ineq])
         ineq_jac = np.vstack([np.vstack(g_jac), np.array(clear_jac), knee_jac, J_end @ D_end])
         self._cache_key = key
-        self._cache = dict(obj=obj, gobj=gobj, eq=eq, eq_jac=eq_jac, ineq=ineq, ineq_jac=ineq_jac)
+        self._cache = dict(obj=obj, crit=crit, gobj=gobj, eq=eq, eq_jac=eq_jac, ineq=ineq, ineq_jac=ineq_jac)
         return self._cache
 
     # -------------------------------------------------------------- solving
@@ -313,8 +321,14 @@ class StepOptimizer:
         c, *_ = np.linalg.lstsq(phi, traj, rcond=None)
         return c.T.copy()
 
-    def solve(self, p: float, c0: np.ndarray | None = None, maxiter: int | None = None) -> StepSolution:
+    def solve(self, p: float, c0: np.ndarray | None = None, maxiter: int | None = None,
+              target: np.ndarray | None = None, weight: float = 0.0) -> StepSolution:
+        """Optimal step for stride p. With ``target``/``weight``, minimise C(p)/C_scale + weight *
+        |c - target|^2 instead (a smoothing term used to make the family smooth in p); the reported
+        criterion is always C alone."""
         self.p = float(p)
+        self.penalty_target = None if target is None else np.asarray(target, dtype=float).ravel().copy()
+        self.penalty_weight = float(weight)
         self._cache_key = None
         z0 = (self.initial_guess(p) if c0 is None else np.asarray(c0, dtype=float)).ravel().copy()
         t0 = time.perf_counter()
@@ -331,9 +345,12 @@ class StepOptimizer:
         ev = self.evaluate(res.x)
         ok = bool(res.success) and float(np.max(np.abs(ev["eq"]))) < 1e-7 and float(np.min(ev["ineq"])) > -1e-7
         sol = StepSolution(
-            stride=self.p, T=self.st.T, c=c, criterion=float(ev["obj"] / self.obj_scale), success=ok,
+            stride=self.p, T=self.st.T, c=c, criterion=float(ev["crit"] / self.obj_scale), success=ok,
             message=str(res.message), iterations=int(res.nit), seconds=time.perf_counter() - t0,
         )
+        self.penalty_target = None
+        self.penalty_weight = 0.0
+        self._cache_key = None
         self.diagnose(sol)
         return sol
 

@@ -108,6 +108,7 @@ class FixedFootModel:
         self.mass = float(sum(i.mass for i in self.model.inertias))
         self._q = np.zeros(9)
         self._v = np.zeros(9)
+        self._lower = np.tril_indices(9, -1)
         self.swing_frame = self.model.getFrameId("swing_sole")
         self.hip_frame = self.model.getFrameId("hip")
         lo, hi = self.desc.torque_limits()
@@ -130,8 +131,8 @@ class FixedFootModel:
     def dynamics(self, q: np.ndarray, qd: np.ndarray) -> Dynamics:
         """A(q), H(q, q') of eq. (1) and the reaction rows (CRBA + non-linear effects, Pinocchio)."""
         self._full(q, qd)
-        M = pin.crba(self.model, self.data, self._q)
-        M = np.triu(M) + np.triu(M, 1).T
+        M = pin.crba(self.model, self.data, self._q).copy()
+        M[self._lower] = M.T[self._lower]  # CRBA fills the upper triangle
         h = pin.nonLinearEffects(self.model, self.data, self._q, self._v)
         return Dynamics(A=M[3:, 3:].copy(), H=h[3:].copy(), B=M[0:3, 3:].copy(), h_b=h[0:3].copy())
 

@@ -94,6 +94,7 @@ class FloatingModel:
         self.foot_ids = tuple(self.model.getFrameId(n) for n in FOOT_FRAMES)
         self.torso_joint = self.model.getJointId("root_joint")
         self.mass = float(sum(i.mass for i in self.model.inertias))
+        self._lower = np.tril_indices(self.model.nv, -1)
         self.joint_names = tuple(self.model.names[2:])
 
     # ---------------------------------------------------------------- kinematics
@@ -165,17 +166,24 @@ class FloatingModel:
 
     # ---------------------------------------------------------------- dynamics
     def mass_matrix(self, x: np.ndarray) -> np.ndarray:
-        M = pin.crba(self.model, self.data, x)
-        return np.triu(M) + np.triu(M, 1).T
+        M = pin.crba(self.model, self.data, x).copy()
+        M[self._lower] = M.T[self._lower]  # CRBA fills the upper triangle
+        return M
+
+    def inverse_mass_matrix(self, x: np.ndarray) -> np.ndarray:
+        """M(x)^-1 (Pinocchio's computeMinverse, upper triangle mirrored)."""
+        Mi = pin.computeMinverse(self.model, self.data, x).copy()
+        Mi[self._lower] = Mi.T[self._lower]
+        return Mi
 
     def contact_dynamics(self, x: np.ndarray, v: np.ndarray, tau: np.ndarray, foot: int) -> ContactSolution:
         """Solve M a + h = tau + J_c^T lambda, J_c a + J_c' v = 0 (Schur complement on the 3 contact rows)."""
-        M = self.mass_matrix(x)
+        Minv = self.inverse_mass_matrix(x)
         h = pin.nonLinearEffects(self.model, self.data, x, v)
         Jc = self.contact_jacobian(x, foot)
         drift = self.contact_drift(x, v, foot)
-        Minv_JT = np.linalg.solve(M, Jc.T)
-        a_free = np.linalg.solve(M, tau - h)
+        Minv_JT = Minv @ Jc.T
+        a_free = Minv @ (tau - h)
         G = Jc @ Minv_JT
         lam = np.linalg.solve(G, -drift - Jc @ a_free)
         a = a_free + Minv_JT @ lam

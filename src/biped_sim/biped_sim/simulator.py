@@ -249,9 +249,8 @@ class Simulator:
         pose = self.fm.foot_pose(x, self.stance)
         x[0] += self.anchor[0] - pose[0]
         x[1] += self.anchor[1] - pose[1]
-        M = self.fm.mass_matrix(x)
         J = self.fm.contact_jacobian(x, self.stance)
-        MiJt = np.linalg.solve(M, J.T)
+        MiJt = self.fm.inverse_mass_matrix(x) @ J.T
         v = v - MiJt @ np.linalg.solve(J @ MiJt, J @ v)
         return x, v
 
