@@ -27,6 +27,7 @@ import time
 from typing import Optional
 
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -67,6 +68,29 @@ def read_controller_config(node: Node) -> ControllerConfig:
         raise ParameterError('control_period' if name == 'period' else name, str(exc)) from exc
 
 
+def load_robot_files(node: Node):
+    """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
+    (empty = config/biped.yaml, config/gait_family.json), checked against each other."""
+    from biped_sim.description import DescriptionError
+    from biped_sim.node_checks import RobotFilesError, check_family_matches_description
+    from .gait_family import GaitFamilyError
+    desc_path = get_str(node, 'description_path', '')
+    fam_path = get_str(node, 'gait_family_path', '')
+    try:
+        desc = load_description(desc_path or None)
+    except (DescriptionError, OSError, ValueError) as exc:
+        raise ParameterError('description_path', str(exc)) from exc
+    try:
+        family = GaitFamily.load(fam_path or None)
+    except (GaitFamilyError, OSError) as exc:
+        raise ParameterError('gait_family_path', str(exc)) from exc
+    try:
+        check_family_matches_description(desc, family)
+    except RobotFilesError as exc:
+        raise ParameterError('gait_family_path', str(exc)) from exc
+    return desc, family
+
+
 def status_message(s, stamp) -> ControllerStatus:
     m = ControllerStatus()
     m.stamp = stamp
@@ -96,18 +120,38 @@ class ControllerNode(Node):
         super().__init__(gn.CONTROLLER_NODE, **kwargs)
         self.cfg = read_controller_config(self)
         self.state_timeout = get_float(self, 'state_timeout', 2.0, lo=0.0, lo_open=True)
-        self.ctrl = AdaptiveController(self.cfg, GaitFamily.load(), load_description())
+        self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
+        desc, family = load_robot_files(self)
+        self.ctrl = AdaptiveController(self.cfg, family, desc)
         self.ctrl.reset()
         self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
         self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
-        self.create_subscription(SimState, gn.SIM_STATE, self._on_state, gn.QOS_LOCKSTEP)
+        self.state_sub = None
+        if not self.wait_for_recorder:
+            self._subscribe()
         self.last_sequence: Optional[int] = None
         self.last_reply: Optional[JointState] = None
         self.last_state_wall: Optional[float] = None
         self.silent_reported = False
         self.steps = 0
-        self.create_timer(0.25, self._on_timer)
+        # wall-clock timer: with use_sim_time a ROS-time timer would stop with /clock, i.e. exactly when
+        # the simulator is gone or not started yet
+        self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s')
+
+    def _subscribe(self):
+        self.state_sub = self.create_subscription(SimState, gn.SIM_STATE, self._on_state, gn.QOS_LOCKSTEP)
+
+    def _recorder_matched(self) -> bool:
+        """The recorder is subscribed to both of our topics and every known subscription is matched
+        (so that the first torque and status of the run are recorded)."""
+        for pub in (self.pub_torque, self.pub_status):
+            infos = self.get_subscriptions_info_by_topic(pub.topic_name)
+            if gn.RECORDER_NODE not in {i.node_name for i in infos}:
+                return False
+            if pub.get_subscription_count() < len(infos):
+                return False
+        return True
 
     def _on_state(self, msg: SimState):
         self.last_state_wall = time.monotonic()
@@ -135,14 +179,20 @@ class ControllerNode(Node):
         self.steps += 1
 
     def _on_timer(self):
+        if self.state_sub is None:
+            if self._recorder_matched():
+                self.get_logger().info('recorder matched: subscribing to ' + gn.SIM_STATE)
+                self._subscribe()
+            return
         if self.last_state_wall is None or self.silent_reported:
             return
         if time.monotonic() - self.last_state_wall > self.state_timeout:
             self.silent_reported = True
             pubs = self.count_publishers(gn.SIM_STATE)
+            what = 'the simulator is gone' if pubs == 0 else 'the simulator stopped publishing'
             self.get_logger().warning(
                 f'{gn.SIM_STATE} is silent for {self.state_timeout} s after {self.steps} steps '
-                f'({pubs} publisher(s) left): idling')
+                f'({pubs} publisher(s) left: {what}): idling')
 
 
 def main(args=None) -> int:

@@ -1,6 +1,7 @@
 """ROS 2 node ``disturbance``: validates push requests and publishes the accepted ones.
 
-Service ``/apply_push`` (biped_msgs_py/srv/ApplyPush). A request is checked, in this order:
+Service ``/apply_push`` (biped_msgs_py/srv/ApplyPush). A request is checked by the pure
+:func:`biped_sim.push_validation.validate_push_request`, in this order:
 every used number finite (``force``, ``duration``, ``start`` or ``delay``; ``height`` may be NaN =
 default), ``0 < duration <= max_duration``, ``|force| <= max_force``, ``delay >= 0``, start not
 before the current sim time (``/clock``; this node runs with ``use_sim_time`` true), ``height``
@@ -35,61 +36,16 @@ from std_msgs.msg import String
 from biped_msgs_py.msg import PushEvent
 from biped_msgs_py.srv import ApplyPush
 from biped_sim import graph_names as gn
-from biped_sim.description import load_description
+from biped_sim.description import DescriptionError, load_description
+from biped_sim.push_validation import PushBook, PushLimits, Rejected
 from biped_sim.node_params import (
     ParameterError,
     get_float,
     get_float_list,
+    get_str,
     run_node,
 )
 from biped_sim.simulator import load_sim_config
-
-
-class Rejected(ValueError):
-    def __init__(self, field: str, message: str):
-        super().__init__(message)
-        self.field = field
-
-
-class PushBook:
-    """Pure validation and bookkeeping of the scheduled pushes (no ROS)."""
-
-    def __init__(self, max_force: float, max_duration: float, torso_length: float, default_height: float):
-        self.max_force = max_force
-        self.max_duration = max_duration
-        self.torso_length = torso_length
-        self.default_height = default_height
-        self.pushes: list[tuple[int, float, float, float, float]] = []   # (id, start, end, force, height)
-        self.next_id = 1
-
-    def check(self, force: float, duration: float, start: float, height: float, now: float) -> tuple[float, float]:
-        """Validate; returns (start, resolved height). Raises Rejected naming the field."""
-        for name, v in (('force', force), ('duration', duration), ('start', start)):
-            if not math.isfinite(v):
-                raise Rejected(name, f'{name} must be a finite number, got {v}')
-        if not 0.0 < duration <= self.max_duration:
-            raise Rejected('duration', f'duration must be in (0, {self.max_duration}] s, got {duration}')
-        if abs(force) > self.max_force:
-            raise Rejected('force', f'force must be in [-{self.max_force}, {self.max_force}] N, got {force}')
-        if start < now:
-            raise Rejected('start', f'start must not be in the past: >= current sim time {now:.6f} s, got {start}')
-        if math.isnan(height):
-            height = self.default_height
-        elif not (math.isfinite(height) and 0.0 <= height <= self.torso_length):
-            raise Rejected('height', f'height must be NaN (default {self.default_height} m) or within '
-                                     f'[0, {self.torso_length}] m (the torso), got {height}')
-        end = start + duration
-        for pid, s, e, _f, _h in self.pushes:
-            if start < e and s < end:
-                raise Rejected('start', f'[start, start + duration) = [{start}, {end}) s overlaps push {pid} '
-                                        f'[{s}, {e}) s: must start >= {e} s or end <= {s} s')
-        return start, height
-
-    def add(self, force: float, duration: float, start: float, height: float) -> int:
-        pid = self.next_id
-        self.next_id += 1
-        self.pushes.append((pid, start, start + duration, force, height))
-        return pid
 
 
 class DisturbanceNode(Node):
@@ -98,12 +54,16 @@ class DisturbanceNode(Node):
         overrides = [p for p in kwargs.pop('parameter_overrides', []) if p.name != 'use_sim_time']
         overrides.append(Parameter('use_sim_time', Parameter.Type.BOOL, True))
         super().__init__(gn.DISTURBANCE_NODE, parameter_overrides=overrides, **kwargs)
-        desc = load_description()
+        desc_path = get_str(self, 'description_path', '')
+        try:
+            desc = load_description(desc_path or None)
+        except (DescriptionError, OSError, ValueError) as exc:
+            raise ParameterError('description_path', str(exc)) from exc
         max_force = get_float(self, 'max_force', 2000.0, lo=0.0, lo_open=True)
         max_duration = get_float(self, 'max_duration', 1.0, lo=0.0, lo_open=True)
         default_height = get_float(self, 'push_height', load_sim_config().push_height, lo=0.0,
                                    hi=desc.torso.length)
-        self.book = PushBook(max_force, max_duration, desc.torso.length, default_height)
+        self.book = PushBook(PushLimits(max_force, max_duration, desc.torso.length, default_height))
         forces = get_float_list(self, 'schedule_forces')
         starts = get_float_list(self, 'schedule_starts')
         durations = get_float_list(self, 'schedule_durations')
@@ -118,13 +78,13 @@ class DisturbanceNode(Node):
         for i in range(n):
             h = heights[i] if heights else math.nan
             try:
-                s, hh = self.book.check(forces[i], durations[i], starts[i], h, 0.0)
+                vp = self.book.check(forces[i], durations[i], starts[i], h, 0.0)
             except Rejected as exc:
                 pname = {'force': 'schedule_forces', 'duration': 'schedule_durations', 'start': 'schedule_starts',
                          'height': 'schedule_heights'}[exc.field]
                 raise ParameterError(pname, f'entry {i}: {exc}') from exc
-            pid = self.book.add(forces[i], durations[i], s, hh)
-            schedule.append(PushEvent(id=pid, start=s, duration=durations[i], force=forces[i], height=hh))
+            pid = self.book.add(vp)
+            schedule.append(PushEvent(id=pid, start=vp.start, duration=vp.duration, force=vp.force, height=vp.height))
 
         self.pub_events = self.create_publisher(PushEvent, gn.PUSH_EVENTS, gn.QOS_EVENTS)
         self.pub_requests = self.create_publisher(String, gn.PUSH_REQUESTS, gn.QOS_EVENTS)
@@ -141,15 +101,8 @@ class DisturbanceNode(Node):
     def _on_apply_push(self, request, response):
         now = self.sim_time()
         try:
-            if request.use_delay:
-                if not math.isfinite(request.delay):
-                    raise Rejected('delay', f'delay must be a finite number, got {request.delay}')
-                if request.delay < 0:
-                    raise Rejected('delay', f'delay must be >= 0 s, got {request.delay}')
-                start = now + request.delay
-            else:
-                start = request.start
-            start, height = self.book.check(request.force, request.duration, start, request.height, now)
+            vp = self.book.check(request.force, request.duration, request.start, request.height, now,
+                                 use_delay=bool(request.use_delay), delay=request.delay)
         except Rejected as exc:
             response.accepted = False
             response.message = f'rejected: {exc}'
@@ -158,8 +111,9 @@ class DisturbanceNode(Node):
             response.scheduled_end = math.nan
             self.get_logger().warning(f'{gn.APPLY_PUSH}: {response.message}')
         else:
-            pid = self.book.add(request.force, request.duration, start, height)
-            ev = PushEvent(id=pid, start=start, duration=request.duration, force=request.force, height=height)
+            pid = self.book.add(vp)
+            start, height = vp.start, vp.height
+            ev = PushEvent(id=pid, start=start, duration=vp.duration, force=vp.force, height=height)
             self.pub_events.publish(ev)
             response.accepted = True
             response.push_id = pid

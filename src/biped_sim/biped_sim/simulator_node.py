@@ -76,9 +76,11 @@ from biped_sim.node_params import (
     get_bool,
     get_float,
     get_int,
+    get_str,
     install_stop_handlers,
     restore_handlers,
 )
+from biped_sim.node_checks import RobotFilesError, check_urdf_joints
 from biped_sim.simulator import PushError, SimConfig, SimConfigError, Simulator, load_sim_config
 
 SIDES = ('left', 'right')
@@ -160,14 +162,26 @@ class SimulatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__(gn.SIMULATOR_NODE, **kwargs)
         self.declare_parameter_errors()
-        from biped_controller.gait_family import GaitFamily
+        from biped_controller.controller_node import load_robot_files
         from biped_controller.runner import initial_state
 
-        self.desc = load_description()
+        self.desc, family = load_robot_files(self)
+        urdf_path = get_str(self, 'urdf_path', '')
+        if urdf_path:
+            try:
+                with open(urdf_path, encoding='utf-8') as fh:
+                    self.urdf = fh.read()
+            except OSError as exc:
+                raise ParameterError('urdf_path', f'cannot read {urdf_path}: {exc}') from exc
+        else:
+            self.urdf = make_urdf(self.desc)
+        try:
+            check_urdf_joints(self.urdf)
+        except RobotFilesError as exc:
+            raise ParameterError('urdf_path', f'{urdf_path or "generated URDF"}: {exc}') from exc
         self.sim = Simulator(self.desc, self.cfg)
-        q0, qd0 = initial_state(GaitFamily.load())
+        q0, qd0 = initial_state(family)
         self.sim.reset(q0, qd0, LEFT)
-        self.urdf = make_urdf(self.desc)
         self.tfb = TransformBuilder(self.urdf)
 
         self.pub_clock = self.create_publisher(Clock, gn.CLOCK, gn.QOS_CLOCK)
@@ -181,7 +195,8 @@ class SimulatorNode(Node):
         self.pub_fall = self.create_publisher(String, gn.FALL, gn.QOS_LATCHED)
         self.published_topics = [gn.CLOCK, gn.SIM_STATE, gn.JOINT_STATES, gn.GROUND_REACTION,
                                  gn.GROUND_REACTION_COP, gn.STANCE, gn.TF, gn.ROBOT_DESCRIPTION]
-        self.create_subscription(JointState, gn.CONTROLLER_TORQUE, self._on_torque, gn.QOS_LOCKSTEP)
+        self.sub_torque = self.create_subscription(JointState, gn.CONTROLLER_TORQUE, self._on_torque,
+                                                   gn.QOS_LOCKSTEP)
         self.create_subscription(PushEvent, gn.PUSH_EVENTS, self._on_push, gn.QOS_EVENTS)
 
         self.pub_desc.publish(String(data=self.urdf))
@@ -222,15 +237,21 @@ class SimulatorNode(Node):
     # ------------------------------------------------------------------ start
     def _missing_for_start(self) -> list[str]:
         missing = []
-        if self.count_subscribers(gn.SIM_STATE) < 1:
-            missing.append(f'a subscriber on {gn.SIM_STATE} (controller)')
-        if self.count_publishers(gn.CONTROLLER_TORQUE) < 1:
-            missing.append(f'a publisher on {gn.CONTROLLER_TORQUE} (controller)')
+        # matched (not only discovered): the first state and the first torque are volatile messages
+        state_subs = {i.node_name for i in self.get_subscriptions_info_by_topic(gn.SIM_STATE)}
+        if gn.CONTROLLER_NODE not in state_subs or self.pub_state.get_subscription_count() < 1:
+            missing.append(f'the controller subscribed to {gn.SIM_STATE} (matched)')
+        if self.count_publishers(gn.CONTROLLER_TORQUE) < 1 or self.sub_torque.get_publisher_count() < 1:
+            missing.append(f'a publisher on {gn.CONTROLLER_TORQUE} (controller, matched)')
         if self.wait_for_recorder:
+            pubs = {p.topic_name: p for p in (self.pub_clock, self.pub_state, self.pub_joints, self.pub_wrench,
+                                               self.pub_cop, self.pub_stance, self.pub_tf, self.pub_desc)}
             for topic in self.published_topics:
-                nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(topic)}
-                if gn.RECORDER_NODE not in nodes:
+                infos = self.get_subscriptions_info_by_topic(topic)
+                if gn.RECORDER_NODE not in {i.node_name for i in infos}:
                     missing.append(f'the recorder subscribed to {topic}')
+                elif pubs[topic].get_subscription_count() < len(infos):
+                    missing.append(f'every subscriber of {topic} matched')
         if len(self.push_ids) < self.wait_for_pushes:
             missing.append(f'{self.wait_for_pushes - len(self.push_ids)} more push event(s) on {gn.PUSH_EVENTS}')
         return missing
