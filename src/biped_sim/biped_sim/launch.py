@@ -201,7 +201,11 @@ def main(argv=None) -> int:
         while stop['signal'] is None:
             if sim is not None and sim.poll() is not None:
                 status = sim.poll()
-                log(f'simulator finished (exit code {status}) after {time.monotonic() - t0:.2f} s')
+                if status < 0:
+                    log(f"node 'simulator' died unexpectedly (killed by {signal.Signals(-status).name})")
+                    status = 1
+                else:
+                    log(f'simulator finished (exit code {status}) after {time.monotonic() - t0:.2f} s')
                 break
             dead = [c for n, c in children.items() if n != 'simulator' and c.poll() is not None]
             if dead:

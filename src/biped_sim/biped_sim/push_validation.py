@@ -82,13 +82,15 @@ def validate_push_request(force: float, duration: float, start: float, height: f
     """Check one request; return the resolved push or raise :class:`Rejected` (see the module doc)."""
     if use_delay:
         if not _is_number(delay) or not math.isfinite(delay):
-            raise Rejected('delay', f'delay must be a finite number >= 0 s, got {delay}')
+            raise Rejected('delay', f'delay must be a finite number in [0, inf) s, got {delay}')
         if delay < 0:
-            raise Rejected('delay', f'delay must be >= 0 s, got {delay}')
+            raise Rejected('delay', f'delay must be in [0, inf) s, got {delay}')
         start = now + delay
+    ranges = {'force': f'[-{limits.max_force}, {limits.max_force}] N', 'duration': f'(0, {limits.max_duration}] s',
+              'start': f'[{now:.6f}, inf) s (not before the current sim time)'}
     for name, v in (('force', force), ('duration', duration), ('start', start)):
         if not _is_number(v) or not math.isfinite(v):
-            raise Rejected(name, f'{name} must be a finite number, got {v}')
+            raise Rejected(name, f'{name} must be a finite number in {ranges[name]}, got {v}')
     if not 0.0 < duration <= limits.max_duration:
         raise Rejected('duration', f'duration must be in (0, {limits.max_duration}] s, got {duration}')
     if abs(force) > limits.max_force:

@@ -1,0 +1,278 @@
+"""Property-based tests (hypothesis, derandomized) of the push-request validation and of the
+parameter files' loaders (pure: no ROS)."""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from biped_sim.push_validation import PushBook, PushLimits, Rejected, ScheduledPush, validate_push_request
+
+SETTINGS = settings(derandomize=True, max_examples=300, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
+LIMITS = PushLimits(max_force=2000.0, max_duration=1.0, torso_length=0.625, default_height=0.3125)
+NOW = 1.0
+SCHEDULED = (ScheduledPush(1, 2.0, 2.025, 100.0, 0.3125),)
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+non_finite = st.sampled_from([math.nan, math.inf, -math.inf])
+good_force = st.floats(-2000.0, 2000.0)
+good_duration = st.floats(1e-6, 1.0)
+good_start = st.floats(NOW, 1e4).filter(lambda s: not (s < 2.025 and 2.0 < s + 1.0))
+good_height = st.one_of(st.just(math.nan), st.floats(0.0, 0.625))
+
+
+def _reject(field, **kw):
+    args = dict(force=100.0, duration=0.025, start=5.0, height=math.nan)
+    args.update(kw)
+    with pytest.raises(Rejected) as ei:
+        validate_push_request(args['force'], args['duration'], args['start'], args['height'], NOW, LIMITS,
+                              SCHEDULED, use_delay=args.get('use_delay', False), delay=args.get('delay', 0.0))
+    assert ei.value.field == field
+    assert field in str(ei.value)
+    return str(ei.value)
+
+
+@SETTINGS
+@given(force=good_force, duration=good_duration, start=st.floats(3.0, 1e4), height=good_height)
+def test_valid_requests_accepted_and_resolved(force, duration, start, height):
+    p = validate_push_request(force, duration, start, height, NOW, LIMITS, SCHEDULED)
+    assert (p.force, p.duration, p.start) == (force, duration, start)
+    assert p.height == (LIMITS.default_height if math.isnan(height) else height)
+
+
+@SETTINGS
+@given(v=non_finite, field=st.sampled_from(['force', 'duration', 'start']))
+def test_non_finite_named(v, field):
+    msg = _reject(field, **{field: v})
+    assert 'finite' in msg
+
+
+@SETTINGS
+@given(d=st.one_of(st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=1.0, exclude_min=True,
+                                                                        allow_infinity=False)))
+def test_duration_out_of_range_named_with_range(d):
+    msg = _reject('duration', duration=d)
+    assert '(0, 1.0]' in msg
+
+
+@SETTINGS
+@given(f=st.floats(min_value=2000.0, exclude_min=True, allow_infinity=False), sign=st.sampled_from([1, -1]))
+def test_force_beyond_max_named_with_range(f, sign):
+    msg = _reject('force', force=sign * f)
+    assert '[-2000.0, 2000.0]' in msg
+
+
+@SETTINGS
+@given(s=st.floats(max_value=NOW, exclude_max=True, allow_nan=False, allow_infinity=False))
+def test_start_in_the_past_named(s):
+    assert 'past' in _reject('start', start=s)
+
+
+@SETTINGS
+@given(h=st.one_of(st.floats(max_value=0.0, exclude_max=True), st.floats(min_value=0.625, exclude_min=True),
+                   st.sampled_from([math.inf, -math.inf])))
+def test_height_outside_torso_named_with_range(h):
+    assert '[0, 0.625]' in _reject('height', height=h)
+
+
+@SETTINGS
+@given(s=st.floats(2.0 - 0.025 + 1e-9, 2.025 - 1e-9))
+def test_overlap_named(s):
+    assert 'overlaps push 1' in _reject('start', start=s)
+
+
+@SETTINGS
+@given(d=st.one_of(non_finite, st.floats(max_value=0.0, exclude_max=True)))
+def test_bad_delay_named(d):
+    _reject('delay', use_delay=True, delay=d)
+
+
+@SETTINGS
+@given(d=st.floats(0.0, 100.0))
+def test_delay_resolves_start(d):
+    p = validate_push_request(10.0, 0.01, math.nan, math.nan, 5.0, LIMITS, (), use_delay=True, delay=d)
+    assert p.start == 5.0 + d
+
+
+@SETTINGS
+@given(reqs=st.lists(st.tuples(st.one_of(good_force, non_finite, st.floats(-1e5, 1e5)),
+                               st.one_of(good_duration, st.floats(-1, 5)), st.floats(0.0, 10.0),
+                               st.one_of(good_height, st.floats(-1, 2))), max_size=30))
+def test_book_never_overlaps_and_rejections_change_nothing(reqs):
+    book = PushBook(LIMITS)
+    for f, d, s, h in reqs:
+        before = (list(book.pushes), book.next_id)
+        try:
+            p = book.check(f, d, s, h, NOW)
+        except Rejected:
+            assert (list(book.pushes), book.next_id) == before
+            continue
+        book.add(p)
+    ps = sorted(book.pushes, key=lambda p: p.start)
+    assert all(a.end <= b.start for a, b in zip(ps, ps[1:]))
+    assert [p.id for p in book.pushes] == list(range(1, len(book.pushes) + 1))
+
+
+# ----------------------------------------------------------------------------- parameter files
+def _leaf_keys(tree, prefix=''):
+    for k, v in tree.items():
+        key = f'{prefix}.{k}' if prefix else k
+        if isinstance(v, dict) and 'value' in v:
+            yield key
+        elif isinstance(v, dict):
+            yield from _leaf_keys(v, key)
+
+
+def _set(tree, key, value):
+    node = tree
+    parts = key.split('.')
+    for p in parts[:-1]:
+        node = node[p]
+    node[parts[-1]]['value'] = value
+
+
+@pytest.fixture(scope='module')
+def biped_tree():
+    from biped_sim.description import default_config_dir
+    return yaml.safe_load((default_config_dir() / 'biped.yaml').read_text())
+
+
+BAD_VALUES = st.sampled_from([math.nan, math.inf, -math.inf, 'abc', None, [1.0]])
+
+
+@SETTINGS
+@given(data=st.data())
+def test_biped_description_rejects_bad_value_naming_key(biped_tree, data):
+    from biped_sim.description import DescriptionError, parse_description
+    key = data.draw(st.sampled_from(sorted(_leaf_keys(biped_tree))))
+    tree = copy.deepcopy(biped_tree)
+    _set(tree, key, data.draw(BAD_VALUES))
+    with pytest.raises(DescriptionError) as ei:
+        parse_description(tree)
+    assert key.split('.')[-1] in str(ei.value)
+
+
+@SETTINGS
+@given(data=st.data())
+def test_biped_description_accepts_scaled_valid_masses(biped_tree, data):
+    from biped_sim.description import parse_description
+    tree = copy.deepcopy(biped_tree)
+    for seg in ('torso', 'thigh', 'shin'):
+        _set(tree, f'{seg}.mass', data.draw(st.floats(0.5, 100.0)))
+    parse_description(tree)
+
+
+SIM_KEYS = ['control_period', 'substeps', 'touchdown_tolerance', 'clearance_before_touchdown',
+            'liftoff_penetration', 'event_time_tolerance', 'push_height']
+
+
+@SETTINGS
+@given(key=st.sampled_from(SIM_KEYS), bad=st.sampled_from([math.nan, math.inf, -1.0, 0.0]))
+def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
+    from biped_sim.simulator import SimConfigError, load_sim_config
+    if key == 'push_height' and bad in (-1.0, 0.0):
+        return   # any finite height is a valid default here (the nodes bound it by the torso)
+    if key == 'substeps' and not math.isfinite(bad):
+        return   # known bug, see test_simulator_config_non_finite_substeps_known_bug
+    from biped_sim.description import default_config_dir
+    tree = yaml.safe_load((default_config_dir() / 'simulator.yaml').read_text())
+    if isinstance(tree[key], dict):
+        tree[key]['value'] = bad
+    else:
+        tree[key] = bad
+    path = tmp_path_factory.mktemp('sim') / 'simulator.yaml'
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises((SimConfigError, ValueError)) as ei:
+        load_sim_config(path)
+    assert key in str(ei.value)
+
+
+@pytest.mark.xfail(strict=True, reason='known bug in the pure core (not edited here): load_sim_config does '
+                   'int(substeps) before validating, so NaN/inf raise a ValueError/OverflowError '
+                   'that does not name the key')
+@pytest.mark.parametrize('bad', ['.nan', '.inf'])
+def test_simulator_config_non_finite_substeps_known_bug(tmp_path, bad):
+    from biped_sim.simulator import load_sim_config
+    from biped_sim.description import default_config_dir
+    text = (default_config_dir() / 'simulator.yaml').read_text()
+    tree = yaml.safe_load(text)
+    tree['substeps'] = float(bad.replace('.', ''))
+    path = tmp_path / 'simulator.yaml'
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises(ValueError) as ei:
+        load_sim_config(path)
+    assert 'substeps' in str(ei.value)
+
+
+@SETTINGS
+@given(period=st.floats(1e-5, 0.05), sub=st.integers(1, 1000))
+def test_simulator_config_accepts_valid(period, sub):
+    from biped_sim.simulator import SimConfig
+    SimConfig(control_period=period, substeps=sub).validate()
+
+
+CTRL_NUMERIC = ['Kp', 'Kv', 'kp', 'kv', 'weight_p', 'weight_tau', 'tau_dot_min']
+
+
+@SETTINGS
+@given(key=st.sampled_from(CTRL_NUMERIC), bad=st.sampled_from([math.nan, math.inf, -1.0]))
+def test_controller_config_rejects_naming_key(key, bad):
+    from biped_controller.controller import ControllerConfigError, load_controller_config
+    with pytest.raises(ControllerConfigError) as ei:
+        load_controller_config(**{key: bad})
+    assert key in str(ei.value)
+
+
+@SETTINGS
+@given(mode=st.text(max_size=8).filter(lambda m: m not in ('none', 'tau', 'p', 'both')))
+def test_controller_config_rejects_unknown_mode(mode):
+    from biped_controller.controller import ControllerConfigError, load_controller_config
+    with pytest.raises(ControllerConfigError) as ei:
+        load_controller_config(mode=mode)
+    assert 'mode' in str(ei.value)
+
+
+@SETTINGS
+@given(mode=st.sampled_from(['none', 'tau', 'p', 'both']), kp=st.floats(1.0, 1000.0))
+def test_controller_config_accepts_valid(mode, kp):
+    from biped_controller.controller import load_controller_config
+    load_controller_config(mode=mode, Kp=kp)
+
+
+def test_graph_params_file_matches_node_parameters():
+    """config/graph.yaml: every node section exists and the simulator/controller values are those of
+    config/simulator.yaml / config/controller.yaml (validated by their loaders)."""
+    from biped_sim.description import default_config_dir
+    from biped_sim.simulator import SimConfig
+    from biped_controller.controller import ControllerConfig
+    g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
+    for n in ('simulator', 'controller', 'disturbance', 'recorder'):
+        assert 'ros__parameters' in g[n], n
+    sim = g['simulator']['ros__parameters']
+    SimConfig(**{k: sim[k] for k in SimConfig.__dataclass_fields__}).validate()
+    ctrl = dict(g['controller']['ros__parameters'])
+    kw = {k: ctrl[k] for k in ControllerConfig.__dataclass_fields__ if k in ctrl}
+    kw['period'] = ctrl['control_period']
+    ControllerConfig(**kw).validate()
+
+
+def test_family_description_check():
+    import dataclasses
+    from biped_controller.gait_family import GaitFamily
+    from biped_sim.description import load_description
+    from biped_sim.node_checks import RobotFilesError, check_family_matches_description, check_urdf_joints
+    from biped_sim.description import make_urdf
+    desc, fam = load_description(), GaitFamily.load()
+    check_family_matches_description(desc, fam)
+    other = dataclasses.replace(desc, shin=dataclasses.replace(desc.shin, length=0.45))
+    with pytest.raises(RobotFilesError, match='does not match'):
+        check_family_matches_description(other, fam)
+    urdf = make_urdf(desc)
+    check_urdf_joints(urdf)
+    with pytest.raises(RobotFilesError, match='left_knee'):
+        check_urdf_joints(urdf.replace('"left_knee"', '"l_knee"'))
