@@ -66,6 +66,10 @@ def summarize_bag(bag: Path, expected_steps: int | None = None) -> dict:
         'tau_range': rng('tau'),
         'tau_dot_range': rng('tau_dot'),
         'max_tracking_error': max((s.max_tracking_error for s in status), default=None),
+        'last_qp_status': int(status[-1].qp_status) if status else None,
+        'last_qp_message': status[-1].qp_message if status else '',
+        'qp_fallback_steps': sum(1 for s in status if s.qp_status in (2, 3)),
+        'final_state_fall_cause': last.fall_cause if last is not None else '',
         'pushes': [dict(id=p.id, start=p.start, duration=p.duration, force=p.force, height=p.height) for p in pushes],
         'counts': dict(sorted(data['counts'].items())),
         'message_count': data['message_count'],
@@ -95,7 +99,8 @@ def print_summary(s: dict) -> None:
     for k in ('p_range', 'p_dot_range', 'tau_range', 'tau_dot_range'):
         v = s[k]
         print(f"{k[:-6]}: [{f(v[0]) if v else 'n/a'}, {f(v[1]) if v else 'n/a'}]")
-    print(f"max tracking error {f(s['max_tracking_error'])} rad")
+    print(f"max tracking error {f(s['max_tracking_error'])} rad; last qp_status {s['last_qp_status']} "
+          f"({s['last_qp_message'] or 'no message'}), {s['qp_fallback_steps']} steps with a QP fallback")
     print('messages per topic:')
     for t, n in s['counts'].items():
         print(f'  {t:24s} {n}')

@@ -148,6 +148,8 @@ def parse_args(argv=None):
                     help='extra controller parameter (repeatable)')
     ap.add_argument('--stop-timeout', type=float, default=5.0, help='s between SIGINT, SIGTERM and SIGKILL')
     ap.add_argument('--start-timeout', type=float, default=60.0, help='s to wait for the recorder')
+    ap.add_argument('--grace', type=float, default=7.0,
+                    help='s the survivors get after a node died (the simulator detects a dead controller)')
     ap.add_argument('--ready-file', type=Path, default=None, help='written once every node is started')
     return ap.parse_args(argv)
 
@@ -204,6 +206,9 @@ def main(argv=None) -> int:
                 if status < 0:
                     log(f"node 'simulator' died unexpectedly (killed by {signal.Signals(-status).name})")
                     status = 1
+                    deadline = time.monotonic() + min(args.grace, 3.0)   # the controller reports the silence
+                    while time.monotonic() < deadline and stop['signal'] is None:
+                        time.sleep(0.05)
                 else:
                     log(f'simulator finished (exit code {status}) after {time.monotonic() - t0:.2f} s')
                 break
@@ -212,6 +217,12 @@ def main(argv=None) -> int:
                 c = dead[0]
                 log(f"node '{c.name}' died unexpectedly (exit code {c.poll()})")
                 status = 1
+                # let the survivors notice (the simulator's command timeout ends its run with a final
+                # state and /fall) before stopping them
+                deadline = time.monotonic() + args.grace
+                while sim is not None and sim.poll() is None and time.monotonic() < deadline \
+                        and stop['signal'] is None:
+                    time.sleep(0.05)
                 break
             time.sleep(0.05)
     except RuntimeError as exc:

@@ -1,0 +1,192 @@
+"""Faults and bad input over real DDS (isolated ROS_DOMAIN_ID from the ros_domain fixture): bad node
+parameters, a killed controller, a killed simulator, rejected push requests that change nothing, a fall
+reported consistently, and a short soak."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_graph import PY, ROOT, _descendants, _kill_tree, _launch, _wait_ready
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def _exe(pkg, name):
+    return str(ROOT / '.venv' / 'lib' / pkg / name)
+
+
+def _run_node(pkg, name, *params, timeout=120):
+    cmd = [_exe(pkg, name), '--ros-args', '--params-file', str(ROOT / 'config' / 'graph.yaml')]
+    for p in params:
+        cmd += ['-p', p]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+
+
+@pytest.fixture(scope='module')
+def other_robot(tmp_path_factory):
+    import yaml
+    tmp = tmp_path_factory.mktemp('robot')
+    tree = yaml.safe_load((ROOT / 'config' / 'biped.yaml').read_text())
+    tree['shin']['length']['value'] = 0.45
+    (tmp / 'biped.yaml').write_text(yaml.safe_dump(tree))
+    from biped_sim.description import load_description, make_urdf
+    (tmp / 'bad.urdf').write_text(make_urdf(load_description()).replace('"left_knee"', '"l_knee"'))
+    (tmp / 'broken.json').write_text('{"family": ')
+    return tmp
+
+
+CASES = [
+    ('biped_sim', 'simulator', 'gait_family_path:=/nonexistent/gait_family.json', 'gait_family_path'),
+    ('biped_sim', 'simulator', 'description_path:={tmp}/biped.yaml', 'gait_family_path'),   # family of another robot
+    ('biped_sim', 'simulator', 'urdf_path:={tmp}/bad.urdf', 'urdf_path'),
+    ('biped_sim', 'simulator', 'command_timeout:=-1.0', 'command_timeout'),
+    ('biped_controller', 'controller', 'gait_family_path:={tmp}/broken.json', 'gait_family_path'),
+    ('biped_controller', 'controller', 'description_path:=/nonexistent.yaml', 'description_path'),
+    ('biped_controller', 'controller', 'mode:=fast', 'mode'),
+    ('biped_sim', 'disturbance', 'max_force:=-5.0', 'max_force'),
+    ('biped_sim', 'disturbance', 'description_path:=/nonexistent.yaml', 'description_path'),
+]
+
+
+@pytest.mark.parametrize('pkg,name,param,named', CASES, ids=[f'{c[1]}-{c[2].split(":=")[0]}' for c in CASES])
+def test_bad_parameter_exits_2_naming_it(ros_domain, other_robot, pkg, name, param, named):
+    r = _run_node(pkg, name, param.format(tmp=other_robot))
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert f"invalid parameter '{named}'" in r.stderr, r.stderr[-2000:]
+
+
+def _fault_run(tmp, env, victim: str, *extra):
+    from biped_sim.soak import node_pids
+    proc, bag, ready = _launch(tmp, env, '--steps', '0', *extra)
+    pids: set[int] = set()
+    try:
+        _wait_ready(proc, ready)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 120:   # walk until a chunk is on disk
+            files = list(bag.glob('*.mcap'))
+            if files and files[0].stat().st_size > 300_000:
+                break
+            time.sleep(0.2)
+        pids |= _descendants(proc.pid)
+        os.kill(node_pids(proc.pid)[victim], signal.SIGKILL)
+        out, _ = proc.communicate(timeout=120)
+        return proc.returncode, out, bag
+    finally:
+        _kill_tree(proc, pids | _descendants(proc.pid))
+
+
+def test_controller_killed(ros_domain, tmp_path):
+    rc, out, bag = _fault_run(tmp_path, dict(os.environ), 'controller', '--sim-param', 'command_timeout:=1.0')
+    assert rc == 1, out[-3000:]
+    assert "node 'controller' died unexpectedly" in out
+    assert '/controller/torque is silent' in out, out[-3000:]
+    from biped_sim.bag_reader import read_bag
+    d = read_bag(bag, decode=True)      # finished: summary present
+    assert d['has_summary']
+    import yaml
+    falls = [yaml.safe_load(m.data) for t, _, _, m in d['messages'] if t == '/fall']
+    states = [m for t, _, _, m in d['messages'] if t == '/sim/state']
+    assert falls and falls[-1]['cause'] == 'controller timeout'
+    last = max(states, key=lambda m: m.sequence)
+    assert last.fallen and last.fall_cause == 'controller timeout'
+
+
+def test_simulator_killed(ros_domain, tmp_path):
+    rc, out, bag = _fault_run(tmp_path, dict(os.environ), 'simulator', '--ctrl-param', 'state_timeout:=0.5')
+    assert rc == 1, out[-3000:]
+    assert "node 'simulator' died unexpectedly (killed by SIGKILL)" in out
+    assert '/sim/state is silent' in out and 'idling' in out, out[-3000:]
+    from biped_sim.bag_reader import read_bag
+    assert read_bag(bag)['counts']['/sim/state'] > 10
+
+
+def _states_of_push_run(tmp, env, rejected: bool):
+    import rclpy
+    from biped_sim.push_client import call_apply_push
+    proc, bag, ready = _launch(tmp, env, '--steps', '1', '--sim-param', 'wait_for_pushes:=1')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    answers = []
+    try:
+        _wait_ready(proc, ready)
+        ok = call_apply_push(250.0, 0.025, start=0.2315, timeout=30, context=ctx)
+        assert ok.accepted, ok.message
+        if rejected:
+            for kw in (dict(force=math.nan, duration=0.025, start=0.3), dict(force=math.inf, duration=0.025, start=0.3),
+                       dict(force=100.0, duration=0.0, start=0.3), dict(force=100.0, duration=-1.0, start=0.3),
+                       dict(force=5000.0, duration=0.025, start=0.3), dict(force=100.0, duration=0.025, start=-1.0),
+                       dict(force=100.0, duration=0.025, start=0.24),          # overlaps the accepted push
+                       dict(force=100.0, duration=0.025, start=0.3, height=1.0),
+                       dict(force=100.0, duration=0.025, start=0.3, height=-0.1),
+                       dict(force=100.0, duration=math.nan, start=0.3), dict(force=100.0, duration=0.025, start=math.inf)):
+                r = call_apply_push(timeout=30, context=ctx, **kw)
+                answers.append((kw, r.accepted, r.message))
+        out, _ = proc.communicate(timeout=300)
+        assert proc.returncode == 0, out[-3000:]
+    finally:
+        _kill_tree(proc, _descendants(proc.pid))
+        rclpy.shutdown(context=ctx)
+    from biped_sim.bag_reader import read_bag
+    d = read_bag(bag, decode=True)
+    states = sorted((m for t, _, _, m in d['messages'] if t == '/sim/state'), key=lambda m: m.sequence)
+    return states, answers, d
+
+
+def test_rejected_requests_change_nothing(ros_domain, tmp_path):
+    env = dict(os.environ)
+    ref, _, _ = _states_of_push_run(tmp_path / 'ref', env, rejected=False)
+    got, answers, d = _states_of_push_run(tmp_path / 'bad', env, rejected=True)
+    for kw, accepted, message in answers:
+        assert not accepted, (kw, message)
+        assert 'rejected' in message and 'in ' in message, message
+    assert len(got) == len(ref)
+    for a, b in zip(ref, got):
+        assert a.sequence == b.sequence and a.stance == b.stance
+        assert list(a.q) == list(b.q) and list(a.q_dot) == list(b.q_dot) and list(a.base) == list(b.base)
+    assert d['counts']['/push_events'] == 1 and d['counts']['/push_requests'] == 1 + len(answers)
+
+
+def test_fall_reported_consistently(ros_domain, tmp_path):
+    js = tmp_path / 'demo.json'
+    r = subprocess.run([str(PY), '-m', 'biped_sim.demo', '--steps', '3', '--force', '1500', '--bag',
+                        str(tmp_path / 'bag'), '--json', str(js)], capture_output=True, text=True, timeout=600,
+                       cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    s = json.loads(js.read_text())
+    from biped_sim.bag_reader import read_bag
+    import yaml
+    d = read_bag(tmp_path / 'bag', decode=True)
+    fall = yaml.safe_load([m for t, _, _, m in d['messages'] if t == '/fall'][-1].data)
+    status = [m for t, _, _, m in d['messages'] if t == '/controller/status']
+    states = sorted((m for t, _, _, m in d['messages'] if t == '/sim/state'), key=lambda m: m.sequence)
+    assert s['outcome'] == 'fell' and s['fall_cause'] == fall['cause'] == states[-1].fall_cause
+    assert states[-1].fallen and 'FELL' in r.stdout and fall['cause'] in r.stdout
+    last = max(status, key=lambda m: m.step)
+    assert s['last_qp_status'] == last.qp_status
+    assert s['qp_fallback_steps'] == sum(1 for m in status if m.qp_status in (2, 3))
+
+
+SOAK_MINUTES = 0.5   # 30 sim s: about 2 min wall on 2 cores (1 sim min ~ 4-5 min when loaded)
+
+
+def test_short_soak(ros_domain, tmp_path):
+    js = tmp_path / 'soak.json'
+    r = subprocess.run([str(PY), '-m', 'biped_sim.soak', '--minutes', str(SOAK_MINUTES), '--every', '3',
+                        '--min-force', '50', '--max-forward', '100', '--max-backward', '150',
+                        '--bag', str(tmp_path / 'bag'), '--json', str(js)],
+                       capture_output=True, text=True, timeout=1800, cwd=ROOT)
+    s = json.loads(js.read_text())
+    assert r.returncode == 0 and s['ok'], (s['problems'], r.stderr[-2000:])
+    b = s['bag_check']
+    assert b['sequence_gaps'] == 0 and b['survived'] and b['push_events'] == len(s['plan']) >= 5
+    assert b['pushes_checked'] + b['pushes_not_checkable'] == b['push_events'] and b['pushes_checked'] >= 3
