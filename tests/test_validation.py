@@ -192,11 +192,9 @@ def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
     assert key in str(ei.value)
 
 
-@pytest.mark.xfail(strict=True, reason='known bug in the pure core (not edited here): load_sim_config does '
-                   'int(substeps) before validating, so NaN/inf raise a ValueError/OverflowError '
-                   'that does not name the key')
 @pytest.mark.parametrize('bad', ['.nan', '.inf'])
-def test_simulator_config_non_finite_substeps_known_bug(tmp_path, bad):
+def test_simulator_config_non_finite_substeps(tmp_path, bad):
+    """NaN/inf substeps are rejected naming the key (load_sim_config validates before int())."""
     from biped_sim.simulator import load_sim_config
     from biped_sim.description import default_config_dir
     text = (default_config_dir() / 'simulator.yaml').read_text()

@@ -39,8 +39,13 @@ class GaitSample:
 class GaitFamily:
     """b_ijk (6 x 5 x 8) with the step duration T, the preferred stride p_d and the valid stride range."""
 
-    def __init__(self, b: np.ndarray, T: float, p_d: float, p_min: float, p_max: float, meta: dict | None = None):
+    def __init__(self, b: np.ndarray, T: float, p_d: float, p_min: float, p_max: float, meta: dict | None = None,
+                 center: float = 0.0):
+        """``b[i, j, k]`` multiplies (p - center)^k tau^j. With center = 0 this is the paper's b_ijk
+        (eq. 13); the fit stores the family centred on p_d, which is far better conditioned (the
+        monomial coefficients reach ~1e8 and cancel), and ``paper_b`` expands it in powers of p."""
         b = np.asarray(b, dtype=float)
+        self.center = float(center)
         if b.ndim != 3 or b.shape[0] != 6 or b.shape[1] != 5:
             raise GaitFamilyError(f"gait family: b must have shape (6, 5, K), got {b.shape}")
         if not np.all(np.isfinite(b)):
@@ -73,11 +78,11 @@ class GaitFamily:
 
     def coefficients(self, p: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(a(p), da/dp, d2a/dp2), each (6, 5): time coefficients of eq. (12) at stride p."""
-        c = self.b @ self._powers(float(p), self.b.shape[2]).T   # (6, 5, 3)
+        c = self.b @ self._powers(float(p) - self.center, self.b.shape[2]).T   # (6, 5, 3)
         return c[:, :, 0], c[:, :, 1], c[:, :, 2]
 
     def evaluate(self, p: float, tau: float) -> GaitSample:
-        c = self.b @ self._powers(float(p), self.b.shape[2]).T   # (6, 5, 3): a, da/dp, d2a/dp2
+        c = self.b @ self._powers(float(p) - self.center, self.b.shape[2]).T   # (6, 5, 3): a, da/dp, d2a/dp2
         tp = self._powers(float(tau), 5)                          # (3, 5): tau^j and derivatives
         m = np.einsum("ijk,lj->ikl", c, tp)                       # (6, 3 [p-deriv], 3 [tau-deriv])
         return GaitSample(q=m[:, 0, 0], dq_dp=m[:, 1, 0], dq_dtau=m[:, 0, 1], d2q_dp2=m[:, 2, 0],
@@ -93,8 +98,14 @@ class GaitFamily:
         return g.q, qd, qdd
 
     # ------------------------------------------------------------------ I/O
+    @property
+    def paper_b(self) -> np.ndarray:
+        """b_ijk of eq. (13): the same polynomials expanded in powers of p."""
+        return expand_in_p(self.b, self.center)
+
     def to_dict(self) -> dict:
-        return {"b": self.b.tolist(), "T": self.T, "p_d": self.p_d, "p_min": self.p_min, "p_max": self.p_max}
+        return {"b": self.paper_b.tolist(), "b_centered": self.b.tolist(), "center": self.center,
+                "T": self.T, "p_d": self.p_d, "p_min": self.p_min, "p_max": self.p_max}
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> "GaitFamily":
@@ -105,14 +116,30 @@ class GaitFamily:
             with open(p, encoding="utf-8") as fh:
                 data = json.load(fh)
             fam = data["family"]
+            if "b_centered" in fam:
+                return cls(np.array(fam["b_centered"]), fam["T"], fam["p_d"], fam["p_min"], fam["p_max"], meta=data,
+                           center=fam["center"])
             return cls(np.array(fam["b"]), fam["T"], fam["p_d"], fam["p_min"], fam["p_max"], meta=data)
         except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
             raise GaitFamilyError(f"gait family: malformed file {p}: {exc}") from exc
 
 
-def fit_family(strides: np.ndarray, a: np.ndarray, p_d: float, degree: int = 7) -> np.ndarray:
+def expand_in_p(b_centered: np.ndarray, center: float) -> np.ndarray:
+    """Coefficients in powers of (p - center) -> coefficients in powers of p (binomial expansion)."""
+    K = b_centered.shape[2]
+    out = np.zeros_like(b_centered)
+    for k in range(K):
+        for m in range(k + 1):
+            out[:, :, m] += b_centered[:, :, k] * math.comb(k, m) * (-center) ** (k - m)
+    return out
+
+
+def fit_family(strides: np.ndarray, a: np.ndarray, p_d: float, degree: int = 7, centered: bool = False) -> np.ndarray:
     """Least-squares fit of a_ij(p) (a: (S, 6, 5) at the S strides) by degree-``degree`` polynomials,
-    passing exactly through the stride p_d (which must be one of ``strides``). Returns b (6, 5, degree+1)."""
+    passing exactly through the stride p_d (which must be one of ``strides``).
+
+    Returns b (6, 5, degree+1) in powers of p (the paper's b_ijk), or with ``centered`` in powers of
+    u = p - p_d (better conditioned; use ``GaitFamily(..., center=p_d)``)."""
     strides = np.asarray(strides, dtype=float)
     idx = np.flatnonzero(np.isclose(strides, p_d, rtol=0, atol=1e-12))
     if idx.size != 1:
@@ -123,10 +150,5 @@ def fit_family(strides: np.ndarray, a: np.ndarray, p_d: float, degree: int = 7) 
     V = u[:, None] ** np.arange(1, degree + 1)[None, :]          # (S-1, degree)
     Y = (a[others] - a_d[None]).reshape(len(others), -1)         # (S-1, 30)
     beta, *_ = np.linalg.lstsq(V, Y, rcond=None)                  # (degree, 30)
-    # expand sum_k beta_k (p - p_d)^k in powers of p
-    coef_u = np.vstack([a_d.reshape(1, -1), beta])               # (degree+1, 30) in powers of u
-    coef_p = np.zeros_like(coef_u)
-    for k in range(degree + 1):
-        for m in range(k + 1):
-            coef_p[m] += coef_u[k] * math.comb(k, m) * (-p_d) ** (k - m)
-    return coef_p.T.reshape(6, 5, degree + 1)
+    coef_u = np.vstack([a_d.reshape(1, -1), beta]).T.reshape(6, 5, degree + 1)
+    return coef_u if centered else expand_in_p(coef_u, p_d)

@@ -96,7 +96,7 @@ def solve_family(opt: StepOptimizer, strides: list[float], p_d: float, progress:
 
 def _fit_from_solutions(sols: dict[float, StepSolution], p_d: float, degree: int) -> np.ndarray:
     ps = sorted(p for p in sols if sols[p].success)
-    return fit_family(np.array(ps), np.array([sols[p].a for p in ps]), p_d, degree)
+    return fit_family(np.array(ps), np.array([sols[p].a for p in ps]), p_d, degree, centered=True)
 
 
 def smooth_family(opt: StepOptimizer, sols: dict[float, StepSolution], p_d: float, weights: tuple[float, ...],
@@ -111,7 +111,7 @@ def smooth_family(opt: StepOptimizer, sols: dict[float, StepSolution], p_d: floa
     scale = T ** np.arange(5)[None, :]
     for it, w in enumerate(weights):
         b = _fit_from_solutions(sols, p_d, st.stride_degree)
-        fam = GaitFamily(b, T, p_d, min(sols), max(sols))
+        fam = GaitFamily(b, T, p_d, min(sols), max(sols), center=p_d)
         changed = 0
         for p in sorted(sols):
             if p == p_d or not sols[p].success:
@@ -123,7 +123,7 @@ def smooth_family(opt: StepOptimizer, sols: dict[float, StepSolution], p_d: floa
                 changed += 1
         if progress:
             b = _fit_from_solutions(sols, p_d, st.stride_degree)
-            fam = GaitFamily(b, T, p_d, min(sols), max(sols))
+            fam = GaitFamily(b, T, p_d, min(sols), max(sols), center=p_d)
             err = max(float(np.max(np.abs(fam.coefficients(p)[0] * scale - sols[p].c))) for p in sols if sols[p].success)
             sys.stderr.write(f"smoothing pass {it + 1} (weight {w:g}): {changed} strides re-solved, "
                              f"max coefficient misfit {err:.2e}\n")
@@ -265,11 +265,11 @@ def fit_and_restrict(records: list[dict], st, opt: StepOptimizer) -> GaitFamily:
         hi += 1
     used = ps[lo:hi + 1]
     a = np.array([np.array(sols_ok[p]["a"]) for p in used])
-    b = fit_family(np.array(used), a, st.p_d, st.stride_degree)
-    wide = GaitFamily(b, st.T, st.p_d, used[0], used[-1])
+    b = fit_family(np.array(used), a, st.p_d, st.stride_degree, centered=True)
+    wide = GaitFamily(b, st.T, st.p_d, used[0], used[-1], center=st.p_d)
     between = check_family(wide, records, opt)["fitted_family"]
     p_min, p_max = clean_interval(between, st.p_d)
-    return GaitFamily(b, st.T, st.p_d, p_min, p_max, meta={"fit_range": (used[0], used[-1])})
+    return GaitFamily(b, st.T, st.p_d, p_min, p_max, meta={"fit_range": (used[0], used[-1])}, center=st.p_d)
 
 
 def refit(path: Path) -> dict:
@@ -284,8 +284,8 @@ def refit(path: Path) -> dict:
     return data
 
 
-def generate(path: Path, progress: bool = True) -> dict:
-    opt = StepOptimizer()
+def generate(path: Path, progress: bool = True, settings_path: Path | None = None) -> dict:
+    opt = StepOptimizer(settings=load_gait_settings(settings_path) if settings_path else None)
     st = opt.st
     t0 = time.perf_counter()
     sols = solve_family(opt, list(st.strides), st.p_d, progress)
@@ -335,6 +335,7 @@ def print_report(data: dict, validation: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--check", action="store_true", help="reload the committed file and print validation figures")
+    ap.add_argument("--settings", type=Path, default=None, help="gait settings (default config/gait.yaml)")
     ap.add_argument("--refit", action="store_true", help="re-fit b_ijk and the valid range from the stored strides (no re-optimisation)")
     ap.add_argument("--json", type=Path, help="write the validation figures as JSON")
     ap.add_argument("--out", type=Path, default=default_config_dir() / "gait_family.json")
@@ -347,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
         fam = GaitFamily.load(args.out)
         validation = check_family(fam, data["strides"], StepOptimizer())
     else:
-        data = generate(args.out)
+        data = generate(args.out, settings_path=args.settings)
         validation = data["validation"]
     print_report(data, validation)
     if args.json:

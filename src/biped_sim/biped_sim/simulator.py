@@ -78,7 +78,12 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
     for f in SimConfig.__dataclass_fields__:
         if f in tree:
             kw[f] = tree[f]["value"] if isinstance(tree[f], dict) else tree[f]
+    for k, v in kw.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+            raise SimConfigError(f"config/simulator.yaml: '{k}' must be a finite number, got {v!r}")
     if "substeps" in kw:
+        if float(kw["substeps"]) != int(kw["substeps"]):
+            raise SimConfigError(f"config/simulator.yaml: 'substeps' must be an integer, got {kw['substeps']!r}")
         kw["substeps"] = int(kw["substeps"])
     return SimConfig(**kw).validate()
 
