@@ -8,6 +8,7 @@ At each control period, from the measured (q, q') and the controller's own param
       v = d2q/dp2 p'^2 + d2q/dtau2 tau'^2 + 2 d2q/dp dtau p' tau' + Kv (q_d' - q') + Kp (q_d - q)
   second task (eq. 20) p''* = -k_v p' + k_p (p_d - p),  tau''* = k_v (1 - tau')
   QP (eq. 21)          min (x - x*)^T W (x - x*)  s.t.  A_q (D x + v) + b_q <= -margin,  D = [dq/dp, dq/dtau]
+                       (rows stated twice when a push is estimated: with and without the estimated force)
                        over the adapted parameters x (p'' and/or tau'' by mode); the others stay at x*.
   torque (eq. 15)      Gamma = A(q) w + H(q, q')
 
@@ -155,7 +156,7 @@ class AdaptiveController:
         self._mu_ratio = c.margin_friction
         self.adapted = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1)}[c.mode]
         n = len(self.adapted)
-        self.qp = AdaptationQP(n, N_CONSTRAINTS + 3, np.array([c.weight_p, c.weight_tau])[list(self.adapted)]) if n else None
+        self.qp = AdaptationQP(n, 2 * N_CONSTRAINTS + 3, np.array([c.weight_p, c.weight_tau])[list(self.adapted)]) if n else None
         self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
         self.stance: int | None = None
         self.step_index = 0
@@ -231,7 +232,11 @@ class AdaptiveController:
         if c.disturbance_observer:
             Jp = self.model.torso_point_jacobian(q, c.observer_height)[0]   # (9,) x-row
             j6 = Jp[3:]
-            if self._prev is not None and self._prev[3] == stance:
+            if self._prev is not None and self._prev[3] != stance:
+                # the last period ended with an impact: its residual is meaningless, but a push acting
+                # on the torso does not care about the stance: keep the previous estimate
+                F = self.force_estimate
+            elif self._prev is not None:
                 qd_prev, w_prev, A_prev = self._prev[:3]
                 r = A_prev @ ((qd - qd_prev) / ((round(t * 1e9) - round(self._prev[4] * 1e9)) * 1e-9) - w_prev)
                 nrm = float(j6 @ j6)
@@ -245,8 +250,12 @@ class AdaptiveController:
         if self.adapted:
             try:
                 A, b, cm_true = self._constraint_rows(q, qd, dyn_c)
-                Gfull = A @ D                      # (17, 2)
-                hfull = -(A @ v + b)
+                # Robust to the push ending: the 17 rows must hold with the estimated force (dyn_c) and
+                # also without it (dyn), since the push may stop during the coming period. Without
+                # an estimate the two sets coincide (duplicated rows).
+                A0, b0, _ = self._constraint_rows(q, qd, dyn) if dyn_c is not dyn else (A, b, None)
+                Gfull = np.vstack([A @ D, A0 @ D])         # (34, 2)
+                hfull = np.concatenate([-(A @ v + b), -(A0 @ v + b0)])
                 # parameter range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max]; tau' + tau'' dt >= min
                 dt = c.period
                 extra_G = np.array([[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]])
