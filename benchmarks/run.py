@@ -26,6 +26,8 @@ from time import perf_counter_ns
 
 import numpy as np
 
+from biped_controller.controller import QP_ROWS
+
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python benchmarks/run.py`
     sys.path.insert(0, str(ROOT))
@@ -249,7 +251,7 @@ def _solvers(W):
     from biped_controller.qp import AdaptationQP, solve_with_qpsolvers
     from biped_controller.qp_exact import solve_exact
 
-    held = AdaptationQP(len(W), 20, W)   # the controller's production object (n = 2, m = 17 + 3)
+    held = AdaptationQP(len(W), QP_ROWS, W)   # the controller's production object
     out = {
         "exact (qp_exact)": lambda G, h, x: solve_exact(G, h, x, W),
         "PIQP held (AdaptationQP)": lambda G, h, x: held.solve(G, h, x),
@@ -317,7 +319,7 @@ def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
         table[n]["ratio_to_fastest"] = (p / table[fastest]["p50"]) if (fastest and p) else None
     # unconstrained instances: what the production object costs when x* is feasible (no solver call)
     from biped_controller.qp import AdaptationQP
-    held = AdaptationQP(len(W), 20, W)
+    held = AdaptationQP(len(W), QP_ROWS, W)
     un_t = []
     k = 0
     for F, (G, h, xs, _s) in instances:

@@ -17,7 +17,9 @@ from biped_controller.qp import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, Adap
 from biped_controller.qp_exact import solve_exact
 
 ROOT = Path(__file__).resolve().parents[1]
-M = 20  # 17 constraints + 3 parameter-range rows, as in the controller
+from biped_controller.controller import QP_ROWS
+
+M = QP_ROWS  # rows of the controller's QP (17 with and 17 without the push estimate + 3 range rows)
 
 
 @pytest.mark.slow

@@ -40,6 +40,9 @@ from .model import CONSTRAINT_NAMES, N_CONSTRAINTS, FixedFootModel
 from .qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP
 
 MODES = ("none", "tau", "p", "both")
+# rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,
+# and 3 parameter-range rows (p within the family's range, tau' >= tau_dot_min)
+QP_ROWS = 2 * N_CONSTRAINTS + 3
 NO_ADAPTATION = 4
 
 
@@ -156,7 +159,7 @@ class AdaptiveController:
         self._mu_ratio = c.margin_friction
         self.adapted = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1)}[c.mode]
         n = len(self.adapted)
-        self.qp = AdaptationQP(n, 2 * N_CONSTRAINTS + 3, np.array([c.weight_p, c.weight_tau])[list(self.adapted)]) if n else None
+        self.qp = AdaptationQP(n, QP_ROWS, np.array([c.weight_p, c.weight_tau])[list(self.adapted)]) if n else None
         self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
         self.stance: int | None = None
         self.step_index = 0
