@@ -192,6 +192,17 @@ class AdaptiveController:
         A[4], b[4] = dyn.A[0] - lM * By, dyn.H[0] - lM * hy
         return A, b + self.margin, cm
 
+    def _offsets_without_estimate(self, b: np.ndarray, dyn, dyn_c) -> np.ndarray:
+        """b of ``_constraint_rows`` for ``dyn`` from the one for ``dyn_c``, when the two differ only in
+        the reaction offset h_b (the push estimate): rows 0-4 are linear in (h_x, h_y)."""
+        dx, dy = dyn_c.h_b[0] - dyn.h_b[0], dyn_c.h_b[1] - dyn.h_b[1]
+        mu = self._mu_ratio * self.model.mu
+        lm = self.model.l_min + self.cfg.margin_zmp
+        lM = self.model.l_max - self.cfg.margin_zmp
+        b0 = b.copy()
+        b0[:5] -= np.array([-dy, -mu * dy - dx, -mu * dy + dx, lm * dy, -lM * dy])
+        return b0
+
     def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
         """One control period: decide (p'', tau''), the torque, and advance the parameter state."""
         q = np.asarray(q, dtype=float)
@@ -256,7 +267,9 @@ class AdaptiveController:
                 # Robust to the push ending: the 17 rows must hold with the estimated force (dyn_c) and
                 # also without it (dyn), since the push may stop during the coming period. Without
                 # an estimate the two sets coincide (duplicated rows).
-                A0, b0, _ = self._constraint_rows(q, qd, dyn) if dyn_c is not dyn else (A, b, None)
+                # The force estimate only shifts h_b (the reaction at w = 0), so the matrix rows are the
+                # same and only the first five offsets differ (the algebra of _constraint_rows).
+                A0, b0 = A, (b if dyn_c is dyn else self._offsets_without_estimate(b, dyn, dyn_c))
                 Gfull = np.vstack([A @ D, A0 @ D])         # (34, 2)
                 hfull = np.concatenate([-(A @ v + b), -(A0 @ v + b0)])
                 # parameter range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max]; tau' + tau'' dt >= min
