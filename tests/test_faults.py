@@ -155,7 +155,12 @@ def test_rejected_requests_change_nothing(ros_domain, tmp_path):
     for kw, accepted, message in answers:
         assert not accepted, (kw, message)
         assert 'rejected' in message and any(f in message for f in ('force', 'duration', 'start', 'height')), message
-    assert len(got) == len(ref)
+    seq_ref, seq_got = [m.sequence for m in ref], [m.sequence for m in got]
+    assert seq_got == seq_ref, (f"recorded sequences differ: ref {len(ref)} states "
+                                f"[{seq_ref[:3]}..{seq_ref[-3:]}], with rejected requests {len(got)} "
+                                f"[{seq_got[:3]}..{seq_got[-3:]}]; missing in ref: "
+                                f"{sorted(set(seq_got) - set(seq_ref))[:10]}, missing with rejected: "
+                                f"{sorted(set(seq_ref) - set(seq_got))[:10]}")
     for a, b in zip(ref, got):
         assert a.sequence == b.sequence and a.stance == b.stance
         assert list(a.q) == list(b.q) and list(a.q_dot) == list(b.q_dot) and list(a.base) == list(b.base)

@@ -10,7 +10,6 @@ import math
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -26,17 +25,8 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 def _descendants(pid: int) -> set[int]:
-    out, todo = set(), [pid]
-    while todo:
-        p = todo.pop()
-        try:
-            with open(f'/proc/{p}/task/{p}/children') as fh:
-                kids = [int(x) for x in fh.read().split()]
-        except OSError:
-            kids = []
-        out.update(kids)
-        todo.extend(kids)
-    return out
+    from biped_sim.soak import descendants
+    return set(descendants(pid))
 
 
 def _alive(pids) -> list[int]:

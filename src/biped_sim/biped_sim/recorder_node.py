@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import signal
+import time
 import sys
 import threading
 from pathlib import Path
@@ -214,6 +215,10 @@ class RecorderNode(Node):
         return summary
 
 
+DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
+DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
+
+
 def main(args: Optional[List[str]] = None) -> int:
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node: Optional[RecorderNode] = None
@@ -238,6 +243,19 @@ def main(args: Optional[List[str]] = None) -> int:
         try:
             while not node.stop_requested.is_set() and rclpy.ok(context=node.context):
                 executor.spin_once(timeout_sec=0.1)
+            # Drain: a stop request can arrive while messages are still queued (the recorder may lag
+            # the 1 kHz lockstep on a loaded machine). Keep taking them until nothing has arrived for
+            # DRAIN_IDLE seconds (at most DRAIN_MAX), then finish the bag.
+            t_end = time.monotonic() + DRAIN_MAX
+            last_total, last_change = -1, time.monotonic()
+            while rclpy.ok(context=node.context) and time.monotonic() < t_end:
+                executor.spin_once(timeout_sec=0.02)
+                total = sum(node.counts.values())
+                now = time.monotonic()
+                if total != last_total:
+                    last_total, last_change = total, now
+                elif now - last_change >= DRAIN_IDLE:
+                    break
         except ExternalShutdownException:
             pass  # the context was shut down: finish the bag below
         finally:

@@ -62,7 +62,8 @@ def push_plan(total_time: float, seed: int, every: float = 3.0, min_force: float
 
 
 # ----------------------------------------------------------------------------- processes
-def _children(pid: int) -> list[int]:
+def descendants(pid: int) -> list[int]:
+    """Every descendant process of ``pid`` (from /proc/<pid>/task/<pid>/children, recursively)."""
     out, todo = [], [pid]
     while todo:
         p = todo.pop()
@@ -79,7 +80,7 @@ def _children(pid: int) -> list[int]:
 def node_pids(launcher_pid: int) -> dict[str, int]:
     """node name -> pid of the launcher's children running ``lib/<pkg>/<node>``."""
     found = {}
-    for p in _children(launcher_pid):
+    for p in descendants(launcher_pid):
         try:
             with open(f'/proc/{p}/cmdline', 'rb') as fh:
                 argv = fh.read().split(b'\0')
