@@ -85,6 +85,19 @@ def _duration(d) -> tuple:
     return (ns // 10**9, ns % 10**9)
 
 
+RECORDING_DEPTH = 5000  # the recorder's own queue: it must never drop a message while it lags
+
+
+def recording_qos(profile):
+    """The topic's QoS (reliability, durability: so it matches the publisher and gets latched
+    messages) with a keep-last history of at least RECORDING_DEPTH: a latched topic's depth 1 is
+    right for its late joiners but would make a lagging recorder lose messages."""
+    from rclpy.qos import QoSProfile
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(int(profile.depth), RECORDING_DEPTH),
+                      reliability=profile.reliability, durability=profile.durability,
+                      liveliness=profile.liveliness)
+
+
 def qos_from_rclpy(profile) -> QosProfile:
     """An ``rclpy.qos.QoSProfile`` (e.g. a publisher's offered profile) in rosbag2 terms."""
     return QosProfile(
@@ -128,7 +141,7 @@ class RecorderNode(Node):
         for spec in self._specs:
             callback = functools.partial(self._on_message, spec)
             self._subscriptions_by_topic[spec.name] = self.create_subscription(
-                spec.msg_class(), spec.name, callback, spec.qos_profile, raw=True)
+                spec.msg_class(), spec.name, callback, recording_qos(spec.qos_profile), raw=True)
         self.get_logger().info(
             f"recording {len(self._specs)} topics to {self._writer.bag_dir} "
             f"({compression}, chunks of {chunk_size} B)")
