@@ -31,13 +31,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from biped_sim.description import RobotDescription, default_config_dir, load_description
+from biped_sim.description import RobotDescription, default_config_dir, load_description, read_settings
 
 from .gait_family import GaitFamily
-from .model import CONSTRAINT_NAMES, N_CONSTRAINTS, FixedFootModel
-from .qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP
+from .model import N_CONSTRAINTS, FixedFootModel
+from .qp import SOLVER_ERROR, AdaptationQP
 
 MODES = ("none", "tau", "p", "both")
 # rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,
@@ -86,12 +85,7 @@ class ControllerConfig:
 
 def load_controller_config(path: str | Path | None = None, **overrides) -> ControllerConfig:
     p = Path(path) if path is not None else default_config_dir() / "controller.yaml"
-    with open(p, encoding="utf-8") as fh:
-        tree = yaml.safe_load(fh)
-    kw = {}
-    for f in ControllerConfig.__dataclass_fields__:
-        if f in tree:
-            kw[f] = tree[f]["value"] if isinstance(tree[f], dict) else tree[f]
+    kw = read_settings(p, ControllerConfig.__dataclass_fields__)
     kw.update(overrides)
     return ControllerConfig(**kw).validate()
 
@@ -150,8 +144,6 @@ class AdaptiveController:
         self.family = family if family is not None else GaitFamily.load()
         self.model = FixedFootModel(self.desc)
         self.keep_qp = keep_qp
-        m = self.model
-        mg = m.mass * self.desc.gravity
         c = self.cfg
         # constraint margins (subtracted from the right-hand side), in the row order of CONSTRAINT_NAMES
         self.margin = np.concatenate([

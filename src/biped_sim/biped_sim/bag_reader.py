@@ -104,12 +104,7 @@ def read_bag(path: os.PathLike | str, decode: bool = False) -> Dict[str, Any]:
             if decode:
                 messages.append((channel.topic, message.log_time, message.publish_time, decoded))
     result = {
-        "path": mcap_path,
-        "counts": counts,
-        "types": types,
-        "message_count": sum(counts.values()),
-        "start_ns": start,
-        "end_ns": end,
+        **_summary_fields(mcap_path, counts, types, start, end),
         "compression": compression,
         "chunk_count": len(summary.chunk_indexes),
         "has_summary": True,
@@ -118,6 +113,12 @@ def read_bag(path: os.PathLike | str, decode: bool = False) -> Dict[str, Any]:
     if decode:
         result["messages"] = messages
     return result
+
+
+def _summary_fields(path, counts: Dict[str, int], types, start, end) -> Dict[str, Any]:
+    """The fields shared by read_bag and read_truncated."""
+    return {"path": path, "counts": counts, "types": types, "message_count": sum(counts.values()),
+            "start_ns": start, "end_ns": end}
 
 
 def complete_prefix_length(data: bytes) -> int:
@@ -209,12 +210,7 @@ def read_truncated(path: os.PathLike | str, decode: bool = False) -> Dict[str, A
         except (McapError, struct.error, ValueError, EOFError):
             pass  # end of the complete prefix (EndOfFile) or a damaged record: stop there
     result = {
-        "path": mcap_path,
-        "counts": counts,
-        "types": types,
-        "message_count": sum(counts.values()),
-        "start_ns": start,
-        "end_ns": end,
+        **_summary_fields(mcap_path, counts, types, start, end),
         "complete_chunks": complete_chunks,
         "bad_chunks": bad_chunks,
         "truncated": not saw_footer,

@@ -181,6 +181,14 @@ def load_description(path: str | os.PathLike[str] | None = None) -> RobotDescrip
     return parse_description(tree, source=str(p))
 
 
+def read_settings(path: str | os.PathLike[str], fields) -> dict[str, Any]:
+    """The entries of a settings file (``key: {value, reason}`` or a bare ``key: value``) whose keys
+    are in ``fields`` (e.g. a dataclass's ``__dataclass_fields__``), as ``{key: value}``."""
+    with open(path, encoding="utf-8") as fh:
+        tree = yaml.safe_load(fh) or {}
+    return {f: (tree[f]["value"] if isinstance(tree[f], dict) else tree[f]) for f in fields if f in tree}
+
+
 def iter_reasons(tree: dict[str, Any], prefix: str = ""):
     """Yield (dotted key, value, reason) for every leaf of a description tree (README table, tests)."""
     for k, v in tree.items():

@@ -25,15 +25,14 @@ Deterministic: no randomness, fixed operation order; the same inputs give bit-id
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import yaml
 
-from .description import LEFT, RIGHT, RobotDescription, default_config_dir, load_description
-from .floating import FloatingModel, paper_from_urdf, urdf_from_paper
+from .description import LEFT, RobotDescription, default_config_dir, load_description, read_settings
+from .floating import FloatingModel, urdf_from_paper
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
 
@@ -72,12 +71,7 @@ class SimConfig:
 
 def load_sim_config(path: str | Path | None = None) -> SimConfig:
     p = Path(path) if path is not None else default_config_dir() / "simulator.yaml"
-    with open(p, encoding="utf-8") as fh:
-        tree = yaml.safe_load(fh)
-    kw = {}
-    for f in SimConfig.__dataclass_fields__:
-        if f in tree:
-            kw[f] = tree[f]["value"] if isinstance(tree[f], dict) else tree[f]
+    kw = read_settings(p, SimConfig.__dataclass_fields__)
     for k, v in kw.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
             raise SimConfigError(f"config/simulator.yaml: '{k}' must be a finite number, got {v!r}")
