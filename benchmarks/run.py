@@ -126,7 +126,7 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     Passes repeat the recording until >= min_steps steps each.
     """
     from biped_controller.controller import AdaptiveController, load_controller_config
-    from biped_controller.gait_family import GaitFamily
+    from biped_sim.gait_family import GaitFamily
     from biped_sim.description import LEFT, load_description
     from biped_sim.simulator import load_sim_config
 

@@ -6,7 +6,7 @@ import numpy as np
 
 import helpers  # noqa: F401  (puts src/ on the path when the packages are not installed)
 from biped_controller.controller import AdaptiveController, load_controller_config
-from biped_controller.gait_family import GaitFamily
+from biped_sim.gait_family import GaitFamily
 
 
 def test_rows_without_estimate_equal_full_evaluation():

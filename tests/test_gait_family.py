@@ -21,7 +21,7 @@ import pytest
 from helpers import ROOT, assert_close
 
 from biped_sim.floating import FloatingModel, impact_paper
-from biped_controller.gait_family import GaitFamily, fit_family
+from biped_sim.gait_family import GaitFamily, fit_family
 from biped_controller.model import N_CONSTRAINTS, CONSTRAINT_NAMES, FixedFootModel, relabel
 
 FAMILY_FILE = ROOT / "config" / "gait_family.json"

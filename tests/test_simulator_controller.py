@@ -23,7 +23,7 @@ from biped_sim.description import LEFT, RIGHT, load_description
 from biped_sim.simulator import PushError, Simulator, load_sim_config
 from biped_controller import runner
 from biped_controller.controller import load_controller_config
-from biped_controller.gait_family import GaitFamily
+from biped_sim.gait_family import GaitFamily
 from biped_controller.model import relabel
 from biped_controller.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals
 from biped_controller.runner import PushSpec
@@ -167,7 +167,7 @@ def test_bit_identical_runs():
 @pytest.fixture
 def sim():
     s = Simulator(config=load_sim_config())
-    q0, qd0 = runner.initial_state(FAM)
+    q0, qd0 = FAM.initial_state()
     s.reset(q0, qd0, LEFT)
     return s
 

@@ -138,7 +138,7 @@ def _set(tree, key, value):
 
 @pytest.fixture(scope='module')
 def biped_tree():
-    from biped_sim.description import default_config_dir
+    from biped_sim.settings import default_config_dir
     return yaml.safe_load((default_config_dir() / 'biped.yaml').read_text())
 
 
@@ -179,7 +179,7 @@ def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
         return   # any finite height is a valid default here (the nodes bound it by the torso)
     if key == 'substeps' and not math.isfinite(bad):
         return   # known bug, see test_simulator_config_non_finite_substeps_known_bug
-    from biped_sim.description import default_config_dir
+    from biped_sim.settings import default_config_dir
     tree = yaml.safe_load((default_config_dir() / 'simulator.yaml').read_text())
     if isinstance(tree[key], dict):
         tree[key]['value'] = bad
@@ -196,7 +196,7 @@ def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
 def test_simulator_config_non_finite_substeps(tmp_path, bad):
     """NaN/inf substeps are rejected naming the key (load_sim_config validates before int())."""
     from biped_sim.simulator import load_sim_config
-    from biped_sim.description import default_config_dir
+    from biped_sim.settings import default_config_dir
     text = (default_config_dir() / 'simulator.yaml').read_text()
     tree = yaml.safe_load(text)
     tree['substeps'] = float(bad.replace('.', ''))
@@ -210,8 +210,9 @@ def test_simulator_config_non_finite_substeps(tmp_path, bad):
 @SETTINGS
 @given(period=st.floats(1e-5, 0.05), sub=st.integers(1, 1000))
 def test_simulator_config_accepts_valid(period, sub):
-    from biped_sim.simulator import SimConfig
-    SimConfig(control_period=period, substeps=sub).validate()
+    from biped_sim.simulator import load_sim_config
+    cfg = load_sim_config(control_period=period, substeps=sub)
+    assert (cfg.control_period, cfg.substeps) == (period, sub)
 
 
 CTRL_NUMERIC = ['Kp', 'Kv', 'kp', 'kv', 'weight_p', 'weight_tau', 'tau_dot_min']
@@ -242,26 +243,38 @@ def test_controller_config_accepts_valid(mode, kp):
     load_controller_config(mode=mode, Kp=kp)
 
 
-def test_graph_params_file_matches_node_parameters():
-    """config/graph.yaml: every node section exists and the simulator/controller values are those of
-    config/simulator.yaml / config/controller.yaml (validated by their loaders)."""
-    from biped_sim.description import default_config_dir
+def test_graph_params_file_repeats_no_setting():
+    """config/graph.yaml holds only the nodes' own keys: every simulator/controller setting has one
+    home (config/simulator.yaml, config/controller.yaml), which the nodes use as their defaults."""
+    from biped_sim.settings import default_config_dir
     from biped_sim.simulator import SimConfig
     from biped_controller.controller import ControllerConfig
     g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
     for n in ('simulator', 'controller', 'disturbance', 'recorder'):
         assert 'ros__parameters' in g[n], n
-    sim = g['simulator']['ros__parameters']
-    SimConfig(**{k: sim[k] for k in SimConfig.__dataclass_fields__}).validate()
-    ctrl = dict(g['controller']['ros__parameters'])
-    kw = {k: ctrl[k] for k in ControllerConfig.__dataclass_fields__ if k in ctrl}
-    kw['period'] = ctrl['control_period']
-    ControllerConfig(**kw).validate()
+    settings = set(SimConfig.__dataclass_fields__) | set(ControllerConfig.__dataclass_fields__) | {'control_period'}
+    for n in ('simulator', 'controller', 'disturbance'):
+        repeated = settings & set(g[n]['ros__parameters'])
+        assert not repeated, f'config/graph.yaml {n} repeats {sorted(repeated)}'
+
+
+def test_bare_objects_read_the_config_files():
+    """A bare Simulator() / AdaptiveController() use exactly the numbers of config/*.yaml."""
+    from biped_sim.settings import default_config_dir, read_settings
+    from biped_sim.simulator import SimConfig, Simulator
+    from biped_controller.controller import AdaptiveController, ControllerConfig
+    sim_yaml = read_settings(default_config_dir() / 'simulator.yaml', SimConfig.__dataclass_fields__)
+    assert {k: getattr(Simulator().cfg, k) for k in sim_yaml} == sim_yaml
+    keys = [k for k in ControllerConfig.__dataclass_fields__ if k != 'period']
+    ctrl_yaml = read_settings(default_config_dir() / 'controller.yaml', keys)
+    cfg = AdaptiveController().cfg
+    assert {k: getattr(cfg, k) for k in keys} == ctrl_yaml
+    assert cfg.period == sim_yaml['control_period']
 
 
 def test_family_description_check():
     import dataclasses
-    from biped_controller.gait_family import GaitFamily
+    from biped_sim.gait_family import GaitFamily
     from biped_sim.description import load_description
     from biped_sim.node_checks import RobotFilesError, check_family_matches_description, check_urdf_joints
     from biped_sim.description import make_urdf

@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.description import RobotDescription, default_config_dir, load_description, read_settings
+from biped_sim.description import RobotDescription, load_description
+from biped_sim.settings import SettingsError, default_config_dir, read_settings
 
-from .gait_family import GaitFamily
+from biped_sim.gait_family import GaitFamily
 from .model import N_CONSTRAINTS, FixedFootModel
 from .qp import SOLVER_ERROR, AdaptationQP
 
@@ -51,21 +52,24 @@ class ControllerConfigError(ValueError):
 
 @dataclass(frozen=True)
 class ControllerConfig:
-    mode: str = "both"
-    Kp: float = 400.0
-    Kv: float = 40.0
-    kp: float = 25.0
-    kv: float = 10.0
-    weight_p: float = 1.0
-    weight_tau: float = 1.0
-    margin_normal_force: float = 20.0
-    margin_friction: float = 0.9
-    margin_zmp: float = 0.005
-    margin_torque: float = 0.0
-    tau_dot_min: float = 0.05
-    disturbance_observer: bool = True
-    observer_height: float = 0.3125
-    period: float = 0.001
+    """Controller settings. The values and their reasons live in ``config/controller.yaml`` only (the
+    control period in ``config/simulator.yaml``): build one with :func:`load_controller_config`."""
+
+    mode: str                     # none | tau | p | both: which parameters the QP adapts
+    Kp: float                     # [1/s^2] joint PD stiffness of eq. (16)
+    Kv: float                     # [1/s] joint PD damping of eq. (16)
+    kp: float                     # [1/s^2] second task eq. (20), p -> p_d
+    kv: float                     # [1/s] second task eq. (20), p' -> 0 and tau' -> 1
+    weight_p: float               # QP weight on (p'' - p''*)^2
+    weight_tau: float             # QP weight on (tau'' - tau''*)^2
+    margin_normal_force: float    # [N] QP keeps R_y >= this
+    margin_friction: float        # [-] QP keeps |R_x| <= margin_friction mu R_y
+    margin_zmp: float             # [m] QP keeps l within [l_m + margin, l_M - margin]
+    margin_torque: float          # [N m] QP keeps |Gamma_i| <= Gamma_iM - margin
+    tau_dot_min: float            # [-] QP keeps tau' (after one period) >= this
+    disturbance_observer: bool    # estimate a horizontal torso force (not in the paper) for the QP rows
+    observer_height: float        # [m] assumed application height of the estimated force above the hip
+    period: float                 # [s] control period (config/simulator.yaml control_period)
 
     def validate(self) -> "ControllerConfig":
         if self.mode not in MODES:
@@ -78,14 +82,28 @@ class ControllerConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
+        if not isinstance(self.disturbance_observer, bool):
+            raise ControllerConfigError(f"disturbance_observer must be true or false, got {self.disturbance_observer!r}")
+        if isinstance(self.observer_height, bool) or not isinstance(self.observer_height, (int, float)) \
+                or not math.isfinite(self.observer_height):
+            raise ControllerConfigError(f"observer_height must be a finite number, got {self.observer_height!r}")
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
         return self
 
 
 def load_controller_config(path: str | Path | None = None, **overrides) -> ControllerConfig:
+    """``config/controller.yaml`` (or ``path``) with ``overrides`` applied, validated. ``period`` comes
+    from ``config/simulator.yaml`` (control_period) unless overridden."""
     p = Path(path) if path is not None else default_config_dir() / "controller.yaml"
-    kw = read_settings(p, ControllerConfig.__dataclass_fields__)
+    keys = [k for k in ControllerConfig.__dataclass_fields__ if k != "period"]
+    try:
+        kw = read_settings(p, keys)
+    except SettingsError as exc:
+        raise ControllerConfigError(str(exc)) from exc
+    if "period" not in overrides:
+        from biped_sim.simulator import load_sim_config
+        kw["period"] = load_sim_config().control_period
     kw.update(overrides)
     return ControllerConfig(**kw).validate()
 
@@ -139,7 +157,7 @@ class AdaptiveController:
 
     def __init__(self, config: ControllerConfig | None = None, family: GaitFamily | None = None,
                  desc: RobotDescription | None = None, keep_qp: bool = False):
-        self.cfg = (config if config is not None else ControllerConfig()).validate()
+        self.cfg = (config if config is not None else load_controller_config()).validate()
         self.desc = desc if desc is not None else load_description()
         self.family = family if family is not None else GaitFamily.load()
         self.model = FixedFootModel(self.desc)

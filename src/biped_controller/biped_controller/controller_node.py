@@ -39,12 +39,13 @@ from biped_sim.node_params import (
     get_bool,
     get_float,
     get_str,
+    load_robot_files,
     run_node,
 )
 from biped_sim.simulator import load_sim_config
 
 from .controller import MODES, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
-from .gait_family import GaitFamily
+from biped_sim.gait_family import GaitFamily
 
 
 def read_controller_config(node: Node) -> ControllerConfig:
@@ -66,29 +67,6 @@ def read_controller_config(node: Node) -> ControllerConfig:
     except ControllerConfigError as exc:
         name = str(exc).split()[0]
         raise ParameterError('control_period' if name == 'period' else name, str(exc)) from exc
-
-
-def load_robot_files(node: Node):
-    """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
-    (empty = config/biped.yaml, config/gait_family.json), checked against each other."""
-    from biped_sim.description import DescriptionError
-    from biped_sim.node_checks import RobotFilesError, check_family_matches_description
-    from .gait_family import GaitFamilyError
-    desc_path = get_str(node, 'description_path', '')
-    fam_path = get_str(node, 'gait_family_path', '')
-    try:
-        desc = load_description(desc_path or None)
-    except (DescriptionError, OSError, ValueError) as exc:
-        raise ParameterError('description_path', str(exc)) from exc
-    try:
-        family = GaitFamily.load(fam_path or None)
-    except (GaitFamilyError, OSError) as exc:
-        raise ParameterError('gait_family_path', str(exc)) from exc
-    try:
-        check_family_matches_description(desc, family)
-    except RobotFilesError as exc:
-        raise ParameterError('gait_family_path', str(exc)) from exc
-    return desc, family
 
 
 def status_message(s, stamp) -> ControllerStatus:

@@ -39,7 +39,7 @@ from biped_sim.description import RobotDescription, load_description
 from biped_sim.simulator import SimConfig, load_sim_config
 
 from .controller import MODES, load_controller_config
-from .gait_family import GaitFamily
+from biped_sim.gait_family import GaitFamily
 from .qp import STATUS_NAMES
 from . import runner
 from .runner import PushSpec, RunResult

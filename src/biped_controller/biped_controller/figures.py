@@ -22,9 +22,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from biped_sim.description import default_config_dir, load_description, repo_root
+from biped_sim.description import load_description
+from biped_sim.settings import default_config_dir, repo_root
 
-from .gait_family import GaitFamily
+from biped_sim.gait_family import GaitFamily
 from .model import FixedFootModel
 
 

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.description import default_config_dir
+from biped_sim.settings import default_config_dir
 from biped_sim.floating import impact_paper
 
-from .gait_family import GaitFamily, fit_family
+from biped_sim.gait_family import GaitFamily, fit_family
 from .gait_optimizer import StepOptimizer, StepSolution, basis, load_gait_settings
 from .model import CONSTRAINT_NAMES, relabel
 

@@ -33,10 +33,10 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-import yaml
 from scipy.optimize import minimize
 
-from biped_sim.description import LEFT, RobotDescription, default_config_dir, load_description
+from biped_sim.description import LEFT, RobotDescription, load_description
+from biped_sim.settings import SettingsError, default_config_dir, load_yaml_tree, read_settings
 from biped_sim.floating import FloatingModel, impact_paper
 
 from .model import FixedFootModel, relabel
@@ -73,13 +73,18 @@ class GaitSettings:
 
 def load_gait_settings(path: str | Path | None = None) -> GaitSettings:
     p = Path(path) if path is not None else default_config_dir() / "gait.yaml"
-    with open(p, encoding="utf-8") as fh:
-        tree = yaml.safe_load(fh)
+    keys = ("step_duration", "preferred_stride", "strides", "time_degree", "stride_degree", "grid_intervals",
+            "min_normal_force", "friction_use", "zmp_margin", "torque_use", "clearance", "touchdown_speed",
+            "touchdown_descent", "min_impulse_normal", "knee_min_flexion", "liftoff_speed", "max_iterations",
+            "tolerance")
+    try:
+        values = read_settings(p, keys)
+        tree = load_yaml_tree(p)
+    except SettingsError as exc:
+        raise GaitConfigError(str(exc)) from exc
 
     def val(k: str) -> Any:
-        if k not in tree or not isinstance(tree[k], dict) or "value" not in tree[k] or not tree[k].get("reason"):
-            raise GaitConfigError(f"config/gait.yaml: '{k}' must be {{value, reason}}")
-        return tree[k]["value"]
+        return values[k]
 
     s = GaitSettings(
         T=float(val("step_duration")), p_d=float(val("preferred_stride")),

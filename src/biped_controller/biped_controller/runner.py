@@ -13,7 +13,7 @@ from biped_sim.description import LEFT, RobotDescription, load_description
 from biped_sim.simulator import SimConfig, Simulator, StepRecord, load_sim_config
 
 from .controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
-from .gait_family import GaitFamily
+from biped_sim.gait_family import GaitFamily
 
 
 @dataclass(frozen=True)
@@ -40,12 +40,6 @@ class RunResult:
         return np.array([getattr(s, name) for s in self.statuses])
 
 
-def initial_state(family: GaitFamily) -> tuple[np.ndarray, np.ndarray]:
-    """Start of the preferred step: q_d(p_d, 0), q_d' = dq/dtau (tau' = 1)."""
-    g = family.evaluate(family.p_d, 0.0)
-    return g.q.copy(), g.dq_dtau.copy()
-
-
 def run(steps: int = 10, mode: str = "both", pushes: tuple[PushSpec, ...] = (), *,
         sim_config: SimConfig | None = None, ctrl_config: ControllerConfig | None = None,
         family: GaitFamily | None = None, desc: RobotDescription | None = None,
@@ -61,7 +55,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[PushSpec, ...] = (), 
         ccfg = ControllerConfig(**{**ccfg.__dict__, "period": scfg.control_period})
     sim = Simulator(desc, scfg)
     ctrl = AdaptiveController(ccfg, family, desc, keep_qp=keep_qp)
-    q0, qd0 = initial_state(family)
+    q0, qd0 = family.initial_state()
     sim.reset(q0, qd0, LEFT)
     ctrl.reset(LEFT)
     for p in pushes:

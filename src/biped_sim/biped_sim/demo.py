@@ -119,7 +119,7 @@ def main(argv=None) -> int:
     ap.add_argument('--json', type=Path, default=None)
     ap.add_argument('--timeout', type=float, default=600.0, help='wall s for the whole run')
     a = ap.parse_args(argv)
-    from biped_sim.description import repo_root
+    from biped_sim.settings import repo_root
     bag = (a.bag or repo_root() / 'runs' / f'demo_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
     bag.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
+from .settings import SettingsError, default_config_dir, load_yaml_tree
 
 JOINT_AXIS = (0.0, -1.0, 0.0)
 URDF_JOINTS = ("left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle")
@@ -82,18 +82,6 @@ class RobotDescription:
         """(Gamma_m, Gamma_M) for q1..q6 [N m], eq. (9)."""
         upper = list(self.torque_max)
         return [-u for u in upper], upper
-
-
-def repo_root() -> Path:
-    """The project's root (``config/`` lives there). ``BIPED_ROOT`` overrides it."""
-    env = os.environ.get("BIPED_ROOT")
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[3]
-
-
-def default_config_dir() -> Path:
-    return repo_root() / "config"
 
 
 def _value(tree: dict[str, Any], *keys: str) -> float:
@@ -176,27 +164,11 @@ def load_description(path: str | os.PathLike[str] | None = None) -> RobotDescrip
     p = Path(path) if path is not None else default_config_dir() / "biped.yaml"
     if not p.is_file():
         raise DescriptionError(f"biped description: file not found: {p}")
-    with open(p, encoding="utf-8") as fh:
-        tree = yaml.safe_load(fh)
+    try:
+        tree = load_yaml_tree(p)
+    except SettingsError as exc:
+        raise DescriptionError(f"biped description: {exc}") from exc
     return parse_description(tree, source=str(p))
-
-
-def read_settings(path: str | os.PathLike[str], fields) -> dict[str, Any]:
-    """The entries of a settings file (``key: {value, reason}`` or a bare ``key: value``) whose keys
-    are in ``fields`` (e.g. a dataclass's ``__dataclass_fields__``), as ``{key: value}``."""
-    with open(path, encoding="utf-8") as fh:
-        tree = yaml.safe_load(fh) or {}
-    return {f: (tree[f]["value"] if isinstance(tree[f], dict) else tree[f]) for f in fields if f in tree}
-
-
-def iter_reasons(tree: dict[str, Any], prefix: str = ""):
-    """Yield (dotted key, value, reason) for every leaf of a description tree (README table, tests)."""
-    for k, v in tree.items():
-        key = f"{prefix}.{k}" if prefix else k
-        if isinstance(v, dict) and "value" in v:
-            yield key, v["value"], v.get("reason", "")
-        elif isinstance(v, dict):
-            yield from iter_reasons(v, key)
 
 
 def _inertial(mass: float, com_z: float, iyy: float, com_x: float = 0.0) -> str:

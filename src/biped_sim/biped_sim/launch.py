@@ -133,7 +133,7 @@ def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict) -> 
 
 
 def default_params() -> Path:
-    from biped_sim.description import default_config_dir
+    from biped_sim.settings import default_config_dir
     return default_config_dir() / 'graph.yaml'
 
 
@@ -156,7 +156,7 @@ def parse_args(argv=None):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from biped_sim.description import repo_root
+    from biped_sim.settings import repo_root
     params = (args.params or default_params()).resolve()
     if not params.is_file():
         log(f'no parameters file {params}')

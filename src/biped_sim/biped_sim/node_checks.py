@@ -20,7 +20,32 @@ TOLERANCE = 1e-3
 
 
 class RobotFilesError(ValueError):
-    """The description, URDF and gait family do not fit together."""
+    """The description, URDF and gait family do not fit together, or one cannot be read; ``field`` names
+    the node parameter that points at the offending file (``description_path``, ``gait_family_path``)."""
+
+    def __init__(self, message: str, field: str = "") -> None:
+        super().__init__(message)
+        self.field = field
+
+
+def load_robot_files(description_path: str = "", gait_family_path: str = ""):
+    """(RobotDescription, GaitFamily) from two paths ('' = config/biped.yaml, config/gait_family.json),
+    checked against each other; :class:`RobotFilesError` names the path parameter at fault."""
+    from .description import DescriptionError, load_description
+    from .gait_family import GaitFamily, GaitFamilyError
+    try:
+        desc = load_description(description_path or None)
+    except (DescriptionError, OSError, ValueError) as exc:
+        raise RobotFilesError(str(exc), "description_path") from exc
+    try:
+        family = GaitFamily.load(gait_family_path or None)
+    except (GaitFamilyError, OSError) as exc:
+        raise RobotFilesError(str(exc), "gait_family_path") from exc
+    try:
+        check_family_matches_description(desc, family)
+    except RobotFilesError as exc:
+        raise RobotFilesError(str(exc), "gait_family_path") from exc
+    return desc, family
 
 
 def check_family_matches_description(desc, family) -> None:

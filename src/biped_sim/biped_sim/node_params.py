@@ -98,6 +98,18 @@ def get_float_list(node: Node, name: str) -> list[float]:
     return out
 
 
+def load_robot_files(node: Node):
+    """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
+    (empty = config/biped.yaml, config/gait_family.json), checked against each other."""
+    from .node_checks import RobotFilesError, load_robot_files as _load
+    desc_path = get_str(node, 'description_path', '')
+    fam_path = get_str(node, 'gait_family_path', '')
+    try:
+        return _load(desc_path, fam_path)
+    except RobotFilesError as exc:
+        raise ParameterError(exc.field, str(exc)) from exc
+
+
 def install_stop_handlers(callback: Callable[[int], None]) -> dict:
     """SIGINT and SIGTERM call ``callback(signum)``; returns the previous handlers."""
     previous = {}

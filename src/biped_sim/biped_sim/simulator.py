@@ -31,7 +31,8 @@ from typing import Callable
 
 import numpy as np
 
-from .description import LEFT, RobotDescription, default_config_dir, load_description, read_settings
+from .description import LEFT, RobotDescription, load_description
+from .settings import SettingsError, default_config_dir, read_settings
 from .floating import FloatingModel, urdf_from_paper
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
@@ -47,13 +48,16 @@ class PushError(ValueError):
 
 @dataclass(frozen=True)
 class SimConfig:
-    control_period: float = 0.001
-    substeps: int = 2
-    touchdown_tolerance: float = 1e-9
-    clearance_before_touchdown: float = 1e-4
-    liftoff_penetration: float = 1e-3
-    event_time_tolerance: float = 1e-9
-    push_height: float = 0.3125
+    """Simulator settings; the values (and the reason for each) live in ``config/simulator.yaml`` only:
+    build one with :func:`load_sim_config` (no defaults here, so nothing repeats the file)."""
+
+    control_period: float            # [s] zero-order-hold period of the joint torques
+    substeps: int                    # RK4 steps per control period
+    touchdown_tolerance: float       # [m] a sole point below this height touches the ground
+    clearance_before_touchdown: float  # [m] swing foot rise needed before a contact counts as touchdown
+    liftoff_penetration: float       # [m] a released foot sinking deeper than this is a fall
+    event_time_tolerance: float      # [s] touchdown time bisection precision
+    push_height: float               # [m] default push point above the hip on the torso
 
     def validate(self) -> "SimConfig":
         if not (math.isfinite(self.control_period) and 0 < self.control_period <= 0.05):
@@ -69,16 +73,20 @@ class SimConfig:
         return self
 
 
-def load_sim_config(path: str | Path | None = None) -> SimConfig:
+def load_sim_config(path: str | Path | None = None, **overrides) -> SimConfig:
+    """``config/simulator.yaml`` (or ``path``) with ``overrides`` applied, validated."""
     p = Path(path) if path is not None else default_config_dir() / "simulator.yaml"
-    kw = read_settings(p, SimConfig.__dataclass_fields__)
+    try:
+        kw = read_settings(p, SimConfig.__dataclass_fields__)
+    except SettingsError as exc:
+        raise SimConfigError(str(exc)) from exc
+    kw.update(overrides)
     for k, v in kw.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-            raise SimConfigError(f"config/simulator.yaml: '{k}' must be a finite number, got {v!r}")
-    if "substeps" in kw:
-        if float(kw["substeps"]) != int(kw["substeps"]):
-            raise SimConfigError(f"config/simulator.yaml: 'substeps' must be an integer, got {kw['substeps']!r}")
-        kw["substeps"] = int(kw["substeps"])
+            raise SimConfigError(f"{k} must be a finite number, got {v!r} ({p})")
+    if float(kw["substeps"]) != int(kw["substeps"]):
+        raise SimConfigError(f"substeps must be an integer, got {kw['substeps']!r} ({p})")
+    kw["substeps"] = int(kw["substeps"])
     return SimConfig(**kw).validate()
 
 
@@ -150,7 +158,7 @@ class Simulator:
 
     def __init__(self, desc: RobotDescription | None = None, config: SimConfig | None = None):
         self.desc = desc if desc is not None else load_description()
-        self.cfg = (config if config is not None else SimConfig()).validate()
+        self.cfg = (config if config is not None else load_sim_config()).validate()
         self.fm = FloatingModel(self.desc)
         self.pushes: list[Push] = []
         self.x = np.zeros(9)

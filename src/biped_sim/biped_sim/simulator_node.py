@@ -2,7 +2,7 @@
 
 Owns a :class:`biped_sim.simulator.Simulator` (robot from ``config/biped.yaml``, ``SimConfig`` from
 the parameters below, which have the keys of ``config/simulator.yaml``). Initial state: the start of
-the preferred gait (``runner.initial_state(GaitFamily.load())``), LEFT stance, as the in-process
+the preferred gait (``GaitFamily.initial_state()``), LEFT stance, as the in-process
 ``runner.run``.
 
 Lockstep, per control step k (event-driven: the next state is published from inside the torque
@@ -78,6 +78,7 @@ from biped_sim.node_params import (
     get_int,
     get_str,
     install_stop_handlers,
+    load_robot_files,
     restore_handlers,
 )
 from biped_sim.node_checks import RobotFilesError, check_urdf_joints
@@ -162,9 +163,6 @@ class SimulatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__(gn.SIMULATOR_NODE, **kwargs)
         self.declare_parameter_errors()
-        from biped_controller.controller_node import load_robot_files
-        from biped_controller.runner import initial_state
-
         self.desc, family = load_robot_files(self)
         urdf_path = get_str(self, 'urdf_path', '')
         if urdf_path:
@@ -180,7 +178,7 @@ class SimulatorNode(Node):
         except RobotFilesError as exc:
             raise ParameterError('urdf_path', f'{urdf_path or "generated URDF"}: {exc}') from exc
         self.sim = Simulator(self.desc, self.cfg)
-        q0, qd0 = initial_state(family)
+        q0, qd0 = family.initial_state()
         self.sim.reset(q0, qd0, LEFT)
         self.tfb = TransformBuilder(self.urdf)
 

@@ -1,6 +1,7 @@
 """The family of reference trajectories q_d(p, tau) (paper eqs. 13-14) and its partial derivatives.
 
-Pure Python, no ROS.   q_i(tau, p) = sum_{j=0..4} ( sum_{k=0..7} b_ijk p^k ) tau^j,
+Pure Python, no ROS. An asset of the robot that both sides use: the simulator takes its initial state
+from it, the controller its reference (hence it lives in ``biped_sim``, which the controller depends on).   q_i(tau, p) = sum_{j=0..4} ( sum_{k=0..7} b_ijk p^k ) tau^j,
 p: stride [m], tau: time-scaled phase [s] in [0, T]. All the partial derivatives that eq. (11) needs
 are evaluated in closed form from b_ijk.
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.description import default_config_dir
+from .settings import default_config_dir
 
 
 class GaitFamilyError(ValueError):
@@ -96,6 +97,13 @@ class GaitFamily:
         qdd = (g.dq_dp * p_ddot + g.dq_dtau * tau_ddot + g.d2q_dp2 * p_dot**2 + g.d2q_dtau2 * tau_dot**2
                + 2.0 * g.d2q_dp_dtau * p_dot * tau_dot)
         return g.q, qd, qdd
+
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Start of the preferred step, where every run starts: (q_d(p_d, 0), dq_d/dtau(p_d, 0)) [rad,
+        rad/s] with tau' = 1, the LEFT foot in stance (the simulator's initial state and the controller's
+        initial reference)."""
+        g = self.evaluate(self.p_d, 0.0)
+        return g.q.copy(), g.dq_dtau.copy()
 
     # ------------------------------------------------------------------ I/O
     @property

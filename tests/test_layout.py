@@ -1,0 +1,141 @@
+"""The layout rules of DESIGN.md, checked on the source (every import, also those inside functions):
+
+- pure-core modules import no ROS (rclpy, message packages);
+- ``biped_sim`` never imports ``biped_controller`` (the simulator does not depend on the controller);
+- no circular imports between the project's modules.
+
+The checker is exercised on a small synthetic package first (negative controls), so a checker that
+finds nothing cannot pass silently.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = {"biped_sim": ROOT / "src" / "biped_sim" / "biped_sim",
+            "biped_controller": ROOT / "src" / "biped_controller" / "biped_controller"}
+# The ROS layer: nodes and the tools that talk to a running graph. Everything else is pure core.
+ROS_LAYER = {
+    "biped_sim.simulator_node", "biped_sim.disturbance_node", "biped_sim.recorder_node", "biped_sim.bridge_node",
+    "biped_sim.graph_names", "biped_sim.node_params", "biped_sim.launch", "biped_sim.push_client",
+    "biped_sim.demo", "biped_sim.soak", "biped_controller.controller_node",
+}
+ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",
+             "builtin_interfaces", "tf2_msgs", "biped_msgs_py", "std_srvs", "ament_index_python"}
+
+
+def module_imports(path: Path, module: str) -> set[str]:
+    """Absolute names of every module imported anywhere in the file (relative imports resolved)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    pkg = module.rsplit(".", 1)[0] if not path.name == "__init__.py" else module
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            out.add(target)
+            # `from pkg import mod` imports the submodule pkg.mod when it exists
+            out.update(f"{target}.{a.name}" for a in node.names)
+    return out
+
+
+def collect(packages: dict[str, Path]) -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {}
+    for name, d in packages.items():
+        for f in sorted(d.glob("*.py")):
+            mod = name if f.name == "__init__.py" else f"{name}.{f.stem}"
+            graph[mod] = module_imports(f, mod)
+    known = set(graph)
+    return {m: {i for i in imps if i in known and i != m} | {i for i in imps if i not in known}
+            for m, imps in graph.items()}
+
+
+def violations(graph: dict[str, set[str]], ros_layer: set[str]) -> list[str]:
+    out = []
+    for mod, imps in sorted(graph.items()):
+        roots = {i.split(".")[0] for i in imps}
+        if mod not in ros_layer and roots & ROS_ROOTS:
+            out.append(f"pure-core module {mod} imports ROS: {sorted(roots & ROS_ROOTS)}")
+        if mod.startswith("biped_sim") and "biped_controller" in roots:
+            out.append(f"{mod} imports biped_controller (the simulator must not depend on the controller)")
+    return out
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Elementary cycles found by depth-first search over the project's own modules (one per back edge)."""
+    known = set(graph)
+    edges = {m: sorted(i for i in imps if i in known) for m, imps in graph.items()}
+    found, state, stack = [], {}, []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for n in edges[m]:
+            if state.get(n) == 1:
+                found.append(stack[stack.index(n):] + [n])
+            elif n not in state:
+                visit(n)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(edges):
+        if m not in state:
+            visit(m)
+    return found
+
+
+@pytest.fixture
+def bad_package(tmp_path):
+    """biped_sim-like package with a ROS import in the core, a controller import and a cycle."""
+    sim = tmp_path / "biped_sim"
+    ctl = tmp_path / "biped_controller"
+    sim.mkdir()
+    ctl.mkdir()
+    (sim / "__init__.py").write_text("")
+    (sim / "core.py").write_text("def f():\n    import rclpy\n")
+    (sim / "a.py").write_text("from . import b\n")
+    (sim / "b.py").write_text("def g():\n    from .a import x\n")
+    (sim / "uses_ctl.py").write_text("def h():\n    from biped_controller.x import y\n")
+    (ctl / "__init__.py").write_text("")
+    (ctl / "x.py").write_text("y = 1\n")
+    return {"biped_sim": sim, "biped_controller": ctl}
+
+
+def test_checker_finds_planted_violations(bad_package):
+    g = collect(bad_package)
+    v = violations(g, ros_layer=set())
+    assert any("biped_sim.core imports ROS" in s for s in v), v
+    assert any("biped_sim.uses_ctl imports biped_controller" in s for s in v), v
+    cyc = cycles(g)
+    assert any({"biped_sim.a", "biped_sim.b"} <= set(c) for c in cyc), cyc
+
+
+def test_project_modules_found():
+    g = collect(PACKAGES)
+    for m in ("biped_sim.simulator", "biped_sim.gait_family", "biped_controller.controller", "biped_controller.qp"):
+        assert m in g, sorted(g)
+    assert len(g) >= 30
+
+
+def test_pure_core_imports_no_ros_and_sim_never_imports_controller():
+    assert violations(collect(PACKAGES), ROS_LAYER) == []
+
+
+def test_no_circular_imports():
+    assert cycles(collect(PACKAGES)) == []
+
+
+def test_ros_layer_names_exist():
+    """The ROS-layer list names real modules (a typo would silently make a module 'pure')."""
+    g = collect(PACKAGES)
+    missing = {m for m in ROS_LAYER if m not in g and m != "biped_sim.bridge_node"}
+    assert not missing, missing
