@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from helpers import assert_close
+from helpers import assert_close, assert_same_run
 
 from biped_sim.description import LEFT, RIGHT, load_description
 from biped_sim.simulator import PushError, Simulator, load_sim_config
@@ -140,27 +140,12 @@ def test_qp_infeasible_instances_reported(hard_run):
 
 
 # ------------------------------------------------------------------ (d)
-def _records_equal(a: runner.RunResult, b: runner.RunResult) -> None:
-    assert len(a.records) == len(b.records)
-    for ra, rb in zip(a.records, b.records):
-        for f in ("q", "qd", "base", "base_dot", "x", "v", "torque", "wrench"):
-            assert np.array_equal(getattr(ra, f), getattr(rb, f)), (f, ra.t)
-        assert (ra.t, ra.stance, ra.cop, ra.push_force, ra.impacts, ra.fallen, ra.fall_cause) == \
-               (rb.t, rb.stance, rb.cop, rb.push_force, rb.impacts, rb.fallen, rb.fall_cause) or \
-               (math.isnan(ra.cop) and math.isnan(rb.cop))
-    for sa, sb in zip(a.statuses, b.statuses):
-        assert (sa.p, sa.p_dot, sa.tau, sa.tau_dot, sa.p_ddot, sa.tau_ddot, sa.qp_status) == \
-               (sb.p, sb.p_dot, sb.tau, sb.tau_dot, sb.p_ddot, sb.tau_ddot, sb.qp_status)
-        assert np.array_equal(sa.margins, sb.margins) and np.array_equal(sa.predicted_reaction, sb.predicted_reaction)
-    assert a.impacts == b.impacts
-
-
 def test_bit_identical_runs():
     args = dict(steps=1, mode="both", pushes=(PushSpec(PUSH_START, PUSH_DURATION, 250.0),))
     a = runner.run(**args)
     b = runner.run(**args)
     assert a.steps_walked == 1 and not a.fallen
-    _records_equal(a, b)
+    assert_same_run(a, b)
 
 
 # ------------------------------------------------------------------ (e)
@@ -231,9 +216,9 @@ def test_relabel_at_impact(ideal_run):
     for n, k in enumerate(idx):
         rec, st, prev = r.records[k], r.statuses[k], r.statuses[k - 1]
         assert rec.stance == st.stance == (RIGHT if n % 2 == 0 else LEFT)
-        assert r.impacts[n]["new_stance"] == rec.stance and rec.impacts == n + 1
+        assert r.impacts[n].new_stance == rec.stance and rec.impacts == n + 1
         assert st.tau == 0.0 and prev.tau > 0.9 * FAM.T
-        assert rec.t == pytest.approx(r.impacts[n]["t"], abs=1e-12)   # event-triggered update at the impact
+        assert rec.t == pytest.approx(r.impacts[n].t, abs=1e-12)   # event-triggered update at the impact
         g = FAM.evaluate(st.p, 0.0)
         assert_close(rec.q, g.q, 1e-6, f"impact {n}: relabelled q vs q_d(p, 0)")
         assert_close(rec.qd, g.dq_dtau, 1e-5, f"impact {n}: post-impact q' vs q_d'(p, 0)")

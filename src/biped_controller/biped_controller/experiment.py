@@ -106,7 +106,7 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
     t = np.array([r.t for r in rec])
     cop = np.array([r.cop for r in rec])
     ok = np.isfinite(cop) & ~np.array([r.fallen for r in rec])
-    impacts = [float(i["t"]) for i in result.impacts]
+    impacts = [float(i.t) for i in result.impacts]
     first = impacts[0] if impacts else math.inf
     qp_counts: dict[str, int] = {}
     for s in st:
@@ -185,7 +185,7 @@ def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STE
     fam = context().family
     if result.fallen:
         return False, f"fell: {result.fall_cause} at t = {result.fall_time:.4f} s"
-    after = sum(1 for i in result.impacts if i["t"] >= push_end)
+    after = sum(1 for i in result.impacts if i.t >= push_end)
     if after < steps_after:
         return False, f"only {after} steps after the push (time limit)"
     last = result.statuses[-1]
@@ -239,7 +239,7 @@ def push_figures(result: RunResult, outdir: Path, start: float, duration: float,
     st = result.statuses
     E = joint_errors(result, fam)
     j = int(np.argmax(np.max(np.abs(E), axis=0))) if joint is None else joint
-    impacts = [i["t"] for i in result.impacts]
+    impacts = [i.t for i in result.impacts]
     paths = []
 
     def decorate(ax):

@@ -76,7 +76,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[PushSpec, ...] = (), 
         if rec.fallen or sim.fall is not None:
             break
         if sim.impact_count >= steps:
-            if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1]["t"] + extra_time_after_steps:
+            if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1].t + extra_time_after_steps:
                 break
         if sim.t >= limit:
             break

@@ -19,7 +19,9 @@ Physics decides everything, never the controller's bookkeeping:
     by bisection, the foot is laid flat by its ankle angle (the paper's flat-foot impact), the inelastic
     impact map is applied and the legs exchange roles;
   * pushes: horizontal forces at a height on the torso, applied through that point's Jacobian over
-    exactly [start, start + duration) (integration intervals are split at push boundaries).
+    exactly [start, start + duration): the integration intervals are split at every push start and end,
+    and on each interval the force is constant (the same at every RK4 stage), so the impulse delivered
+    is exactly force x duration and nothing acts outside the window.
 Deterministic: no randomness, fixed operation order; the same inputs give bit-identical records.
 """
 from __future__ import annotations
@@ -117,13 +119,17 @@ class Observation:
     qd: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class StepRecord:
-    """State record of one control period, taken at its start (after any impact of the previous one).
+    """Record of one control period [t, t_end), taken at its start t (after any impact of the previous one).
 
-    ``wrench`` = [F_x, F_z, m] the ground's action on the stance foot at the ankle [N, N, N m] under the
-    torque applied during this period; ``cop`` = m / F_z [m] ahead of the stance ankle;
-    ``push_force`` the horizontal push acting at the period start [N].
+    ``q, qd`` paper coordinates of the current stance; ``x, v`` the floating state; ``torque`` the paper-order
+    torques applied over the period (after clipping to the limits); ``wrench`` = [F_x, F_z, m] the ground's
+    action on the stance foot at its ankle [N, N, N m] at the period start, under the period's torque and
+    push (the reaction the controller's decision produces); ``cop`` = m / F_z [m] ahead of the stance ankle;
+    ``push_force`` the horizontal push [N] acting at the period start; ``push_impulse`` = integral of the push
+    force over [t, t_end) [N s] (exact: the force is constant on each integration interval); ``t_end`` the
+    end of the period: the next grid instant, the impact instant, or the instant of a fall.
     """
 
     step: int
@@ -143,6 +149,8 @@ class StepRecord:
     fallen: bool
     fall_cause: str
     fall_detail: str
+    t_end: float
+    push_impulse: float
 
 
 @dataclass
@@ -151,6 +159,40 @@ class FallInfo:
     t: float
     detail: str
     values: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class ImpactRecord:
+    """One touchdown, every stage of it (floating coordinates x = [x_hip, z_hip, theta, lh, lk, la, rh, rk,
+    ra], v = dx/dt; see ``floating``):
+
+    * ``x_minus, v_minus``: the state reached by the integration when the sole touches the ground (t);
+    * ``foot_tilt`` [rad]: the landing foot's pitch at that instant; it is laid flat by subtracting it from
+      its ankle joint (``x_flat``: a configuration jump of one joint, velocities unchanged);
+    * ``impulse`` [N s, N s, N m s]: the ground's impulse on the landing foot (x, z, moment about its ankle),
+      ``v_plus`` the post-impact velocity in ``x_flat``: M(x_flat) (v_plus - v_minus) = J_c^T impulse,
+      J_c v_plus = 0;
+    * ``energy_loss`` [J] = 1/2 v_minus^T M v_minus - 1/2 v_plus^T M v_plus (at x_flat);
+    * ``x_plus, v_plus_projected``: the state the next period starts from (base re-placed so the new foot
+      sits exactly on its anchor, velocity projected on its contact: both changes are at round-off level);
+    * ``old_foot_velocity``: (x, z, pitch) rates of the released foot after the impact (z rate >= 0 lifts).
+    """
+
+    index: int
+    t: float
+    old_stance: int
+    new_stance: int
+    x_minus: np.ndarray
+    v_minus: np.ndarray
+    foot_tilt: float
+    x_flat: np.ndarray
+    v_plus: np.ndarray
+    x_plus: np.ndarray
+    v_plus_projected: np.ndarray
+    impulse: np.ndarray
+    energy_loss: float
+    old_foot_velocity: np.ndarray
+    ankle_x: float
 
 
 class Simulator:
@@ -214,17 +256,27 @@ class Simulator:
         return Observation(self.step_index, self.t, self.stance, q, qd)
 
     def push_force_at(self, t: float) -> list[tuple[float, float]]:
+        """(force [N], height [m]) of every push acting at instant ``t`` (on over [start, end))."""
         return [(p.force, p.height) for p in self.pushes if p.start <= t < p.end]
 
-    def _generalized_force(self, x: np.ndarray, tau_j: np.ndarray, t: float) -> np.ndarray:
+    def interval_pushes(self, t0: float, t1: float) -> tuple[tuple[float, float], ...]:
+        """The pushes acting over the integration interval [t0, t1], as (force [N], height [m]).
+
+        Intervals are split exactly at every push start and end (``step``), so a push either covers an
+        interval entirely or not at all; the test uses the interval's midpoint, which is robust to the
+        rounding of the boundaries. The force is then constant over the interval, at every RK4 stage."""
+        tm = 0.5 * (t0 + t1)
+        return tuple((p.force, p.height) for p in self.pushes if p.start <= tm < p.end)
+
+    def _generalized_force(self, x: np.ndarray, tau_j: np.ndarray, pushes) -> np.ndarray:
         tau = np.zeros(9)
         tau[3:] = tau_j
-        for f, h in self.push_force_at(t):
+        for f, h in pushes:
             tau += self.fm.push_jacobian(x, h).T @ np.array([f, 0.0])
         return tau
 
-    def _accel(self, x, v, tau_j, t):
-        sol = self.fm.contact_dynamics(x, v, self._generalized_force(x, tau_j, t), self.stance)
+    def _accel(self, x, v, tau_j, pushes):
+        sol = self.fm.contact_dynamics(x, v, self._generalized_force(x, tau_j, pushes), self.stance)
         return sol.a, sol.wrench
 
     def _check_wrench(self, w: np.ndarray, t: float) -> FallInfo | None:
@@ -261,10 +313,11 @@ class Simulator:
         v = v - MiJt @ np.linalg.solve(J @ MiJt, J @ v)
         return x, v
 
-    def _rk4(self, x, v, tau_src, t, h):
+    def _rk4(self, x, v, tau_src, t, h, pushes):
+        """One RK4 step of length h from time t; ``pushes`` act with a constant force over the step."""
         def f(xx, vv, tt):
             tj = tau_src(tt, xx, vv)
-            a, _ = self._accel(xx, vv, tj, tt)
+            a, _ = self._accel(xx, vv, tj, pushes)
             return vv, a
         k1x, k1v = f(x, v, t)
         k2x, k2v = f(x + 0.5 * h * k1x, v + 0.5 * h * k1v, t + 0.5 * h)
@@ -296,28 +349,34 @@ class Simulator:
         return vz_pt < 0.0 or vz < 0.0
 
     def _apply_impact(self, x: np.ndarray, v: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Touchdown at ``t``: lay the landing foot flat by its ankle (the paper's flat-foot impact; a
+        configuration jump of the ankle joint only, velocities unchanged), apply the inelastic impact map
+        in that configuration, exchange the legs' roles, project onto the new contact. Every stage is
+        logged as an :class:`ImpactRecord`."""
         swing = 1 - self.stance
-        pose = self.fm.foot_pose(x, swing)
-        x = x.copy()
-        tilt = pose[2]
-        ankle_idx = 5 if swing == LEFT else 8
-        x[ankle_idx] -= tilt  # lay the foot flat by its ankle (flat-foot impact, paper section 3.2)
-        res = self.fm.impact(x, v, swing)
+        x_minus = x.copy()
+        tilt = float(self.fm.foot_pose(x, swing)[2])
+        x_flat = x.copy()
+        x_flat[5 if swing == LEFT else 8] -= tilt
+        res = self.fm.impact(x_flat, v, swing)
         old = self.stance
         self.stance = swing
-        ank = self.fm.foot_pose(x, swing)
+        ank = self.fm.foot_pose(x_flat, swing)
         self.anchor = np.array([ank[0], 0.0, 0.0])
-        xn, vn = self._project(x, res.v_plus)
+        xn, vn = self._project(x_flat, res.v_plus)
         self.impact_count += 1
         self.cleared = False
-        self.impact_log.append(dict(t=t, new_stance=swing, old_stance=old, tilt=float(tilt),
-                                    impulse=res.impulse.tolist(), energy_loss=res.energy_loss,
-                                    old_foot_velocity=res.old_foot_velocity.tolist(), ankle_x=float(ank[0])))
+        self.impact_log.append(ImpactRecord(
+            index=self.impact_count, t=t, old_stance=old, new_stance=swing, x_minus=x_minus, v_minus=v.copy(),
+            foot_tilt=tilt, x_flat=x_flat, v_plus=res.v_plus.copy(), x_plus=xn.copy(), v_plus_projected=vn.copy(),
+            impulse=res.impulse.copy(), energy_loss=float(res.energy_loss),
+            old_foot_velocity=res.old_foot_velocity.copy(), ankle_x=float(ank[0])))
         return xn, vn
 
     def _advance(self, x, v, tau_src, t0, t1):
         """Integrate [t0, t1] in one RK4 step with touchdown detection (bisection on the step length)."""
-        xn, vn = self._rk4(x, v, tau_src, t0, t1 - t0)
+        pushes = self.interval_pushes(t0, t1)
+        xn, vn = self._rk4(x, v, tau_src, t0, t1 - t0, pushes)
         if not self._touchdown(xn, vn):
             self._update_clearance(xn)
             return xn, vn, t1
@@ -325,12 +384,12 @@ class Simulator:
         lo, hi = 0.0, t1 - t0
         while hi - lo > self.cfg.event_time_tolerance:
             mid = 0.5 * (lo + hi)
-            xm, _ = self._rk4(x, v, tau_src, t0, mid)
+            xm, _ = self._rk4(x, v, tau_src, t0, mid, pushes)
             if self._lowest_sole(xm, swing) > self.cfg.touchdown_tolerance:
                 lo = mid
             else:
                 hi = mid
-        xe, ve = self._rk4(x, v, tau_src, t0, hi)
+        xe, ve = self._rk4(x, v, tau_src, t0, hi, pushes)
         xi, vi = self._apply_impact(xe, ve, t0 + hi)
         # The control period ends at the impact: the controller is called right after it (event-triggered
         # update), so no held torque of the old stance is applied to the relabelled legs.
@@ -346,10 +405,11 @@ class Simulator:
                                  "before clearing it (double support is not modelled)")
 
     def step(self, torque: np.ndarray | TorqueFn) -> StepRecord:
-        """Advance one control period. ``torque``: paper-order joint torques [N m] for the current stance
-        (held over the period; the actuators keep their physical torque if an impact relabels the legs),
-        or a function ``(s, q, qd, stance) -> torques`` evaluated at every RK4 stage (s = time since the
-        period start)."""
+        """Advance one control period. ``torque``: paper-order joint torques [N m] for the current stance,
+        held over the period (zero-order hold), or a function ``(s, q, qd, stance) -> torques`` evaluated at
+        every RK4 stage (s = time since the period start). The period ends at the next grid instant, or
+        at a touchdown (the impact is applied and the period ends there: no torque of the old labelling
+        acts on the relabelled legs), or at a fall (the state is left at the instant of the fall)."""
         if self.fall is not None:
             raise RuntimeError("the robot has fallen; reset() the simulator")
         dt_nom = self.cfg.control_period
@@ -374,10 +434,17 @@ class Simulator:
 
             def tau_src(tt, xx, vv):
                 return tj
-        # record at the period start
-        _, w0 = self._accel(self.x, self.v, tau_src(t_start, self.x, self.v), t_start)
+        # the period's integration intervals: RK4 substeps, split exactly at every push start and end
+        n_sub = max(1, int(math.ceil(self.cfg.substeps * dt / dt_nom - 1e-9)))
+        h = dt / n_sub
+        knots = [t_start + i * h for i in range(n_sub)] + [t_grid_end]
+        cuts = {c for p in self.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
+        knots = sorted(set(knots) | cuts)
+        # record at the period start, under this period's torque and the push of its first interval
+        first_pushes = self.interval_pushes(knots[0], knots[1])
+        _, w0 = self._accel(self.x, self.v, tau_src(t_start, self.x, self.v), first_pushes)
         q, qd = self.fm.paper_from_state(self.x, self.v, self.stance)
-        pf = sum(f for f, _ in self.push_force_at(t_start))
+        pf = sum(f for f, _ in first_pushes)
         fall = self._check_wrench(w0, t_start)
         rec_args = dict(step=self.step_index, t=t_start, stance=self.stance, q=q, qd=qd, base=self.x[:3].copy(),
                         base_dot=self.v[:3].copy(), x=self.x.copy(), v=self.v.copy(), torque=applied, wrench=w0,
@@ -385,40 +452,33 @@ class Simulator:
                         impacts=self.impact_count)
         if fall is not None:
             self.fall = fall
-            return StepRecord(**rec_args, fallen=True, fall_cause=fall.cause, fall_detail=fall.detail)
-        # integrate the period in substeps, split at push boundaries
-        n_sub = max(1, int(math.ceil(self.cfg.substeps * dt / dt_nom - 1e-9)))
-        h = dt / n_sub
+            self.step_index += 1
+            return StepRecord(**rec_args, fallen=True, fall_cause=fall.cause, fall_detail=fall.detail,
+                              t_end=t_start, push_impulse=0.0)
         x, v = self.x, self.v
         t_end = t_grid_end
+        impulse = 0.0
         impacts_before = self.impact_count
-        for i in range(n_sub):
-            a, b = t_start + i * h, (t_start + (i + 1) * h if i + 1 < n_sub else t_grid_end)
-            cuts = sorted({c for p in self.pushes for c in (p.start, p.end) if a < c < b})
-            knots = [a, *cuts, b]
-            for t0, t1 in zip(knots[:-1], knots[1:]):
-                if (i > 0 or t0 > a) and self.stance == obs_stance:
-                    # Within the period that contains a touchdown, the rest of the period runs with the
-                    # held torques (the controller has not seen the impact yet) and is not checked: a foot
-                    # unloaded for less than one period would lift by micrometres, which a rigid contact
-                    # cannot represent. Checks resume at the next control instant.
-                    _, w = self._accel(x, v, tau_src(t0, x, v), t0)
-                    f = self._check_wrench(w, t0)
-                    if f is not None:
-                        self.fall = f
-                        break
-                x, v, t_reached = self._advance(x, v, tau_src, t0, t1)
-                if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
-                    self.fall = FallInfo("numerical", t1, "non-finite state")
+        for t0, t1 in zip(knots[:-1], knots[1:]):
+            if t0 > t_start:
+                _, w = self._accel(x, v, tau_src(t0, x, v), self.interval_pushes(t0, t1))
+                f = self._check_wrench(w, t0)
+                if f is not None:
+                    self.fall = f
+                    t_end = t0
                     break
-                if self.impact_count != impacts_before:
-                    t_end = t_reached
-                    break
-            if self.fall is not None or self.impact_count != impacts_before:
+            x, v, t_reached = self._advance(x, v, tau_src, t0, t1)
+            impulse += sum(fp for fp, _ in self.interval_pushes(t0, t1)) * (t_reached - t0)
+            if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+                self.fall = FallInfo("numerical", t1, "non-finite state")
+                t_end = t1
+                break
+            if self.impact_count != impacts_before:
+                # the period ends at the impact: the controller is called right after it
+                t_end = t_reached
                 break
         self.x, self.v = x, v
         self.step_index += 1
-        if self.fall is None:
-            self.t = t_end
+        self.t = t_end
         return StepRecord(**rec_args, fallen=self.fall is not None, fall_cause=self.fall.cause if self.fall else "",
-                          fall_detail=self.fall.detail if self.fall else "")
+                          fall_detail=self.fall.detail if self.fall else "", t_end=t_end, push_impulse=impulse)
