@@ -61,8 +61,9 @@ def pct(a) -> dict:
 # ------------------------------------------------------------------------------------------------
 
 def _push_run(force: float, steps: int, mode: str = "both", keep_qp: bool = True):
-    from biped_controller.runner import PushSpec, run
-    return run(steps=steps, mode=mode, pushes=(PushSpec(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp)
+    from biped_controller.runner import run
+    from biped_sim.push import Push
+    return run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp)
 
 
 def _qp_counts(res) -> dict:

@@ -125,9 +125,10 @@ def test_exact_agrees_with_piqp_on_random_degenerate_instances(feasible):
 def test_exact_agrees_with_piqp_on_recorded_controller_instances():
     """QPs the controller built in a run pushed past the `both`-mode limit (falls): real scaling."""
     from biped_controller.controller import load_controller_config
-    from biped_controller.runner import PushSpec, run
+    from biped_controller.runner import run
+    from biped_sim.push import Push
 
-    res = run(steps=1, mode="both", pushes=(PushSpec(0.2315, 0.025, 150.0),), keep_qp=True)
+    res = run(steps=1, mode="both", pushes=(Push(0.2315, 0.025, 150.0),), keep_qp=True)
     cfg = load_controller_config(mode="both")
     W = np.array([cfg.weight_p, cfg.weight_tau])
     held = AdaptationQP(2, M, W)

@@ -179,7 +179,8 @@ def test_b_push_applied_at_requested_time_and_nan_rejected(walk):
 
 def test_c_dds_run_equals_in_process_run(walk):
     from biped_controller import runner
-    ref = runner.run(steps=STEPS, pushes=(runner.PushSpec(PUSH['start'], PUSH['duration'], PUSH['force']),))
+    from biped_sim.push import Push
+    ref = runner.run(steps=STEPS, pushes=(Push(PUSH['start'], PUSH['duration'], PUSH['force']),))
     d = _decoded(walk['bag'])
     states = [m for t, _, _, m in d['messages'] if t == '/sim/state']
     torques = [m for t, _, _, m in d['messages'] if t == '/controller/torque']

@@ -17,7 +17,7 @@ import pytest
 
 import helpers  # noqa: F401
 from biped_controller import runner
-from biped_controller.runner import PushSpec
+from biped_sim.push import Push
 from biped_sim.simulator import Simulator
 
 
@@ -25,7 +25,7 @@ def _overlap(a0: float, a1: float, b0: float, b1: float) -> float:
     return max(0.0, min(a1, b1) - max(a0, b0))
 
 
-def _check_impulses(result: runner.RunResult, push: PushSpec, expected_total: float) -> None:
+def _check_impulses(result: runner.RunResult, push: Push, expected_total: float) -> None:
     end = push.start + push.duration
     total = 0.0
     touched = 0
@@ -42,14 +42,14 @@ def _check_impulses(result: runner.RunResult, push: PushSpec, expected_total: fl
 
 @pytest.mark.parametrize("start", [0.2, 0.2003217])   # on the 1 ms grid, and off it (inside a substep)
 def test_impulse_is_force_times_duration(start):
-    push = PushSpec(start, 0.025, 250.0)
+    push = Push(start, 0.025, 250.0)
     r = runner.run(steps=1, mode="both", pushes=(push,))
     assert not r.fallen
     _check_impulses(r, push, push.force * push.duration)
 
 
 def test_push_cut_short_by_a_fall_delivers_force_times_elapsed():
-    push = PushSpec(0.2, 0.2, 1500.0)
+    push = Push(0.2, 0.2, 1500.0)
     r = runner.run(steps=2, mode="both", pushes=(push,))
     assert r.fallen
     t_fall = r.records[-1].t_end
@@ -59,7 +59,7 @@ def test_push_cut_short_by_a_fall_delivers_force_times_elapsed():
 
 def test_nothing_acts_before_the_onset():
     start = 0.2003217
-    a = runner.run(steps=1, mode="both", pushes=(PushSpec(start, 0.025, 400.0),))
+    a = runner.run(steps=1, mode="both", pushes=(Push(start, 0.025, 400.0),))
     b = runner.run(steps=1, mode="both")
     before = [i for i, rec in enumerate(a.records) if rec.t_end <= start]
     assert len(before) > 150
@@ -82,7 +82,7 @@ def test_no_integration_step_straddles_a_switch(monkeypatch):
         return original(self, x, v, tau_src, t, h, pushes)
 
     monkeypatch.setattr(Simulator, "_rk4", spy)
-    runner.run(steps=1, mode="both", pushes=(PushSpec(start, duration, 300.0),))
+    runner.run(steps=1, mode="both", pushes=(Push(start, duration, 300.0),))
     end = start + duration
     on = [c for c in calls if c[2]]
     assert len(on) >= 2 * 25 - 2

@@ -20,13 +20,14 @@ from scipy.optimize import linprog
 from helpers import assert_close, assert_same_run
 
 from biped_sim.description import LEFT, RIGHT, load_description
-from biped_sim.simulator import PushError, Simulator, load_sim_config
+from biped_sim.push import Rejected
+from biped_sim.simulator import Simulator, load_sim_config
 from biped_controller import runner
 from biped_controller.controller import load_controller_config
 from biped_sim.gait_family import GaitFamily
 from biped_controller.model import relabel
 from biped_controller.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals
-from biped_controller.runner import PushSpec
+from biped_sim.push import Push
 
 FAM = GaitFamily.load()
 PUSH_START = 0.5 * FAM.T        # the middle of the first step (paper)
@@ -79,7 +80,7 @@ def test_push_fall_cause_is_physical(force):
     by +F H: l moves toward the toe. A backward push moves it toward the heel. With 400 N at ~1.1 m and
     R_y ~ 400 N, l shifts by ~1 m >> 0.1 m: the foot tips over within the push, over the toe (forward) or the
     heel (backward). (The horizontal force shifts by -F too, but |F_x| stays below mu R_y for longer.)"""
-    r = runner.run(steps=2, mode="none", pushes=(PushSpec(PUSH_START, PUSH_DURATION, force),))
+    r = runner.run(steps=2, mode="none", pushes=(Push(PUSH_START, PUSH_DURATION, force),))
     assert r.fallen
     assert PUSH_START <= r.fall_time <= PUSH_START + PUSH_DURATION, r.fall_time
     last = r.records[-1]
@@ -102,7 +103,7 @@ def test_push_fall_cause_is_physical(force):
 def hard_run():
     """Mode both, a push beyond what it survives (600 N forward): the QP is active for many periods and
     infeasible at the end."""
-    return runner.run(steps=2, mode="both", pushes=(PushSpec(PUSH_START, PUSH_DURATION, 600.0),), keep_qp=True)
+    return runner.run(steps=2, mode="both", pushes=(Push(PUSH_START, PUSH_DURATION, 600.0),), keep_qp=True)
 
 
 def test_qp_answers_satisfy_kkt(hard_run):
@@ -141,7 +142,7 @@ def test_qp_infeasible_instances_reported(hard_run):
 
 # ------------------------------------------------------------------ (d)
 def test_bit_identical_runs():
-    args = dict(steps=1, mode="both", pushes=(PushSpec(PUSH_START, PUSH_DURATION, 250.0),))
+    args = dict(steps=1, mode="both", pushes=(Push(PUSH_START, PUSH_DURATION, 250.0),))
     a = runner.run(**args)
     b = runner.run(**args)
     assert a.steps_walked == 1 and not a.fallen
@@ -171,11 +172,11 @@ def sim():
 def test_bad_push_rejected(sim, kw, field):
     good = sim.schedule_push(0.05, 0.01, 50.0)
     before = list(sim.pushes)
-    next_id = sim._next_push_id
-    with pytest.raises(PushError) as exc:
+    next_id = sim.book.next_id
+    with pytest.raises(Rejected) as exc:
         sim.schedule_push(**kw)
     assert field in str(exc.value), str(exc.value)
-    assert sim.pushes == before and sim.pushes[0] is good and sim._next_push_id == next_id
+    assert sim.pushes == before and sim.pushes[0] is good and sim.book.next_id == next_id
 
 
 def test_good_push_scheduled(sim):

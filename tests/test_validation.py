@@ -10,13 +10,20 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from biped_sim.push_validation import PushBook, PushLimits, Rejected, ScheduledPush, validate_push_request
+from biped_sim.push import Push, PushBook, PushLimits, Rejected, validate_push
+
+
+def validate_push_request(force, duration, start, height, now, limits, scheduled=(), **kw):
+    return validate_push(force, duration, start, height, limits=limits, now=now, scheduled=scheduled, **kw)
+
 
 SETTINGS = settings(derandomize=True, max_examples=300, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
-LIMITS = PushLimits(max_force=2000.0, max_duration=1.0, torso_length=0.625, default_height=0.3125)
+HORIZON = 1e5
+LIMITS = PushLimits(max_force=2000.0, max_duration=1.0, torso_length=0.625, default_height=0.3125,
+                    horizon=HORIZON)
 NOW = 1.0
-SCHEDULED = (ScheduledPush(1, 2.0, 2.025, 100.0, 0.3125),)
+SCHEDULED = (Push(2.0, 0.025, 100.0, 0.3125, id=1),)
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 non_finite = st.sampled_from([math.nan, math.inf, -math.inf])
@@ -90,6 +97,28 @@ def test_overlap_named(s):
 @given(d=st.one_of(non_finite, st.floats(max_value=0.0, exclude_max=True)))
 def test_bad_delay_named(d):
     _reject('delay', use_delay=True, delay=d)
+
+
+@SETTINGS
+@given(start=st.floats(HORIZON, 1e300, exclude_min=True))
+def test_push_after_the_horizon_rejected_naming_start(start):
+    msg = _reject('start', start=start)
+    assert 'horizon' in msg
+
+
+@SETTINGS
+@given(d=st.floats(HORIZON, 1e300, exclude_min=True))
+def test_delay_past_the_horizon_rejected_naming_delay(d):
+    msg = _reject('delay', use_delay=True, delay=d)
+    assert 'horizon' in msg
+
+
+def test_start_1e12_rejected_by_the_default_horizon():
+    """The issue's case: start = 1e12 s with use_delay = false, against a run's horizon."""
+    limits = PushLimits(2000.0, 1.0, 0.625, 0.3125, horizon=10.0)
+    with pytest.raises(Rejected) as ei:
+        validate_push(100.0, 0.025, 1e12, math.nan, limits=limits, now=0.0)
+    assert ei.value.field == 'start'
 
 
 @SETTINGS

@@ -35,8 +35,8 @@ import numpy as np
 from biped_sim.description import RobotDescription, load_description
 from biped_sim.settings import SettingsError, default_config_dir, read_settings
 
-from biped_sim.gait_family import GaitFamily
-from .model import N_CONSTRAINTS, FixedFootModel
+from biped_sim.gait_family import GaitFamily, eq11
+from .model import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows
 from .qp import SOLVER_ERROR, AdaptationQP
 
 MODES = ("none", "tau", "p", "both")
@@ -141,6 +141,28 @@ class ControllerStatusData:
     stance: int
     max_tracking_error: float
     predicted_reaction: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    force_estimate: float = 0.0
+
+
+@dataclass(frozen=True)
+class _Reference:
+    """The reference terms of one period: w = D x + v (eq. 17), x* (eq. 20), tracking error q_d - q."""
+
+    D: np.ndarray          # (6, 2) [dq_d/dp, dq_d/dtau]
+    v: np.ndarray          # (6,) rad/s^2
+    x_star: np.ndarray     # (2,) (p''*, tau''*)
+    error: np.ndarray      # (6,) rad
+
+
+@dataclass(frozen=True)
+class _Previous:
+    """What the observer needs of the last period: measured q', commanded w, A, stance, time."""
+
+    qd: np.ndarray
+    w: np.ndarray
+    A: np.ndarray
+    stance: int
+    t: float
 
 
 @dataclass(frozen=True)
@@ -168,13 +190,15 @@ class AdaptiveController:
             [c.margin_normal_force, 0.0, 0.0, 0.0, 0.0], np.full(12, c.margin_torque)])
         self._mu_ratio = c.margin_friction
         self.adapted = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1)}[c.mode]
+        self._adapted_idx = list(self.adapted)
+        self._fixed_idx = [i for i in (0, 1) if i not in self.adapted]
         n = len(self.adapted)
         self.qp = AdaptationQP(n, QP_ROWS, np.array([c.weight_p, c.weight_tau])[list(self.adapted)]) if n else None
         self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
         self.stance: int | None = None
         self.step_index = 0
         self._decision = (0.0, 0.0)
-        self._prev = None              # (q', w commanded, A, stance) of the previous period
+        self._prev: _Previous | None = None
         self._t_last = None            # time of the last decision [s]
         self.force_estimate = 0.0      # estimated horizontal force on the torso [N]
 
@@ -186,42 +210,14 @@ class AdaptiveController:
         self.force_estimate = 0.0
         self._t_last = None
 
-    # --------------------------------------------------------------- helpers
-    def _constraint_rows(self, q, qd, dyn):
-        """A_q, b_q with the controller's margins folded in: A_q w + b_q + margin <= 0."""
-        cm = self.model.constraints(q, qd, dyn)
-        A, b = cm.A_q.copy(), cm.b_q.copy()
-        # tighter friction and ZMP rows (same algebra as model.constraints with mu' and l')
-        mu = self._mu_ratio * self.model.mu
-        lm = self.model.l_min + self.cfg.margin_zmp
-        lM = self.model.l_max - self.cfg.margin_zmp
-        Bx, By, hx, hy = dyn.B[0], dyn.B[1], dyn.h_b[0], dyn.h_b[1]
-        A[1], b[1] = -mu * By - Bx, -mu * hy - hx
-        A[2], b[2] = -mu * By + Bx, -mu * hy + hx
-        A[3], b[3] = lm * By - dyn.A[0], lm * hy - dyn.H[0]
-        A[4], b[4] = dyn.A[0] - lM * By, dyn.H[0] - lM * hy
-        return A, b + self.margin, cm
-
-    def _offsets_without_estimate(self, b: np.ndarray, dyn, dyn_c) -> np.ndarray:
-        """b of ``_constraint_rows`` for ``dyn`` from the one for ``dyn_c``, when the two differ only in
-        the reaction offset h_b (the push estimate): rows 0-4 are linear in (h_x, h_y)."""
-        dx, dy = dyn_c.h_b[0] - dyn.h_b[0], dyn_c.h_b[1] - dyn.h_b[1]
-        mu = self._mu_ratio * self.model.mu
-        lm = self.model.l_min + self.cfg.margin_zmp
-        lM = self.model.l_max - self.cfg.margin_zmp
-        b0 = b.copy()
-        b0[:5] -= np.array([-dy, -mu * dy - dx, -mu * dy + dx, lm * dy, -lM * dy])
-        return b0
-
-    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
-        """One control period: decide (p'', tau''), the torque, and advance the parameter state."""
-        q = np.asarray(q, dtype=float)
-        qd = np.asarray(qd, dtype=float)
+    # --------------------------------------------------------------- the steps of one period
+    def _advance_parameters(self, t: float, stance: int) -> None:
+        """(p, p', tau, tau') advance over the time actually elapsed since the last decision, with the
+        constant p'', tau'' chosen then (exact integration; a period cut short by an impact is shorter).
+        The elapsed time comes from integer nanoseconds, so a time that travelled through a ROS stamp
+        gives bit-identical arithmetic to the in-process float time. At an impact (the measured stance
+        changes) the next step starts: tau = 0; p, p', tau' carry over."""
         if self._t_last is not None:
-            # advance (p, p', tau, tau') over the time actually elapsed since the last decision, with the
-            # constant p'', tau'' chosen then (exact); a period cut short by an impact is shorter.
-            # elapsed time from integer nanoseconds, so that a time that travelled through a ROS stamp
-            # (sec, nanosec) gives bit-identical arithmetic to the in-process float time
             h_el = (round(t * 1e9) - round(self._t_last * 1e9)) * 1e-9
             s0 = self.state
             p_dd0, t_dd0 = self._decision
@@ -231,96 +227,127 @@ class AdaptiveController:
             s0.tau_dot += t_dd0 * h_el
         self._t_last = t
         if self.stance is not None and stance != self.stance:
-            self.state.tau = 0.0  # impact: the next step starts; p, p', tau' carried over
+            self.state.tau = 0.0
         self.stance = stance
-        s = self.state
-        c = self.cfg
-        fam = self.family
+
+    def _reference(self, q: np.ndarray, qd: np.ndarray) -> _Reference:
+        """Eqs. (11), (16), (17), (20): w = D x + v with D = [dq/dp, dq/dtau], x = (p'', tau''), and the
+        second task's x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau'))."""
+        s, c, fam = self.state, self.cfg, self.family
         g = fam.evaluate(s.p, s.tau)
-        qd_des = g.dq_dp * s.p_dot + g.dq_dtau * s.tau_dot
-        e, ed = g.q - q, qd_des - qd
-        v = (g.d2q_dp2 * s.p_dot**2 + g.d2q_dtau2 * s.tau_dot**2 + 2.0 * g.d2q_dp_dtau * s.p_dot * s.tau_dot
-             + c.Kv * ed + c.Kp * e)
+        q_d, qd_d, qdd_drift = eq11(g, s.p_dot, s.tau_dot)
+        e = q_d - q
+        v = qdd_drift + c.Kv * (qd_d - qd) + c.Kp * e
         D = np.column_stack([g.dq_dp, g.dq_dtau])
-        p_star = -c.kv * s.p_dot + c.kp * (fam.p_d - s.p)
-        t_star = c.kv * (1.0 - s.tau_dot)
-        x_full = np.array([p_star, t_star])
-        dyn = self.model.dynamics(q, qd)
-        # Disturbance observer: the joint-space residual of the last period, r = A (a_measured - w_applied),
-        # explained by a horizontal force F on the torso at observer_height (least squares, 1 unknown):
-        # r = J6^T F. The torque law is NOT changed by F (Gamma = A w + H, as in eq. 15); F only enters the
-        # prediction of the ground reaction used by the QP: with F acting, the real joint acceleration is
-        # w + A^-1 J6^T F, so R = B (w + A^-1 J6^T F) + h_b - Jb^T F. One period of lag.
+        x_star = np.array([-c.kv * s.p_dot + c.kp * (fam.p_d - s.p), c.kv * (1.0 - s.tau_dot)])
+        return _Reference(D=D, v=v, x_star=x_star, error=e)
+
+    def _observe(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, dyn: Dynamics) -> tuple[Dynamics, float]:
+        """Disturbance observer (ours, not the paper's; ``disturbance_observer``): the joint-space residual
+        of the last period, r = A (a_measured - w_applied), explained by a horizontal force F on the torso
+        at ``observer_height`` (least squares, one unknown): r = J6^T F. F only enters the prediction of
+        the ground reaction used by the QP: with F acting, the joint acceleration is w + A^-1 J6^T F, so
+        R = B (w + A^-1 J6^T F) + h_b - Jb^T F, i.e. h_b is shifted. One period of lag. Returns the
+        dynamics with the shifted h_b (``dyn`` itself when the observer is off) and F [N]."""
+        c = self.cfg
+        if not c.disturbance_observer:
+            return dyn, 0.0
+        Jp = self.model.torso_point_jacobian(q, c.observer_height)[0]   # (9,) x-row
+        j6 = Jp[3:]
         F = 0.0
-        dyn_c = dyn
-        if c.disturbance_observer:
-            Jp = self.model.torso_point_jacobian(q, c.observer_height)[0]   # (9,) x-row
-            j6 = Jp[3:]
-            if self._prev is not None and self._prev[3] != stance:
-                # the last period ended with an impact: its residual is meaningless, but a push acting
-                # on the torso does not care about the stance: keep the previous estimate
-                F = self.force_estimate
-            elif self._prev is not None:
-                qd_prev, w_prev, A_prev = self._prev[:3]
-                r = A_prev @ ((qd - qd_prev) / ((round(t * 1e9) - round(self._prev[4] * 1e9)) * 1e-9) - w_prev)
-                nrm = float(j6 @ j6)
-                F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
-            delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
-            dyn_c = replace(dyn, h_b=dyn.h_b + delta)
-        self.force_estimate = F
-        G = h = xs = None
-        cm_true = None
-        status, msg = NO_ADAPTATION, "mode none: classical computed torque"
-        if self.adapted:
-            try:
-                A, b, cm_true = self._constraint_rows(q, qd, dyn_c)
-                # Robust to the push ending: the 17 rows must hold with the estimated force (dyn_c) and
-                # also without it (dyn), since the push may stop during the coming period. Without
-                # an estimate the two sets coincide (duplicated rows).
-                # The force estimate only shifts h_b (the reaction at w = 0), so the matrix rows are the
-                # same and only the first five offsets differ (the algebra of _constraint_rows).
-                A0, b0 = A, (b if dyn_c is dyn else self._offsets_without_estimate(b, dyn, dyn_c))
-                Gfull = np.vstack([A @ D, A0 @ D])         # (34, 2)
-                hfull = np.concatenate([-(A @ v + b), -(A0 @ v + b0)])
-                # parameter range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max]; tau' + tau'' dt >= min
-                dt = c.period
-                extra_G = np.array([[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]])
-                extra_h = np.array([fam.p_max - s.p - s.p_dot * dt, s.p + s.p_dot * dt - fam.p_min,
-                                    s.tau_dot - c.tau_dot_min])
-                Gall = np.vstack([Gfull, extra_G])
-                hall = np.concatenate([hfull, extra_h])
-                idx = list(self.adapted)
-                fixed = [i for i in (0, 1) if i not in idx]
-                h_red = hall - Gall[:, fixed] @ x_full[fixed] if fixed else hall
-                G, h, xs = Gall[:, idx], h_red, x_full[idx]
-                res = self.qp.solve(G, h, xs)
-                status, msg = res.status, res.message
-                x_full = x_full.copy()
-                x_full[idx] = res.x
-                if not np.all(np.isfinite(x_full)):
-                    raise FloatingPointError("non-finite QP answer")
-            except Exception as exc:  # the loop never throws: fall back to the desired accelerations
-                status, msg = SOLVER_ERROR, f"{type(exc).__name__}: {exc}"
-                x_full = np.array([p_star, t_star])
-        p_dd, t_dd = float(x_full[0]), float(x_full[1])
-        w = D @ x_full + v
-        torque = dyn.A @ w + dyn.H
-        cm = cm_true if cm_true is not None else self.model.constraints(q, qd, dyn_c)
+        if self._prev is not None and self._prev.stance != stance:
+            # the last period ended with an impact: its residual is meaningless, but a push acting on the
+            # torso does not care about the stance: keep the previous estimate
+            F = self.force_estimate
+        elif self._prev is not None:
+            prev = self._prev
+            dt = (round(t * 1e9) - round(prev.t * 1e9)) * 1e-9
+            r = prev.A @ ((qd - prev.qd) / dt - prev.w)
+            nrm = float(j6 @ j6)
+            F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
+        delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
+        return replace(dyn, h_b=dyn.h_b + delta), F
+
+    def _qp_rows(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. (21): G x <= h over x = (p'', tau'') (both columns; the caller keeps the adapted ones).
+
+        The 17 rows of eq. (18) with the controller's margins (tighter mu, l range, R_y >= margin, ...),
+        stated twice, robust to the push ending: with the estimated force (``dyn_c``) and without it
+        (``dyn``), since the push may stop during the coming period (identical rows when F = 0). The
+        estimate only shifts h_b, so the matrix rows are the same and only the five contact offsets differ
+        by C (h_b,c - h_b). Then three parameter-range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max],
+        tau' + tau'' dt >= tau_dot_min."""
+        c, s, fam, m = self.cfg, self.state, self.family, self.model
+        mu = c.margin_friction * m.mu
+        lm, lM = m.l_min + c.margin_zmp, m.l_max - c.margin_zmp
+        cm = m.constraints(None, None, dyn_c, mu=mu, l_min=lm, l_max=lM)
+        A, b = cm.A_q, cm.b_q + self.margin
+        b0 = b
+        if dyn_c is not dyn:
+            C, _ = contact_rows(mu, lm, lM)
+            b0 = b.copy()
+            b0[:5] -= C @ (dyn_c.h_b[:2] - dyn.h_b[:2])
+        AD = A @ ref.D
+        Av = A @ ref.v
+        dt = c.period
+        G = np.vstack([AD, AD, [[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]]])
+        h = np.concatenate([-(Av + b), -(Av + b0),
+                            [fam.p_max - s.p - s.p_dot * dt, s.p + s.p_dot * dt - fam.p_min, s.tau_dot - c.tau_dot_min]])
+        return G, h
+
+    def _decide(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics):
+        """Eqs. (19)-(21): x = x* when it satisfies the rows, else the QP's answer over the adapted
+        parameters (the others stay at x*). Returns (x (2,), status, message, G, h, x*) with the reduced
+        instance (None in mode none)."""
+        x = ref.x_star.copy()
+        if not self.adapted:
+            return x, NO_ADAPTATION, "mode none: classical computed torque", None, None, None
+        try:
+            Gall, hall = self._qp_rows(ref, dyn, dyn_c)
+            idx, fixed = self._adapted_idx, self._fixed_idx
+            h = hall - Gall[:, fixed] @ x[fixed] if fixed else hall
+            G, xs = Gall[:, idx], x[idx]
+            res = self.qp.solve(G, h, xs)
+            x[idx] = res.x
+            if not np.all(np.isfinite(x)):
+                raise FloatingPointError("non-finite QP answer")
+            return x, res.status, res.message, G, h, xs
+        except (FloatingPointError, np.linalg.LinAlgError) as exc:
+            # numerical failure only (programming errors such as QPShapeError propagate): desired values
+            return ref.x_star.copy(), SOLVER_ERROR, f"{type(exc).__name__}: {exc}", None, None, None
+
+    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
+        """One control period: advance the parameters, observe, reference, rows, decide, torque."""
+        q = np.asarray(q, dtype=float)
+        qd = np.asarray(qd, dtype=float)
+        self._advance_parameters(t, stance)
+        s = self.state
+        ref = self._reference(q, qd)
+        dyn = self.model.dynamics(q, qd)                       # eq. (1): A, H and the reaction rows
+        dyn_c, F = self._observe(t, q, qd, stance, dyn)
+        x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c)
+        w = ref.D @ x + ref.v                                    # eq. (17)
+        torque = dyn.A @ w + dyn.H                               # eq. (15)
+        cm = self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
         R = dyn_c.B[:2] @ w + dyn_c.h_b[:2]
-        zmp = float(torque[0] / R[1]) if R[1] != 0 else math.nan
+        p_dd, t_dd = float(x[0]), float(x[1])
         status_rec = ControllerStatusData(
-            step=self.step_index, t=t, mode=c.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
-            p_ddot=p_dd, tau_ddot=t_dd, p_ddot_star=p_star, tau_ddot_star=t_star, qp_status=int(status),
-            qp_message=msg, margins=margins, tightest=int(np.argmin(margins / self.model.row_scale)), zmp=zmp,
-            stance=int(stance), max_tracking_error=float(np.max(np.abs(e))), predicted_reaction=R,
+            step=self.step_index, t=t, mode=self.cfg.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
+            p_ddot=p_dd, tau_ddot=t_dd, p_ddot_star=float(ref.x_star[0]), tau_ddot_star=float(ref.x_star[1]),
+            qp_status=int(status), qp_message=msg, margins=margins,
+            tightest=int(np.argmin(margins / self.model.row_scale)),
+            zmp=float(torque[0] / R[1]) if R[1] != 0 else math.nan, stance=int(stance),
+            max_tracking_error=float(np.max(np.abs(ref.error))), predicted_reaction=R, force_estimate=F,
         )
-        self._prev = (qd.copy(), w.copy(), dyn.A, stance, t)
+        self.force_estimate = F
+        self._prev = _Previous(qd=qd.copy(), w=w, A=dyn.A, stance=stance, t=t)
         self._decision = (p_dd, t_dd)
         self._period_start = ParamState(s.p, s.p_dot, s.tau, s.tau_dot)
         self.step_index += 1
-        return ControlOutput(torque=torque, status=status_rec, G=G if self.keep_qp else None,
-                             h=h if self.keep_qp else None, x_star=xs if self.keep_qp else None)
+        keep = self.keep_qp
+        return ControlOutput(torque=torque, status=status_rec, G=G if keep else None, h=h if keep else None,
+                             x_star=xs if keep else None)
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
         """Computed torque at time s_time into the current period, with (p, tau) propagated by the
@@ -331,7 +358,7 @@ class AdaptiveController:
         pdot = s0.p_dot + p_dd * s_time
         tau = s0.tau + s0.tau_dot * s_time + 0.5 * t_dd * s_time**2
         taud = s0.tau_dot + t_dd * s_time
-        qr, qdr, qddr = self.family.reference(p, pdot, tau, taud, p_dd, t_dd)
+        qr, qdr, qddr = eq11(self.family.evaluate(p, tau), pdot, taud, p_dd, t_dd)
         c = self.cfg
         w = qddr + c.Kv * (qdr - qd) + c.Kp * (qr - q)
         dyn = self.model.dynamics(q, qd)

@@ -89,6 +89,8 @@ def status_message(s, stamp) -> ControllerStatus:
     m.zmp = float(s.zmp)
     m.stance = int(s.stance)
     m.max_tracking_error = float(s.max_tracking_error)
+    m.predicted_reaction = np.asarray(s.predicted_reaction, dtype=float).tolist()
+    m.force_estimate = float(s.force_estimate)
     return m
 
 

@@ -40,6 +40,15 @@ CONSTRAINT_NAMES: tuple[str, ...] = (
 )
 
 
+def contact_rows(mu: float, l_min: float, l_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """The five contact constraints of eqs. (5)-(8), written once, as functions of the ground force
+    R = (R_x, R_y) [N] and the stance ankle torque Gamma_1 [N m]:  C R + e Gamma_1 < 0, rows in the order
+    take_off, slide_backward, slide_forward, zmp_heel, zmp_toe. Returns (C (5, 2), e (5,))."""
+    C = np.array([[0.0, -1.0], [-1.0, -mu], [1.0, -mu], [0.0, l_min], [0.0, -l_max]])
+    e = np.array([0.0, 0.0, 0.0, -1.0, 1.0])
+    return C, e
+
+
 def relabel(q: np.ndarray) -> np.ndarray:
     """Exchange the roles of the legs: q' = -q[::-1] (also for velocities). An involution."""
     return -np.asarray(q, dtype=float)[::-1].copy()
@@ -159,34 +168,29 @@ class FixedFootModel:
         ac = self.data.acom[0]
         return np.array([c[0], c[2]]), J[[0, 2], 3:].copy(), np.array([ac[0], ac[2]])
 
-    def constraints(self, q: np.ndarray, qd: np.ndarray, dyn: Dynamics | None = None) -> ConstraintMatrices:
-        """Eq. (10): rows of A_q w + b_q < 0, in the order of CONSTRAINT_NAMES."""
+    def constraints(self, q: np.ndarray, qd: np.ndarray, dyn: Dynamics | None = None, *,
+                    mu: float | None = None, l_min: float | None = None, l_max: float | None = None
+                    ) -> ConstraintMatrices:
+        """Eq. (10): rows of A_q w + b_q < 0, in the order of CONSTRAINT_NAMES. With R = B w + h_b and
+        Gamma = A w + H, the contact rows are C R + e Gamma_1 (``contact_rows``), the torque rows
+        Gamma - Gamma_max and Gamma_min - Gamma. ``mu``, ``l_min``, ``l_max`` default to the robot's (a
+        controller may pass tighter ones)."""
         d = dyn if dyn is not None else self.dynamics(q, qd)
-        Bx, By = d.B[0], d.B[1]
-        hx, hy = d.h_b[0], d.h_b[1]
-        mu, lm, lM = self.mu, self.l_min, self.l_max
+        C, e = contact_rows(self.mu if mu is None else mu, self.l_min if l_min is None else l_min,
+                            self.l_max if l_max is None else l_max)
         A_q = np.empty((N_CONSTRAINTS, 6))
         b_q = np.empty(N_CONSTRAINTS)
-        A_q[0], b_q[0] = -By, -hy
-        A_q[1], b_q[1] = -mu * By - Bx, -mu * hy - hx
-        A_q[2], b_q[2] = -mu * By + Bx, -mu * hy + hx
-        A_q[3], b_q[3] = lm * By - d.A[0], lm * hy - d.H[0]
-        A_q[4], b_q[4] = d.A[0] - lM * By, d.H[0] - lM * hy
+        A_q[:5] = C @ d.B[:2] + np.outer(e, d.A[0])
+        b_q[:5] = C @ d.h_b[:2] + e * d.H[0]
         A_q[5:11], b_q[5:11] = d.A, d.H - self.torque_max
         A_q[11:17], b_q[11:17] = -d.A, self.torque_min - d.H
         return ConstraintMatrices(A_q, b_q)
 
     def margins_direct(self, q: np.ndarray, qd: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """-(constraint values) evaluated from inverse dynamics directly (positive = satisfied)."""
+        """-(constraint values) evaluated from inverse dynamics (RNEA) directly (positive = satisfied)."""
         gam, r = self.inverse_dynamics(q, qd, w)
-        Rx, Ry = r[0], r[1]
-        vals = np.concatenate(
-            [
-                [-Ry, -self.mu * Ry - Rx, -self.mu * Ry + Rx, self.l_min * Ry - gam[0], gam[0] - self.l_max * Ry],
-                gam - self.torque_max,
-                self.torque_min - gam,
-            ]
-        )
+        C, e = contact_rows(self.mu, self.l_min, self.l_max)
+        vals = np.concatenate([C @ r[:2] + e * gam[0], gam - self.torque_max, self.torque_min - gam])
         return -vals
 
     def swing_foot(self, q: np.ndarray, qd: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:

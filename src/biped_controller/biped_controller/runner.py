@@ -10,18 +10,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from biped_sim.description import LEFT, RobotDescription, load_description
-from biped_sim.simulator import SimConfig, Simulator, StepRecord, load_sim_config
+from biped_sim.push import Push
+from biped_sim.simulator import ImpactRecord, SimConfig, Simulator, StepRecord, load_sim_config
 
 from .controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
 from biped_sim.gait_family import GaitFamily
 
 
-@dataclass(frozen=True)
-class PushSpec:
-    start: float
-    duration: float
-    force: float
-    height: float | None = None
+# One push type from the service to the simulator (biped_sim.push.Push); PushSpec is its former name here,
+# kept only until every caller says Push.
+PushSpec = Push
 
 
 @dataclass
@@ -33,14 +31,14 @@ class RunResult:
     fall_cause: str
     fall_detail: str
     fall_time: float
-    impacts: list[dict]
+    impacts: list[ImpactRecord]
     qp_instances: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
 
     def series(self, name: str) -> np.ndarray:
         return np.array([getattr(s, name) for s in self.statuses])
 
 
-def run(steps: int = 10, mode: str = "both", pushes: tuple[PushSpec, ...] = (), *,
+def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         sim_config: SimConfig | None = None, ctrl_config: ControllerConfig | None = None,
         family: GaitFamily | None = None, desc: RobotDescription | None = None,
         integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,

@@ -1,11 +1,12 @@
 """ROS 2 node ``disturbance``: validates push requests and publishes the accepted ones.
 
 Service ``/apply_push`` (biped_msgs_py/srv/ApplyPush). A request is checked by the pure
-:func:`biped_sim.push_validation.validate_push_request`, in this order:
+:func:`biped_sim.push.validate_push`, in this order:
 every used number finite (``force``, ``duration``, ``start`` or ``delay``; ``height`` may be NaN =
 default), ``0 < duration <= max_duration``, ``|force| <= max_force``, ``delay >= 0``, start not
-before the current sim time (``/clock``; this node runs with ``use_sim_time`` true), ``height``
-within [0, torso length] (NaN: ``push_height``), and no overlap with a push already scheduled.
+before the current sim time (``/clock``; this node runs with ``use_sim_time`` true), start not after
+``horizon`` (the end of the run: a push that could never act is refused), ``height`` within
+[0, torso length] (NaN: ``push_height``), and no overlap with a push already scheduled.
 Rejected: ``accepted = false``, a message naming the field and the allowed range, nothing published
 on ``/push_events``. Accepted: a PushEvent with a new id (1, 2, ...) on ``/push_events`` (reliable,
 transient local: a simulator joining late still gets it); the response gives the id and the
@@ -19,8 +20,10 @@ A schedule can also come from parameters: ``schedule_forces``, ``schedule_starts
 validated like requests at start (a bad entry: the node exits 2 naming the parameter) and
 published at start.
 
-Parameters: ``max_force`` (N, default 2000), ``max_duration`` (s, default 1.0), ``push_height``
-(m, default config/simulator.yaml), the schedule arrays; ``use_sim_time`` is forced true.
+Parameters: ``max_force`` (N, default 2000), ``max_duration`` (s, default 1.0), ``horizon`` (s of sim
+time, default 3600: the latest start accepted; the launcher sets it to the simulator's ``max_time`` when
+one is given), ``push_height`` (m, default config/simulator.yaml), the schedule arrays;
+``use_sim_time`` is forced true.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from biped_msgs_py.msg import PushEvent
 from biped_msgs_py.srv import ApplyPush
 from biped_sim import graph_names as gn
 from biped_sim.description import DescriptionError, load_description
-from biped_sim.push_validation import PushBook, PushLimits, Rejected
+from biped_sim.push import PushBook, PushLimits, Rejected
 from biped_sim.node_params import (
     ParameterError,
     get_float,
@@ -63,7 +66,8 @@ class DisturbanceNode(Node):
         max_duration = get_float(self, 'max_duration', 1.0, lo=0.0, lo_open=True)
         default_height = get_float(self, 'push_height', load_sim_config().push_height, lo=0.0,
                                    hi=desc.torso.length)
-        self.book = PushBook(PushLimits(max_force, max_duration, desc.torso.length, default_height))
+        horizon = get_float(self, 'horizon', 3600.0, lo=0.0, lo_open=True)
+        self.book = PushBook(PushLimits(max_force, max_duration, desc.torso.length, default_height, horizon))
         forces = get_float_list(self, 'schedule_forces')
         starts = get_float_list(self, 'schedule_starts')
         durations = get_float_list(self, 'schedule_durations')
@@ -81,10 +85,10 @@ class DisturbanceNode(Node):
                 vp = self.book.check(forces[i], durations[i], starts[i], h, 0.0)
             except Rejected as exc:
                 pname = {'force': 'schedule_forces', 'duration': 'schedule_durations', 'start': 'schedule_starts',
-                         'height': 'schedule_heights'}[exc.field]
+                         'delay': 'schedule_starts', 'height': 'schedule_heights'}[exc.field]
                 raise ParameterError(pname, f'entry {i}: {exc}') from exc
-            pid = self.book.add(vp)
-            schedule.append(PushEvent(id=pid, start=vp.start, duration=vp.duration, force=vp.force, height=vp.height))
+            p = self.book.add(vp)
+            schedule.append(PushEvent(id=p.id, start=p.start, duration=p.duration, force=p.force, height=p.height))
 
         self.pub_events = self.create_publisher(PushEvent, gn.PUSH_EVENTS, gn.QOS_EVENTS)
         self.pub_requests = self.create_publisher(String, gn.PUSH_REQUESTS, gn.QOS_EVENTS)
@@ -111,7 +115,7 @@ class DisturbanceNode(Node):
             response.scheduled_end = math.nan
             self.get_logger().warning(f'{gn.APPLY_PUSH}: {response.message}')
         else:
-            pid = self.book.add(vp)
+            pid = self.book.add(vp).id
             start, height = vp.start, vp.height
             ev = PushEvent(id=pid, start=start, duration=vp.duration, force=vp.force, height=height)
             self.pub_events.publish(ev)

@@ -17,6 +17,8 @@ name                       type                                    QoS key
 /tf                        tf2_msgs/msg/TFMessage                  tf
 /robot_description         std_msgs/msg/String                     latched
 /fall                      std_msgs/msg/String                     latched
+/sim/impacts               biped_msgs_py/msg/Impact                events
+/sim/push                  biped_msgs_py/msg/AppliedPush           sensor
 /controller/torque         sensor_msgs/msg/JointState (effort)     lockstep
 /controller/status         biped_msgs_py/msg/ControllerStatus      sensor
 /push_events               biped_msgs_py/msg/PushEvent             events
@@ -65,6 +67,8 @@ STANCE = '/stance'
 TF = '/tf'
 ROBOT_DESCRIPTION = '/robot_description'
 FALL = '/fall'
+SIM_IMPACTS = '/sim/impacts'
+SIM_PUSH = '/sim/push'
 CONTROLLER_TORQUE = '/controller/torque'
 CONTROLLER_STATUS = '/controller/status'
 PUSH_EVENTS = '/push_events'
@@ -172,13 +176,19 @@ TOPICS: dict[str, TopicSpec] = {t.name: t for t in [
     TopicSpec(JOINT_STATES, 'sensor_msgs/msg/JointState', 'sensor',
               'URDF joint positions/velocities (rad, rad/s)'),
     TopicSpec(GROUND_REACTION, 'geometry_msgs/msg/WrenchStamped', 'sensor',
-              'ground reaction on the stance foot (N, N m), world frame'),
+              'ground force and moment on the stance foot at its ankle (N, N m) at the start of a control '
+              'period under that period\'s torque and push; frame: the stance foot (left_foot / right_foot, '
+              'flat on the ground, so its axes are the world\'s); moment about -y = counter-clockwise'),
     TopicSpec(GROUND_REACTION_COP, 'geometry_msgs/msg/PointStamped', 'sensor',
-              'centre of pressure (m), world frame'),
+              'centre of pressure (m), world frame, same instant as /ground_reaction'),
     TopicSpec(STANCE, 'std_msgs/msg/UInt8', 'sensor', 'stance leg: 0 left, 1 right'),
     TopicSpec(TF, 'tf2_msgs/msg/TFMessage', 'tf', 'link transforms for Foxglove 3D'),
     TopicSpec(ROBOT_DESCRIPTION, 'std_msgs/msg/String', 'latched', 'URDF text'),
     TopicSpec(FALL, 'std_msgs/msg/String', 'latched', 'fall cause, published once on a fall'),
+    TopicSpec(SIM_IMPACTS, 'biped_msgs_py/msg/Impact', 'events',
+              'every touchdown: pre/post state, foot re-pose, impulse, energy lost'),
+    TopicSpec(SIM_PUSH, 'biped_msgs_py/msg/AppliedPush', 'sensor',
+              'push force and impulse actually applied over each control period'),
     TopicSpec(CONTROLLER_TORQUE, 'sensor_msgs/msg/JointState', 'lockstep',
               'joint torques (N m) in effort, controller -> simulator'),
     TopicSpec(CONTROLLER_STATUS, 'biped_msgs_py/msg/ControllerStatus', 'sensor',

@@ -176,6 +176,16 @@ def main(argv=None) -> int:
              'controller': [x for kv in args.ctrl_param for x in ('-p', kv)]}
     if args.steps is not None:
         extra['simulator'] += ['-p', f'max_steps:={args.steps}']
+    # a push that could only start after the run's end is refused by the service: the simulator's
+    # max_time (when given) is the disturbance node's horizon
+    for kv in args.sim_param:
+        key, _, value = kv.partition(':=')
+        if key.strip() == 'max_time':
+            try:
+                if float(value) > 0:
+                    extra['disturbance'] = ['-p', f'horizon:={float(value)}']
+            except ValueError:
+                pass   # the simulator itself rejects the bad value, naming it
 
     stop = {'signal': None}
 

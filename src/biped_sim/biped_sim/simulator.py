@@ -36,16 +36,13 @@ import numpy as np
 from .description import LEFT, RobotDescription, load_description
 from .settings import SettingsError, default_config_dir, read_settings
 from .floating import FloatingModel, urdf_from_paper
+from .push import Push, PushBook, PushLimits
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
 
 
 class SimConfigError(ValueError):
     """A simulator setting is missing or out of range (message names it)."""
-
-
-class PushError(ValueError):
-    """A push request is invalid (message names the field and the allowed range)."""
 
 
 @dataclass(frozen=True)
@@ -90,22 +87,6 @@ def load_sim_config(path: str | Path | None = None, **overrides) -> SimConfig:
         raise SimConfigError(f"substeps must be an integer, got {kw['substeps']!r} ({p})")
     kw["substeps"] = int(kw["substeps"])
     return SimConfig(**kw).validate()
-
-
-@dataclass(frozen=True)
-class Push:
-    """Horizontal force ``force`` [N] (+ forward) on the torso at ``height`` [m] above the hip, over
-    [start, start + duration) in sim time [s]."""
-
-    id: int
-    start: float
-    duration: float
-    force: float
-    height: float
-
-    @property
-    def end(self) -> float:
-        return self.start + self.duration
 
 
 @dataclass(frozen=True)
@@ -202,7 +183,7 @@ class Simulator:
         self.desc = desc if desc is not None else load_description()
         self.cfg = (config if config is not None else load_sim_config()).validate()
         self.fm = FloatingModel(self.desc)
-        self.pushes: list[Push] = []
+        self.book = self._new_book()
         self.x = np.zeros(9)
         self.v = np.zeros(9)
         self.stance = LEFT
@@ -212,8 +193,7 @@ class Simulator:
         self.fall: FallInfo | None = None
         self.impact_count = 0
         self.cleared = False
-        self.impact_log: list[dict] = []
-        self._next_push_id = 1
+        self.impact_log: list[ImpactRecord] = []
 
     # ------------------------------------------------------------ setup
     def reset(self, q: np.ndarray, qd: np.ndarray, stance: int = LEFT, ankle_x: float = 0.0) -> None:
@@ -227,28 +207,22 @@ class Simulator:
         self.impact_count = 0
         self.cleared = False
         self.impact_log = []
-        self.pushes = []
-        self._next_push_id = 1
+        self.book = self._new_book()
 
-    def validate_push(self, start: float, duration: float, force: float, height: float) -> None:
-        vals = dict(start=start, duration=duration, force=force, height=height)
-        for k, v in vals.items():
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise PushError(f"push {k} must be a finite number, got {v!r}")
-        if duration <= 0:
-            raise PushError(f"push duration must be > 0 s, got {duration}")
-        if not 0.0 <= height <= self.desc.torso.length:
-            raise PushError(f"push height must be within the torso, [0, {self.desc.torso.length}] m, got {height}")
+    def _new_book(self) -> PushBook:
+        """The simulator's pushes: validated by ``push.validate_push`` with physical limits only (any force
+        and duration, a point on the torso, no overlap); the service adds its own bounds upstream."""
+        return PushBook(PushLimits(math.inf, math.inf, self.desc.torso.length, self.cfg.push_height))
+
+    @property
+    def pushes(self) -> list[Push]:
+        return self.book.pushes
 
     def schedule_push(self, start: float, duration: float, force: float, height: float | None = None,
                       push_id: int | None = None) -> Push:
-        h = self.cfg.push_height if height is None or (isinstance(height, float) and math.isnan(height)) else height
-        self.validate_push(start, duration, force, h)
-        pid = self._next_push_id if push_id is None else int(push_id)
-        self._next_push_id = max(self._next_push_id, pid) + 1
-        p = Push(pid, float(start), float(duration), float(force), float(h))
-        self.pushes.append(p)
-        return p
+        """Schedule a push (raises ``push.Rejected`` naming the field); ``height`` None/NaN = the default."""
+        h = math.nan if height is None else height
+        return self.book.add(self.book.check(force, duration, start, h, None), push_id)
 
     # ------------------------------------------------------------ queries
     def observe(self) -> Observation:

@@ -66,7 +66,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String, UInt8
 from tf2_msgs.msg import TFMessage
 
-from biped_msgs_py.msg import PushEvent, SimState
+from biped_msgs_py.msg import AppliedPush, Impact, PushEvent, SimState
 from biped_sim import graph_names as gn
 from biped_sim.description import LEFT, PAPER_JOINTS, URDF_JOINTS, load_description, make_urdf
 from biped_sim.floating import urdf_from_paper
@@ -82,7 +82,8 @@ from biped_sim.node_params import (
     restore_handlers,
 )
 from biped_sim.node_checks import RobotFilesError, check_urdf_joints
-from biped_sim.simulator import PushError, SimConfig, SimConfigError, Simulator, load_sim_config
+from biped_sim.push import Rejected
+from biped_sim.simulator import SimConfig, SimConfigError, Simulator, load_sim_config
 
 SIDES = ('left', 'right')
 WORLD_FRAME = 'world'
@@ -191,8 +192,11 @@ class SimulatorNode(Node):
         self.pub_tf = self.create_publisher(TFMessage, gn.TF, gn.QOS_TF)
         self.pub_desc = self.create_publisher(String, gn.ROBOT_DESCRIPTION, gn.QOS_LATCHED)
         self.pub_fall = self.create_publisher(String, gn.FALL, gn.QOS_LATCHED)
+        self.pub_impacts = self.create_publisher(Impact, gn.SIM_IMPACTS, gn.QOS_EVENTS)
+        self.pub_push = self.create_publisher(AppliedPush, gn.SIM_PUSH, gn.QOS_SENSOR)
         self.published_topics = [gn.CLOCK, gn.SIM_STATE, gn.JOINT_STATES, gn.GROUND_REACTION,
-                                 gn.GROUND_REACTION_COP, gn.STANCE, gn.TF, gn.ROBOT_DESCRIPTION]
+                                 gn.GROUND_REACTION_COP, gn.STANCE, gn.TF, gn.ROBOT_DESCRIPTION,
+                                 gn.SIM_IMPACTS, gn.SIM_PUSH]
         self.sub_torque = self.create_subscription(JointState, gn.CONTROLLER_TORQUE, self._on_torque,
                                                    gn.QOS_LOCKSTEP)
         self.create_subscription(PushEvent, gn.PUSH_EVENTS, self._on_push, gn.QOS_EVENTS)
@@ -213,6 +217,7 @@ class SimulatorNode(Node):
         self.finish_wall: Optional[float] = None
         self.run_start_wall: Optional[float] = None
         self.steps_done = 0
+        self.impacts_published = 0
         self.create_timer(0.02, self._on_timer)
         self.get_logger().info(
             f'simulator ready: control_period {self.cfg.control_period} s, substeps {self.cfg.substeps}, '
@@ -243,7 +248,8 @@ class SimulatorNode(Node):
             missing.append(f'a publisher on {gn.CONTROLLER_TORQUE} (controller, matched)')
         if self.wait_for_recorder:
             pubs = {p.topic_name: p for p in (self.pub_clock, self.pub_state, self.pub_joints, self.pub_wrench,
-                                               self.pub_cop, self.pub_stance, self.pub_tf, self.pub_desc)}
+                                               self.pub_cop, self.pub_stance, self.pub_tf, self.pub_desc,
+                                               self.pub_impacts, self.pub_push)}
             for topic in self.published_topics:
                 infos = self.get_subscriptions_info_by_topic(topic)
                 if gn.RECORDER_NODE not in {i.node_name for i in infos}:
@@ -345,6 +351,38 @@ class SimulatorNode(Node):
         c.point.x = anchor_x + (float(rec.cop) if math.isfinite(rec.cop) else 0.0)
         self.pub_cop.publish(c)
 
+    def _publish_applied_push(self, rec):
+        m = AppliedPush()
+        m.stamp = stamp_of(rec.t)
+        m.period = float(rec.t_end - rec.t)
+        m.force = float(rec.push_force)
+        m.impulse = float(rec.push_impulse)
+        m.mean_force = float(rec.push_impulse / m.period) if m.period > 0 else float(rec.push_force)
+        acting = self.sim.interval_pushes(rec.t, rec.t_end) if m.period > 0 else ()
+        m.height = float(acting[0][1]) if acting else math.nan
+        self.pub_push.publish(m)
+
+    def _publish_impacts(self):
+        for imp in self.sim.impact_log[self.impacts_published:]:
+            m = Impact()
+            m.stamp = stamp_of(imp.t)
+            m.index = int(imp.index)
+            m.old_stance = int(imp.old_stance)
+            m.new_stance = int(imp.new_stance)
+            m.x_minus = imp.x_minus.tolist()
+            m.v_minus = imp.v_minus.tolist()
+            m.foot_tilt = float(imp.foot_tilt)
+            m.x_flat = imp.x_flat.tolist()
+            m.v_plus = imp.v_plus.tolist()
+            m.impulse = imp.impulse.tolist()
+            m.energy_loss = float(imp.energy_loss)
+            m.released_foot_velocity = imp.old_foot_velocity.tolist()
+            m.x_plus = imp.x_plus.tolist()
+            m.v_plus_projected = imp.v_plus_projected.tolist()
+            m.ankle_x = float(imp.ankle_x)
+            self.pub_impacts.publish(m)
+        self.impacts_published = len(self.sim.impact_log)
+
     def _publish_fall(self, cause: str, t: float, detail: str):
         doc = {'cause': cause, 'time': float(t), 'detail': detail, 'step': int(self.sim.step_index),
                'impacts': int(self.sim.impact_count)}
@@ -370,6 +408,7 @@ class SimulatorNode(Node):
             f = sim.fall
             self.get_logger().info(f'fall at t = {f.t:.4f} s: {f.cause} ({f.detail})')
             self._publish_record(rec, anchor_x)
+            self._publish_applied_push(rec)
             self._publish_fall(f.cause, f.t, f.detail)
             self._publish_state(fallen=True, cause=f.cause)
             self._publish_visuals()
@@ -377,6 +416,8 @@ class SimulatorNode(Node):
             return
         self._publish_state()
         self._publish_record(rec, anchor_x)
+        self._publish_applied_push(rec)
+        self._publish_impacts()
         self._publish_visuals()
         if self.max_steps and sim.impact_count >= self.max_steps:
             self._finish(EXIT_OK, f'{sim.impact_count} steps walked')
@@ -389,7 +430,7 @@ class SimulatorNode(Node):
             return
         try:
             p = self.sim.schedule_push(msg.start, msg.duration, msg.force, msg.height, push_id=pid)
-        except PushError as exc:
+        except Rejected as exc:
             self.get_logger().error(f'{gn.PUSH_EVENTS}: push {pid} not scheduled: {exc}')
             return
         self.push_ids.add(pid)
