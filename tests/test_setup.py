@@ -180,4 +180,4 @@ def test_second_setup_run_installs_nothing():
     assert lines[-1].startswith('setup: nothing to do'), proc.stdout
     steps = [ln for ln in lines if ln.startswith('setup: ') and '[' in ln]
     assert steps and all(': skip' in ln for ln in steps), proc.stdout
-    assert elapsed < 10.0, (elapsed, proc.stdout)
+    # how long the no-op run takes is measured in the benchmarks, not asserted here

@@ -175,8 +175,13 @@ class ControllerNode(Node):
                 f'({pubs} publisher(s) left: {what}): idling')
 
 
+    def after_spin(self, _executor, _signum) -> int:
+        self.get_logger().info(f'controller stopping after {self.steps} steps')
+        return 0
+
+
 def main(args=None) -> int:
-    return run_node('controller', ControllerNode, args, on_stop=lambda n: n.get_logger().info(f'controller stopping after {n.steps} steps'))
+    return run_node('controller', ControllerNode, args)
 
 
 if __name__ == '__main__':

@@ -131,7 +131,7 @@ class DisturbanceNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node('disturbance', DisturbanceNode, args, on_stop=None)
+    return run_node('disturbance', DisturbanceNode, args)
 
 
 if __name__ == '__main__':

@@ -16,6 +16,7 @@ from typing import Any, Callable, Iterable, Optional, Sequence
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
+EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
 
 
@@ -123,11 +124,13 @@ def restore_handlers(previous: dict) -> None:
         signal.signal(sig, handler)
 
 
-def run_node(name: str, factory: Callable[[], Node], args=None,
-             on_stop: Callable[[Node], None] | None = None) -> int:
-    """The ``main()`` shared by the nodes: init rclpy without its signal handlers, build the node
-    (a ``ParameterError`` -> message naming the parameter on stderr and exit code EXIT_BAD_PARAMETER,
-    nothing half-started), spin until SIGINT/SIGTERM or external shutdown, then clean up. Returns 0."""
+def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_errors: tuple = ()) -> int:
+    """The ``main()`` of every node: init rclpy without its signal handlers, build the node (a
+    ``ParameterError`` or one of ``startup_errors`` -> a message on stderr and exit code
+    EXIT_BAD_PARAMETER, nothing half-started), spin until SIGINT/SIGTERM, external shutdown, or the node
+    sets ``node.done``; then ``node.after_spin(executor, signum)`` if the node has one (a recorder
+    drains and finishes its bag, the simulator reports why it stopped) gives the exit code (default 0).
+    Cleans up in every case."""
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -137,7 +140,7 @@ def run_node(name: str, factory: Callable[[], Node], args=None,
     try:
         try:
             node = factory()
-        except ParameterError as exc:
+        except (ParameterError, *startup_errors) as exc:
             print(f'{name}: {exc}', file=sys.stderr)
             return EXIT_BAD_PARAMETER
         stop = {'signal': None}
@@ -145,15 +148,15 @@ def run_node(name: str, factory: Callable[[], Node], args=None,
         executor = SingleThreadedExecutor(context=node.context)
         executor.add_node(node)
         try:
-            while stop['signal'] is None and rclpy.ok(context=node.context):
+            while stop['signal'] is None and not getattr(node, 'done', False) and rclpy.ok(context=node.context):
                 executor.spin_once(timeout_sec=0.1)
         except (ExternalShutdownException, KeyboardInterrupt):
             pass
         finally:
             restore_handlers(previous)
-        if on_stop is not None:
-            on_stop(node)
-        return 0
+        after = getattr(node, 'after_spin', None)
+        code = after(executor, stop['signal']) if after is not None else 0
+        return EXIT_OK if code is None else int(code)
     finally:
         if node is not None:
             node.destroy_node()

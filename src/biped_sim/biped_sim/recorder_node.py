@@ -23,21 +23,19 @@ Exit status: 0 clean finish, 1 I/O error while recording, 2 bad parameter / cann
 from __future__ import annotations
 
 import functools
-import signal
 import time
 import sys
-import threading
 from pathlib import Path
 from typing import Dict, List, Optional
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
 from biped_sim import graph_names
+from biped_sim.node_params import ParameterError, run_node
 from biped_sim.mcap_recorder import (
     DEFAULT_CHUNK_SIZE,
     INFINITE_DURATION,
@@ -51,14 +49,6 @@ from biped_sim.mcap_recorder import (
 COMPRESSIONS = ("zstd", "lz4", "none")
 MIN_CHUNK_SIZE = 4096
 MAX_CHUNK_SIZE = 1 << 30
-
-
-class ParameterError(ValueError):
-    """A recorder parameter has an invalid value; ``name`` says which one."""
-
-    def __init__(self, name: str, message: str) -> None:
-        super().__init__(f"invalid parameter '{name}': {message}")
-        self.name = name
 
 
 def _policy_name(value, table: Dict[object, str]) -> str:
@@ -113,6 +103,10 @@ def qos_from_rclpy(profile) -> QosProfile:
     )
 
 
+DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
+DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
+
+
 class RecorderNode(Node):
     """Thin ROS wrapper around :class:`Rosbag2McapWriter`.
 
@@ -132,7 +126,7 @@ class RecorderNode(Node):
         output_dir, compression, chunk_size = self._read_parameters()
 
         self.failure: Optional[RecorderError] = None
-        self.stop_requested = threading.Event()
+        self.done = False   # run_node leaves its loop (then drains and finishes) once set
         self._prefixes = self._prefixes_list()
         self._specs = self._recordable_topics()
         self._writer = Rosbag2McapWriter(output_dir, prefixes=self._prefixes,
@@ -213,7 +207,7 @@ class RecorderNode(Node):
         except RecorderError as exc:
             self.failure = exc
             self.get_logger().error(f"recording stopped: {exc}")
-            self.stop_requested.set()
+            self.done = True
 
     @property
     def counts(self) -> Dict[str, int]:
@@ -228,42 +222,17 @@ class RecorderNode(Node):
         return summary
 
 
-DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
-DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
-
-
-def main(args: Optional[List[str]] = None) -> int:
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node: Optional[RecorderNode] = None
-    status = 0
-    try:
+    def after_spin(self, executor, _signum) -> int:
+        """Drain, then finish the bag (``run_node``): a stop request can arrive while messages are still
+        queued (the recorder may lag the 1 kHz lockstep on a loaded machine). Keep taking them until
+        nothing has arrived for DRAIN_IDLE seconds (at most DRAIN_MAX). Exit 1 if finishing failed."""
+        status = 0
         try:
-            node = RecorderNode()
-        except ParameterError as exc:
-            print(f"recorder: {exc}", file=sys.stderr)
-            return 2
-        except RecorderError as exc:
-            print(f"recorder: cannot create the bag: {exc}", file=sys.stderr)
-            return 2
-
-        def request_stop(signum, _frame):
-            node.stop_requested.set()
-
-        previous = {sig: signal.signal(sig, request_stop)
-                    for sig in (signal.SIGINT, signal.SIGTERM)}
-        executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        try:
-            while not node.stop_requested.is_set() and rclpy.ok(context=node.context):
-                executor.spin_once(timeout_sec=0.1)
-            # Drain: a stop request can arrive while messages are still queued (the recorder may lag
-            # the 1 kHz lockstep on a loaded machine). Keep taking them until nothing has arrived for
-            # DRAIN_IDLE seconds (at most DRAIN_MAX), then finish the bag.
             t_end = time.monotonic() + DRAIN_MAX
             last_total, last_change = -1, time.monotonic()
-            while rclpy.ok(context=node.context) and time.monotonic() < t_end:
+            while rclpy.ok(context=self.context) and time.monotonic() < t_end:
                 executor.spin_once(timeout_sec=0.02)
-                total = sum(node.counts.values())
+                total = sum(self.counts.values())
                 now = time.monotonic()
                 if total != last_total:
                     last_total, last_change = total, now
@@ -272,23 +241,20 @@ def main(args: Optional[List[str]] = None) -> int:
         except ExternalShutdownException:
             pass  # the context was shut down: finish the bag below
         finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-            executor.remove_node(node)
+            executor.remove_node(self)
             try:
-                node.finish()
+                self.finish()
             except RecorderError as exc:
                 print(f"recorder: finishing the bag failed: {exc}", file=sys.stderr)
                 status = 1
-        if node.failure is not None:
-            print(f"recorder: {node.failure}", file=sys.stderr)
+        if self.failure is not None:
+            print(f"recorder: {self.failure}", file=sys.stderr)
             status = 1
         return status
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+
+
+def main(args: Optional[List[str]] = None) -> int:
+    return run_node("recorder", RecorderNode, args, startup_errors=(RecorderError,))
 
 
 if __name__ == "__main__":

@@ -54,13 +54,10 @@ import xml.etree.ElementTree as ET
 from typing import Optional
 
 import numpy as np
-import rclpy
 import yaml
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PointStamped, TransformStamped, WrenchStamped
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String, UInt8
@@ -77,9 +74,8 @@ from biped_sim.node_params import (
     get_float,
     get_int,
     get_str,
-    install_stop_handlers,
     load_robot_files,
-    restore_handlers,
+    run_node,
 )
 from biped_sim.node_checks import RobotFilesError, check_urdf_joints
 from biped_sim.push import Rejected
@@ -439,6 +435,13 @@ class SimulatorNode(Node):
                                f'at {p.height} m{late}')
 
     # ------------------------------------------------------------------ end
+    def after_spin(self, _executor, signum) -> int:
+        """Exit code for ``run_node``: the run's own (0, or 1 on a timeout) or 0 when stopped by a signal."""
+        if signum is not None and not self.finished:
+            self.get_logger().info(f'stopped by signal {signum} at sim time {self.sim.t:.3f} s')
+            return EXIT_OK
+        return self.exit_code
+
     def _finish(self, code: int, reason: str):
         if self.finished:
             return
@@ -454,38 +457,7 @@ class SimulatorNode(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node: Optional[SimulatorNode] = None
-    try:
-        try:
-            node = SimulatorNode()
-        except ParameterError as exc:
-            print(f'simulator: {exc}', file=sys.stderr)
-            return EXIT_BAD_PARAMETER
-        stop = {'signal': None}
-
-        def on_signal(signum):
-            stop['signal'] = signum
-
-        previous = install_stop_handlers(on_signal)
-        executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        try:
-            while not node.done and stop['signal'] is None and rclpy.ok(context=node.context):
-                executor.spin_once(timeout_sec=0.1)
-        except (ExternalShutdownException, KeyboardInterrupt):
-            pass
-        finally:
-            restore_handlers(previous)
-        if stop['signal'] is not None and not node.finished:
-            node.get_logger().info(f'stopped by signal {stop["signal"]} at sim time {node.sim.t:.3f} s')
-            return EXIT_OK
-        return node.exit_code
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+    return run_node('simulator', SimulatorNode, args)
 
 
 if __name__ == '__main__':
