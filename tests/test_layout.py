@@ -21,7 +21,7 @@ PACKAGES = {"biped_sim": ROOT / "src" / "biped_sim" / "biped_sim",
 ROS_LAYER = {
     "biped_sim.simulator_node", "biped_sim.disturbance_node", "biped_sim.recorder_node", "biped_sim.bridge_node",
     "biped_sim.graph_names", "biped_sim.node_params", "biped_sim.launch", "biped_sim.push_client",
-    "biped_sim.demo", "biped_sim.soak", "biped_controller.controller_node",
+    "biped_sim.demo", "biped_sim.soak", "biped_sim.bag_summary", "biped_controller.controller_node",
 }
 ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",
              "builtin_interfaces", "tf2_msgs", "biped_msgs_py", "std_srvs", "ament_index_python"}

@@ -26,61 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-
-def summarize_bag(bag: Path, expected_steps: int | None = None) -> dict:
-    """Summary of a recorded run (pure: reads the MCAP with bag_reader, decodes with mcap_ros2)."""
-    from biped_sim.bag_reader import read_bag
-    data = read_bag(bag, decode=True)
-    msgs = data['messages']
-    states = [m for (t, _lt, _pt, m) in msgs if t == '/sim/state']
-    state_pub = [pt for (t, _lt, pt, _m) in msgs if t == '/sim/state']
-    status = [m for (t, _lt, _pt, m) in msgs if t == '/controller/status']
-    wrenches = [m for (t, _lt, _pt, m) in msgs if t == '/ground_reaction']
-    falls = [m for (t, _lt, _pt, m) in msgs if t == '/fall']
-    pushes = [m for (t, _lt, _pt, m) in msgs if t == '/push_events']
-    import yaml
-    last = states[-1] if states else None
-    fall = yaml.safe_load(falls[-1].data) if falls else None
-    ls = [-w.wrench.torque.y / w.wrench.force.z for w in wrenches if w.wrench.force.z > 0]
-    impacts = sum(1 for a, b in zip(states, states[1:]) if a.stance != b.stance)
-    sim_t = (last.stamp.sec + 1e-9 * last.stamp.nanosec) if last else 0.0
-    pub_span = (max(state_pub) - min(state_pub)) * 1e-9 if len(state_pub) > 1 else 0.0
-    size = os.path.getsize(data['path'])
-
-    def rng(name):
-        v = [getattr(s, name) for s in status]
-        return [min(v), max(v)] if v else None
-
-    return {
-        'outcome': 'fell' if fall else 'survived',
-        'fall_cause': fall['cause'] if fall else '',
-        'fall_detail': fall['detail'] if fall else '',
-        'fall_time': fall['time'] if fall else None,
-        'steps_walked': impacts,
-        'control_steps': len(states),
-        'sim_time': sim_t,
-        'max_abs_cop_l': max((abs(x) for x in ls), default=None),
-        'max_abs_zmp_controller': max((abs(s.zmp) for s in status if math.isfinite(s.zmp)), default=None),
-        'p_range': rng('p'),
-        'p_dot_range': rng('p_dot'),
-        'tau_range': rng('tau'),
-        'tau_dot_range': rng('tau_dot'),
-        'max_tracking_error': max((s.max_tracking_error for s in status), default=None),
-        'last_qp_status': int(status[-1].qp_status) if status else None,
-        'last_qp_message': status[-1].qp_message if status else '',
-        'qp_fallback_steps': sum(1 for s in status if s.qp_status in (2, 3)),
-        'final_state_fall_cause': last.fall_cause if last is not None else '',
-        'pushes': [dict(id=p.id, start=p.start, duration=p.duration, force=p.force, height=p.height) for p in pushes],
-        'counts': dict(sorted(data['counts'].items())),
-        'message_count': data['message_count'],
-        'mcap_path': str(data['path']),
-        'mcap_bytes': size,
-        'mcap_bytes_per_sim_second': size / sim_t if sim_t > 0 else None,
-        'log_time_range': [data['start_ns'] * 1e-9 if data['start_ns'] is not None else None,
-                           data['end_ns'] * 1e-9 if data['end_ns'] is not None else None],
-        'lockstep_wall_time': pub_span,
-        'lockstep_steps_per_second': (len(state_pub) - 1) / pub_span if pub_span > 0 else None,
-    }
+from biped_sim.bag_summary import summarize_bag
 
 
 def print_summary(s: dict) -> None:
