@@ -11,6 +11,16 @@ lockstep, no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
   max-push  --mode M [--resolution 5] [--max 2000] [--coarse 50]
                                                largest survivable push force
   table     [--workers N]                      max-push for the four modes next to the paper's values
+  probe     --force F [--mode M] [--start S]   one push, the controller's view period by period while
+                                               it acts: true push vs the observer's estimate, predicted
+                                               vs actual ground reaction and l, QP status, tightest row
+
+Settings of every subcommand: ``--observer on|off`` (the controller's disturbance observer; default:
+config/controller.yaml) and ``--set KEY=VALUE`` (repeatable) for any key of config/controller.yaml
+(except ``mode``: the subcommand chooses it) or config/simulator.yaml, e.g. ``--set margin_zmp=0.0
+--set Kp=900 --set push_height=0.0``. Values are parsed as YAML scalars (``0.0``, ``900``, ``false``).
+The effective controller and simulator settings and the overrides are printed and stored in the JSON,
+so every table says exactly what it ran.
 
 Every subcommand prints a table and, with ``--json FILE``, writes its numbers. Everything is
 deterministic (the simulator and the controller are); the functions are importable (tests, benchmarks).
@@ -30,18 +40,21 @@ import multiprocessing as mp
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
-from biped_sim.description import RobotDescription, load_description
-from biped_sim.simulator import SimConfig, load_sim_config
-
-from .controller import MODES, load_controller_config
+from biped_sim.description import LEFT, RobotDescription, load_description
 from biped_sim.gait_family import GaitFamily
-from .qp import STATUS_NAMES
+from biped_sim.simulator import SimConfig, SimConfigError, Simulator, load_sim_config
+
 from . import runner
+from .controller import (MODES, NO_ADAPTATION, AdaptiveController, ControllerConfig, ControllerConfigError,
+                         load_controller_config)
+from .model import CONSTRAINT_NAMES
+from .qp import STATUS_NAMES
 from .runner import PushSpec, RunResult
 
 #: The paper's largest survivable push [N] (250 N-class push on the back during 0.025 s at mid-step);
@@ -77,14 +90,116 @@ def context() -> Context:
     return Context(load_description(), GaitFamily.load(), load_sim_config())
 
 
-def _run(steps: int, mode: str, pushes: tuple[PushSpec, ...] = (), *, integration_rate: bool = False,
-         observer: bool | None = None, keep_qp: bool = False) -> RunResult:
-    ctx = context()
-    overrides = {"mode": mode, "period": ctx.sim_config.control_period}
+# ------------------------------------------------------------------------------------------ settings
+class OverrideError(ValueError):
+    """A ``--set``/``--observer`` override names an unknown key, is malformed, or contradicts another one
+    (the message names the key)."""
+
+
+#: keys ``--set`` may override: every ControllerConfig field but ``mode`` (chosen by the subcommand) and
+#: ``period`` (it is the simulator's ``control_period``), and every SimConfig field
+CONTROLLER_KEYS: tuple[str, ...] = tuple(k for k in ControllerConfig.__dataclass_fields__ if k not in ("mode", "period"))
+SIMULATOR_KEYS: tuple[str, ...] = tuple(SimConfig.__dataclass_fields__)
+
+
+@functools.lru_cache(maxsize=16)
+def _sim_config(items: tuple[tuple[str, object], ...]) -> SimConfig:
+    return context().sim_config if not items else load_sim_config(**dict(items))
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Overrides of config/controller.yaml and config/simulator.yaml for a run (hashable, picklable: it
+    travels to the worker processes). Empty = the config files as they are."""
+
+    controller: tuple[tuple[str, object], ...] = ()
+    simulator: tuple[tuple[str, object], ...] = ()
+
+    def sim_config(self) -> SimConfig:
+        return _sim_config(self.simulator)
+
+    def ctrl_config(self, mode: str) -> ControllerConfig:
+        """The controller settings for ``mode``; the period is the simulator's control period."""
+        return load_controller_config(mode=mode, period=self.sim_config().control_period, **dict(self.controller))
+
+    def describe(self) -> dict:
+        """JSON-ready: the overrides and the effective settings (every key of both files)."""
+        ctrl = asdict(self.ctrl_config(MODES[0]))
+        del ctrl["mode"]
+        return {"overrides": {**dict(self.controller), **dict(self.simulator)},
+                "controller": ctrl, "simulator": asdict(self.sim_config())}
+
+
+def _parse_value(key: str, text: str) -> object:
+    try:
+        v = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise OverrideError(f"--set {key}={text}: the value does not parse: {exc}") from exc
+    if not isinstance(v, (bool, int, float)):
+        raise OverrideError(f"--set {key}={text}: expected a number or true/false, got {text!r}")
+    return v
+
+
+def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | bool | None = None) -> RunSettings:
+    """``RunSettings`` from ``KEY=VALUE`` strings and the observer switch ("on"/"off"/bool/None = config
+    file). Raises :class:`OverrideError` naming an unknown or repeated key or a malformed item; a value
+    out of range raises the config's own error (ControllerConfigError / SimConfigError, naming the key)
+    when :func:`check_settings` builds the configs."""
+    ctrl: dict[str, object] = {}
+    sim: dict[str, object] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise OverrideError(f"--set expects KEY=VALUE, got {item!r}")
+        if key in ctrl or key in sim:
+            raise OverrideError(f"--set {key}: given twice")
+        if key in CONTROLLER_KEYS:
+            ctrl[key] = _parse_value(key, text)
+        elif key in SIMULATOR_KEYS:
+            sim[key] = _parse_value(key, text)
+        elif key in ("mode", "period"):
+            raise OverrideError(f"--set {key}: not overridable here ("
+                                + ("use the subcommand's --mode" if key == "mode" else "set control_period")
+                                + ")")
+        else:
+            raise OverrideError(f"--set {key}: unknown setting {key!r}; controller keys: {', '.join(CONTROLLER_KEYS)}; "
+                                f"simulator keys: {', '.join(SIMULATOR_KEYS)}")
     if observer is not None:
-        overrides["disturbance_observer"] = observer
-    ccfg = load_controller_config(**overrides)
-    return runner.run(steps=steps, mode=mode, pushes=pushes, sim_config=ctx.sim_config, ctrl_config=ccfg,
+        on = observer if isinstance(observer, bool) else {"on": True, "off": False}.get(str(observer))
+        if on is None:
+            raise OverrideError(f"--observer must be on or off, got {observer!r}")
+        if "disturbance_observer" in ctrl and ctrl["disturbance_observer"] != on:
+            raise OverrideError("disturbance_observer: --observer and --set disagree")
+        ctrl["disturbance_observer"] = on
+    return RunSettings(tuple(sorted(ctrl.items())), tuple(sorted(sim.items())))
+
+
+def check_settings(settings: RunSettings) -> dict:
+    """Build both configs once (a bad value raises the config's error naming the key); the description."""
+    return settings.describe()
+
+
+def print_settings(desc: dict) -> None:
+    ov = desc["overrides"]
+    print("overrides: " + (", ".join(f"{k}={v}" for k, v in ov.items()) if ov else "none (config files as they are)"))
+    c = desc["controller"]
+    print("controller: " + ", ".join(f"{k}={c[k]}" for k in c))
+    s = desc["simulator"]
+    print("simulator: " + ", ".join(f"{k}={s[k]}" for k in s))
+
+
+DEFAULT_SETTINGS = RunSettings()
+
+
+def _run(steps: int, mode: str, pushes: tuple[PushSpec, ...] = (), *, integration_rate: bool = False,
+         observer: bool | None = None, keep_qp: bool = False, settings: RunSettings = DEFAULT_SETTINGS) -> RunResult:
+    ctx = context()
+    if observer is not None:
+        settings = RunSettings(tuple(sorted({**dict(settings.controller), "disturbance_observer": observer}.items())),
+                               settings.simulator)
+    ccfg = settings.ctrl_config(mode)
+    return runner.run(steps=steps, mode=mode, pushes=pushes, sim_config=settings.sim_config(), ctrl_config=ccfg,
                       family=ctx.family, desc=ctx.desc, integration_rate=integration_rate, keep_qp=keep_qp)
 
 
@@ -118,7 +233,7 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
         "fall_cause": result.fall_cause,
         "fall_detail": result.fall_detail,
         "fall_time": None if math.isnan(result.fall_time) else float(result.fall_time),
-        "sim_time": float(t[-1] + context().sim_config.control_period) if len(t) else 0.0,
+        "sim_time": float(rec[-1].t_end) if rec else 0.0,
         "max_tracking_error": float(err.max()) if err.size else 0.0,
         "max_tracking_error_before_first_impact": float(err[t < first].max()) if np.any(t < first) else 0.0,
         "max_tracking_error_after_first_impact": float(err[t >= first].max()) if np.any(t >= first) else 0.0,
@@ -140,12 +255,12 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
 
 
 # ------------------------------------------------------------------------------------------ walk
-def walk(steps: int = 10, mode: str = "both") -> dict:
+def walk(steps: int = 10, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS) -> dict:
     """Undisturbed walking, controller at the integration rate and at the control period (ZOH)."""
     out = {"steps": steps, "mode": mode, "explanation": ZOH_EXPLANATION}
     for key, ir in (("integration_rate", True), ("zoh", False)):
         t0 = time.perf_counter()
-        res = _run(steps, mode, integration_rate=ir)
+        res = _run(steps, mode, integration_rate=ir, settings=settings)
         s = summarize(res)
         s["wall_time"] = time.perf_counter() - t0
         out[key] = s
@@ -173,11 +288,12 @@ def push_step_index(start: float, duration: float, T: float) -> int:
 
 
 def push_run(force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, mode: str = "both",
-             height: float | None = None, steps_after: int = SURVIVAL_STEPS, keep_qp: bool = False) -> RunResult:
+             height: float | None = None, steps_after: int = SURVIVAL_STEPS, keep_qp: bool = False,
+             settings: RunSettings = DEFAULT_SETTINGS) -> RunResult:
     """One push (+ forward, i.e. on the back), then ``steps_after`` more steps."""
     T = context().family.T
     steps = push_step_index(start, duration, T) + 1 + steps_after
-    return _run(steps, mode, (PushSpec(start, duration, float(force), height),), keep_qp=keep_qp)
+    return _run(steps, mode, (PushSpec(start, duration, float(force), height),), keep_qp=keep_qp, settings=settings)
 
 
 def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STEPS) -> tuple[bool, str]:
@@ -197,8 +313,9 @@ def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STE
 
 
 def push_experiment(force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
-                    mode: str = "both", height: float | None = None, figures: str | Path | None = None) -> dict:
-    res = push_run(force, duration, start, mode, height)
+                    mode: str = "both", height: float | None = None, figures: str | Path | None = None,
+                    settings: RunSettings = DEFAULT_SETTINGS) -> dict:
+    res = push_run(force, duration, start, mode, height, settings=settings)
     ok, why = survival(res, start + duration)
     s = summarize(res, push_end=start + duration)
     out = {"force": force, "duration": duration, "start": start, "mode": mode, "height": height,
@@ -317,9 +434,9 @@ def push_figures(result: RunResult, outdir: Path, start: float, duration: float,
 
 # ------------------------------------------------------------------------------------------ max push
 def survives(force: float, mode: str, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
-             height: float | None = None) -> dict:
+             height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS) -> dict:
     """One survival trial (JSON-ready): force, survived, reason, and a few numbers."""
-    res = push_run(force, duration, start, mode, height)
+    res = push_run(force, duration, start, mode, height, settings=settings)
     ok, why = survival(res, start + duration)
     return {"force": float(force), "mode": mode, "survived": ok, "reason": why,
             "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
@@ -352,13 +469,13 @@ def analyse_coarse(trials: list[dict]) -> tuple[float, float | None, list[float]
 
 def bisect_edge(mode: str, lo: float, hi: float, resolution: float, duration: float = DEFAULT_DURATION,
                 start: float = DEFAULT_START, height: float | None = None, progress=None,
-                sign: float = 1.0) -> tuple[float, float, list[dict]]:
+                sign: float = 1.0, settings: RunSettings = DEFAULT_SETTINGS) -> tuple[float, float, list[dict]]:
     """Bisect the force magnitudes [lo (survives), hi (fails)] down to ``resolution`` [N]; the push is
     applied with ``sign`` (+1 forward). Returns (lo, hi, trials)."""
     trials = []
     while hi - lo > resolution:
         mid = 0.5 * (lo + hi)
-        r = dict(survives(sign * mid, mode, duration, start, height), force=mid)
+        r = dict(survives(sign * mid, mode, duration, start, height, settings), force=mid)
         trials.append(r)
         if progress:
             progress()
@@ -370,8 +487,8 @@ def bisect_edge(mode: str, lo: float, hi: float, resolution: float, duration: fl
 
 
 def _bisect_task(args: tuple) -> tuple[str, float, float, list[dict]]:
-    mode, lo, hi, resolution, duration, start, height, sign = args
-    a, b, tr = bisect_edge(mode, lo, hi, resolution, duration, start, height, sign=sign)
+    mode, lo, hi, resolution, duration, start, height, sign, settings = args
+    a, b, tr = bisect_edge(mode, lo, hi, resolution, duration, start, height, sign=sign, settings=settings)
     return mode, a, b, tr
 
 
@@ -420,11 +537,14 @@ def _worker_init() -> None:
 
 def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float = 2000.0, coarse: float = 50.0,
                    duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, height: float | None = None,
-                   workers: int = 1, progress: bool = True, sign: float = 1.0) -> dict[str, dict]:
+                   workers: int = 1, progress: bool = True, sign: float = 1.0,
+                   settings: RunSettings = DEFAULT_SETTINGS) -> dict[str, dict]:
     """Largest survivable push for each mode: coarse scan (all modes' trials together, over a pool of
-    ``workers`` processes), then a bisection of each mode's lowest failing edge (modes in parallel)."""
+    ``workers`` processes), then a bisection of each mode's lowest failing edge (modes in parallel).
+    Every result carries ``settings`` (the overrides and the effective controller/simulator settings)."""
+    described = check_settings(settings)   # a bad override fails here, before any worker starts
     forces = coarse_forces(fmax, coarse)
-    tasks = [(sign * f, m, duration, start, height) for m in modes for f in forces]
+    tasks = [(sign * f, m, duration, start, height, settings) for m in modes for f in forces]
     bis_est = len(modes) * max(0, math.ceil(math.log2(max(coarse / resolution, 1.0))))
     bar = Progress(len(tasks) + bis_est, "max-push " + ",".join(modes), progress)
     coarse_res: list[dict] = []
@@ -441,15 +561,15 @@ def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float 
             lo, hi, isl = analyse_coarse(tr)
             per_mode[m] = (tr, lo, hi, isl)
             if hi is not None:
-                bis_tasks.append((m, lo, hi, resolution, duration, start, height, sign))
+                bis_tasks.append((m, lo, hi, resolution, duration, start, height, sign, settings))
         bis_out = {}
         if pool and len(bis_tasks) > 1:
             for mode, lo, hi, tr in pool.imap(_bisect_task, bis_tasks):
                 bis_out[mode] = (lo, hi, tr)
                 bar(len(tr))
         else:
-            for (m, lo, hi, res_, d, s0, h, sg) in bis_tasks:
-                bis_out[m] = bisect_edge(m, lo, hi, res_, d, s0, h, progress=bar, sign=sg)
+            for (m, lo, hi, res_, d, s0, h, sg, st) in bis_tasks:
+                bis_out[m] = bisect_edge(m, lo, hi, res_, d, s0, h, progress=bar, sign=sg, settings=st)
     finally:
         if pool:
             pool.close()
@@ -464,6 +584,7 @@ def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float 
             bt = []
         results[m] = _result_for(m, tr, lo, hi, bt, isl, fmax, resolution, coarse)
         results[m]["direction"] = "forward" if sign > 0 else "backward"
+        results[m].update(duration=duration, start=start, height=height, settings=described)
     return results
 
 
@@ -493,10 +614,113 @@ def print_max_push(results: dict[str, dict]) -> None:
         isl = ", ".join(f"{x:g}" for x in r["islands"]) or "-"
         print(f"{m:<6} {r['max_force']:13g} {ff:>14} {paper:>9} {isl:<24} {r['failure_cause'] or '-'}")
     r0 = next(iter(results.values()))
-    print(f"(push {r0['direction']} for {DEFAULT_DURATION if 'duration' not in r0 else r0['duration']:g} s; "
+    h = r0["settings"]["simulator"]["push_height"] if r0["height"] is None else r0["height"]
+    print(f"(push {r0['direction']} for {r0['duration']:g} s from t = {r0['start']:g} s at {h:g} m above the hip; "
           f"coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, edge bisected to {r0['resolution']:g} N; "
           f"survival = no fall for {SURVIVAL_STEPS} steps after the push, |p - p_d| <= {P_TOL} m and "
           f"|tau' - 1| <= {TAU_DOT_TOL} at the end)")
+
+
+# ------------------------------------------------------------------------------------------ probe
+@dataclass(frozen=True)
+class ProbeResult:
+    """A closed-loop run plus what ``runner.run`` does not return: the controller's force estimate."""
+
+    result: RunResult
+    force_estimate: np.ndarray    # (N,) the observer's horizontal torso force at each period [N] (0 when off)
+
+
+def probe_run(force: float, mode: str = "both", duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
+              height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS,
+              until: float | None = None, steps: int | None = None) -> ProbeResult:
+    """The closed loop of ``runner.run`` (same order of calls, so bit-identical records; tested) with one
+    push, also recording ``AdaptiveController.force_estimate`` after each decision. Stops at a fall, after
+    ``steps`` impacts (default: as ``push_run``), or once the simulated time reaches ``until`` [s]."""
+    ctx = context()
+    scfg = settings.sim_config()
+    ccfg = settings.ctrl_config(mode)
+    n_steps = steps if steps is not None else push_step_index(start, duration, ctx.family.T) + 1 + SURVIVAL_STEPS
+    sim = Simulator(ctx.desc, scfg)
+    ctrl = AdaptiveController(ccfg, ctx.family, ctx.desc)
+    q0, qd0 = ctx.family.initial_state()
+    sim.reset(q0, qd0, LEFT)
+    ctrl.reset(LEFT)
+    sim.schedule_push(start, duration, float(force), height)
+    limit = until if until is not None else (n_steps + 3) * ctx.family.T * 3
+    records, statuses, est = [], [], []
+    while True:
+        obs = sim.observe()
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance)
+        statuses.append(out.status)
+        est.append(ctrl.force_estimate)
+        rec = sim.step(out.torque)
+        records.append(rec)
+        if rec.fallen or sim.fall is not None or sim.impact_count >= n_steps or sim.t >= limit:
+            break
+    fall = sim.fall
+    res = RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count, fallen=fall is not None,
+                    fall_cause=fall.cause if fall else "", fall_detail=fall.detail if fall else "",
+                    fall_time=fall.t if fall else math.nan, impacts=list(sim.impact_log))
+    return ProbeResult(res, np.array(est))
+
+
+def _status_name(code: int) -> str:
+    return STATUS_NAMES.get(code, "NO_ADAPTATION" if code == NO_ADAPTATION else str(code))
+
+
+def probe(force: float, mode: str = "both", duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
+          height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS, before: float = 0.002,
+          after: float = 0.010) -> dict:
+    """One push seen from the controller, period by period over [start - before, end + after] (or to the
+    fall). Per period (values at its start t): the true push and the observer's estimate [N]; the QP
+    status; the tightest of the 17 true rows (margins scaled by the model's row scales, evaluated with the
+    controller's predicted reaction) and its margin; the predicted ground reaction R (the controller's
+    B w + h_b, with the estimate when the observer is on) against the simulator's actual wrench (F_x, F_z)
+    under the same torque and push [N]; l predicted (Gamma_1 / R_y predicted) and actual (m / F_z) [m];
+    p'' [m/s^2] and tau'' [1/s]. Plus the survival verdict of the full run (up to SURVIVAL_STEPS after)."""
+    pr = probe_run(force, mode, duration, start, height, settings)
+    res = pr.result
+    end = start + duration
+    ok, why = survival(res, end)
+    rows = []
+    for k, (rec, st) in enumerate(zip(res.records, res.statuses)):
+        if rec.t < start - before - 1e-12 or rec.t > end + after + 1e-12:
+            continue
+        i = int(st.tightest)
+        rows.append({
+            "t": float(rec.t), "push": float(rec.push_force), "estimate": float(pr.force_estimate[k]),
+            "qp_status": _status_name(st.qp_status), "tightest": CONSTRAINT_NAMES[i],
+            "tightest_margin": float(st.margins[i]),
+            "R_pred": [float(st.predicted_reaction[0]), float(st.predicted_reaction[1])],
+            "R_act": [float(rec.wrench[0]), float(rec.wrench[1])],
+            "l_pred": float(st.zmp), "l_act": float(rec.cop),
+            "p_ddot": float(st.p_ddot), "tau_ddot": float(st.tau_ddot), "p": float(st.p), "tau_dot": float(st.tau_dot),
+        })
+    during = [r for r in rows if start <= r["t"] < end]
+    return {
+        "force": float(force), "mode": mode, "duration": duration, "start": start, "height": height,
+        "settings": check_settings(settings), "survived": ok, "reason": why,
+        "fall_cause": res.fall_cause or None, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+        "fall_detail": res.fall_detail or None,
+        "max_l_error_during_push": max((abs(r["l_act"] - r["l_pred"]) for r in during), default=None),
+        "periods": rows,
+    }
+
+
+def print_probe(r: dict) -> None:
+    print(f"probe: {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s, mode {r['mode']}: "
+          f"{'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
+    if r["fall_detail"]:
+        print(f"  fall: {r['fall_detail']}")
+    print(f"{'t [s]':>7} {'push':>6} {'F_est':>7} {'QP':>13} {'tightest':>15} {'margin':>8} {'Rx pred':>8} {'Rx act':>8} "
+          f"{'Ry pred':>8} {'Ry act':>8} {'l pred':>7} {'l act':>7} {'p_dd':>8} {'tau_dd':>8} {'p':>7} {'tau_d':>6}")
+    for x in r["periods"]:
+        print(f"{x['t']:7.4f} {x['push']:6.1f} {x['estimate']:7.1f} {x['qp_status']:>13} {x['tightest']:>15} "
+              f"{x['tightest_margin']:8.2f} {x['R_pred'][0]:8.1f} {x['R_act'][0]:8.1f} {x['R_pred'][1]:8.1f} "
+              f"{x['R_act'][1]:8.1f} {x['l_pred']:7.4f} {x['l_act']:7.4f} {x['p_ddot']:8.3f} {x['tau_ddot']:8.3f} "
+              f"{x['p']:7.4f} {x['tau_dot']:6.3f}")
+    if r["max_l_error_during_push"] is not None:
+        print(f"max |l act - l pred| during the push: {r['max_l_error_during_push']:.4f} m")
 
 
 # ------------------------------------------------------------------------------------------ CLI
@@ -515,6 +739,14 @@ def _dump(path: Path | None, data: dict) -> None:
     path.write_text(json.dumps(data, indent=1, default=conv) + "\n", encoding="utf-8")
 
 
+def _add_settings_args(a: argparse.ArgumentParser) -> None:
+    a.add_argument("--observer", choices=("on", "off"), default=None,
+                   help="the controller's disturbance observer (default: config/controller.yaml); "
+                        "off = the paper's controller as published")
+    a.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a key of config/controller.yaml or config/simulator.yaml (repeatable)")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="scripts/experiment", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -523,14 +755,22 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--steps", type=int, default=10)
     a.add_argument("--mode", choices=MODES, default="both")
     a.add_argument("--json", type=Path)
-    a = sub.add_parser("push", help="one push, with figures like the paper's Figs. 3-7")
-    a.add_argument("--force", type=float, default=250.0, help="[N], + forward (on the back)")
-    a.add_argument("--duration", type=float, default=DEFAULT_DURATION)
-    a.add_argument("--start", type=float, default=DEFAULT_START)
-    a.add_argument("--height", type=float, default=None, help="above the hip [m] (default: config/simulator.yaml)")
-    a.add_argument("--mode", choices=MODES, default="both")
-    a.add_argument("--figures", type=Path, help="directory for the PNG figures")
-    a.add_argument("--json", type=Path)
+    _add_settings_args(a)
+    for name, hlp in (("push", "one push, with figures like the paper's Figs. 3-7"),
+                      ("probe", "one push: the controller's view period by period while it acts")):
+        a = sub.add_parser(name, help=hlp)
+        a.add_argument("--force", type=float, default=250.0, help="[N], + forward (on the back)")
+        a.add_argument("--duration", type=float, default=DEFAULT_DURATION)
+        a.add_argument("--start", type=float, default=DEFAULT_START)
+        a.add_argument("--height", type=float, default=None,
+                       help="above the hip [m] (default: push_height of config/simulator.yaml)")
+        a.add_argument("--mode", choices=MODES, default="both")
+        if name == "push":
+            a.add_argument("--figures", type=Path, help="directory for the PNG figures")
+        else:
+            a.add_argument("--after", type=float, default=0.010, help="print this long after the push end [s]")
+        a.add_argument("--json", type=Path)
+        _add_settings_args(a)
     for name, hlp in (("max-push", "largest survivable push for one mode"), ("table", "max-push for all four modes")):
         a = sub.add_parser(name, help=hlp)
         if name == "max-push":
@@ -540,29 +780,44 @@ def main(argv: list[str] | None = None) -> int:
         a.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
         a.add_argument("--duration", type=float, default=DEFAULT_DURATION)
         a.add_argument("--start", type=float, default=DEFAULT_START)
+        a.add_argument("--height", type=float, default=None,
+                       help="above the hip [m] (default: push_height of config/simulator.yaml)")
         a.add_argument("--backward", action="store_true", help="push backwards (on the chest) instead")
         a.add_argument("--workers", type=int, default=1, help="processes (each builds its own models)")
         a.add_argument("--json", type=Path)
+        _add_settings_args(a)
     args = ap.parse_args(argv)
+    try:
+        settings = parse_overrides(args.overrides, args.observer)
+        described = check_settings(settings)
+    except (OverrideError, ControllerConfigError, SimConfigError) as exc:
+        ap.error(str(exc))
+    print(f"scripts/experiment {' '.join(sys.argv[1:] if argv is None else argv)}")
+    print_settings(described)
     if args.cmd == "walk":
-        r = walk(args.steps, args.mode)
+        r = walk(args.steps, args.mode, settings)
         print_walk(r)
     elif args.cmd == "push":
-        r = push_experiment(args.force, args.duration, args.start, args.mode, args.height, args.figures)
+        r = push_experiment(args.force, args.duration, args.start, args.mode, args.height, args.figures, settings)
         print_push(r)
+    elif args.cmd == "probe":
+        r = probe(args.force, args.mode, args.duration, args.start, args.height, settings, after=args.after)
+        print_probe(r)
     else:
         modes = (args.mode,) if args.cmd == "max-push" else ("none", "tau", "p", "both")
         t0 = time.perf_counter()
         res = max_push_modes(modes, args.resolution, args.max, args.coarse, args.duration, args.start,
-                             workers=max(1, args.workers), sign=-1.0 if args.backward else 1.0)
-        for v in res.values():
-            v["duration"] = args.duration
+                             height=args.height, workers=max(1, args.workers),
+                             sign=-1.0 if args.backward else 1.0, settings=settings)
         print_max_push(res)
         r = {"modes": res, "wall_time": time.perf_counter() - t0}
         if args.cmd == "table":
             r["ordering"] = ordering_finding(res)
             print(r["ordering"])
         print(f"wall time {r['wall_time']:.1f} s")
+    if isinstance(r, dict):
+        r["settings"] = described
+        r["argv"] = list(sys.argv[1:] if argv is None else argv)
     _dump(args.json, r)
     return 0
 

@@ -1,0 +1,162 @@
+"""scripts/experiment settings: the observer switch and ``--set`` overrides reach the closed loop, bad
+overrides are rejected naming the key, and a cheap max-push search returns a consistent structure.
+
+Oracles, independent of the experiment's bookkeeping:
+- the observer switch: the controller's own ``force_estimate`` during a push (0 when off, the push's
+  size when on), and the simulator's actual ground reaction against the controller's prediction (the
+  observer exists to close that gap);
+- the probe loop against ``runner.run`` (bit-identical records: the probe adds a recording, not a
+  different loop);
+- a simulator override against the same run with the value given explicitly;
+- a search result against a trial recomputed in this process with the same settings.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import helpers
+from biped_controller import experiment as ex
+from biped_controller import runner
+from biped_controller.controller import ControllerConfigError, load_controller_config
+from biped_controller.runner import PushSpec
+from biped_sim.simulator import SimConfigError, load_sim_config
+
+START, DURATION, FORCE = ex.DEFAULT_START, ex.DEFAULT_DURATION, 250.0
+
+
+def _in_push(t: float) -> bool:
+    return START <= t < START + DURATION
+
+
+# ------------------------------------------------------------------------------------------ parsing
+def test_overrides_reach_both_configs_and_leave_the_rest_as_the_files():
+    s = ex.parse_overrides(["Kp=900", "margin_zmp=0.0", "push_height=0.0", "disturbance_observer=true"])
+    c = s.ctrl_config("p")
+    file_c = load_controller_config(mode="p")
+    assert (c.Kp, c.margin_zmp, c.disturbance_observer, c.mode) == (900, 0.0, True, "p")
+    for k in ex.CONTROLLER_KEYS:
+        if k not in ("Kp", "margin_zmp", "disturbance_observer"):
+            assert getattr(c, k) == getattr(file_c, k), k
+    sim, file_s = s.sim_config(), load_sim_config()
+    assert sim.push_height == 0.0 and file_s.push_height != 0.0
+    assert c.period == sim.control_period
+    d = s.describe()
+    assert d["overrides"] == {"Kp": 900, "margin_zmp": 0.0, "push_height": 0.0, "disturbance_observer": True}
+    assert d["controller"]["Kp"] == 900 and d["simulator"]["push_height"] == 0.0
+    assert ex.parse_overrides([], "off").ctrl_config("both").disturbance_observer is False
+    assert ex.parse_overrides([], "on").ctrl_config("both").disturbance_observer is True
+    assert ex.parse_overrides([], None) == ex.DEFAULT_SETTINGS
+
+
+@pytest.mark.parametrize("item, observer, needle", [
+    (["no_such_key=1"], None, "no_such_key"),
+    (["Kp"], None, "KEY=VALUE"),
+    (["mode=p"], None, "mode"),
+    (["Kp=1", "Kp=2"], None, "Kp: given twice"),
+    (["push_height=abc"], None, "push_height"),
+    (["disturbance_observer=true"], "off", "disturbance_observer"),
+    ([], "maybe", "--observer"),
+])
+def test_bad_overrides_are_rejected_naming_the_key(item, observer, needle):
+    with pytest.raises(ex.OverrideError, match=needle):
+        ex.parse_overrides(item, observer)
+
+
+def test_out_of_range_values_are_rejected_by_the_configs_naming_the_key():
+    with pytest.raises(ControllerConfigError, match="Kp"):
+        ex.check_settings(ex.parse_overrides(["Kp=-1"]))
+    with pytest.raises(SimConfigError, match="substeps"):
+        ex.check_settings(ex.parse_overrides(["substeps=0"]))
+
+
+def test_cli_rejects_an_unknown_key_with_its_name(capsys):
+    with pytest.raises(SystemExit) as e:
+        ex.main(["table", "--set", "no_such_key=1"])
+    assert e.value.code == 2
+    assert "no_such_key" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------ closed loop
+def test_probe_loop_is_the_runner_loop():
+    s = ex.parse_overrides([], "on")
+    until = START + DURATION + 0.005
+    pr = ex.probe_run(FORCE, "both", settings=s, until=until)
+    ref = runner.run(steps=11, mode="both", pushes=(PushSpec(START, DURATION, FORCE),), sim_config=s.sim_config(),
+                     ctrl_config=s.ctrl_config("both"), family=ex.context().family, desc=ex.context().desc,
+                     max_time=until)
+    helpers.assert_same_run(pr.result, ref)
+    assert len(pr.force_estimate) == len(pr.result.records)
+
+
+def test_observer_switch_reaches_the_controller():
+    """Off: the controller's estimate is exactly 0 throughout the push, and its predicted vertical reaction
+    misses the simulator's by more than 5 N. On: after the first period of the push (one period of lag)
+    the estimate is within 10 % of the push and the prediction within 1 N of the simulator's reaction."""
+    until = START + DURATION
+    off = ex.probe_run(FORCE, "both", settings=ex.parse_overrides([], "off"), until=until)
+    on = ex.probe_run(FORCE, "both", settings=ex.parse_overrides([], "on"), until=until)
+    for pr, label in ((off, "off"), (on, "on")):
+        t = np.array([r.t for r in pr.result.records])
+        assert np.count_nonzero([_in_push(x) for x in t]) >= 15, f"observer {label}: the push must be observed"
+    t_off = np.array([r.t for r in off.result.records])
+    assert np.all(off.force_estimate == 0.0)
+    gap_off = [abs(s.predicted_reaction[1] - r.wrench[1])
+               for s, r in zip(off.result.statuses, off.result.records) if _in_push(r.t) and r.t >= START + 0.002]
+    assert gap_off and min(gap_off) > 5.0, gap_off
+    est_on = [f for f, r in zip(on.force_estimate, on.result.records) if _in_push(r.t) and r.t >= START + 0.002]
+    assert est_on
+    helpers.assert_close(est_on, np.full(len(est_on), FORCE), 0.1 * FORCE, "observer estimate during the push")
+    gap_on = [abs(s.predicted_reaction[1] - r.wrench[1])
+              for s, r in zip(on.result.statuses, on.result.records) if _in_push(r.t) and r.t >= START + 0.002]
+    assert max(gap_on) < 1.0, gap_on
+    # before the push both runs are the same run (the observer sees a zero residual up to round-off)
+    before = t_off < START
+    assert np.count_nonzero(before) > 100
+    helpers.assert_close([r.q for r, b in zip(off.result.records, before) if b],
+                         [r.q for r, b in zip(on.result.records, before) if b], 1e-9, "q before the push")
+
+
+def test_simulator_override_is_the_same_as_the_explicit_value():
+    """--set push_height=0.0 (push at the hip) gives the run with the push height given explicitly, and a
+    different run from the default height (the override is not ignored)."""
+    until = START + 0.010
+    over = ex.probe_run(FORCE, "both", settings=ex.parse_overrides(["push_height=0.0"]), until=until)
+    explicit = ex.probe_run(FORCE, "both", height=0.0, until=until)
+    default = ex.probe_run(FORCE, "both", until=until)
+    helpers.assert_same_run(over.result, explicit.result)
+    diff = max(float(np.max(np.abs(a.q - b.q))) for a, b in zip(over.result.records, default.result.records))
+    assert diff > 1e-6
+
+
+# ------------------------------------------------------------------------------------------ search
+def test_cheap_search_is_consistent_and_says_what_it_ran(tmp_path, capsys):
+    out = tmp_path / "mp.json"
+    rc = ex.main(["max-push", "--mode", "none", "--max", "50", "--coarse", "50", "--resolution", "25",
+                  "--observer", "off", "--set", "Kp=900", "--set", "Kv=60", "--workers", "2", "--json", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "Kp=900" in printed and "disturbance_observer=False" in printed
+    data = json.loads(out.read_text())
+    assert data["settings"]["overrides"] == {"Kp": 900, "Kv": 60, "disturbance_observer": False}
+    r = data["modes"]["none"]
+    assert r["settings"]["controller"]["Kp"] == 900 and r["settings"]["controller"]["disturbance_observer"] is False
+    trials = r["trials"]
+    assert trials and [x["force"] for x in trials] == sorted(x["force"] for x in trials)
+    by_force = {x["force"]: x for x in trials}
+    assert set(by_force) >= {50.0}
+    if r["first_failure"] is None:           # survived everything scanned
+        assert all(x["survived"] for x in trials) and r["max_force"] == 50.0
+    else:
+        assert not by_force[r["first_failure"]]["survived"]
+        assert 0 < r["first_failure"] - r["max_force"] <= 25.0
+        assert r["max_force"] == 0.0 or by_force[r["max_force"]]["survived"]
+    for x in trials:
+        assert x["survived"] == (x["reason"] == "survived")
+        assert x["survived"] or x["reason"]
+    # a trial recomputed here with the same settings gives the same verdict (the settings reached the workers)
+    s = ex.parse_overrides(["Kp=900", "Kv=60"], "off")
+    again = ex.survives(50.0, "none", settings=s)
+    assert (again["survived"], again["reason"]) == (by_force[50.0]["survived"], by_force[50.0]["reason"])
