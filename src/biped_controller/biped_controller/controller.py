@@ -40,6 +40,7 @@ from .model import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows
 from .qp import SOLVER_ERROR, AdaptationQP
 
 MODES = ("none", "tau", "p", "both")
+ENGINES = ("fast", "reference")
 # rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,
 # and 3 parameter-range rows (p within the family's range, tau' >= tau_dot_min)
 QP_ROWS = 2 * N_CONSTRAINTS + 3
@@ -69,9 +70,12 @@ class ControllerConfig:
     tau_dot_min: float            # [-] QP keeps tau' (after one period) >= this
     disturbance_observer: bool    # estimate a horizontal torso force (not in the paper) for the QP rows
     observer_height: float        # [m] assumed application height of the estimated force above the hip
+    engine: str                   # "fast": compiled model terms (biped_sim.fast_engine); "reference": Pinocchio
     period: float                 # [s] control period (config/simulator.yaml control_period)
 
     def validate(self) -> "ControllerConfig":
+        if self.engine not in ENGINES:
+            raise ControllerConfigError(f"engine must be one of {ENGINES}, got {self.engine!r}")
         if self.mode not in MODES:
             raise ControllerConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
         for name in ("Kp", "Kv", "kp", "kv", "weight_p", "weight_tau", "period", "tau_dot_min"):
@@ -96,14 +100,16 @@ def load_controller_config(path: str | Path | None = None, **overrides) -> Contr
     """``config/controller.yaml`` (or ``path``) with ``overrides`` applied, validated. ``period`` comes
     from ``config/simulator.yaml`` (control_period) unless overridden."""
     p = Path(path) if path is not None else default_config_dir() / "controller.yaml"
-    keys = [k for k in ControllerConfig.__dataclass_fields__ if k != "period"]
+    keys = [k for k in ControllerConfig.__dataclass_fields__ if k not in ("period", "engine")]
     try:
         kw = read_settings(p, keys)
     except SettingsError as exc:
         raise ControllerConfigError(str(exc)) from exc
-    if "period" not in overrides:
+    if "period" not in overrides or "engine" not in overrides:
+        # one home for both: the control period and the engine are the simulator's settings
         from biped_sim.simulator import load_sim_config
-        kw["period"] = load_sim_config().control_period
+        sim = load_sim_config()
+        kw["period"], kw["engine"] = sim.control_period, sim.engine
     kw.update(overrides)
     return ControllerConfig(**kw).validate()
 
@@ -183,6 +189,10 @@ class AdaptiveController:
         self.desc = desc if desc is not None else load_description()
         self.family = family if family is not None else GaitFamily.load()
         self.model = FixedFootModel(self.desc)
+        self._fast = None
+        if self.cfg.engine == "fast":
+            from biped_sim.fast_engine import FastFixedFootModel   # compiled kernels only when used
+            self._fast = FastFixedFootModel(self.desc)
         self.keep_qp = keep_qp
         c = self.cfg
         # constraint margins (subtracted from the right-hand side), in the row order of CONSTRAINT_NAMES
@@ -242,18 +252,28 @@ class AdaptiveController:
         x_star = np.array([-c.kv * s.p_dot + c.kp * (fam.p_d - s.p), c.kv * (1.0 - s.tau_dot)])
         return _Reference(D=D, v=v, x_star=x_star, error=e)
 
-    def _observe(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, dyn: Dynamics) -> tuple[Dynamics, float]:
+    def _model_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[Dynamics, np.ndarray | None]:
+        """Eq. (1) and the reaction rows (A, H, B, h_b), and the x-row of the torso point Jacobian at
+        ``observer_height`` when the observer needs it: one compiled call (fast engine) or Pinocchio."""
+        h = self.cfg.observer_height
+        if self._fast is not None:
+            A, H, B, hb, jp = self._fast.terms(q, qd, h)
+            return Dynamics(A=A, H=H, B=B, h_b=hb), jp
+        dyn = self.model.dynamics(q, qd)
+        jp = self.model.torso_point_jacobian(q, h)[0] if self.cfg.disturbance_observer else None
+        return dyn, jp
+
+    def _observe(self, t: float, qd: np.ndarray, stance: int, dyn: Dynamics, Jp: np.ndarray | None
+                 ) -> tuple[Dynamics, float]:
         """Disturbance observer (ours, not the paper's; ``disturbance_observer``): the joint-space residual
         of the last period, r = A (a_measured - w_applied), explained by a horizontal force F on the torso
         at ``observer_height`` (least squares, one unknown): r = J6^T F. F only enters the prediction of
         the ground reaction used by the QP: with F acting, the joint acceleration is w + A^-1 J6^T F, so
         R = B (w + A^-1 J6^T F) + h_b - Jb^T F, i.e. h_b is shifted. One period of lag. Returns the
         dynamics with the shifted h_b (``dyn`` itself when the observer is off) and F [N]."""
-        c = self.cfg
-        if not c.disturbance_observer:
+        if not self.cfg.disturbance_observer:
             return dyn, 0.0
-        Jp = self.model.torso_point_jacobian(q, c.observer_height)[0]   # (9,) x-row
-        j6 = Jp[3:]
+        j6 = Jp[3:]                       # Jp: (9,) x-row of the torso point Jacobian
         F = 0.0
         if self._prev is not None and self._prev.stance != stance:
             # the last period ended with an impact: its residual is meaningless, but a push acting on the
@@ -323,8 +343,8 @@ class AdaptiveController:
         self._advance_parameters(t, stance)
         s = self.state
         ref = self._reference(q, qd)
-        dyn = self.model.dynamics(q, qd)                       # eq. (1): A, H and the reaction rows
-        dyn_c, F = self._observe(t, q, qd, stance, dyn)
+        dyn, jp = self._model_terms(q, qd)                     # eq. (1): A, H and the reaction rows
+        dyn_c, F = self._observe(t, qd, stance, dyn, jp)
         x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c)
         w = ref.D @ x + ref.v                                    # eq. (17)
         torque = dyn.A @ w + dyn.H                               # eq. (15)
@@ -361,5 +381,5 @@ class AdaptiveController:
         qr, qdr, qddr = eq11(self.family.evaluate(p, tau), pdot, taud, p_dd, t_dd)
         c = self.cfg
         w = qddr + c.Kv * (qdr - qd) + c.Kp * (qr - q)
-        dyn = self.model.dynamics(q, qd)
+        dyn, _ = self._model_terms(q, qd)
         return dyn.A @ w + dyn.H

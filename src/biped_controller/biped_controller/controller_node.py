@@ -44,7 +44,7 @@ from biped_sim.node_params import (
 )
 from biped_sim.simulator import load_sim_config
 
-from .controller import MODES, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
+from .controller import ENGINES, MODES, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
 from biped_sim.gait_family import GaitFamily
 
 
@@ -57,6 +57,8 @@ def read_controller_config(node: Node) -> ControllerConfig:
         default = getattr(base, name)
         if name == 'mode':
             kw[name] = get_str(node, name, default, choices=MODES)
+        elif name == 'engine':
+            kw[name] = get_str(node, name, default, choices=ENGINES)
         elif isinstance(default, bool):
             kw[name] = get_bool(node, name, default)
         else:

@@ -41,6 +41,9 @@ from .push import Push, PushBook, PushLimits
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
 
 
+ENGINES = ("fast", "reference")
+
+
 class SimConfigError(ValueError):
     """A simulator setting is missing or out of range (message names it)."""
 
@@ -57,8 +60,11 @@ class SimConfig:
     liftoff_penetration: float       # [m] a released foot sinking deeper than this is a fall
     event_time_tolerance: float      # [s] touchdown time bisection precision
     push_height: float               # [m] default push point above the hip on the torso
+    engine: str                      # "fast": compiled kernels (fast_engine); "reference": Pinocchio
 
     def validate(self) -> "SimConfig":
+        if self.engine not in ENGINES:
+            raise SimConfigError(f"engine must be one of {ENGINES}, got {self.engine!r}")
         if not (math.isfinite(self.control_period) and 0 < self.control_period <= 0.05):
             raise SimConfigError(f"control_period must be in (0, 0.05] s, got {self.control_period}")
         if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 1000):
@@ -81,6 +87,8 @@ def load_sim_config(path: str | Path | None = None, **overrides) -> SimConfig:
         raise SimConfigError(str(exc)) from exc
     kw.update(overrides)
     for k, v in kw.items():
+        if k == "engine":
+            continue
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
             raise SimConfigError(f"{k} must be a finite number, got {v!r} ({p})")
     if float(kw["substeps"]) != int(kw["substeps"]):
@@ -182,7 +190,13 @@ class Simulator:
     def __init__(self, desc: RobotDescription | None = None, config: SimConfig | None = None):
         self.desc = desc if desc is not None else load_description()
         self.cfg = (config if config is not None else load_sim_config()).validate()
-        self.fm = FloatingModel(self.desc)
+        if self.cfg.engine == "fast":
+            from .fast_engine import FastFloatingModel   # loads the compiled kernels only when used
+            self.fm = FastFloatingModel(self.desc)
+        else:
+            self.fm = FloatingModel(self.desc)
+        self._fast = self.cfg.engine == "fast"
+        self._tau_const: np.ndarray | None = None   # the period's held URDF torque (fast RK4 kernel)
         self.book = self._new_book()
         self.x = np.zeros(9)
         self.v = np.zeros(9)
@@ -288,7 +302,11 @@ class Simulator:
         return x, v
 
     def _rk4(self, x, v, tau_src, t, h, pushes):
-        """One RK4 step of length h from time t; ``pushes`` act with a constant force over the step."""
+        """One RK4 step of length h from time t; ``pushes`` act with a constant force over the step.
+        With the fast engine and a held torque, the whole step (and the projection) is one compiled call."""
+        if self._fast and self._tau_const is not None:
+            xn, vn, _ = self.fm.rk4_step(x, v, self._tau_const, pushes, self.stance, self.anchor, h)
+            return xn, vn
         def f(xx, vv, tt):
             tj = tau_src(tt, xx, vv)
             a, _ = self._accel(xx, vv, tj, pushes)
@@ -394,6 +412,7 @@ class Simulator:
         obs_stance = self.stance
         lo_tq, hi_tq = self.desc.torque_limits()
         lo_tq, hi_tq = np.array(lo_tq), np.array(hi_tq)
+        self._tau_const = None
         if callable(torque):
             fn = torque
 
@@ -405,6 +424,7 @@ class Simulator:
         else:
             applied = np.clip(np.asarray(torque, dtype=float), lo_tq, hi_tq)
             tj = urdf_from_paper(applied, obs_stance)
+            self._tau_const = tj
 
             def tau_src(tt, xx, vv):
                 return tj

@@ -79,7 +79,7 @@ from biped_sim.node_params import (
 )
 from biped_sim.node_checks import RobotFilesError, check_urdf_joints
 from biped_sim.push import Rejected
-from biped_sim.simulator import SimConfig, SimConfigError, Simulator, load_sim_config
+from biped_sim.simulator import ENGINES, SimConfig, SimConfigError, Simulator, load_sim_config
 
 SIDES = ('left', 'right')
 WORLD_FRAME = 'world'
@@ -146,6 +146,8 @@ def read_sim_config(node: Node) -> SimConfig:
         default = getattr(base, name)
         if name == 'substeps':
             kw[name] = get_int(node, name, default, lo=1, hi=1000)
+        elif name == 'engine':
+            kw[name] = get_str(node, name, default, choices=ENGINES)
         else:
             kw[name] = get_float(node, name, default)
     try:
