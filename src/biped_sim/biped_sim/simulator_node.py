@@ -234,6 +234,9 @@ class SimulatorNode(Node):
         self.linger = get_float(self, 'linger', 0.5, lo=0.0, hi=60.0)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
         self.wait_for_pushes = get_int(self, 'wait_for_pushes', 0, lo=0)
+        # pacing: 1.0 = sim time follows the wall clock (a live viewer sees real time), 0 = as fast as
+        # the lockstep allows (experiments), r = r x real time
+        self.real_time_factor = get_float(self, 'real_time_factor', 0.0, lo=0.0, hi=1000.0)
 
     # ------------------------------------------------------------------ start
     def _missing_for_start(self) -> list[str]:
@@ -349,6 +352,13 @@ class SimulatorNode(Node):
         c.point.x = anchor_x + (float(rec.cop) if math.isfinite(rec.cop) else 0.0)
         self.pub_cop.publish(c)
 
+    def _pace(self, sim_t: float) -> None:
+        """With real_time_factor r > 0, hold the next state until wall time = start + sim_t / r."""
+        if self.real_time_factor > 0 and self.run_start_wall is not None:
+            ahead = self.run_start_wall + sim_t / self.real_time_factor - time.monotonic()
+            if ahead > 0:
+                time.sleep(ahead)
+
     def _publish_applied_push(self, rec):
         m = AppliedPush()
         m.stamp = stamp_of(rec.t)
@@ -412,6 +422,7 @@ class SimulatorNode(Node):
             self._publish_visuals()
             self._finish(EXIT_OK, f'fall: {f.cause}')
             return
+        self._pace(sim.t)
         self._publish_state()
         self._publish_record(rec, anchor_x)
         self._publish_applied_push(rec)
