@@ -37,6 +37,17 @@ class GaitSample:
     d2q_dp_dtau: np.ndarray
 
 
+def eq11(g: GaitSample, p_dot: float, tau_dot: float, p_ddot: float = 0.0, tau_ddot: float = 0.0
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Paper eq. (11), written once: (q_d, q_d', q_d'') from the partial derivatives at (p, tau),
+    q_d' = dq/dp p' + dq/dtau tau',
+    q_d'' = dq/dp p'' + dq/dtau tau'' + d2q/dp2 p'^2 + d2q/dtau2 tau'^2 + 2 d2q/dpdtau p' tau'."""
+    qd = g.dq_dp * p_dot + g.dq_dtau * tau_dot
+    qdd = (g.dq_dp * p_ddot + g.dq_dtau * tau_ddot + g.d2q_dp2 * p_dot**2 + g.d2q_dtau2 * tau_dot**2
+           + 2.0 * g.d2q_dp_dtau * p_dot * tau_dot)
+    return g.q, qd, qdd
+
+
 class GaitFamily:
     """b_ijk (6 x 5 x 8) with the step duration T, the preferred stride p_d and the valid stride range."""
 
@@ -91,12 +102,8 @@ class GaitFamily:
 
     def reference(self, p: float, p_dot: float, tau: float, tau_dot: float,
                   p_ddot: float = 0.0, tau_ddot: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(q_d, q_d', q_d'') of eq. (11)."""
-        g = self.evaluate(p, tau)
-        qd = g.dq_dp * p_dot + g.dq_dtau * tau_dot
-        qdd = (g.dq_dp * p_ddot + g.dq_dtau * tau_ddot + g.d2q_dp2 * p_dot**2 + g.d2q_dtau2 * tau_dot**2
-               + 2.0 * g.d2q_dp_dtau * p_dot * tau_dot)
-        return g.q, qd, qdd
+        """(q_d, q_d', q_d'') of eq. (11) at (p, tau)."""
+        return eq11(self.evaluate(p, tau), p_dot, tau_dot, p_ddot, tau_ddot)
 
     def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Start of the preferred step, where every run starts: (q_d(p_d, 0), dq_d/dtau(p_d, 0)) [rad,
