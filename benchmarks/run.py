@@ -120,10 +120,10 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     """Replay the recorded states (t, q, q', stance) through fresh controllers.
 
     Pass A (unwrapped): AdaptiveController.compute per step -> total.
-    Pass B (instrumented): the same replay with timers around FixedFootModel.dynamics (model
-    terms), the controller's _constraint_rows, the torso jacobian of the disturbance observer and
-    AdaptationQP.solve, plus, out of band on the same data, the rest of the assembly of eq. (21):
-    G = A D, h = -(A v + b) and the three parameter-range rows.
+    Pass B (instrumented): the same replay with timers around the controller's named steps:
+    _model_terms (A, H, B, h_b and the observer's torso Jacobian row: one compiled call with the fast
+    engine), _qp_rows (the whole assembly of eq. 21) and AdaptationQP.solve; "observer" and "tail" are
+    now inside those (reported as 0).
     Passes repeat the recording until >= min_steps steps each.
     """
     from biped_controller.controller import AdaptiveController, load_controller_config
@@ -174,35 +174,17 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     gc.collect()
     for rep in range(reps):
         ctrl = fresh()
-        wrap(ctrl.model, "dynamics", "model")
-        wrap(ctrl.model, "torso_point_jacobian", "observer")
-        wrap(ctrl, "_constraint_rows", "rows", capture=True)
+        wrap(ctrl, "_model_terms", "model")        # A, H, B, h_b and the observer's Jacobian row
+        wrap(ctrl, "_qp_rows", "rows")              # the whole assembly of eq. (21): G, h
         wrap(ctrl.qp, "solve", "qp", capture=True)
-        dt = ccfg.period
         for t, q, qd, st in states:
-            s = ctrl.state
-            g = family.evaluate(s.p, 0.0 if (ctrl.stance is not None and st != ctrl.stance) else s.tau)
-            D = np.column_stack([g.dq_dp, g.dq_dtau])
-            v = g.d2q_dp2 * s.p_dot ** 2 + ccfg.Kp * (g.q - q)
-            p, p_dot, tau_dot = s.p, s.p_dot, s.tau_dot
             for k in acc:
                 acc[k] = 0
             keep.clear()
             t0 = perf_counter_ns()
             ctrl.compute(t, q, qd, st)
             tot = perf_counter_ns() - t0
-            # the rest of the eq. (21) assembly, as in controller.compute, on this step's A, b
-            A, b, _ = keep["rows"]
-            t1 = perf_counter_ns()
-            Gfull = A @ D
-            hfull = -(A @ v + b)
-            extra_G = np.array([[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]])
-            extra_h = np.array([family.p_max - p - p_dot * dt, p + p_dot * dt - family.p_min,
-                                tau_dot - ccfg.tau_dot_min])
-            Gall = np.vstack([Gfull, extra_G])
-            hall = np.concatenate([hfull, extra_h])
-            tail = perf_counter_ns() - t1
-            del Gall, hall
+            tail = 0   # part of _qp_rows since the controller's steps were split
             for k in acc:
                 piece[k].append(acc[k])
             piece["tail"].append(tail)
