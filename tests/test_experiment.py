@@ -56,7 +56,7 @@ def test_overrides_reach_both_configs_and_leave_the_rest_as_the_files():
     (["Kp"], None, "KEY=VALUE"),
     (["mode=p"], None, "mode"),
     (["Kp=1", "Kp=2"], None, "Kp: given twice"),
-    (["push_height=abc"], None, "push_height"),
+    (["Kp=[1, 2]"], None, "Kp"),
     (["disturbance_observer=true"], "off", "disturbance_observer"),
     ([], "maybe", "--observer"),
 ])
@@ -70,6 +70,8 @@ def test_out_of_range_values_are_rejected_by_the_configs_naming_the_key():
         ex.check_settings(ex.parse_overrides(["Kp=-1"]))
     with pytest.raises(SimConfigError, match="substeps"):
         ex.check_settings(ex.parse_overrides(["substeps=0"]))
+    with pytest.raises(SimConfigError, match="push_height"):
+        ex.check_settings(ex.parse_overrides(["push_height=abc"]))
 
 
 def test_cli_rejects_an_unknown_key_with_its_name(capsys):

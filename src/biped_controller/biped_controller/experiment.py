@@ -18,7 +18,8 @@ lockstep, no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
 Settings of every subcommand: ``--observer on|off`` (the controller's disturbance observer; default:
 config/controller.yaml) and ``--set KEY=VALUE`` (repeatable) for any key of config/controller.yaml
 (except ``mode``: the subcommand chooses it) or config/simulator.yaml, e.g. ``--set margin_zmp=0.0
---set Kp=900 --set push_height=0.0``. Values are parsed as YAML scalars (``0.0``, ``900``, ``false``).
+--set Kp=900 --set push_height=0.0``. Values are parsed as YAML scalars (``0.0``, ``900``, ``false``,
+``reference``); the config loaders check them (a bad value is an error naming the key).
 The effective controller and simulator settings and the overrides are printed and stored in the JSON,
 so every table says exactly what it ran.
 
@@ -135,8 +136,8 @@ def _parse_value(key: str, text: str) -> object:
         v = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise OverrideError(f"--set {key}={text}: the value does not parse: {exc}") from exc
-    if not isinstance(v, (bool, int, float)):
-        raise OverrideError(f"--set {key}={text}: expected a number or true/false, got {text!r}")
+    if not isinstance(v, (bool, int, float, str)):
+        raise OverrideError(f"--set {key}={text}: expected a number, true/false or a word, got {text!r}")
     return v
 
 
@@ -688,7 +689,8 @@ def probe(force: float, mode: str = "both", duration: float = DEFAULT_DURATION, 
             continue
         i = int(st.tightest)
         rows.append({
-            "t": float(rec.t), "push": float(rec.push_force), "estimate": float(pr.force_estimate[k]),
+            "t": float(rec.t), "stance": int(rec.stance), "impacts": int(rec.impacts), "push": float(rec.push_force),
+            "estimate": float(pr.force_estimate[k]),
             "qp_status": _status_name(st.qp_status), "tightest": CONSTRAINT_NAMES[i],
             "tightest_margin": float(st.margins[i]),
             "R_pred": [float(st.predicted_reaction[0]), float(st.predicted_reaction[1])],
@@ -712,10 +714,10 @@ def print_probe(r: dict) -> None:
           f"{'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
     if r["fall_detail"]:
         print(f"  fall: {r['fall_detail']}")
-    print(f"{'t [s]':>7} {'push':>6} {'F_est':>7} {'QP':>13} {'tightest':>15} {'margin':>8} {'Rx pred':>8} {'Rx act':>8} "
+    print(f"{'t [s]':>7} {'imp':>3} {'push':>6} {'F_est':>7} {'QP':>13} {'tightest':>15} {'margin':>8} {'Rx pred':>8} {'Rx act':>8} "
           f"{'Ry pred':>8} {'Ry act':>8} {'l pred':>7} {'l act':>7} {'p_dd':>8} {'tau_dd':>8} {'p':>7} {'tau_d':>6}")
     for x in r["periods"]:
-        print(f"{x['t']:7.4f} {x['push']:6.1f} {x['estimate']:7.1f} {x['qp_status']:>13} {x['tightest']:>15} "
+        print(f"{x['t']:7.4f} {x['impacts']:3d} {x['push']:6.1f} {x['estimate']:7.1f} {x['qp_status']:>13} {x['tightest']:>15} "
               f"{x['tightest_margin']:8.2f} {x['R_pred'][0]:8.1f} {x['R_act'][0]:8.1f} {x['R_pred'][1]:8.1f} "
               f"{x['R_act'][1]:8.1f} {x['l_pred']:7.4f} {x['l_act']:7.4f} {x['p_ddot']:8.3f} {x['tau_ddot']:8.3f} "
               f"{x['p']:7.4f} {x['tau_dot']:6.3f}")
