@@ -281,7 +281,7 @@ def test_graph_params_file_repeats_no_setting():
     g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
     for n in ('simulator', 'controller', 'disturbance', 'recorder'):
         assert 'ros__parameters' in g[n], n
-    settings = set(SimConfig.__dataclass_fields__) | set(ControllerConfig.__dataclass_fields__) | {'control_period'}
+    settings = (set(SimConfig.__dataclass_fields__) | set(ControllerConfig.__dataclass_fields__) | {'control_period'}) - {'real_time_factor'}
     for n in ('simulator', 'controller', 'disturbance'):
         repeated = settings & set(g[n]['ros__parameters'])
         assert not repeated, f'config/graph.yaml {n} repeats {sorted(repeated)}'
@@ -294,11 +294,12 @@ def test_bare_objects_read_the_config_files():
     from biped_controller.controller import AdaptiveController, ControllerConfig
     sim_yaml = read_settings(default_config_dir() / 'simulator.yaml', SimConfig.__dataclass_fields__)
     assert {k: getattr(Simulator().cfg, k) for k in sim_yaml} == sim_yaml
-    keys = [k for k in ControllerConfig.__dataclass_fields__ if k != 'period']
+    keys = [k for k in ControllerConfig.__dataclass_fields__ if k not in ('period', 'engine')]
     ctrl_yaml = read_settings(default_config_dir() / 'controller.yaml', keys)
     cfg = AdaptiveController().cfg
     assert {k: getattr(cfg, k) for k in keys} == ctrl_yaml
-    assert cfg.period == sim_yaml['control_period']
+    # the control period and the engine have one home: the simulator's settings
+    assert (cfg.period, cfg.engine) == (sim_yaml['control_period'], sim_yaml['engine'])
 
 
 def test_family_description_check():
