@@ -1,16 +1,23 @@
-"""Tests of the adaptation QP (qp.py) and its exact n <= 2 solver (qp_exact.py).
+"""Tests of the adaptation QP (qp.py, solvers "piqp" and "exact") and its exact n <= 2 solver
+(qp_exact.py); the compiled kernels against qp_exact are in test_qp_fast.py.
 
 References are independent of the code under test: scipy SLSQP / BFGS / linprog, brute-force
-sampling, and KKT residuals. All randomness is seeded.
+sampling, and KKT residuals. All randomness is seeded. M = 17 rows here (random instances); the
+controller's real 37-row instances are in test_qp_fast.py.
 """
+
+import ast
+import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
+from biped_msgs_py.msg import ControllerStatus
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog, minimize
 
-from biped_controller import qp, qp_exact
+from biped_controller import qp, qp_exact, qp_types
 from biped_controller.qp import (
     ACTIVE,
     INFEASIBLE_FALLBACK,
@@ -110,13 +117,24 @@ def scale(x):
 @pytest.fixture(scope="module")
 def solvers():
     rng = np.random.default_rng(0)
-    return {n: AdaptationQP(n, M, rand_W(rng, n)) for n in (1, 2)}
+    out = {n: AdaptationQP(n, M, rand_W(rng, n)) for n in (1, 2)}
+    out.update({("exact", n): AdaptationQP(n, M, rand_W(rng, n), solver="exact") for n in (1, 2)})
+    return out
 
 
-def solve_piqp(solvers, G, h, x_star, W):
-    s = solvers[G.shape[1]]
+def solve_piqp(solvers, G, h, x_star, W, kind=None):
+    n = G.shape[1]
+    s = solvers[n if kind is None else (kind, n)]
     s.set_weights(W)
     return s.solve(G, h, x_star)
+
+
+def assert_same_as_exact(r, ex, rtol=1e-12):
+    """AdaptationQP(solver="exact") gives qp_exact's answer: status, x (to rtol of its scale), and
+    the least-violation answer of the same problem."""
+    assert r.status == ex.status, (r, ex)
+    assert np.max(np.abs(r.x - ex.x)) <= rtol * scale(ex.x), (r, ex)
+    assert np.array_equal(r.active, ex.active) or r.status != UNCONSTRAINED
 
 
 # ----------------------------------------------------------------------------------------
@@ -132,6 +150,8 @@ def test_random_feasible_exact_vs_piqp_vs_slsqp(n, solvers):
         G, h, x_star, W, x0 = rand_feasible(rng, n)
         ex = solve_exact(G, h, x_star, W)
         pq = solve_piqp(solvers, G, h, x_star, W)
+        fx = solve_piqp(solvers, G, h, x_star, W, "exact")
+        assert_same_as_exact(fx, ex)
         assert ex.status == pq.status
         assert ex.status in (UNCONSTRAINED, ACTIVE)
         if ex.status == UNCONSTRAINED:
@@ -147,6 +167,7 @@ def test_random_feasible_exact_vs_piqp_vs_slsqp(n, solvers):
         assert np.allclose(ex.x, pq.x, rtol=0, atol=1e-7 * scale(ex.x))
         assert ex.max_violation <= 1e-12 * scale(h)
         assert_kkt(G, h, x_star, W, ex, tol=1e-9 * scale(h) * scale(W))
+        assert_kkt(G, h, x_star, W, fx, tol=1e-9 * scale(h) * scale(W))
         assert_kkt(G, h, x_star, W, pq)
         assert np.any(ex.active) and np.any(pq.active)
     assert n_active > 100
@@ -160,6 +181,7 @@ def test_random_infeasible_reported_by_both(n, solvers):
         assert not lp_feasible(G, h)
         ex = solve_exact(G, h, x_star, W)
         pq = solve_piqp(solvers, G, h, x_star, W)
+        assert_same_as_exact(solve_piqp(solvers, G, h, x_star, W, "exact"), ex)
         assert ex.status == INFEASIBLE_FALLBACK, ex
         assert pq.status == INFEASIBLE_FALLBACK, pq
         assert "PRIMAL_INFEASIBLE" in pq.message
@@ -230,7 +252,10 @@ def check_all(G, h, x_star, W, solvers, expect_status, expect_x=None, atol=1e-9)
     G, h, x_star, W = (np.asarray(a, float) for a in (G, h, x_star, W))
     n = G.shape[1]
     s = AdaptationQP(n, G.shape[0], W)
-    out = [solve_exact(G, h, x_star, W), s.solve(G, h, x_star), solve_with_qpsolvers(G, h, x_star, W)]
+    out = [solve_exact(G, h, x_star, W), s.solve(G, h, x_star), solve_with_qpsolvers(G, h, x_star, W),
+           AdaptationQP(n, G.shape[0], W, polish=False).solve(G, h, x_star),
+           AdaptationQP(n, G.shape[0], W, solver="exact").solve(G, h, x_star)]
+    assert_same_as_exact(out[-1], out[0])
     for r in out:
         assert isinstance(r, QPResult)
         assert r.status == expect_status, r
@@ -346,6 +371,20 @@ def test_n1_interval(solvers):
     G, h = pad(np.array([[1.0], [-1.0]]), np.array([-1.0, -1.0]))  # x <= -1, x >= 1
     out = check_all(G, h, [5.0], [2.0], solvers, INFEASIBLE_FALLBACK, [0.0], atol=1e-6)
     assert "row 0" in out[0].message and "row 1" in out[0].message
+
+
+def test_projection_onto_a_row_through_the_origin(solvers):
+    """Found by hypothesis: the projection of x* = (0, 1) onto 0.05 x1 <= 0 lands 1e-16 off the
+    row; the feasibility tolerance must scale with |x*| (the rounding of the formula), not with
+    |x| = 0, or the candidate is refused (wrongly "infeasible", or a worse vertex chosen)."""
+    G = np.zeros((M, 2))
+    G[M - 1] = [0.0, 0.05]
+    h = np.zeros(M)
+    for _ in range(2):
+        out = check_all(G, h, [0.0, 1.0], [1.0, 1.0], solvers, ACTIVE, [0.0, 0.0], atol=1e-8)
+        for r in (out[0], out[1], out[4]):  # qp_exact, AdaptationQP piqp (polished) and exact
+            assert np.max(np.abs(r.x)) <= 1e-15, r
+        G[1], h[1] = [1.0, 0.0], 1.0    # and with a second row whose vertex is worse
 
 
 def test_point_feasible_set(solvers):
@@ -486,8 +525,10 @@ def test_least_violation_n2_newton_vs_bfgs():
 def test_solver_reused_1000_calls(n):
     rng = np.random.default_rng(500 + n)
     s = AdaptationQP(n, M, np.ones(n))
-    solver_obj = s.solver
+    fx = AdaptationQP(n, M, np.ones(n), solver="exact")
+    held = dict(s.piqp_solvers)      # the PIQP objects for m rows, made by the constructor
     counts = {UNCONSTRAINED: 0, ACTIVE: 0, INFEASIBLE_FALLBACK: 0}
+    polished = 0
     for i in range(1000):
         if i % 10 == 9:
             G, h, x_star, W = rand_infeasible(rng, n)
@@ -498,13 +539,22 @@ def test_solver_reused_1000_calls(n):
         W = s.W
         r = s.solve(G, h, x_star)
         ex = solve_exact(G, h, x_star, W)
-        assert s.solver is solver_obj
+        for k, objs in s.piqp_solvers.items():  # created once per row count, then only updated
+            first = held.setdefault(k, objs)
+            assert all(a is b for a, b in zip(first, objs))
         assert r.status == ex.status, (i, r, ex)
         assert np.allclose(r.x, ex.x, atol=1e-6 * scale(ex.x)), (i, r, ex)
+        if "polished" in r.message:  # verified KKT on an active set: the exact optimum up to rounding
+            assert np.max(np.abs(r.x - ex.x)) <= 1e-9 * scale(ex.x), (i, r, ex)
+            polished += 1
         if r.status == ACTIVE:
             assert_kkt(G, h, x_star, W, r)
         counts[r.status] += 1
+        fx.set_weights(W)
+        assert_same_as_exact(fx.solve(G, h, x_star), ex)
     assert min(counts.values()) > 50, counts
+    assert polished > 0.9 * counts[ACTIVE]
+    assert s.calls == counts[ACTIVE] + s.tight_calls + counts[INFEASIBLE_FALLBACK]
 
 
 # ----------------------------------------------------------------------------------------
@@ -532,7 +582,9 @@ HYP = settings(max_examples=150, derandomize=True, deadline=None,
 def _check_property(G, h, x_star, W, x0, solvers):
     rng = np.random.default_rng(0)
     n = G.shape[1]
-    for r in (solve_exact(G, h, x_star, W), solve_piqp(solvers, G, h, x_star, W)):
+    ex = solve_exact(G, h, x_star, W)
+    assert_same_as_exact(solve_piqp(solvers, G, h, x_star, W, "exact"), ex)
+    for r in (ex, solve_piqp(solvers, G, h, x_star, W)):
         assert r.status in (UNCONSTRAINED, ACTIVE), r
         tol = 1e-7 * (1 + np.abs(G).sum(1) * scale(r.x) + np.abs(h))
         assert np.all(G @ r.x - h <= tol)
@@ -558,8 +610,69 @@ def test_property_n1(inst):
 
 
 _HYP_SOLVERS = {n: AdaptationQP(n, M, np.ones(n)) for n in (1, 2)}
+_HYP_SOLVERS.update({("exact", n): AdaptationQP(n, M, np.ones(n), solver="exact") for n in (1, 2)})
 
 
-def test_status_constants():
-    assert (UNCONSTRAINED, ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR) == (0, 1, 2, 3)
-    assert qp_exact.solve_exact is solve_exact
+def test_status_constants_equal_the_message_constants():
+    assert UNCONSTRAINED == ControllerStatus.QP_UNCONSTRAINED
+    assert ACTIVE == ControllerStatus.QP_ACTIVE
+    assert INFEASIBLE_FALLBACK == ControllerStatus.QP_INFEASIBLE_FALLBACK
+    assert SOLVER_ERROR == ControllerStatus.QP_SOLVER_ERROR
+    assert ControllerStatus.NO_ADAPTATION not in qp.STATUS_NAMES
+    assert {qp.STATUS_NAMES[getattr(ControllerStatus, "QP_" + name)] for name in
+            ("UNCONSTRAINED", "ACTIVE", "INFEASIBLE_FALLBACK", "SOLVER_ERROR")} == set(qp.STATUS_NAMES.values())
+    # one definition, re-exported (qp keeps the names the controller and the experiment import)
+    assert qp.QPResult is qp_types.QPResult and qp.STATUS_NAMES is qp_types.STATUS_NAMES
+    assert qp_exact.least_violation_exact is qp_types.least_violation_exact
+
+
+def _imported_modules(path: Path) -> set:
+    """Modules a source file imports (relative imports resolved inside biped_controller)."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = "biped_controller." if node.level else ""
+            if node.module:
+                out.add(base + node.module)
+            else:
+                out.update(base + a.name for a in node.names)
+    return out
+
+
+def test_qp_modules_import_in_one_direction(tmp_path):
+    """qp_types <- qp_exact, qp_fast <- qp: no module imports one that imports it back."""
+    pkg = Path(qp.__file__).parent
+    deps = {name: {m for m in _imported_modules(pkg / f"{name}.py") if m.startswith("biped_controller.qp")}
+            for name in ("qp_types", "qp_exact", "qp_fast", "qp")}
+    assert deps["qp_types"] == set()
+    assert deps["qp_exact"] == {"biped_controller.qp_types"}
+    assert deps["qp_fast"] == {"biped_controller.qp_types"}
+    assert deps["qp"] == {"biped_controller.qp_types", "biped_controller.qp_fast"}
+    # negative control: the checker sees the import at the bottom of the former qp.py
+    probe = tmp_path / "probe.py"
+    probe.write_text("import numpy as np\n\n\ndef f():\n    pass\n\n\nfrom . import qp_exact as _exact  # noqa\n")
+    assert _imported_modules(probe) == {"numpy", "biped_controller.qp_exact"}
+
+
+def test_fast_result_constructor_equals_the_dataclass():
+    x, a, z = np.array([1.0, 2.0]), np.array([True, False]), np.array([0.5, 0.0])
+    r1 = qp_types._result(x, ACTIVE, "m", 0.25, a, 3, z)
+    r2 = QPResult(x, ACTIVE, "m", 0.25, a, 3, z)
+    assert type(r1) is QPResult
+    for f in dataclasses.fields(QPResult):
+        assert getattr(r1, f.name) is getattr(r2, f.name)
+    assert repr(r1) == repr(r2)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        r1.status = 0
+
+
+def test_solver_option():
+    with pytest.raises(ValueError, match="solver"):
+        AdaptationQP(2, M, [1.0, 1.0], solver="quadprog")
+    with pytest.raises(ValueError, match="n <= 2"):
+        AdaptationQP(3, M, [1.0, 1.0, 1.0], solver="exact")
+    s = AdaptationQP(2, M, [1.0, 1.0], solver="exact")
+    assert s.piqp_solvers == {} and s.solver_name == "exact"
+    assert AdaptationQP(2, M, [1.0, 1.0]).solver_name == "piqp"

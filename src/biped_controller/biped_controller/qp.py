@@ -1,50 +1,65 @@
 """Adaptation QP for the walking controller: choose x = (p'', tau'') closest to x*.
 
-Problem (n = 2 variables, or n = 1 in single-parameter modes; m = 17 rows)::
+The problem, units, multiplier signs and statuses are stated once, in :mod:`qp_types`::
 
     minimise    1/2 (x - x*)^T W (x - x*)
-    subject to  G x <= h
+    subject to  G x <= h            (n = 2 or 1 variables, m = 37 rows in the controller)
 
-* ``x``   : the chosen second derivatives of the gait parameters. Units follow the caller:
-  p'' in [p-unit]/s^2 and tau'' in [tau-unit]/s^2 (the controller uses SI derived units).
-* ``x*``  : the desired value (same units as x).
-* ``W``   : diagonal weight, given as its positive diagonal (shape (n,)); units are
-  1/[x]^2 times an arbitrary cost unit, so only the ratio W_0/W_1 matters.
-* ``G, h``: G = A_p and h = -b_p - margin from the robot's contact/actuator constraints
-  A_p x + b_p < 0 (margin handled by the caller). Row i has the units of constraint i
-  (N for force rows, m for centre-of-pressure rows, N m for torque rows ...).
+This module holds the solver the controller uses, :class:`AdaptationQP`, and a qpsolvers-based
+helper for benchmarks. The names of :mod:`qp_types` (statuses, :class:`QPResult`,
+:func:`kkt_residuals` ...) are re-exported here.
 
-Multipliers (sign convention used everywhere in this module and in :mod:`qp_exact`):
-``z`` (shape (m,)) with ``z >= 0`` and the Lagrangian
-``L(x, z) = 1/2 (x - x*)^T W (x - x*) + z^T (G x - h)``, so the KKT conditions are
+Per control step, :meth:`AdaptationQP.solve` first decides whether x* is feasible (compiled
+kernel :func:`qp_fast.early_out`, the decision of :func:`qp_exact.solve_exact` bit for bit;
+~97 % of the steps end there). Otherwise:
 
-    stationarity     W (x - x*) + G^T z = 0
-    primal feas.     G x - h <= 0
-    dual feas.       z >= 0
-    complementarity  z_i (G x - h)_i = 0.
-
-z_i has units [cost unit] / [unit of row i]; it is the marginal decrease of the optimal cost
-per unit relaxation of h_i. PIQP reports the same quantity for one-sided rows as ``z_u``.
-
-Status values mirror the ROS message constants (``biped_msgs_py``):
-
-* ``UNCONSTRAINED = 0``       x* is feasible (G x* <= h with zero tolerance); x = x* bit-exact,
-  no solver call.
-* ``ACTIVE = 1``              solved; at least one constraint is active.
-* ``INFEASIBLE_FALLBACK = 2`` no x satisfies G x <= h; x is the least-violation answer
-  ``argmin sum_i max(G x - h, 0)_i^2 + eps_eff |x - x*|_W^2`` (see :func:`least_violation`).
-* ``SOLVER_ERROR = 3``        non-finite input data or an unrecoverable solver failure; x = x*.
-
-Only shape inconsistencies raise (:class:`QPShapeError`); they are programming errors.
-Everything else is reported through the status.
+* ``solver="piqp"`` (default, the product's solver): PIQP, held and updated (never rebuilt),
+  on the problem without its duplicated rows (the controller states each contact row twice:
+  37 -> 20 rows). PIQP first runs to a screening tolerance, then its answer is polished on the
+  active set its multipliers indicate and accepted only if the KKT conditions hold
+  (:func:`polish`); if not, PIQP runs again to the tight tolerance. Infeasible problems go to
+  the least-violation fallback.
+* ``solver="exact"`` (n <= 2): the compiled exact solver :func:`qp_fast.solve_small`, whose
+  answers equal :func:`qp_exact.solve_exact`'s.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
+
+from .qp_types import (
+    ACTIVE,
+    DEFAULT_ACTIVE_TOL,
+    DEFAULT_EPS_REG,
+    DEFAULT_FEAS_RTOL,
+    DEFAULT_PARALLEL_TOL,
+    DEFAULT_ZERO_ROW_RTOL,
+    INFEASIBLE_FALLBACK,
+    SOLVER_ERROR,
+    STATUS_NAMES,
+    UNCONSTRAINED,
+    QPResult,
+    QPShapeError,
+    _as_float,
+    _bad_weight,
+    _configure,
+    _error_result,
+    _finish,
+    _nonfinite_name,
+    _piqp,
+    _result,
+    _SlackQP,
+    _unconstrained_result,
+    constraint_values,
+    kkt_residuals,
+    least_violation,
+    objective,
+    reg_weight,
+    validate,
+    violation_message,
+)
 
 __all__ = [
     "UNCONSTRAINED",
@@ -55,343 +70,118 @@ __all__ = [
     "QPResult",
     "QPShapeError",
     "AdaptationQP",
+    "SOLVERS",
+    "polish",
     "solve_with_qpsolvers",
     "kkt_residuals",
     "least_violation",
     "objective",
+    "reg_weight",
+    "validate",
+    "constraint_values",
+    "violation_message",
     "DEFAULT_ACTIVE_TOL",
     "DEFAULT_EPS_REG",
+    "DEFAULT_SCREEN_EPS",
 ]
 
-UNCONSTRAINED = 0
-ACTIVE = 1
-INFEASIBLE_FALLBACK = 2
-SOLVER_ERROR = 3
-STATUS_NAMES = {
-    UNCONSTRAINED: "UNCONSTRAINED",
-    ACTIVE: "ACTIVE",
-    INFEASIBLE_FALLBACK: "INFEASIBLE_FALLBACK",
-    SOLVER_ERROR: "SOLVER_ERROR",
-}
+#: Values of the ``solver`` option of :class:`AdaptationQP`.
+SOLVERS = ("piqp", "exact")
+#: PIQP's absolute tolerance of the screening solve (row units; eps_rel = 0.1 of it). Its answer
+#: is only used through :func:`polish`, which accepts it after checking the KKT conditions.
+DEFAULT_SCREEN_EPS = 1e-6
 
-#: A row counts as active when G x - h >= -DEFAULT_ACTIVE_TOL (units of the row).
-DEFAULT_ACTIVE_TOL = 1e-8
-#: Relative weight of the regulariser of the least-violation problem (dimensionless, see
-#: :func:`least_violation`).
-DEFAULT_EPS_REG = 1e-9
+_F64 = np.dtype(np.float64)
+_ND = np.ndarray
+_BOOL = np.dtype(bool)
+_empty = np.empty
 
 
-class QPShapeError(ValueError):
-    """Inconsistent array shapes passed to a QP routine (a programming error)."""
+def _fast():
+    from . import qp_fast  # numba: compiled/loaded when a solver is built, not by users of the constants
+
+    return qp_fast
 
 
-@dataclass(frozen=True)
-class QPResult:
-    """Answer of the adaptation QP.
+def polish(G, h, x_star, W, z, x, feas_rtol: float = DEFAULT_FEAS_RTOL):
+    """Refine an interior-point answer (x, z) on the active set its multipliers indicate.
 
-    Attributes
-    ----------
-    x : (n,) chosen value (units of x*).
-    status : one of UNCONSTRAINED, ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR.
-    message : human-readable detail (which rows are violated and by how much, solver status).
-    max_violation : max(max(G x - h), 0), in the units of the worst row (0 if feasible).
-    active : (m,) bool mask of rows with G x - h >= -active_tol.
-    iterations : solver iterations (0 when no iterative solver ran).
-    z : (m,) multipliers (z >= 0, W (x - x*) + G^T z = 0) when known, else None.
-    """
-
-    x: np.ndarray
-    status: int
-    message: str
-    max_violation: float
-    active: np.ndarray
-    iterations: int
-    z: Optional[np.ndarray] = field(default=None, compare=False)
-
-    @property
-    def status_name(self) -> str:
-        return STATUS_NAMES.get(self.status, str(self.status))
-
-
-# ----------------------------------------------------------------------------------------
-# shared helpers
-# ----------------------------------------------------------------------------------------
-
-
-def _as_float(a, name: str) -> np.ndarray:
-    try:
-        return np.asarray(a, dtype=float)
-    except (TypeError, ValueError) as exc:  # e.g. ragged lists
-        raise QPShapeError(f"{name} cannot be converted to a float array: {exc}") from exc
-
-
-def validate(G, h, x_star, W=None, n: Optional[int] = None, m: Optional[int] = None):
-    """Convert and check shapes. Returns float arrays (G (m,n), h (m,), x* (n,), W (n,) or None).
-
-    Raises :class:`QPShapeError` naming the inconsistent array.
-    """
-    G = _as_float(G, "G")
-    h = _as_float(h, "h")
-    x_star = _as_float(x_star, "x_star")
-    if G.ndim != 2:
-        raise QPShapeError(f"G must be 2-D (m, n), got shape {G.shape}")
-    mm, nn = G.shape
-    if nn < 1:
-        raise QPShapeError(f"G must have at least one column, got shape {G.shape}")
-    if n is not None and nn != n:
-        raise QPShapeError(f"G has {nn} columns, expected n = {n}")
-    if m is not None and mm != m:
-        raise QPShapeError(f"G has {mm} rows, expected m = {m}")
-    if h.shape != (mm,):
-        raise QPShapeError(f"h has shape {h.shape}, expected ({mm},) to match G {G.shape}")
-    if x_star.shape != (nn,):
-        raise QPShapeError(f"x_star has shape {x_star.shape}, expected ({nn},) to match G {G.shape}")
-    if W is not None:
-        W = _as_float(W, "W")
-        if W.shape != (nn,):
-            raise QPShapeError(f"W has shape {W.shape}, expected ({nn},) (the diagonal)")
-    return G, h, x_star, W
-
-
-def objective(x, x_star, W) -> float:
-    """1/2 (x - x*)^T diag(W) (x - x*)."""
-    d = np.asarray(x, float) - np.asarray(x_star, float)
-    return 0.5 * float(np.dot(np.asarray(W, float) * d, d))
-
-
-def _nonfinite_name(G, h, x_star, W) -> Optional[str]:
-    # fast path: a sum is finite iff every term is (barring overflow of huge finite values,
-    # which then only costs the detailed check below)
-    total = G.sum() + h.sum() + x_star.sum() + (0.0 if W is None else W.sum())
-    if total - total == 0.0:
-        return None
-    for name, a in (("G", G), ("h", h), ("x_star", x_star), ("W", W)):
-        if a is not None and not np.all(np.isfinite(a)):
-            return name
-    return None
-
-
-def _bad_weight(W) -> bool:
-    return W is not None and not np.all(W > 0.0)
-
-
-def _error_result(x_star, G, h, message, active_tol) -> QPResult:
-    x = np.array(x_star, dtype=float, copy=True)
-    with np.errstate(invalid="ignore", over="ignore"):
-        v = G @ x - h
-    finite = np.isfinite(v)
-    maxv = float(np.max(np.maximum(v[finite], 0.0))) if np.any(finite) else float("nan")
-    if not np.all(finite):
-        maxv = float("nan")
-    active = np.zeros(h.shape, dtype=bool)
-    active[finite] = v[finite] >= -active_tol
-    return QPResult(x, SOLVER_ERROR, message, maxv, active, 0, None)
-
-
-def _unconstrained_result(x_star, viol, active_tol) -> QPResult:
-    """x* itself (a bit-exact copy); viol = G x* - h <= 0; multipliers are all zero."""
-    return QPResult(
-        np.array(x_star, dtype=float, copy=True),
-        UNCONSTRAINED,
-        "x* feasible",
-        0.0,
-        viol >= -active_tol,
-        0,
-        np.zeros(viol.shape),
-    )
-
-
-def _finish(x, G, h, status, message, active_tol, iterations, z=None) -> QPResult:
-    v = G @ x - h
-    return QPResult(
-        x,
-        status,
-        message,
-        max(float(v.max()), 0.0) if v.size else 0.0,
-        v >= -active_tol,
-        int(iterations),
-        z,
-    )
-
-
-def violation_message(G, h, x, prefix: str = "infeasible") -> str:
-    """Describe which rows G x - h > 0 and by how much (units of each row)."""
-    v = G @ x - h
-    rows = np.flatnonzero(v > 0.0)
-    if rows.size == 0:
-        return f"{prefix}: least-violation answer violates no row"
-    parts = ", ".join(f"row {i}: {v[i]:.3g}" for i in rows)
-    return f"{prefix}: least-violation answer violates {rows.size} row(s) [{parts}]; sum sq {float(np.sum(v[rows] ** 2)):.3g}"
-
-
-def reg_weight(G, W, eps_reg: float = DEFAULT_EPS_REG) -> float:
-    """Effective regularisation weight eps_eff = eps_reg * min_i |g_i W^-1/2|^2 (> 0).
-
-    The minimum is over the rows with non-negligible norm (> 1e-13 of the largest). With this
-    scaling the regulariser is dimensionally consistent with the squared violations, invariant
-    to a common rescaling of W, and moves the answer by at most ~eps_reg |x - x*| along any
-    row direction (pulling x towards x* costs violation^2 ~ |g_i W^-1/2|^2 delta^2 in every
-    row), so eps_reg is a pure relative number.
-    """
-    n2 = np.sum(G * G / W[None, :], axis=1)
-    big = float(np.max(n2, initial=0.0))
-    if not (big > 0.0 and np.isfinite(big)):
-        return eps_reg
-    return eps_reg * float(np.min(n2[n2 > 1e-26 * big]))
-
-
-def least_violation(G, h, x_star, W, eps_reg: float = DEFAULT_EPS_REG, active_tol: float = DEFAULT_ACTIVE_TOL,
-                    prefix: str = "infeasible") -> QPResult:
-    """Least-violation answer used when G x <= h has no solution.
-
-    Minimises ``V(x) = sum_i max((G x - h)_i, 0)^2 + eps_eff (x - x*)^T W (x - x*)`` with
-    ``eps_eff = reg_weight(G, W, eps_reg)``. V is strictly convex and C^1, so the answer is
-    unique; as eps_reg -> 0 it tends to the W-closest-to-x* minimiser of the summed squared
-    violations. For n <= 2 it is solved exactly by :func:`qp_exact.least_violation_exact`; for
-    larger n by :class:`_SlackQP` (PIQP on the slack formulation). Status INFEASIBLE_FALLBACK.
+    Active-set guess A = {i : g_i != 0, z_i / max z > s_i / (|g_i| (|x| + |x*|) + |h_i|)},
+    s = h - G x (the interior-point indicator "multiplier larger than slack", unit-free). Up to
+    n linearly independent rows of A, taken in order of decreasing z, give the equality-
+    constrained optimum ``x = x* - W^-1 G_A^T lam``, ``(G_A W^-1 G_A^T) lam = G_A x* - h_A``;
+    it is accepted only if the KKT conditions hold: G x <= h within the tolerance of
+    qp_types.DEFAULT_FEAS_RTOL on every row and lam >= -feas_rtol max|lam| -- then x is the
+    exact optimum up to rounding. If rejected, the rows of largest z are tried alone (up to
+    four). Returns (x, z) or None (keep the unpolished answer). Compiled: :func:`qp_fast.polish`.
     """
     G, h, x_star, W = validate(G, h, x_star, W)
-    n = G.shape[1]
-    if n <= 2:
-        x, it = _exact.least_violation_exact(G, h, x_star, W, eps_reg)
-    else:
-        sq = _SlackQP(n, G.shape[0])
-        x, it, ok = sq.solve(G, h, x_star, W, eps_reg)
-        if not ok:
-            return _error_result(x_star, G, h, "least-violation slack QP failed", active_tol)
-    return _finish(x, G, h, INFEASIBLE_FALLBACK, violation_message(G, h, x, prefix), active_tol, it)
+    z = _as_float(z, "z")
+    x = _as_float(x, "x")
+    if z.shape != h.shape or x.shape != x_star.shape:
+        raise QPShapeError(f"z {z.shape} / x {x.shape} do not match h {h.shape} / x_star {x_star.shape}")
+    m, n = G.shape
+    xp, zp, active = np.empty(n), np.empty(m), np.empty(m, dtype=bool)
+    mv = _fast().polish(G, h, x_star, W, z, np.arange(m, dtype=np.int64), x, float(feas_rtol), DEFAULT_ACTIVE_TOL,
+                        xp, zp, active)
+    return (xp, zp) if mv == mv else None
 
 
-def polish(G, h, x_star, W, z, x=None, feas_rtol: float = 1e-10):
-    """Refine an interior-point answer (x, z) on the active set it suggests.
+class _Held:
+    """The PIQP objects for one row count k (after the duplicate-row presolve): the screening
+    solver (or the only one without polish) and the tight one, set up once on views of the
+    shared data buffers (G: an F-ordered (k, n) view of the column-major buffer)."""
 
-    Active-set guess A = {i : z_i / max z > s_i / (|g_i| |x| + |h_i|)}, the usual interior-point
-    indicator "multiplier larger than slack" made unit-free (s = h - G x; z_i s_i ~ mu -> 0, so
-    active rows have z >> s and inactive rows s >> z). Without x: A = {i : z_i > 1e-6 max z}.
-    Then solve ``min 1/2 |x - x*|_W^2  s.t.  G_A x = h_A``:  x = x* - W^-1 G_A^T lam,
-    ``(G_A W^-1 G_A^T) lam = G_A x* - h_A`` (least squares if rank deficient, e.g. duplicated
-    rows). Accept only if the KKT conditions hold for (x, z = lam on A): G x <= h within
-    feas_rtol (|G| |x| + |h|) and lam >= -feas_rtol max|lam| -- then x is the exact optimum
-    up to rounding. Returns (x, z) or None (keep the unpolished answer).
-    """
-    zmax = float(np.max(z, initial=0.0))
-    if not zmax > 0.0:
-        return None
-    if x is None:
-        A = np.flatnonzero(z > 1e-6 * zmax)
-    else:
-        slack = h - G @ x
-        A = np.flatnonzero(z / zmax > slack / (np.abs(G) @ np.abs(x) + np.abs(h) + 1e-300))
-    if A.size == 0:
-        return None
-    GA = G[A]
-    GWinv = GA / W[None, :]
-    Mat = GWinv @ GA.T
-    rhs = GA @ x_star - h[A]
-    if A.size == 1:
-        lam = rhs / Mat[0]
-    else:
-        lam = np.linalg.lstsq(Mat, rhs, rcond=None)[0]
-    x = x_star - GWinv.T @ lam
-    if not np.all(np.isfinite(x)):
-        return None
-    if np.any(lam < -feas_rtol * float(np.max(np.abs(lam)))):
-        return None
-    if np.any(G @ x - h > feas_rtol * (np.abs(G) @ np.abs(x) + np.abs(h))):
-        return None
-    zp = np.zeros_like(z)
-    zp[A] = np.maximum(lam, 0.0)
-    return x, zp
+    __slots__ = ("k", "G", "h", "screen", "tight")
 
-
-# ----------------------------------------------------------------------------------------
-# PIQP-based solvers
-# ----------------------------------------------------------------------------------------
-
-
-def _piqp():
-    import piqp  # local import keeps `import qp` cheap for users of the exact solver only
-
-    return piqp
-
-
-def _configure(settings, eps_abs: float, eps_rel: float, max_iter: int) -> None:
-    # PIQP also stops on a duality-gap test whose defaults (1e-8 abs, 1e-9 rel) are much looser
-    # than eps_abs here: with them an answer can sit ~1e-5 inside its active row with a 15 %
-    # wrong multiplier while reporting primal/dual residuals ~1e-13. Tie them to eps_abs/rel.
-    settings.eps_abs = eps_abs
-    settings.eps_rel = eps_rel
-    settings.eps_duality_gap_abs = eps_abs
-    settings.eps_duality_gap_rel = eps_rel
-    settings.max_iter = max_iter
-    settings.verbose = False
-    settings.compute_timings = False
-
-
-class _SlackQP:
-    """Least-violation problem as a QP in v = (x, s) in R^(n+m), solved by PIQP.
-
-    minimise   1/2 v^T P v + c^T v,  P = diag(2 eps_eff W, 2 I_m),  c = (-2 eps_eff W x*, 0)
-    subject to [G  -I] v <= h,  s >= 0  (x free).
-
-    At the optimum s = max(G x - h, 0), so the cost equals V(x) - const of
-    :func:`least_violation`. The solver object is set up once and updated afterwards.
-    """
-
-    def __init__(self, n: int, m: int, eps_abs: float = 1e-10, eps_rel: float = 1e-11, max_iter: int = 250):
-        piqp = _piqp()
-        self.n, self.m = n, m
-        self._ok = piqp.Status.PIQP_SOLVED
-        self.solver = piqp.DenseSolver()
-        _configure(self.solver.settings, eps_abs, eps_rel, max_iter)
-        N = n + m
-        self._P = np.asfortranarray(np.eye(N))
-        self._c = np.zeros(N)
-        self._A = np.asfortranarray(np.hstack([np.zeros((m, n)), -np.eye(m)]))
-        self._xl = np.concatenate([np.full(n, -np.inf), np.zeros(m)])
-        self.solver.setup(self._P, self._c, None, None, self._A, None, np.ones(m), self._xl, None)
-
-    def solve(self, G, h, x_star, W, eps_reg):
-        n = self.n
-        e = reg_weight(G, W, eps_reg)
-        idx = np.arange(n)
-        self._P[idx, idx] = 2.0 * e * W
-        self._c[:n] = -2.0 * e * W * x_star
-        self._A[:, :n] = G
-        self.solver.update(P=self._P, c=self._c, G=self._A, h_u=np.ascontiguousarray(h))
-        status = self.solver.solve()
-        res = self.solver.result
-        x = np.array(res.x[:n], dtype=float, copy=True)
-        return x, int(res.info.iter), status == self._ok and np.all(np.isfinite(x))
+    def __init__(self, k, G, h, screen, tight):
+        self.k, self.G, self.h, self.screen, self.tight = k, G, h, screen, tight
 
 
 class AdaptationQP:
-    """Re-usable PIQP dense solver for fixed sizes (n, m), updated at every control step.
-
-    The PIQP ``DenseSolver`` is created and ``setup`` once in the constructor (with
-    placeholder data); :meth:`solve` only calls ``update(c=..., G=..., h_u=...)`` and
-    ``solve()``, so the 1 kHz loop never rebuilds or reallocates the solver.
-
-    PIQP 0.7 formulates ``min 1/2 x^T P x + c^T x  s.t.  A x = b,  h_l <= G x <= h_u,
-    x_l <= x <= x_u``; we use P = diag(W), c = -W x*, G = G, h_u = h and leave h_l = -inf
-    (None at setup). The objective then differs from 1/2 (x-x*)^T W (x-x*) by a constant.
+    """The controller's QP solver for fixed sizes (n, m), called once per control step.
 
     Parameters
     ----------
-    n, m : problem sizes (n = 1 or 2 in the controller; any n >= 1 works).
+    n, m : problem sizes (n = 1 or 2 in the controller; any n >= 1 works with solver="piqp").
     W : positive diagonal weight (n,). Change it later with :meth:`set_weights`.
+    solver : "piqp" (default) or "exact" (n <= 2 only; the compiled exact solver).
     active_tol : tolerance (row units) for the ``active`` mask.
-    eps_reg : relative regularisation of the least-violation fallback (see :func:`least_violation`).
-    fallback : "exact" (qp_exact, default for n <= 2) or "piqp" (slack QP with a second,
-        also pre-built PIQP solver; used automatically for n > 2).
-    eps_abs, eps_rel, max_iter : PIQP termination settings.
+    eps_reg : relative regularisation of the least-violation fallback (see
+        :func:`qp_types.least_violation`).
+    fallback : for solver="piqp", what answers when PIQP does not solve: "exact" (n <= 2,
+        default there) or "piqp" (slack QP on a second, also pre-built PIQP solver; the default
+        and only choice for n > 2).
+    eps_abs, eps_rel, max_iter : PIQP's tight termination settings.
     polish : refine PIQP's interior-point answer on its active set (see :func:`polish`);
-        without it x lies ~eps_abs inside the active rows and ``active`` may miss them.
+        without it x lies ~eps_abs inside the active rows and ``active`` may miss them. With it,
+        PIQP first runs to ``screen_eps`` only and runs to eps_abs/eps_rel only if the polish
+        is rejected.
+    screen_eps : PIQP's absolute tolerance of the screening solve (relative: screen_eps / 10;
+        PIQP's duality-gap test off: the polish checks the answer). On the controller's
+        instances it stops after 6.9 iterations on average (14 for the tight settings) and its
+        answer is polished in all of them; on random instances with rows scaled over six decades
+        ~2.5 % go on to the tight solve.
+    preconditioner_iter : PIQP's Ruiz equilibration sweeps per update of the screening solve
+        (default 0: on the controller's instances the sweeps add iterations, 7.9 -> 11.3 on
+        average, and cost time per update; None: PIQP's own default, 10). The tight solve, which
+        decides when the screening answer is not verified, keeps PIQP's default.
+
+    PIQP 0.7 formulates ``min 1/2 x^T P x + c^T x  s.t.  h_l <= G x <= h_u`` (and more); we use
+    P = diag(W), c = -W x*, G = G[rows], h_u = h[rows], h_l = -inf (None at setup), where rows
+    drops duplicated rows (:func:`qp_fast.load_piqp`; 37 -> 20 rows for the controller): the
+    objective differs from 1/2 (x-x*)^T W (x-x*) by a constant. The PIQP objects of a row count
+    are created and ``setup`` on its first use (the one for m rows in the constructor) and then
+    only updated: :meth:`solve` calls ``update`` and ``solve``, never rebuilds.
+
+    Attributes ``calls`` and ``tight_calls`` count PIQP solves (all, and tight re-solves);
+    :attr:`piqp_solvers` lists the held PIQP objects by row count.
     """
 
-    def __init__(self, n: int, m: int, W, *, active_tol: float = DEFAULT_ACTIVE_TOL,
+    def __init__(self, n: int, m: int, W, *, solver: str = "piqp", active_tol: float = DEFAULT_ACTIVE_TOL,
                  eps_reg: float = DEFAULT_EPS_REG, fallback: Optional[str] = None,
-                 eps_abs: float = 1e-10, eps_rel: float = 1e-11, max_iter: int = 250, polish: bool = True):
+                 eps_abs: float = 1e-10, eps_rel: float = 1e-11, max_iter: int = 250, polish: bool = True,
+                 screen_eps: float = DEFAULT_SCREEN_EPS, preconditioner_iter: Optional[int] = 0):
         if n < 1 or m < 1:
             raise QPShapeError(f"n and m must be >= 1, got n={n}, m={m}")
         W = _as_float(W, "W")
@@ -399,28 +189,73 @@ class AdaptationQP:
             raise QPShapeError(f"W has shape {W.shape}, expected ({n},) (the diagonal)")
         if not np.all(np.isfinite(W)) or not np.all(W > 0):
             raise ValueError(f"W must be finite and positive, got {W}")
+        if solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        if solver == "exact" and n > 2:
+            raise ValueError(f"solver='exact' handles n <= 2, got n={n}")
         if fallback is None:
             fallback = "exact" if n <= 2 else "piqp"
         if fallback not in ("exact", "piqp") or (fallback == "exact" and n > 2):
             raise ValueError(f"fallback must be 'exact' (n <= 2) or 'piqp', got {fallback!r} with n={n}")
-        piqp = _piqp()
+        if not (screen_eps > 0.0):
+            raise ValueError(f"screen_eps must be > 0, got {screen_eps}")
+        self._k = _fast()
         self.n, self.m = int(n), int(m)
+        self.solver_name = solver
         self.active_tol = float(active_tol)
         self.eps_reg = float(eps_reg)
         self.fallback = fallback
         self.polish = bool(polish)
-        self._status_solved = piqp.Status.PIQP_SOLVED
-        self._status_infeasible = piqp.Status.PIQP_PRIMAL_INFEASIBLE
-        self.W = W.copy()
-        self.solver = piqp.DenseSolver()
-        _configure(self.solver.settings, eps_abs, eps_rel, max_iter)
+        self.W = np.ascontiguousarray(W, dtype=float).copy()
+        self._shape_G = (self.m, self.n)
+        self._shape_h = (self.m,)
+        self._shape_x = (self.n,)
+        self._z0 = np.zeros(self.m)       # z of every UNCONSTRAINED answer: shared, hence read-only
+        self._z0.flags.writeable = False
+        self.calls = 0
+        self.tight_calls = 0
+        self._held: dict = {}
+        self._slack = None
+        if solver == "exact":
+            return
+        self._piqp_mod = _piqp()
+        self._status_solved = self._piqp_mod.Status.PIQP_SOLVED
+        self._piqp_settings = (float(eps_abs), float(eps_rel), int(max_iter), preconditioner_iter,
+                               float(screen_eps))
         self._P = np.asfortranarray(np.diag(self.W))
         self._c = np.zeros(n)
-        self._G = np.asfortranarray(np.zeros((m, n)))
-        self._h = np.ones(m)
-        self.solver.setup(self._P, self._c, None, None, self._G, None, self._h, None, None)
+        self._g_buf = np.zeros(m * n)
+        self._h_buf = np.ones(m)
+        self._rows = np.arange(m, dtype=np.int64)
+        self._held_for(self.m)
         self._slack = _SlackQP(n, m, eps_abs, eps_rel, max_iter) if fallback == "piqp" else None
-        self.calls = 0  # number of PIQP solves (diagnostics)
+
+    @property
+    def piqp_solvers(self) -> dict:
+        """{row count k: (screening or only PIQP solver, tight solver or None)}."""
+        return {k: (e.screen, e.tight) for k, e in self._held.items()}
+
+    def _held_for(self, k: int) -> _Held:
+        """The PIQP objects for k rows (created and set up on the first use of k)."""
+        e = self._held.get(k)
+        if e is not None:
+            return e
+        eps_abs, eps_rel, max_iter, pre, screen_eps = self._piqp_settings
+        G = self._g_buf[:k * self.n].reshape(self.n, k).T      # F-ordered (k, n) view
+        h = self._h_buf[:k]
+
+        def held(eps_a, eps_r, precond, gap):
+            s = self._piqp_mod.DenseSolver()
+            _configure(s.settings, eps_a, eps_r, max_iter, precond, gap)
+            s.setup(self._P, self._c, None, None, G, None, h, None, None)
+            return s
+
+        if self.polish:
+            e = _Held(k, G, h, held(screen_eps, 0.1 * screen_eps, pre, False), held(eps_abs, eps_rel, None, True))
+        else:
+            e = _Held(k, G, h, held(eps_abs, eps_rel, None, True), None)
+        self._held[k] = e
+        return e
 
     def set_weights(self, W) -> None:
         """Change the diagonal weight W (n,) (updates PIQP's P in place; no rebuild)."""
@@ -429,71 +264,124 @@ class AdaptationQP:
             raise QPShapeError(f"W has shape {W.shape}, expected ({self.n},)")
         if not np.all(np.isfinite(W)) or not np.all(W > 0):
             raise ValueError(f"W must be finite and positive, got {W}")
-        self.W = W.copy()
-        idx = np.arange(self.n)
-        self._P[idx, idx] = self.W
-        self.solver.update(P=self._P)
+        self.W = np.ascontiguousarray(W, dtype=float).copy()
+        if self._held:
+            idx = np.arange(self.n)
+            self._P[idx, idx] = self.W
+            for e in self._held.values():
+                for s in (e.screen, e.tight):
+                    if s is not None:
+                        s.update(P=self._P)
 
     def solve(self, G, h, x_star) -> QPResult:
         """Solve the QP for this step's data. Raises only :class:`QPShapeError`.
 
         1. non-finite G, h or x* -> SOLVER_ERROR, x = x*;
-        2. G x* <= h (tolerance 0) -> UNCONSTRAINED, x = x* bit-exact, PIQP not called;
-        3. PIQP (update + solve); PIQP_SOLVED -> ACTIVE (z = PIQP's z_u);
-        4. PIQP_PRIMAL_INFEASIBLE or any other PIQP failure (MAX_ITER_REACHED, NUMERICS):
-           n <= 2 ("exact" fallback): :func:`qp_exact.solve_exact` decides -- its exact
-           optimum (ACTIVE) if the problem is feasible after all, else its exact
-           least-violation answer (INFEASIBLE_FALLBACK); the message names PIQP's status.
+        2. G x* <= h (zero tolerance, :func:`qp_types.constraint_values`) -> UNCONSTRAINED,
+           x = x* bit-exact, no solver;
+        3. solver="exact": the compiled exact solver (ACTIVE or INFEASIBLE_FALLBACK);
+        4. solver="piqp": duplicated rows dropped, PIQP (update + solve) to screen_eps and
+           :func:`polish` -> ACTIVE; if the polish is rejected or PIQP did not report
+           PIQP_SOLVED, PIQP to eps_abs/eps_rel with its default preconditioning (polished when
+           possible). PIQP_SOLVED -> ACTIVE (z = PIQP's z_u on the rows kept, 0 on the
+           duplicates);
+        5. PIQP_PRIMAL_INFEASIBLE or any other PIQP failure (MAX_ITER_REACHED, NUMERICS):
+           "exact" fallback (n <= 2): the compiled exact solver decides -- its exact optimum
+           (ACTIVE) if the problem is feasible after all, else its exact least-violation answer
+           (INFEASIBLE_FALLBACK); the message names PIQP's status.
            "piqp" fallback: least-violation slack QP (INFEASIBLE_FALLBACK), SOLVER_ERROR with
            x = x* if that fails too.
         """
-        G, h, x_star, _ = validate(G, h, x_star, None, self.n, self.m)
+        # fast path: float64 ndarrays of the right shapes (any layout; the dtype test is an identity
+        # test for arrays numpy made, an equality test for the others, e.g. unpickled ones)
+        if not (type(G) is _ND and type(h) is _ND and type(x_star) is _ND
+                and (G.dtype is _F64 or G.dtype == _F64) and (h.dtype is _F64 or h.dtype == _F64)
+                and (x_star.dtype is _F64 or x_star.dtype == _F64)
+                and G.shape == self._shape_G and h.shape == self._shape_h and x_star.shape == self._shape_x):
+            G, h, x_star, _ = validate(G, h, x_star, None, self.n, self.m)
         tol = self.active_tol
-        bad = _nonfinite_name(G, h, x_star, None)
-        if bad is not None:
-            return _error_result(x_star, G, h, f"non-finite values in {bad}", tol)
-        v_star = G @ x_star - h
-        if np.all(v_star <= 0.0):
-            return _unconstrained_result(x_star, v_star, tol)
+        active = _empty(self.m, _BOOL)
+        code = self._k.early_out(G, h, x_star, tol, active)
+        if code == 0:
+            return _result(x_star.copy(), UNCONSTRAINED, "x* feasible", 0.0, active, 0, self._z0)
+        if code == 2:
+            return _error_result(x_star, G, h, f"non-finite values in {_nonfinite_name(G, h, x_star, None)}", tol)
+        if self.solver_name == "exact":
+            return self._exact(G, h, x_star, "", 0)
+        return self._piqp_solve(G, h, x_star)
 
-        W = self.W
-        self._c[:] = -W * x_star
-        self._G[:, :] = G
-        self._h[:] = h
-        self.solver.update(c=self._c, G=self._G, h_u=self._h)
-        status = self.solver.solve()
+    # -- internals ------------------------------------------------------------------------
+
+    def _exact(self, G, h, x_star, prefix: str, iterations: int) -> QPResult:
+        k = self._k
+        x, z, active = _empty(self.n), _empty(self.m), _empty(self.m, _BOOL)
+        st, mv, it, kind, i, j = k.solve_small(
+            G, h, x_star, self.W, self.active_tol, self.eps_reg, DEFAULT_FEAS_RTOL, DEFAULT_PARALLEL_TOL,
+            DEFAULT_ZERO_ROW_RTOL, x, z, active)
+        msg = k.message(kind, i, j, G, h, x)
+        return _result(x, int(st), prefix + msg, float(mv), active, int(iterations + it),
+                       None if st == INFEASIBLE_FALLBACK else z)
+
+    def _run(self, solver, held: _Held):
+        """update + solve one held PIQP object; returns (status, result)."""
+        # positional (P, c, A, b, G, h_l, h_u): pybind11 matches them ~2 us faster than keywords
+        solver.update(None, self._c, None, None, held.G, None, held.h)
+        status = solver.solve()
         self.calls += 1
-        res = self.solver.result
+        return status, solver.result
+
+    def _accept(self, res, k, G, h, x_star, it, polished_msg, raw_msg):
+        """The polished answer if the polish accepts it, else PIQP's own (None when raw_msg is
+        None or x is not finite)."""
+        if self.polish:
+            x, z, active = _empty(self.n), _empty(self.m), _empty(self.m, _BOOL)
+            mv = self._k.polish(G, h, x_star, self.W, res.z_u, self._rows, res.x, DEFAULT_FEAS_RTOL, self.active_tol,
+                                x, z, active)
+            if mv == mv:  # not NaN: accepted
+                return _result(x, ACTIVE, polished_msg, mv, active, it, z)
+        if raw_msg is None:
+            return None
+        x = np.array(res.x, dtype=float, copy=True)
+        if not np.all(np.isfinite(x)):
+            return None
+        z = np.zeros(self.m)
+        z[self._rows[:k]] = res.z_u
+        return _finish(x, G, h, ACTIVE, raw_msg, self.active_tol, it, z)
+
+    def _piqp_solve(self, G, h, x_star) -> QPResult:
+        k = self._k.load_piqp(G, h, x_star, self.W, self._g_buf, self._h_buf, self._c, self._rows)
+        held = self._held.get(k) or self._held_for(k)
+        status, res = self._run(held.screen, held)
         it = int(res.info.iter)
         if status == self._status_solved:
-            x = np.array(res.x, dtype=float, copy=True)
-            z = np.array(res.z_u, dtype=float, copy=True)
-            if np.all(np.isfinite(x)):
-                msg = "solved (PIQP)"
-                if self.polish:
-                    pol = polish(G, h, x_star, W, z, x)
-                    if pol is not None:
-                        x, z = pol
-                        msg = "solved (PIQP, polished)"
-                return _finish(x, G, h, ACTIVE, msg, tol, it, z)
-            status_name = "PIQP_SOLVED with non-finite x"
-        else:
-            status_name = status.name
+            out = self._accept(res, k, G, h, x_star, it, "solved (PIQP, polished)",
+                               None if held.tight is not None else "solved (PIQP)")
+            if out is not None:
+                return out
+        if held.tight is not None:
+            # the screening answer was not verified, or the screening solve (no preconditioning)
+            # did not solve: PIQP with its default preconditioning, to eps_abs, decides
+            self.tight_calls += 1
+            status, res = self._run(held.tight, held)
+            it += int(res.info.iter)
+            if status == self._status_solved:
+                out = self._accept(res, k, G, h, x_star, it, "solved (PIQP tight, polished)", "solved (PIQP tight)")
+                if out is not None:
+                    return out
+        status_name = status.name if status != self._status_solved else "PIQP_SOLVED with non-finite x"
 
         # PIQP did not solve it (PIQP_PRIMAL_INFEASIBLE, or MAX_ITER / NUMERICS ...).
         if self.fallback == "exact":
-            # n <= 2: the exact enumeration decides feasibility itself; it returns the exact QP
+            # n <= 2: the exact solver decides feasibility itself; it returns the exact QP
             # optimum (ACTIVE) if PIQP gave up on a feasible problem, else the least-violation
             # answer (INFEASIBLE_FALLBACK).
-            ex = _exact.solve_exact(G, h, x_star, W, active_tol=tol, eps_reg=self.eps_reg)
-            prefix = f"PIQP status {status_name}; exact solver: "
-            return QPResult(ex.x, ex.status, prefix + ex.message, ex.max_violation, ex.active,
-                            it + ex.iterations, ex.z)
-        x, it2, ok = self._slack.solve(G, h, x_star, W, self.eps_reg)
+            return self._exact(G, h, x_star, f"PIQP status {status_name}; exact solver: ", it)
+        x, it2, ok = self._slack.solve(G, h, x_star, self.W, self.eps_reg)
         if not ok:
-            return _error_result(x_star, G, h, f"PIQP status {status_name}; least-violation slack QP failed", tol)
+            return _error_result(x_star, G, h, f"PIQP status {status_name}; least-violation slack QP failed",
+                                 self.active_tol)
         msg = violation_message(G, h, x, prefix=f"PIQP status {status_name}; infeasible")
-        return _finish(x, G, h, INFEASIBLE_FALLBACK, msg, tol, it + it2)
+        return _finish(x, G, h, INFEASIBLE_FALLBACK, msg, self.active_tol, it + it2)
 
 
 # ----------------------------------------------------------------------------------------
@@ -516,7 +404,7 @@ def solve_with_qpsolvers(G, h, x_star, W, solver: str = "piqp", *, active_tol: f
     bad = _nonfinite_name(G, h, x_star, W)
     if bad is not None or _bad_weight(W):
         return _error_result(x_star, G, h, f"non-finite or invalid values in {bad or 'W'}", active_tol)
-    v_star = G @ x_star - h
+    v_star = constraint_values(G, x_star, h)
     if skip_if_feasible and np.all(v_star <= 0.0):
         return _unconstrained_result(x_star, v_star, active_tol)
     problem = qpsolvers.Problem(np.diag(W), -W * x_star, G, h)
@@ -532,52 +420,3 @@ def solve_with_qpsolvers(G, h, x_star, W, solver: str = "piqp", *, active_tol: f
         z = None if sol.z is None else np.array(sol.z, dtype=float, copy=True)
         return _finish(x, G, h, ACTIVE, f"solved ({solver} via qpsolvers)", active_tol, 0, z)
     return least_violation(G, h, x_star, W, eps_reg, active_tol, prefix=f"{solver}: {why}; infeasible")
-
-
-# ----------------------------------------------------------------------------------------
-# KKT residuals
-# ----------------------------------------------------------------------------------------
-
-
-def kkt_residuals(G, h, x_star, W, x, z=None, active_tol: float = 1e-7) -> dict:
-    """KKT residuals of x (and multipliers z) for the QP, all as infinity norms.
-
-    Returns a dict with
-      ``primal``          max(G x - h, 0)                 [row units]
-      ``dual``            max(-z, 0)                       [cost / row units]
-      ``complementarity`` max |z_i (G x - h)_i|            [cost units]
-      ``stationarity``    |W (x - x*) + G^T z|_inf        [cost / x units]
-      ``z``               the multipliers used.
-    If z is None it is recovered by non-negative least squares
-    ``min_{z_A >= 0} |G_A^T z_A + W (x - x*)|`` over the rows with G x - h >= -active_tol
-    (z = 0 on the other rows), so ``dual`` is 0 and ``stationarity`` measures optimality.
-    """
-    from scipy.optimize import nnls
-
-    G, h, x_star, W = validate(G, h, x_star, W)
-    x = _as_float(x, "x")
-    if x.shape != x_star.shape:
-        raise QPShapeError(f"x has shape {x.shape}, expected {x_star.shape}")
-    v = G @ x - h
-    grad = W * (x - x_star)
-    if z is None:
-        z = np.zeros(G.shape[0])
-        act = np.flatnonzero(v >= -active_tol)
-        if act.size:
-            za, _ = nnls(G[act].T, -grad)
-            z[act] = za
-    else:
-        z = _as_float(z, "z")
-        if z.shape != h.shape:
-            raise QPShapeError(f"z has shape {z.shape}, expected {h.shape}")
-    return {
-        "primal": float(max(np.max(v, initial=0.0), 0.0)),
-        "dual": float(max(np.max(-z, initial=0.0), 0.0)),
-        "complementarity": float(np.max(np.abs(z * v), initial=0.0)),
-        "stationarity": float(np.max(np.abs(grad + G.T @ z), initial=0.0)),
-        "z": z,
-    }
-
-
-# Imported last: qp_exact imports QPResult and the helpers above from this module.
-from . import qp_exact as _exact  # noqa: E402
