@@ -24,7 +24,9 @@ The four kernels called from Python have explicit signatures (float64 arrays of 
 the controller's G is column-major -- and float64 scalars): importing this module compiles them
 or loads them from the cache in ``<repo>/build/numba-cache`` (``NUMBA_CACHE_DIR`` when set), and
 says so on stderr when it compiles (~30 s on the project machine; loading takes ~1 s). Other
-argument types raise TypeError instead of compiling on the fly.
+argument types raise TypeError instead of compiling on the fly. The kernels do not check shapes
+(numba does not bound-check): call them through :func:`solve_exact`, :func:`qp.polish` or
+:class:`qp.AdaptationQP`, which do.
 """
 
 from __future__ import annotations
