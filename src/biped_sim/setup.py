@@ -21,6 +21,7 @@ setup(
             'simulator = biped_sim.simulator_node:main',
             'disturbance = biped_sim.disturbance_node:main',
             'recorder = biped_sim.recorder_node:main',
+            'bridge = biped_sim.bridge_node:main',
         ],
     },
 )

@@ -1,5 +1,5 @@
 """The demo over DDS: ``python -m biped_sim.demo [--steps N] [--force F] [--duration D] [--start T]
-[--bag DIR] [--json FILE]``.
+[--bag DIR] [--json FILE] [--live [--port N]]``.
 
 1. launches the node graph (``biped_sim.launch``) with the bag under ``runs/demo_<timestamp>/``; the
    simulator is started paused (``wait_for_pushes:=1``) so that sim time cannot run past the push;
@@ -8,6 +8,11 @@
 4. reads the bag back (``bag_reader``) and prints a summary: survived or fell and why, max |l| (the
    simulator's centre of pressure), p and tau excursions, message counts per topic, MCAP path and
    size, wall time, lockstep steps/s. ``--json FILE`` writes the summary too.
+
+``--live``: the launcher also starts the Foxglove WebSocket bridge (``launch --live``: simulator paced
+at real time); connect Foxglove to ``ws://localhost:8765`` (or ``--port N``). The run starts as soon as
+the push is accepted; a client that connects later gets the latched ``/robot_description`` and
+follows from then on.
 
 Exit status 0 when the demo ran (whatever the robot did); 1 when the graph or the push failed.
 """
@@ -64,6 +69,8 @@ def main(argv=None) -> int:
     ap.add_argument('--bag', type=Path, default=None)
     ap.add_argument('--json', type=Path, default=None)
     ap.add_argument('--timeout', type=float, default=600.0, help='wall s for the whole run')
+    ap.add_argument('--live', action='store_true', help='Foxglove WebSocket bridge, real-time pacing')
+    ap.add_argument('--port', type=int, default=None, help='--live: WebSocket port (default 8765)')
     a = ap.parse_args(argv)
     from biped_sim.settings import repo_root
     bag = (a.bag or repo_root() / 'runs' / f'demo_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
@@ -73,6 +80,8 @@ def main(argv=None) -> int:
         ready = Path(tmp) / 'ready'
         cmd = [sys.executable, '-m', 'biped_sim.launch', '--bag', str(bag), '--steps', str(a.steps),
                '--sim-param', 'wait_for_pushes:=1', '--ready-file', str(ready)]
+        if a.live:
+            cmd += ['--live'] + (['--port', str(a.port)] if a.port is not None else [])
         launcher = subprocess.Popen(cmd)
         forwarded = {'n': 0}
 

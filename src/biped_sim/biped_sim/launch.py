@@ -1,6 +1,7 @@
 """Launcher of the biped's node graph (ROS 2 ``launch`` is not on PyPI).
 
     python -m biped_sim.launch [--params FILE] [--bag DIR] [--steps N] [--sim-param KEY:=VALUE ...]
+                               [--live [--port N]]
 
 Starts, as child processes (executables found as ``ros2 run`` finds them: ``<prefix>/lib/<pkg>/<exe>``
 of the package's ament-index prefix), each with ``--ros-args --params-file FILE``:
@@ -20,6 +21,14 @@ messages. It isolates nothing (children inherit ROS_DOMAIN_ID, ROS_AUTOMATIC_DIS
 - Children get PR_SET_PDEATHSIG(SIGTERM): they do not outlive a killed launcher.
 
 ``--ready-file FILE``: written (with the bag path) once every node is up, for scripts and tests.
+
+``--live [--port N]``: also starts ``bridge`` (Foxglove WebSocket server, ``biped_sim.bridge_node``;
+``-p port:=N`` when given, else the parameters file's, 8765) right after the recorder and waits until
+it is subscribed to every topic, and sets the simulator's ``real_time_factor:=1.0`` (a later
+``--sim-param real_time_factor:=...`` wins). The bridge is not part of the run: if it dies (or
+cannot start, e.g. the port is in use) the launcher reports "node 'bridge' died unexpectedly (exit
+code N): the run goes on without the live view" and carries on; its exit status stays the
+simulator's. It is stopped after the disturbance node, before the recorder.
 """
 
 from __future__ import annotations
@@ -103,8 +112,12 @@ def stop_children(children: list[Child], timeout: float) -> None:
         c.proc.wait()
 
 
-def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict) -> None:
-    """Wait until the node ``recorder`` is subscribed to every topic of the graph (over DDS)."""
+BRIDGE = ('bridge', 'biped_sim', 'bridge')   # --live only
+
+
+def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict, node_name: str = 'recorder') -> None:
+    """Wait until the node ``node_name`` (the recorder; the bridge with --live) is subscribed to every
+    topic of the graph (over DDS)."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -116,7 +129,7 @@ def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict) -> 
         deadline = time.monotonic() + timeout
         while True:
             missing = [t for t in gn.TOPICS
-                       if gn.RECORDER_NODE not in {i.node_name for i in node.get_subscriptions_info_by_topic(t)}]
+                       if node_name not in {i.node_name for i in node.get_subscriptions_info_by_topic(t)}]
             if not missing:
                 return
             for c in watch:
@@ -125,7 +138,7 @@ def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict) -> 
             if stop['signal'] is not None:
                 return
             if time.monotonic() > deadline:
-                raise RuntimeError(f'the recorder is not subscribed after {timeout} s to {", ".join(missing)}')
+                raise RuntimeError(f'the {node_name} is not subscribed after {timeout} s to {", ".join(missing)}')
             time.sleep(0.05)
     finally:
         node.destroy_node()
@@ -151,6 +164,9 @@ def parse_args(argv=None):
     ap.add_argument('--grace', type=float, default=7.0,
                     help='s the survivors get after a node died (the simulator detects a dead controller)')
     ap.add_argument('--ready-file', type=Path, default=None, help='written once every node is started')
+    ap.add_argument('--live', action='store_true',
+                    help='start the Foxglove WebSocket bridge; simulator paced at real_time_factor 1.0')
+    ap.add_argument('--port', type=int, default=None, help='--live: WebSocket port (default: the params file, 8765)')
     return ap.parse_args(argv)
 
 
@@ -166,8 +182,12 @@ def main(argv=None) -> int:
     if args.steps is not None and args.steps < 0:
         log('--steps must be >= 0')
         return 2
+    if args.port is not None and not (args.live and 0 <= args.port <= 65535):
+        log('--port needs --live and a port in [0, 65535]')
+        return 2
+    nodes = NODES[:1] + ((BRIDGE,) if args.live else ()) + NODES[1:]
     try:
-        exes = {name: find_executable(pkg, exe) for name, pkg, exe in NODES}
+        exes = {name: find_executable(pkg, exe) for name, pkg, exe in nodes}
     except FileNotFoundError as exc:
         log(str(exc))
         return 2
@@ -176,6 +196,9 @@ def main(argv=None) -> int:
              'controller': [x for kv in args.ctrl_param for x in ('-p', kv)]}
     if args.steps is not None:
         extra['simulator'] += ['-p', f'max_steps:={args.steps}']
+    if args.live:   # before the --sim-param values, which win
+        extra['simulator'] = ['-p', 'real_time_factor:=1.0'] + extra['simulator']
+        extra['bridge'] = ['-p', f'port:={args.port}'] if args.port is not None else []
     # a push that could only start after the run's end is refused by the service: the simulator's
     # max_time (when given) is the disturbance node's horizon
     for kv in args.sim_param:
@@ -196,9 +219,10 @@ def main(argv=None) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     children: dict[str, Child] = {}
     status = 0
+    bridge_reported = False   # a dead bridge is reported once and does not stop the run
     t0 = time.monotonic()
     try:
-        for name, _pkg, _exe in NODES:
+        for name, _pkg, _exe in nodes:
             if stop['signal'] is not None:
                 break
             cmd = [str(exes[name]), '--ros-args', '--params-file', str(params), *extra.get(name, [])]
@@ -206,6 +230,13 @@ def main(argv=None) -> int:
             if name == 'recorder':
                 wait_recorder_subscribed(args.start_timeout, [children['recorder']], stop)
                 log(f'recorder subscribed; bag {bag}')
+            elif name == 'bridge':
+                try:
+                    wait_recorder_subscribed(args.start_timeout, [children['bridge']], stop, node_name='bridge')
+                    log('bridge subscribed (Foxglove WebSocket)')
+                except RuntimeError as exc:
+                    log(f'{exc}: the run goes on without the live view')
+                    bridge_reported = True
         if args.ready_file is not None and stop['signal'] is None:
             args.ready_file.write_text(f'{bag}\n')
         log(f'graph up ({", ".join(children)}) in {time.monotonic() - t0:.2f} s')
@@ -222,7 +253,11 @@ def main(argv=None) -> int:
                 else:
                     log(f'simulator finished (exit code {status}) after {time.monotonic() - t0:.2f} s')
                 break
-            dead = [c for n, c in children.items() if n != 'simulator' and c.poll() is not None]
+            bridge = children.get('bridge')
+            if bridge is not None and not bridge_reported and bridge.poll() is not None:
+                log(f"node 'bridge' died unexpectedly (exit code {bridge.poll()}): the run goes on without the live view")
+                bridge_reported = True
+            dead = [c for n, c in children.items() if n not in ('simulator', 'bridge') and c.poll() is not None]
             if dead:
                 c = dead[0]
                 log(f"node '{c.name}' died unexpectedly (exit code {c.poll()})")
@@ -243,7 +278,7 @@ def main(argv=None) -> int:
             log(f'got {signal.Signals(stop["signal"]).name}: stopping the graph')
             status = 128 + stop['signal']
         # simulator first, the recorder last
-        order = [children[n] for n in ('simulator', 'controller', 'disturbance') if n in children]
+        order = [children[n] for n in ('simulator', 'controller', 'disturbance', 'bridge') if n in children]
         stop_children(order, args.stop_timeout)
         if 'recorder' in children:
             stop_children([children['recorder']], args.stop_timeout)
