@@ -1,0 +1,278 @@
+"""Foxglove bridge: publish-to-WebSocket-frame latency and the lockstep rate with the bridge on and off.
+
+    .venv/bin/python -m benchmarks.bridge_bench [--pairs 3] [--steps 2] [--live-steps 1] [--json FILE]
+
+Every run is the whole graph from ``biped_sim.launch`` (recorder included) in its own ROS domain
+(``domain_coordinator``), on 127.0.0.1 only:
+
+- **rate, off/on** (``--pairs`` pairs, alternated off, on, off, on, ... so that the machine's drift
+  hits both alike): ``--steps`` walking steps as fast as possible (``real_time_factor:=0``), without
+  the bridge, then with ``--live`` and a WebSocket client subscribed to every channel (what a
+  Foxglove layout showing everything asks for), reading every frame. The rate is the simulator's own
+  figure, from its end-of-run line (control steps / wall seconds from the first published state).
+  Every run starts its lockstep ``start_delay`` 2 s after the graph is connected, time for the client
+  to subscribe before the first state.
+- **latency, live** (one run): ``--live`` as a user runs it (``real_time_factor`` 1.0), the same
+  client. For every ``/sim/state`` (matched by ``sequence``) and ``/joint_states`` (matched by
+  stamp) frame: latency = the client's ``time.time_ns()`` right after the frame was read - the
+  message's DDS source timestamp (the simulator's ``publish()``), which the recorder stores as the
+  MCAP ``publish_time``. Same host, same clock (CLOCK_REALTIME). The client is a Python asyncio
+  ``websockets`` client: its own wake-up is part of the figure. Beside it, in the same process, a
+  plain DDS subscriber (rclpy, raw, the recorder's QoS, its own thread) measures publish-to-callback
+  latency for ``/sim/state`` the same way: the baseline the bridge path adds to (it runs in the
+  rate-off runs too, so both sides of the rate comparison carry the same subscriber). The rate-on runs
+  give the same figures under the as-fast-as-possible burst (queueing).
+
+Percentiles: numpy ``percentile`` (linear). Nothing is asserted; figures are printed (and --json).
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import platform
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # `python benchmarks/bridge_bench.py`
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.lockstep import _LINE  # noqa: E402  the simulator's "run over: ..." line
+
+SUBPROTOCOL = 'foxglove.sdk.v1'
+START_DELAY = 2.0   # s between "graph connected" and the first state: the client subscribes meanwhile
+
+
+class Domain:
+    """A free ROS_DOMAIN_ID (domain_coordinator's port lock) and an environment inside it."""
+
+    def __enter__(self):
+        from domain_coordinator import domain_id
+        self._cm = domain_id()
+        self.id = self._cm.__enter__()
+        env = dict(os.environ, ROS_DOMAIN_ID=str(self.id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        env.pop('ROS_STATIC_PEERS', None)
+        env.pop('ROS_LOCALHOST_ONLY', None)
+        self.env = env
+        return self
+
+    def __exit__(self, *exc):
+        self._cm.__exit__(*exc)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float) -> tuple[dict, list]:
+    """Connect once the graph is up, subscribe to every advertised channel, read every frame until
+    the server closes (the launcher stops the bridge after the run). Returns ({sub id: topic},
+    [(recv ns, frame)])."""
+    import websockets
+    deadline = time.monotonic() + timeout
+    while not ready.exists():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            raise RuntimeError('the graph did not come up')
+        await asyncio.sleep(0.05)
+    ws = await websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None, open_timeout=30)
+    topics, frames = {}, []
+    try:
+        while time.monotonic() < deadline:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
+            except asyncio.TimeoutError:
+                continue
+            except websockets.ConnectionClosed:
+                break
+            t = time.time_ns()
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                if msg['op'] == 'advertise':
+                    subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']]
+                    topics.update({c['id']: c['topic'] for c in msg['channels']})
+                    await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+            else:
+                frames.append((t, frame))
+    finally:
+        await ws.close()
+    return topics, frames
+
+
+class DdsProbe:
+    """A raw ``/sim/state`` subscriber spun in its own thread: (receive ns, source timestamp ns, CDR)."""
+
+    def __init__(self, domain: int):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from biped_sim import graph_names as gn
+        from biped_sim.recorder_node import recording_qos
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node('bridge_bench_probe', context=self.ctx)
+        spec = gn.TOPICS[gn.SIM_STATE]
+        self.rows: list[tuple[int, int, bytes]] = []
+        self.node.create_subscription(spec.msg_class(), spec.name, self._on_msg, recording_qos(spec.qos_profile),
+                                      raw=True)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _on_msg(self, msg: bytes, info) -> None:
+        self.rows.append((time.time_ns(), int(info['source_timestamp']), msg))
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> list:
+        import rclpy
+        self._stop.set()
+        self._thread.join(10)
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+        return self.rows
+
+
+def _stats(values) -> dict:
+    a = np.asarray(values, dtype=float)
+    if not a.size:
+        return {'n': 0}
+    return {'n': int(a.size), 'p50': float(np.percentile(a, 50)), 'p99': float(np.percentile(a, 99)),
+            'max': float(a.max())}
+
+
+def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, timeout: float = 600.0) -> dict:
+    """One launch; the simulator's rate, and with ``live`` the client's latencies (ms)."""
+    tmp.mkdir(parents=True, exist_ok=True)
+    bag, ready, log = tmp / 'bag', tmp / 'ready', tmp / 'launch.log'
+    port = free_port()
+    cmd = [sys.executable, '-m', 'biped_sim.launch', '--bag', str(bag), '--ready-file', str(ready),
+           '--steps', str(steps)]
+    if live:
+        cmd += ['--live', '--port', str(port)]
+    cmd += ['--sim-param', f'real_time_factor:={rtf}', '--sim-param', f'start_delay:={START_DELAY}']
+    with open(log, 'w') as fh:
+        proc = subprocess.Popen(cmd, cwd=ROOT, env=dom.env, stdout=fh, stderr=subprocess.STDOUT)
+    probe = DdsProbe(dom.id)
+    dds_rows = []
+    try:
+        topics, frames = {}, []
+        if live:
+            topics, frames = asyncio.run(_client(f'ws://127.0.0.1:{port}', proc, ready, timeout))
+        proc.wait(timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        dds_rows = probe.close()
+    text = log.read_text(errors='replace')
+    m = _LINE.search(text)
+    out = {'live': live, 'real_time_factor': rtf, 'exit_code': proc.returncode,
+           'steps': int(m['steps']) if m else None, 'wall_s': float(m['wall']) if m else None,
+           'steps_per_s': int(m['steps']) / float(m['wall']) if m and float(m['wall']) > 0 else None}
+    if proc.returncode != 0 or m is None:
+        out['log_tail'] = text[-1500:]
+        return out
+    if live:
+        out.update(latencies(bag, topics, frames))
+    out['latency_ms dds /sim/state'] = _stats([(recv - src) * 1e-6 for recv, src, _ in dds_rows])
+    return out
+
+
+def latencies(bag: Path, topics: dict, frames: list) -> dict:
+    """Frame receive time - DDS publish time (ms), per topic, matched against the bag."""
+    from rclpy.serialization import deserialize_message
+    from biped_msgs_py.msg import SimState
+    from sensor_msgs.msg import JointState
+    from biped_sim.bag_reader import read_bag
+    d = read_bag(bag, decode=True)
+    pub_state = {m.sequence: pt for t, _, pt, m in d['messages'] if t == '/sim/state'}
+    pub_joint = {(m.header.stamp.sec, m.header.stamp.nanosec): pt for t, _, pt, m in d['messages']
+                 if t == '/joint_states'}
+    lat = {'/sim/state': [], '/joint_states': []}
+    counts: dict[str, int] = {}
+    for recv, frame in frames:
+        if frame[0] != 0x01:
+            continue
+        sub = struct.unpack_from('<I', frame, 1)[0]
+        topic = topics.get(sub)
+        counts[topic] = counts.get(topic, 0) + 1
+        if topic == '/sim/state':
+            s = deserialize_message(bytes(frame[13:]), SimState)
+            if s.sequence in pub_state:
+                lat[topic].append((recv - pub_state[s.sequence]) * 1e-6)
+        elif topic == '/joint_states':
+            j = deserialize_message(bytes(frame[13:]), JointState)
+            key = (j.header.stamp.sec, j.header.stamp.nanosec)
+            if key in pub_joint:
+                lat[topic].append((recv - pub_joint[key]) * 1e-6)
+    out = {'frames_per_topic': dict(sorted((k, v) for k, v in counts.items() if k)),
+           'bag_states': len(pub_state)}
+    for topic, v in lat.items():
+        out[f'latency_ms {topic}'] = _stats(v)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='bridge_bench', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--pairs', type=int, default=3, help='off/on pairs of as-fast-as-possible runs')
+    ap.add_argument('--steps', type=int, default=2, help='walking steps per rate run')
+    ap.add_argument('--live-steps', type=int, default=1, help='walking steps of the real-time latency run')
+    ap.add_argument('--json', type=Path, default=None)
+    a = ap.parse_args(argv)
+    t0 = time.monotonic()
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp, Domain() as dom:
+        for i in range(a.pairs):
+            for live in (False, True):
+                r = run_graph(dom, Path(tmp) / f'rate_{i}_{int(live)}', live=live, rtf=0.0, steps=a.steps)
+                r['kind'] = 'rate'
+                runs.append(r)
+                print(json.dumps(r), flush=True)
+        r = run_graph(dom, Path(tmp) / 'live', live=True, rtf=1.0, steps=a.live_steps)
+        r['kind'] = 'latency'
+        runs.append(r)
+        print(json.dumps(r), flush=True)
+    off = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and not r['live'] and r['steps_per_s']]
+    on = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and r['live'] and r['steps_per_s']]
+    summary = {'date': time.strftime('%Y-%m-%d %H:%M:%S'), 'cpus': os.cpu_count(), 'machine': platform.machine(),
+               'load_average_at_end': os.getloadavg(), 'wall_s': time.monotonic() - t0,
+               'rate_off_steps_per_s': off, 'rate_on_steps_per_s': on,
+               'rate_on_over_off': (float(np.mean(on)) / float(np.mean(off))) if on and off else None,
+               'runs': runs}
+    print('==== bridge benchmark ====')
+    print(f"lockstep rate, bridge off: {', '.join(f'{x:.0f}' for x in off)} steps/s; "
+          f"on (client subscribed to every channel): {', '.join(f'{x:.0f}' for x in on)} steps/s; "
+          f"on/off {summary['rate_on_over_off']:.2f}" if on and off else 'rate: not available')
+    for r in runs:
+        if r.get('steps_per_s'):
+            for key in ('/sim/state', '/joint_states', 'dds /sim/state'):
+                s = r.get(f'latency_ms {key}', {'n': 0})
+                if s['n']:
+                    path = 'DDS only ' if key.startswith('dds') else 'WebSocket'
+                    print(f"latency {r['kind']:7s} bridge {'on ' if r['live'] else 'off'} "
+                          f"rtf {r['real_time_factor']:.0f} {path} {key.split()[-1]:14s}: "
+                          f"n {s['n']}, p50 {s['p50']:.2f} ms, p99 {s['p99']:.2f} ms, max {s['max']:.2f} ms")
+    print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")
+    if a.json:
+        a.json.write_text(json.dumps(summary, indent=2) + '\n')
+    return 0 if all(r['exit_code'] == 0 for r in runs) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
