@@ -5,6 +5,7 @@ real closed loop through a process pool and through Ray giving identical records
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from collections import Counter
 from io import StringIO
@@ -226,6 +227,16 @@ def test_spec_validation():
         cm.Search(resolution=0.0)
     with pytest.raises(cm.MapError, match="max"):
         cm.Search(coarse=100.0, fmax=50.0)
+    with pytest.raises(cm.MapError, match="max_impulse"):
+        cm.Search(max_impulse=0.0)
+    # the impulse bound: 50 N s scans 2000 N at 0.025 s, 500 N at 0.1 s, 250 N at 0.2 s; a prefix of the
+    # unbounded coarse grid (records serve either); never below one coarse step
+    s = cm.Search()
+    assert [len(s.for_duration(d).coarse_forces()) for d in (0.025, 0.1, 0.2, 5.0)] == [40, 10, 5, 1]
+    for d in (0.1, 0.2):
+        short = s.for_duration(d).coarse_forces()
+        assert short == s.coarse_forces()[:len(short)]
+    assert cm.Search(max_impulse=math.inf).for_duration(0.2).fmax == 2000.0
     assert cm.phases_of(4) == (0.0, 0.25, 0.5, 0.75)
     assert cm.phases_of(20)[10] == 0.5 and cm.onset_time(0.5, 0.463) == experiment.DEFAULT_START
     assert set(cm.phases_of(10)) <= set(cm.phases_of(20))   # a 10-phase map's records serve the 20-phase map

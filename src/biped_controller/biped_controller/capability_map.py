@@ -26,7 +26,8 @@ of 1 at the end.
 
 Search per cell (mode, direction, phase, duration), as ``experiment.max_push_modes`` does it for one
 cell: the coarse forces ``experiment.coarse_forces(max, coarse)`` (coarse, 2 coarse, ... <= max) are all
-simulated; ``experiment.analyse_coarse`` gives the last survivable force below the first failing one
+simulated, with ``max`` lowered to ``max_impulse / duration`` for long pushes (default 50 N s = 2000 N x
+0.025 s: the same impulse range for every duration, 500 N at 0.1 s, 250 N at 0.2 s); ``experiment.analyse_coarse`` gives the last survivable force below the first failing one
 (lo, 0 when the first fails), the first failing coarse force (hi) and the survivable coarse forces above
 it (the islands: survival is not monotone in the force); then [lo, hi] is bisected at midpoints down to
 ``resolution`` [N] (the midpoints of ``experiment.bisect_edge``; tested equal). The boundary is the
@@ -95,6 +96,7 @@ DEFAULT_DURATIONS: tuple[float, ...] = (0.025, 0.1, 0.2)
 DEFAULT_RESOLUTION = 5.0      # bisection resolution [N] (experiment's max-push default)
 DEFAULT_COARSE = 50.0         # coarse scan step [N] (experiment's max-push default)
 DEFAULT_MAX = 2000.0          # largest force scanned [N] (experiment's max-push default)
+DEFAULT_MAX_IMPULSE = 50.0    # largest impulse scanned [N s]: 2000 N x 0.025 s, the same range for every duration
 DEFAULT_BATCH = {"pool": 1, "ray": 4}
 RECORD_VERSION = 1
 
@@ -133,11 +135,14 @@ class SimSpec:
 
 @dataclass(frozen=True)
 class Search:
-    """The force search of every cell: coarse step and largest force [N], bisection resolution [N]."""
+    """The force search of a cell: coarse step and largest force [N], bisection resolution [N]; and the
+    largest impulse scanned [N s] (inf: no bound), which lowers the largest force of long pushes to
+    ``max_impulse / duration`` (never below one coarse step): :meth:`for_duration`."""
 
     coarse: float = DEFAULT_COARSE
     fmax: float = DEFAULT_MAX
     resolution: float = DEFAULT_RESOLUTION
+    max_impulse: float = DEFAULT_MAX_IMPULSE
 
     def __post_init__(self):
         for name in ("coarse", "fmax", "resolution"):
@@ -146,9 +151,18 @@ class Search:
                 raise MapError(f"{name} must be a finite number > 0 [N], got {v!r}")
         if self.fmax < self.coarse:
             raise MapError(f"max ({self.fmax} N) must be >= the coarse step ({self.coarse} N)")
+        if not (isinstance(self.max_impulse, (int, float)) and self.max_impulse > 0):
+            raise MapError(f"max_impulse must be > 0 [N s] (inf: no bound), got {self.max_impulse!r}")
 
     def coarse_forces(self) -> tuple[float, ...]:
         return tuple(experiment.coarse_forces(self.fmax, self.coarse))
+
+    def for_duration(self, duration: float) -> "Search":
+        """The search of a push of ``duration`` [s]: largest force min(max, max_impulse / duration), at
+        least one coarse step. Its coarse forces are a prefix of the unbounded ones, so records serve
+        searches of any bound."""
+        fmax = max(self.coarse, min(self.fmax, self.max_impulse / duration))
+        return Search(self.coarse, fmax, self.resolution)
 
 
 @dataclass(frozen=True)
@@ -602,7 +616,7 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
     try:
         while True:
             for c in dirty:
-                forces, b = plan_cell(spec.search, survived[c])
+                forces, b = plan_cell(spec.search.for_duration(c.duration), survived[c])
                 if b is not None:
                     bounds[c] = b
                     needs.pop(c, None)
@@ -619,7 +633,7 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
                 inflight[h] = chunk
                 pending.update(s.key() for s in chunk)
             if progress is not None:
-                remaining = sum(remaining_estimate(spec.search, survived[c]) for c in needs)
+                remaining = sum(remaining_estimate(spec.search.for_duration(c.duration), survived[c]) for c in needs)
                 progress.update(simulated, resumed, remaining)
             if not inflight:
                 break
@@ -660,6 +674,7 @@ def cell_summary(run: MapRun, cell: Cell) -> dict:
         "mode": cell.mode, "direction": cell.direction, "phase": cell.phase,
         "start": onset_time(cell.phase, ctx.family.T), "duration": d,
         "force": b.lo, "first_failure": b.hi, "censored": b.hi is None,
+        "scan_max": run.spec.search.for_duration(d).fmax,
         "impulse": impulse(b.lo, d), "delta_v_com": com_velocity_change(b.lo, d, M),
         "body_weight_fraction": body_weight_fraction(b.lo, M, g),
         "cause": first["cause"] if first else None, "reason": first["reason"] if first else None,
@@ -790,6 +805,8 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
     return {
         "map": {"modes": list(s.modes), "directions": list(s.directions), "phases": list(s.phases),
                 "durations": list(s.durations), "coarse": s.search.coarse, "max": s.search.fmax,
+                "max_impulse": s.search.max_impulse if math.isfinite(s.search.max_impulse) else None,
+                "scan_max_per_duration": {f"{d:g}": s.search.for_duration(d).fmax for d in s.durations},
                 "resolution": s.search.resolution, "height": s.height,
                 "onset": f"start = phase * T of the first step, T = {ctx.family.T:g} s (walk starts at t = 0)",
                 "direction_sign": "forward = + force (on the back), backward = - force",
@@ -827,7 +844,6 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     s = run.spec
-    coarse = np.array(s.search.coarse_forces())
     paths: list[Path] = []
 
     def save(fig, name):
@@ -874,6 +890,7 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
         for i, dr in enumerate(s.directions):
             for j, du in enumerate(s.durations):
                 ax = axes[i][j]
+                coarse = np.array(s.search.for_duration(du).coarse_forces())
                 grid = np.full((len(coarse), len(s.phases)), np.nan)
                 for k, x in enumerate(s.phases):
                     rc = run.records[Cell(m, dr, x, du)]
@@ -960,6 +977,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--resolution", type=float, default=DEFAULT_RESOLUTION, help="bisection resolution [N]")
     ap.add_argument("--coarse", type=float, default=DEFAULT_COARSE, help="coarse scan step [N]")
     ap.add_argument("--max", type=float, default=DEFAULT_MAX, help="largest force scanned [N]")
+    ap.add_argument("--max-impulse", type=float, default=DEFAULT_MAX_IMPULSE,
+                    help="largest impulse scanned [N s] (inf: none): long pushes scan up to this / duration")
     ap.add_argument("--height", type=float, default=None,
                     help="push point above the hip [m] (default: push_height of config/simulator.yaml)")
     ap.add_argument("--workers", type=int, default=cores, help=f"processes (default: all cores, {cores}); 1 = in process")
@@ -979,7 +998,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.workers < 1:
             raise MapError(f"--workers must be >= 1, got {args.workers}")
         spec = MapSpec(tuple(_split(args.modes)), tuple(_split(args.directions)), phases_of(args.phases),
-                       tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution),
+                       tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
                        args.height, settings)
     except (MapError, OverrideError, ControllerConfigError, SimConfigError) as exc:
         ap.error(str(exc))
@@ -987,7 +1006,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"scripts/capability_map {' '.join(sys.argv[1:] if argv is None else argv)}")
     print(f"{len(spec.cells())} cells: modes {','.join(spec.modes)} x directions {','.join(spec.directions)} x "
           f"{len(spec.phases)} phases x durations {','.join(f'{d:g}' for d in spec.durations)} s; coarse "
-          f"{spec.search.coarse:g} N to {spec.search.fmax:g} N, bisection to {spec.search.resolution:g} N; store {args.store}")
+          f"{spec.search.coarse:g} N to " + ", ".join(f"{spec.search.for_duration(d).fmax:g} N ({d:g} s)" for d in spec.durations)
+          + f", bisection to {spec.search.resolution:g} N; store {args.store}")
     ex = make_executor(args.workers, args.ray)
     # a kill (SIGTERM) unwinds like Ctrl-C: the executor is closed (no orphaned workers) and every record
     # stored so far stays for the next run
@@ -1017,7 +1037,7 @@ def main(argv: list[str] | None = None) -> int:
                     b = run.boundaries[Cell(m, dr, ph, du)]
                     row.append(f"{b.lo:>4g}{'+' if b.hi is None else ('*' if b.islands else ' ')}")
                 print(f"{m:<5} {dr:<8} {du:>5g} " + " ".join(row))
-    print("(boundary force [N] per onset phase; * = islands above the edge, + = censored: survived up to the max)")
+    print("(boundary force [N] per onset phase; * = islands above the edge, + = censored: survived up to the scan's max)")
     for line in findings_text(summ["findings"]):
         print(line)
     for p in figs:
