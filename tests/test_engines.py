@@ -37,3 +37,13 @@ def test_engines_are_really_different_code():
     from biped_sim.simulator import Simulator
     assert isinstance(Simulator(config=load_sim_config(engine="fast")).fm, FastFloatingModel)
     assert type(Simulator(config=load_sim_config(engine="reference")).fm) is FloatingModel
+
+
+def test_exact_qp_solver_option_gives_the_same_run():
+    """qp_solver: exact (dedicated solver) vs piqp (the product's): same decisions to solver tolerance."""
+    push = (Push(0.2003217, 0.025, 400.0),)
+    a = runner.run(steps=1, mode="both", pushes=push, ctrl_config=load_controller_config(mode="both", qp_solver="piqp"))
+    b = runner.run(steps=1, mode="both", pushes=push, ctrl_config=load_controller_config(mode="both", qp_solver="exact"))
+    assert sum(s.qp_status == 1 for s in a.statuses) > 0, "the push must make the QP active"
+    assert [s.qp_status for s in a.statuses] == [s.qp_status for s in b.statuses]
+    assert_same_run(a, b, tol=1e-6, skip_status=("qp_message",))

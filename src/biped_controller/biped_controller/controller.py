@@ -37,7 +37,7 @@ from biped_sim.settings import SettingsError, default_config_dir, read_settings
 
 from biped_sim.gait_family import GaitFamily, eq11
 from .model import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows
-from .qp import SOLVER_ERROR, AdaptationQP
+from .qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
 
 MODES = ("none", "tau", "p", "both")
 ENGINES = ("fast", "reference")
@@ -68,6 +68,7 @@ class ControllerConfig:
     margin_zmp: float             # [m] QP keeps l within [l_m + margin, l_M - margin]
     margin_torque: float          # [N m] QP keeps |Gamma_i| <= Gamma_iM - margin
     tau_dot_min: float            # [-] QP keeps tau' (after one period) >= this
+    qp_solver: str                # "piqp" (the product's solver) or "exact" (dedicated n <= 2 solver)
     disturbance_observer: bool    # estimate a horizontal torso force (not in the paper) for the QP rows
     observer_height: float        # [m] assumed application height of the estimated force above the hip
     engine: str                   # "fast": compiled model terms (biped_sim.fast_engine); "reference": Pinocchio
@@ -76,6 +77,8 @@ class ControllerConfig:
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
             raise ControllerConfigError(f"engine must be one of {ENGINES}, got {self.engine!r}")
+        if self.qp_solver not in QP_SOLVERS:
+            raise ControllerConfigError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")
         if self.mode not in MODES:
             raise ControllerConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
         for name in ("Kp", "Kv", "kp", "kv", "weight_p", "weight_tau", "period", "tau_dot_min"):
@@ -203,7 +206,8 @@ class AdaptiveController:
         self._adapted_idx = list(self.adapted)
         self._fixed_idx = [i for i in (0, 1) if i not in self.adapted]
         n = len(self.adapted)
-        self.qp = AdaptationQP(n, QP_ROWS, np.array([c.weight_p, c.weight_tau])[list(self.adapted)]) if n else None
+        self.qp = AdaptationQP(n, QP_ROWS, np.array([c.weight_p, c.weight_tau])[list(self.adapted)],
+                               solver=c.qp_solver) if n else None
         self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
         self.stance: int | None = None
         self.step_index = 0

@@ -44,7 +44,7 @@ from biped_sim.node_params import (
 )
 from biped_sim.simulator import load_sim_config
 
-from .controller import ENGINES, MODES, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
+from .controller import ENGINES, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
 from biped_sim.gait_family import GaitFamily
 
 
@@ -59,6 +59,8 @@ def read_controller_config(node: Node) -> ControllerConfig:
             kw[name] = get_str(node, name, default, choices=MODES)
         elif name == 'engine':
             kw[name] = get_str(node, name, default, choices=ENGINES)
+        elif name == 'qp_solver':
+            kw[name] = get_str(node, name, default, choices=QP_SOLVERS)
         elif isinstance(default, bool):
             kw[name] = get_bool(node, name, default)
         else:
