@@ -580,8 +580,8 @@ def stable_keys(R: dict) -> dict:
         "inprocess.fast.realtime_factor": get("inprocess", "fast", "realtime_factor"),
         "inprocess.reference.realtime_factor": get("inprocess", "reference", "realtime_factor"),
         "controller.step_p50_us": get("controller", "pieces_us", "total", "p50"),
-        "qp.early_out_p50_us": get("solvers", "unconstrained_early_out_us", "p50"),
-        "qp.piqp_ratio_to_fastest": get("solvers", "table_us", "PIQP held (AdaptationQP)", "ratio_to_fastest"),
+        "qp.early_out_p50_us": get("qp_bench", "early_out_p50_us"),
+        "qp.piqp_ratio_to_fastest": get("qp_bench", "piqp_ratio_to_fastest"),
         "dds.lockstep_steps_per_s": ls.get("steps_per_s") if ls.get("available") else None,
         "dds.pingpong_steps_per_s": pp.get("rate_hz") if pp.get("available") else None,
         "table.parallel_wall_s": e.get("parallel_s") if e.get("available") else None,
@@ -632,6 +632,13 @@ def main(argv=None) -> int:
         instances = con[:300] + unc[:200]
     R["solvers"] = bench_solvers(instances, W, 200 if quick else 10_000, 20 if quick else 500)
     log(f"   fastest correct: {R['solvers']['fastest_correct']}")
+    log("2b. QP path head to head (benchmarks/qp_bench.py: early-out, held PIQP, exact-numba, direct DAQP/quadprog)")
+    from benchmarks.qp_bench import run_bench
+    qb = run_bench((250.0,) if quick else (250.0, 600.0), ("both",), 5 if quick else 30)
+    R["qp_bench"] = {k: qb.get(k) for k in ("early_out_p50_us", "piqp_ratio_to_fastest",
+                                             "piqp_ratio_to_fastest_qpsolvers", "exact_numba_ratio_to_fastest")}
+    log(f"   early-out p50 {R['qp_bench']['early_out_p50_us']} us; PIQP path / fastest direct "
+        f"{R['qp_bench']['piqp_ratio_to_fastest']}")
     log("3. DDS ping-pong and lockstep")
     pp = bench_pingpong(300 if quick else 5000)
     R["dds"] = {"pingpong": pp, "lockstep": bench_lockstep(0.5 if quick else 5.0, pp)}
