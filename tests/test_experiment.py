@@ -162,3 +162,28 @@ def test_cheap_search_is_consistent_and_says_what_it_ran(tmp_path, capsys):
     s = ex.parse_overrides(["Kp=900", "Kv=60"], "off")
     again = ex.survives(50.0, "none", settings=s)
     assert (again["survived"], again["reason"]) == (by_force[50.0]["survived"], by_force[50.0]["reason"])
+
+
+# ------------------------------------------------------------------------------------------ probe
+def test_probe_shows_the_paper_controller_tipping_on_its_reaction_prediction():
+    """The mechanism docs/paper_method.md reports, checked on the probe's own numbers: without the observer
+    the QP holds the predicted l at l_M - margin_zmp (ZMP row active) while the applied ankle torque is the
+    same for both l's (l_act F_z = Gamma_1 = l_pred R_y,pred: the foot's weight acts at the ankle), so the
+    robot tips at the toe once R_y,pred / F_z reaches l_M / (l_M - margin_zmp)."""
+    s = ex.parse_overrides([], "off")
+    c = s.ctrl_config("both")
+    l_max = ex.context().desc.foot.l_max
+    r = ex.probe(300.0, "both", settings=s, after=0.0)
+    assert not r["survived"] and r["fall_cause"] == "tip_toe"
+    during = [x for x in r["periods"] if _in_push(x["t"])]
+    assert len(during) >= 10
+    for x in during:
+        helpers.assert_close(x["l_act"] * x["R_act"][1], x["l_pred"] * x["R_pred"][1], 1e-6, f"Gamma_1 at t = {x['t']}",
+                             rel=True)
+    active = [x for x in during if x["qp_status"] == "ACTIVE"]
+    assert active and all(x["tightest"] == "zmp_toe" for x in active)
+    helpers.assert_close([x["l_pred"] for x in active], np.full(len(active), l_max - c.margin_zmp), 1e-6,
+                         "predicted l held on the QP's limit")
+    last = during[-1]
+    assert last["R_pred"][1] / last["R_act"][1] > l_max / (l_max - c.margin_zmp) - 2e-3
+    assert all(x["R_act"][1] < x["R_pred"][1] for x in during[1:])   # the push lowers the real R_y here
