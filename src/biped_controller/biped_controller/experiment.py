@@ -49,6 +49,7 @@ import yaml
 
 from biped_sim.description import LEFT, RobotDescription, load_description
 from biped_sim.gait_family import GaitFamily
+from biped_sim.perturbation import PerturbationError, PlantPerturbation
 from biped_sim.simulator import SimConfig, SimConfigError, Simulator, load_sim_config
 
 from . import runner
@@ -111,10 +112,12 @@ def _sim_config(items: tuple[tuple[str, object], ...]) -> SimConfig:
 @dataclass(frozen=True)
 class RunSettings:
     """Overrides of config/controller.yaml and config/simulator.yaml for a run (hashable, picklable: it
-    travels to the worker processes). Empty = the config files as they are."""
+    travels to the worker processes). Empty = the config files as they are. ``perturbation`` (issue 14):
+    the plant's model error, friction and sensing, given to the simulator only (None: none)."""
 
     controller: tuple[tuple[str, object], ...] = ()
     simulator: tuple[tuple[str, object], ...] = ()
+    perturbation: PlantPerturbation | None = None
 
     def sim_config(self) -> SimConfig:
         return _sim_config(self.simulator)
@@ -127,8 +130,11 @@ class RunSettings:
         """JSON-ready: the overrides and the effective settings (every key of both files)."""
         ctrl = asdict(self.ctrl_config(MODES[0]))
         del ctrl["mode"]
-        return {"overrides": {**dict(self.controller), **dict(self.simulator)},
-                "controller": ctrl, "simulator": asdict(self.sim_config())}
+        out = {"overrides": {**dict(self.controller), **dict(self.simulator)},
+               "controller": ctrl, "simulator": asdict(self.sim_config())}
+        if self.perturbation is not None and not self.perturbation.is_zero:   # (absent: nominal plant)
+            out["perturbation"] = self.perturbation.as_dict()
+        return out
 
 
 def _parse_value(key: str, text: str) -> object:
@@ -198,10 +204,11 @@ def _run(steps: int, mode: str, pushes: tuple[PushSpec, ...] = (), *, integratio
     ctx = context()
     if observer is not None:
         settings = RunSettings(tuple(sorted({**dict(settings.controller), "disturbance_observer": observer}.items())),
-                               settings.simulator)
+                               settings.simulator, settings.perturbation)
     ccfg = settings.ctrl_config(mode)
     return runner.run(steps=steps, mode=mode, pushes=pushes, sim_config=settings.sim_config(), ctrl_config=ccfg,
-                      family=ctx.family, desc=ctx.desc, integration_rate=integration_rate, keep_qp=keep_qp)
+                      family=ctx.family, desc=ctx.desc, integration_rate=integration_rate, keep_qp=keep_qp,
+                      perturbation=settings.perturbation)
 
 
 # ------------------------------------------------------------------------------------------ summaries
@@ -641,7 +648,7 @@ def probe_run(force: float, mode: str = "both", duration: float = DEFAULT_DURATI
     scfg = settings.sim_config()
     ccfg = settings.ctrl_config(mode)
     n_steps = steps if steps is not None else push_step_index(start, duration, ctx.family.T) + 1 + SURVIVAL_STEPS
-    sim = Simulator(ctx.desc, scfg)
+    sim = Simulator(ctx.desc, scfg, perturbation=settings.perturbation)
     ctrl = AdaptiveController(ccfg, ctx.family, ctx.desc)
     q0, qd0 = ctx.family.initial_state()
     sim.reset(q0, qd0, LEFT)

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from biped_sim.description import LEFT, RobotDescription, load_description
+from biped_sim.perturbation import PlantPerturbation
 from biped_sim.push import Push
 from biped_sim.simulator import ImpactRecord, SimConfig, Simulator, StepRecord, load_sim_config
 
@@ -42,16 +43,17 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         sim_config: SimConfig | None = None, ctrl_config: ControllerConfig | None = None,
         family: GaitFamily | None = None, desc: RobotDescription | None = None,
         integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,
-        extra_time_after_steps: float = 0.0) -> RunResult:
+        extra_time_after_steps: float = 0.0, perturbation: PlantPerturbation | None = None) -> RunResult:
     """Walk ``steps`` steps (impacts) or until a fall. ``integration_rate``: the controller's torque law is
-    evaluated at every RK4 stage (no QP re-solve inside a period)."""
+    evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` (issue 14) goes to the
+    simulator only: the plant and the sensors differ, the controller keeps ``desc``."""
     desc = desc if desc is not None else load_description()
     family = family if family is not None else GaitFamily.load()
     scfg = sim_config if sim_config is not None else load_sim_config()
     ccfg = ctrl_config if ctrl_config is not None else load_controller_config(mode=mode, period=scfg.control_period)
     if ccfg.period != scfg.control_period:
         ccfg = ControllerConfig(**{**ccfg.__dict__, "period": scfg.control_period})
-    sim = Simulator(desc, scfg)
+    sim = Simulator(desc, scfg, perturbation=perturbation)
     ctrl = AdaptiveController(ccfg, family, desc, keep_qp=keep_qp)
     q0, qd0 = family.initial_state()
     sim.reset(q0, qd0, LEFT)

@@ -19,6 +19,7 @@ name                       type                                    QoS key
 /fall                      std_msgs/msg/String                     latched
 /sim/impacts               biped_msgs_py/msg/Impact                events
 /sim/push                  biped_msgs_py/msg/AppliedPush           sensor
+/sim/plant                 std_msgs/msg/String (YAML)              latched
 /controller/torque         sensor_msgs/msg/JointState (effort)     lockstep
 /controller/status         biped_msgs_py/msg/ControllerStatus      sensor
 /push_events               biped_msgs_py/msg/PushEvent             events
@@ -69,6 +70,7 @@ ROBOT_DESCRIPTION = '/robot_description'
 FALL = '/fall'
 SIM_IMPACTS = '/sim/impacts'
 SIM_PUSH = '/sim/push'
+SIM_PLANT = '/sim/plant'
 CONTROLLER_TORQUE = '/controller/torque'
 CONTROLLER_STATUS = '/controller/status'
 PUSH_EVENTS = '/push_events'
@@ -189,6 +191,10 @@ TOPICS: dict[str, TopicSpec] = {t.name: t for t in [
               'every touchdown: pre/post state, foot re-pose, impulse, energy lost'),
     TopicSpec(SIM_PUSH, 'biped_msgs_py/msg/AppliedPush', 'sensor',
               'push force and impulse actually applied over each control period'),
+    TopicSpec(SIM_PLANT, 'std_msgs/msg/String', 'latched',
+              "YAML of the simulated plant's actual parameters (masses, centres of mass, inertias, friction, "
+              'sensor noise and delay: biped_sim.perturbation.plant_parameters); the controller keeps the nominal '
+              'config/biped.yaml'),
     TopicSpec(CONTROLLER_TORQUE, 'sensor_msgs/msg/JointState', 'lockstep',
               'joint torques (N m) in effort, controller -> simulator'),
     TopicSpec(CONTROLLER_STATUS, 'biped_msgs_py/msg/ControllerStatus', 'sensor',

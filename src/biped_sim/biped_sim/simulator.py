@@ -22,7 +22,9 @@ Physics decides everything, never the controller's bookkeeping:
     exactly [start, start + duration): the integration intervals are split at every push start and end,
     and on each interval the force is constant (the same at every RK4 stage), so the impulse delivered
     is exactly force x duration and nothing acts outside the window.
-Deterministic: no randomness, fixed operation order; the same inputs give bit-identical records.
+Deterministic: no randomness but a perturbation's seeded sensor noise, fixed operation order; the same
+inputs give bit-identical records. Perturbations (``perturbation.PlantPerturbation``: model error,
+friction, sensor noise and delay) act here only, never in the controller.
 """
 from __future__ import annotations
 
@@ -35,8 +37,9 @@ import numpy as np
 
 from .description import LEFT, RobotDescription, load_description
 from .settings import SettingsError, default_config_dir, read_settings
-from .floating import FloatingModel, urdf_from_paper
+from .floating import FloatingModel, paper_from_urdf, urdf_from_paper
 from .push import Push, PushBook, PushLimits
+from .perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
 
@@ -185,10 +188,19 @@ class ImpactRecord:
 
 
 class Simulator:
-    """Owns its FloatingModel (own Pinocchio Data)."""
+    """Owns its FloatingModel (own Pinocchio Data).
 
-    def __init__(self, desc: RobotDescription | None = None, config: SimConfig | None = None):
-        self.desc = desc if desc is not None else load_description()
+    ``perturbation`` (issue 14, ``biped_sim.perturbation``; None = none): the simulated plant is
+    ``perturbation.apply(desc)`` (``self.desc``: masses, centres of mass, inertias, friction of the fall
+    checks), ``self.nominal_desc`` is ``desc`` as given (the controller's model); :meth:`observe` returns
+    what the sensors report (noise, delay: ``self.sensor``) while every record keeps the true state."""
+
+    def __init__(self, desc: RobotDescription | None = None, config: SimConfig | None = None,
+                 perturbation: PlantPerturbation | None = None):
+        self.nominal_desc = desc if desc is not None else load_description()
+        self.perturbation = perturbation if perturbation is not None else ZERO
+        self.desc = self.perturbation.apply(self.nominal_desc)      # the plant
+        self.sensor = SensorModel(self.perturbation)
         self.cfg = (config if config is not None else load_sim_config()).validate()
         if self.cfg.engine == "fast":
             from .fast_engine import FastFloatingModel   # loads the compiled kernels only when used
@@ -222,6 +234,7 @@ class Simulator:
         self.cleared = False
         self.impact_log = []
         self.book = self._new_book()
+        self.sensor.reset()
 
     def _new_book(self) -> PushBook:
         """The simulator's pushes: validated by ``push.validate_push`` with physical limits only (any force
@@ -240,8 +253,15 @@ class Simulator:
 
     # ------------------------------------------------------------ queries
     def observe(self) -> Observation:
+        """What the controller measures at the start of the current period: the true paper (q, q') and
+        stance, or with a perturbation's sensor model the noisy sample of ``delay`` periods ago (time and
+        period index are the current ones)."""
         q, qd = self.fm.paper_from_state(self.x, self.v, self.stance)
-        return Observation(self.step_index, self.t, self.stance, q, qd)
+        if self.sensor.identity:
+            return Observation(self.step_index, self.t, self.stance, q, qd)
+        self.sensor.sample(self.step_index, self.stance, q, qd)
+        stance, qs, qds = self.sensor.reading(self.step_index)
+        return Observation(self.step_index, self.t, stance, qs, qds)
 
     def push_force_at(self, t: float) -> list[tuple[float, float]]:
         """(force [N], height [m]) of every push acting at instant ``t`` (on over [start, end))."""
@@ -397,8 +417,8 @@ class Simulator:
                                  "before clearing it (double support is not modelled)")
 
     def step(self, torque: np.ndarray | TorqueFn) -> StepRecord:
-        """Advance one control period. ``torque``: paper-order joint torques [N m] for the current stance,
-        held over the period (zero-order hold), or a function ``(s, q, qd, stance) -> torques`` evaluated at
+        """Advance one control period. ``torque``: paper-order joint torques [N m] for the current stance
+        (with a delayed sensor model: for the stance of :meth:`observe`, the one the controller was told), held over the period (zero-order hold), or a function ``(s, q, qd, stance) -> torques`` evaluated at
         every RK4 stage (s = time since the period start). The period ends at the next grid instant, or
         at a touchdown (the impact is applied and the period ends there: no torque of the old labelling
         acts on the relabelled legs), or at a fall (the state is left at the instant of the fall)."""
@@ -410,6 +430,13 @@ class Simulator:
         t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
         dt = t_grid_end - t_start
         obs_stance = self.stance
+        if not self.sensor.identity:
+            if callable(torque):
+                raise PerturbationError("noise_q/noise_qd/delay", "a torque function sees the true state at every "
+                                        "RK4 stage: use held torques (the sensor model applies to observe())")
+            # every period is sampled (the delay line); the torques refer to the legs the controller was told
+            # are in stance (a delayed touchdown): they are mapped to the motors with that stance
+            obs_stance = self.observe().stance
         lo_tq, hi_tq = self.desc.torque_limits()
         lo_tq, hi_tq = np.array(lo_tq), np.array(hi_tq)
         self._tau_const = None
@@ -438,6 +465,8 @@ class Simulator:
         first_pushes = self.interval_pushes(knots[0], knots[1])
         _, w0 = self._accel(self.x, self.v, tau_src(t_start, self.x, self.v), first_pushes)
         q, qd = self.fm.paper_from_state(self.x, self.v, self.stance)
+        if obs_stance != self.stance:     # the record keeps the true stance: the torque in its paper order
+            applied = paper_from_urdf(tau_src(t_start, self.x, self.v), self.stance)
         pf = sum(f for f, _ in first_pushes)
         fall = self._check_wrench(w0, t_start)
         rec_args = dict(step=self.step_index, t=t_start, stance=self.stance, q=q, qd=qd, base=self.x[:3].copy(),

@@ -41,6 +41,15 @@ missing, exit 1.
 Pushes: ``/push_events`` (PushEvent, transient local) are scheduled with ``sim.schedule_push`` with
 the event's id; a repeated id is ignored.
 
+Perturbations (issue 14, ``biped_sim.perturbation``): the parameters ``perturbation.<field>`` for every
+field of ``PlantPerturbation`` (``perturbation.torso_mass_scale``, ``perturbation.torso_com_shift``,
+``perturbation.noise_qd``, ``perturbation.delay``, ...; defaults: none; ``perturbation.mu`` 0 = the
+description's mu) make the simulated plant differ from ``config/biped.yaml``, which the controller keeps.
+``/sim/state`` then carries what the sensors report (q, q' with noise and delay; ``base`` and the other
+topics are true), and ``/sim/plant`` (latched ``std_msgs/String``, YAML of
+``perturbation.plant_parameters``) the plant's actual parameters, so a recording can be checked against
+the true plant.
+
 Parameters are validated at start; a bad one is logged naming it and the node exits 2 before
 anything is published.
 """
@@ -78,6 +87,7 @@ from biped_sim.node_params import (
     run_node,
 )
 from biped_sim.node_checks import RobotFilesError, check_urdf_joints
+from biped_sim.perturbation import PerturbationError, PlantPerturbation, plant_yaml
 from biped_sim.push import Rejected
 from biped_sim.simulator import ENGINES, SimConfig, SimConfigError, Simulator, load_sim_config
 
@@ -171,6 +181,29 @@ def read_sim_config(node: Node) -> SimConfig:
         raise ParameterError(name, str(exc)) from exc
 
 
+def read_perturbation(node: Node, desc) -> PlantPerturbation:
+    """The plant's perturbation from the parameters ``perturbation.<field>`` (defaults: none;
+    ``perturbation.mu`` 0 = the description's friction), validated against ``desc``: a bad value raises
+    ``ParameterError`` naming ``perturbation.<field>``."""
+    zero = PlantPerturbation()
+    kw = {}
+    for name in PlantPerturbation.__dataclass_fields__:
+        key = f'perturbation.{name}'
+        if name in ('delay', 'seed'):
+            kw[name] = get_int(node, key, getattr(zero, name), lo=0)
+        elif name == 'mu':
+            mu = get_float(node, key, 0.0, lo=0.0)
+            kw[name] = None if mu == 0.0 else mu
+        else:
+            kw[name] = get_float(node, key, getattr(zero, name))
+    try:
+        p = PlantPerturbation(**kw)
+        p.apply(desc)
+    except PerturbationError as exc:
+        raise ParameterError(f'perturbation.{exc.field}', str(exc)) from exc
+    return p
+
+
 class SimulatorNode(Node):
 
     def __init__(self, **kwargs):
@@ -190,7 +223,8 @@ class SimulatorNode(Node):
             check_urdf_joints(self.urdf)
         except RobotFilesError as exc:
             raise ParameterError('urdf_path', f'{urdf_path or "generated URDF"}: {exc}') from exc
-        self.sim = Simulator(self.desc, self.cfg)
+        self.perturbation = read_perturbation(self, self.desc)
+        self.sim = Simulator(self.desc, self.cfg, perturbation=self.perturbation)
         q0, qd0 = family.initial_state()
         self.sim.reset(q0, qd0, LEFT)
         self.tfb = TransformBuilder(self.urdf)
@@ -206,14 +240,16 @@ class SimulatorNode(Node):
         self.pub_fall = self.create_publisher(String, gn.FALL, gn.QOS_LATCHED)
         self.pub_impacts = self.create_publisher(Impact, gn.SIM_IMPACTS, gn.QOS_EVENTS)
         self.pub_push = self.create_publisher(AppliedPush, gn.SIM_PUSH, gn.QOS_SENSOR)
+        self.pub_plant = self.create_publisher(String, gn.SIM_PLANT, gn.QOS_LATCHED)
         self.published_topics = [gn.CLOCK, gn.SIM_STATE, gn.JOINT_STATES, gn.GROUND_REACTION,
                                  gn.GROUND_REACTION_COP, gn.STANCE, gn.TF, gn.ROBOT_DESCRIPTION,
-                                 gn.SIM_IMPACTS, gn.SIM_PUSH]
+                                 gn.SIM_IMPACTS, gn.SIM_PUSH, gn.SIM_PLANT]
         self.sub_torque = self.create_subscription(JointState, gn.CONTROLLER_TORQUE, self._on_torque,
                                                    gn.QOS_LOCKSTEP)
         self.create_subscription(PushEvent, gn.PUSH_EVENTS, self._on_push, gn.QOS_EVENTS)
 
         self.pub_desc.publish(String(data=self.urdf))
+        self.pub_plant.publish(String(data=plant_yaml(self.desc, self.perturbation)))
         self.push_ids: set[int] = set()
         self.sequence = 0
         self.started = False
@@ -264,7 +300,7 @@ class SimulatorNode(Node):
         if self.wait_for_recorder:
             pubs = {p.topic_name: p for p in (self.pub_clock, self.pub_state, self.pub_joints, self.pub_wrench,
                                                self.pub_cop, self.pub_stance, self.pub_tf, self.pub_desc,
-                                               self.pub_impacts, self.pub_push)}
+                                               self.pub_impacts, self.pub_push, self.pub_plant)}
             for topic in self.published_topics:
                 infos = self.get_subscriptions_info_by_topic(topic)
                 if gn.RECORDER_NODE not in {i.node_name for i in infos}:
