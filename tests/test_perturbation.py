@@ -44,7 +44,8 @@ BAD = [
     ("torso_mass_scale", 0.0), ("thigh_mass_scale", -1.0), ("shin_inertia_scale", math.nan),
     ("foot_inertia_scale", math.inf), ("torso_com_shift", math.nan), ("noise_q", -1e-3), ("noise_qd", math.inf),
     ("mu", 0.0), ("mu", -0.5), ("delay", -1), ("delay", 1.5), ("delay", True), ("delay", 10**6), ("seed", -3),
-    ("seed", 2.0), ("torso_mass_scale", "1.1"), ("noise_q", True),
+    ("seed", 2.0), ("torso_mass_scale", "1.1"), ("noise_q", True), ("touchdown_delayed", 1),
+    ("touchdown_delayed", "no"),
 ]
 
 
@@ -244,16 +245,17 @@ def test_noise_statistics_and_identity():
         s.sample(3, LEFT, q, qd)
 
 
-@pytest.mark.parametrize("d", [1, 2])
-def test_delay_controller_sees_the_state_of_d_periods_ago(family, d):
+@pytest.mark.parametrize("d,touchdown_delayed", [(1, True), (2, True), (1, False), (3, False)])
+def test_delay_controller_sees_the_state_of_d_periods_ago(family, d, touchdown_delayed):
     """Closed loop as runner.run, through the first impact: what the controller is given at period k is
     the true record of period k - d (stance included; the first record while k < d), at the current time;
     once the told stance differs from the true one (a touchdown the controller has not seen yet), the
     torque is applied to the legs the controller meant (mapped with the stance it was told), and the true
-    record carries that torque in the true stance's paper order."""
+    record carries that torque in the true stance's paper order. With ``touchdown_delayed`` False the
+    source is max(k - d, the first record of the current stance): the touchdown is told at once."""
     from biped_controller.controller import AdaptiveController, load_controller_config
     cfg = load_sim_config()
-    sim = Simulator(DESC, cfg, perturbation=PlantPerturbation(delay=d))
+    sim = Simulator(DESC, cfg, perturbation=PlantPerturbation(delay=d, touchdown_delayed=touchdown_delayed))
     ctrl = AdaptiveController(load_controller_config(mode="both", period=cfg.control_period), family, DESC)
     q0, qd0 = family.initial_state()
     sim.reset(q0, qd0, LEFT)
@@ -275,7 +277,10 @@ def test_delay_controller_sees_the_state_of_d_periods_ago(family, d):
     assert sim.impact_count >= 1
     mismatched = 0
     for k, (o, r) in enumerate(zip(obs, recs)):
-        src = recs[max(k - d, 0)]
+        j = max(k - d, 0)
+        if not touchdown_delayed and k >= first_after_impact:
+            j = max(j, first_after_impact)
+        src = recs[j]
         assert o.t == r.t and o.step == r.step
         assert o.stance == src.stance and np.array_equal(o.q, src.q) and np.array_equal(o.qd, src.qd), k
         lo, hi = (np.array(v) for v in DESC.torque_limits())
@@ -285,7 +290,12 @@ def test_delay_controller_sees_the_state_of_d_periods_ago(family, d):
         else:
             mismatched += 1
             assert_close(r.torque, paper_from_urdf(urdf_from_paper(cmd, o.stance), r.stance), 1e-12, "torque")
-    assert mismatched >= 1          # the loop did cover the delayed touchdown
+    if touchdown_delayed:
+        assert mismatched >= 1      # the loop did cover the delayed touchdown
+    else:
+        assert mismatched == 0 and not recs[-1].fallen and len(recs) == first_after_impact + d + 2
+        assert obs[first_after_impact + d].step == recs[first_after_impact + d].step
+        assert np.array_equal(obs[first_after_impact + d - 1].q, recs[first_after_impact].q)   # held sample
 
 
 def test_torque_function_refused_with_a_sensor_model(family):
@@ -307,6 +317,7 @@ def test_plant_parameters_yaml_round_trip():
     assert doc["sensing"]["delay_periods"] == 2 and doc["perturbation"] == p.as_dict()
     assert PlantPerturbation.from_dict(doc["perturbation"]) == p
     assert set(doc["changed"]) == {"torso_mass_scale", "torso_com_shift", "noise_qd", "delay", "mu", "seed"}
+    assert doc["sensing"]["touchdown_delayed"] is True
 
 
 def test_experiment_settings_carry_the_perturbation():
@@ -338,7 +349,8 @@ NODE_BAD = [("perturbation.torso_mass_scale:=-1.0", "perturbation.torso_mass_sca
             ("perturbation.torso_com_shift:=0.5", "perturbation.torso_com_shift"),
             ("perturbation.delay:=-1", "perturbation.delay"),
             ("perturbation.noise_qd:=-0.1", "perturbation.noise_qd"),
-            ("perturbation.mu:=-0.2", "perturbation.mu")]
+            ("perturbation.mu:=-0.2", "perturbation.mu"),
+            ("perturbation.touchdown_delayed:=3", "perturbation.touchdown_delayed")]
 
 
 @pytest.mark.ros
@@ -363,7 +375,8 @@ def test_node_publishes_the_plant_latched(rclpy_context):
     from std_msgs.msg import String
     from biped_sim import graph_names as gn
     cmd, root = _node_cmd("perturbation.torso_mass_scale:=1.2", "perturbation.delay:=2", "perturbation.mu:=0.5",
-                          "perturbation.noise_q:=0.001", "perturbation.seed:=4", "start_timeout:=60.0")
+                          "perturbation.noise_q:=0.001", "perturbation.seed:=4", "perturbation.touchdown_delayed:=false",
+                          "start_timeout:=60.0")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=root)
     got = []
     try:
@@ -384,6 +397,6 @@ def test_node_publishes_the_plant_latched(rclpy_context):
         proc.wait(timeout=30)
     assert got, "no /sim/plant message"
     doc = yaml.safe_load(got[0])
-    p = PlantPerturbation(torso_mass_scale=1.2, delay=2, mu=0.5, noise_q=0.001, seed=4)
+    p = PlantPerturbation(torso_mass_scale=1.2, delay=2, mu=0.5, noise_q=0.001, seed=4, touchdown_delayed=False)
     assert doc == plant_parameters(DESC, p)
     assert_close(doc["plant"]["torso"]["mass"], 24.0, 1e-12, "plant torso mass")

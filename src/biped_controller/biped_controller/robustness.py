@@ -90,6 +90,8 @@ LEVELS: tuple[Level, ...] = (
     Level("noise 1e-3 rad, 1e-1 rad/s", "sensing", PlantPerturbation(noise_q=1e-3, noise_qd=1e-1)),
     Level("delay 1 period", "sensing", PlantPerturbation(delay=1)),
     Level("delay 2 periods", "sensing", PlantPerturbation(delay=2)),
+    Level("delay 1 period, touchdown at once", "sensing", PlantPerturbation(delay=1, touchdown_delayed=False)),
+    Level("delay 2 periods, touchdown at once", "sensing", PlantPerturbation(delay=2, touchdown_delayed=False)),
     Level("mu 0.5", "friction", PlantPerturbation(mu=0.5)),
     Level("mu 0.4", "friction", PlantPerturbation(mu=0.4)),
 )
@@ -141,7 +143,8 @@ def _walk_task(args: tuple) -> dict:
 
 
 def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool, steps: int) -> str:
-    p = perturbation.as_dict() if isinstance(perturbation, PlantPerturbation) else perturbation
+    # normalised through the dataclass: a record stored before a field was added keys as its default
+    p = (perturbation if isinstance(perturbation, PlantPerturbation) else PlantPerturbation.from_dict(perturbation)).as_dict()
     return json.dumps([p, mode, bool(observer), int(steps)], sort_keys=True)
 
 

@@ -34,7 +34,11 @@ standard deviations, so one seed gives the same noise sequence at every noise le
 at period k receives the sample of period k - delay (the first sample while k < delay: the sensors
 report the initial state until the pipeline is full). The stance flag is part of the delayed sample (a
 touchdown reaches the controller ``delay`` periods late); the time and the period index are not: the
-controller's clock is the plant's. "Period" means a control period of the simulator, which an impact
+controller's clock is the plant's. With ``touchdown_delayed`` False the touchdown is reported at once
+instead (contact switches outside the delayed pipeline, an event-triggered fresh measurement): the first
+sample of a new stance is delivered in the period it is taken and held until the delayed samples are all
+of the new stance (period k receives the sample of max(k - delay, first period of the current stance)).
+"Period" means a control period of the simulator, which an impact
 cuts short (``Simulator.step``), so a delay of d periods is d x control_period except across an
 impact. A zero perturbation (:attr:`PlantPerturbation.is_zero`) is the identity: the same description
 object and the true observation, bit for bit.
@@ -88,11 +92,17 @@ class PlantPerturbation:
     noise_q: float = 0.0              # [rad] std of the noise on each measured joint angle
     noise_qd: float = 0.0             # [rad/s] std of the noise on each measured joint rate
     delay: int = 0                    # [control periods] between a sample and the controller
+    touchdown_delayed: bool = True    # False: a touchdown restarts the delay line (reported at once)
     seed: int = 0                     # seed of the noise generator
 
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
+            if f.name == "touchdown_delayed":
+                if not isinstance(v, (bool, np.bool_)):
+                    raise PerturbationError(f.name, f"must be true or false, got {v!r}")
+                object.__setattr__(self, f.name, bool(v))
+                continue
             if f.name in ("delay", "seed"):
                 if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
                     raise PerturbationError(f.name, f"must be an integer, got {v!r}")
@@ -137,7 +147,8 @@ class PlantPerturbation:
         """The fields that differ from the identity (the seed only when there is noise)."""
         zero = PlantPerturbation()
         out = {f.name: getattr(self, f.name) for f in fields(self)
-               if f.name != "seed" and getattr(self, f.name) != getattr(zero, f.name)}
+               if f.name != "seed" and getattr(self, f.name) != getattr(zero, f.name)
+               and not (f.name == "touchdown_delayed" and self.delay == 0)}
         if self.noise_q or self.noise_qd:
             out["seed"] = self.seed
         return out
@@ -211,7 +222,8 @@ def plant_parameters(nominal: RobotDescription, perturbation: PlantPerturbation)
         "nominal": {**links(nominal), "mu": nominal.mu, "total_mass": nominal.total_mass,
                     "source": nominal.source},
         "sensing": {"noise_q_std_rad": perturbation.noise_q, "noise_qd_std_rad_per_s": perturbation.noise_qd,
-                    "delay_periods": perturbation.delay, "seed": perturbation.seed,
+                    "delay_periods": perturbation.delay, "touchdown_delayed": perturbation.touchdown_delayed,
+                    "seed": perturbation.seed,
                     "model": "Gaussian noise added to each paper joint angle and rate when sampled at a period "
                              "start; the controller receives the sample taken delay periods earlier "
                              "(stance included; time and period index are the current ones)"},
@@ -245,6 +257,8 @@ class SensorModel:
         self._samples: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         self._first: int | None = None
         self._last: int | None = None
+        self._segment: int | None = None          # first sampled period of the current stance
+        self._stance: int | None = None
 
     def sample(self, step: int, stance: int, q: np.ndarray, qd: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
         """The sensors' sample of period ``step`` (the true stance, q [rad], q' [rad/s] plus noise); a
@@ -265,6 +279,8 @@ class SensorModel:
             qds = qds + p.noise_qd * zqd
         s = (int(stance), qs, qds)
         self._samples[step] = s
+        if self._stance is None or int(stance) != self._stance:
+            self._segment, self._stance = step, int(stance)
         if self._first is None:
             self._first = step
         self._last = step
@@ -274,10 +290,13 @@ class SensorModel:
 
     def reading(self, step: int) -> tuple[int, np.ndarray, np.ndarray]:
         """What the controller receives at period ``step``: the sample of period max(step - delay, first
-        sampled period). The sample of ``step`` must have been taken."""
+        sampled period), or with ``touchdown_delayed`` False max(step - delay, first sampled period of the
+        current stance). The sample of ``step`` must have been taken."""
         if step not in self._samples:
             raise ValueError(f"no sensor sample for period {step}: sample() it first")
         k = max(step - self.perturbation.delay, self._first)
+        if not self.perturbation.touchdown_delayed:
+            k = max(k, self._segment)
         if k not in self._samples:
             raise ValueError(f"no sensor sample for period {k} (periods must be sampled one by one)")
         stance, q, qd = self._samples[k]

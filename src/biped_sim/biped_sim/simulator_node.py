@@ -191,6 +191,8 @@ def read_perturbation(node: Node, desc) -> PlantPerturbation:
         key = f'perturbation.{name}'
         if name in ('delay', 'seed'):
             kw[name] = get_int(node, key, getattr(zero, name), lo=0)
+        elif name == 'touchdown_delayed':
+            kw[name] = get_bool(node, key, getattr(zero, name))
         elif name == 'mu':
             mu = get_float(node, key, 0.0, lo=0.0)
             kw[name] = None if mu == 0.0 else mu
