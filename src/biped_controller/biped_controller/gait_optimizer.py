@@ -54,7 +54,12 @@ class GaitSettings:
     p_d: float
     strides: tuple[float, ...]
     time_degree: int
+    representation: str
     stride_degree: int
+    smoothing_breakpoints: tuple[float, ...]
+    smoothing_weights: tuple[float, ...]
+    fit_tolerance_q: float
+    fit_tolerance_qdot: float
     grid_intervals: int
     min_normal_force: float
     friction_use: float
@@ -73,7 +78,8 @@ class GaitSettings:
 
 def load_gait_settings(path: str | Path | None = None) -> GaitSettings:
     p = Path(path) if path is not None else default_config_dir() / "gait.yaml"
-    keys = ("step_duration", "preferred_stride", "strides", "time_degree", "stride_degree", "grid_intervals",
+    keys = ("step_duration", "preferred_stride", "strides", "time_degree", "family_representation", "stride_degree",
+            "smoothing_breakpoints", "smoothing_weights", "fit_tolerance_q", "fit_tolerance_qdot", "grid_intervals",
             "min_normal_force", "friction_use", "zmp_margin", "torque_use", "clearance", "touchdown_speed",
             "touchdown_descent", "min_impulse_normal", "knee_min_flexion", "liftoff_speed", "max_iterations",
             "tolerance")
@@ -89,7 +95,11 @@ def load_gait_settings(path: str | Path | None = None) -> GaitSettings:
     s = GaitSettings(
         T=float(val("step_duration")), p_d=float(val("preferred_stride")),
         strides=tuple(float(x) for x in val("strides")), time_degree=int(val("time_degree")),
-        stride_degree=int(val("stride_degree")), grid_intervals=int(val("grid_intervals")),
+        representation=str(val("family_representation")), stride_degree=int(val("stride_degree")),
+        smoothing_breakpoints=tuple(float(x) for x in val("smoothing_breakpoints")),
+        smoothing_weights=tuple(float(x) for x in val("smoothing_weights")),
+        fit_tolerance_q=float(val("fit_tolerance_q")), fit_tolerance_qdot=float(val("fit_tolerance_qdot")),
+        grid_intervals=int(val("grid_intervals")),
         min_normal_force=float(val("min_normal_force")), friction_use=float(val("friction_use")),
         zmp_margin=float(val("zmp_margin")), torque_use=float(val("torque_use")),
         clearance=float(val("clearance")), touchdown_speed=float(val("touchdown_speed")),
@@ -103,6 +113,23 @@ def load_gait_settings(path: str | Path | None = None) -> GaitSettings:
         raise GaitConfigError("config/gait.yaml: grid_intervals must be even (Simpson's rule)")
     if s.p_d not in s.strides:
         raise GaitConfigError("config/gait.yaml: strides must contain preferred_stride")
+    if list(s.strides) != sorted(set(s.strides)):
+        raise GaitConfigError("config/gait.yaml: strides must be strictly increasing")
+    if s.representation not in ("cubic_spline_in_p", "polynomial_in_p"):
+        raise GaitConfigError(f"config/gait.yaml: family_representation must be cubic_spline_in_p or "
+                              f"polynomial_in_p, got {s.representation!r}")
+    if s.representation == "cubic_spline_in_p":
+        bp = s.smoothing_breakpoints
+        if list(bp) != sorted(set(bp)) or len(bp) < 4:
+            raise GaitConfigError("config/gait.yaml: smoothing_breakpoints must be at least 4 increasing values")
+        if s.p_d not in bp:
+            raise GaitConfigError("config/gait.yaml: smoothing_breakpoints must contain preferred_stride (exact at p_d)")
+        if bp[0] != s.strides[0] or bp[-1] != s.strides[-1]:
+            raise GaitConfigError("config/gait.yaml: smoothing_breakpoints must start and end at the first and last stride")
+        if len(s.strides) < 4:
+            raise GaitConfigError("config/gait.yaml: the spline family needs at least 4 strides")
+    if not s.smoothing_weights or any(w <= 0 for w in s.smoothing_weights):
+        raise GaitConfigError("config/gait.yaml: smoothing_weights must be positive")
     return s
 
 
