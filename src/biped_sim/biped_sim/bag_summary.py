@@ -15,6 +15,9 @@ import numpy as np
 
 from biped_sim import graph_names as gn
 
+# relative tolerance of a push's impulse recovered from the recorded ground reaction (soak check)
+IMPULSE_TOLERANCE = 0.10
+
 
 def summarize_bag(bag: Path, expected_steps: int | None = None) -> dict:
     """Summary of a recorded run (pure: reads the MCAP with bag_reader, decodes with mcap_ros2)."""

@@ -28,21 +28,18 @@ import math
 import os
 import random
 import signal
-import struct
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 from biped_sim.bag_summary import analyze_bag
 
 PUSH_DURATION = 0.025
 NODE_NAMES = ('simulator', 'controller', 'disturbance', 'recorder')
 MEMORY_GROWTH_LIMIT = 0.10
-IMPULSE_TOLERANCE = 0.10
 
 
 # ----------------------------------------------------------------------------- plan
