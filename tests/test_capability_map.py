@@ -162,6 +162,23 @@ def test_resume_after_an_interruption_does_no_simulation_twice(monkeypatch, tmp_
     assert again.simulated == 0 and sum(third.calls.values()) == 0 and again.boundaries == ref.boundaries
 
 
+def test_report_only_runs_nothing_and_leaves_incomplete_cells_out(monkeypatch, tmp_path):
+    store = cm.RecordStore(tmp_path / "records.jsonl")
+    monkeypatch.setattr(experiment, "survives", FakeSurvives(stop_after=30))
+    with pytest.raises(Interrupted):
+        cm.run_map(SYN_SPEC, store=store)
+    counting = FakeSurvives()
+    monkeypatch.setattr(experiment, "survives", counting)
+    part = cm.run_map(SYN_SPEC, store=store, simulate=False)
+    assert sum(counting.calls.values()) == 0 and part.simulated == 0 and part.resumed == 30
+    assert part.missing and part.boundaries and set(part.missing) | set(part.boundaries) == set(SYN_SPEC.cells())
+    full = cm.run_map(SYN_SPEC, store=store)
+    assert {c: full.boundaries[c] for c in part.boundaries} == part.boundaries
+    s = cm.summary(part)
+    assert len(s["boundaries"]) == len(part.boundaries) and len(s["incomplete_cells"]) == len(part.missing)
+    assert cm.figures(part, tmp_path / "fig")                        # NaN where the search is incomplete
+
+
 def test_records_of_another_fingerprint_are_ignored(fake, tmp_path):
     store = cm.RecordStore(tmp_path / "r.jsonl")
     spec = cm.MapSpec(modes=("tau",), directions=("forward",), phases=(0.5,), durations=(0.025,),

@@ -579,14 +579,17 @@ class MapRun:
     ignored: int                                # store records of another fingerprint or another map
     wall_time: float                            # [s]
     executor: str
+    fingerprint_at_end: str = ""                # differs from ``fingerprint`` if a config file changed meanwhile
+    missing: list[Cell] = field(default_factory=list)   # cells whose search is incomplete (report only)
 
 
 def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batch: int = 1,
-            progress: ProgressBar | None = None) -> MapRun:
+            progress: ProgressBar | None = None, simulate: bool = True) -> MapRun:
     """Find the boundary of every cell of ``spec``: simulations not yet in ``store`` (same fingerprint)
     are run on ``executor`` (default: in this process) in batches of ``batch``, each record appended to
     the store as soon as its batch completes. Cells are served in order, bisection steps as soon as they
-    are known, at most two batches per executor slot in flight."""
+    are known, at most two batches per executor slot in flight. ``simulate=False``: nothing is run, the
+    boundaries are those the store completes (the other cells are listed in ``MapRun.missing``)."""
     if not (isinstance(batch, int) and batch >= 1):
         raise MapError(f"batch must be an integer >= 1, got {batch!r}")
     experiment.check_settings(spec.settings)     # a bad override fails here, before any simulation
@@ -625,7 +628,7 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
             dirty.clear()
             queue = (SimSpec(c, f) for c in sorted(needs, key=index.__getitem__) for f in needs[c]
                      if SimSpec(c, f).key() not in pending)
-            while len(inflight) < max_inflight:
+            while simulate and len(inflight) < max_inflight:
                 chunk = [s for _, s in zip(range(batch), queue)]
                 if not chunk:
                     break
@@ -658,8 +661,15 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
     if progress is not None:
         progress.update(simulated, resumed, 0, force=True)
         progress.close()
-    return MapRun(spec, fp, {c: bounds[c] for c in cells}, recs, simulated, resumed, ignored,
-                  time.perf_counter() - t0, ex.name)
+    # experiment reads config/controller.yaml at every simulation: a file edited during the run would
+    # mix settings under one fingerprint, so the fingerprint is taken again and reported
+    fp_end = fingerprint(spec)
+    if fp_end != fp and progress is not None and progress.stream is not None:
+        progress.stream.write(f"WARNING: the settings changed during the run (fingerprint {fp} -> {fp_end}): "
+                              "records made after the change are stored under the old fingerprint\n")
+    return MapRun(spec, fp, {c: bounds[c] for c in cells if c in bounds}, recs, simulated, resumed, ignored,
+                  time.perf_counter() - t0, ex.name if simulate else "none (report only)", fp_end,
+                  [c for c in cells if c not in bounds])
 
 
 # ------------------------------------------------------------------------------------------ summary
@@ -771,7 +781,7 @@ def findings_text(f: dict) -> list[str]:
         for x in f["p_vs_tau"]:
             lines.append(f"  {x['direction']:<8} {x['duration']:g} s: p beats tau at {_fmt_phases(x['p_better'])}; "
                          f"tau beats p at {_fmt_phases(x['tau_better'])}; tied at {_fmt_phases(x['tied'])} "
-                         f"(means p {x['mean_p']:.1f} N, tau {x['mean_tau']:.1f} N)")
+                         + ("" if x["mean_p"] is None else f"(means p {x['mean_p']:.1f} N, tau {x['mean_tau']:.1f} N)"))
     if f["backward_vs_forward"]:
         lines.append("backward vs forward (mean boundary over the phases):")
         for x in f["backward_vs_forward"]:
@@ -800,7 +810,7 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
     ctx = experiment.context()
     M, g = ctx.desc.total_mass, ctx.desc.gravity
     s = run.spec
-    bs = [cell_summary(run, c) for c in s.cells()]
+    bs = [cell_summary(run, c) for c in s.cells() if c in run.boundaries]
     total = sum(len(v) for v in run.records.values())
     return {
         "map": {"modes": list(s.modes), "directions": list(s.directions), "phases": list(s.phases),
@@ -820,7 +830,9 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
         "run": {"executor": run.executor, "wall_time": run.wall_time, "simulations_run": run.simulated,
                 "simulations_resumed": run.resumed, "simulations_in_map": total,
                 "store_records_ignored": run.ignored,
+                "settings_changed_during_run": run.fingerprint_at_end != run.fingerprint,
                 "rate": run.simulated / run.wall_time if run.wall_time > 0 else None},
+        "incomplete_cells": [asdict(c) for c in run.missing],
         "boundaries": bs,
         "findings": findings(bs, s.search.resolution),
         "figures": [str(p) for p in figures],
@@ -853,9 +865,11 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
         plt.close(fig)
         paths.append(p)
 
+    nan = Boundary(math.nan, math.nan, ())
+
     def series(m, dr, du):
         ph = np.array(s.phases)
-        bs = [run.boundaries[Cell(m, dr, x, du)] for x in s.phases]
+        bs = [run.boundaries.get(Cell(m, dr, x, du), nan) for x in s.phases]   # NaN: search incomplete
         return ph, np.array([b.lo for b in bs]), bs
 
     nd = len(s.durations)
@@ -903,8 +917,9 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
                           interpolation="nearest")
                 ph, f, _ = series(m, dr, du)
                 ax.plot(ph, f, "k.-", lw=1, ms=3, label="boundary (bisected)")
-                isl_top = max((y for x in s.phases for y in run.boundaries[Cell(m, dr, x, du)].islands), default=0.0)
-                top = max(float(np.max(f)) * 2.0, isl_top + 2 * s.search.coarse, 4 * s.search.coarse)
+                isl_top = max((y for x in s.phases for y in run.boundaries.get(Cell(m, dr, x, du), nan).islands),
+                              default=0.0)
+                top = max(float(np.nanmax(f, initial=0.0)) * 2.0, isl_top + 2 * s.search.coarse, 4 * s.search.coarse)
                 ax.set_ylim(0, min(coarse[-1] + s.search.coarse / 2, top))
                 ax.set_title(f"{dr}, {du:g} s", fontsize=9)
                 ax.set_xlabel("onset phase")
@@ -990,6 +1005,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="directory for the PNG figures")
     ap.add_argument("--json", type=Path, default=None, help="summary JSON")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--report-only", action="store_true",
+                    help="run nothing: summary and figures from the store (incomplete cells are left out)")
     experiment._add_settings_args(ap)
     args = ap.parse_args(argv)
     try:
@@ -1008,12 +1025,13 @@ def main(argv: list[str] | None = None) -> int:
           f"{len(spec.phases)} phases x durations {','.join(f'{d:g}' for d in spec.durations)} s; coarse "
           f"{spec.search.coarse:g} N to " + ", ".join(f"{spec.search.for_duration(d).fmax:g} N ({d:g} s)" for d in spec.durations)
           + f", bisection to {spec.search.resolution:g} N; store {args.store}")
-    ex = make_executor(args.workers, args.ray)
+    ex = SerialExecutor() if args.report_only else make_executor(args.workers, args.ray)
     # a kill (SIGTERM) unwinds like Ctrl-C: the executor is closed (no orphaned workers) and every record
     # stored so far stays for the next run
     signal.signal(signal.SIGTERM, _terminate)
     try:
-        run = run_map(spec, ex, RecordStore(args.store), batch, None if args.no_progress else ProgressBar())
+        run = run_map(spec, ex, RecordStore(args.store), batch, None if args.no_progress else ProgressBar(),
+                      simulate=not args.report_only)
     finally:
         ex.close()
     figs = figures(run, args.out) if args.out is not None else []
@@ -1034,10 +1052,14 @@ def main(argv: list[str] | None = None) -> int:
             for du in spec.durations:
                 row = []
                 for ph in spec.phases:
-                    b = run.boundaries[Cell(m, dr, ph, du)]
+                    b = run.boundaries.get(Cell(m, dr, ph, du))
+                    if b is None:
+                        row.append(f"{'?':>5}")
+                        continue
                     row.append(f"{b.lo:>4g}{'+' if b.hi is None else ('*' if b.islands else ' ')}")
                 print(f"{m:<5} {dr:<8} {du:>5g} " + " ".join(row))
-    print("(boundary force [N] per onset phase; * = islands above the edge, + = censored: survived up to the scan's max)")
+    print("(boundary force [N] per onset phase; * = islands above the edge, + = censored: survived up to the scan's max"
+          + (f"; ? = search incomplete: {len(run.missing)} cells)" if run.missing else ")"))
     for line in findings_text(summ["findings"]):
         print(line)
     for p in figs:
