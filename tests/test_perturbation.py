@@ -400,3 +400,36 @@ def test_node_publishes_the_plant_latched(rclpy_context):
     p = PlantPerturbation(torso_mass_scale=1.2, delay=2, mu=0.5, noise_q=0.001, seed=4, touchdown_delayed=False)
     assert doc == plant_parameters(DESC, p)
     assert_close(doc["plant"]["torso"]["mass"], 24.0, 1e-12, "plant torso mass")
+
+
+# ------------------------------------------------------------------------------------------ robustness table
+def _synthetic_task(batch, settings, height):
+    """Survival below 333 N and on an island 600-640 N (no simulation): the capability map's record."""
+    out = []
+    for s in batch:
+        c = s.cell
+        ok = s.force < 333.0 or 600.0 <= s.force <= 640.0
+        out.append({"mode": c.mode, "direction": c.direction, "phase": c.phase, "duration": c.duration,
+                    "force": s.force, "start": 0.2315, "signed_force": s.force, "height": height, "survived": ok,
+                    "reason": "survived" if ok else "fell: tip_toe at t = 0.3 s", "cause": "" if ok else "tip_toe",
+                    "fall_time": None if ok else 0.3, "steps_walked": 11 if ok else 0})
+    return out
+
+
+def test_stored_max_push_replays_the_capability_map_search(tmp_path):
+    """The table's report from a store alone equals the capability map's own search on the same records;
+    an unfinished search, or records of another perturbation (another fingerprint), give nothing."""
+    from biped_controller import capability_map as cmap
+    from biped_controller import robustness as rb
+    spec = rb.push_spec(PlantPerturbation(torso_mass_scale=0.9), "both", True)
+    store = cmap.RecordStore(tmp_path / "push.jsonl")
+    run = cmap.run_map(spec, cmap.SerialExecutor(_synthetic_task), store)
+    live = rb.max_push_record(run)
+    assert live["max_force"] == 320.0 and live["first_failure"] == 340.0 and live["cause"] == "tip_toe"
+    assert live["islands"] == [600.0, 640.0]
+    stored = rb.stored_max_push(spec, store.load())
+    assert {k: stored[k] for k in live} == live
+    recs = store.load()
+    assert rb.stored_max_push(spec, [r for r in recs if r["force"] != 340.0]) is None   # the bisection step
+    other = rb.push_spec(PlantPerturbation(torso_mass_scale=1.1), "both", True)
+    assert rb.stored_max_push(other, recs) is None

@@ -126,7 +126,7 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     est = [abs(s.force_estimate) for s in res.statuses]
     return {
         "kind": "walk", "perturbation": perturbation.as_dict(), "mode": mode, "observer": bool(observer),
-        "steps": steps, "survived": (not res.fallen) and res.steps_walked >= steps,
+        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer), "survived": (not res.fallen) and res.steps_walked >= steps,
         "steps_walked": int(res.steps_walked), "fall_cause": res.fall_cause or None,
         "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
         "fall_detail": res.fall_detail or None,
@@ -142,10 +142,21 @@ def _walk_task(args: tuple) -> dict:
     return walk_record(*args)
 
 
-def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool, steps: int) -> str:
+def walk_fingerprint(perturbation: PlantPerturbation, observer: bool) -> str:
+    """The capability map's fingerprint of the walk's settings (controller and simulator settings with the
+    perturbation, robot description, gait family file): a walk record is reused only while it matches."""
+    return cmap.fingerprint(cmap.MapSpec(settings=settings_for(perturbation, observer)))
+
+
+def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool, steps: int,
+              fingerprint: str | None) -> str:
     # normalised through the dataclass: a record stored before a field was added keys as its default
     p = (perturbation if isinstance(perturbation, PlantPerturbation) else PlantPerturbation.from_dict(perturbation)).as_dict()
-    return json.dumps([p, mode, bool(observer), int(steps)], sort_keys=True)
+    return json.dumps([p, mode, bool(observer), int(steps), fingerprint], sort_keys=True)
+
+
+def _record_key(r: dict) -> str:
+    return _walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"], r.get("fingerprint"))
 
 
 def _worker_init() -> None:
@@ -153,17 +164,19 @@ def _worker_init() -> None:
     experiment.context()
 
 
-def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, log=print) -> dict[str, dict]:
+def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, log=print,
+              simulate: bool = True) -> dict[str, dict]:
     """Every (level, mode, observer) walk not yet in ``store``, on ``workers`` processes; returns the
     records by key. Mode ``none`` ignores the observer (no QP: the estimate is never used), so it runs once,
-    with the observer as configured off."""
-    done = {_walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"]): r
-            for r in store.load() if r.get("kind") == "walk"}
+    with the observer as configured off. ``simulate`` False: only the stored records."""
+    done = {_record_key(r): r for r in store.load() if r.get("kind") == "walk"}
+    if not simulate:
+        return done
     tasks = []
     for lv in levels:
         for m in modes:
             for obs in ((False,) if m == "none" else observers):
-                k = _walk_key(lv.perturbation, m, obs, WALK_STEPS)
+                k = _walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs))
                 if k not in done:
                     tasks.append((lv.perturbation, m, obs, WALK_STEPS))
     log(f"walks: {len(tasks)} to run, {len(done)} stored")
@@ -172,7 +185,7 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, l
             with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_init) as ex:
                 for r in ex.map(_walk_task, tasks):
                     store.append([r])
-                    done[_walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"])] = r
+                    done[_record_key(r)] = r
                     log(f"  walk {PlantPerturbation.from_dict(r['perturbation']).label()} {r['mode']} "
                         f"observer {'on' if r['observer'] else 'off'}: {'survived' if r['survived'] else 'FELL'} "
                         f"{r['steps_walked']} steps {r['fall_cause'] or ''} ({r['wall_time']:.0f} s)")
@@ -180,7 +193,7 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, l
             for t in tasks:
                 r = walk_record(*t)
                 store.append([r])
-                done[_walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"])] = r
+                done[_record_key(r)] = r
                 log(f"  walk {PlantPerturbation.from_dict(r['perturbation']).label()} {r['mode']}: "
                     f"{'survived' if r['survived'] else 'FELL'} {r['steps_walked']} steps {r['fall_cause'] or ''}")
     return done
@@ -203,14 +216,39 @@ def max_push_record(run: cmap.MapRun) -> dict:
             "resolution": run.spec.search.resolution, "coarse": run.spec.search.coarse, "scan_max": run.spec.search.fmax}
 
 
+def stored_max_push(spec: cmap.MapSpec, records: list[dict]) -> dict | None:
+    """The max-push record of ``spec``'s one cell from stored simulation records alone (the search of
+    ``capability_map.plan_cell`` replayed), or None when the store does not finish the search."""
+    (cell,) = spec.cells()
+    fp = cmap.fingerprint(spec)
+    key = (cell.mode, cell.direction, cell.phase, cell.duration)
+    recs = {float(r["force"]): r for r in records
+            if r.get("fingerprint") == fp and cmap.record_key(r)[:4] == key}
+    forces, b = cmap.plan_cell(spec.search, {f: bool(r["survived"]) for f, r in recs.items()})
+    if b is None:
+        return None
+    first = recs.get(b.hi) if b.hi is not None else None
+    return {"max_force": b.lo, "first_failure": b.hi, "censored": b.hi is None,
+            "cause": first["cause"] if first else None, "reason": first["reason"] if first else None,
+            "islands": list(b.islands), "simulations": len(recs), "resolution": spec.search.resolution,
+            "coarse": spec.search.coarse, "scan_max": spec.search.fmax}
+
+
 def run_pushes(levels, modes, observers, store: cmap.RecordStore, executor, log=print) -> dict[tuple, dict]:
     """Max push of every (level, mode, observer) through ``capability_map.run_map`` (resumable from
     ``store``); returns {(level name, mode, observer): record}. Mode ``none`` runs with the observer off only
-    (its torque never uses the estimate)."""
+    (its torque never uses the estimate). ``executor`` None: only what the store holds (no simulation)."""
     out = {}
+    stored = store.load() if executor is None else []
     for m, obs in combos(modes, observers):
         for lv in levels:
             spec = push_spec(lv.perturbation, m, obs)
+            if executor is None:
+                r = stored_max_push(spec, stored)
+                if r is not None:
+                    out[(lv.name, m, obs)] = dict(r, level=lv.name, mode=m, observer=obs,
+                                                  perturbation=lv.perturbation.as_dict())
+                continue
             t0 = time.perf_counter()
             run = cmap.run_map(spec, executor, store, batch=1)
             r = max_push_record(run)
@@ -242,24 +280,26 @@ def _push_cell(r: dict | None) -> str:
 
 
 def table_markdown(levels, modes, observers, walks: dict, pushes: dict) -> str:
-    """The robustness table (markdown): per level, the 20-step walk (mode both, observer on and off;
-    mode none) and the max push [N] per mode and observer setting."""
-    cols = ["perturbation"]
-    walk_cols = []
-    for m in modes:
-        for obs in ((False,) if m == "none" else observers):
-            walk_cols.append((m, obs))
-            cols.append(f"walk {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}"))
-    push_cols = combos(modes, observers)
-    cols += [f"max push {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}") + " [N]"
-             for m, obs in push_cols]
+    """The robustness table (markdown): per level, the 20-step walk (the (mode, observer) pairs that have
+    walk records) and the max push [N] per mode and observer setting; a max push of 0 where that walk
+    already fails is marked "(no walk)"."""
+    def walk(lv, m, obs):
+        return walks.get(_walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs)))
+    pairs = combos(modes, observers)
+    walk_cols = [(m, obs) for m, obs in pairs if any(walk(lv, m, obs) is not None for lv in levels)]
+    cols = ["perturbation"] + [f"walk {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}")
+                               for m, obs in walk_cols]
+    cols += [f"max push {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}") + " [N]" for m, obs in pairs]
     lines = ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
     for lv in levels:
-        row = [lv.name]
-        for m, obs in walk_cols:
-            row.append(_walk_cell(walks.get(_walk_key(lv.perturbation, m, obs, WALK_STEPS))))
-        for m, obs in push_cols:
-            row.append(_push_cell(pushes.get((lv.name, m, obs))))
+        row = [lv.name] + [_walk_cell(walk(lv, m, obs)) for m, obs in walk_cols]
+        for m, obs in pairs:
+            r = pushes.get((lv.name, m, obs))
+            w = walk(lv, m, obs)
+            cell = _push_cell(r)
+            if r is not None and r["max_force"] == 0 and w is not None and not w["survived"]:
+                cell += " (no walk)"
+            row.append(cell)
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
@@ -323,6 +363,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="summary JSON")
     ap.add_argument("--table", type=Path, default=None, help="write the markdown table here")
     ap.add_argument("--figures", type=Path, default=None, help="directory for max_push.png")
+    ap.add_argument("--report-only", action="store_true",
+                    help="no simulation: the table, figure and JSON of what the store holds")
     args = ap.parse_args(argv)
     try:
         levels = _levels(args.levels)
@@ -343,13 +385,14 @@ def main(argv: list[str] | None = None) -> int:
     walks = {}
     pushes = {}
     if args.what in ("walk", "both"):
-        walks = run_walks(levels, modes, observers, walks_store, args.workers, log)
+        walks = run_walks(levels, modes, observers, walks_store, args.workers, log, simulate=not args.report_only)
     if args.what in ("push", "both"):
-        ex = cmap.make_executor(args.workers, None)
+        ex = None if args.report_only else cmap.make_executor(args.workers, None)
         try:
             pushes = run_pushes(levels, modes, observers, push_store, ex, log)
         finally:
-            ex.close()
+            if ex is not None:
+                ex.close()
     table = table_markdown(levels, modes, observers, walks, pushes)
     print(table)
     if args.table is not None:
