@@ -337,6 +337,13 @@ def figure(levels, modes, observers, pushes: dict, out: Path) -> Path:
         vals = [pushes[(lv.name, m, obs)]["max_force"] if (lv.name, m, obs) in pushes else np.nan for lv in levels]
         ax.barh(y - 0.4 + (i + 0.5) * hgt, vals, height=hgt, color=colors[m], alpha=1.0 if obs else 0.45,
                 hatch=None if obs else "//", label=f"{m}, observer {'on' if obs else 'off'}")
+        # where only a fall counts (under noise p and tau' never settle): the no-fall edge, if larger
+        nf = [(pushes[(lv.name, m, obs)]["max_force_no_fall"], k) for k, lv in enumerate(levels)
+              if (lv.name, m, obs) in pushes
+              and pushes[(lv.name, m, obs)].get("max_force_no_fall", 0.0) > pushes[(lv.name, m, obs)]["max_force"]]
+        if nf:
+            ax.plot([f for f, _ in nf], [k - 0.4 + (i + 0.5) * hgt for _, k in nf], "|", ms=9, mew=2,
+                    color=colors[m], label=f"{m}, observer {'on' if obs else 'off'}: no fall up to")
     ax.set_yticks(y)
     ax.set_yticklabels([lv.name for lv in levels], fontsize=8)
     ax.invert_yaxis()
