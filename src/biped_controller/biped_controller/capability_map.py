@@ -874,7 +874,7 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
 
     nd = len(s.durations)
     for m in s.modes:
-        fig, axes = plt.subplots(1, nd, figsize=(4.2 * nd, 3.6), squeeze=False)
+        fig, axes = plt.subplots(1, nd, figsize=(max(4.2 * nd, 6.5), 3.6), squeeze=False)
         for ax, du in zip(axes[0], s.durations):
             for dr in s.directions:
                 ph, f, bs = series(m, dr, du)
@@ -900,7 +900,7 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
     nr = len(s.directions)
     dph = (s.phases[1] - s.phases[0]) if len(s.phases) > 1 else 1.0
     for m in s.modes:
-        fig, axes = plt.subplots(nr, nd, figsize=(4.2 * nd, 3.4 * nr), squeeze=False)
+        fig, axes = plt.subplots(nr, nd, figsize=(max(4.2 * nd, 6.5), 3.4 * nr), squeeze=False)
         for i, dr in enumerate(s.directions):
             for j, du in enumerate(s.durations):
                 ax = axes[i][j]
@@ -928,7 +928,7 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
         fig.suptitle(f"mode {m}: survival (green) / failure (red) on the coarse grid", fontsize=10)
         save(fig, f"heatmap_{m}.png")
 
-    fig, axes = plt.subplots(nr, nd, figsize=(4.2 * nd, 3.4 * nr), squeeze=False)
+    fig, axes = plt.subplots(nr, nd, figsize=(max(4.2 * nd, 6.5), 3.4 * nr), squeeze=False)
     for i, dr in enumerate(s.directions):
         for j, du in enumerate(s.durations):
             ax = axes[i][j]
@@ -1046,7 +1046,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{r['simulations_resumed']} resumed from the store ({r['store_records_ignored']} store records of "
           f"other settings/code/cells ignored); wall time {r['wall_time']:.1f} s, "
           + (f"{r['rate']:.3f} sims/s ({r['executor']}, {args.workers} workers, batch {batch})" if r["rate"] else "nothing run"))
-    print(f"{'mode':<5} {'dir':<8} {'dur':>5} " + " ".join(f"{p:>5g}" for p in spec.phases))
+    print(f"{'mode':<5} {'dir':<8} {'dur':>5} " + " ".join(f"{p:>8g}" for p in spec.phases))
     for m in spec.modes:
         for dr in spec.directions:
             for du in spec.durations:
@@ -1054,9 +1054,9 @@ def main(argv: list[str] | None = None) -> int:
                 for ph in spec.phases:
                     b = run.boundaries.get(Cell(m, dr, ph, du))
                     if b is None:
-                        row.append(f"{'?':>5}")
+                        row.append(f"{'?':>8}")
                         continue
-                    row.append(f"{b.lo:>4g}{'+' if b.hi is None else ('*' if b.islands else ' ')}")
+                    row.append(f"{b.lo:>7.2f}{'+' if b.hi is None else ('*' if b.islands else ' ')}")
                 print(f"{m:<5} {dr:<8} {du:>5g} " + " ".join(row))
     print("(boundary force [N] per onset phase; * = islands above the edge, + = censored: survived up to the scan's max"
           + (f"; ? = search incomplete: {len(run.missing)} cells)" if run.missing else ")"))
