@@ -36,7 +36,7 @@ class FakeSurvives:
     # per (mode, direction): (edge [N], islands as closed force intervals [N] above the edge)
     TABLE = {
         ("p", "forward"): (269.0, [(340.0, 360.0)]),          # one coarse island at 350 (the README's p case)
-        ("p", "backward"): (121.0, [(190.0, 310.0), (420.0, 430.0)]),   # runs 200-300 and 420... (none at 50 N steps)
+        ("p", "backward"): (121.0, [(190.0, 310.0), (420.0, 430.0)]),   # coarse 200-300 survive; 420-430 holds no coarse force
         ("tau", "forward"): (362.0, []),
         ("tau", "backward"): (18.0, []),                       # the first coarse force already fails
         ("both", "forward"): (1e9, []),                        # never fails: censored
