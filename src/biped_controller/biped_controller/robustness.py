@@ -349,7 +349,7 @@ def figure(levels, modes, observers, pushes: dict, out: Path) -> Path:
     ax.invert_yaxis()
     ax.set_xlabel("largest survivable back push, 0.025 s at mid first step [N]")
     ax.grid(axis="x", alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="center right", bbox_to_anchor=(1.0, 0.36))   # over the empty noise and delay rows
     ax.set_title("push recovery under plant perturbations (controller keeps the nominal model)", fontsize=9)
     out.mkdir(parents=True, exist_ok=True)
     p = out / "max_push.png"
