@@ -153,26 +153,29 @@ def hand_mass_matrix(desc, q) -> np.ndarray:
     return A
 
 
-def assert_same_fields(a, b, what: str, tol: float = 0.0) -> None:
+def assert_same_fields(a, b, what: str, tol: float = 0.0, relative: bool = False) -> None:
     """Every field of two dataclass instances equal: arrays and floats to ``tol`` (0 = bit-identical,
-    NaN equals NaN), everything else with ==. The message names the field and both values."""
+    NaN equals NaN; ``relative``: |x - y| <= tol max(1, |x|), for fields in N next to fields in rad),
+    everything else with ==. The message names the field and both values."""
     import dataclasses
     import math
     for f in dataclasses.fields(a):
         x, y = getattr(a, f.name), getattr(b, f.name)
         if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
             x, y = np.asarray(x, float), np.asarray(y, float)
+            bound = tol * np.maximum(1.0, np.abs(x)) if relative else tol
             ok = x.shape == y.shape and (np.array_equal(x, y, equal_nan=True) if tol == 0.0 else
-                                         bool(np.all((np.abs(x - y) <= tol) | (np.isnan(x) & np.isnan(y)))))
+                                         bool(np.all((np.abs(x - y) <= bound) | (np.isnan(x) & np.isnan(y)))))
         elif isinstance(x, float) and isinstance(y, float):
+            bound = tol * max(1.0, abs(x)) if relative else tol
             ok = (x == y or (math.isnan(x) and math.isnan(y))) if tol == 0.0 else \
-                (abs(x - y) <= tol or (math.isnan(x) and math.isnan(y)))
+                (abs(x - y) <= bound or (math.isnan(x) and math.isnan(y)))
         else:
             ok = x == y
         assert ok, f"{what}: field {f.name} differs:\n  {x!r}\n  {y!r}"
 
 
-def assert_same_run(a, b, tol: float = 0.0, skip_status: tuple[str, ...] = ()) -> None:
+def assert_same_run(a, b, tol: float = 0.0, skip_status: tuple[str, ...] = (), relative: bool = False) -> None:
     """Two runner.RunResult record for record: states, statuses and impacts (same counts first)."""
     import dataclasses
     assert len(a.records) == len(b.records), f"{len(a.records)} records vs {len(b.records)}"
@@ -180,11 +183,11 @@ def assert_same_run(a, b, tol: float = 0.0, skip_status: tuple[str, ...] = ()) -
     assert len(a.impacts) == len(b.impacts), f"{len(a.impacts)} impacts vs {len(b.impacts)}"
     assert len(a.records) > 0
     for ra, rb in zip(a.records, b.records):
-        assert_same_fields(ra, rb, f"record step {ra.step} t={ra.t}", tol)
+        assert_same_fields(ra, rb, f"record step {ra.step} t={ra.t}", tol, relative)
     for sa, sb in zip(a.statuses, b.statuses):
         if skip_status:
             sa = dataclasses.replace(sa, **{k: getattr(sb, k) for k in skip_status})
-        assert_same_fields(sa, sb, f"status step {sa.step}", tol)
+        assert_same_fields(sa, sb, f"status step {sa.step}", tol, relative)
     for ia, ib in zip(a.impacts, b.impacts):
-        assert_same_fields(ia, ib, f"impact {ia.index}", tol)
+        assert_same_fields(ia, ib, f"impact {ia.index}", tol, relative)
     assert (a.fallen, a.fall_cause, a.steps_walked) == (b.fallen, b.fall_cause, b.steps_walked)

@@ -47,3 +47,58 @@ def test_exact_qp_solver_option_gives_the_same_run():
     assert sum(s.qp_status == 1 for s in a.statuses) > 0, "the push must make the QP active"
     assert [s.qp_status for s in a.statuses] == [s.qp_status for s in b.statuses]
     assert_same_run(a, b, tol=1e-6, skip_status=("qp_message",))
+
+
+def _without(monkeypatch, cls, name):
+    monkeypatch.setattr(cls, name, lambda self, *a, **k: None)
+
+
+@pytest.mark.parametrize("mode", ["both", "p", "none"])
+def test_compiled_controller_period_matches_its_python_steps(monkeypatch, mode):
+    """control_kernels.step (one compiled call per period, fast engine) against the controller's own
+    Python steps on the same compiled model terms: same run to 1e-9, QP decisions included."""
+    from biped_controller import controller as C
+    push = (Push(0.2003217, 0.025, 400.0),)
+    used = []
+    orig = C._FastPeriod.compute
+
+    def counting(self, *a):
+        out = orig(self, *a)
+        used.append(out is not None)
+        return out
+    monkeypatch.setattr(C._FastPeriod, "compute", counting)
+    fast = runner.run(steps=2, mode=mode, pushes=push)
+    assert used and all(used), "the compiled period must serve every period of a finite run"
+    _without(monkeypatch, C._FastPeriod, "compute")
+    steps = runner.run(steps=2, mode=mode, pushes=push)
+    if mode != "none":
+        assert sum(s.qp_status == 1 for s in steps.statuses) > 0, "the push must make the QP active"
+    assert [s.qp_status for s in fast.statuses] == [s.qp_status for s in steps.statuses]
+    assert_same_run(steps, fast, tol=1e-9, skip_status=("qp_message",), relative=True)
+
+
+@pytest.mark.parametrize("push", [Push(0.2003217, 0.025, 300.0), Push(0.2, 0.1, 1500.0), Push(0.1003, 0.1, -150.0)])
+def test_compiled_simulator_period_is_the_event_path_bit_for_bit(monkeypatch, push):
+    """planar_kernels.period (the whole period in one call when nothing happens in it) against the
+    simulator's interval-by-interval path: identical records (np.array_equal), impacts and falls."""
+    import numpy as np
+    from biped_sim.simulator import Simulator
+    calls = []
+    orig = Simulator._fast_period
+
+    def counting(self, *a):
+        out = orig(self, *a)
+        calls.append(out is not None)
+        return out
+    monkeypatch.setattr(Simulator, "_fast_period", counting)
+    fast = runner.run(steps=2, mode="both", pushes=(push,))
+    assert sum(calls) > 0.9 * len(calls), "the compiled period serves the periods with no event"
+    assert not all(calls), "impacts and falls go through the event path"
+    _without(monkeypatch, Simulator, "_fast_period")
+    slow = runner.run(steps=2, mode="both", pushes=(push,))
+    assert len(fast.records) == len(slow.records) and fast.fall_cause == slow.fall_cause
+    for a, b in zip(slow.records, fast.records):
+        for name in ("x", "v", "q", "qd", "torque", "wrench"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), (a.step, name)
+        assert (a.t, a.t_end, a.push_force, a.push_impulse, a.stance) == (b.t, b.t_end, b.push_force, b.push_impulse,
+                                                                           b.stance), a.step

@@ -82,6 +82,9 @@ def test_no_integration_step_straddles_a_switch(monkeypatch):
         return original(self, x, v, tau_src, t, h, pushes)
 
     monkeypatch.setattr(Simulator, "_rk4", spy)
+    # the interval-by-interval path (the compiled period is checked on the same intervals below, and
+    # bit for bit against this path in test_engines)
+    monkeypatch.setattr(Simulator, "_fast_period", lambda self, *a: None)
     runner.run(steps=1, mode="both", pushes=(Push(start, duration, 300.0),))
     end = start + duration
     on = [c for c in calls if c[2]]
@@ -92,3 +95,30 @@ def test_no_integration_step_straddles_a_switch(monkeypatch):
         assert inside or outside, f"RK4 step [{t}, {t + h}] straddles the window [{start}, {end})"
         assert bool(pushes) == inside, (t, h, pushes)
         assert all(f == 300.0 for f, _ in pushes)
+
+
+def test_compiled_period_gets_intervals_split_at_the_switches(monkeypatch):
+    """The intervals and per-interval pushes handed to planar_kernels.period: none straddles the window,
+    the force is on exactly inside it."""
+    import math
+    from biped_sim import planar_kernels as pk
+    start, duration = 0.2003217, 0.0251
+    end = start + duration
+    seen = []
+    original = pk.period
+
+    def spy(ti, tf, x, v, tau_j, knots, forces, heights, *rest):
+        seen.append((knots.copy(), forces.copy(), heights.copy()))
+        return original(ti, tf, x, v, tau_j, knots, forces, heights, *rest)
+
+    monkeypatch.setattr(pk, "period", spy)
+    runner.run(steps=1, mode="both", pushes=(Push(start, duration, 300.0),))
+    n_on = 0
+    for knots, forces, heights in seen:
+        for t0, t1, f, h in zip(knots[:-1], knots[1:], forces, heights):
+            inside = start - 1e-12 <= t0 and t1 <= end + 1e-12
+            outside = t1 <= start + 1e-12 or t0 >= end - 1e-12
+            assert inside or outside, f"interval [{t0}, {t1}] straddles the window [{start}, {end})"
+            assert (not math.isnan(h)) == inside and f == (300.0 if inside else 0.0), (t0, t1, f, h)
+            n_on += inside
+    assert n_on >= 2 * 25 - 4

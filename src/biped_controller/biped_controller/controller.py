@@ -38,6 +38,7 @@ from biped_sim.settings import SettingsError, default_config_dir, read_settings
 from biped_sim.gait_family import GaitFamily, eq11
 from .model import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows
 from .qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
+from .qp_types import UNCONSTRAINED
 
 MODES = ("none", "tau", "p", "both")
 ENGINES = ("fast", "reference")
@@ -193,6 +194,7 @@ class AdaptiveController:
         self.family = family if family is not None else GaitFamily.load()
         self.model = FixedFootModel(self.desc)
         self._fast = None
+        self._kernel = None
         if self.cfg.engine == "fast":
             from biped_sim.fast_engine import FastFixedFootModel   # compiled kernels only when used
             self._fast = FastFixedFootModel(self.desc)
@@ -215,6 +217,8 @@ class AdaptiveController:
         self._prev: _Previous | None = None
         self._t_last = None            # time of the last decision [s]
         self.force_estimate = 0.0      # estimated horizontal force on the torso [N]
+        if self._fast is not None:
+            self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
 
     def reset(self, stance: int | None = None) -> None:
         self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
@@ -341,10 +345,18 @@ class AdaptiveController:
             return ref.x_star.copy(), SOLVER_ERROR, f"{type(exc).__name__}: {exc}", None, None, None
 
     def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
-        """One control period: advance the parameters, observe, reference, rows, decide, torque."""
+        """One control period: advance the parameters, observe, reference, rows, decide, torque.
+
+        With the fast engine the steps after the advance are one compiled call
+        (``control_kernels.step``, the same equations) and, when x* is not feasible, the QP and one more
+        call; a non-finite value anywhere falls back to the reference steps below."""
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         self._advance_parameters(t, stance)
+        if self._kernel is not None:
+            out = self._kernel.compute(t, q, qd, stance)
+            if out is not None:
+                return out
         s = self.state
         ref = self._reference(q, qd)
         dyn, jp = self._model_terms(q, qd)                     # eq. (1): A, H and the reaction rows
@@ -387,3 +399,102 @@ class AdaptiveController:
         w = qddr + c.Kv * (qdr - qd) + c.Kp * (qr - q)
         dyn, _ = self._model_terms(q, qd)
         return dyn.A @ w + dyn.H
+
+
+class _FastPeriod:
+    """The compiled period of an :class:`AdaptiveController` (fast engine): packs the controller's
+    settings once, its state every period, into the arrays of ``control_kernels.step`` and unpacks the
+    answer into the same ``ControlOutput`` and observer memory as the reference steps."""
+
+    def __init__(self, ctrl: AdaptiveController):
+        from . import control_kernels as ck
+        self.ck = ck
+        self.ctrl = ctrl
+        c, m, fam = ctrl.cfg, ctrl.model, ctrl.family
+        self.coef = np.ascontiguousarray(fam._coef, dtype=float)
+        self.inner = np.array(fam._inner, dtype=float)
+        self.centers = np.array(fam._centers, dtype=float)
+        self.ti, self.tf = ctrl._fast.ti, ctrl._fast.tf
+        par = np.zeros(ck.PAR_SIZE)
+        par[ck.P_KP], par[ck.P_KV], par[ck.P_KP2], par[ck.P_KV2] = c.Kp, c.Kv, c.kp, c.kv
+        par[ck.P_PD] = fam.p_d
+        par[ck.P_MU_QP] = c.margin_friction * m.mu
+        par[ck.P_LM_QP], par[ck.P_LMAX_QP] = m.l_min + c.margin_zmp, m.l_max - c.margin_zmp
+        par[ck.P_DT] = c.period
+        par[ck.P_PMIN], par[ck.P_PMAX], par[ck.P_TAUD_MIN] = fam.p_min, fam.p_max, c.tau_dot_min
+        par[ck.P_OBS_ON] = 1.0 if c.disturbance_observer else 0.0
+        par[ck.P_OBS_H] = c.observer_height
+        par[ck.P_MU], par[ck.P_LMIN], par[ck.P_LMAX] = m.mu, m.l_min, m.l_max
+        par[ck.P_ADAPT_P] = 1.0 if 0 in ctrl.adapted else 0.0
+        par[ck.P_ADAPT_TAU] = 1.0 if 1 in ctrl.adapted else 0.0
+        self.par = par
+        self.cons = np.concatenate([ctrl.margin, m.row_scale, m.torque_min, m.torque_max]).astype(float)
+        self.prev = np.zeros((8, 6))
+        self.G = np.zeros((ck.QP_ROWS, 2))
+        self.h = np.zeros(ck.QP_ROWS)
+
+    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput | None:
+        ck, ctrl, par = self.ck, self.ctrl, self.par
+        s = ctrl.state
+        par[ck.P_P], par[ck.P_PDOT], par[ck.P_TAU], par[ck.P_TAUDOT] = s.p, s.p_dot, s.tau, s.tau_dot
+        prev = ctrl._prev
+        if prev is None:
+            par[ck.P_OBS_MODE] = ck.OBS_NONE
+        elif prev.stance != stance:
+            par[ck.P_OBS_MODE] = ck.OBS_KEEP
+            par[ck.P_F_PREV] = ctrl.force_estimate
+        else:
+            par[ck.P_OBS_MODE] = ck.OBS_RESIDUAL
+            par[ck.P_OBS_DT] = (round(t * 1e9) - round(prev.t * 1e9)) * 1e-9
+            P = self.prev
+            P[0] = prev.qd
+            P[1] = prev.w
+            P[2:] = prev.A
+        if q.dtype != np.float64 or not q.flags.c_contiguous:
+            q = np.ascontiguousarray(q, dtype=float)
+        if qd.dtype != np.float64 or not qd.flags.c_contiguous:
+            qd = np.ascontiguousarray(qd, dtype=float)
+        work = np.empty((ck.WORK_ROWS, 6))
+        res = np.empty(ck.RES_SIZE)
+        G, h = self.G, self.h
+        code = ck.step(self.coef, self.inner, self.centers, self.ti, self.tf, q, qd, par, self.cons, self.prev,
+                       G, h, work, res)
+        if code == ck.NONFINITE:
+            return None
+        xs_full = res[ck.R_XS:ck.R_XS + 2]
+        Gr = hr = xs = None
+        if not ctrl.adapted:
+            status, msg = NO_ADAPTATION, "mode none: classical computed torque"
+        else:
+            idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
+            Gr, xs = G[:, idx], xs_full[idx]
+            hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
+            if code == ck.FEASIBLE:
+                status, msg = UNCONSTRAINED, "x* feasible"
+            else:
+                qres = ctrl.qp.solve(Gr, hr, xs)
+                x = xs_full.copy()
+                x[idx] = qres.x
+                if not np.all(np.isfinite(x)):
+                    return None
+                status, msg = qres.status, qres.message
+                res[ck.R_X:ck.R_X + 2] = x
+                ck.finish(par, self.cons, work, res)
+        torque = work[ck.W_TORQUE].copy()
+        w = work[ck.W_W].copy()
+        F = float(res[ck.R_F])
+        p_dd, t_dd = float(res[ck.R_X]), float(res[ck.R_X + 1])
+        status_rec = ControllerStatusData(
+            step=ctrl.step_index, t=t, mode=ctrl.cfg.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
+            p_ddot=p_dd, tau_ddot=t_dd, p_ddot_star=float(xs_full[0]), tau_ddot_star=float(xs_full[1]),
+            qp_status=int(status), qp_message=msg, margins=res[ck.R_MARGINS:].copy(), tightest=int(res[ck.R_TIGHT]),
+            zmp=float(res[ck.R_ZMP]), stance=int(stance), max_tracking_error=float(res[ck.R_MAXERR]),
+            predicted_reaction=res[ck.R_R:ck.R_R + 2].copy(), force_estimate=F)
+        ctrl.force_estimate = F
+        ctrl._prev = _Previous(qd=qd.copy(), w=w, A=work[ck.W_A:ck.W_A + 6].copy(), stance=stance, t=t)
+        ctrl._decision = (p_dd, t_dd)
+        ctrl._period_start = ParamState(s.p, s.p_dot, s.tau, s.tau_dot)
+        ctrl.step_index += 1
+        keep = ctrl.keep_qp
+        return ControlOutput(torque=torque, status=status_rec, G=Gr.copy() if keep and Gr is not None else None,
+                             h=hr if keep else None, x_star=xs.copy() if keep and xs is not None else None)

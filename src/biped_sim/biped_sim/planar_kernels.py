@@ -788,6 +788,91 @@ def fixed_root_terms(ti, tf, q, qd, height, A, H, B, hb, jp):
     return STATUS_OK
 
 
+# period outcome (``period``): completed, or handed back to the caller's event path untouched
+PERIOD_DONE = 0
+PERIOD_EVENT = 1
+PERIOD_LIMITS_SIZE = 7   # mu, l_min, l_max, touchdown_tolerance, clearance, liftoff_penetration, cleared
+PERIOD_OUT_SIZE = 4      # status, cleared after, push impulse [N s], interval of the event (-1: none)
+
+
+@njit(_sig(_VI, _V, _V, _V, _V, _V, _V, _V, _I, _V, _V, _V, _V, _V, _V), cache=True)
+def period(ti, tf, x, v, tau_j, knots, forces, heights, foot, anchor, lim, x_out, v_out, w0, out):
+    """One control period of the simulator in one call, for the common case with nothing to decide.
+
+    The integration intervals [knots[i], knots[i+1]] (RK4 substeps, already split at push starts and
+    ends) are integrated one ``rk4_step`` each with the held URDF torques tau_j and, on interval i, the
+    horizontal push ``forces[i]`` [N] at ``heights[i]`` [m] above the hip (NaN height: no push), foot
+    ``foot`` held at ``anchor``. At each interval start the contact wrench lambda = [F_x, F_z, m] is
+    checked as the simulator's fall test does (finite, F_z > 0, |F_x| <= mu F_z, l = m / F_z within
+    [l_min, l_max]); after each interval the other foot's lowest sole point z is probed: touchdown
+    candidate when the foot has cleared (lim[6] or z > clearance on an earlier interval) and z <=
+    touchdown_tolerance; a foot that has not cleared and sinks below -liftoff_penetration is a fall.
+
+    lim = [mu, l_min, l_max, touchdown_tolerance [m], clearance [m], liftoff_penetration [m], cleared (0/1)].
+    Outcome out = [status, cleared after (0/1), push impulse sum_i forces[i] (knots[i+1] - knots[i]) [N s],
+    event interval]. PERIOD_DONE: x_out, v_out hold the state at knots[-1], w0 the wrench at knots[0].
+    PERIOD_EVENT: a wrench check failed, a touchdown candidate, a sinking foot, a non-finite or singular
+    state on interval out[3]: the caller integrates the whole period again on its event path (x, v are
+    never modified; x_out, v_out, w0 are then undefined)."""
+    n = ti[0]
+    W = _workspace(n)
+    S = np.empty((9, n))
+    P = np.empty(PROBE_SIZE)
+    xa = np.empty(n)
+    va = np.empty(n)
+    wi = np.empty(3)
+    xa[:] = x
+    va[:] = v
+    mu, l_min, l_max = lim[0], lim[1], lim[2]
+    cleared = lim[6] != 0.0
+    impulse = 0.0
+    out[0] = PERIOD_EVENT
+    out[2] = 0.0
+    for i in range(knots.shape[0] - 1):
+        out[3] = i
+        t0 = knots[i]
+        t1 = knots[i + 1]
+        if math.isnan(heights[i]):
+            fs = forces[0:0]
+            hs = heights[0:0]
+            f = 0.0
+        else:
+            fs = forces[i:i + 1]
+            hs = heights[i:i + 1]
+            f = forces[i]
+        if not _rk4(ti, tf, xa, va, tau_j, fs, hs, foot, anchor, t1 - t0, x_out, v_out, wi, W, S):
+            return PERIOD_EVENT
+        fx, fz, m = wi[0], wi[1], wi[2]
+        if not (math.isfinite(fx) and math.isfinite(fz) and math.isfinite(m)):
+            return PERIOD_EVENT
+        if fz <= 0.0 or abs(fx) > mu * fz:
+            return PERIOD_EVENT
+        l = m / fz
+        if l < l_min or l > l_max:
+            return PERIOD_EVENT
+        if i == 0:
+            w0[:] = wi
+        for k in range(n):
+            if not (math.isfinite(x_out[k]) and math.isfinite(v_out[k])):
+                return PERIOD_EVENT
+        _probe(ti, tf, x_out, v_out, 1 - foot, P, W)
+        z = P[0]
+        if cleared and z <= lim[3]:
+            return PERIOD_EVENT
+        if z > lim[4]:
+            cleared = True
+        elif not cleared and z < -lim[5]:
+            return PERIOD_EVENT
+        impulse += f * (t1 - t0)
+        xa[:] = x_out
+        va[:] = v_out
+    out[0] = PERIOD_DONE
+    out[1] = 1.0 if cleared else 0.0
+    out[2] = impulse
+    out[3] = -1.0
+    return PERIOD_DONE
+
+
 # Every public kernel has an explicit signature, so all of them are compiled (or loaded from the cache)
 # by now: record that the cache is warm for this source.
 write_stamp(_STAMP, _KEY)

@@ -204,7 +204,9 @@ class Simulator:
         self.cfg = (config if config is not None else load_sim_config()).validate()
         if self.cfg.engine == "fast":
             from .fast_engine import FastFloatingModel   # loads the compiled kernels only when used
+            from . import planar_kernels
             self.fm = FastFloatingModel(self.desc)
+            self._pk = planar_kernels
         else:
             self.fm = FloatingModel(self.desc)
         self._fast = self.cfg.engine == "fast"
@@ -416,6 +418,50 @@ class Simulator:
             self.fall = FallInfo("no_liftoff", self.t, f"the released foot sank {-z * 1e3:.2f} mm into the ground "
                                  "before clearing it (double support is not modelled)")
 
+    def _fast_period(self, knots: list[float], t_start: float, t_end: float, applied: np.ndarray,
+                     obs_stance: int) -> StepRecord | None:
+        """The whole period in one compiled call (``planar_kernels.period``: the same RK4 intervals, wrench
+        checks, touchdown probe and clearance update as the event path below) when nothing happens in it.
+        Returns None, with nothing changed, when the kernel meets an event (a failed wrench check, a
+        touchdown candidate, a sinking foot, a singular or non-finite state) or two pushes share an
+        interval: the caller then integrates the period on its event path."""
+        pk = self._pk
+        n = len(knots) - 1
+        forces = np.zeros(n)
+        heights = np.full(n, np.nan)
+        if self.book.pushes:
+            for i in range(n):
+                act = self.interval_pushes(knots[i], knots[i + 1])
+                if len(act) > 1:
+                    return None
+                if act:
+                    forces[i], heights[i] = act[0]
+        foot = self.desc.foot
+        lim = np.array([self.desc.mu, foot.l_min, foot.l_max, self.cfg.touchdown_tolerance,
+                        self.cfg.clearance_before_touchdown, self.cfg.liftoff_penetration, float(self.cleared)])
+        xo = np.empty(9)
+        vo = np.empty(9)
+        w0 = np.empty(3)
+        out = np.empty(pk.PERIOD_OUT_SIZE)
+        status = pk.period(self.fm.ti, self.fm.tf, self.x, self.v, self._tau_const, np.array(knots), forces, heights,
+                           int(self.stance), self.anchor, lim, xo, vo, w0, out)
+        if status != pk.PERIOD_DONE:
+            return None
+        x, v = self.x, self.v
+        q, qd = self.fm.paper_from_state(x, v, self.stance)
+        if obs_stance != self.stance:     # the record keeps the true stance: the torque in its paper order
+            applied = paper_from_urdf(self._tau_const, self.stance)
+        rec = StepRecord(step=self.step_index, t=t_start, stance=self.stance, q=q, qd=qd, base=x[:3].copy(),
+                         base_dot=v[:3].copy(), x=x, v=v, torque=applied, wrench=w0,
+                         cop=float(w0[2] / w0[1]), push_force=float(forces[0]) if heights[0] == heights[0] else 0.0,
+                         impacts=self.impact_count, fallen=False, fall_cause="", fall_detail="", t_end=t_end,
+                         push_impulse=float(out[2]))
+        self.x, self.v = xo, vo
+        self.cleared = bool(out[1])
+        self.step_index += 1
+        self.t = t_end
+        return rec
+
     def step(self, torque: np.ndarray | TorqueFn) -> StepRecord:
         """Advance one control period. ``torque``: paper-order joint torques [N m] for the current stance
         (with a delayed sensor model: for the stance of :meth:`observe`, the one the controller was told), held over the period (zero-order hold), or a function ``(s, q, qd, stance) -> torques`` evaluated at
@@ -461,6 +507,10 @@ class Simulator:
         knots = [t_start + i * h for i in range(n_sub)] + [t_grid_end]
         cuts = {c for p in self.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
         knots = sorted(set(knots) | cuts)
+        if self._fast and self._tau_const is not None:
+            rec = self._fast_period(knots, t_start, t_grid_end, applied, obs_stance)
+            if rec is not None:
+                return rec
         # record at the period start, under this period's torque and the push of its first interval
         first_pushes = self.interval_pushes(knots[0], knots[1])
         _, w0 = self._accel(self.x, self.v, tau_src(t_start, self.x, self.v), first_pushes)
