@@ -110,10 +110,15 @@ def test_simulator_killed(ros_domain, tmp_path):
     assert read_bag(bag)['counts']['/sim/state'] > 10
 
 
+LATE_START = 5.0   # s: a second accepted push that starts after the 2-step run is over (it never acts)
+
+
 def _states_of_push_run(tmp, env, rejected: bool):
     import rclpy
     from biped_sim.push_client import call_apply_push
-    proc, bag, ready = _launch(tmp, env, '--steps', '2', '--sim-param', 'wait_for_pushes:=1')
+    # the simulator starts once both accepted pushes are scheduled: the overlapping request must reach the
+    # disturbance node while the graph is still up (a 2-step run takes about a second of wall time)
+    proc, bag, ready = _launch(tmp, env, '--steps', '2', '--sim-param', 'wait_for_pushes:=2')
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
     answers = []
@@ -126,7 +131,8 @@ def _states_of_push_run(tmp, env, rejected: bool):
                        dict(force=5000.0, duration=0.025, start=0.3), dict(force=100.0, duration=0.025, start=-1.0),
                        dict(force=100.0, duration=0.025, start=0.3, height=1.0),
                        dict(force=100.0, duration=0.025, start=0.3, height=-0.1),
-                       dict(force=100.0, duration=math.nan, start=0.3), dict(force=100.0, duration=0.025, start=math.inf)):
+                       dict(force=100.0, duration=math.nan, start=0.3), dict(force=100.0, duration=0.025, start=math.inf),
+                       dict(force=100.0, duration=0.025, start=1e12)):   # finite, but after any run's end
                 batch.append(kw)
         for kw in batch:
             r = call_apply_push(timeout=30, context=ctx, **kw)
@@ -137,6 +143,8 @@ def _states_of_push_run(tmp, env, rejected: bool):
             kw = dict(force=100.0, duration=0.025, start=0.24)
             r = call_apply_push(timeout=30, context=ctx, **kw)
             answers.append((kw, r.accepted, r.message))
+        late = call_apply_push(1.0, 0.025, start=LATE_START, timeout=30, context=ctx)
+        assert late.accepted, late.message
         out, _ = proc.communicate(timeout=300)
         assert proc.returncode == 0, out[-3000:]
     finally:
@@ -155,6 +163,8 @@ def test_rejected_requests_change_nothing(ros_domain, tmp_path):
     for kw, accepted, message in answers:
         assert not accepted, (kw, message)
         assert 'rejected' in message and any(f in message for f in ('force', 'duration', 'start', 'height')), message
+    never = [m for kw, _, m in answers if kw.get('start') == 1e12]
+    assert len(never) == 1 and never[0].startswith('rejected: start:') and 'horizon' in never[0], never
     seq_ref, seq_got = [m.sequence for m in ref], [m.sequence for m in got]
     assert seq_got == seq_ref, (f"recorded sequences differ: ref {len(ref)} states "
                                 f"[{seq_ref[:3]}..{seq_ref[-3:]}], with rejected requests {len(got)} "
@@ -164,7 +174,7 @@ def test_rejected_requests_change_nothing(ros_domain, tmp_path):
     for a, b in zip(ref, got):
         assert a.sequence == b.sequence and a.stance == b.stance
         assert list(a.q) == list(b.q) and list(a.q_dot) == list(b.q_dot) and list(a.base) == list(b.base)
-    assert d['counts']['/push_events'] == 1 and d['counts']['/push_requests'] == 1 + len(answers)
+    assert d['counts']['/push_events'] == 2 and d['counts']['/push_requests'] == 2 + len(answers)
 
 
 def test_fall_reported_consistently(ros_domain, tmp_path):
@@ -185,6 +195,17 @@ def test_fall_reported_consistently(ros_domain, tmp_path):
     last = max(status, key=lambda m: m.step)
     assert s['last_qp_status'] == last.qp_status
     assert s['qp_fallback_steps'] == sum(1 for m in status if m.qp_status in (2, 3))
+    # the fallen state is the state at the instant of the fall, with its own step (the period that fell);
+    # its stamp is the fall's time (the one of the period start when the new torque tips the foot at once)
+    assert states[-1].step == states[-2].step + 1 and states[-1].sequence == states[-2].sequence + 1
+    t_fall = states[-1].stamp.sec + 1e-9 * states[-1].stamp.nanosec
+    assert abs(t_fall - fall['time']) < 1e-9 and t_fall >= states[-2].stamp.sec + 1e-9 * states[-2].stamp.nanosec
+    # the push cut short by the fall (the bag alone, tests/bag_physics): F x (t_fall - start), nothing else
+    import bag_physics as bp
+    p = bp.push_report(bp.load_bag(tmp_path / 'bag'))
+    assert p['start'] < fall['time'] < p['end'], 'the fall must cut the push for this check'
+    assert p['impulse_outside'] == [] and p['worst_period_error'] <= 1e-12 * abs(p['force'])
+    assert p['total'] == pytest.approx(p['force'] * (fall['time'] - p['start']), rel=1e-9)
 
 
 SOAK_MINUTES = 0.5   # 30 sim s: about 2 min wall on 2 cores (1 sim min ~ 4-5 min when loaded)

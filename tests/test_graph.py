@@ -234,6 +234,53 @@ def test_d_bag_reads_and_decodes_counts_and_time_range(walk):
     assert abs(d['end_ns'] * 1e-9 - last_t) <= 1e-3 + 1e-9
 
 
+def test_f_bag_passes_an_independent_physics_check(walk):
+    """From the bag and config/biped.yaml alone (tests/bag_physics: own kinematics, no project code):
+    the push (off the 1 ms grid) acts exactly over its window, the momentum of every period balances the
+    recorded ground reaction, push and impact impulses, and every recorded impact is consistent."""
+    import bag_physics as bp
+    B = bp.load_bag(walk['bag'])
+    model = bp.PlanarBiped()
+    # the model's conventions hold on the recording: stance ankle on the ground and at rest, joints as
+    # /joint_states reports them
+    assert bp.ankle_check(B, model) < 1e-9
+    assert bp.joint_states_check(B) == 0.0
+    # (a) /sim/push: F x overlap in every period, nothing outside [start, start + duration), total F x duration
+    p = bp.push_report(B)
+    assert (p['start'], p['duration'], p['force']) == (PUSH['start'], PUSH['duration'], PUSH['force'])
+    assert p['impulse_outside'] == []
+    assert p['periods_touched'] == 26          # 0.2315 is off the grid: 24 whole periods and two halves
+    assert p['worst_period_error'] <= 1e-12 * abs(p['force'] * PUSH['duration'])
+    assert p['total'] == pytest.approx(PUSH['force'] * PUSH['duration'], rel=1e-9)
+    # (b) linear momentum per period; left-rectangle rule on the ground reaction: a few 1e-3 N s at most
+    # where it changes fastest (after an impact, at the push's switches) against 0.25 N s of push per period
+    r = bp.momentum_residuals(B, model)
+    assert len(r) == len(bp.states(B)) - 1
+    assert np.max(np.abs(r[:, 2:4])) < 0.02, r[np.argmax(np.max(np.abs(r[:, 2:4]), axis=1))]
+    window = (r[:, 0] >= PUSH['start'] - 0.01) & (r[:, 0] < PUSH['start'] + PUSH['duration'] + 0.01)
+    recovered = np.sum(r[window, 2]) + p['total']      # push impulse seen in the momentum, not in R or impacts
+    assert recovered == pytest.approx(PUSH['force'] * PUSH['duration'], rel=1e-2)
+    # (c) every impact: momentum jump = ground impulse, energy lost, foot re-pose, the next state
+    imps = bp.impact_reports(B, model)
+    assert len(imps) == STEPS and sum(r[:, 5]) == STEPS
+    for i in imps:
+        assert i['momentum_error'] < 1e-9, i
+        assert i['energy_loss'] > 0 and i['energy_loss_model'] == pytest.approx(i['energy_loss'], rel=1e-9), i
+        assert i['repose_error'] == 0.0 and i['landing_ankle_speed'] < 1e-9, i
+        assert i['landing_ankle_height_after'] < 1e-9 and i['next_state_error'] < 1e-12, i
+    # negative control: a push recorded one period early (as the old stage-time sampling leaked it) is
+    # caught by the window check and by the momentum of both periods
+    from types import SimpleNamespace
+    pushes = sorted(B['/sim/push'], key=lambda m: bp.ns(m.stamp))
+    k = next(i for i, m in enumerate(pushes) if m.impulse != 0.0)
+    moved = [SimpleNamespace(stamp=m.stamp, period=m.period, impulse=m.impulse) for m in pushes]
+    moved[k - 1].impulse, moved[k].impulse = moved[k].impulse, 0.0
+    bad = dict(B, **{'/sim/push': moved})
+    assert bp.push_report(bad)['impulse_outside'] != []
+    rb = bp.momentum_residuals(bad, model)
+    assert np.max(np.abs(rb[:, 2])) > 0.1
+
+
 def test_e_sigint_leaves_finished_bag_and_no_orphans(ros_domain, tmp_path):
     env = dict(os.environ)
     proc, bag, ready = _launch(tmp_path, env, '--steps', '0')   # walk until stopped
