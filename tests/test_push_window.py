@@ -85,7 +85,7 @@ def test_no_integration_step_straddles_a_switch(monkeypatch):
     # the interval-by-interval path (the compiled period is checked on the same intervals below, and
     # bit for bit against this path in test_engines)
     monkeypatch.setattr(Simulator, "_fast_period", lambda self, *a: None)
-    runner.run(steps=1, mode="both", pushes=(Push(start, duration, 300.0),))
+    runner.run(steps=1, mode="both", pushes=(Push(start, duration, 300.0),), compiled_loop=False)
     end = start + duration
     on = [c for c in calls if c[2]]
     assert len(on) >= 2 * 25 - 2
@@ -112,7 +112,7 @@ def test_compiled_period_gets_intervals_split_at_the_switches(monkeypatch):
         return original(ti, tf, x, v, tau_j, knots, forces, heights, *rest)
 
     monkeypatch.setattr(pk, "period", spy)
-    runner.run(steps=1, mode="both", pushes=(Push(start, duration, 300.0),))
+    runner.run(steps=1, mode="both", pushes=(Push(start, duration, 300.0),), compiled_loop=False)
     n_on = 0
     for knots, forces, heights in seen:
         for t0, t1, f, h in zip(knots[:-1], knots[1:], forces, heights):

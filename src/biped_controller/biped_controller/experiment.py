@@ -49,6 +49,7 @@ import yaml
 
 from biped_sim.description import LEFT, RobotDescription, load_description
 from biped_sim.gait_family import GaitFamily
+from biped_sim.settings import default_config_dir
 from biped_sim.perturbation import PerturbationError, PlantPerturbation
 from biped_sim.simulator import SimConfig, SimConfigError, Simulator, load_sim_config
 
@@ -123,8 +124,10 @@ class RunSettings:
         return _sim_config(self.simulator)
 
     def ctrl_config(self, mode: str) -> ControllerConfig:
-        """The controller settings for ``mode``; the period is the simulator's control period."""
-        return load_controller_config(mode=mode, period=self.sim_config().control_period, **dict(self.controller))
+        """The controller settings for ``mode``; the period is the simulator's control period. Read again
+        whenever ``config/controller.yaml`` or ``config/simulator.yaml`` changed (their modification
+        times key a per-process cache: a YAML parse costs more than a failing simulation)."""
+        return _ctrl_config(mode, self.controller, self.simulator, _config_stamp())
 
     def describe(self) -> dict:
         """JSON-ready: the overrides and the effective settings (every key of both files)."""
@@ -135,6 +138,16 @@ class RunSettings:
         if self.perturbation is not None and not self.perturbation.is_zero:   # (absent: nominal plant)
             out["perturbation"] = self.perturbation.as_dict()
         return out
+
+
+def _config_stamp() -> tuple[int, int]:
+    d = default_config_dir()
+    return (os.stat(d / "controller.yaml").st_mtime_ns, os.stat(d / "simulator.yaml").st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _ctrl_config(mode: str, controller: tuple, simulator: tuple, stamp: tuple[int, int]) -> ControllerConfig:
+    return load_controller_config(mode=mode, period=_sim_config(simulator).control_period, **dict(controller))
 
 
 def _parse_value(key: str, text: str) -> object:
@@ -200,7 +213,8 @@ DEFAULT_SETTINGS = RunSettings()
 
 
 def _run(steps: int, mode: str, pushes: tuple[PushSpec, ...] = (), *, integration_rate: bool = False,
-         observer: bool | None = None, keep_qp: bool = False, settings: RunSettings = DEFAULT_SETTINGS) -> RunResult:
+         observer: bool | None = None, keep_qp: bool = False, settings: RunSettings = DEFAULT_SETTINGS,
+         keep_records: bool = True) -> RunResult:
     ctx = context()
     if observer is not None:
         settings = RunSettings(tuple(sorted({**dict(settings.controller), "disturbance_observer": observer}.items())),
@@ -208,7 +222,7 @@ def _run(steps: int, mode: str, pushes: tuple[PushSpec, ...] = (), *, integratio
     ccfg = settings.ctrl_config(mode)
     return runner.run(steps=steps, mode=mode, pushes=pushes, sim_config=settings.sim_config(), ctrl_config=ccfg,
                       family=ctx.family, desc=ctx.desc, integration_rate=integration_rate, keep_qp=keep_qp,
-                      perturbation=settings.perturbation)
+                      perturbation=settings.perturbation, keep_records=keep_records)
 
 
 # ------------------------------------------------------------------------------------------ summaries
@@ -297,11 +311,13 @@ def push_step_index(start: float, duration: float, T: float) -> int:
 
 def push_run(force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, mode: str = "both",
              height: float | None = None, steps_after: int = SURVIVAL_STEPS, keep_qp: bool = False,
-             settings: RunSettings = DEFAULT_SETTINGS) -> RunResult:
-    """One push (+ forward, i.e. on the back), then ``steps_after`` more steps."""
+             settings: RunSettings = DEFAULT_SETTINGS, keep_records: bool = True) -> RunResult:
+    """One push (+ forward, i.e. on the back), then ``steps_after`` more steps. ``keep_records`` False: the
+    outcome only (``runner.run``), as a survival trial needs."""
     T = context().family.T
     steps = push_step_index(start, duration, T) + 1 + steps_after
-    return _run(steps, mode, (PushSpec(start, duration, float(force), height),), keep_qp=keep_qp, settings=settings)
+    return _run(steps, mode, (PushSpec(start, duration, float(force), height),), keep_qp=keep_qp, settings=settings,
+                keep_records=keep_records)
 
 
 def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STEPS) -> tuple[bool, str]:
@@ -444,7 +460,7 @@ def push_figures(result: RunResult, outdir: Path, start: float, duration: float,
 def survives(force: float, mode: str, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
              height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS) -> dict:
     """One survival trial (JSON-ready): force, survived, reason, and a few numbers."""
-    res = push_run(force, duration, start, mode, height, settings=settings)
+    res = push_run(force, duration, start, mode, height, settings=settings, keep_records=False)
     ok, why = survival(res, start + duration)
     return {"force": float(force), "mode": mode, "survived": ok, "reason": why,
             "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),

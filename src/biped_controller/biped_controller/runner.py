@@ -15,6 +15,7 @@ from biped_sim.push import Push
 from biped_sim.simulator import ImpactRecord, SimConfig, Simulator, StepRecord, load_sim_config
 
 from .controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
+from .segment import Segment
 from biped_sim.gait_family import GaitFamily
 
 
@@ -43,10 +44,18 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         sim_config: SimConfig | None = None, ctrl_config: ControllerConfig | None = None,
         family: GaitFamily | None = None, desc: RobotDescription | None = None,
         integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,
-        extra_time_after_steps: float = 0.0, perturbation: PlantPerturbation | None = None) -> RunResult:
+        extra_time_after_steps: float = 0.0, perturbation: PlantPerturbation | None = None,
+        compiled_loop: bool = True, keep_records: bool = True) -> RunResult:
     """Walk ``steps`` steps (impacts) or until a fall. ``integration_rate``: the controller's torque law is
     evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` (issue 14) goes to the
-    simulator only: the plant and the sensors differ, the controller keeps ``desc``."""
+    simulator only: the plant and the sensors differ, the controller keeps ``desc``.
+
+    ``compiled_loop`` (fast engine, ideal sensors, held torques, no ``keep_qp``): the periods where nothing
+    needs Python run in the compiled loop (``segment.Segment``), with records identical to the objects'
+    period by period (tested); the objects take every period with a QP, an impact or a fall.
+    ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
+    objects ran and the last period of each compiled segment -- the run's outcome (fall, impacts, the last
+    status) is the same, the time series is not there."""
     desc = desc if desc is not None else load_description()
     family = family if family is not None else GaitFamily.load()
     scfg = sim_config if sim_config is not None else load_sim_config()
@@ -62,7 +71,19 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         sim.schedule_push(p.start, p.duration, p.force, p.height)
     limit = max_time if max_time is not None else (steps + 3) * family.T * 3
     records, statuses, qps = [], [], []
+    seg = None
+    if compiled_loop and not integration_rate and not keep_qp and Segment.eligible(sim, ctrl):
+        seg = Segment(sim, ctrl, keep_records=keep_records)
     while True:
+        if seg is not None:
+            t_stop = limit
+            if sim.impact_count >= steps and extra_time_after_steps > 0:
+                t_stop = min(limit, sim.impact_log[steps - 1].t + extra_time_after_steps)
+            recs, stats = seg.run(t_stop)
+            records += recs
+            statuses += stats
+            if recs and sim.t >= t_stop:
+                break
         obs = sim.observe()
         out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance)
         statuses.append(out.status)
