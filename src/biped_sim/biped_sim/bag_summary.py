@@ -2,7 +2,8 @@
 
 ROS layer only through ``graph_names`` (topic names); the bag is read with ``bag_reader`` / ``mcap``.
 :func:`summarize_bag`: outcome, excursions, message counts (the demo's summary). :func:`analyze_bag`:
-the soak's checks (sequence gaps, every push applied once, momentum change of each push).
+the soak's checks (sequence gaps, every push applied once, momentum change of each push, and from
+``/sim/push`` the impulse of every period: F x its overlap with a push window, zero outside every window).
 """
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ from biped_sim import graph_names as gn
 
 # relative tolerance of a push's impulse recovered from the recorded ground reaction (soak check)
 IMPULSE_TOLERANCE = 0.10
+# relative tolerance of the impulse /sim/push reports against F x overlap (exact up to round-off)
+APPLIED_IMPULSE_TOLERANCE = 1e-9
 
 
 def summarize_bag(bag: Path, expected_steps: int | None = None) -> dict:
@@ -93,14 +96,14 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
 
     path = find_mcap(bag)
     decode_topics = {gn.SIM_STATE, gn.GROUND_REACTION, gn.PUSH_EVENTS, gn.PUSH_REQUESTS, gn.FALL,
-                     gn.CONTROLLER_STATUS}
+                     gn.CONTROLLER_STATUS, gn.SIM_PUSH}
     stamp_topics = {gn.CLOCK: 4, gn.CONTROLLER_TORQUE: 4, gn.JOINT_STATES: 4, gn.GROUND_REACTION_COP: 4,
                     gn.TF: 8}
     counts: dict[str, int] = {}
     stamps: dict[str, list[int]] = {t: [] for t in stamp_topics}
     seq, steps, st_stamp, stance, q, qd, base, base_dot, fallen = [], [], [], [], [], [], [], [], []
     wrench_t, wrench_fx = [], []
-    events, requests, falls = [], [], []
+    events, requests, falls, applied = [], [], [], []
     qp_counts: dict[int, int] = {}
     last_status = None
     factory = DecoderFactory()
@@ -142,6 +145,8 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
             elif topic == gn.CONTROLLER_STATUS:
                 qp_counts[int(m.qp_status)] = qp_counts.get(int(m.qp_status), 0) + 1
                 last_status = m
+            elif topic == gn.SIM_PUSH:
+                applied.append((m.stamp.sec * 1_000_000_000 + m.stamp.nanosec, m.period, m.impulse))
     problems: list[str] = []
     n = len(seq)
     seq_a = np.array(seq, dtype=np.int64)
@@ -150,13 +155,13 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
     gaps = int(np.sum(np.diff(seq_sorted) > 1)) if n > 1 else 0
     repeats = int(np.sum(np.diff(seq_sorted) == 0)) if n > 1 else 0
     if n == 0:
-        problems.append('no /sim/state')
+        problems.append(f'no {gn.SIM_STATE}')
     else:
         if seq_sorted[0] != 1 or seq_sorted[-1] != n or gaps or repeats:
-            problems.append(f'/sim/state sequence: first {seq_sorted[0]}, last {seq_sorted[-1]}, {n} messages, '
+            problems.append(f'{gn.SIM_STATE} sequence: first {seq_sorted[0]}, last {seq_sorted[-1]}, {n} messages, '
                             f'{gaps} gaps, {repeats} repeats')
         if not np.array_equal(np.array(steps, dtype=np.int64)[order], np.arange(n)):
-            problems.append('/sim/state step is not 0..n-1 in sequence order')
+            problems.append(f'{gn.SIM_STATE} step is not 0..n-1 in sequence order')
     st_stamp_a = np.array(st_stamp, dtype=np.int64)[order]
     state_set = set(st_stamp_a.tolist())
     period_set = set(st_stamp_a[:-1].tolist())
@@ -175,7 +180,7 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
               duplicates=len(wrench_t) - len(set(wrench_t)))
     topic_report[gn.GROUND_REACTION] = gr
     if gr['missing'] or gr['duplicates'] or len(set(wrench_t) - period_set):
-        problems.append(f'/ground_reaction: {gr}')
+        problems.append(f'{gn.GROUND_REACTION}: {gr}')
     for topic, exp in ((gn.STANCE, n), (gn.CONTROLLER_STATUS, n)):
         topic_report[topic] = dict(count=counts.get(topic, 0), expected=exp)
         if counts.get(topic, 0) != exp:
@@ -184,10 +189,10 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
     # ---- pushes
     ids = [e['id'] for e in events]
     if sorted(ids) != list(range(1, len(ids) + 1)):
-        problems.append(f'/push_events ids are not 1..{len(ids)} once each: {sorted(ids)}')
+        problems.append(f'{gn.PUSH_EVENTS} ids are not 1..{len(ids)} once each: {sorted(ids)}')
     accepted = [r for r in requests if r['response']['accepted']]
     if len(accepted) != len(events):
-        problems.append(f'{len(accepted)} accepted requests in /push_requests vs {len(events)} PushEvents')
+        problems.append(f'{len(accepted)} accepted requests in {gn.PUSH_REQUESTS} vs {len(events)} on {gn.PUSH_EVENTS}')
     if planned is not None:
         by_id = {e['id']: e for e in events}
         for p in planned:
@@ -230,6 +235,36 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
             if not ok:
                 problems.append(f"push {e['id']}: impulse {imp:.4f} N s, expected {rec['expected_impulse']:.4f}")
         push_effects.append(rec)
+    # the applied impulse of every period (/sim/push) against the windows of /push_events
+    windows = [(e['id'], e['start'], e['start'] + e['duration'], e['force']) for e in events]
+    applied_by_id = {e['id']: 0.0 for e in events}
+    outside, wrong = 0, 0
+    for t_ns, period, impulse in applied:
+        t0 = t_ns * 1e-9
+        share = {i: f * max(0.0, min(t0 + period, t1) - max(t0, s)) for i, s, t1, f in windows}
+        expected = sum(share.values())
+        if expected == 0.0:
+            outside += impulse != 0.0
+            continue
+        scale = max(abs(f) for _, _, _, f in windows) * max(period, 1e-3)
+        wrong += abs(impulse - expected) > APPLIED_IMPULSE_TOLERANCE * scale
+        for i, part in share.items():
+            applied_by_id[i] += impulse * part / expected
+    if outside:
+        problems.append(f'{gn.SIM_PUSH}: {outside} period(s) with an impulse outside every push window')
+    if wrong:
+        problems.append(f'{gn.SIM_PUSH}: {wrong} period(s) whose impulse is not F x the overlap with the window')
+    if applied and len(applied) != len(period_set):
+        problems.append(f'{gn.SIM_PUSH}: {len(applied)} messages, expected one per period ({len(period_set)})')
+    t_last = float(st_stamp_a[-1]) * 1e-9 if n else 0.0
+    for rec in push_effects:
+        e = next(e for e in events if e['id'] == rec['id'])
+        acted = max(0.0, min(e['start'] + e['duration'], t_last) - e['start'])   # cut by the recording's end
+        rec['applied_impulse'] = applied_by_id[rec['id']]
+        if applied and abs(rec['applied_impulse'] - e['force'] * acted) > \
+                APPLIED_IMPULSE_TOLERANCE * abs(e['force'] * e['duration']):
+            problems.append(f"push {e['id']}: {gn.SIM_PUSH} impulse {rec['applied_impulse']!r} N s, "
+                            f"expected F x {acted} s = {e['force'] * acted!r} N s")
     survived = not falls and not any(fallen)
     if not survived:
         problems.append(f'fall: {falls[-1] if falls else "state fallen"}')
@@ -247,6 +282,8 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
         'push_events': len(events),
         'push_requests': len(requests),
         'pushes_checked': sum(1 for r in push_effects if r['status'] == 'applied once'),
+        'applied_push_periods': len(applied),
+        'applied_impulse_outside_windows': outside,
         'pushes_not_checkable': sum(1 for r in push_effects if r['status'].startswith('not checkable')),
         'push_effects': push_effects,
         'forward_pushes': sum(1 for e in events if e['force'] > 0),

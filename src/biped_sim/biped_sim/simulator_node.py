@@ -469,6 +469,7 @@ class SimulatorNode(Node):
             self.get_logger().info(f'fall at t = {f.t:.4f} s: {f.cause} ({f.detail})')
             self._publish_record(rec, anchor_x)
             self._publish_applied_push(rec)
+            self._publish_impacts()        # an impact of the period that fell (e.g. a non-finite state after it)
             self._publish_fall(f.cause, f.t, f.detail)
             self._publish_state(fallen=True, cause=f.cause)
             self._publish_visuals()
