@@ -34,3 +34,24 @@ def test_rows_without_estimate_equal_full_evaluation():
         assert np.array_equal(h_full0[:17], h_full0[17:34])
         if abs(F) > 1.0:   # the estimate matters: the first block differs from the no-estimate one
             assert not np.allclose(h[:17], h[17:34])
+
+
+def test_gait_optimizer_uses_the_contact_rows_of_the_model():
+    """The gait optimizer's contact margins are model.contact_rows (eqs. 5-8, written once), with its own
+    margins (mu, l range, R_y >= min_normal_force M g) and its row order take_off, slide_forward,
+    slide_backward, zmp_heel, zmp_toe."""
+    from biped_controller.gait_optimizer import StepOptimizer
+    from biped_controller.model import contact_rows
+    o = StepOptimizer()
+    st = o.st
+    Mg = o.M * o.g
+    C, e = contact_rows(st.friction_use * o.desc.mu, o.desc.foot.l_min + st.zmp_margin,
+                        o.desc.foot.l_max - st.zmp_margin)
+    scale = np.concatenate([[Mg] * 3, [0.1 * Mg] * 2])
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        tau9 = rng.normal(scale=[50, 400, 20, 30, 30, 30, 30, 30, 30])
+        got = (o.C @ tau9 + o.d)[:5] * scale
+        want = -(C @ tau9[:2] + e * tau9[3])[[0, 2, 1, 3, 4]]
+        want[0] -= st.min_normal_force * Mg
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)

@@ -39,7 +39,7 @@ from biped_sim.description import LEFT, RobotDescription, load_description
 from biped_sim.settings import SettingsError, default_config_dir, load_yaml_tree, read_settings
 from biped_sim.floating import FloatingModel, impact_paper
 
-from .model import FixedFootModel, relabel
+from .model import FixedFootModel, contact_rows, relabel
 
 NJ = 6
 
@@ -197,11 +197,14 @@ class StepOptimizer:
         mu = st.friction_use * self.desc.mu
         lm = self.desc.foot.l_min + st.zmp_margin
         lM = self.desc.foot.l_max - st.zmp_margin
-        C[0, 1] = 1.0; d[0] = -st.min_normal_force * Mg
-        C[1, 1] = mu; C[1, 0] = -1.0
-        C[2, 1] = mu; C[2, 0] = 1.0
-        C[3, 3] = 1.0; C[3, 1] = -lm
-        C[4, 1] = lM; C[4, 3] = -1.0
+        # the five contact rows of eqs. (5)-(8) as written once in model.contact_rows (C R + e Gamma_1 < 0),
+        # as margins -(C R + e Gamma_1) >= 0, here in the order take_off, slide_forward, slide_backward,
+        # zmp_heel, zmp_toe; R_y >= min_normal_force M g instead of R_y > 0
+        Cc, ec = contact_rows(mu, lm, lM)
+        order = [0, 2, 1, 3, 4]
+        C[:5, :2] = 0.0 - Cc[order]        # 0.0 - x: no negative zeros (the same bits as the rows written out)
+        C[:5, 3] = 0.0 - ec[order]
+        d[0] = -st.min_normal_force * Mg
         for i in range(6):
             C[5 + i, 3 + i] = -1.0; d[5 + i] = st.torque_use * tmax[i]
             C[11 + i, 3 + i] = 1.0; d[11 + i] = st.torque_use * tmax[i]
