@@ -45,3 +45,21 @@ def measure(sim_seconds: float, domain_cls, timeout: float = 180.0) -> dict:
         return {"available": True, "end_reason": m["reason"], "steps": steps, "wall_s": wall, "sim_s": simt,
                 "impacts": int(m["imp"]), "steps_per_s": steps / wall, "realtime_factor": simt / wall,
                 "domain_id": dom.id}
+
+
+def measure_with_recorder(sim_seconds: float, domain_cls, timeout: float = 300.0) -> dict:
+    """The same rate with the whole recorded graph, as the product runs it: ``biped_sim.launch`` (recorder,
+    controller, disturbance, simulator; the bag in a temporary directory), rate from the simulator's line."""
+    import tempfile
+    with domain_cls() as dom, tempfile.TemporaryDirectory() as tmp:
+        p = subprocess.run([sys.executable, "-m", "biped_sim.launch", "--bag", str(Path(tmp) / "bag"), "--steps", "0",
+                            "--sim-param", f"max_time:={sim_seconds}", "--sim-param", "linger:=0.0"],
+                           cwd=ROOT, env=dom.env, capture_output=True, text=True, timeout=timeout)
+        text = p.stdout + p.stderr
+        m = _LINE.search(text)
+        if p.returncode != 0 or m is None:
+            return {"available": False, "reason": f"not available: launch exit {p.returncode}: "
+                    + text[-300:].replace("\n", " | ")}
+        steps, wall, simt = int(m["steps"]), float(m["wall"]), float(m["sim"])
+        return {"available": True, "end_reason": m["reason"], "steps": steps, "wall_s": wall, "sim_s": simt,
+                "steps_per_s": steps / wall, "realtime_factor": simt / wall}

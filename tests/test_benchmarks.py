@@ -52,7 +52,8 @@ def test_quick_benchmark_writes_json(tmp_path, ros_env):
     assert set(keys) == {"inprocess.fast.realtime_factor", "inprocess.reference.realtime_factor",
                          "inprocess.fast_outcome_only.realtime_factor", "controller.step_p50_us_reference_engine",
                          "controller.step_p50_us", "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest",
-                         "dds.lockstep_steps_per_s", "dds.pingpong_steps_per_s", "table.parallel_wall_s"}
+                         "dds.lockstep_steps_per_s", "dds.pingpong_steps_per_s", "table.parallel_wall_s",
+                         "dds.lockstep_with_recorder_steps_per_s"}
     for k in ("inprocess.fast.realtime_factor", "inprocess.reference.realtime_factor", "controller.step_p50_us",
               "inprocess.fast_outcome_only.realtime_factor", "controller.step_p50_us_reference_engine",
               "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest"):

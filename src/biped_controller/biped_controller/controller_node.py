@@ -36,6 +36,8 @@ from biped_sim import graph_names as gn
 from biped_sim.description import PAPER_JOINTS, load_description
 from biped_sim.node_params import (
     ParameterError,
+    declare_executor,
+    wait_all_acked,
     get_bool,
     get_float,
     get_str,
@@ -103,6 +105,7 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(gn.CONTROLLER_NODE, **kwargs)
         self.cfg = read_controller_config(self)
+        declare_executor(self, 'events')
         self.state_timeout = get_float(self, 'state_timeout', 2.0, lo=0.0, lo_open=True)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
         desc, family = load_robot_files(self)
@@ -181,6 +184,9 @@ class ControllerNode(Node):
 
     def after_spin(self, _executor, _signum) -> int:
         self.get_logger().info(f'controller stopping after {self.steps} steps')
+        late = wait_all_acked(self, 2.0)    # the last torques and statuses reach the recorder
+        if late:
+            self.get_logger().warning(f'not acknowledged within 2 s: {", ".join(late)}')
         return 0
 
 

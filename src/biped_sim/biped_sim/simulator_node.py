@@ -79,6 +79,8 @@ from biped_sim.floating import urdf_from_paper
 from biped_sim.node_params import (
     EXIT_BAD_PARAMETER,
     ParameterError,
+    declare_executor,
+    wait_all_acked,
     get_bool,
     get_float,
     get_int,
@@ -278,12 +280,15 @@ class SimulatorNode(Node):
         if self.get_parameter('use_sim_time').value:
             raise ParameterError('use_sim_time', 'the simulator is the clock source: must be false')
         self.cfg = read_sim_config(self)
+        declare_executor(self, 'events')
         self.max_steps = get_int(self, 'max_steps', 0, lo=0)
         self.max_time = get_float(self, 'max_time', 0.0, lo=0.0)
         self.command_timeout = get_float(self, 'command_timeout', 5.0, lo=0.0, lo_open=True)
         self.start_timeout = get_float(self, 'start_timeout', 60.0, lo=0.0, lo_open=True)
         self.start_delay = get_float(self, 'start_delay', 0.2, lo=0.0)
         self.linger = get_float(self, 'linger', 0.5, lo=0.0, hi=60.0)
+        # after the linger, wait (at most this long) until every subscriber has acknowledged everything
+        self.ack_timeout = get_float(self, 'ack_timeout', 5.0, lo=0.0, hi=60.0)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
         self.wait_for_pushes = get_int(self, 'wait_for_pushes', 0, lo=0)
         # pacing: 1.0 = sim time follows the wall clock (a live viewer sees real time), 0 = as fast as
@@ -317,6 +322,9 @@ class SimulatorNode(Node):
         now = time.monotonic()
         if self.finished:
             if now - self.finish_wall >= self.linger:
+                late = wait_all_acked(self, self.ack_timeout)
+                if late:
+                    self.get_logger().warning(f'not acknowledged within {self.ack_timeout} s: {", ".join(late)}')
                 self.done = True
             return
         if not self.started:

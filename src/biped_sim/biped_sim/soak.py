@@ -6,7 +6,9 @@
    ``--every`` sim seconds (uniform in [every/2, 3 every/2]), alternating random directions, magnitudes
    uniform in [--min-force, --max-forward] forward and [--min-force, --max-backward] backward,
    0.025 s each; each one is requested (absolute start) about ``--lead`` sim seconds before its onset,
-   sim time being read from ``/clock`` (keep-last 1, sampled a few times per wall second);
+   sim time being read from ``/clock`` (keep-last 1, sampled a few times per wall second); the simulator
+   is paced at ``--real-time-factor`` (default 1.0: the lockstep graph runs ~5x faster than real time
+   unpaced, which would outrun requests made 1 sim s ahead);
 3. samples VmRSS (``/proc/<pid>/status``) of each node process every ``--mem-every`` sim seconds;
 4. after the run, checks from the MCAP alone (``analyze_bag``): the ``/sim/state`` sequence has no gap
    or repeat, every per-step topic holds exactly the states' stamps (the period-topics all but the
@@ -44,10 +46,12 @@ MEMORY_GROWTH_LIMIT = 0.10
 
 # ----------------------------------------------------------------------------- plan
 def push_plan(total_time: float, seed: int, every: float = 3.0, min_force: float = 80.0,
-              max_forward: float = 150.0, max_backward: float = 200.0, first: float = 2.0,
+              max_forward: float = 150.0, max_backward: float = 200.0, first: float = 5.0,
               tail: float = 1.5) -> list[dict]:
     """Seeded pushes over [first, total_time - tail): ``[{start, duration, force}]``, starts on the
-    1 us grid, consecutive starts ``every`` * U(0.5, 1.5) apart, signs random."""
+    1 us grid, consecutive starts ``every`` * U(0.5, 1.5) apart, signs random. ``first`` leaves the
+    requester time to find ``/apply_push`` once the graph runs (a slow discovery on a loaded machine
+    must not make the first request late: each is made ~1 sim s ahead)."""
     rng = random.Random(seed)
     out = []
     t = first + rng.uniform(0.0, every)
@@ -110,7 +114,7 @@ def _log(msg: str) -> None:
 
 def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_force: float = 80.0,
              max_forward: float = 150.0, max_backward: float = 200.0, lead: float = 1.0,
-             mem_every: float = 10.0, timeout: float | None = None) -> dict:
+             mem_every: float = 10.0, timeout: float | None = None, real_time_factor: float = 1.0) -> dict:
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy
     from rclpy.signals import SignalHandlerOptions
@@ -129,7 +133,8 @@ def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_f
     with tempfile.TemporaryDirectory() as tmp:
         ready = Path(tmp) / 'ready'
         cmd = [sys.executable, '-m', 'biped_sim.launch', '--bag', str(bag), '--steps', '0',
-               '--sim-param', f'max_time:={total}', '--sim-param', 'linger:=1.0', '--ready-file', str(ready)]
+               '--sim-param', f'max_time:={total}', '--sim-param', 'linger:=1.0',
+               '--sim-param', f'real_time_factor:={real_time_factor}', '--ready-file', str(ready)]
         launcher = subprocess.Popen(cmd)
         ctx = rclpy.Context()
         rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
@@ -268,7 +273,13 @@ def main(argv=None) -> int:
     ap.add_argument('--max-forward', type=float, default=150.0)
     ap.add_argument('--max-backward', type=float, default=200.0)
     ap.add_argument('--timeout', type=float, default=None, help='wall s (default 600 + 30 per sim s)')
+    ap.add_argument('--real-time-factor', type=float, default=1.0,
+                    help="the simulator's pacing (1.0: sim time follows the wall clock, as a robot would; the "
+                         "pushes are requested ~1 sim s ahead from /clock read every 0.2 s wall, so the graph "
+                         "must not outrun the requests by much: keep it <= 2)")
     a = ap.parse_args(argv)
+    if not 0 < a.real_time_factor <= 2:
+        ap.error('--real-time-factor must be in (0, 2]')
     if not a.minutes > 0:
         ap.error('--minutes must be > 0')
     for name in ('max_forward', 'max_backward'):
@@ -278,7 +289,7 @@ def main(argv=None) -> int:
     bag = (a.bag or repo_root() / 'runs' / f'soak_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
     bag.parent.mkdir(parents=True, exist_ok=True)
     r = run_soak(a.minutes, bag, seed=a.seed, every=a.every, min_force=a.min_force, max_forward=a.max_forward,
-                 max_backward=a.max_backward, timeout=a.timeout)
+                 max_backward=a.max_backward, timeout=a.timeout, real_time_factor=a.real_time_factor)
     print_summary(r)
     if a.json:
         a.json.write_text(json.dumps(r, indent=2, default=float) + '\n')
