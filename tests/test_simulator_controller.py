@@ -226,3 +226,20 @@ def test_relabel_at_impact(ideal_run):
         # the posture is continuous through the impact: q+ = relabel(q-) with q- the pre-impact posture
         q_pre = FAM.evaluate(FAM.p_d, FAM.T).q
         assert_close(rec.q, relabel(q_pre), 1e-6, f"impact {n}: q+ vs relabel(q_d(p_d, T))")
+
+
+def test_no_liftoff_fall_ends_the_period_at_its_instant():
+    """A released foot driven into the ground before it clears: the no_liftoff fall is dated at the end
+    of the integration interval where it sank too deep, and the period (and the state) stop there."""
+    from biped_sim.gait_family import GaitFamily
+    from biped_sim.simulator import Simulator
+    q, qd = GaitFamily.load().initial_state()
+    sim = Simulator()
+    qd2 = qd.copy()
+    qd2[3] += 20.0          # the swing hip swung forward hard right after the impact: the released toe digs in
+    sim.reset(q, qd2, 0)
+    rec = sim.step(np.zeros(6))
+    assert sim.fall is not None and sim.fall.cause == "no_liftoff", sim.fall
+    assert rec.fallen and rec.fall_cause == "no_liftoff"
+    assert rec.t_end == sim.fall.t == sim.t
+    assert 0.0 < rec.t_end < sim.cfg.control_period   # the first interval, not the grid end

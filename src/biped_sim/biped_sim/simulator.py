@@ -392,7 +392,7 @@ class Simulator:
         pushes = self.interval_pushes(t0, t1)
         xn, vn = self._rk4(x, v, tau_src, t0, t1 - t0, pushes)
         if not self._touchdown(xn, vn):
-            self._update_clearance(xn)
+            self._update_clearance(xn, t1)
             return xn, vn, t1
         swing = 1 - self.stance
         lo, hi = 0.0, t1 - t0
@@ -409,13 +409,16 @@ class Simulator:
         # update), so no held torque of the old stance is applied to the relabelled legs.
         return xi, vi, t0 + hi
 
-    def _update_clearance(self, x: np.ndarray) -> None:
+    def _update_clearance(self, x: np.ndarray, t: float) -> None:
+        """Clearance bookkeeping at the end ``t`` of an interval: the swing foot has cleared once its lowest
+        sole point is above ``clearance_before_touchdown``; sinking below -``liftoff_penetration`` before
+        that is the ``no_liftoff`` fall, at ``t`` (the step ends there)."""
         swing = 1 - self.stance
         z = self._lowest_sole(x, swing)
         if z > self.cfg.clearance_before_touchdown:
             self.cleared = True
         elif not self.cleared and z < -self.cfg.liftoff_penetration and self.fall is None:
-            self.fall = FallInfo("no_liftoff", self.t, f"the released foot sank {-z * 1e3:.2f} mm into the ground "
+            self.fall = FallInfo("no_liftoff", t, f"the released foot sank {-z * 1e3:.2f} mm into the ground "
                                  "before clearing it (double support is not modelled)")
 
     def _fast_period(self, knots: list[float], t_start: float, t_end: float, applied: np.ndarray,
@@ -548,6 +551,9 @@ class Simulator:
                 break
             if self.impact_count != impacts_before:
                 # the period ends at the impact: the controller is called right after it
+                t_end = t_reached
+                break
+            if self.fall is not None:      # no_liftoff: the released foot sank; the state is the fall's
                 t_end = t_reached
                 break
         self.x, self.v = x, v
