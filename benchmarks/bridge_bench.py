@@ -50,6 +50,7 @@ if str(ROOT) not in sys.path:  # `python benchmarks/bridge_bench.py`
 from benchmarks.lockstep import _LINE  # noqa: E402  the simulator's "run over: ..." line
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
+LAYOUT_TOPICS = ('/sim/state', '/joint_states', '/tf')
 START_DELAY = 2.0   # s between "graph connected" and the first state: the client subscribes meanwhile
 
 
@@ -76,8 +77,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float) -> tuple[dict, list]:
-    """Connect once the graph is up, subscribe to every advertised channel, read every frame until
+async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
+                  only: tuple[str, ...] | None = None) -> tuple[dict, list]:
+    """Connect once the graph is up, subscribe to every advertised channel (or those of ``only``), read every frame until
     the server closes (the launcher stops the bridge after the run). Returns ({sub id: topic},
     [(recv ns, frame)])."""
     import websockets
@@ -100,7 +102,8 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float)
             if isinstance(frame, str):
                 msg = json.loads(frame)
                 if msg['op'] == 'advertise':
-                    subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']]
+                    subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']
+                            if only is None or c['topic'] in only]
                     topics.update({c['id']: c['topic'] for c in msg['channels']})
                     await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
             else:
@@ -156,7 +159,8 @@ def _stats(values) -> dict:
             'max': float(a.max())}
 
 
-def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, timeout: float = 600.0) -> dict:
+def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, timeout: float = 600.0,
+              only: tuple[str, ...] | None = None) -> dict:
     """One launch; the simulator's rate, and with ``live`` the client's latencies (ms)."""
     tmp.mkdir(parents=True, exist_ok=True)
     bag, ready, log = tmp / 'bag', tmp / 'ready', tmp / 'launch.log'
@@ -173,7 +177,7 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     try:
         topics, frames = {}, []
         if live:
-            topics, frames = asyncio.run(_client(f'ws://127.0.0.1:{port}', proc, ready, timeout))
+            topics, frames = asyncio.run(_client(f'ws://127.0.0.1:{port}', proc, ready, timeout, only))
         proc.wait(timeout)
     finally:
         if proc.poll() is None:
@@ -183,6 +187,7 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     text = log.read_text(errors='replace')
     m = _LINE.search(text)
     out = {'live': live, 'real_time_factor': rtf, 'exit_code': proc.returncode,
+           'client_topics': 'all' if only is None else list(only),
            'steps': int(m['steps']) if m else None, 'wall_s': float(m['wall']) if m else None,
            'steps_per_s': int(m['steps']) / float(m['wall']) if m and float(m['wall']) > 0 else None}
     if proc.returncode != 0 or m is None:
@@ -244,10 +249,13 @@ def main(argv=None) -> int:
                 r['kind'] = 'rate'
                 runs.append(r)
                 print(json.dumps(r), flush=True)
-        r = run_graph(dom, Path(tmp) / 'live', live=True, rtf=1.0, steps=a.live_steps)
-        r['kind'] = 'latency'
-        runs.append(r)
-        print(json.dumps(r), flush=True)
+        # real time: a client on every channel (15 topics x 1 kHz through one Python client), then one
+        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf)
+        for i, only in enumerate((None, LAYOUT_TOPICS)):
+            r = run_graph(dom, Path(tmp) / f'live_{i}', live=True, rtf=1.0, steps=a.live_steps, only=only)
+            r['kind'] = 'latency' if only is None else 'latency_layout'
+            runs.append(r)
+            print(json.dumps(r), flush=True)
     off = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and not r['live'] and r['steps_per_s']]
     on = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and r['live'] and r['steps_per_s']]
     summary = {'date': time.strftime('%Y-%m-%d %H:%M:%S'), 'cpus': os.cpu_count(), 'machine': platform.machine(),
@@ -265,7 +273,7 @@ def main(argv=None) -> int:
                 s = r.get(f'latency_ms {key}', {'n': 0})
                 if s['n']:
                     path = 'DDS only ' if key.startswith('dds') else 'WebSocket'
-                    print(f"latency {r['kind']:7s} bridge {'on ' if r['live'] else 'off'} "
+                    print(f"latency {r['kind']:14s} bridge {'on ' if r['live'] else 'off'} "
                           f"rtf {r['real_time_factor']:.0f} {path} {key.split()[-1]:14s}: "
                           f"n {s['n']}, p50 {s['p50']:.2f} ms, p99 {s['p99']:.2f} ms, max {s['max']:.2f} ms")
     print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")

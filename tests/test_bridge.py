@@ -212,6 +212,10 @@ class FoxgloveClient:
             self._next_sub += 1
         await self.ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
 
+    async def unsubscribe(self, topics) -> None:
+        ids = [sid for sid, topic in self.topic_of_sub.items() if topic in topics]
+        await self.ws.send(json.dumps({'op': 'unsubscribe', 'subscriptionIds': ids}))
+
     async def send_call(self, service: str, payload: bytes, encoding: str = 'cdr', service_id=None) -> int:
         call = self._next_call
         self._next_call += 1
@@ -445,6 +449,65 @@ def test_bridge_alone_latched_time_and_unavailable_service(rclpy_context):
     assert late.messages[gn.ROBOT_DESCRIPTION][0][1] == serialize_message(urdf)    # late joiner
     assert first.times and first.times[-1] % 10**9 == 500 and first.times[-1] >= 10**9
     assert resp is None and 'not available' in failure, failure
+
+
+def test_bridge_subscribes_to_a_stream_only_while_a_client_watches_it(rclpy_context):
+    """/clock, latched and event topics always; a per-step stream (/tf here) once a client subscribes to
+    its channel, dropped when the last one unsubscribes (checked on the ROS graph)."""
+    import rclpy
+    from biped_sim import graph_names as gn
+    port = _free_port()
+    proc = subprocess.Popen([_bridge_exe(), '--ros-args', '-p', f'port:={port}'], env=dict(os.environ),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    node = rclpy.create_node('bridge_sub_probe', context=rclpy_context)
+    url = f'ws://127.0.0.1:{port}'
+
+    def bridge_on(topic):
+        return 'bridge' in {i.node_name for i in node.get_subscriptions_info_by_topic(topic)}
+
+    async def until(cond, timeout=30.0):
+        deadline = time.monotonic() + timeout
+        while not cond():
+            if time.monotonic() > deadline:
+                return False
+            await asyncio.sleep(0.05)
+        return True
+
+    async def scenario():
+        import websockets
+        deadline = time.monotonic() + 60
+        while True:
+            assert proc.poll() is None, 'the bridge exited'
+            try:
+                client = await FoxgloveClient.connect(url)
+                break
+            except (OSError, websockets.InvalidHandshake):
+                assert time.monotonic() < deadline, 'bridge server not up'
+                await asyncio.sleep(0.2)
+        await client.pump(lambda: gn.TF in client.channels, 30)
+        always = await until(lambda: bridge_on(gn.CLOCK) and bridge_on(gn.ROBOT_DESCRIPTION) and bridge_on(gn.FALL))
+        before = bridge_on(gn.TF) or bridge_on(gn.SIM_STATE)
+        await client.subscribe([gn.TF])
+        during = await until(lambda: bridge_on(gn.TF))
+        still_off = bridge_on(gn.SIM_STATE)
+        await client.unsubscribe([gn.TF])
+        after = await until(lambda: not bridge_on(gn.TF))
+        return always, before, during, still_off, after
+
+    try:
+        always, before, during, still_off, after = asyncio.run(scenario())
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+        node.destroy_node()
+    assert always, 'the bridge must always read /clock, latched and event topics'
+    assert not before, 'no stream before a client watches it'
+    assert during and not still_off, 'the watched stream only'
+    assert after, 'dropped after the last unsubscribe'
 
 
 # ------------------------------------------------------------------------------------------ whole graph

@@ -92,6 +92,9 @@ RECORDER_NODE = 'recorder'
 # the loop; its reader history must hold that lag or messages are silently overwritten (keep-last).
 # Measured on a loaded 2-core machine with depth 10: about 2 % of /sim/state lost in a 2-step run.
 STREAM_DEPTH = 5000   # 5 s of sim time at 1 kHz
+# QoS keys of the per-step streams: the live bridge subscribes to them only while a client watches
+# (/clock, latched and event topics it always subscribes)
+STREAM_QOS = ('lockstep', 'sensor', 'tf')
 QOS_SPECS: dict[str, dict] = {
     'lockstep': {'history': 'keep_last', 'depth': STREAM_DEPTH, 'reliability': 'reliable',
                  'durability': 'volatile'},

@@ -115,9 +115,11 @@ def stop_children(children: list[Child], timeout: float) -> None:
 BRIDGE = ('bridge', 'biped_sim', 'bridge')   # --live only
 
 
-def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict, node_name: str = 'recorder') -> None:
+def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict, node_name: str = 'recorder',
+                             streams: bool = True) -> None:
     """Wait until the node ``node_name`` (the recorder; the bridge with --live) is subscribed to every
-    topic of the graph (over DDS)."""
+    topic of the graph (over DDS); ``streams`` False: every topic but the per-step streams
+    (``graph_names.STREAM_QOS``), which the bridge subscribes to only while a client watches them."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -128,8 +130,8 @@ def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict, nod
     try:
         deadline = time.monotonic() + timeout
         while True:
-            missing = [t for t in gn.TOPICS
-                       if node_name not in {i.node_name for i in node.get_subscriptions_info_by_topic(t)}]
+            missing = [t for t, spec in gn.TOPICS.items() if (streams or spec.qos not in gn.STREAM_QOS)
+                       and node_name not in {i.node_name for i in node.get_subscriptions_info_by_topic(t)}]
             if not missing:
                 return
             for c in watch:
@@ -232,7 +234,8 @@ def main(argv=None) -> int:
                 log(f'recorder subscribed; bag {bag}')
             elif name == 'bridge':
                 try:
-                    wait_recorder_subscribed(args.start_timeout, [children['bridge']], stop, node_name='bridge')
+                    wait_recorder_subscribed(args.start_timeout, [children['bridge']], stop, node_name='bridge',
+                                             streams=False)
                     log('bridge subscribed (Foxglove WebSocket)')
                 except RuntimeError as exc:
                     log(f'{exc}: the run goes on without the live view')
