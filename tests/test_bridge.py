@@ -366,6 +366,19 @@ def test_port_in_use_exits_2(ros_domain):
 
 @pytest.mark.ros
 @pytest.mark.slow
+async def _connect_when_up(url: str, proc, timeout: float = 60.0) -> 'FoxgloveClient':
+    """A client, once the bridge's server accepts a connection (the bridge process must stay up)."""
+    import websockets
+    deadline = time.monotonic() + timeout
+    while True:
+        assert proc.poll() is None, 'the bridge exited'
+        try:
+            return await FoxgloveClient.connect(url)
+        except (OSError, websockets.InvalidHandshake):
+            assert time.monotonic() < deadline, 'bridge server not up'
+            await asyncio.sleep(0.2)
+
+
 def test_bridge_alone_latched_time_and_unavailable_service(rclpy_context):
     """The bridge with a test publisher instead of the graph: schemas as the MCAP's, a late joiner gets
     the latched /robot_description, /clock becomes the server time, a push without /apply_push fails."""
@@ -393,16 +406,7 @@ def test_bridge_alone_latched_time_and_unavailable_service(rclpy_context):
     url = f'ws://127.0.0.1:{port}'
 
     async def scenario():
-        import websockets
-        deadline = time.monotonic() + 60
-        while True:                       # the server is up once it accepts a connection
-            assert proc.poll() is None, 'the bridge exited'
-            try:
-                first = await FoxgloveClient.connect(url)
-                break
-            except (OSError, websockets.InvalidHandshake):
-                assert time.monotonic() < deadline, 'bridge server not up'
-                await asyncio.sleep(0.2)
+        first = await _connect_when_up(url, proc)
         await first.pump(lambda: len(first.channels) == len(gn.TOPICS) and gn.APPLY_PUSH in first.services, 30)
         await first.subscribe([gn.ROBOT_DESCRIPTION])
         # the bridge's subscription has to match the latched publisher first: bounded retries
@@ -474,16 +478,7 @@ def test_bridge_subscribes_to_a_stream_only_while_a_client_watches_it(rclpy_cont
         return True
 
     async def scenario():
-        import websockets
-        deadline = time.monotonic() + 60
-        while True:
-            assert proc.poll() is None, 'the bridge exited'
-            try:
-                client = await FoxgloveClient.connect(url)
-                break
-            except (OSError, websockets.InvalidHandshake):
-                assert time.monotonic() < deadline, 'bridge server not up'
-                await asyncio.sleep(0.2)
+        client = await _connect_when_up(url, proc)
         await client.pump(lambda: gn.TF in client.channels, 30)
         always = await until(lambda: bridge_on(gn.CLOCK) and bridge_on(gn.ROBOT_DESCRIPTION) and bridge_on(gn.FALL))
         before = bridge_on(gn.TF) or bridge_on(gn.SIM_STATE)

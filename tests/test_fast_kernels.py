@@ -461,3 +461,29 @@ def test_compile_notice_only_without_a_matching_stamp(tmp_path):
     pk.write_stamp(stamp, "an older key")
     assert pk.announce_compile(stamp, key, io.StringIO()) is True
     assert pk.CACHE_DIR and pk.numba.config.CACHE_DIR
+
+
+def test_stale_cache_of_a_dependent_module_is_dropped(tmp_path):
+    """A module compiled against another module's kernels: its cache files go when a dependency's source
+    changes (numba itself only watches the module's own source), and stay otherwise."""
+    from biped_sim.planar_kernels import drop_stale_cache
+    dep = tmp_path / "dep.py"
+    dep.write_text("x = 1\n")
+    cache = tmp_path / "cache" / "pkg_hash"
+    cache.mkdir(parents=True)
+    files = [cache / "mymod.run-12.py311.nbi", cache / "mymod.run-12.py311.1.nbc"]
+    other = cache / "othermod.run-3.py311.nbi"
+
+    def fill():
+        for f in files + [other]:
+            f.write_bytes(b"compiled")
+
+    fill()
+    assert drop_stale_cache("mymod", [dep], str(tmp_path / "cache")) is True     # first sight: no stamp
+    assert not any(f.exists() for f in files) and other.exists()
+    fill()
+    assert drop_stale_cache("mymod", [dep], str(tmp_path / "cache")) is False    # unchanged: kept
+    assert all(f.exists() for f in files)
+    dep.write_text("x = 2\n")
+    assert drop_stale_cache("mymod", [dep], str(tmp_path / "cache")) is True     # dependency changed
+    assert not any(f.exists() for f in files) and other.exists()

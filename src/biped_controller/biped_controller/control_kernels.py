@@ -22,7 +22,8 @@ When x* is not feasible the caller solves the QP (PIQP or the exact solver) on G
 
 Array layouts (all float64, C order; offsets named below):
   par (PAR_SIZE,)   gains, margins, state, observer inputs (``P_*``)
-  cons (CONS_SIZE,) margin (17) | row_scale (17) | torque_min (6) | torque_max (6)
+  cons (CONS_SIZE,) margin (17) | row_scale (17) | torque_min (6) | torque_max (6) | the QP's contact
+                    rows (5 x (C_x, C_y, e)) | the robot's contact rows (``model.contact_rows``)
   prev (8, 6)       observer memory: q'_prev, w_prev, A_prev (6 rows)
   work (WORK_ROWS, 6) outputs: torque, w, v, e, D^T (2 rows), A (6 rows), H, B (3 rows)
   res (RES_SIZE,)   outputs: x (2), x* (2), F, max |e|, l, tightest, R (2), h_b (3), h_b,c (3), margins (17)
@@ -38,18 +39,29 @@ import numba
 import numpy as np
 
 from biped_sim import planar_kernels as pk
+from . import qp_fast
 from .qp_fast import _rows_and_decision
+
+# compiled against planar_kernels and qp_fast: a change there must recompile this module
+pk.drop_stale_cache(__name__.rsplit(".", 1)[-1], [__import__("pathlib").Path(m.__file__) for m in (pk, qp_fast)]
+                    + [__import__("pathlib").Path(__file__)])
 
 N_ROWS = 17
 QP_ROWS = 2 * N_ROWS + 3
 
 # par offsets
-(P_KP, P_KV, P_KP2, P_KV2, P_PD, P_MU_QP, P_LM_QP, P_LMAX_QP, P_DT, P_PMIN, P_PMAX, P_TAUD_MIN,
- P_OBS_ON, P_OBS_H, P_MU, P_LMIN, P_LMAX, P_P, P_PDOT, P_TAU, P_TAUDOT, P_OBS_MODE, P_OBS_DT, P_F_PREV,
- P_ADAPT_P, P_ADAPT_TAU) = range(26)
-PAR_SIZE = 26
+(P_KP, P_KV, P_KP2, P_KV2, P_PD, P_DT, P_PMIN, P_PMAX, P_TAUD_MIN, P_OBS_ON, P_OBS_H, P_P, P_PDOT, P_TAU,
+ P_TAUDOT, P_OBS_MODE, P_OBS_DT, P_F_PREV, P_ADAPT_P, P_ADAPT_TAU) = range(20)
+PAR_SIZE = 20
 OBS_NONE, OBS_RESIDUAL, OBS_KEEP = 0, 1, 2      # P_OBS_MODE: no memory, residual of the last period, keep F
-CONS_SIZE = 2 * N_ROWS + 12
+# cons: margin (17) | row_scale (17) | torque_min (6) | torque_max (6) | the 5 contact rows of the QP
+# (controller's mu and foot range) | the robot's 5 contact rows; a contact row is (C_x, C_y, e) of
+# ``model.contact_rows``: C (R_x, R_y) + e Gamma_1 < 0 (the rows are written once, there)
+CONS_TMIN = 2 * N_ROWS
+CONS_TMAX = CONS_TMIN + 6
+CONS_QP_ROWS = CONS_TMAX + 6
+CONS_TRUE_ROWS = CONS_QP_ROWS + 15
+CONS_SIZE = CONS_TRUE_ROWS + 15
 # work rows
 W_TORQUE, W_W, W_V, W_E, W_DP, W_DTAU, W_A, W_H, W_B = 0, 1, 2, 3, 4, 5, 6, 12, 13
 WORK_ROWS = 16
@@ -110,16 +122,10 @@ def _family(coef, inner, centers, p, tau, out):
 
 
 @numba.njit(cache=True)
-def _contact_offsets(hh, g1, mu, lm, lM, cons, out):
-    """out[:5] <- C (R_x, R_y) + e Gamma_1 + margin at w = 0 (``model.contact_rows`` written out: take_off,
-    slide_backward, slide_forward, zmp_heel, zmp_toe) for the reaction offset hh = (R_x, R_y, m)."""
-    rx = hh[0]
-    ry = hh[1]
-    out[0] = -ry + cons[0]
-    out[1] = (-rx - mu * ry) + cons[1]
-    out[2] = (rx - mu * ry) + cons[2]
-    out[3] = (lm * ry - g1) + cons[3]
-    out[4] = (-lM * ry + g1) + cons[4]
+def _contact(cons, off, r, rx, ry, g1):
+    """Contact row r of the block at ``off`` of ``cons``: C_r (R_x, R_y) + e_r Gamma_1 (``model.contact_rows``)."""
+    k = off + 3 * r
+    return cons[k] * rx + cons[k + 1] * ry + cons[k + 2] * g1
 
 
 @numba.njit(cache=True)
@@ -143,16 +149,12 @@ def _finish(par, cons, work, res):
     res[R_R] = rx
     res[R_R + 1] = ry
     g1 = work[W_TORQUE, 0]
-    mu = par[P_MU]
     mg = res[R_MARGINS:]
-    mg[0] = ry
-    mg[1] = mu * ry + rx
-    mg[2] = mu * ry - rx
-    mg[3] = g1 - par[P_LMIN] * ry
-    mg[4] = par[P_LMAX] * ry - g1
+    for r in range(5):
+        mg[r] = -_contact(cons, CONS_TRUE_ROWS, r, rx, ry, g1)
     for i in range(6):
-        mg[5 + i] = cons[2 * N_ROWS + 6 + i] - work[W_TORQUE, i]
-        mg[11 + i] = work[W_TORQUE, i] - cons[2 * N_ROWS + i]
+        mg[5 + i] = cons[CONS_TMAX + i] - work[W_TORQUE, i]
+        mg[11 + i] = work[W_TORQUE, i] - cons[CONS_TMIN + i]
     best = 0
     bv = mg[0] / cons[N_ROWS]
     for i in range(1, N_ROWS):
@@ -248,28 +250,20 @@ def step(coef, inner, centers, ti, tf, q, qd, par, cons, prev, G, h, work, res):
         _finish(par, cons, work, res)
         return FEASIBLE
     # eq. (21): the 17 rows with the controller's margins, with (rows 0-16) and without (17-33) the estimate
-    mu = par[P_MU_QP]
-    lm = par[P_LM_QP]
-    lM = par[P_LMAX_QP]
     Aq = np.empty((N_ROWS, 6))
     bq = np.empty(N_ROWS)
     b0 = np.empty(5)
-    for k in range(6):
-        bx = B[0, k]
-        by = B[1, k]
-        Aq[0, k] = -by
-        Aq[1, k] = -bx - mu * by
-        Aq[2, k] = bx - mu * by
-        Aq[3, k] = lm * by - A[0, k]
-        Aq[4, k] = -lM * by + A[0, k]
-    _contact_offsets(hbc, H[0], mu, lm, lM, cons, bq)
-    _contact_offsets(hb, H[0], mu, lm, lM, cons, b0)
+    for r in range(5):
+        for k in range(6):
+            Aq[r, k] = _contact(cons, CONS_QP_ROWS, r, B[0, k], B[1, k], A[0, k])
+        bq[r] = _contact(cons, CONS_QP_ROWS, r, hbc[0], hbc[1], H[0]) + cons[r]
+        b0[r] = _contact(cons, CONS_QP_ROWS, r, hb[0], hb[1], H[0]) + cons[r]
     for i in range(6):
         for k in range(6):
             Aq[5 + i, k] = A[i, k]
             Aq[11 + i, k] = -A[i, k]
-        bq[5 + i] = (H[i] - cons[2 * N_ROWS + 6 + i]) + cons[5 + i]
-        bq[11 + i] = (cons[2 * N_ROWS + i] - H[i]) + cons[11 + i]
+        bq[5 + i] = (H[i] - cons[CONS_TMAX + i]) + cons[5 + i]
+        bq[11 + i] = (cons[CONS_TMIN + i] - H[i]) + cons[11 + i]
     for r in range(N_ROWS):
         ad0 = 0.0
         ad1 = 0.0

@@ -418,17 +418,21 @@ class _FastPeriod:
         par = np.zeros(ck.PAR_SIZE)
         par[ck.P_KP], par[ck.P_KV], par[ck.P_KP2], par[ck.P_KV2] = c.Kp, c.Kv, c.kp, c.kv
         par[ck.P_PD] = fam.p_d
-        par[ck.P_MU_QP] = c.margin_friction * m.mu
-        par[ck.P_LM_QP], par[ck.P_LMAX_QP] = m.l_min + c.margin_zmp, m.l_max - c.margin_zmp
         par[ck.P_DT] = c.period
         par[ck.P_PMIN], par[ck.P_PMAX], par[ck.P_TAUD_MIN] = fam.p_min, fam.p_max, c.tau_dot_min
         par[ck.P_OBS_ON] = 1.0 if c.disturbance_observer else 0.0
         par[ck.P_OBS_H] = c.observer_height
-        par[ck.P_MU], par[ck.P_LMIN], par[ck.P_LMAX] = m.mu, m.l_min, m.l_max
         par[ck.P_ADAPT_P] = 1.0 if 0 in ctrl.adapted else 0.0
         par[ck.P_ADAPT_TAU] = 1.0 if 1 in ctrl.adapted else 0.0
         self.par = par
-        self.cons = np.concatenate([ctrl.margin, m.row_scale, m.torque_min, m.torque_max]).astype(float)
+        # the contact rows as data (model.contact_rows, written once): the QP's with the controller's
+        # margins on mu and the foot range, the robot's own for the reported margins
+        qp_C, qp_e = contact_rows(c.margin_friction * m.mu, m.l_min + c.margin_zmp, m.l_max - c.margin_zmp)
+        true_C, true_e = contact_rows(m.mu, m.l_min, m.l_max)
+        self.cons = np.concatenate([ctrl.margin, m.row_scale, m.torque_min, m.torque_max,
+                                    np.column_stack([qp_C, qp_e]).ravel(),
+                                    np.column_stack([true_C, true_e]).ravel()]).astype(float)
+        assert self.cons.size == ck.CONS_SIZE
         self.prev = np.zeros((8, 6))
         self.G = np.zeros((ck.QP_ROWS, 2))
         self.h = np.zeros(ck.QP_ROWS)

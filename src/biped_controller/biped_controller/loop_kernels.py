@@ -42,6 +42,10 @@ import numpy as np
 
 from biped_sim import planar_kernels as pk
 from . import control_kernels as ck
+from . import qp_fast
+
+# compiled against planar_kernels, qp_fast and control_kernels: a change there must recompile this module
+pk.drop_stale_cache(__name__.rsplit(".", 1)[-1], [Path(m.__file__) for m in (pk, qp_fast, ck)] + [Path(__file__)])
 
 # controller state
 (C_P, C_PDOT, C_TAU, C_TAUDOT, C_PDD, C_TDD, C_TLAST, C_HAS_TLAST, C_STANCE, C_PREV_OK, C_PREV_STANCE,

@@ -92,6 +92,36 @@ def write_stamp(stamp: Path, key: str) -> None:
         pass
 
 
+def drop_stale_cache(module: str, sources: list[Path], cache_dir: str | None = None) -> bool:
+    """numba keys the on-disk cache of a module on that module's own source only, so a kernel compiled
+    against another module's kernels (control_kernels calls these, loop_kernels calls both) keeps their
+    old machine code -- and their old array layouts -- after that other module changes. Call this at the
+    top of such a module, before its kernels are compiled or loaded: when the sources it depends on
+    (its own included) changed since the last call, its cached files (``<module>.*.nbi/.nbc`` under the
+    cache directory) are deleted, so numba compiles it afresh. Returns True when it deleted."""
+    root = Path(cache_dir or CACHE_DIR)
+    h = hashlib.sha256()
+    for src in sources:
+        h.update(src.read_bytes())
+    key = h.hexdigest()
+    stamp = root / f"{module}.deps"
+    try:
+        if stamp.read_text(encoding="utf-8").strip() == key:
+            return False
+    except OSError:
+        pass
+    dropped = False
+    if root.is_dir():
+        for f in list(root.rglob(f"{module}.*.nb[ic]")):
+            try:
+                f.unlink()
+                dropped = True
+            except OSError:
+                pass
+    write_stamp(stamp, key)
+    return dropped
+
+
 _STAMP = Path(CACHE_DIR) / "planar_kernels.stamp"
 _KEY = cache_key(Path(__file__))
 announce_compile(_STAMP, _KEY, sys.stderr)
