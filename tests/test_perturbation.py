@@ -438,3 +438,41 @@ def test_stored_max_push_replays_the_capability_map_search(tmp_path):
     assert rb.stored_max_push(spec, [r for r in recs if r["force"] != 340.0]) is None   # the bisection step
     other = rb.push_spec(PlantPerturbation(torso_mass_scale=1.1), "both", True)
     assert rb.stored_max_push(other, recs) is None
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_recorded_perturbed_run_carries_the_true_plant_in_the_bag_metadata(ros_domain, tmp_path):
+    """The whole graph with a heavier torso: the bag holds the plant both as the latched /sim/plant and as
+    the MCAP metadata record 'biped_plant' (read with the mcap package, not the project's reader)."""
+    import subprocess
+    import sys
+    import yaml
+    from mcap.reader import make_reader
+    from biped_sim.recorder_node import PLANT_METADATA
+    from biped_sim.settings import repo_root
+    bag = tmp_path / "bag"
+    r = subprocess.run([sys.executable, "-m", "biped_sim.launch", "--bag", str(bag), "--steps", "1",
+                        "--sim-param", "perturbation.torso_mass_scale:=1.1"],
+                       capture_output=True, text=True, timeout=300, cwd=repo_root())
+    assert r.returncode == 0, r.stderr[-3000:]
+    (mcap_file,) = bag.glob("*.mcap")
+    with open(mcap_file, "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    plant = yaml.safe_load(meta[PLANT_METADATA]["yaml"])
+    text = meta[PLANT_METADATA]["yaml"]
+    nominal = DESC.torso.mass
+    assert f"{1.1 * nominal}" in text or any(
+        abs(v - 1.1 * nominal) < 1e-9 for v in _numbers(plant)), text[:2000]
+
+
+def _numbers(tree):
+    """Every number in a nested YAML tree."""
+    if isinstance(tree, dict):
+        for v in tree.values():
+            yield from _numbers(v)
+    elif isinstance(tree, list):
+        for v in tree:
+            yield from _numbers(v)
+    elif isinstance(tree, (int, float)) and not isinstance(tree, bool):
+        yield float(tree)

@@ -253,6 +253,22 @@ def test_real_messages_serialized_by_rclpy(tmp_path):
     assert deserialize_message(raw[1], WrenchStamped) == wr
 
 
+def test_metadata_record_round_trip(tmp_path):
+    """add_metadata writes an MCAP metadata record an independent reader finds, next to rosbag2's; bad
+    input is refused."""
+    with Rosbag2McapWriter(tmp_path / "meta", prefixes=[VENV]) as bag:
+        bag.write("/stance", "std_msgs/msg/UInt8", b"\x00\x01\x00\x00\x01", 10, 1)
+        bag.add_metadata("biped_plant", {"yaml": "torso: {mass: 22.0}\n"})
+        with pytest.raises(RecorderError):
+            bag.add_metadata("rosbag2", {"x": "y"})
+        with pytest.raises(RecorderError):
+            bag.add_metadata("biped_plant", {"mass": 22.0})
+    with open(tmp_path / "meta" / "meta_0.mcap", "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert meta["biped_plant"] == {"yaml": "torso: {mass: 22.0}\n"}
+    assert "serialized_metadata" in meta["rosbag2"]
+
+
 # ------------------------------------------------------------------------------ schemas
 def test_schema_has_each_dependency_exactly_once(prefix):
     text = build_message_definition("test_msgs/msg/Gait", [prefix, VENV])

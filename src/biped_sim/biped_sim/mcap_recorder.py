@@ -537,6 +537,20 @@ class Rosbag2McapWriter:
         self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns, log_time_ns)
         self._end_ns = log_time_ns if self._end_ns is None else max(self._end_ns, log_time_ns)
 
+    def add_metadata(self, name: str, data: Dict[str, str]) -> None:
+        """Write an MCAP metadata record ``name`` (string keys and values) now, in the data section (it is
+        indexed in the summary at ``finish``, and a truncated file keeps it). Used for the plant's true
+        parameters of a perturbed run (``biped_plant``), beside the latched ``/sim/plant`` topic.
+
+        :raises RecorderError: on a non-string key or value, an I/O error, or a finished bag."""
+        self._check_open()
+        if name == "rosbag2" or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+            raise RecorderError(f"metadata {name!r}: a name other than 'rosbag2' and string keys and values")
+        try:
+            self._writer.add_metadata(name, dict(data))
+        except OSError as exc:
+            self._fail(exc)
+
     # -- finishing -----------------------------------------------------------------------------
 
     def metadata_dict(self) -> Dict[str, Any]:

@@ -103,6 +103,7 @@ def qos_from_rclpy(profile) -> QosProfile:
     )
 
 
+PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
 DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
 
@@ -204,6 +205,11 @@ class RecorderNode(Node):
             if spec.name not in self._writer.topics:
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
             self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
+            if spec.name == graph_names.SIM_PLANT:
+                # the plant's true parameters (issue 14) also as the bag's metadata record 'biped_plant'
+                from rclpy.serialization import deserialize_message
+                from std_msgs.msg import String
+                self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
         except RecorderError as exc:
             self.failure = exc
             self.get_logger().error(f"recording stopped: {exc}")
