@@ -104,6 +104,7 @@ def qos_from_rclpy(profile) -> QosProfile:
 
 
 PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
+DRAIN_BATCH = 64   # messages taken per executor callback from the subscription that fired (see _on_message)
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
 DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
 
@@ -197,6 +198,21 @@ class RecorderNode(Node):
                            durability=d["durability"])]
 
     def _on_message(self, spec, msg: bytes, info) -> None:
+        """One message from the executor, then up to DRAIN_BATCH more already waiting on the same
+        subscription, taken directly: the executor's wait-set round per message costs more than writing
+        the message, and at 1 kHz x 10 topics the recorder would fall behind the lockstep."""
+        self._record(spec, msg, info)
+        sub = self._subscriptions_by_topic.get(spec.name)
+        for _ in range(DRAIN_BATCH):
+            if sub is None or self.failure is not None or self._writer.finished:
+                return
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, True)
+            if taken is None:
+                return
+            self._record(spec, taken[0], taken[1])
+
+    def _record(self, spec, msg: bytes, info) -> None:
         if self.failure is not None or self._writer.finished:
             return
         log_time = self.get_clock().now().nanoseconds
