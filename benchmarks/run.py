@@ -433,6 +433,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         (reading the YAML files costs ~10 ms, a tenth of a 5-step run on the fast engine)."""
         engine, kw = variants[variant]
         scfg, ccfg = configs[(engine, mode)]
+        gc.collect()    # the previous runs' records are garbage: their collection is not this run's time
         t0 = time.perf_counter()
         r = run(steps=n, mode=mode, sim_config=scfg, ctrl_config=ccfg, desc=desc, family=family, **kw)
         wall = time.perf_counter() - t0
@@ -449,10 +450,11 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
                 r, sim_t, wall = one(engine, mode, steps)
                 acc[engine][0] += sim_t
                 acc[engine][1] += wall
-                acc[engine][2] = r
-        for engine, (sim_t, wall, r) in acc.items():
+                acc[engine][2] = (r.steps_walked, r.fallen)   # not the records: they would stay alive
+                del r
+        for engine, (sim_t, wall, (walked, fallen)) in acc.items():
             periods = round(sim_t / repeats / 1e-3)   # 1 ms periods (the outcome-only run keeps few records)
-            out[engine][mode] = {"steps_walked": r.steps_walked, "fallen": r.fallen, "periods": periods,
+            out[engine][mode] = {"steps_walked": walked, "fallen": fallen, "periods": periods,
                                  "sim_s": sim_t, "wall_s": wall, "realtime_factor": sim_t / wall,
                                  "us_per_period": wall / (periods * repeats) * 1e6}
     for engine in out:
