@@ -411,9 +411,7 @@ class _FastPeriod:
         self.ck = ck
         self.ctrl = ctrl
         c, m, fam = ctrl.cfg, ctrl.model, ctrl.family
-        self.coef = np.ascontiguousarray(fam._coef, dtype=float)
-        self.inner = np.array(fam._inner, dtype=float)
-        self.centers = np.array(fam._centers, dtype=float)
+        self.coef, self.inner, self.centers = fam.piece_arrays()
         self.ti, self.tf = ctrl._fast.ti, ctrl._fast.tf
         par = np.zeros(ck.PAR_SIZE)
         par[ck.P_KP], par[ck.P_KV], par[ck.P_KP2], par[ck.P_KV2] = c.Kp, c.Kv, c.kp, c.kv

@@ -148,6 +148,12 @@ class GaitFamily:
         breakpoints the end pieces are extended)."""
         return bisect.bisect_right(self._inner, p)
 
+    def piece_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(coef (P, 6, 5, K), inner breakpoints (P-1,), centers (P,)) as float64 arrays, for compiled code:
+        on piece k = #{inner <= p}, a_ij(p) = sum_m coef[k, i, j, m] (p - centers[k])^m."""
+        return (np.ascontiguousarray(self._coef, dtype=float), np.array(self._inner, dtype=float),
+                np.array(self._centers, dtype=float))
+
     @property
     def n_pieces(self) -> int:
         """Number of polynomial pieces in p (1 for the polynomial family)."""
