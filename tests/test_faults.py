@@ -203,6 +203,12 @@ def test_fall_reported_consistently(ros_domain, tmp_path):
     assert states[-1].step == states[-2].step + 1 and states[-1].sequence == states[-2].sequence + 1
     t_fall = states[-1].stamp.sec + 1e-9 * states[-1].stamp.nanosec
     assert abs(t_fall - fall['time']) < 1e-9 and t_fall >= states[-2].stamp.sec + 1e-9 * states[-2].stamp.nanosec
+    # /clock and /tf never repeat a time (at a fall at the last state's instant they are not sent again)
+    clock = [(m.clock.sec, m.clock.nanosec) for t, _, _, m in d['messages'] if t == '/clock']
+    tf = [(m.transforms[0].header.stamp.sec, m.transforms[0].header.stamp.nanosec)
+          for t, _, _, m in d['messages'] if t == '/tf']
+    assert clock and len(set(clock)) == len(clock) and len(set(tf)) == len(tf)
+    assert set(clock) == {(m.stamp.sec, m.stamp.nanosec) for m in states}
     # the push cut short by the fall (the bag alone, tests/bag_physics): F x (t_fall - start), nothing else
     import bag_physics as bp
     p = bp.push_report(bp.load_bag(tmp_path / 'bag'))

@@ -351,12 +351,20 @@ class SimulatorNode(Node):
                 f'{self.command_timeout} s: {gn.CONTROLLER_TORQUE} is silent, stopping')
             self._publish_fall('controller timeout', self.sim.t,
                                f'no message on {gn.CONTROLLER_TORQUE} within {self.command_timeout} s (wall)')
-            self._publish_state(fallen=True, cause='controller timeout')
-            self._publish_visuals()
+            self._publish_final_state('controller timeout')
             self._finish(EXIT_FAILURE, 'controller timeout')
 
     # ------------------------------------------------------------------ publishing
-    def _publish_state(self, fallen: bool = False, cause: str = ''):
+    def _publish_final_state(self, cause: str):
+        """The fallen state (a fall or a controller timeout). At the instant of the state already published
+        (a fall under the new torque at the period start, a timeout) ``/clock`` and ``/tf`` are not sent
+        again: the clock would repeat a time and the pose is the same; ``/sim/state`` carries the flag."""
+        same_instant = stamp_ns(stamp_of(self.sim.t)) == self.current_stamp_ns
+        self._publish_state(fallen=True, cause=cause, clock=not same_instant)
+        if not same_instant:
+            self._publish_visuals()
+
+    def _publish_state(self, fallen: bool = False, cause: str = '', clock: bool = True):
         sim = self.sim
         obs = sim.observe()
         stamp = stamp_of(obs.t)
@@ -376,7 +384,8 @@ class SimulatorNode(Node):
         m.sequence = self.sequence
         # /clock first (the recorder's log time), then the state the controller waits for; the
         # visualisation topics go out while the controller computes (publish_visuals).
-        self.pub_clock.publish(Clock(clock=stamp))
+        if clock:
+            self.pub_clock.publish(Clock(clock=stamp))
         self.pub_state.publish(m)
         self.last_state_wall = time.monotonic()
         self._visual_stamp = stamp
@@ -479,8 +488,7 @@ class SimulatorNode(Node):
             self._publish_applied_push(rec)
             self._publish_impacts()        # an impact of the period that fell (e.g. a non-finite state after it)
             self._publish_fall(f.cause, f.t, f.detail)
-            self._publish_state(fallen=True, cause=f.cause)
-            self._publish_visuals()
+            self._publish_final_state(f.cause)
             self._finish(EXIT_OK, f'fall: {f.cause}')
             return
         self._pace(sim.t)
