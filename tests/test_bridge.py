@@ -456,12 +456,13 @@ def test_bridge_alone_latched_time_and_unavailable_service(rclpy_context):
 
 
 def test_bridge_subscribes_to_a_stream_only_while_a_client_watches_it(rclpy_context):
-    """/clock, latched and event topics always; a per-step stream (/tf here) once a client subscribes to
-    its channel, dropped when the last one unsubscribes (checked on the ROS graph)."""
+    """lazy_streams: /clock, latched and event topics always; a per-step stream (/tf here) once a client
+    subscribes to its channel, dropped when the last one unsubscribes (checked on the ROS graph)."""
     import rclpy
     from biped_sim import graph_names as gn
     port = _free_port()
-    proc = subprocess.Popen([_bridge_exe(), '--ros-args', '-p', f'port:={port}'], env=dict(os.environ),
+    proc = subprocess.Popen([_bridge_exe(), '--ros-args', '-p', f'port:={port}', '-p', 'lazy_streams:=true'],
+                            env=dict(os.environ),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     node = rclpy.create_node('bridge_sub_probe', context=rclpy_context)
     url = f'ws://127.0.0.1:{port}'

@@ -1,8 +1,9 @@
 """ROS 2 node ``bridge``: the running graph, live, on a Foxglove WebSocket server (``foxglove-sdk``).
 
-Topics. Every topic of :data:`biped_sim.graph_names.TOPICS` is served; ``/clock``, the latched and the
-event topics are always subscribed, a per-step stream (``graph_names.STREAM_QOS``) only while at least one client
-is subscribed to its channel (subscribed and dropped on the executor's thread). Subscriptions are ``raw=True`` (the CDR
+Topics. Every topic of :data:`biped_sim.graph_names.TOPICS` is served and subscribed from the start; with
+``lazy_streams`` a per-step stream (``graph_names.STREAM_QOS``) only while at least one client is
+subscribed to its channel (subscribed and dropped on the executor's thread; ``/clock``, the latched and the
+event topics always). Subscriptions are ``raw=True`` (the CDR
 bytes are passed through, never deserialized) and the recorder's QoS (the topic's reliability and
 durability, a keep-last history of at least ``recorder_node.RECORDING_DEPTH``: a lagging bridge loses
 nothing, latched and event topics reach it). Each is served on a Foxglove channel with the schema
@@ -34,6 +35,7 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``host`` (string, default ``127.0.0.1``): address the server binds (``0.0.0.0``: every interface);
 - ``port`` (int 0..65535, default 8765; 0 = a free port chosen by the system, logged);
 - ``service_timeout`` (s > 0, default 10): wait for ``/apply_push`` and its answer;
+- ``lazy_streams`` (bool, default false): read a per-step stream only while a client watches it;
 - ``message_backlog`` (int 16..1000000, default 20000): messages queued per client before the
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
@@ -63,10 +65,10 @@ from biped_sim.bridge_core import (
     service_definition,
 )
 from biped_sim.mcap_recorder import RecorderError, build_message_definition
-from biped_sim.node_params import ParameterError, get_float, get_int, get_str, run_node
+from biped_sim.node_params import ParameterError, get_bool, get_float, get_int, get_str, run_node
 from biped_sim.recorder_node import RecorderNode, recording_qos
 
-NODE_NAME = 'bridge'
+NODE_NAME = gn.BRIDGE_NODE
 DEFAULT_HOST = '127.0.0.1'
 DEFAULT_PORT = 8765
 SERVER_NAME = 'biped'
@@ -139,6 +141,9 @@ class BridgeNode(Node):
         port = get_int(self, 'port', DEFAULT_PORT, lo=0, hi=65535)
         self.service_timeout = get_float(self, 'service_timeout', 10.0, lo=0.0, lo_open=True)
         backlog = get_int(self, 'message_backlog', 20000, lo=16, hi=1_000_000)
+        # true: a per-step stream is read only while a client watches it (less load on a busy machine; a
+        # stream subscribed on demand starts after DDS discovery, some 0.1-0.3 s of messages later)
+        self.lazy_streams = get_bool(self, 'lazy_streams', False)
 
         self.sim_time_ns = 0
         self.clock_errors = 0
@@ -188,7 +193,7 @@ class BridgeNode(Node):
         # its channel (the bridge's cost follows what the clients show: 15 topics x 1 kHz through one
         # Python process lag a real-time run by ~0.1 s)
         self._specs = {spec.name: spec for spec in specs}
-        self._streams = {spec.name for spec in specs if spec.qos in gn.STREAM_QOS}
+        self._streams = {spec.name for spec in specs if self.lazy_streams and spec.qos in gn.STREAM_QOS}
         self._ros_subs: dict = {}
         self._wanted: dict[str, int] = {}         # topic -> clients subscribed (SDK threads, under _lock)
         self._lock = threading.Lock()

@@ -84,6 +84,7 @@ SIMULATOR_NODE = 'simulator'
 CONTROLLER_NODE = 'controller'
 DISTURBANCE_NODE = 'disturbance'
 RECORDER_NODE = 'recorder'
+BRIDGE_NODE = 'bridge'
 
 # --------------------------------------------------------------------------- QoS
 # Plain description of each profile, also the source of the rclpy QoSProfile objects.

@@ -147,6 +147,16 @@ def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict, nod
         rclpy.shutdown(context=ctx)
 
 
+def bridge_reads_streams_on_demand(params: Path) -> bool:
+    """The bridge's ``lazy_streams`` in the parameters file (false when absent or unreadable)."""
+    import yaml
+    try:
+        tree = yaml.safe_load(params.read_text(encoding='utf-8')) or {}
+        return bool(tree.get('bridge', {}).get('ros__parameters', {}).get('lazy_streams', False))
+    except (OSError, yaml.YAMLError, AttributeError):
+        return False
+
+
 def default_params() -> Path:
     from biped_sim.settings import default_config_dir
     return default_config_dir() / 'graph.yaml'
@@ -235,8 +245,11 @@ def main(argv=None) -> int:
             elif name == 'bridge':
                 try:
                     wait_recorder_subscribed(args.start_timeout, [children['bridge']], stop, node_name='bridge',
-                                             streams=False)
+                                             streams=not bridge_reads_streams_on_demand(params))
                     log('bridge subscribed (Foxglove WebSocket)')
+                    # the simulator starts once it sees the bridge too (its readers then count among the
+                    # subscribers that must be matched before the first state)
+                    extra['simulator'] = ['-p', 'wait_for_bridge:=true'] + extra['simulator']
                 except RuntimeError as exc:
                     log(f'{exc}: the run goes on without the live view')
                     bridge_reported = True

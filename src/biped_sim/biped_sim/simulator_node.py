@@ -291,6 +291,9 @@ class SimulatorNode(Node):
         self.ack_timeout = get_float(self, 'ack_timeout', 5.0, lo=0.0, hi=60.0)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
         self.wait_for_pushes = get_int(self, 'wait_for_pushes', 0, lo=0)
+        # the live bridge (launch --live): wait until this node sees it on /clock, so that its readers are
+        # among the subscribers every published topic must have matched before the first state
+        self.wait_for_bridge = get_bool(self, 'wait_for_bridge', False)
         # pacing: 1.0 = sim time follows the wall clock (a live viewer sees real time), 0 = as fast as
         # the lockstep allows (experiments), r = r x real time
         self.real_time_factor = get_float(self, 'real_time_factor', 0.0, lo=0.0, hi=1000.0)
@@ -314,6 +317,12 @@ class SimulatorNode(Node):
                     missing.append(f'the recorder subscribed to {topic}')
                 elif pubs[topic].get_subscription_count() < len(infos):
                     missing.append(f'every subscriber of {topic} matched')
+        if self.wait_for_bridge:
+            infos = self.get_subscriptions_info_by_topic(gn.CLOCK)
+            if gn.BRIDGE_NODE not in {i.node_name for i in infos}:
+                missing.append(f'the bridge subscribed to {gn.CLOCK}')
+            elif self.pub_clock.get_subscription_count() < len(infos):
+                missing.append(f'every subscriber of {gn.CLOCK} matched')
         if len(self.push_ids) < self.wait_for_pushes:
             missing.append(f'{self.wait_for_pushes - len(self.push_ids)} more push event(s) on {gn.PUSH_EVENTS}')
         return missing
