@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import os
 import sys
-import time
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -43,8 +43,7 @@ from . import qp_fast
 from .qp_fast import _rows_and_decision
 
 # compiled against planar_kernels and qp_fast: a change there must recompile this module
-pk.drop_stale_cache(__name__.rsplit(".", 1)[-1], [__import__("pathlib").Path(m.__file__) for m in (pk, qp_fast)]
-                    + [__import__("pathlib").Path(__file__)])
+pk.drop_stale_cache(__name__.rsplit(".", 1)[-1], [Path(m.__file__) for m in (pk, qp_fast)] + [Path(__file__)])
 
 N_ROWS = 17
 QP_ROWS = 2 * N_ROWS + 3
@@ -77,11 +76,9 @@ _M = numba.types.Array(numba.types.float64, 2, "C")
 _C4 = numba.types.Array(numba.types.float64, 4, "C")
 _I = numba.types.int64
 
-_COMPILE_NOTE = f"{__name__}: compiling the controller kernels (once; cached) ..."
 _STAMP = os.path.join(os.environ.get("NUMBA_CACHE_DIR", ""), "control_kernels.stamp")
-_KEY = pk.cache_key(__import__("pathlib").Path(__file__))
-_T0 = time.perf_counter()
-_ANNOUNCED = pk.announce_compile(__import__("pathlib").Path(_STAMP), _KEY, sys.stderr)
+_KEY = pk.cache_key(Path(__file__))
+pk.announce_compile(Path(_STAMP), _KEY, sys.stderr)
 
 
 @numba.njit(cache=True)
@@ -321,4 +318,4 @@ def finish(par, cons, work, res):
     return 0
 
 
-pk.write_stamp(__import__("pathlib").Path(_STAMP), _KEY)
+pk.write_stamp(Path(_STAMP), _KEY)
