@@ -2,7 +2,7 @@
 
     .venv/bin/python -m benchmarks.bridge_bench [--pairs 3] [--steps 2] [--live-steps 1] [--json FILE]
 
-Every run is the whole graph from ``biped_sim.launch`` (recorder included) in its own ROS domain
+Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included) in its own ROS domain
 (``domain_coordinator``), on 127.0.0.1 only:
 
 - **rate, off/on** (``--pairs`` pairs, alternated off, on, off, on, ... so that the machine's drift
@@ -119,8 +119,8 @@ class DdsProbe:
     def __init__(self, domain: int):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
-        from biped_sim import graph_names as gn
-        from biped_sim.recorder_node import recording_qos
+        from biped_sim.graph import names as gn
+        from biped_sim.recording.recorder_node import recording_qos
         os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
@@ -165,7 +165,7 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     tmp.mkdir(parents=True, exist_ok=True)
     bag, ready, log = tmp / 'bag', tmp / 'ready', tmp / 'launch.log'
     port = free_port()
-    cmd = [sys.executable, '-m', 'biped_sim.launch', '--bag', str(bag), '--ready-file', str(ready),
+    cmd = [sys.executable, '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--ready-file', str(ready),
            '--steps', str(steps)]
     if live:
         cmd += ['--live', '--port', str(port)]
@@ -204,7 +204,7 @@ def latencies(bag: Path, topics: dict, frames: list) -> dict:
     from rclpy.serialization import deserialize_message
     from biped_msgs_py.msg import SimState
     from sensor_msgs.msg import JointState
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     d = read_bag(bag, decode=True)
     pub_state = {m.sequence: pt for t, _, pt, m in d['messages'] if t == '/sim/state'}
     pub_joint = {(m.header.stamp.sec, m.header.stamp.nanosec): pt for t, _, pt, m in d['messages']

@@ -34,11 +34,11 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python benchmarks/fast_kernels_bench.py`
     sys.path.insert(0, str(ROOT))
 
-from biped_controller.model import FixedFootModel  # noqa: E402
-from biped_sim import planar_kernels as pk  # noqa: E402
-from biped_sim.description import load_description  # noqa: E402
-from biped_sim.fast_engine import FastFixedFootModel, FastFloatingModel  # noqa: E402
-from biped_sim.floating import FloatingModel  # noqa: E402
+from biped_sim.robot.fixed_foot import FixedFootModel  # noqa: E402
+from biped_sim.robot import planar_kernels as pk  # noqa: E402
+from biped_sim.robot.description import load_description  # noqa: E402
+from biped_sim.robot.fast_engine import FastFixedFootModel, FastFloatingModel  # noqa: E402
+from biped_sim.robot.floating import FloatingModel  # noqa: E402
 
 H_SUB = 5e-4          # substep [s]: control period 1 ms, 2 substeps
 PUSH = ((60.0, 0.3125),)  # one push acting over the whole period (force [N], height [m])

@@ -1,4 +1,4 @@
-"""DDS lockstep of the real nodes: biped_sim.simulator_node + biped_controller.controller_node.
+"""DDS lockstep of the real nodes: biped_sim.graph.simulator_node + biped_controller.graph.controller_node.
 
 Both are started as subprocesses in an isolated domain (no recorder: wait_for_recorder false), walk a
 short run (max_time sim seconds), and the rate is read from the simulator's own end-of-run log line
@@ -20,11 +20,11 @@ _LINE = re.compile(r"run over: (?P<reason>[^;]*); (?P<steps>\d+) control steps, 
 
 def measure(sim_seconds: float, domain_cls, timeout: float = 180.0) -> dict:
     with domain_cls() as dom:
-        ctrl = subprocess.Popen([sys.executable, "-m", "biped_controller.controller_node", "--ros-args",
+        ctrl = subprocess.Popen([sys.executable, "-m", "biped_controller.graph.controller_node", "--ros-args",
                                  "-p", "use_sim_time:=true"],
                                 cwd=ROOT, env=dom.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
-            sim = subprocess.run([sys.executable, "-m", "biped_sim.simulator_node", "--ros-args",
+            sim = subprocess.run([sys.executable, "-m", "biped_sim.graph.simulator_node", "--ros-args",
                                   "-p", "wait_for_recorder:=false", "-p", "max_steps:=0",
                                   "-p", f"max_time:={sim_seconds}", "-p", "linger:=0.0",
                                   "-p", "start_delay:=0.5"],
@@ -48,11 +48,11 @@ def measure(sim_seconds: float, domain_cls, timeout: float = 180.0) -> dict:
 
 
 def measure_with_recorder(sim_seconds: float, domain_cls, timeout: float = 300.0) -> dict:
-    """The same rate with the whole recorded graph, as the product runs it: ``biped_sim.launch`` (recorder,
+    """The same rate with the whole recorded graph, as the product runs it: ``biped_sim.graph.launch`` (recorder,
     controller, disturbance, simulator; the bag in a temporary directory), rate from the simulator's line."""
     import tempfile
     with domain_cls() as dom, tempfile.TemporaryDirectory() as tmp:
-        p = subprocess.run([sys.executable, "-m", "biped_sim.launch", "--bag", str(Path(tmp) / "bag"), "--steps", "0",
+        p = subprocess.run([sys.executable, "-m", "biped_sim.graph.launch", "--bag", str(Path(tmp) / "bag"), "--steps", "0",
                             "--sim-param", f"max_time:={sim_seconds}", "--sim-param", "linger:=0.0"],
                            cwd=ROOT, env=dom.env, capture_output=True, text=True, timeout=timeout)
         text = p.stdout + p.stderr

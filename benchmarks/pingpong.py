@@ -25,7 +25,7 @@ REPLY_TOPIC = "/bench/torque"
 
 
 def _qos():
-    from biped_sim.graph_names import QOS_LOCKSTEP
+    from biped_sim.graph.names import QOS_LOCKSTEP
     return QOS_LOCKSTEP
 
 

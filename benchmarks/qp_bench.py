@@ -75,7 +75,7 @@ def pct(a) -> dict:
 
 def generate_instances(forces, modes, steps: int = 2) -> list[dict]:
     """The controller's QP instances (G, h, x*) of short pushed runs; W from the controller config."""
-    from biped_controller.runner import PushSpec, run
+    from biped_controller.studies.runner import PushSpec, run
 
     out = []
     for mode in modes:
@@ -107,7 +107,7 @@ def load_instances(path: Path) -> list[dict]:
 
 def controller_weights(mode: str) -> np.ndarray:
     """W of the controller's QP in this mode (config/controller.yaml weights of the adapted parameters)."""
-    from biped_controller.controller import load_controller_config
+    from biped_controller.core.controller import load_controller_config
 
     cfg = load_controller_config()
     idx = {"tau": [1], "p": [0], "both": [0, 1]}[mode]
@@ -125,9 +125,9 @@ def make_solvers(n: int, m: int, W: np.ndarray) -> dict:
     import piqp
     import quadprog
 
-    from biped_controller.qp import AdaptationQP, solve_with_qpsolvers
-    from biped_controller.qp_exact import solve_exact
-    from biped_controller.qp_types import _configure
+    from biped_controller.core.qp import AdaptationQP, solve_with_qpsolvers
+    from biped_controller.core.qp_exact import solve_exact
+    from biped_controller.core.qp_types import _configure
 
     held = AdaptationQP(n, m, W)
     tight = AdaptationQP(n, m, W, polish=False)
@@ -199,7 +199,7 @@ def profile_held_path(held, instances, repeats) -> dict:
     head-to-head run. Reads the solver's internals (a profiling tool, not an API)."""
     import daqp
 
-    from biped_controller.qp_types import ACTIVE, DEFAULT_FEAS_RTOL, _result
+    from biped_controller.core.qp_types import ACTIVE, DEFAULT_FEAS_RTOL, _result
 
     k_mod, W, m, n = held._k, held.W, held.m, held.n
     H = np.diag(W)
@@ -249,8 +249,8 @@ def profile_held_path(held, instances, repeats) -> dict:
 
 def bench_group(inst: list[dict], W: np.ndarray, repeats: int) -> dict:
     """All solvers on one group of instances of equal (m, n)."""
-    from biped_controller.qp_exact import solve_exact
-    from biped_controller.qp_types import constraint_values
+    from biped_controller.core.qp_exact import solve_exact
+    from biped_controller.core.qp_types import constraint_values
 
     n = inst[0]["G"].shape[1]
     m = inst[0]["G"].shape[0]
@@ -327,7 +327,7 @@ def ratios(group: dict) -> dict:
 
 
 def run_bench(forces=(250.0, 600.0), modes=("both",), repeats: int = 30, instances: Path | None = None) -> dict:
-    from biped_controller import qp_fast  # noqa: F401 - compiles or loads the kernels before any timing
+    from biped_controller.core import qp_fast  # noqa: F401 - compiles or loads the kernels before any timing
     if instances is not None and Path(instances).exists():
         inst = load_instances(Path(instances))
         log(f"loaded {len(inst)} instances from {instances}")

@@ -26,7 +26,7 @@ from time import perf_counter_ns
 
 import numpy as np
 
-from biped_controller.controller import QP_ROWS
+from biped_controller.core.controller import QP_ROWS
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python benchmarks/run.py`
@@ -61,8 +61,8 @@ def pct(a) -> dict:
 # ------------------------------------------------------------------------------------------------
 
 def _push_run(force: float, steps: int, mode: str = "both", keep_qp: bool = True):
-    from biped_controller.runner import run
-    from biped_sim.push import Push
+    from biped_controller.studies.runner import run
+    from biped_sim.plant.push import Push
     return run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp)
 
 
@@ -126,10 +126,10 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     now inside those (reported as 0).
     Passes repeat the recording until >= min_steps steps each.
     """
-    from biped_controller.controller import AdaptiveController, load_controller_config
-    from biped_sim.gait_family import GaitFamily
-    from biped_sim.description import LEFT, load_description
-    from biped_sim.simulator import load_sim_config
+    from biped_controller.core.controller import AdaptiveController, load_controller_config
+    from biped_sim.robot.gait_family import GaitFamily
+    from biped_sim.robot.description import LEFT, load_description
+    from biped_sim.plant.config import load_sim_config
 
     desc, family, scfg = load_description(), GaitFamily.load(), load_sim_config()
     ccfg = load_controller_config(mode=mode, period=scfg.control_period)
@@ -243,8 +243,8 @@ SOLVER_KW = {
 
 
 def _solvers(W):
-    from biped_controller.qp import AdaptationQP, solve_with_qpsolvers
-    from biped_controller.qp_exact import solve_exact
+    from biped_controller.core.qp import AdaptationQP, solve_with_qpsolvers
+    from biped_controller.core.qp_exact import solve_exact
 
     held = AdaptationQP(len(W), QP_ROWS, W)   # the controller's production object
     out = {
@@ -258,7 +258,7 @@ def _solvers(W):
 
 
 def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
-    from biped_controller.qp_exact import solve_exact
+    from biped_controller.core.qp_exact import solve_exact
 
     constrained, unconstrained, forces = [], 0, set()
     for F, (G, h, xs, _status) in instances:
@@ -313,7 +313,7 @@ def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
         p = table[n]["p50"]
         table[n]["ratio_to_fastest"] = (p / table[fastest]["p50"]) if (fastest and p) else None
     # unconstrained instances: what the production object costs when x* is feasible (no solver call)
-    from biped_controller.qp import AdaptationQP
+    from biped_controller.core.qp import AdaptationQP
     held = AdaptationQP(len(W), QP_ROWS, W)
     un_t = []
     k = 0
@@ -384,7 +384,7 @@ def bench_pingpong(count: int) -> dict:
 
 
 def bench_lockstep(seconds: float, pingpong: dict | None) -> dict:
-    mods = ("biped_sim.simulator_node", "biped_controller.controller_node")
+    mods = ("biped_sim.graph.simulator_node", "biped_controller.graph.controller_node")
     missing = [m for m in mods if importlib.util.find_spec(m) is None]
     if missing:
         return {"available": False, "reason": f"not available: {', '.join(missing)} not written yet"}
@@ -411,9 +411,9 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     """In-process closed loop (runner.run), sim time / wall time, per engine and mode, the engines
     interleaved in the same run (the machine's speed varies: compare ratios). The first fast run of a
     process loads the compiled kernels: a warm-up run of each engine comes first and is not timed."""
-    from biped_controller.controller import load_controller_config
-    from biped_controller.runner import run
-    from biped_sim.simulator import load_sim_config
+    from biped_controller.core.controller import load_controller_config
+    from biped_controller.studies.runner import run
+    from biped_sim.plant.config import load_sim_config
 
     variants = {   # name: (engine, runner.run keywords)
         "fast": ("fast", {}),                                       # compiled loop, every record kept
@@ -422,8 +422,8 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         "reference": ("reference", {}),                             # Pinocchio, Python
     }
 
-    from biped_sim.description import load_description
-    from biped_sim.gait_family import GaitFamily
+    from biped_sim.robot.description import load_description
+    from biped_sim.robot.gait_family import GaitFamily
     desc, family = load_description(), GaitFamily.load()
     configs = {(e, m): (load_sim_config(engine=e), load_controller_config(mode=m, engine=e))
                for e in ("fast", "reference") for m in ("none", "both")}
@@ -470,12 +470,12 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
 # ------------------------------------------------------------------------------------------------
 
 def bench_experiment(quick: bool) -> dict:
-    if importlib.util.find_spec("biped_controller.experiment") is None:
-        return {"available": False, "reason": "not available: biped_controller.experiment not written yet"}
+    if importlib.util.find_spec("biped_controller.studies.experiment") is None:
+        return {"available": False, "reason": "not available: biped_controller.studies.experiment not written yet"}
     from benchmarks.experiment_bench import time_table
     if quick:   # the table takes minutes even with coarse settings: only check the API is there
         import inspect
-        from biped_controller import experiment
+        from biped_controller.studies import experiment
         sig = inspect.signature(experiment.max_push_modes)
         missing = [k for k in ("resolution", "fmax", "coarse", "workers", "progress") if k not in sig.parameters]
         return {"available": False, "reason": "skipped in --quick" + (f" (API changed: {missing})" if missing else "")}
@@ -659,7 +659,7 @@ def main(argv=None) -> int:
     R = {"meta": {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "quick": quick, "cpus": os.cpu_count(),
                   "machine": platform.processor() or platform.machine(), "python": platform.python_version()},
          "targets": TARGETS}
-    from biped_controller.controller import load_controller_config
+    from biped_controller.core.controller import load_controller_config
     log("0. searching the hard run (largest surviving push, mode both)")
     hard = find_hard_run(quick)
     steps = 1 if quick else 22

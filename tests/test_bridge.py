@@ -1,4 +1,4 @@
-"""The Foxglove WebSocket bridge (biped_sim.bridge_node, biped_sim.bridge_core).
+"""The Foxglove WebSocket bridge (biped_sim.live.bridge_node, biped_sim.live.bridge_core).
 
 Pure core: schema texts against the MCAP writer's and rosidl's generated classes, /clock decoding
 and service-call checks against rclpy's own CDR serializer.
@@ -8,7 +8,7 @@ fixture): a Foxglove protocol client written here (``websockets``; subprotocol `
 JSON control messages, binary frames: 0x01 message data ``u32 subscription, u64 log time, CDR``,
 0x02 time ``u64``, 0x03 service response ``u32 service, u32 call, u32 len, encoding, CDR``; client
 binary 0x02 service call with the same layout) against the bridge alone and against the whole graph
-started by ``biped_sim.launch --live``. Every wait is bounded; nothing measures wall time.
+started by ``biped_sim.graph.launch --live``. Every wait is bounded; nothing measures wall time.
 """
 
 from __future__ import annotations
@@ -36,14 +36,14 @@ SUBPROTOCOL = 'foxglove.sdk.v1'
 
 # ------------------------------------------------------------------------------------------ pure core
 def _prefixes():
-    from biped_sim.recorder_node import RecorderNode
+    from biped_sim.recording.recorder_node import RecorderNode
     return RecorderNode._prefixes_list()
 
 
 def test_flatten_matches_the_mcap_writer_for_every_topic_type():
-    from biped_sim import bridge_core as bc
-    from biped_sim import graph_names as gn
-    from biped_sim.mcap_recorder import build_message_definition
+    from biped_sim.live import bridge_core as bc
+    from biped_sim.graph import names as gn
+    from biped_sim.recording.mcap_recorder import build_message_definition
     prefixes = _prefixes()
     with_deps = 0
     for spec in gn.TOPICS.values():
@@ -57,8 +57,8 @@ def test_flatten_matches_the_mcap_writer_for_every_topic_type():
 
 def test_flatten_writes_each_dependency_once_depth_first(tmp_path):
     """A synthetic package: A uses B and C, both use D; B also uses pkg/msg/E of another package."""
-    from biped_sim import bridge_core as bc
-    from biped_sim.mcap_recorder import SEPARATOR, RecorderError, build_message_definition
+    from biped_sim.live import bridge_core as bc
+    from biped_sim.recording.mcap_recorder import SEPARATOR, RecorderError, build_message_definition
     share = tmp_path / 'share'
     files = {('p', 'A'): 'p/B b\nC[] c\nint32 x  # comment C\n', ('p', 'B'): 'D d\nq/E e\n',
              ('p', 'C'): 'D[<=3] d\nstring<=5 s\n', ('p', 'D'): 'float64 v\nuint8 K=3\n', ('q', 'E'): 'bool f\n'}
@@ -76,7 +76,7 @@ def test_flatten_writes_each_dependency_once_depth_first(tmp_path):
 
 def test_service_definition_of_apply_push_has_the_generated_fields():
     """Request/response texts: their field names are those of rosidl's generated classes."""
-    from biped_sim import bridge_core as bc
+    from biped_sim.live import bridge_core as bc
     from biped_msgs_py.srv import ApplyPush
     d = bc.service_definition('biped_msgs_py/srv/ApplyPush', _prefixes())
     assert (d.request_name, d.response_name) == ('biped_msgs_py/srv/ApplyPush_Request',
@@ -90,8 +90,8 @@ def test_service_definition_of_apply_push_has_the_generated_fields():
 
 
 def test_split_service_text_and_bad_names(tmp_path):
-    from biped_sim import bridge_core as bc
-    from biped_sim.mcap_recorder import RecorderError
+    from biped_sim.live import bridge_core as bc
+    from biped_sim.recording.mcap_recorder import RecorderError
     assert bc.split_service_text('int32 a\n---\nint32 b\n') == ('int32 a', 'int32 b\n')
     assert bc.split_service_text('---\n') == ('', '')
     for bad in ('int32 a\n', 'int32 a\n---\n---\n'):
@@ -107,7 +107,7 @@ def test_clock_ns_against_rclpy_serialization():
     from rclpy.serialization import serialize_message
     from rosgraph_msgs.msg import Clock
     from builtin_interfaces.msg import Time
-    from biped_sim import bridge_core as bc
+    from biped_sim.live import bridge_core as bc
     rng = random.Random(15)
     cases = [(0, 0), (0, 999_999_999), (2**31 - 1, 999_999_999), (-5, 1)]
     cases += [(rng.randrange(-2**31, 2**31), rng.randrange(10**9)) for _ in range(200)]
@@ -126,7 +126,7 @@ def test_clock_ns_against_rclpy_serialization():
 def test_check_call():
     from rclpy.serialization import serialize_message
     from biped_msgs_py.srv import ApplyPush
-    from biped_sim import bridge_core as bc
+    from biped_sim.live import bridge_core as bc
     good = serialize_message(ApplyPush.Request(force=1.0, duration=0.1))
     bc.check_call('cdr', good)
     for enc, payload, what in (('json', good, 'encoding'), ('cdr', good[:3], 'header'),
@@ -239,7 +239,7 @@ def _free_port() -> int:
 
 
 def _bridge_exe() -> str:
-    from biped_sim.launch import find_executable
+    from biped_sim.graph.launch import find_executable
     return str(find_executable('biped_sim', 'bridge'))
 
 
@@ -284,7 +284,7 @@ async def _garbage(url: str, service_id: int) -> dict:
 
 
 def _descendants(pid: int) -> list[int]:
-    from biped_sim.soak import descendants
+    from biped_sim.graph.soak import descendants
     return descendants(pid)
 
 
@@ -315,7 +315,7 @@ def _launch(tmp: Path, port: int, *extra: str) -> tuple[subprocess.Popen, Path, 
     """The launcher with --live; its output (and its children's) goes to ``tmp/launch.log`` (a pipe
     nobody reads during the run could fill up and block the nodes' logging)."""
     bag, ready = tmp / 'bag', tmp / 'ready'
-    cmd = [str(PY), '-m', 'biped_sim.launch', '--bag', str(bag), '--ready-file', str(ready),
+    cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--ready-file', str(ready),
            '--live', '--port', str(port), *extra]
     with open(tmp / 'launch.log', 'w') as log:
         proc = subprocess.Popen(cmd, env=dict(os.environ), cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
@@ -388,9 +388,9 @@ def test_bridge_alone_latched_time_and_unavailable_service(rclpy_context):
     from rosgraph_msgs.msg import Clock
     from builtin_interfaces.msg import Time
     from std_msgs.msg import String
-    from biped_sim import bridge_core as bc
-    from biped_sim import graph_names as gn
-    from biped_sim.mcap_recorder import build_message_definition
+    from biped_sim.live import bridge_core as bc
+    from biped_sim.graph import names as gn
+    from biped_sim.recording.mcap_recorder import build_message_definition
 
     port = _free_port()
     proc = subprocess.Popen([_bridge_exe(), '--ros-args', '-p', f'port:={port}', '-p', 'service_timeout:=1.0'],
@@ -459,7 +459,7 @@ def test_bridge_subscribes_to_a_stream_only_while_a_client_watches_it(rclpy_cont
     """lazy_streams: /clock, latched and event topics always; a per-step stream (/tf here) once a client
     subscribes to its channel, dropped when the last one unsubscribes (checked on the ROS graph)."""
     import rclpy
-    from biped_sim import graph_names as gn
+    from biped_sim.graph import names as gn
     port = _free_port()
     proc = subprocess.Popen([_bridge_exe(), '--ros-args', '-p', f'port:={port}', '-p', 'lazy_streams:=true'],
                             env=dict(os.environ),
@@ -516,7 +516,7 @@ def test_live_graph_through_the_bridge(ros_domain, tmp_path):
     from rclpy.serialization import deserialize_message
     from biped_msgs_py.msg import PushEvent, SimState
     from sensor_msgs.msg import JointState
-    from biped_sim import graph_names as gn
+    from biped_sim.graph import names as gn
 
     port = _free_port()
     url = f'ws://127.0.0.1:{port}'
@@ -573,7 +573,7 @@ def test_live_graph_through_the_bridge(ros_domain, tmp_path):
         assert 'encoding' in f['json encoding'] and 'not a CDR' in f['short cdr'] and 'header' in f['no header'], bad
 
     # the stream: no gap, and the same messages as the bag
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     d = read_bag(bag, decode=True)
     states = [deserialize_message(p, SimState) for _, p in a.messages[gn.SIM_STATE]]
     seqs = [s.sequence for s in states]
@@ -601,7 +601,7 @@ def test_live_graph_through_the_bridge(ros_domain, tmp_path):
 @pytest.mark.ros
 @pytest.mark.slow
 def test_bridge_killed_mid_run_does_not_stop_it(ros_domain, tmp_path):
-    from biped_sim import graph_names as gn
+    from biped_sim.graph import names as gn
     port = _free_port()
     proc, bag, ready = _launch(tmp_path, port, '--steps', '1')
 
@@ -628,7 +628,7 @@ def test_bridge_killed_mid_run_does_not_stop_it(ros_domain, tmp_path):
     assert proc.returncode == 0, out[-4000:]
     assert "node 'bridge' died unexpectedly" in out and 'the run goes on without the live view' in out, out[-4000:]
     assert '1 steps walked' in out, out[-4000:]
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     d = read_bag(bag, decode=True)
     seqs = sorted(m.sequence for t, _, _, m in d['messages'] if t == gn.SIM_STATE)
     assert seqs == list(range(1, len(seqs) + 1)) and len(seqs) > len(a.messages[gn.SIM_STATE])

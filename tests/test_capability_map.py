@@ -1,4 +1,4 @@
-"""Capability map (biped_controller.capability_map): the search and its islands on synthetic survival
+"""Capability map (biped_controller.studies.capability_map): the search and its islands on synthetic survival
 functions (and against experiment's own max-push search), resuming from the record store with no
 simulation done twice, the unit conversions against closed forms and the momentum theorem, and the
 real closed loop through a process pool and through Ray giving identical records."""
@@ -17,10 +17,10 @@ import pytest
 
 from helpers import assert_close, central_diff
 
-from biped_controller import capability_map as cm
-from biped_controller import experiment
-from biped_sim.description import load_description
-from biped_sim.floating import FloatingModel
+from biped_controller.studies import capability_map as cm
+from biped_controller.studies import experiment
+from biped_sim.robot.description import load_description
+from biped_sim.robot.floating import FloatingModel
 
 
 # ------------------------------------------------------------------------------------------ synthetic

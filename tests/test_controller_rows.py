@@ -6,8 +6,8 @@ from dataclasses import replace
 import numpy as np
 
 import helpers  # noqa: F401  (puts src/ on the path when the packages are not installed)
-from biped_controller.controller import AdaptiveController, load_controller_config
-from biped_sim.gait_family import GaitFamily
+from biped_controller.core.controller import AdaptiveController, load_controller_config
+from biped_sim.robot.gait_family import GaitFamily
 
 
 def test_rows_without_estimate_equal_full_evaluation():
@@ -40,8 +40,8 @@ def test_gait_optimizer_uses_the_contact_rows_of_the_model():
     """The gait optimizer's contact margins are model.contact_rows (eqs. 5-8, written once), with its own
     margins (mu, l range, R_y >= min_normal_force M g) and its row order take_off, slide_forward,
     slide_backward, zmp_heel, zmp_toe."""
-    from biped_controller.gait_optimizer import StepOptimizer
-    from biped_controller.model import contact_rows
+    from biped_controller.gaits.optimizer import StepOptimizer
+    from biped_sim.robot.fixed_foot import contact_rows
     o = StepOptimizer()
     st = o.st
     Mg = o.M * o.g

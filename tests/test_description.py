@@ -14,7 +14,7 @@ import yaml
 import helpers  # noqa: F401
 from helpers import CONFIG, assert_close
 
-from biped_sim.description import (
+from biped_sim.robot.description import (
     URDF_JOINTS,
     DescriptionError,
     load_description,

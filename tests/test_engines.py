@@ -7,10 +7,10 @@ import pytest
 
 import helpers  # noqa: F401
 from helpers import assert_same_fields, assert_same_run
-from biped_controller import runner
-from biped_controller.controller import load_controller_config
-from biped_sim.push import Push
-from biped_sim.simulator import load_sim_config
+from biped_controller.studies import runner
+from biped_controller.core.controller import load_controller_config
+from biped_sim.plant.push import Push
+from biped_sim.plant.config import load_sim_config
 
 
 def _run(engine: str, steps: int, pushes=(), mode: str = "both"):
@@ -32,9 +32,9 @@ def test_fast_engine_matches_reference_record_for_record(case):
 
 def test_engines_are_really_different_code():
     """The two engines are selected: the fast simulator holds the compiled model."""
-    from biped_sim.fast_engine import FastFloatingModel
-    from biped_sim.floating import FloatingModel
-    from biped_sim.simulator import Simulator
+    from biped_sim.robot.fast_engine import FastFloatingModel
+    from biped_sim.robot.floating import FloatingModel
+    from biped_sim.plant.rigid import Simulator
     assert isinstance(Simulator(config=load_sim_config(engine="fast")).fm, FastFloatingModel)
     assert type(Simulator(config=load_sim_config(engine="reference")).fm) is FloatingModel
 
@@ -57,7 +57,7 @@ def _without(monkeypatch, cls, name):
 def test_compiled_controller_period_matches_its_python_steps(monkeypatch, mode):
     """control_kernels.step (one compiled call per period, fast engine) against the controller's own
     Python steps on the same compiled model terms: same run to 1e-9, QP decisions included."""
-    from biped_controller import controller as C
+    from biped_controller.core import controller as C
     push = (Push(0.2003217, 0.025, 400.0),)
     used = []
     orig = C._FastPeriod.compute
@@ -82,7 +82,7 @@ def test_compiled_simulator_period_is_the_event_path_bit_for_bit(monkeypatch, pu
     """planar_kernels.period (the whole period in one call when nothing happens in it) against the
     simulator's interval-by-interval path: identical records (np.array_equal), impacts and falls."""
     import numpy as np
-    from biped_sim.simulator import Simulator
+    from biped_sim.plant.rigid import Simulator
     calls = []
     orig = Simulator._fast_period
 
@@ -111,7 +111,7 @@ def test_compiled_loop_is_the_objects_period_by_period(monkeypatch, mode, push, 
     """loop_kernels.run_segment (segment.Segment: many periods in one call while nothing needs Python)
     against the objects (ctrl.compute + sim.step every period): bit-identical records, statuses and
     impacts; the outcome-only mode (keep_records=False) ends the same way with the same last status."""
-    from biped_controller import segment
+    from biped_controller.studies import segment
     runs = []
     orig = segment.Segment.run
 
@@ -136,10 +136,10 @@ def test_compiled_loop_is_the_objects_period_by_period(monkeypatch, mode, push, 
 
 def test_compiled_loop_is_off_where_python_must_see_every_period():
     """Perturbed sensors, a torque function (integration rate), the reference engine: no compiled loop."""
-    from biped_controller.segment import Segment
-    from biped_controller.controller import AdaptiveController
-    from biped_sim.perturbation import PlantPerturbation
-    from biped_sim.simulator import Simulator
+    from biped_controller.studies.segment import Segment
+    from biped_controller.core.controller import AdaptiveController
+    from biped_sim.plant.perturbation import PlantPerturbation
+    from biped_sim.plant.rigid import Simulator
     ctrl = AdaptiveController(load_controller_config(mode="both"))
     assert Segment.eligible(Simulator(), ctrl)
     assert not Segment.eligible(Simulator(perturbation=PlantPerturbation(noise_q=1e-4, seed=1)), ctrl)

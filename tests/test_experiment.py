@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 import helpers
-from biped_controller import experiment as ex
-from biped_controller import runner
-from biped_controller.controller import ControllerConfigError, load_controller_config
-from biped_controller.runner import PushSpec
-from biped_sim.simulator import SimConfigError, load_sim_config
+from biped_controller.studies import experiment as ex
+from biped_controller.studies import runner
+from biped_controller.core.controller import ControllerConfigError, load_controller_config
+from biped_controller.studies.runner import PushSpec
+from biped_sim.plant.config import SimConfigError, load_sim_config
 
 START, DURATION, FORCE = ex.DEFAULT_START, ex.DEFAULT_DURATION, 250.0
 

@@ -20,14 +20,14 @@ import pytest
 import helpers  # noqa: F401
 from helpers import assert_close
 
-from biped_controller.model import FixedFootModel
-from biped_sim import planar_kernels as pk
-from biped_sim.description import LEFT, RIGHT, load_description
-from biped_sim.fast_engine import (
+from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_sim.robot import planar_kernels as pk
+from biped_sim.robot.description import LEFT, RIGHT, load_description
+from biped_sim.robot.fast_engine import (
     PX, REV, Body, FastFixedFootModel, FastFloatingModel, Joint, PlanarTree, TreeError, fixed_foot_tree,
     floating_tree, push_arrays,
 )
-from biped_sim.floating import FloatingModel, SimulationError
+from biped_sim.robot.floating import FloatingModel, SimulationError
 
 N_STATES = 60
 TOL = 1e-10
@@ -466,7 +466,7 @@ def test_compile_notice_only_without_a_matching_stamp(tmp_path):
 def test_stale_cache_of_a_dependent_module_is_dropped(tmp_path):
     """A module compiled against another module's kernels: its cache files go when a dependency's source
     changes (numba itself only watches the module's own source), and stay otherwise."""
-    from biped_sim.planar_kernels import drop_stale_cache
+    from biped_sim.robot.planar_kernels import drop_stale_cache
     dep = tmp_path / "dep.py"
     dep.write_text("x = 1\n")
     cache = tmp_path / "cache" / "pkg_hash"

@@ -39,7 +39,7 @@ def other_robot(tmp_path_factory):
     tree = yaml.safe_load((ROOT / 'config' / 'biped.yaml').read_text())
     tree['shin']['length']['value'] = 0.45
     (tmp / 'biped.yaml').write_text(yaml.safe_dump(tree))
-    from biped_sim.description import load_description, make_urdf
+    from biped_sim.robot.description import load_description, make_urdf
     (tmp / 'bad.urdf').write_text(make_urdf(load_description()).replace('"left_knee"', '"l_knee"'))
     (tmp / 'broken.json').write_text('{"family": ')
     return tmp
@@ -69,7 +69,7 @@ def test_bad_parameter_exits_2_naming_it(ros_domain, other_robot, pkg, name, par
 
 
 def _fault_run(tmp, env, victim: str, *extra):
-    from biped_sim.soak import node_pids
+    from biped_sim.graph.soak import node_pids
     proc, bag, ready = _launch(tmp, env, '--steps', '0', *extra)
     pids: set[int] = set()
     try:
@@ -93,7 +93,7 @@ def test_controller_killed(ros_domain, tmp_path):
     assert rc == 1, out[-3000:]
     assert "node 'controller' died unexpectedly" in out
     assert '/controller/torque is silent' in out, out[-3000:]
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     d = read_bag(bag, decode=True)      # finished: summary present
     assert d['has_summary']
     import yaml
@@ -109,7 +109,7 @@ def test_simulator_killed(ros_domain, tmp_path):
     assert rc == 1, out[-3000:]
     assert "node 'simulator' died unexpectedly (killed by SIGKILL)" in out
     assert '/sim/state is silent' in out and 'idling' in out, out[-3000:]
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     assert read_bag(bag)['counts']['/sim/state'] > 10
 
 
@@ -118,7 +118,7 @@ LATE_START = 5.0   # s: a second accepted push that starts after the 2-step run 
 
 def _states_of_push_run(tmp, env, rejected: bool):
     import rclpy
-    from biped_sim.push_client import call_apply_push
+    from biped_sim.graph.push_client import call_apply_push
     # the simulator starts once both accepted pushes are scheduled: the overlapping request must reach the
     # disturbance node while the graph is still up (a 2-step run takes about a second of wall time)
     proc, bag, ready = _launch(tmp, env, '--steps', '2', '--sim-param', 'wait_for_pushes:=2')
@@ -153,7 +153,7 @@ def _states_of_push_run(tmp, env, rejected: bool):
     finally:
         _kill_tree(proc, _descendants(proc.pid))
         rclpy.shutdown(context=ctx)
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     d = read_bag(bag, decode=True)
     states = sorted((m for t, _, _, m in d['messages'] if t == '/sim/state'), key=lambda m: m.sequence)
     return states, answers, d
@@ -182,12 +182,12 @@ def test_rejected_requests_change_nothing(ros_domain, tmp_path):
 
 def test_fall_reported_consistently(ros_domain, tmp_path):
     js = tmp_path / 'demo.json'
-    r = subprocess.run([str(PY), '-m', 'biped_sim.demo', '--steps', '3', '--force', '1500', '--bag',
+    r = subprocess.run([str(PY), '-m', 'biped_sim.graph.demo', '--steps', '3', '--force', '1500', '--bag',
                         str(tmp_path / 'bag'), '--json', str(js)], capture_output=True, text=True, timeout=600,
                        cwd=ROOT)
     assert r.returncode == 0, r.stderr[-3000:]
     s = json.loads(js.read_text())
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     import yaml
     d = read_bag(tmp_path / 'bag', decode=True)
     fall = yaml.safe_load([m for t, _, _, m in d['messages'] if t == '/fall'][-1].data)
@@ -222,7 +222,7 @@ SOAK_MINUTES = 0.5   # 30 sim s: about 2 min wall on 2 cores (1 sim min ~ 4-5 mi
 
 def test_short_soak(ros_domain, tmp_path):
     js = tmp_path / 'soak.json'
-    r = subprocess.run([str(PY), '-m', 'biped_sim.soak', '--minutes', str(SOAK_MINUTES), '--every', '3',
+    r = subprocess.run([str(PY), '-m', 'biped_sim.graph.soak', '--minutes', str(SOAK_MINUTES), '--every', '3',
                         '--min-force', '50', '--max-forward', '100', '--max-backward', '150',
                         '--bag', str(tmp_path / 'bag'), '--json', str(js)],
                        capture_output=True, text=True, timeout=1800, cwd=ROOT)

@@ -21,10 +21,10 @@ import pytest
 
 from helpers import ROOT, assert_close
 
-from biped_sim.floating import FloatingModel, impact_paper
-from biped_sim.gait_family import (POLYNOMIAL, SPLINE, GaitFamily, GaitFamilyError, fit_family, fit_spline_family,
+from biped_sim.robot.floating import FloatingModel, impact_paper
+from biped_sim.robot.gait_family import (POLYNOMIAL, SPLINE, GaitFamily, GaitFamilyError, fit_family, fit_spline_family,
                                    spline_pieces)
-from biped_controller.model import N_CONSTRAINTS, CONSTRAINT_NAMES, FixedFootModel, relabel
+from biped_sim.robot.fixed_foot import N_CONSTRAINTS, CONSTRAINT_NAMES, FixedFootModel, relabel
 
 FAMILY_FILE = ROOT / "config" / "gait_family.json"
 DATA = json.loads(FAMILY_FILE.read_text(encoding="utf-8"))

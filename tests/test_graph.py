@@ -25,7 +25,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 def _descendants(pid: int) -> set[int]:
-    from biped_sim.soak import descendants
+    from biped_sim.graph.soak import descendants
     return set(descendants(pid))
 
 
@@ -56,7 +56,7 @@ def _kill_tree(proc: subprocess.Popen, pids: set[int]) -> None:
 def _launch(tmp: Path, env: dict, *extra: str) -> tuple[subprocess.Popen, Path, Path]:
     bag = tmp / 'bag'
     ready = tmp / 'ready'
-    cmd = [str(PY), '-m', 'biped_sim.launch', '--bag', str(bag), '--ready-file', str(ready), *extra]
+    cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--ready-file', str(ready), *extra]
     proc = subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     return proc, bag, ready
 
@@ -73,8 +73,8 @@ def _wait_ready(proc, ready: Path, timeout=90.0):
 def walk(tmp_path_factory):
     """Launch the graph (2 steps, simulator paused until one push), probe the graph, push, wait."""
     import rclpy
-    from biped_sim import graph_names as gn
-    from biped_sim.push_client import call_apply_push
+    from biped_sim.graph import names as gn
+    from biped_sim.graph.push_client import call_apply_push
 
     mp = pytest.MonkeyPatch()
     try:
@@ -138,12 +138,12 @@ def walk(tmp_path_factory):
 
 
 def _decoded(bag):
-    from biped_sim.bag_reader import read_bag
+    from biped_sim.recording.bag_reader import read_bag
     return read_bag(bag, decode=True)
 
 
 def test_a_graph_comes_up(walk):
-    from biped_sim import graph_names as gn
+    from biped_sim.graph import names as gn
     for name in ('simulator', 'controller', 'disturbance', 'recorder'):
         assert name in walk['nodes'], walk['nodes']
     for topic, (pubs, subs) in walk['topics'].items():
@@ -168,7 +168,7 @@ def test_b_push_applied_at_requested_time_and_nan_rejected(walk):
     reqs = [m.data for t, _, _, m in msgs if t == '/push_requests']
     assert len(reqs) == 2 and 'accepted: false' in reqs[0] and 'accepted: true' in reqs[1]
     # the effect: compare with the same walk without a push, in process
-    from biped_controller import runner
+    from biped_controller.studies import runner
     free = runner.run(steps=STEPS)
     states = [m for t, _, _, m in msgs if t == '/sim/state']
     k0 = int(math.floor(PUSH['start'] / 1e-3))   # last state before the onset (no impact before it)
@@ -178,8 +178,8 @@ def test_b_push_applied_at_requested_time_and_nan_rejected(walk):
 
 
 def test_c_dds_run_equals_in_process_run(walk):
-    from biped_controller import runner
-    from biped_sim.push import Push
+    from biped_controller.studies import runner
+    from biped_sim.plant.push import Push
     ref = runner.run(steps=STEPS, pushes=(Push(PUSH['start'], PUSH['duration'], PUSH['force']),))
     d = _decoded(walk['bag'])
     states = [m for t, _, _, m in d['messages'] if t == '/sim/state']
@@ -203,7 +203,7 @@ def test_c_dds_run_equals_in_process_run(walk):
 def test_d_bag_reads_and_decodes_counts_and_time_range(walk):
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
-    from biped_sim.bag_reader import find_mcap
+    from biped_sim.recording.bag_reader import find_mcap
     path = find_mcap(walk['bag'])
     per_channel = {}
     with open(path, 'rb') as fh:
@@ -280,7 +280,7 @@ def test_f_bag_passes_an_independent_physics_check(walk):
     rb = bp.momentum_residuals(bad, model)
     assert np.max(np.abs(rb[:, 2])) > 0.1
     # the soak's checks (bag_summary) agree: nothing outside the window, F x duration applied
-    from biped_sim.bag_summary import analyze_bag
+    from biped_sim.recording.bag_summary import analyze_bag
     a = analyze_bag(walk['bag'])
     assert a['problems'] == [] and a['applied_impulse_outside_windows'] == 0, a['problems']
     assert a['push_effects'][0]['applied_impulse'] == pytest.approx(p['total'], rel=1e-12)
@@ -311,7 +311,7 @@ def test_e_sigint_leaves_finished_bag_and_no_orphans(ros_domain, tmp_path):
         out, _ = proc.communicate(timeout=60)
         assert proc.returncode == 128 + signal.SIGINT, out[-3000:]
         assert _alive(pids) == [], out[-3000:]
-        from biped_sim.bag_reader import read_bag
+        from biped_sim.recording.bag_reader import read_bag
         d = read_bag(bag)
         assert d['has_summary'] and d['chunk_count'] >= 1
         assert d['counts']['/sim/state'] > 10

@@ -9,9 +9,9 @@ import pytest
 import helpers  # noqa: F401
 from helpers import assert_close, directional_diff
 
-from biped_controller.model import FixedFootModel, relabel
-from biped_sim.description import LEFT, RIGHT
-from biped_sim.floating import FloatingModel, impact_paper, paper_from_urdf, urdf_from_paper
+from biped_sim.robot.fixed_foot import FixedFootModel, relabel
+from biped_sim.robot.description import LEFT, RIGHT
+from biped_sim.robot.floating import FloatingModel, impact_paper, paper_from_urdf, urdf_from_paper
 
 STANCES = (LEFT, RIGHT)
 

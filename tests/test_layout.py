@@ -2,6 +2,9 @@
 
 - pure-core modules import no ROS (rclpy, message packages);
 - ``biped_sim`` never imports ``biped_controller`` (the simulator does not depend on the controller);
+- rooms by concern: each sub-package imports only the rooms below it (``ROOMS``): the robot layer
+  nothing but itself, the plant the robot, the controller core and the gait generation the robot
+  (never the plant or the ROS plumbing), the studies the plant too, the nodes whatever they serve;
 - no circular imports between the project's modules.
 
 The checker is exercised on a small synthetic package first (negative controls), so a checker that
@@ -19,9 +22,21 @@ PACKAGES = {"biped_sim": ROOT / "src" / "biped_sim" / "biped_sim",
             "biped_controller": ROOT / "src" / "biped_controller" / "biped_controller"}
 # The ROS layer: nodes and the tools that talk to a running graph. Everything else is pure core.
 ROS_LAYER = {
-    "biped_sim.simulator_node", "biped_sim.disturbance_node", "biped_sim.recorder_node", "biped_sim.bridge_node",
-    "biped_sim.graph_names", "biped_sim.node_params", "biped_sim.launch", "biped_sim.push_client",
-    "biped_sim.demo", "biped_sim.soak", "biped_sim.bag_summary", "biped_controller.controller_node",
+    "biped_sim.graph.simulator_node", "biped_sim.graph.disturbance_node", "biped_sim.recording.recorder_node", "biped_sim.live.bridge_node",
+    "biped_sim.graph.names", "biped_sim.graph.params", "biped_sim.graph.launch", "biped_sim.graph.push_client",
+    "biped_sim.graph.demo", "biped_sim.graph.soak", "biped_sim.recording.bag_summary", "biped_controller.graph.controller_node",
+}
+# room -> the rooms it may import (besides itself). A module's room is its sub-package.
+ROOMS = {
+    "biped_sim.robot": set(),
+    "biped_sim.plant": {"biped_sim.robot"},
+    "biped_sim.recording": {"biped_sim.robot", "biped_sim.graph"},
+    "biped_sim.graph": {"biped_sim.robot", "biped_sim.plant", "biped_sim.recording"},
+    "biped_sim.live": {"biped_sim.robot", "biped_sim.graph", "biped_sim.recording"},
+    "biped_controller.core": {"biped_sim.robot"},
+    "biped_controller.gaits": {"biped_sim.robot", "biped_controller.core"},
+    "biped_controller.studies": {"biped_sim.robot", "biped_sim.plant", "biped_controller.core", "biped_controller.gaits"},
+    "biped_controller.graph": {"biped_sim.robot", "biped_sim.graph", "biped_controller.core"},
 }
 ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",
              "builtin_interfaces", "tf2_msgs", "biped_msgs_py", "std_srvs", "ament_index_python"}
@@ -51,8 +66,11 @@ def module_imports(path: Path, module: str) -> set[str]:
 def collect(packages: dict[str, Path]) -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {}
     for name, d in packages.items():
-        for f in sorted(d.glob("*.py")):
-            mod = name if f.name == "__init__.py" else f"{name}.{f.stem}"
+        for f in sorted(d.rglob("*.py")):
+            parts = [name, *f.relative_to(d).with_suffix("").parts]
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            mod = ".".join(parts)
             graph[mod] = module_imports(f, mod)
     known = set(graph)
     return {m: {i for i in imps if i in known and i != m} | {i for i in imps if i not in known}
@@ -121,7 +139,7 @@ def test_checker_finds_planted_violations(bad_package):
 
 def test_project_modules_found():
     g = collect(PACKAGES)
-    for m in ("biped_sim.simulator", "biped_sim.gait_family", "biped_controller.controller", "biped_controller.qp"):
+    for m in ("biped_sim.plant.rigid", "biped_sim.robot.gait_family", "biped_controller.core.controller", "biped_controller.core.qp"):
         assert m in g, sorted(g)
     assert len(g) >= 30
 
@@ -139,3 +157,42 @@ def test_ros_layer_names_exist():
     g = collect(PACKAGES)
     missing = {m for m in ROS_LAYER if m not in g}
     assert not missing, missing
+
+
+def room_of(mod: str) -> str | None:
+    parts = mod.split(".")
+    return ".".join(parts[:2]) if len(parts) >= 3 else None
+
+
+def room_violations(graph: dict[str, set[str]], rooms: dict[str, set[str]]) -> list[str]:
+    """Imports from a module's room into a room it may not import (``rooms``); a project module outside
+    every room (directly in a package) is a violation too."""
+    out = []
+    for mod, imps in sorted(graph.items()):
+        if mod in ("biped_sim", "biped_controller"):
+            continue
+        room = mod if mod in rooms else room_of(mod)
+        if room not in rooms:
+            out.append(f"{mod} is in no room")
+            continue
+        for i in sorted(imps):
+            r = room_of(i)
+            if i.split(".")[0] in ("biped_sim", "biped_controller") and r is not None and r in rooms \
+                    and r != room and r not in rooms[room]:
+                out.append(f"{mod} ({room}) imports {i} ({r})")
+    return out
+
+
+def test_room_checker_finds_planted_violations():
+    g = {"biped_sim.robot.a": {"biped_sim.plant.b"}, "biped_sim.plant.b": {"biped_sim.robot.a"},
+         "biped_controller.core.c": {"biped_sim.plant.b", "biped_sim.graph.names"}, "biped_sim.loose": set()}
+    v = room_violations(g, ROOMS)
+    assert "biped_sim.robot.a (biped_sim.robot) imports biped_sim.plant.b (biped_sim.plant)" in v, v
+    assert "biped_controller.core.c (biped_controller.core) imports biped_sim.plant.b (biped_sim.plant)" in v, v
+    assert "biped_controller.core.c (biped_controller.core) imports biped_sim.graph.names (biped_sim.graph)" in v, v
+    assert "biped_sim.loose is in no room" in v, v
+    assert not any(s.startswith("biped_sim.plant.b") for s in v), v
+
+
+def test_rooms_import_only_the_rooms_below_them():
+    assert room_violations(collect(PACKAGES), ROOMS) == []

@@ -16,12 +16,13 @@ import numpy as np
 import pytest
 import yaml
 
-from biped_sim.description import LEFT, load_description
-from biped_sim.floating import paper_from_urdf, urdf_from_paper
-from biped_sim.gait_family import GaitFamily
-from biped_sim.perturbation import (ZERO, PerturbationError, PlantPerturbation, SensorModel, plant_parameters,
+from biped_sim.robot.description import LEFT, load_description
+from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
+from biped_sim.robot.gait_family import GaitFamily
+from biped_sim.plant.perturbation import (ZERO, PerturbationError, PlantPerturbation, SensorModel, plant_parameters,
                                     plant_yaml)
-from biped_sim.simulator import Simulator, load_sim_config
+from biped_sim.plant.config import load_sim_config
+from biped_sim.plant.rigid import Simulator
 
 from helpers import assert_close, assert_same_run
 
@@ -35,7 +36,7 @@ def family():
 
 
 def _run(perturbation=None, max_time=SHORT, steps=1, **kw):
-    from biped_controller import runner
+    from biped_controller.studies import runner
     return runner.run(steps=steps, max_time=max_time, perturbation=perturbation, **kw)
 
 
@@ -174,7 +175,7 @@ def test_perturbed_mass_changes_the_dynamics():
 def test_controller_keeps_the_nominal_model(monkeypatch):
     """runner.run gives the perturbation to the simulator only: the controller's description and both of
     its models (Pinocchio and compiled) have the nominal masses, the simulator's have the plant's."""
-    from biped_controller import runner
+    from biped_controller.studies import runner
     made = {}
 
     class SpySim(runner.Simulator):
@@ -253,7 +254,7 @@ def test_delay_controller_sees_the_state_of_d_periods_ago(family, d, touchdown_d
     torque is applied to the legs the controller meant (mapped with the stance it was told), and the true
     record carries that torque in the true stance's paper order. With ``touchdown_delayed`` False the
     source is max(k - d, the first record of the current stance): the touchdown is told at once."""
-    from biped_controller.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.controller import AdaptiveController, load_controller_config
     cfg = load_sim_config()
     sim = Simulator(DESC, cfg, perturbation=PlantPerturbation(delay=d, touchdown_delayed=touchdown_delayed))
     ctrl = AdaptiveController(load_controller_config(mode="both", period=cfg.control_period), family, DESC)
@@ -323,8 +324,8 @@ def test_plant_parameters_yaml_round_trip():
 def test_experiment_settings_carry_the_perturbation():
     """The experiments' RunSettings pass it to the simulator and into the capability map's fingerprint;
     the nominal settings' description (and so every existing store) is unchanged."""
-    from biped_controller import capability_map as cmap
-    from biped_controller.experiment import RunSettings
+    from biped_controller.studies import capability_map as cmap
+    from biped_controller.studies.experiment import RunSettings
     p = PlantPerturbation(delay=1)
     assert "perturbation" not in RunSettings().describe()
     assert "perturbation" not in RunSettings(perturbation=ZERO).describe()
@@ -373,7 +374,7 @@ def test_node_publishes_the_plant_latched(rclpy_context):
     import time
     from rclpy.node import Node
     from std_msgs.msg import String
-    from biped_sim import graph_names as gn
+    from biped_sim.graph import names as gn
     cmd, root = _node_cmd("perturbation.torso_mass_scale:=1.2", "perturbation.delay:=2", "perturbation.mu:=0.5",
                           "perturbation.noise_q:=0.001", "perturbation.seed:=4", "perturbation.touchdown_delayed:=false",
                           "start_timeout:=60.0")
@@ -419,8 +420,8 @@ def _synthetic_task(batch, settings, height):
 def test_stored_max_push_replays_the_capability_map_search(tmp_path):
     """The table's report from a store alone equals the capability map's own search on the same records;
     an unfinished search, or records of another perturbation (another fingerprint), give nothing."""
-    from biped_controller import capability_map as cmap
-    from biped_controller import robustness as rb
+    from biped_controller.studies import capability_map as cmap
+    from biped_controller.studies import robustness as rb
     spec = rb.push_spec(PlantPerturbation(torso_mass_scale=0.9), "both", True)
     store = cmap.RecordStore(tmp_path / "push.jsonl")
     run = cmap.run_map(spec, cmap.SerialExecutor(_synthetic_task), store)
@@ -449,10 +450,10 @@ def test_recorded_perturbed_run_carries_the_true_plant_in_the_bag_metadata(ros_d
     import sys
     import yaml
     from mcap.reader import make_reader
-    from biped_sim.recorder_node import PLANT_METADATA
-    from biped_sim.settings import repo_root
+    from biped_sim.recording.recorder_node import PLANT_METADATA
+    from biped_sim.robot.settings import repo_root
     bag = tmp_path / "bag"
-    r = subprocess.run([sys.executable, "-m", "biped_sim.launch", "--bag", str(bag), "--steps", "1",
+    r = subprocess.run([sys.executable, "-m", "biped_sim.graph.launch", "--bag", str(bag), "--steps", "1",
                         "--sim-param", "perturbation.torso_mass_scale:=1.1"],
                        capture_output=True, text=True, timeout=300, cwd=repo_root())
     assert r.returncode == 0, r.stderr[-3000:]

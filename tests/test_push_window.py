@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import helpers  # noqa: F401
-from biped_controller import runner
-from biped_sim.push import Push
-from biped_sim.simulator import Simulator
+from biped_controller.studies import runner
+from biped_sim.plant.push import Push
+from biped_sim.plant.rigid import Simulator
 
 
 def _overlap(a0: float, a1: float, b0: float, b1: float) -> float:
@@ -101,7 +101,7 @@ def test_compiled_period_gets_intervals_split_at_the_switches(monkeypatch):
     """The intervals and per-interval pushes handed to planar_kernels.period: none straddles the window,
     the force is on exactly inside it."""
     import math
-    from biped_sim import planar_kernels as pk
+    from biped_sim.robot import planar_kernels as pk
     start, duration = 0.2003217, 0.0251
     end = start + duration
     seen = []

@@ -17,8 +17,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog, minimize
 
-from biped_controller import qp, qp_exact, qp_types
-from biped_controller.qp import (
+from biped_controller.core import qp
+from biped_controller.core import qp_exact
+from biped_controller.core import qp_types
+from biped_controller.core.qp import (
     ACTIVE,
     INFEASIBLE_FALLBACK,
     SOLVER_ERROR,
@@ -29,7 +31,7 @@ from biped_controller.qp import (
     kkt_residuals,
     solve_with_qpsolvers,
 )
-from biped_controller.qp_exact import least_violation_exact, min_piecewise_quadratic_1d, solve_exact
+from biped_controller.core.qp_exact import least_violation_exact, min_piecewise_quadratic_1d, solve_exact
 
 M = 17
 KKT_TOL = 1e-6
@@ -644,16 +646,16 @@ def _imported_modules(path: Path) -> set:
 def test_qp_modules_import_in_one_direction(tmp_path):
     """qp_types <- qp_exact, qp_fast <- qp: no module imports one that imports it back."""
     pkg = Path(qp.__file__).parent
-    deps = {name: {m for m in _imported_modules(pkg / f"{name}.py") if m.startswith("biped_controller.qp")}
+    deps = {name: {m for m in _imported_modules(pkg / f"{name}.py") if m.startswith("biped_controller.core.qp")}
             for name in ("qp_types", "qp_exact", "qp_fast", "qp")}
     assert deps["qp_types"] == set()
-    assert deps["qp_exact"] == {"biped_controller.qp_types"}
-    assert deps["qp_fast"] == {"biped_controller.qp_types"}
-    assert deps["qp"] == {"biped_controller.qp_types", "biped_controller.qp_fast"}
+    assert deps["qp_exact"] == {"biped_controller.core.qp_types"}
+    assert deps["qp_fast"] == {"biped_controller.core.qp_types"}
+    assert deps["qp"] == {"biped_controller.core.qp_types", "biped_controller.core.qp_fast"}
     # negative control: the checker sees the import at the bottom of the former qp.py
     probe = tmp_path / "probe.py"
     probe.write_text("import numpy as np\n\n\ndef f():\n    pass\n\n\nfrom . import qp_exact as _exact  # noqa\n")
-    assert _imported_modules(probe) == {"numpy", "biped_controller.qp_exact"}
+    assert _imported_modules(probe) == {"numpy", "biped_controller.core.qp_exact"}
 
 
 def test_fast_result_constructor_equals_the_dataclass():

@@ -15,11 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biped_controller import qp_exact, qp_fast, qp_types
-from biped_controller.controller import QP_ROWS
-from biped_controller.model import N_CONSTRAINTS
-from biped_controller.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
-from biped_controller.qp_types import constraint_values, kkt_residuals
+from biped_controller.core import qp_exact
+from biped_controller.core import qp_fast
+from biped_controller.core import qp_types
+from biped_controller.core.controller import QP_ROWS
+from biped_sim.robot.fixed_foot import N_CONSTRAINTS
+from biped_controller.core.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
+from biped_controller.core.qp_types import constraint_values, kkt_residuals
 
 from test_qp import rand_feasible, rand_infeasible, rand_W, scale
 
@@ -76,7 +78,7 @@ def real_instances(tmp_path_factory):
     25 ms (cached in the session's tmp directory)."""
     path = tmp_path_factory.getbasetemp() / "qp_real_instances.npz"
     if not path.exists():
-        from biped_controller.runner import PushSpec, run
+        from biped_controller.studies.runner import PushSpec, run
 
         arrays = {}
         for mode, force in RUNS:
@@ -456,7 +458,7 @@ def test_adaptation_qp_solvers_on_real_instances(real_instances):
 
 
 def _import_qp_fast(env):
-    code = "import numba, biped_controller.qp_fast; print(numba.config.CACHE_DIR)"
+    code = "import numba, biped_controller.core.qp_fast; print(numba.config.CACHE_DIR)"
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
 
 

@@ -23,9 +23,9 @@ import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from biped_sim import mcap_recorder
-from biped_sim.bag_reader import read_bag, read_truncated
-from biped_sim.mcap_recorder import (
+from biped_sim.recording import mcap_recorder
+from biped_sim.recording.bag_reader import read_bag, read_truncated
+from biped_sim.recording.mcap_recorder import (
     QosProfile,
     RecorderError,
     Rosbag2McapWriter,
@@ -336,7 +336,7 @@ def test_truncated_read_after_sigkill(tmp_path, prefix):
     script = textwrap.dedent(f"""
         import os, signal, struct, sys
         sys.path.insert(0, {str(SRC)!r})
-        from biped_sim.mcap_recorder import Rosbag2McapWriter
+        from biped_sim.recording.mcap_recorder import Rosbag2McapWriter
         w = Rosbag2McapWriter({str(tmp_path / 'killed')!r}, prefixes=[{str(VENV)!r}],
                               compression='zstd', chunk_size=4096)
         for i in range(2000):
@@ -473,11 +473,11 @@ def _ros_env(tmp_path: Path) -> dict:
 def _need_rclpy():
     """setup guarantees rclpy: a missing one is a broken setup and fails the test (no skip)."""
     import rclpy  # noqa: F401
-    from biped_sim import graph_names  # noqa: F401
+    from biped_sim.graph import names as graph_names  # noqa: F401
 
 
 def _run_recorder(tmp_path, params: list[str]) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "biped_sim.recorder_node", "--ros-args"]
+    cmd = [sys.executable, "-m", "biped_sim.recording.recorder_node", "--ros-args"]
     for p in params:
         cmd += ["-p", p]
     return subprocess.Popen(cmd, env=_ros_env(tmp_path), stdout=subprocess.PIPE,
@@ -505,7 +505,7 @@ def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import String
-    from biped_sim import graph_names
+    from biped_sim.graph import names as graph_names
 
     env = _ros_env(tmp_path)
     proc = _run_recorder(tmp_path, [f"output_dir:={tmp_path / 'rec'}", "chunk_size:=4096"])

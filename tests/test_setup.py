@@ -50,7 +50,7 @@ def test_message_definitions_installed_for_mcap_schemas():
 
 
 def test_graph_names_types_resolve():
-    from biped_sim import graph_names as g
+    from biped_sim.graph import names as g
     for spec in g.TOPICS.values():
         cls = spec.msg_class()
         assert cls.__name__ == spec.type.rsplit('/', 1)[1]

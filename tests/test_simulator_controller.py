@@ -19,15 +19,16 @@ from scipy.optimize import linprog
 
 from helpers import assert_close, assert_same_run
 
-from biped_sim.description import LEFT, RIGHT, load_description
-from biped_sim.push import Rejected
-from biped_sim.simulator import Simulator, load_sim_config
-from biped_controller import runner
-from biped_controller.controller import load_controller_config
-from biped_sim.gait_family import GaitFamily
-from biped_controller.model import relabel
-from biped_controller.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals
-from biped_sim.push import Push
+from biped_sim.robot.description import LEFT, RIGHT, load_description
+from biped_sim.plant.push import Rejected
+from biped_sim.plant.config import load_sim_config
+from biped_sim.plant.rigid import Simulator
+from biped_controller.studies import runner
+from biped_controller.core.controller import load_controller_config
+from biped_sim.robot.gait_family import GaitFamily
+from biped_sim.robot.fixed_foot import relabel
+from biped_controller.core.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals
+from biped_sim.plant.push import Push
 
 FAM = GaitFamily.load()
 PUSH_START = 0.5 * FAM.T        # the middle of the first step (paper)
@@ -231,8 +232,8 @@ def test_relabel_at_impact(ideal_run):
 def test_no_liftoff_fall_ends_the_period_at_its_instant():
     """A released foot driven into the ground before it clears: the no_liftoff fall is dated at the end
     of the integration interval where it sank too deep, and the period (and the state) stop there."""
-    from biped_sim.gait_family import GaitFamily
-    from biped_sim.simulator import Simulator
+    from biped_sim.robot.gait_family import GaitFamily
+    from biped_sim.plant.rigid import Simulator
     q, qd = GaitFamily.load().initial_state()
     sim = Simulator()
     qd2 = qd.copy()

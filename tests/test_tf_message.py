@@ -3,8 +3,8 @@ at every state (stamps, torso translation, every rotation), seeded random states
 import numpy as np
 
 import helpers  # noqa: F401
-from biped_sim.description import load_description, make_urdf
-from biped_sim.simulator_node import TransformBuilder, stamp_of
+from biped_sim.robot.description import load_description, make_urdf
+from biped_sim.graph.simulator_node import TransformBuilder, stamp_of
 
 
 def test_in_place_tf_equals_fresh_message():

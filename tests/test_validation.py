@@ -10,7 +10,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from biped_sim.push import Push, PushBook, PushLimits, Rejected, validate_push
+from biped_sim.plant.push import Push, PushBook, PushLimits, Rejected, validate_push
 
 
 def validate_push_request(force, duration, start, height, now, limits, scheduled=(), **kw):
@@ -167,7 +167,7 @@ def _set(tree, key, value):
 
 @pytest.fixture(scope='module')
 def biped_tree():
-    from biped_sim.settings import default_config_dir
+    from biped_sim.robot.settings import default_config_dir
     return yaml.safe_load((default_config_dir() / 'biped.yaml').read_text())
 
 
@@ -177,7 +177,7 @@ BAD_VALUES = st.sampled_from([math.nan, math.inf, -math.inf, 'abc', None, [1.0]]
 @SETTINGS
 @given(data=st.data())
 def test_biped_description_rejects_bad_value_naming_key(biped_tree, data):
-    from biped_sim.description import DescriptionError, parse_description
+    from biped_sim.robot.description import DescriptionError, parse_description
     key = data.draw(st.sampled_from(sorted(_leaf_keys(biped_tree))))
     tree = copy.deepcopy(biped_tree)
     _set(tree, key, data.draw(BAD_VALUES))
@@ -189,7 +189,7 @@ def test_biped_description_rejects_bad_value_naming_key(biped_tree, data):
 @SETTINGS
 @given(data=st.data())
 def test_biped_description_accepts_scaled_valid_masses(biped_tree, data):
-    from biped_sim.description import parse_description
+    from biped_sim.robot.description import parse_description
     tree = copy.deepcopy(biped_tree)
     for seg in ('torso', 'thigh', 'shin'):
         _set(tree, f'{seg}.mass', data.draw(st.floats(0.5, 100.0)))
@@ -203,12 +203,12 @@ SIM_KEYS = ['control_period', 'substeps', 'touchdown_tolerance', 'clearance_befo
 @SETTINGS
 @given(key=st.sampled_from(SIM_KEYS), bad=st.sampled_from([math.nan, math.inf, -1.0, 0.0]))
 def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
-    from biped_sim.simulator import SimConfigError, load_sim_config
+    from biped_sim.plant.config import SimConfigError, load_sim_config
     if key == 'push_height' and bad in (-1.0, 0.0):
         return   # any finite height is a valid default here (the nodes bound it by the torso)
     if key == 'substeps' and not math.isfinite(bad):
         return   # known bug, see test_simulator_config_non_finite_substeps_known_bug
-    from biped_sim.settings import default_config_dir
+    from biped_sim.robot.settings import default_config_dir
     tree = yaml.safe_load((default_config_dir() / 'simulator.yaml').read_text())
     if isinstance(tree[key], dict):
         tree[key]['value'] = bad
@@ -224,8 +224,8 @@ def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
 @pytest.mark.parametrize('bad', ['.nan', '.inf'])
 def test_simulator_config_non_finite_substeps(tmp_path, bad):
     """NaN/inf substeps are rejected naming the key (load_sim_config validates before int())."""
-    from biped_sim.simulator import load_sim_config
-    from biped_sim.settings import default_config_dir
+    from biped_sim.plant.config import load_sim_config
+    from biped_sim.robot.settings import default_config_dir
     text = (default_config_dir() / 'simulator.yaml').read_text()
     tree = yaml.safe_load(text)
     tree['substeps'] = float(bad.replace('.', ''))
@@ -239,7 +239,7 @@ def test_simulator_config_non_finite_substeps(tmp_path, bad):
 @SETTINGS
 @given(period=st.floats(1e-5, 0.05), sub=st.integers(1, 1000))
 def test_simulator_config_accepts_valid(period, sub):
-    from biped_sim.simulator import load_sim_config
+    from biped_sim.plant.config import load_sim_config
     cfg = load_sim_config(control_period=period, substeps=sub)
     assert (cfg.control_period, cfg.substeps) == (period, sub)
 
@@ -250,7 +250,7 @@ CTRL_NUMERIC = ['Kp', 'Kv', 'kp', 'kv', 'weight_p', 'weight_tau', 'tau_dot_min']
 @SETTINGS
 @given(key=st.sampled_from(CTRL_NUMERIC), bad=st.sampled_from([math.nan, math.inf, -1.0]))
 def test_controller_config_rejects_naming_key(key, bad):
-    from biped_controller.controller import ControllerConfigError, load_controller_config
+    from biped_controller.core.controller import ControllerConfigError, load_controller_config
     with pytest.raises(ControllerConfigError) as ei:
         load_controller_config(**{key: bad})
     assert key in str(ei.value)
@@ -259,7 +259,7 @@ def test_controller_config_rejects_naming_key(key, bad):
 @SETTINGS
 @given(mode=st.text(max_size=8).filter(lambda m: m not in ('none', 'tau', 'p', 'both')))
 def test_controller_config_rejects_unknown_mode(mode):
-    from biped_controller.controller import ControllerConfigError, load_controller_config
+    from biped_controller.core.controller import ControllerConfigError, load_controller_config
     with pytest.raises(ControllerConfigError) as ei:
         load_controller_config(mode=mode)
     assert 'mode' in str(ei.value)
@@ -268,16 +268,16 @@ def test_controller_config_rejects_unknown_mode(mode):
 @SETTINGS
 @given(mode=st.sampled_from(['none', 'tau', 'p', 'both']), kp=st.floats(1.0, 1000.0))
 def test_controller_config_accepts_valid(mode, kp):
-    from biped_controller.controller import load_controller_config
+    from biped_controller.core.controller import load_controller_config
     load_controller_config(mode=mode, Kp=kp)
 
 
 def test_graph_params_file_repeats_no_setting():
     """config/graph.yaml holds only the nodes' own keys: every simulator/controller setting has one
     home (config/simulator.yaml, config/controller.yaml), which the nodes use as their defaults."""
-    from biped_sim.settings import default_config_dir
-    from biped_sim.simulator import SimConfig
-    from biped_controller.controller import ControllerConfig
+    from biped_sim.robot.settings import default_config_dir
+    from biped_sim.plant.config import SimConfig
+    from biped_controller.core.controller import ControllerConfig
     g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
     for n in ('simulator', 'controller', 'disturbance', 'recorder'):
         assert 'ros__parameters' in g[n], n
@@ -289,9 +289,10 @@ def test_graph_params_file_repeats_no_setting():
 
 def test_bare_objects_read_the_config_files():
     """A bare Simulator() / AdaptiveController() use exactly the numbers of config/*.yaml."""
-    from biped_sim.settings import default_config_dir, read_settings
-    from biped_sim.simulator import SimConfig, Simulator
-    from biped_controller.controller import AdaptiveController, ControllerConfig
+    from biped_sim.robot.settings import default_config_dir, read_settings
+    from biped_sim.plant.config import SimConfig
+    from biped_sim.plant.rigid import Simulator
+    from biped_controller.core.controller import AdaptiveController, ControllerConfig
     sim_yaml = read_settings(default_config_dir() / 'simulator.yaml', SimConfig.__dataclass_fields__)
     assert {k: getattr(Simulator().cfg, k) for k in sim_yaml} == sim_yaml
     keys = [k for k in ControllerConfig.__dataclass_fields__ if k not in ('period', 'engine')]
@@ -304,10 +305,10 @@ def test_bare_objects_read_the_config_files():
 
 def test_family_description_check():
     import dataclasses
-    from biped_sim.gait_family import GaitFamily
-    from biped_sim.description import load_description
-    from biped_sim.node_checks import RobotFilesError, check_family_matches_description, check_urdf_joints
-    from biped_sim.description import make_urdf
+    from biped_sim.robot.gait_family import GaitFamily
+    from biped_sim.robot.description import load_description
+    from biped_sim.graph.checks import RobotFilesError, check_family_matches_description, check_urdf_joints
+    from biped_sim.robot.description import make_urdf
     desc, fam = load_description(), GaitFamily.load()
     check_family_matches_description(desc, fam)
     other = dataclasses.replace(desc, shin=dataclasses.replace(desc.shin, length=0.45))

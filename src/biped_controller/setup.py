@@ -18,7 +18,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'controller = biped_controller.controller_node:main',
+            'controller = biped_controller.graph.controller_node:main',
         ],
     },
 )

@@ -18,10 +18,10 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'simulator = biped_sim.simulator_node:main',
-            'disturbance = biped_sim.disturbance_node:main',
-            'recorder = biped_sim.recorder_node:main',
-            'bridge = biped_sim.bridge_node:main',
+            'simulator = biped_sim.graph.simulator_node:main',
+            'disturbance = biped_sim.graph.disturbance_node:main',
+            'recorder = biped_sim.recording.recorder_node:main',
+            'bridge = biped_sim.live.bridge_node:main',
         ],
     },
 )

@@ -1,0 +1,1 @@
+"""Offline gait generation: the optimal step and the family q_d(p, tau) fitted over p."""

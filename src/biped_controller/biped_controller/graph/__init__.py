@@ -1,0 +1,1 @@
+"""The controller's ROS 2 node."""

@@ -1,0 +1,445 @@
+"""Robustness table (issue 14): undisturbed walking and the largest survivable push per adaptation mode,
+observer on and off, for each perturbation of the plant (``biped_sim.plant.perturbation``).
+
+Run through ``scripts/robustness [options]`` (``--help``), e.g. the priority part on two processes::
+
+    scripts/robustness --workers 2 --modes both none --observer on
+
+Pure Python (no ROS). The controller always keeps the nominal description; each *level* is a
+``PlantPerturbation`` given to the simulator only (``experiment.RunSettings.perturbation`` ->
+``runner.run`` -> ``Simulator``).
+
+Per level:
+
+* walk: ``runner.run(WALK_STEPS, mode)`` from the family's initial state without a push; it *survives*
+  when ``WALK_STEPS`` impacts happen without a fall (the record gives the fall cause and time, the
+  largest tracking error and |l|, and the observer's largest force estimate, which under model error
+  is a fictitious force explaining the model's residual);
+* max push: the capability map's search (``capability_map.run_map`` on one cell: phase 0.5 of the
+  first step = ``experiment.DEFAULT_START``, forward, 0.025 s; coarse scan then bisection, survival =
+  ``experiment.survival``) with a coarse, per-mode search (:data:`SEARCHES`): the boundary is known to
+  within the resolution only, and islands above the lowest failing edge are listed.
+
+Records: the walk records in ``<store>/walks.jsonl`` and the push simulations in ``<store>/push.jsonl``
+(JSON Lines, resumable: a rerun skips every walk and simulation already stored; push records are keyed
+by the capability map's fingerprint, which contains the perturbation through the run settings).
+Noise is one realisation (seed 0): a boundary under noise is that realisation's.
+"""
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import json
+import math
+import multiprocessing as mp
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
+
+from biped_controller.studies import capability_map as cmap
+from biped_controller.studies import experiment
+from biped_controller.studies import runner
+from biped_controller.core.controller import MODES
+from biped_controller.studies.experiment import RunSettings
+
+WALK_STEPS = 20
+PUSH_CELL = dict(direction="forward", phase=0.5, duration=0.025)
+#: per-mode force search (coarse step, largest force, bisection resolution) [N]: coarse on purpose (2 shared
+#: cores); the nominal boundaries are 44 (none), 362 (tau), 269 (p), 534 (both) N at 5 N resolution
+SEARCHES: dict[str, cmap.Search] = {
+    "none": cmap.Search(coarse=20.0, fmax=200.0, resolution=10.0),
+    "tau": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
+    "p": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
+    "both": cmap.Search(coarse=40.0, fmax=960.0, resolution=20.0),
+}
+ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
+
+
+@dataclass(frozen=True)
+class Level:
+    """One row of the table: a name, the group it belongs to, and the perturbation."""
+
+    name: str
+    group: str
+    perturbation: PlantPerturbation
+
+
+def _inertias(scale: float) -> PlantPerturbation:
+    return PlantPerturbation(**{f"{k}_inertia_scale": scale for k in ALL_INERTIAS})
+
+
+#: the table's rows, in order
+LEVELS: tuple[Level, ...] = (
+    Level("nominal", "nominal", PlantPerturbation()),
+    Level("torso mass -20 %", "model", PlantPerturbation(torso_mass_scale=0.8)),
+    Level("torso mass -10 %", "model", PlantPerturbation(torso_mass_scale=0.9)),
+    Level("torso mass +10 %", "model", PlantPerturbation(torso_mass_scale=1.1)),
+    Level("torso mass +20 %", "model", PlantPerturbation(torso_mass_scale=1.2)),
+    Level("torso CoM -2 cm", "model", PlantPerturbation(torso_com_shift=-0.02)),
+    Level("torso CoM +2 cm", "model", PlantPerturbation(torso_com_shift=0.02)),
+    Level("inertias -30 %", "model", _inertias(0.7)),
+    Level("inertias +30 %", "model", _inertias(1.3)),
+    Level("noise 1e-4 rad, 1e-2 rad/s", "sensing", PlantPerturbation(noise_q=1e-4, noise_qd=1e-2)),
+    Level("noise 5e-4 rad, 5e-2 rad/s", "sensing", PlantPerturbation(noise_q=5e-4, noise_qd=5e-2)),
+    Level("noise 1e-3 rad, 1e-1 rad/s", "sensing", PlantPerturbation(noise_q=1e-3, noise_qd=1e-1)),
+    Level("delay 1 period", "sensing", PlantPerturbation(delay=1)),
+    Level("delay 2 periods", "sensing", PlantPerturbation(delay=2)),
+    Level("delay 1 period, touchdown at once", "sensing", PlantPerturbation(delay=1, touchdown_delayed=False)),
+    Level("delay 2 periods, touchdown at once", "sensing", PlantPerturbation(delay=2, touchdown_delayed=False)),
+    Level("mu 0.5", "friction", PlantPerturbation(mu=0.5)),
+    Level("mu 0.4", "friction", PlantPerturbation(mu=0.4)),
+)
+LEVELS_BY_NAME = {lv.name: lv for lv in LEVELS}
+
+
+class RobustnessError(ValueError):
+    """A bad level name, mode or option (the message names it)."""
+
+
+def combos(modes, observers) -> list[tuple[str, bool]]:
+    """(mode, observer) pairs to run: every adaptive mode with each observer setting, then ``none`` once
+    with the observer off (no QP: its torque never uses the estimate, so the observer changes nothing)."""
+    return [(m, obs) for obs in observers for m in modes if m != "none"] + ([("none", False)] if "none" in modes else [])
+
+
+def settings_for(perturbation: PlantPerturbation, observer: bool) -> RunSettings:
+    """Run settings: the config files, the observer switch, the plant's perturbation."""
+    return RunSettings(controller=(("disturbance_observer", bool(observer)),), perturbation=perturbation)
+
+
+# ------------------------------------------------------------------------------------------ walk
+def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, steps: int = WALK_STEPS) -> dict:
+    """One undisturbed walk of ``steps`` impacts (the pure task of a worker); JSON-ready record."""
+    ctx = experiment.context()
+    st = settings_for(perturbation, observer)
+    t0 = time.perf_counter()
+    res = runner.run(steps=steps, mode=mode, sim_config=st.sim_config(), ctrl_config=st.ctrl_config(mode),
+                     family=ctx.family, desc=ctx.desc, perturbation=perturbation)
+    err = [s.max_tracking_error for s in res.statuses]
+    cop = [abs(r.cop) for r in res.records if math.isfinite(r.cop) and not r.fallen]
+    est = [abs(s.force_estimate) for s in res.statuses]
+    return {
+        "kind": "walk", "perturbation": perturbation.as_dict(), "mode": mode, "observer": bool(observer),
+        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer), "survived": (not res.fallen) and res.steps_walked >= steps,
+        "steps_walked": int(res.steps_walked), "fall_cause": res.fall_cause or None,
+        "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+        "fall_detail": res.fall_detail or None,
+        "max_tracking_error": float(max(err)) if err else None,
+        "max_abs_l": float(max(cop)) if cop else None,
+        "max_force_estimate": float(max(est)) if est else None,
+        "final_p": float(res.statuses[-1].p), "final_tau_dot": float(res.statuses[-1].tau_dot),
+        "wall_time": time.perf_counter() - t0,
+    }
+
+
+def _walk_task(args: tuple) -> dict:
+    return walk_record(*args)
+
+
+def walk_fingerprint(perturbation: PlantPerturbation, observer: bool) -> str:
+    """The capability map's fingerprint of the walk's settings (controller and simulator settings with the
+    perturbation, robot description, gait family file): a walk record is reused only while it matches."""
+    return cmap.fingerprint(cmap.MapSpec(settings=settings_for(perturbation, observer)))
+
+
+def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool, steps: int,
+              fingerprint: str | None) -> str:
+    # normalised through the dataclass: a record stored before a field was added keys as its default
+    p = (perturbation if isinstance(perturbation, PlantPerturbation) else PlantPerturbation.from_dict(perturbation)).as_dict()
+    return json.dumps([p, mode, bool(observer), int(steps), fingerprint], sort_keys=True)
+
+
+def _record_key(r: dict) -> str:
+    return _walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"], r.get("fingerprint"))
+
+
+def _worker_init() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    experiment.context()
+
+
+def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, log=print,
+              simulate: bool = True) -> dict[str, dict]:
+    """Every (level, mode, observer) walk not yet in ``store``, on ``workers`` processes; returns the
+    records by key. Mode ``none`` ignores the observer (no QP: the estimate is never used), so it runs once,
+    with the observer as configured off. ``simulate`` False: only the stored records."""
+    done = {_record_key(r): r for r in store.load() if r.get("kind") == "walk"}
+    if not simulate:
+        return done
+    tasks = []
+    for lv in levels:
+        for m in modes:
+            for obs in ((False,) if m == "none" else observers):
+                k = _walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs))
+                if k not in done:
+                    tasks.append((lv.perturbation, m, obs, WALK_STEPS))
+    log(f"walks: {len(tasks)} to run, {len(done)} stored")
+    if tasks:
+        if workers > 1:
+            with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_init) as ex:
+                for r in ex.map(_walk_task, tasks):
+                    store.append([r])
+                    done[_record_key(r)] = r
+                    log(f"  walk {PlantPerturbation.from_dict(r['perturbation']).label()} {r['mode']} "
+                        f"observer {'on' if r['observer'] else 'off'}: {'survived' if r['survived'] else 'FELL'} "
+                        f"{r['steps_walked']} steps {r['fall_cause'] or ''} ({r['wall_time']:.0f} s)")
+        else:
+            for t in tasks:
+                r = walk_record(*t)
+                store.append([r])
+                done[_record_key(r)] = r
+                log(f"  walk {PlantPerturbation.from_dict(r['perturbation']).label()} {r['mode']}: "
+                    f"{'survived' if r['survived'] else 'FELL'} {r['steps_walked']} steps {r['fall_cause'] or ''}")
+    return done
+
+
+# ------------------------------------------------------------------------------------------ max push
+def push_spec(perturbation: PlantPerturbation, mode: str, observer: bool) -> cmap.MapSpec:
+    """The capability map of one mode on the max-push cell, with the level's perturbation."""
+    return cmap.MapSpec(modes=(mode,), directions=(PUSH_CELL["direction"],), phases=(PUSH_CELL["phase"],),
+                        durations=(PUSH_CELL["duration"],), search=SEARCHES[mode],
+                        settings=settings_for(perturbation, observer))
+
+
+def no_fall_edge(records: dict[float, dict]) -> tuple[float, float | None]:
+    """(largest simulated force below the lowest one that fell, that lowest falling force or None) over the
+    records of one cell (force -> record): the boundary when only a fall counts as a failure, at the
+    resolution of the simulated forces (the coarse step away from the bisected edge). Under sensor noise
+    p and tau' never settle within experiment's tolerances, so the strict boundary is 0 N there."""
+    lo, hi = 0.0, None
+    for f in sorted(records):
+        if records[f].get("fall_time") is not None:
+            hi = f
+            break
+        lo = f
+    return lo, hi
+
+
+def max_push_record(run: cmap.MapRun) -> dict:
+    """The boundary of the one cell of ``run`` (JSON-ready): force, first failure, cause, islands."""
+    (cell,) = run.spec.cells()
+    b = cmap.cell_summary(run, cell)
+    nf_lo, nf_hi = no_fall_edge(run.records[cell])
+    return {"max_force": b["force"], "max_force_no_fall": nf_lo, "first_fall": nf_hi, "first_failure": b["first_failure"], "censored": b["censored"],
+            "cause": b["cause"], "reason": b["reason"], "islands": b["islands"], "simulations": b["simulations"],
+            "resolution": run.spec.search.resolution, "coarse": run.spec.search.coarse, "scan_max": run.spec.search.fmax}
+
+
+def stored_max_push(spec: cmap.MapSpec, records: list[dict]) -> dict | None:
+    """The max-push record of ``spec``'s one cell from stored simulation records alone (the search of
+    ``capability_map.plan_cell`` replayed), or None when the store does not finish the search."""
+    (cell,) = spec.cells()
+    fp = cmap.fingerprint(spec)
+    key = (cell.mode, cell.direction, cell.phase, cell.duration)
+    recs = {float(r["force"]): r for r in records
+            if r.get("fingerprint") == fp and cmap.record_key(r)[:4] == key}
+    forces, b = cmap.plan_cell(spec.search, {f: bool(r["survived"]) for f, r in recs.items()})
+    if b is None:
+        return None
+    first = recs.get(b.hi) if b.hi is not None else None
+    nf_lo, nf_hi = no_fall_edge(recs)
+    return {"max_force": b.lo, "max_force_no_fall": nf_lo, "first_fall": nf_hi, "first_failure": b.hi, "censored": b.hi is None,
+            "cause": first["cause"] if first else None, "reason": first["reason"] if first else None,
+            "islands": list(b.islands), "simulations": len(recs), "resolution": spec.search.resolution,
+            "coarse": spec.search.coarse, "scan_max": spec.search.fmax}
+
+
+def run_pushes(levels, modes, observers, store: cmap.RecordStore, executor, log=print) -> dict[tuple, dict]:
+    """Max push of every (level, mode, observer) through ``capability_map.run_map`` (resumable from
+    ``store``); returns {(level name, mode, observer): record}. Mode ``none`` runs with the observer off only
+    (its torque never uses the estimate). ``executor`` None: only what the store holds (no simulation)."""
+    out = {}
+    stored = store.load() if executor is None else []
+    for m, obs in combos(modes, observers):
+        for lv in levels:
+            spec = push_spec(lv.perturbation, m, obs)
+            if executor is None:
+                r = stored_max_push(spec, stored)
+                if r is not None:
+                    out[(lv.name, m, obs)] = dict(r, level=lv.name, mode=m, observer=obs,
+                                                  perturbation=lv.perturbation.as_dict())
+                continue
+            t0 = time.perf_counter()
+            run = cmap.run_map(spec, executor, store, batch=1)
+            r = max_push_record(run)
+            r.update(level=lv.name, mode=m, observer=obs, perturbation=lv.perturbation.as_dict(),
+                     simulated_now=run.simulated)
+            out[(lv.name, m, obs)] = r
+            log(f"  max push {lv.name:<28} {m:<4} observer {'on ' if obs else 'off'}: {r['max_force']:g} N "
+                f"(first failure {r['first_failure']}, {r['cause']}; {run.simulated} run now, {run.resumed} "
+                f"resumed, {time.perf_counter() - t0:.0f} s)")
+    return out
+
+
+# ------------------------------------------------------------------------------------------ table
+def _walk_cell(r: dict | None) -> str:
+    if r is None:
+        return "-"
+    if r["survived"]:
+        return "yes"
+    return f"no: {r['fall_cause']} (step {r['steps_walked'] + 1}, t = {r['fall_time']:.3f} s)"
+
+
+def _push_cell(r: dict | None) -> str:
+    if r is None:
+        return "-"
+    s = f"{r['max_force']:g}" if not r["censored"] else f">= {r['max_force']:g}"
+    if r["islands"]:
+        s += " (isl. " + ", ".join(f"{x:g}" for x in r["islands"]) + ")"
+    if r.get("max_force_no_fall", r["max_force"]) > r["max_force"]:
+        s += f" [no fall to {r['max_force_no_fall']:g}]"
+    return s
+
+
+def table_markdown(levels, modes, observers, walks: dict, pushes: dict) -> str:
+    """The robustness table (markdown): per level, the 20-step walk (the (mode, observer) pairs that have
+    walk records) and the max push [N] per mode and observer setting; a max push of 0 where that walk
+    already fails is marked "(no walk)"."""
+    def walk(lv, m, obs):
+        return walks.get(_walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs)))
+    pairs = combos(modes, observers)
+    walk_cols = [(m, obs) for m, obs in pairs if any(walk(lv, m, obs) is not None for lv in levels)]
+    cols = ["perturbation"] + [f"walk {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}")
+                               for m, obs in walk_cols]
+    cols += [f"max push {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}") + " [N]" for m, obs in pairs]
+    lines = ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
+    for lv in levels:
+        row = [lv.name] + [_walk_cell(walk(lv, m, obs)) for m, obs in walk_cols]
+        for m, obs in pairs:
+            r = pushes.get((lv.name, m, obs))
+            w = walk(lv, m, obs)
+            cell = _push_cell(r)
+            if r is not None and r["max_force"] == 0 and w is not None and not w["survived"]:
+                cell += " (no walk)"
+            row.append(cell)
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(levels, modes, observers, pushes: dict, out: Path) -> Path:
+    """Bar chart: the max push [N] per level (rows) for each mode and observer setting."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = [(m, obs) for m, obs in combos(modes, observers) if any((lv.name, m, obs) in pushes for lv in levels)]
+    colors = {"none": "0.45", "tau": "tab:blue", "p": "tab:orange", "both": "tab:green"}
+    fig, ax = plt.subplots(figsize=(8.5, 0.42 * len(levels) + 1.6))
+    y = np.arange(len(levels))
+    hgt = 0.8 / max(len(series), 1)
+    for i, (m, obs) in enumerate(series):
+        vals = [pushes[(lv.name, m, obs)]["max_force"] if (lv.name, m, obs) in pushes else np.nan for lv in levels]
+        ax.barh(y - 0.4 + (i + 0.5) * hgt, vals, height=hgt, color=colors[m], alpha=1.0 if obs else 0.45,
+                hatch=None if obs else "//", label=f"{m}, observer {'on' if obs else 'off'}")
+        # where only a fall counts (under noise p and tau' never settle): the no-fall edge, if larger
+        nf = [(pushes[(lv.name, m, obs)]["max_force_no_fall"], k) for k, lv in enumerate(levels)
+              if (lv.name, m, obs) in pushes
+              and pushes[(lv.name, m, obs)].get("max_force_no_fall", 0.0) > pushes[(lv.name, m, obs)]["max_force"]]
+        if nf:
+            ax.plot([f for f, _ in nf], [k - 0.4 + (i + 0.5) * hgt for _, k in nf], "|", ms=9, mew=2,
+                    color=colors[m], label=f"{m}, observer {'on' if obs else 'off'}: no fall up to")
+    ax.set_yticks(y)
+    ax.set_yticklabels([lv.name for lv in levels], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("largest survivable back push, 0.025 s at mid first step [N]")
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(fontsize=7, loc="center right", bbox_to_anchor=(1.0, 0.36))   # over the empty noise and delay rows
+    ax.set_title("push recovery under plant perturbations (controller keeps the nominal model)", fontsize=9)
+    out.mkdir(parents=True, exist_ok=True)
+    p = out / "max_push.png"
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def _levels(names: list[str] | None) -> tuple[Level, ...]:
+    if not names:
+        return LEVELS
+    out = []
+    for n in names:
+        if n not in LEVELS_BY_NAME:
+            raise RobustnessError(f"--levels: unknown level {n!r}; known: {'; '.join(LEVELS_BY_NAME)}")
+        out.append(LEVELS_BY_NAME[n])
+    return tuple(out)
+
+
+def _terminate(signum, frame):
+    raise SystemExit(128 + signum)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="scripts/robustness", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--levels", nargs="+", default=None, metavar="NAME",
+                    help="level names (quoted; default all): " + "; ".join(LEVELS_BY_NAME))
+    ap.add_argument("--modes", nargs="+", default=["both", "none"], help=f"any of {' '.join(MODES)}")
+    ap.add_argument("--observer", nargs="+", choices=("on", "off"), default=["on", "off"])
+    ap.add_argument("--what", choices=("walk", "push", "both"), default="both")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--store", type=Path, default=Path("build/robustness"), help="directory of the records")
+    ap.add_argument("--json", type=Path, default=None, help="summary JSON")
+    ap.add_argument("--table", type=Path, default=None, help="write the markdown table here")
+    ap.add_argument("--figures", type=Path, default=None, help="directory for max_push.png")
+    ap.add_argument("--report-only", action="store_true",
+                    help="no simulation: the table, figure and JSON of what the store holds")
+    args = ap.parse_args(argv)
+    try:
+        levels = _levels(args.levels)
+        for m in args.modes:
+            if m not in MODES:
+                raise RobustnessError(f"--modes: unknown mode {m!r}; choose from {', '.join(MODES)}")
+        if args.workers < 1:
+            raise RobustnessError(f"--workers must be >= 1, got {args.workers}")
+    except (RobustnessError, PerturbationError) as exc:
+        ap.error(str(exc))
+    modes = tuple(args.modes)
+    observers = tuple(o == "on" for o in args.observer)
+    signal.signal(signal.SIGTERM, _terminate)
+    walks_store = cmap.RecordStore(args.store / "walks.jsonl")
+    push_store = cmap.RecordStore(args.store / "push.jsonl")
+    t0 = time.perf_counter()
+    log = _log
+    walks = {}
+    pushes = {}
+    if args.what in ("walk", "both"):
+        walks = run_walks(levels, modes, observers, walks_store, args.workers, log, simulate=not args.report_only)
+    if args.what in ("push", "both"):
+        ex = None if args.report_only else cmap.make_executor(args.workers, None)
+        try:
+            pushes = run_pushes(levels, modes, observers, push_store, ex, log)
+        finally:
+            if ex is not None:
+                ex.close()
+    table = table_markdown(levels, modes, observers, walks, pushes)
+    print(table)
+    if args.table is not None:
+        args.table.parent.mkdir(parents=True, exist_ok=True)
+        args.table.write_text(table, encoding="utf-8")
+    figs = [str(figure(levels, modes, observers, pushes, args.figures))] if args.figures and pushes else []
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({
+            "levels": [{"name": lv.name, "group": lv.group, "perturbation": lv.perturbation.as_dict()} for lv in levels],
+            "walks": [walks[k] for k in sorted(walks)],
+            "pushes": [dict(v, key=list(map(str, k))) for k, v in sorted(pushes.items(), key=str)],
+            "searches": {m: {"coarse": s.coarse, "max": s.fmax, "resolution": s.resolution} for m, s in SEARCHES.items()},
+            "push_cell": PUSH_CELL, "walk_steps": WALK_STEPS, "figures": figs,
+            "git": cmap.git_state(), "wall_time": time.perf_counter() - t0}, indent=1), encoding="utf-8")
+    return 0
+
+
+def _log(msg: str) -> None:
+    print(msg, flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

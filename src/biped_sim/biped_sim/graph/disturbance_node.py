@@ -1,0 +1,138 @@
+"""ROS 2 node ``disturbance``: validates push requests and publishes the accepted ones.
+
+Service ``/apply_push`` (biped_msgs_py/srv/ApplyPush). A request is checked by the pure
+:func:`biped_sim.plant.push.validate_push`, in this order:
+every used number finite (``force``, ``duration``, ``start`` or ``delay``; ``height`` may be NaN =
+default), ``0 < duration <= max_duration``, ``|force| <= max_force``, ``delay >= 0``, start not
+before the current sim time (``/clock``; this node runs with ``use_sim_time`` true), start not after
+``horizon`` (the end of the run: a push that could never act is refused), ``height`` within
+[0, torso length] (NaN: ``push_height``), and no overlap with a push already scheduled.
+Rejected: ``accepted = false``, a message naming the field and the allowed range, nothing published
+on ``/push_events``. Accepted: a PushEvent with a new id (1, 2, ...) on ``/push_events`` (reliable,
+transient local: a simulator joining late still gets it); the response gives the id and the
+scheduled start and end.
+
+Every call, accepted or rejected, is published on ``/push_requests`` as YAML
+(``graph_names.push_request_yaml``).
+
+A schedule can also come from parameters: ``schedule_forces``, ``schedule_starts``,
+``schedule_durations`` and ``schedule_heights`` (same length; heights may be omitted = default),
+validated like requests at start (a bad entry: the node exits 2 naming the parameter) and
+published at start.
+
+Parameters: ``max_force`` (N, default 2000), ``max_duration`` (s, default 1.0), ``horizon`` (s of sim
+time, default 3600: the latest start accepted; the launcher sets it to the simulator's ``max_time`` when
+one is given), ``push_height`` (m, default config/simulator.yaml), the schedule arrays;
+``use_sim_time`` is forced true.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Optional
+
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import String
+
+from biped_msgs_py.msg import PushEvent
+from biped_msgs_py.srv import ApplyPush
+from biped_sim.graph import names as gn
+from biped_sim.robot.description import DescriptionError, load_description
+from biped_sim.plant.push import PushBook, PushLimits, Rejected
+from biped_sim.graph.params import (
+    ParameterError,
+    get_float,
+    get_float_list,
+    get_str,
+    run_node,
+)
+from biped_sim.plant.config import load_sim_config
+
+
+class DisturbanceNode(Node):
+
+    def __init__(self, **kwargs):
+        overrides = [p for p in kwargs.pop('parameter_overrides', []) if p.name != 'use_sim_time']
+        overrides.append(Parameter('use_sim_time', Parameter.Type.BOOL, True))
+        super().__init__(gn.DISTURBANCE_NODE, parameter_overrides=overrides, **kwargs)
+        desc_path = get_str(self, 'description_path', '')
+        try:
+            desc = load_description(desc_path or None)
+        except (DescriptionError, OSError, ValueError) as exc:
+            raise ParameterError('description_path', str(exc)) from exc
+        max_force = get_float(self, 'max_force', 2000.0, lo=0.0, lo_open=True)
+        max_duration = get_float(self, 'max_duration', 1.0, lo=0.0, lo_open=True)
+        default_height = get_float(self, 'push_height', load_sim_config().push_height, lo=0.0,
+                                   hi=desc.torso.length)
+        horizon = get_float(self, 'horizon', 3600.0, lo=0.0, lo_open=True)
+        self.book = PushBook(PushLimits(max_force, max_duration, desc.torso.length, default_height, horizon))
+        forces = get_float_list(self, 'schedule_forces')
+        starts = get_float_list(self, 'schedule_starts')
+        durations = get_float_list(self, 'schedule_durations')
+        heights = get_float_list(self, 'schedule_heights')
+        n = len(forces)
+        for name, arr in (('schedule_starts', starts), ('schedule_durations', durations)):
+            if len(arr) != n:
+                raise ParameterError(name, f'must have as many entries as schedule_forces ({n}), got {len(arr)}')
+        if heights and len(heights) != n:
+            raise ParameterError('schedule_heights', f'must be empty or have {n} entries, got {len(heights)}')
+        schedule = []
+        for i in range(n):
+            h = heights[i] if heights else math.nan
+            try:
+                vp = self.book.check(forces[i], durations[i], starts[i], h, 0.0)
+            except Rejected as exc:
+                pname = {'force': 'schedule_forces', 'duration': 'schedule_durations', 'start': 'schedule_starts',
+                         'delay': 'schedule_starts', 'height': 'schedule_heights'}[exc.field]
+                raise ParameterError(pname, f'entry {i}: {exc}') from exc
+            p = self.book.add(vp)
+            schedule.append(PushEvent(id=p.id, start=p.start, duration=p.duration, force=p.force, height=p.height))
+
+        self.pub_events = self.create_publisher(PushEvent, gn.PUSH_EVENTS, gn.QOS_EVENTS)
+        self.pub_requests = self.create_publisher(String, gn.PUSH_REQUESTS, gn.QOS_EVENTS)
+        for ev in schedule:
+            self.pub_events.publish(ev)
+            self.get_logger().info(f'scheduled push {ev.id} from parameters: {ev.force} N over '
+                                   f'[{ev.start}, {ev.start + ev.duration}) s')
+        self.create_service(ApplyPush, gn.APPLY_PUSH, self._on_apply_push)
+        self.get_logger().info(f'serving {gn.APPLY_PUSH} (|force| <= {max_force} N, duration <= {max_duration} s)')
+
+    def sim_time(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _on_apply_push(self, request, response):
+        now = self.sim_time()
+        try:
+            vp = self.book.check(request.force, request.duration, request.start, request.height, now,
+                                 use_delay=bool(request.use_delay), delay=request.delay)
+        except Rejected as exc:
+            response.accepted = False
+            response.message = f'rejected: {exc}'
+            response.push_id = 0
+            response.scheduled_start = math.nan
+            response.scheduled_end = math.nan
+            self.get_logger().warning(f'{gn.APPLY_PUSH}: {response.message}')
+        else:
+            pid = self.book.add(vp).id
+            start, height = vp.start, vp.height
+            ev = PushEvent(id=pid, start=start, duration=vp.duration, force=vp.force, height=height)
+            self.pub_events.publish(ev)
+            response.accepted = True
+            response.push_id = pid
+            response.scheduled_start = start
+            response.scheduled_end = start + request.duration
+            response.message = (f'push {pid}: {request.force} N at {height} m above the hip over '
+                                f'[{start}, {start + request.duration}) s sim time')
+            self.get_logger().info(f'{gn.APPLY_PUSH}: accepted {response.message}')
+        self.pub_requests.publish(String(data=gn.push_request_yaml(request, response, now)))
+        return response
+
+
+def main(args=None) -> int:
+    return run_node('disturbance', DisturbanceNode, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,204 @@
+"""Declared-parameter helpers shared by the biped's ROS 2 nodes (ROS layer).
+
+Every parameter is declared with ``dynamic_typing`` so that a wrong type in a parameters file never
+raises inside rclpy with an unrelated message: :func:`declare_and_read` reads each value back,
+checks its type and range and raises :class:`ParameterError` naming the parameter. Nodes catch it in
+``main()``, log it and exit with status 2 before anything is published.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import signal
+import time
+from typing import Any, Callable, Iterable, Optional, Sequence
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+
+EXIT_OK = 0
+EXIT_BAD_PARAMETER = 2
+
+
+class ParameterError(ValueError):
+    """A node parameter has an invalid value; ``name`` says which one."""
+
+    def __init__(self, name: str, message: str) -> None:
+        super().__init__(f"invalid parameter '{name}': {message}")
+        self.name = name
+
+
+def _declare(node: Node, name: str, default: Any):
+    desc = ParameterDescriptor(name=name, dynamic_typing=True)
+    try:
+        return node.declare_parameter(name, default, desc).value
+    except Exception as exc:  # rclpy raises its own exception types for malformed overrides
+        raise ParameterError(name, str(exc)) from exc
+
+
+def get_float(node: Node, name: str, default: float, *, lo: float | None = None, hi: float | None = None,
+              lo_open: bool = False, allow_nan: bool = False) -> float:
+    v = _declare(node, name, float(default))
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ParameterError(name, f"expected a number, got {v!r}")
+    v = float(v)
+    if math.isnan(v) and allow_nan:
+        return v
+    if not math.isfinite(v):
+        raise ParameterError(name, f"must be finite, got {v}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise ParameterError(name, f"must be {'>' if lo_open else '>='} {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise ParameterError(name, f"must be <= {hi}, got {v}")
+    return v
+
+
+def get_int(node: Node, name: str, default: int, *, lo: int | None = None, hi: int | None = None) -> int:
+    v = _declare(node, name, int(default))
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ParameterError(name, f"expected an integer, got {v!r}")
+    if lo is not None and v < lo:
+        raise ParameterError(name, f"must be >= {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise ParameterError(name, f"must be <= {hi}, got {v}")
+    return int(v)
+
+
+def get_bool(node: Node, name: str, default: bool) -> bool:
+    v = _declare(node, name, bool(default))
+    if not isinstance(v, bool):
+        raise ParameterError(name, f"expected true or false, got {v!r}")
+    return v
+
+
+def get_str(node: Node, name: str, default: str, *, choices: Sequence[str] | None = None) -> str:
+    v = _declare(node, name, str(default))
+    if not isinstance(v, str):
+        raise ParameterError(name, f"expected a string, got {v!r}")
+    if choices is not None and v not in choices:
+        raise ParameterError(name, f"must be one of {' | '.join(choices)}, got {v!r}")
+    return v
+
+
+def get_float_list(node: Node, name: str) -> list[float]:
+    """A list of numbers (default: empty). An empty list in YAML has no type: accepted too."""
+    desc = ParameterDescriptor(name=name, dynamic_typing=True)
+    try:
+        v = node.declare_parameter(name, None, desc).value
+    except Exception as exc:
+        raise ParameterError(name, str(exc)) from exc
+    if v is None:
+        return []
+    if isinstance(v, (str, bytes, bool)) or not hasattr(v, '__iter__'):
+        raise ParameterError(name, f"expected a list of numbers, got {v!r}")
+    out = []
+    for x in v:
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise ParameterError(name, f"expected a list of numbers, got element {x!r}")
+        out.append(float(x))
+    return out
+
+
+def load_robot_files(node: Node):
+    """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
+    (empty = config/biped.yaml, config/gait_family.json), checked against each other."""
+    from biped_sim.graph.checks import RobotFilesError, load_robot_files as _load
+    desc_path = get_str(node, 'description_path', '')
+    fam_path = get_str(node, 'gait_family_path', '')
+    try:
+        return _load(desc_path, fam_path)
+    except RobotFilesError as exc:
+        raise ParameterError(exc.field, str(exc)) from exc
+
+
+def install_stop_handlers(callback: Callable[[int], None]) -> dict:
+    """SIGINT and SIGTERM call ``callback(signum)``; returns the previous handlers."""
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, lambda signum, _frame: callback(signum))
+    return previous
+
+
+def restore_handlers(previous: dict) -> None:
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
+
+
+EXECUTORS = ('events', 'single_threaded')
+
+
+def make_executor(node: Node):
+    """The executor named by the node's ``executor`` parameter (declared by ``declare_executor``):
+    'events' = rclpy's C++ EventsExecutor (rclpy.experimental; callbacks dispatched from its own event
+    queue instead of rebuilding a wait set for every spin), 'single_threaded' = rclpy's
+    SingleThreadedExecutor. A node without the parameter gets the SingleThreadedExecutor."""
+    from rclpy.executors import SingleThreadedExecutor
+    kind = node.get_parameter('executor').value if node.has_parameter('executor') else 'single_threaded'
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=node.context)
+    return SingleThreadedExecutor(context=node.context)
+
+
+def wait_all_acked(node: Node, timeout: float) -> list[str]:
+    """Block until every reliable subscriber has acknowledged everything this node published (at most
+    ``timeout`` s in all). A lockstep run ends faster than DDS repairs a lost sample (a reliable gap is
+    re-sent at the writer's next heartbeat): leaving before the acknowledgements can cut the tail of a
+    recording. Returns the topics still unacknowledged."""
+    from rclpy.duration import Duration
+    deadline = time.monotonic() + timeout
+    late = []
+    for pub in list(node.publishers):
+        left = max(0.0, deadline - time.monotonic())
+        if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+            late.append(pub.topic_name)
+    return late
+
+
+def declare_executor(node: Node, default: str) -> str:
+    """Declare the ``executor`` parameter (one of EXECUTORS); a bad value raises ParameterError naming it."""
+    v = _declare(node, 'executor', default)
+    if v not in EXECUTORS:
+        raise ParameterError('executor', f"must be one of {', '.join(EXECUTORS)}, got {v!r}")
+    return v
+
+
+def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_errors: tuple = ()) -> int:
+    """The ``main()`` of every node: init rclpy without its signal handlers, build the node (a
+    ``ParameterError`` or one of ``startup_errors`` -> a message on stderr and exit code
+    EXIT_BAD_PARAMETER, nothing half-started), spin until SIGINT/SIGTERM, external shutdown, or the node
+    sets ``node.done``; then ``node.after_spin(executor, signum)`` if the node has one (a recorder
+    drains and finishes its bag, the simulator reports why it stopped) gives the exit code (default 0).
+    Cleans up in every case."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node: Node | None = None
+    try:
+        try:
+            node = factory()
+        except (ParameterError, *startup_errors) as exc:
+            print(f'{name}: {exc}', file=sys.stderr)
+            return EXIT_BAD_PARAMETER
+        stop = {'signal': None}
+        previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
+        executor = make_executor(node)
+        executor.add_node(node)
+        try:
+            while stop['signal'] is None and not getattr(node, 'done', False) and rclpy.ok(context=node.context):
+                executor.spin_once(timeout_sec=0.1)
+        except (ExternalShutdownException, KeyboardInterrupt):
+            pass
+        finally:
+            restore_handlers(previous)
+        after = getattr(node, 'after_spin', None)
+        code = after(executor, stop['signal']) if after is not None else 0
+        return EXIT_OK if code is None else int(code)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()

@@ -1,0 +1,1 @@
+"""Live view: the Foxglove WebSocket bridge (pure core and node)."""

@@ -1,0 +1,1 @@
+"""The plant (no ROS): the ``Plant`` protocol and its engines (rigid), pushes, perturbations and sensing."""

@@ -1,0 +1,303 @@
+"""Plant perturbations (issue 14): the simulated robot differs from the controller's model.
+
+Pure Python (NumPy, PyYAML), no ROS. Perturbations live in the simulator only: the controller keeps
+the nominal :class:`~biped_sim.robot.description.RobotDescription` (``config/biped.yaml``), while
+``Simulator(desc, config, perturbation)`` integrates the *plant* ``perturbation.apply(desc)`` and hands
+the controller what its sensors report (:class:`SensorModel`).
+
+Three kinds, all in one frozen :class:`PlantPerturbation` (every field defaults to "no perturbation"):
+
+* model error, per link kind (the two legs are perturbed alike: the description has one thigh, one
+  shin and one foot):
+
+  - ``<link>_mass_scale`` [-]: plant mass = scale x nominal mass (the inertia about the centre of mass
+    is *not* rescaled with it; set ``<link>_inertia_scale`` too for a uniformly denser link);
+  - ``<link>_com_shift`` [m]: the centre of mass moves along the link's axis, away from its proximal
+    joint for a positive shift (torso: up from the hip; thigh: down from the hip; shin: down from the
+    knee); for the foot, forward along the sole (``Foot.com_forward``, + towards the toe). The shifted
+    centre of mass must stay on the link ([0, length]) or on the sole ([l_min, l_max]). A shift across
+    the link (e.g. a torso centre of mass ahead of the hip line) cannot be expressed by the description
+    (``Link.com`` is a distance along the axis) and is not offered;
+  - ``<link>_inertia_scale`` [-]: rotational inertia about the centre of mass (normal to the sagittal
+    plane) = scale x nominal;
+
+* ground friction ``mu`` [-] of the plant (``None``: the description's); the simulator's slip check
+  ``|F_x| <= mu F_z`` uses it, the controller's friction rows keep the nominal mu;
+* sensing: Gaussian noise of standard deviation ``noise_q`` [rad] on each paper joint angle q1..q6 and
+  ``noise_qd`` [rad/s] on each joint rate, and a delay of ``delay`` control periods; ``seed`` seeds the
+  noise (``numpy.random.default_rng(seed)``).
+
+Sensor model (:class:`SensorModel`): at the start of every control period k the sensors take a sample
+of the true (stance, q, q') and add noise, q_s = q + noise_q z_q, q'_s = q' + noise_qd z_qd, with
+(z_q, z_qd) two fresh vectors of 6 standard normal draws (always drawn, in this order, whatever the
+standard deviations, so one seed gives the same noise sequence at every noise level). The controller
+at period k receives the sample of period k - delay (the first sample while k < delay: the sensors
+report the initial state until the pipeline is full). The stance flag is part of the delayed sample (a
+touchdown reaches the controller ``delay`` periods late); the time and the period index are not: the
+controller's clock is the plant's. With ``touchdown_delayed`` False the touchdown is reported at once
+instead (contact switches outside the delayed pipeline, an event-triggered fresh measurement): the first
+sample of a new stance is delivered in the period it is taken and held until the delayed samples are all
+of the new stance (period k receives the sample of max(k - delay, first period of the current stance)).
+"Period" means a control period of the simulator, which an impact
+cuts short (``Simulator.step``), so a delay of d periods is d x control_period except across an
+impact. A zero perturbation (:attr:`PlantPerturbation.is_zero`) is the identity: the same description
+object and the true observation, bit for bit.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+from biped_sim.robot.description import RobotDescription
+
+#: the link kinds of the description that may be perturbed
+LINKS: tuple[str, ...] = ("torso", "thigh", "shin", "foot")
+#: largest delay accepted [control periods] (a second at 1 kHz: far beyond anything walkable)
+MAX_DELAY = 1000
+
+
+class PerturbationError(ValueError):
+    """A perturbation field is invalid; ``field`` names it (the message says why)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"perturbation '{field}': {message}")
+        self.field = field
+
+
+@dataclass(frozen=True)
+class PlantPerturbation:
+    """How the simulated plant differs from the nominal description (see the module docstring).
+
+    Defaults are the identity. Units: scales [-], shifts [m], noise [rad] and [rad/s], delay [control
+    periods], seed a non-negative integer. Validated on construction (:class:`PerturbationError` naming
+    the field); the shifts are checked against a description by :meth:`apply`."""
+
+    torso_mass_scale: float = 1.0
+    thigh_mass_scale: float = 1.0
+    shin_mass_scale: float = 1.0
+    foot_mass_scale: float = 1.0
+    torso_com_shift: float = 0.0      # [m] along the torso, up from the hip
+    thigh_com_shift: float = 0.0      # [m] along the thigh, down from the hip
+    shin_com_shift: float = 0.0       # [m] along the shin, down from the knee
+    foot_com_shift: float = 0.0       # [m] along the sole, forward of the ankle
+    torso_inertia_scale: float = 1.0
+    thigh_inertia_scale: float = 1.0
+    shin_inertia_scale: float = 1.0
+    foot_inertia_scale: float = 1.0
+    mu: float | None = None           # plant's friction coefficient; None: the description's
+    noise_q: float = 0.0              # [rad] std of the noise on each measured joint angle
+    noise_qd: float = 0.0             # [rad/s] std of the noise on each measured joint rate
+    delay: int = 0                    # [control periods] between a sample and the controller
+    touchdown_delayed: bool = True    # False: a touchdown restarts the delay line (reported at once)
+    seed: int = 0                     # seed of the noise generator
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "touchdown_delayed":
+                if not isinstance(v, (bool, np.bool_)):
+                    raise PerturbationError(f.name, f"must be true or false, got {v!r}")
+                object.__setattr__(self, f.name, bool(v))
+                continue
+            if f.name in ("delay", "seed"):
+                if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                    raise PerturbationError(f.name, f"must be an integer, got {v!r}")
+                hi = MAX_DELAY if f.name == "delay" else 2**63 - 1
+                if not 0 <= int(v) <= hi:
+                    raise PerturbationError(f.name, f"must be in [0, {hi}], got {v}")
+                object.__setattr__(self, f.name, int(v))
+                continue
+            if f.name == "mu" and v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+                raise PerturbationError(f.name, f"must be a number, got {v!r}")
+            v = float(v)
+            if not math.isfinite(v):
+                raise PerturbationError(f.name, f"must be finite, got {v}")
+            if f.name.endswith("_scale") and v <= 0.0:
+                raise PerturbationError(f.name, f"a scale must be > 0, got {v}")
+            if f.name == "mu" and v <= 0.0:
+                raise PerturbationError(f.name, f"a friction coefficient must be > 0, got {v}")
+            if f.name.startswith("noise_") and v < 0.0:
+                raise PerturbationError(f.name, f"a standard deviation must be >= 0, got {v}")
+            object.__setattr__(self, f.name, v)
+
+    # ---------------------------------------------------------------- queries
+    @property
+    def model_is_nominal(self) -> bool:
+        """No change of masses, centres of mass, inertias or friction."""
+        return (all(getattr(self, f"{k}_mass_scale") == 1.0 and getattr(self, f"{k}_com_shift") == 0.0
+                    and getattr(self, f"{k}_inertia_scale") == 1.0 for k in LINKS) and self.mu is None)
+
+    @property
+    def sensing_is_perfect(self) -> bool:
+        """No noise and no delay: the controller sees the true state."""
+        return self.noise_q == 0.0 and self.noise_qd == 0.0 and self.delay == 0
+
+    @property
+    def is_zero(self) -> bool:
+        """The identity perturbation (the seed alone changes nothing)."""
+        return self.model_is_nominal and self.sensing_is_perfect
+
+    def changed(self) -> dict[str, Any]:
+        """The fields that differ from the identity (the seed only when there is noise)."""
+        zero = PlantPerturbation()
+        out = {f.name: getattr(self, f.name) for f in fields(self)
+               if f.name != "seed" and getattr(self, f.name) != getattr(zero, f.name)
+               and not (f.name == "touchdown_delayed" and self.delay == 0)}
+        if self.noise_q or self.noise_qd:
+            out["seed"] = self.seed
+        return out
+
+    def label(self) -> str:
+        """Short text of :meth:`changed` (``nominal`` for the identity), e.g. ``torso_mass_scale=1.1``."""
+        ch = self.changed()
+        return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in ch.items()) or "nominal"
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every field (JSON/YAML-ready; ``mu`` None when nominal)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "PlantPerturbation":
+        """From a mapping of field names (unknown names raise :class:`PerturbationError` naming them)."""
+        names = {f.name for f in fields(cls)}
+        for k in values:
+            if k not in names:
+                raise PerturbationError(str(k), f"unknown field; known: {', '.join(sorted(names))}")
+        return cls(**dict(values))
+
+    # ---------------------------------------------------------------- the plant
+    def apply(self, desc: RobotDescription) -> RobotDescription:
+        """The plant's description: ``desc`` with masses and inertias scaled, centres of mass shifted and
+        the friction replaced (``dataclasses.replace``; ``desc`` itself is not modified and is returned
+        unchanged when :attr:`model_is_nominal`). Geometry, foot sole, torque and joint limits and gravity
+        are the nominal ones. Raises :class:`PerturbationError` naming a shift that leaves its link."""
+        if self.model_is_nominal:
+            return desc
+        new: dict[str, Any] = {}
+        for k in ("torso", "thigh", "shin"):
+            link = getattr(desc, k)
+            com = link.com + getattr(self, f"{k}_com_shift")
+            if not 0.0 <= com <= link.length:
+                raise PerturbationError(f"{k}_com_shift", f"moves the {k}'s centre of mass to {com} m from its "
+                                        f"proximal joint, off the link [0, {link.length}] m")
+            new[k] = dataclasses.replace(link, mass=link.mass * getattr(self, f"{k}_mass_scale"), com=com,
+                                         inertia=link.inertia * getattr(self, f"{k}_inertia_scale"))
+        ft = desc.foot
+        fc = ft.com_forward + self.foot_com_shift
+        if not ft.l_min <= fc <= ft.l_max:
+            raise PerturbationError("foot_com_shift", f"moves the foot's centre of mass to {fc} m ahead of the "
+                                    f"ankle, off the sole [{ft.l_min}, {ft.l_max}] m")
+        new["foot"] = dataclasses.replace(ft, mass=ft.mass * self.foot_mass_scale, com_forward=fc,
+                                          inertia=ft.inertia * self.foot_inertia_scale)
+        if self.mu is not None:
+            new["mu"] = self.mu
+        return dataclasses.replace(desc, **new)
+
+
+ZERO = PlantPerturbation()
+
+
+def plant_parameters(nominal: RobotDescription, perturbation: PlantPerturbation) -> dict[str, Any]:
+    """What a reader of a recording needs to check the physics against the true plant (JSON/YAML-ready):
+    the perturbation's fields, the plant's and the nominal physical values per link (mass [kg], centre of
+    mass [m], inertia [kg m^2]), total masses, friction, and the sensor model. The plant is
+    ``perturbation.apply(nominal)``."""
+    plant = perturbation.apply(nominal)
+
+    def links(d: RobotDescription) -> dict:
+        out = {k: {"mass": getattr(d, k).mass, "com_from_proximal": getattr(d, k).com,
+                   "inertia": getattr(d, k).inertia} for k in ("torso", "thigh", "shin")}
+        out["foot"] = {"mass": d.foot.mass, "com_forward": d.foot.com_forward, "inertia": d.foot.inertia}
+        return out
+    return {
+        "perturbation": perturbation.as_dict(),
+        "changed": perturbation.changed(),
+        "plant": {**links(plant), "mu": plant.mu, "total_mass": plant.total_mass, "gravity": plant.gravity},
+        "nominal": {**links(nominal), "mu": nominal.mu, "total_mass": nominal.total_mass,
+                    "source": nominal.source},
+        "sensing": {"noise_q_std_rad": perturbation.noise_q, "noise_qd_std_rad_per_s": perturbation.noise_qd,
+                    "delay_periods": perturbation.delay, "touchdown_delayed": perturbation.touchdown_delayed,
+                    "seed": perturbation.seed,
+                    "model": "Gaussian noise added to each paper joint angle and rate when sampled at a period "
+                             "start; the controller receives the sample taken delay periods earlier "
+                             "(stance included; time and period index are the current ones)"},
+        "units": {"mass": "kg", "com": "m", "inertia": "kg m^2", "noise_q": "rad", "noise_qd": "rad/s",
+                  "delay": "control periods"},
+    }
+
+
+def plant_yaml(nominal: RobotDescription, perturbation: PlantPerturbation) -> str:
+    """:func:`plant_parameters` as YAML (the ``/sim/plant`` message)."""
+    import yaml
+    return yaml.safe_dump(plant_parameters(nominal, perturbation), sort_keys=False)
+
+
+class SensorModel:
+    """The controller's sensors: maps the true (stance, q, q') at each control period to what the
+    controller receives (noise and delay as in the module docstring).
+
+    :meth:`sample` is called with the true state at the start of every period, in increasing period
+    order (``Simulator.step`` does it); it is idempotent per period (the noise of a period is drawn
+    once). :meth:`reading` returns the delayed noisy sample for the current period. :meth:`reset`
+    restarts the generator from the seed and empties the pipeline."""
+
+    def __init__(self, perturbation: PlantPerturbation = ZERO) -> None:
+        self.perturbation = perturbation
+        self.identity = perturbation.sensing_is_perfect
+        self.reset()
+
+    def reset(self) -> None:
+        self._rng = np.random.default_rng(self.perturbation.seed)
+        self._samples: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
+        self._first: int | None = None
+        self._last: int | None = None
+        self._segment: int | None = None          # first sampled period of the current stance
+        self._stance: int | None = None
+
+    def sample(self, step: int, stance: int, q: np.ndarray, qd: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+        """The sensors' sample of period ``step`` (the true stance, q [rad], q' [rad/s] plus noise); a
+        repeated call for the same period returns the stored sample. Raises ``ValueError`` for a period
+        older than the last one sampled (the sensors cannot go back in time)."""
+        if step in self._samples:
+            return self._samples[step]
+        if self._last is not None and step < self._last:
+            raise ValueError(f"sensor sample for period {step} after period {self._last}")
+        p = self.perturbation
+        zq = self._rng.standard_normal(6)
+        zqd = self._rng.standard_normal(6)
+        qs = np.array(q, dtype=float)
+        qds = np.array(qd, dtype=float)
+        if p.noise_q > 0.0:
+            qs = qs + p.noise_q * zq
+        if p.noise_qd > 0.0:
+            qds = qds + p.noise_qd * zqd
+        s = (int(stance), qs, qds)
+        self._samples[step] = s
+        if self._stance is None or int(stance) != self._stance:
+            self._segment, self._stance = step, int(stance)
+        if self._first is None:
+            self._first = step
+        self._last = step
+        for old in [k for k in self._samples if k < step - p.delay]:
+            del self._samples[old]
+        return s
+
+    def reading(self, step: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """What the controller receives at period ``step``: the sample of period max(step - delay, first
+        sampled period), or with ``touchdown_delayed`` False max(step - delay, first sampled period of the
+        current stance). The sample of ``step`` must have been taken."""
+        if step not in self._samples:
+            raise ValueError(f"no sensor sample for period {step}: sample() it first")
+        k = max(step - self.perturbation.delay, self._first)
+        if not self.perturbation.touchdown_delayed:
+            k = max(k, self._segment)
+        if k not in self._samples:
+            raise ValueError(f"no sensor sample for period {k} (periods must be sampled one by one)")
+        stance, q, qd = self._samples[k]
+        return stance, q.copy(), qd.copy()

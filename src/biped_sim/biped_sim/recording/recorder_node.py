@@ -1,0 +1,283 @@
+"""ROS layer of the recorder: subscribe raw to every topic of the graph, write a rosbag2 bag.
+
+Node ``recorder``. Every topic of :data:`biped_sim.graph.names.TOPICS` is subscribed with
+``raw=True`` (the CDR bytes are passed through, never deserialized) and with the topic's QoS.
+For each message:
+
+- ``log_time``  = the node's clock (``use_sim_time`` is forced on: the latest ``/clock``);
+- ``publish_time`` = the source timestamp DDS hands over in the message info.
+
+Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad one makes
+``main()`` exit with status 2 and a message naming it:
+
+- ``output_dir``  (string, required): the bag directory; must not exist, or be empty.
+- ``compression`` (string, ``zstd`` | ``lz4`` | ``none``; default ``zstd``): MCAP chunk compression.
+- ``chunk_size``  (int bytes, 4096 .. 1073741824; default 262144): uncompressed chunk size, which
+  also bounds what a SIGKILL loses.
+
+The bag is finished cleanly on SIGINT and SIGTERM (own handlers stop the spin loop, then
+``finish()`` runs) and when the ROS context is shut down by anything else.
+Exit status: 0 clean finish, 1 I/O error while recording, 2 bad parameter / cannot create the bag.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+import sys
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, ReliabilityPolicy
+
+from biped_sim.graph import names as graph_names
+from biped_sim.graph.params import ParameterError, run_node
+from biped_sim.recording.mcap_recorder import (
+    DEFAULT_CHUNK_SIZE,
+    INFINITE_DURATION,
+    QosProfile,
+    RecorderError,
+    Rosbag2McapWriter,
+    build_message_definition,
+    prefixes_from_env,
+)
+
+COMPRESSIONS = ("zstd", "lz4", "none")
+MIN_CHUNK_SIZE = 4096
+MAX_CHUNK_SIZE = 1 << 30
+
+
+def _policy_name(value, table: Dict[object, str]) -> str:
+    return table.get(value, "unknown")
+
+
+_HISTORY = {HistoryPolicy.KEEP_LAST: "keep_last", HistoryPolicy.KEEP_ALL: "keep_all",
+            HistoryPolicy.SYSTEM_DEFAULT: "system_default"}
+_RELIABILITY = {ReliabilityPolicy.RELIABLE: "reliable",
+                ReliabilityPolicy.BEST_EFFORT: "best_effort",
+                ReliabilityPolicy.SYSTEM_DEFAULT: "system_default"}
+_DURABILITY = {DurabilityPolicy.VOLATILE: "volatile",
+               DurabilityPolicy.TRANSIENT_LOCAL: "transient_local",
+               DurabilityPolicy.SYSTEM_DEFAULT: "system_default"}
+_LIVELINESS = {LivelinessPolicy.AUTOMATIC: "automatic",
+               LivelinessPolicy.MANUAL_BY_TOPIC: "manual_by_topic",
+               LivelinessPolicy.SYSTEM_DEFAULT: "system_default"}
+
+
+def _duration(d) -> tuple:
+    ns = d.nanoseconds
+    if ns >= INFINITE_DURATION[0] * 10**9:  # rclpy's "infinite"
+        return INFINITE_DURATION
+    return (ns // 10**9, ns % 10**9)
+
+
+RECORDING_DEPTH = 5000  # the recorder's own queue: it must never drop a message while it lags
+
+
+def recording_qos(profile):
+    """The topic's QoS (reliability, durability: so it matches the publisher and gets latched
+    messages) with a keep-last history of at least RECORDING_DEPTH: a latched topic's depth 1 is
+    right for its late joiners but would make a lagging recorder lose messages."""
+    from rclpy.qos import QoSProfile
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(int(profile.depth), RECORDING_DEPTH),
+                      reliability=profile.reliability, durability=profile.durability,
+                      liveliness=profile.liveliness)
+
+
+def qos_from_rclpy(profile) -> QosProfile:
+    """An ``rclpy.qos.QoSProfile`` (e.g. a publisher's offered profile) in rosbag2 terms."""
+    return QosProfile(
+        history=_policy_name(profile.history, _HISTORY),
+        depth=int(profile.depth),
+        reliability=_policy_name(profile.reliability, _RELIABILITY),
+        durability=_policy_name(profile.durability, _DURABILITY),
+        deadline=_duration(profile.deadline),
+        lifespan=_duration(profile.lifespan),
+        liveliness=_policy_name(profile.liveliness, _LIVELINESS),
+        liveliness_lease_duration=_duration(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
+    )
+
+
+PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
+DRAIN_BATCH = 64   # messages taken per executor callback from the subscription that fired (see _on_message)
+DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
+DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
+
+
+class RecorderNode(Node):
+    """Thin ROS wrapper around :class:`Rosbag2McapWriter`.
+
+    :raises ParameterError: if a parameter is invalid (before any file is created).
+    :raises RecorderError: if the bag cannot be created.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        overrides = list(kwargs.pop("parameter_overrides", []))
+        # The recorder's log time is sim time by design: force use_sim_time on.
+        overrides = [p for p in overrides if p.name != "use_sim_time"]
+        overrides.append(Parameter("use_sim_time", Parameter.Type.BOOL, True))
+        super().__init__(graph_names.RECORDER_NODE, parameter_overrides=overrides, **kwargs)
+        self.declare_parameter("output_dir", "")
+        self.declare_parameter("compression", "zstd")
+        self.declare_parameter("chunk_size", DEFAULT_CHUNK_SIZE)
+        output_dir, compression, chunk_size = self._read_parameters()
+
+        self.failure: Optional[RecorderError] = None
+        self.done = False   # run_node leaves its loop (then drains and finishes) once set
+        self._prefixes = self._prefixes_list()
+        self._specs = self._recordable_topics()
+        self._writer = Rosbag2McapWriter(output_dir, prefixes=self._prefixes,
+                                         compression=compression, chunk_size=chunk_size)
+        self._subscriptions_by_topic = {}
+        for spec in self._specs:
+            callback = functools.partial(self._on_message, spec)
+            self._subscriptions_by_topic[spec.name] = self.create_subscription(
+                spec.msg_class(), spec.name, callback, recording_qos(spec.qos_profile), raw=True)
+        self.get_logger().info(
+            f"recording {len(self._specs)} topics to {self._writer.bag_dir} "
+            f"({compression}, chunks of {chunk_size} B)")
+
+    # -- parameters ----------------------------------------------------------------------------
+
+    def _read_parameters(self):
+        def value(name, expected_type):
+            param = self.get_parameter(name)
+            if param.type_ != expected_type:
+                raise ParameterError(
+                    name, f"expected {expected_type.name.lower()}, got {param.type_.name.lower()}")
+            return param.value
+
+        output_dir = value("output_dir", Parameter.Type.STRING).strip()
+        if not output_dir:
+            raise ParameterError("output_dir", "must name the bag directory (empty)")
+        compression = value("compression", Parameter.Type.STRING)
+        if compression not in COMPRESSIONS:
+            raise ParameterError("compression",
+                                 f"must be one of {', '.join(COMPRESSIONS)}; got {compression!r}")
+        chunk_size = value("chunk_size", Parameter.Type.INTEGER)
+        if not MIN_CHUNK_SIZE <= chunk_size <= MAX_CHUNK_SIZE:
+            raise ParameterError(
+                "chunk_size",
+                f"must be in [{MIN_CHUNK_SIZE}, {MAX_CHUNK_SIZE}] bytes; got {chunk_size}")
+        return output_dir, compression, chunk_size
+
+    @staticmethod
+    def _prefixes_list() -> List[Path]:
+        prefixes = prefixes_from_env()
+        if Path(sys.prefix) not in prefixes:
+            prefixes.append(Path(sys.prefix))  # the venv holds the wheels' share/ directories
+        return prefixes
+
+    def _recordable_topics(self) -> list:
+        """Topics of the graph whose type imports and whose definition is installed."""
+        specs = []
+        for spec in graph_names.TOPICS.values():
+            try:
+                spec.msg_class()
+                build_message_definition(spec.type, self._prefixes)
+            except (ImportError, AttributeError, RecorderError) as exc:
+                self.get_logger().error(f"not recording {spec.name} ({spec.type}): {exc}")
+                continue
+            specs.append(spec)
+        return specs
+
+    # -- recording -----------------------------------------------------------------------------
+
+    def _offered_profiles(self, spec) -> List[QosProfile]:
+        infos = self.get_publishers_info_by_topic(spec.name)
+        profiles = [qos_from_rclpy(info.qos_profile) for info in infos]
+        if profiles:
+            return profiles
+        d = spec.qos_dict
+        return [QosProfile(history=d["history"], depth=d["depth"], reliability=d["reliability"],
+                           durability=d["durability"])]
+
+    def _on_message(self, spec, msg: bytes, info) -> None:
+        """One message from the executor, then up to DRAIN_BATCH more already waiting on the same
+        subscription, taken directly: the executor's wait-set round per message costs more than writing
+        the message, and at 1 kHz x 10 topics the recorder would fall behind the lockstep."""
+        self._record(spec, msg, info)
+        sub = self._subscriptions_by_topic.get(spec.name)
+        for _ in range(DRAIN_BATCH):
+            if sub is None or self.failure is not None or self._writer.finished:
+                return
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, True)
+            if taken is None:
+                return
+            self._record(spec, taken[0], taken[1])
+
+    def _record(self, spec, msg: bytes, info) -> None:
+        if self.failure is not None or self._writer.finished:
+            return
+        log_time = self.get_clock().now().nanoseconds
+        publish_time = int(info["source_timestamp"]) if info else 0
+        try:
+            if spec.name not in self._writer.topics:
+                self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
+            self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
+            if spec.name == graph_names.SIM_PLANT:
+                # the plant's true parameters (issue 14) also as the bag's metadata record 'biped_plant'
+                from rclpy.serialization import deserialize_message
+                from std_msgs.msg import String
+                self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
+        except RecorderError as exc:
+            self.failure = exc
+            self.get_logger().error(f"recording stopped: {exc}")
+            self.done = True
+
+    @property
+    def counts(self) -> Dict[str, int]:
+        return self._writer.counts
+
+    def finish(self):
+        """Finish the bag (idempotent); returns its :class:`BagSummary`."""
+        summary = self._writer.finish()
+        self.get_logger().info(
+            f"bag {summary.bag_dir}: {summary.message_count} messages "
+            f"({', '.join(f'{k} {v}' for k, v in summary.counts.items()) or 'none'})")
+        return summary
+
+
+    def after_spin(self, executor, _signum) -> int:
+        """Drain, then finish the bag (``run_node``): a stop request can arrive while messages are still
+        queued (the recorder may lag the 1 kHz lockstep on a loaded machine). Keep taking them until
+        nothing has arrived for DRAIN_IDLE seconds (at most DRAIN_MAX). Exit 1 if finishing failed."""
+        status = 0
+        try:
+            t_end = time.monotonic() + DRAIN_MAX
+            last_total, last_change = -1, time.monotonic()
+            while rclpy.ok(context=self.context) and time.monotonic() < t_end:
+                executor.spin_once(timeout_sec=0.02)
+                total = sum(self.counts.values())
+                now = time.monotonic()
+                if total != last_total:
+                    last_total, last_change = total, now
+                elif now - last_change >= DRAIN_IDLE:
+                    break
+        except ExternalShutdownException:
+            pass  # the context was shut down: finish the bag below
+        finally:
+            executor.remove_node(self)
+            try:
+                self.finish()
+            except RecorderError as exc:
+                print(f"recorder: finishing the bag failed: {exc}", file=sys.stderr)
+                status = 1
+        if self.failure is not None:
+            print(f"recorder: {self.failure}", file=sys.stderr)
+            status = 1
+        return status
+
+
+def main(args: Optional[List[str]] = None) -> int:
+    return run_node("recorder", RecorderNode, args, startup_errors=(RecorderError,))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
