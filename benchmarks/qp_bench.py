@@ -75,13 +75,14 @@ def pct(a) -> dict:
 
 def generate_instances(forces, modes, steps: int = 2) -> list[dict]:
     """The controller's QP instances (G, h, x*) of short pushed runs; W from the controller config."""
-    from biped_controller.studies.runner import PushSpec, run
+    from biped_controller.studies.runner import run
+    from biped_sim.plant.push import Push
 
     out = []
     for mode in modes:
         for F in forces:
             t0 = time.perf_counter()
-            r = run(steps=steps, mode=mode, pushes=(PushSpec(PUSH_START, PUSH_DURATION, float(F)),), keep_qp=True)
+            r = run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, float(F)),), keep_qp=True)
             for G, h, xs, status in r.qp_instances:
                 out.append({"mode": mode, "force": float(F), "G": np.array(G, dtype=float),
                             "h": np.array(h, dtype=float), "x_star": np.array(xs, dtype=float),

@@ -80,11 +80,12 @@ def real_instances(tmp_path_factory):
     25 ms (cached in the session's tmp directory)."""
     path = tmp_path_factory.getbasetemp() / "qp_real_instances.npz"
     if not path.exists():
-        from biped_controller.studies.runner import PushSpec, run
+        from biped_controller.studies.runner import run
+        from biped_sim.plant.push import Push
 
         arrays = {}
         for mode, force in RUNS:
-            r = run(steps=2, mode=mode, pushes=(PushSpec(0.2315, 0.025, force),), keep_qp=True)
+            r = run(steps=2, mode=mode, pushes=(Push(0.2315, 0.025, force),), keep_qp=True)
             for i, (G, h, xs, st) in enumerate(r.qp_instances):
                 key = f"{mode}_{force:g}_{i}"
                 arrays[key + "_G"], arrays[key + "_h"], arrays[key + "_x"] = G, h, xs

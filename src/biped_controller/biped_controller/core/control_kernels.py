@@ -62,6 +62,20 @@ _F = numba.types.float64
 
 
 @numba.njit(cache=True)
+def advanced(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
+    """(p, p', tau, tau') after h [s] with constant p'' [m/s^2], tau'' [1/s] (exact integration):
+    p + (p' h + p'' h^2 / 2), p' + p'' h, likewise for tau."""
+    return (p + (p_dot * h + 0.5 * p_ddot * h * h), p_dot + p_ddot * h,
+            tau + (tau_dot * h + 0.5 * tau_ddot * h * h), tau_dot + tau_ddot * h)
+
+
+@numba.njit(numba.types.UniTuple(_F, 4)(_F, _F, _F, _F, _F, _F, _F), cache=True)
+def advance(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
+    """:func:`advanced` from Python (the torque law within a period)."""
+    return advanced(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h)
+
+
+@numba.njit(cache=True)
 def period_start(mem, t, stance, res):
     """The period's parameters into res (p, p', tau, tau'), advanced from the memory over the elapsed
     integer nanoseconds with the held decision; tau = 0 when the stance changed; the observer's mode
@@ -71,13 +85,7 @@ def period_start(mem, t, stance, res):
     dt_ns = 0.0
     if decided:
         dt_ns = (round(t * 1e9) - round(mem[M_.t_last] * 1e9)) * 1e-9
-        h_el = dt_ns
-        p_dd0 = mem[M_.p_ddot]
-        t_dd0 = mem[M_.tau_ddot]
-        p += p_dot * h_el + 0.5 * p_dd0 * h_el * h_el
-        p_dot += p_dd0 * h_el
-        tau += tau_dot * h_el + 0.5 * t_dd0 * h_el * h_el
-        tau_dot += t_dd0 * h_el
+        p, p_dot, tau, tau_dot = advanced(p, p_dot, tau, tau_dot, mem[M_.p_ddot], mem[M_.tau_ddot], dt_ns)
     last = mem[M_.stance]
     if last >= 0.0 and stance != int(last):
         tau = 0.0

@@ -338,11 +338,17 @@ class AdaptiveController:
         self.ck.begin(self.memory, float(t), int(stance), res)
         return res
 
-    def _reference(self, res: np.ndarray, q: np.ndarray, qd: np.ndarray) -> _Reference:
+    def _params(self, res: np.ndarray | None) -> tuple[float, float, float, float]:
+        """(p, p', tau, tau') of the period (``res``, a RES row from :meth:`_begin`), or the memory's when None."""
+        a, o = (self.memory, M_.p) if res is None else (res, R_.p)
+        return float(a[o]), float(a[o + 1]), float(a[o + 2]), float(a[o + 3])
+
+    def _reference(self, q: np.ndarray, qd: np.ndarray, res: np.ndarray | None = None) -> _Reference:
         """Eqs. (11), (16), (17), (20): w = D x + v with D = [dq/dp, dq/dtau], x = (p'', tau''), and the
-        second task's x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau'))."""
+        second task's x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau')), at the period's parameters (``res``;
+        None: the memory's)."""
         c, fam = self.cfg, self.family
-        p, p_dot, tau, tau_dot = (float(v) for v in res[R_.p:R_.p + 4])
+        p, p_dot, tau, tau_dot = self._params(res)
         g = fam.evaluate(p, tau)
         q_d, qd_d, qdd_drift = eq11(g, p_dot, tau_dot)
         v = joint_law(q_d, qd_d, qdd_drift, q, qd, c.Kp, c.Kv)
@@ -386,7 +392,7 @@ class AdaptiveController:
         delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
         return replace(dyn, h_b=dyn.h_b + delta), F
 
-    def _qp_rows(self, res: np.ndarray, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics
+    def _qp_rows(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
         """Eq. (21): G x <= h over x = (p'', tau'') (both columns; the caller keeps the adapted ones).
 
@@ -395,9 +401,9 @@ class AdaptiveController:
         (``dyn``), since the push may stop during the coming period (identical rows when F = 0). The
         estimate only shifts h_b, so the matrix rows are the same and only the five contact offsets differ
         by C (h_b,c - h_b). Then three parameter-range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max],
-        tau' + tau'' dt >= tau_dot_min."""
+        tau' + tau'' dt >= tau_dot_min (at the period's parameters ``res``; None: the memory's)."""
         c, fam, m = self.cfg, self.family, self.model
-        p, p_dot, tau_dot = float(res[R_.p]), float(res[R_.p_dot]), float(res[R_.tau_dot])
+        p, p_dot, _, tau_dot = self._params(res)
         mu = c.margin_friction * m.mu
         lm, lM = m.l_min + c.margin_zmp, m.l_max - c.margin_zmp
         cm = m.constraints(None, None, dyn_c, mu=mu, l_min=lm, l_max=lM)
@@ -415,7 +421,7 @@ class AdaptiveController:
                             [fam.p_max - p - p_dot * dt, p + p_dot * dt - fam.p_min, tau_dot - c.tau_dot_min]])
         return G, h
 
-    def _decide(self, res: np.ndarray, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics):
+    def _decide(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None):
         """Eqs. (19)-(21): x = x* when it satisfies the rows, else the QP's answer over the adapted
         parameters (the others stay at x*). Returns (x (2,), status, message, G, h, x*) with the reduced
         instance (None in mode none)."""
@@ -423,7 +429,7 @@ class AdaptiveController:
         if not self.adapted:
             return x, NO_ADAPTATION, MSG_NO_ADAPTATION, None, None, None
         try:
-            Gall, hall = self._qp_rows(res, ref, dyn, dyn_c)
+            Gall, hall = self._qp_rows(ref, dyn, dyn_c, res)
             idx, fixed = self._adapted_idx, self._fixed_idx
             h = hall - Gall[:, fixed] @ x[fixed] if fixed else hall
             G, xs = Gall[:, idx], x[idx]
@@ -459,10 +465,10 @@ class AdaptiveController:
             if out is not None:
                 return out
         res = self._begin(t, stance)
-        ref = self._reference(res, q, qd)
+        ref = self._reference(q, qd, res)
         dyn, jp = self._model_terms(q, qd)                     # eq. (1): A, H and the reaction rows
         dyn_c, F = self._observe(res, qd, dyn, jp)
-        x, status, msg, G, h, xs = self._decide(res, ref, dyn, dyn_c)
+        x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c, res)
         w = ref.D @ x + ref.v                                    # eq. (17)
         torque = computed_torque(dyn.A, dyn.H, w)                # eq. (15)
         cm = self.model.constraints(q, qd, dyn_c)
@@ -487,12 +493,8 @@ class AdaptiveController:
         """Computed torque at time s_time [s] into the current period, with (p, tau) propagated from the
         period's start by the period's decision (p'', tau'') and no new QP: the controller "at the
         integration rate" (eqs. 11, 16, 15). Before any decision: the initial parameters, p'' = tau'' = 0."""
-        mem = self.memory
-        p0, pd0, tau0, taud0, p_dd, t_dd = (float(v) for v in mem[M_.p:M_.p + 6])
-        p = p0 + pd0 * s_time + 0.5 * p_dd * s_time**2
-        pdot = pd0 + p_dd * s_time
-        tau = tau0 + taud0 * s_time + 0.5 * t_dd * s_time**2
-        taud = taud0 + t_dd * s_time
+        p0, pd0, tau0, taud0, p_dd, t_dd = (float(v) for v in self.memory[M_.p:M_.p + 6])
+        p, pdot, tau, taud = self.ck.advance(p0, pd0, tau0, taud0, p_dd, t_dd, float(s_time))   # the one advance
         qr, qdr, qddr = eq11(self.family.evaluate(p, tau), pdot, taud, p_dd, t_dd)
         w = joint_law(qr, qdr, qddr, q, qd, self.cfg.Kp, self.cfg.Kv)
         dyn, _ = self._model_terms(q, qd)

@@ -142,11 +142,12 @@ def load(module: str, sources: Sequence[str] = (), stream: TextIO | None = None)
     root = configure()
     own = source_of(module)
     short = module.rsplit(".", 1)[-1]
-    if sources:
-        drop_stale_cache(short, [source_of(s) for s in sources] + [own], root)
+    dropped = bool(sources) and drop_stale_cache(short, [source_of(s) for s in sources] + [own], root)
     stamp = root / f"{short}.stamp"
     key = cache_key(own)
     out = stream if stream is not None else sys.stderr
+    if dropped:
+        stamp.unlink(missing_ok=True)     # compiled afresh: say so
     compiling = announce_compile(stamp, key, out)
     t0 = time.perf_counter()
     mod = importlib.import_module(module)
