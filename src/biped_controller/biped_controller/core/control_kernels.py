@@ -53,12 +53,14 @@ RES_SIZE = RES.size
 # return codes of ``step``
 FEASIBLE, NEEDS_QP, NONFINITE = 0, 1, 2
 
-_V = numba.types.Array(numba.types.float64, 1, "C")
-_VI = numba.types.Array(numba.types.int64, 1, "C")
-_M = numba.types.Array(numba.types.float64, 2, "C")
-_C4 = numba.types.Array(numba.types.float64, 4, "C")
-_I = numba.types.int64
-_F = numba.types.float64
+# numba types of the kernels' arguments (explicit signatures; also the compiled loop's)
+T_VEC = numba.types.Array(numba.types.float64, 1, "C")
+T_IVEC = numba.types.Array(numba.types.int64, 1, "C")
+T_MAT = numba.types.Array(numba.types.float64, 2, "C")
+T_ARR4 = numba.types.Array(numba.types.float64, 4, "C")
+T_INT = numba.types.int64
+T_FLOAT = numba.types.float64
+_V, _VI, _M, _C4, _I, _F = T_VEC, T_IVEC, T_MAT, T_ARR4, T_INT, T_FLOAT
 
 
 @numba.njit(cache=True)

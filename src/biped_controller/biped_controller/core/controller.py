@@ -308,6 +308,11 @@ class AdaptiveController:
         return cons
 
     @property
+    def compiled_period(self) -> "_FastPeriod | None":
+        """The compiled period (fast engine), None on the Python steps."""
+        return self._kernel
+
+    @property
     def state(self) -> ParamState:
         """(p, p', tau, tau') at the last decision (a view of ``memory``)."""
         return ParamState(self.memory, M_.p)

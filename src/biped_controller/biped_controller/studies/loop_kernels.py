@@ -55,13 +55,8 @@ RES_SIZE = RES.size
 END_NAMES = ("t_stop reached", "record arrays full", "QP needed", "simulator event", "non-finite controller value",
              "two pushes in one interval", "max_periods")
 
-_V = numba.types.Array(numba.types.float64, 1, "C")
-_VI = numba.types.Array(numba.types.int64, 1, "C")
-_M = numba.types.Array(numba.types.float64, 2, "C")
+_V, _VI, _M, _C4, _I, _F = ck.T_VEC, ck.T_IVEC, ck.T_MAT, ck.T_ARR4, ck.T_INT, ck.T_FLOAT
 _C3 = numba.types.Array(numba.types.float64, 3, "C")
-_C4 = numba.types.Array(numba.types.float64, 4, "C")
-_I = numba.types.int64
-_F = numba.types.float64
 _B = numba.types.boolean
 
 

@@ -46,7 +46,7 @@ class Segment:
         if not self.eligible(sim, ctrl):
             raise ValueError("Segment needs the fast engine on both sides and ideal sensors")
         self.lk = load_loop_kernels()
-        self.sim, self.ctrl, self.fp = sim, ctrl, ctrl._kernel
+        self.sim, self.ctrl, self.fp = sim, ctrl, ctrl.compiled_period
         self.keep = keep_records
         self.rec = np.empty((capacity, self.lk.REC.size))
         self.sta = np.empty((capacity, RES.size))
@@ -55,7 +55,7 @@ class Segment:
 
     @staticmethod
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
-        return bool(sim._fast and getattr(ctrl, "_kernel", None) is not None and sim.sensor.identity)
+        return bool(sim.compiled and getattr(ctrl, "compiled_period", None) is not None and sim.sensor.identity)
 
     def run(self, t_stop: float, max_periods: int = 1 << 40) -> tuple[list[StepRecord], list[ControllerStatusData]]:
         """Periods until one needs Python, ``t_stop`` [s] is reached (the period reaching it included) or

@@ -100,6 +100,11 @@ class Simulator:
         self.cleared = False
         self.impact_log: list[ImpactRecord] = []
 
+    @property
+    def compiled(self) -> bool:
+        """True on the fast engine (the compiled kernels: ``self.fm`` is a ``CompiledFloatingModel``)."""
+        return self._fast
+
     def _limits(self) -> np.ndarray:
         """The ``SIM_LIMITS`` array of this plant and configuration."""
         d, c, lim = self.desc, self.cfg, SIM_LIMITS.new()

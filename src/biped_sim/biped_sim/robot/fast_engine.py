@@ -25,8 +25,8 @@ import numpy as np
 
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_abi as abi
-from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import ContactSolution, ImpactResult, SimulationError, paper_from_urdf, urdf_from_paper
+from biped_sim.robot.description import RobotDescription, load_description
+from biped_sim.robot.floating import ContactSolution, FloatingModel, ImpactResult, SimulationError
 
 PX, PZ, REV = abi.PX, abi.PZ, abi.REV
 PLANAR_KERNELS = "biped_sim.robot.planar_kernels"
@@ -259,25 +259,9 @@ class FastFloatingModel:
         return out
 
     # ---------------------------------------------------------------- paper <-> floating state
-    def state_from_paper(
-        self, q: np.ndarray, qd: np.ndarray, stance: int, ankle_x: float = 0.0, foot_pitch: float = 0.0
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Floating state with the stance foot at (ankle_x, 0, foot_pitch), at rest, and paper (q, q')."""
-        x = np.zeros(9)
-        x[3:] = urdf_from_paper(q, stance)
-        x[2] = foot_pitch - float(np.sum(x[3:6] if stance == LEFT else x[6:9]))
-        pose = self.foot_pose(x, stance)
-        x[0] += ankle_x - pose[0]
-        x[1] += 0.0 - pose[1]
-        v = np.zeros(9)
-        v[3:] = urdf_from_paper(qd, stance)
-        Jc = self.contact_jacobian(x, stance)
-        v[:3] = np.linalg.solve(Jc[:, :3], -Jc[:, 3:] @ v[3:])
-        return x, v
-
-    @staticmethod
-    def paper_from_state(x: np.ndarray, v: np.ndarray, stance: int) -> tuple[np.ndarray, np.ndarray]:
-        return paper_from_urdf(x[3:], stance), paper_from_urdf(v[3:], stance)
+    # the reference model's maths, written once (``FloatingModel``), on this engine's foot pose and Jacobian
+    state_from_paper = FloatingModel.state_from_paper
+    paper_from_state = staticmethod(FloatingModel.paper_from_state)
 
     # ---------------------------------------------------------------- dynamics
     def mass_bias(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
