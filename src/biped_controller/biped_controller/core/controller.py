@@ -23,6 +23,10 @@ status SOLVER_ERROR and x = x*.
 
 p is kept inside the family's valid range by two extra QP rows (p after one period within
 [p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min).
+
+State: the controller's state between periods is one array, ``memory`` (``period_layout.MEMORY``), shared
+with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a
+period are ``control_kernels``' numba functions for every path (their one home).
 """
 from __future__ import annotations
 
@@ -190,17 +194,20 @@ def status_records(rows: np.ndarray, steps: range, times: list[float], mode: str
     Each instance's ``__dict__`` is filled at once (the frozen dataclass's ``__init__`` costs ~4 us, as
     much as a compiled period); every field is set here, and ``margins`` / ``predicted_reaction`` are views
     of ``rows`` (pass rows nobody writes again)."""
-    vals = rows.tolist()
+    c = rows.T.tolist()     # columns, as exact Python floats
+    P, PD, TA, TAD, X0, X1, XS0, XS1 = (c[R_.p], c[R_.p_dot], c[R_.tau], c[R_.tau_dot], c[R_.x], c[R_.x + 1],
+                                        c[R_.x_star], c[R_.x_star + 1])
+    TIGHT, ZMP, ERR, F = [int(v) for v in c[R_.tightest]], c[R_.zmp], c[R_.max_error], c[R_.force]
+    MG, RR = rows[:, _MG], rows[:, _RR]
     out = []
-    for j, r in enumerate(vals):
-        c = _NEW(ControllerStatusData)
-        c.__dict__.update(
-            step=steps[j], t=times[j], mode=mode, p=r[R_.p], p_dot=r[R_.p_dot], tau=r[R_.tau], tau_dot=r[R_.tau_dot],
-            p_ddot=r[R_.x], tau_ddot=r[R_.x + 1], p_ddot_star=r[R_.x_star], tau_ddot_star=r[R_.x_star + 1],
-            qp_status=qp_status, qp_message=qp_message, margins=rows[j, _MG], tightest=int(r[R_.tightest]),
-            zmp=r[R_.zmp], stance=stance, max_tracking_error=r[R_.max_error], predicted_reaction=rows[j, _RR],
-            force_estimate=r[R_.force])
-        out.append(c)
+    for j in range(len(P)):
+        s = _NEW(ControllerStatusData)
+        s.__dict__.update(
+            step=steps[j], t=times[j], mode=mode, p=P[j], p_dot=PD[j], tau=TA[j], tau_dot=TAD[j], p_ddot=X0[j],
+            tau_ddot=X1[j], p_ddot_star=XS0[j], tau_ddot_star=XS1[j], qp_status=qp_status, qp_message=qp_message,
+            margins=MG[j], tightest=TIGHT[j], zmp=ZMP[j], stance=stance, max_tracking_error=ERR[j],
+            predicted_reaction=RR[j], force_estimate=F[j])
+        out.append(s)
     return out
 
 
