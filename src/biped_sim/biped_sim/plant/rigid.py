@@ -332,9 +332,9 @@ class Simulator:
                     return None
                 if act:
                     forces[i], heights[i] = act[0]
-        lim = np.empty(pk.PERIOD_LIMITS_SIZE)       # mu, l_min, l_max, td tolerance, clearance, penetration, cleared
-        lim[:6] = self.limits[L_.mu:L_.liftoff_penetration + 1]
-        lim[6] = self.sim_state[S_.cleared]
+        L = self.limits     # the period kernel's limits: mu, l_min, l_max, td tolerance, clearance, penetration, cleared
+        lim = np.array([L[L_.mu], L[L_.l_min], L[L_.l_max], L[L_.touchdown_tolerance], L[L_.clearance],
+                        L[L_.liftoff_penetration], self.sim_state[S_.cleared]])
         xo = np.empty(9)
         vo = np.empty(9)
         w0 = np.empty(3)
