@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -186,8 +187,8 @@ _MG = RES.slice("margins")
 _RR = RES.slice("reaction")
 
 
-def status_records(rows: np.ndarray, steps: range, times: list[float], mode: str, stance: int, qp_status: int,
-                   qp_message: str) -> list[ControllerStatusData]:
+def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float], mode: str, stance: int,
+                   qp_status: int, qp_message: str) -> list[ControllerStatusData]:
     """The one builder of :class:`ControllerStatusData`: from rows of the ``RES`` layout (n, RES.size), one a
     period (the period's p, p', tau, tau', x = (p'', tau''), x*, margins, tightest row, l, max |e|, R, F),
     with their period indices ``steps``, times [s], the mode, the stance and the QP's status and message.
