@@ -518,8 +518,13 @@ def test_bracket_moves_up_down_and_censors():
     assert ref.full and 271.0 < ref.hi <= 275.0 + 5.0
     b, n = solve(edge, 6)
     assert n < n_full
-    cen, _ = solve(lambda f: True, 3)
-    assert cen == cm.Boundary(500.0, None, (), False)
+    cen, n_cen = solve(lambda f: True, 3)
+    assert cen == cm.Boundary(500.0, None, ()) and n_cen == 10     # censored only after the full scan
+    # survivable again at the top (islands 450, 500 N above an edge at 150 N): a bracket started at the
+    # top does not call it censored, it falls back to the full search
+    top = lambda f: f < 128.0 or f >= 440.0  # noqa: E731
+    full_top, _ = solve(top, None)
+    assert solve(top, 10)[0] == full_top and full_top.islands == (450.0, 500.0) and full_top.hi < 150.0
     assert cm.edge_index(ref, 50.0) == 6.0 and cm.edge_index(cen, 50.0) == math.inf
 
 
@@ -550,6 +555,9 @@ def test_spec_search_settings_come_from_the_config():
 
 
 # real trials
+#: (force, mode, duration, phase): a 0.2 s push on mode none whose post-impact state is on the gait but
+#: whose first post-impact period tips the robot over the heel (the criterion waits for that period)
+EARLY_CASES = [(15.625, "none", 0.2, 0.25), (6.25, "none", 0.2, 0.45)]
 EARLY_FORCES = {"both": (40.0, 300.0, 550.0, 700.0), "tau": (100.0, 300.0, 400.0), "p": (40.0, 300.0, 400.0),
                 "none": (10.0, 40.0, 100.0)}
 
@@ -573,37 +581,46 @@ def test_early_stop_gives_the_full_trials_outcome():
             else:
                 assert a["decided_at_step"] is None and a["steps_walked"] == b["steps_walked"]
     assert stopped >= 6
+    T = experiment.context().family.T
+    for F, mode, d, ph in EARLY_CASES:
+        a = experiment.survives(F, mode, d, ph * T)
+        b = experiment.survives(F, mode, d, ph * T, settings=full)
+        assert not b["survived"] and b["fall_time"] < 0.5                      # falls just after the first impact
+        assert (a["survived"], a["reason"], a["fall_cause"]) == (b["survived"], b["reason"], b["fall_cause"])
 
 
 @pytest.mark.slow
 def test_loose_early_stop_tolerances_would_change_an_outcome(monkeypatch):
-    """Negative control: with unbounded tolerances a trial is 'decided' at the first impact after the
-    push, and a push that makes the robot fall later (mode tau, 400 N: a fall after that impact) would be
-    reported survived -- the comparison above can fail, the tolerances matter."""
-    full = experiment.survives(400.0, "tau", settings=experiment.RunSettings(full_trials=True))
+    """Negative control: with unbounded tolerances a trial is 'decided' one period after the first impact
+    after the push, and a push after which the robot falls a step later (mode both, 1293.75 N backward at
+    phase 0.9: one impact, then a take-off at t = 1.556 s) would be reported survived -- the comparison
+    above can fail, the tolerances matter."""
+    T = experiment.context().family.T
+    args = (-1293.75, "both", 0.025, 0.9 * T)
+    full = experiment.survives(*args, settings=experiment.RunSettings(full_trials=True))
     assert not full["survived"] and full["fall_cause"] and full["steps_walked"] >= 1
     inf = math.inf
     monkeypatch.setattr(experiment, "early_stop", lambda: experiment.EarlyStop(True, inf, inf, inf, inf, inf, inf))
-    loose = experiment.survives(400.0, "tau")
+    loose = experiment.survives(*args)
     assert loose["survived"] and loose["decided_at_step"] == full["steps_walked"]
 
 
 def test_early_stop_criterion_checks_every_tolerance_and_the_push_end():
-    """EarlyStop.decided on a synthetic post-impact state: at the fixed point it holds; each quantity
-    just outside its tolerance (and an impact before the push's end) makes it fail."""
+    """EarlyStop.decided on a synthetic state 0.7 ms after an impact: on the gait's orbit it holds; each
+    quantity just outside its tolerance (and an impact before the push's end) makes it fail."""
     from biped_sim.robot.description import LEFT
-    from biped_sim.robot.floating import urdf_from_paper
+    from biped_sim.robot.floating import FloatingModel, urdf_from_paper
     fam = experiment.context().family
     es = experiment.early_stop()
-    q0, qd0 = fam.initial_state()
+    g = fam.evaluate(fam.p_d, 0.0007)
 
-    def state(dq=0.0, dqd=0.0, dp=0.0, dpd=0.0, dtd=0.0, F=0.0, t=1.0):
+    def state(dq=0.0, dqd=0.0, dp=0.0, dpd=0.0, dtd=0.0, F=0.0, t_imp=1.0):
         dqv, dqdv = np.zeros(6), np.zeros(6)
         dqv[2], dqdv[4] = dq, dqd
-        x = np.concatenate([np.zeros(3), urdf_from_paper(q0 + dqv, LEFT)])
-        v = np.concatenate([np.zeros(3), urdf_from_paper(qd0 + dqdv, LEFT)])
-        imp = SimpleNamespace(t=t, x_plus=x, v_plus_projected=v, new_stance=LEFT)
-        sim = SimpleNamespace(impact_log=[imp])
+        x = np.concatenate([np.zeros(3), urdf_from_paper(g.q + dqv, LEFT)])
+        v = np.concatenate([np.zeros(3), urdf_from_paper(g.dq_dtau + dqdv, LEFT)])
+        sim = SimpleNamespace(impact_log=[SimpleNamespace(t=t_imp)], t=t_imp + 0.0007, x=x, v=v, stance=LEFT,
+                              fm=FloatingModel)
         ctrl = SimpleNamespace(state=SimpleNamespace(p=fam.p_d + dp, p_dot=dpd, tau_dot=1.0 + dtd), force_estimate=F)
         return sim, ctrl
 
@@ -611,7 +628,7 @@ def test_early_stop_criterion_checks_every_tolerance_and_the_push_end():
     assert es.decided(*state(dq=0.9 * es.q, dqd=-0.9 * es.qd, dp=0.9 * es.p, dpd=-0.9 * es.p_dot,
                              dtd=0.9 * es.tau_dot, F=-0.9 * es.force), 0.5, fam)
     for kw in (dict(dq=1.1 * es.q), dict(dqd=-1.1 * es.qd), dict(dp=1.1 * es.p), dict(dpd=1.1 * es.p_dot),
-               dict(dtd=-1.1 * es.tau_dot), dict(F=1.1 * es.force), dict(t=0.4)):
+               dict(dtd=-1.1 * es.tau_dot), dict(F=1.1 * es.force), dict(t_imp=0.4)):
         assert not es.decided(*state(**kw), 0.5, fam), kw
 
 

@@ -49,7 +49,6 @@ import yaml
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.robot.settings import default_config_dir, read_settings
-from biped_sim.robot.floating import paper_from_urdf
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 from biped_sim.plant.config import SimConfig, SimConfigError, load_sim_config
 from biped_sim.plant.rigid import Simulator
@@ -471,15 +470,17 @@ class StudySettingsError(ValueError):
 class EarlyStop:
     """When a survival trial's outcome is decided (issue 19; ``config/studies.yaml``).
 
-    At an impact at or after the end of the push, the trial is *decided* (survived) when the walk is
-    back on the preferred gait: the plant's post-impact state (``ImpactRecord.x_plus``,
-    ``v_plus_projected`` in paper coordinates of the new stance) within ``q`` [rad] and ``qd`` [rad/s]
-    (max norm) of the gait's fixed point (q*, q*') = ``GaitFamily.initial_state()`` (the same in either
-    stance), and the controller's parameters as last decided within ``p`` [m] of p_d, ``p_dot`` [m/s] of
-    0, ``tau_dot`` of 1, and its observer's force estimate within ``force`` [N] of 0. The rest of the
-    trial would be the undisturbed walk from such a state, which walks on and ends with p, tau' inside
-    :data:`P_TOL`, :data:`TAU_DOT_TOL` (measured: docs/capability_map.md, "Early stop"). Applied to the
-    nominal plant only (the measurement's plant): a perturbed plant's trial runs in full."""
+    Once a control period after an impact at or after the end of the push has completed without a fall
+    (``runner.run``'s ``on_impact``: the controller's own post-impact torque has acted and passed the
+    plant's checks), the trial is *decided* (survived) when the walk is back on the preferred gait: the
+    plant's state (q, q') at that instant t within ``q`` [rad] and ``qd`` [rad/s] (max norm) of the
+    gait's orbit at the same time into the step, q_d(p_d, t - t_impact) and dq_d/dtau(p_d, t - t_impact)
+    (``GaitFamily.evaluate``; the same in either stance), and the controller's parameters as last decided
+    within ``p`` [m] of p_d, ``p_dot`` [m/s] of 0, ``tau_dot`` of 1, its observer's force estimate within
+    ``force`` [N] of 0. The rest of the trial would be the undisturbed walk from such a state, which walks
+    on and ends with p, tau' inside :data:`P_TOL`, :data:`TAU_DOT_TOL` (measured: docs/capability_map.md,
+    "Early stop"). Applied to the nominal plant with ideal sensors only (the measurement's plant): a
+    perturbed plant's trial runs in full."""
 
     enabled: bool
     q: float
@@ -505,7 +506,7 @@ class EarlyStop:
         return cls(v["early_stop"], *(float(v[k]) for k in cls.KEYS[1:]))
 
     def decided(self, sim, ctrl, push_end: float, family: GaitFamily) -> bool:
-        """The criterion above, on the latest impact of ``sim`` and the state of ``ctrl``."""
+        """The criterion above, on the latest impact of ``sim``, its state now and the state of ``ctrl``."""
         imp = sim.impact_log[-1]
         if imp.t < push_end:
             return False
@@ -513,9 +514,9 @@ class EarlyStop:
         if not (abs(s.p - family.p_d) <= self.p and abs(s.p_dot) <= self.p_dot and abs(s.tau_dot - 1.0) <= self.tau_dot
                 and abs(ctrl.force_estimate) <= self.force):
             return False
-        q, qd = paper_from_urdf(imp.x_plus[3:], imp.new_stance), paper_from_urdf(imp.v_plus_projected[3:], imp.new_stance)
-        q0, qd0 = family.initial_state()
-        return bool(np.max(np.abs(q - q0)) <= self.q and np.max(np.abs(qd - qd0)) <= self.qd)
+        q, qd = sim.fm.paper_from_state(sim.x, sim.v, sim.stance)
+        g = family.evaluate(family.p_d, sim.t - imp.t)
+        return bool(np.max(np.abs(q - g.q)) <= self.q and np.max(np.abs(qd - g.dq_dtau)) <= self.qd)
 
 
 @functools.lru_cache(maxsize=4)

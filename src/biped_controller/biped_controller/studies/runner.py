@@ -61,9 +61,10 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     objects ran and the last period of each compiled segment -- the run's outcome (fall, impacts, the last
     status) is the same, the time series is not there.
 
-    ``on_impact(sim, ctrl)`` (the sweeps' early stop, issue 19) is called once after each period in which
-    impacts happened (``sim.impact_log[-1]`` the latest; ``ctrl.state`` as decided at that period's
-    start); True ends the run there (``steps_walked`` then counts the impacts so far)."""
+    ``on_impact(sim, ctrl)`` (the sweeps' early stop, issue 19) is called once per impact, once at least
+    one control period after it has completed without a fall (the controller's own post-impact torque
+    has acted and passed the plant's checks; ``sim.impact_log[-1]`` the impact, ``sim.t`` a control
+    instant after it); True ends the run there (``steps_walked`` then counts the impacts so far)."""
     desc = desc if desc is not None else load_description()
     family = family if family is not None else GaitFamily.load()
     scfg = sim_config if sim_config is not None else load_sim_config()
@@ -80,7 +81,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     limit = max_time if max_time is not None else (steps + 3) * family.T * 3
     records, statuses, qps = [], [], []
     seg = None
-    seen = 0
+    seen, pending = 0, False      # on_impact: impacts seen, one waiting for its first full period
     if compiled_loop and not integration_rate and not keep_qp and Segment.eligible(sim, ctrl):
         seg = Segment(sim, ctrl, keep_records=keep_records)
     while True:
@@ -93,8 +94,8 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
             statuses += stats
             if recs and sim.t >= t_stop:
                 break
-            if on_impact is not None and sim.impact_count > seen:
-                seen = sim.impact_count
+            if recs and pending and sim.impact_count == seen and sim.fall is None:
+                pending = False
                 if on_impact(sim, ctrl):
                     break
         obs = sim.observe()
@@ -109,10 +110,13 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         records.append(rec)
         if rec.fallen or sim.fall is not None:
             break
-        if on_impact is not None and sim.impact_count > seen:
-            seen = sim.impact_count
-            if on_impact(sim, ctrl):
-                break
+        if on_impact is not None:
+            if pending and sim.impact_count == seen:
+                pending = False
+                if on_impact(sim, ctrl):
+                    break
+            if sim.impact_count > seen:
+                seen, pending = sim.impact_count, True
         if sim.impact_count >= steps:
             if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1].t + extra_time_after_steps:
                 break

@@ -61,8 +61,10 @@ def _bracket_state(search: Search, survived: Mapping[float, bool], hint: float, 
 
     1. Edge: with k the hint (clamped to the grid), the pair of coarse forces ((k - 1) c, k c) is
        simulated; the bracket holds when the lower survives (or k = 1: 0 N) and the upper fails, and the
-       edge is k c. When it does not hold the bracket moves one coarse step at a time -- up while k c
-       survives (up to the scan's maximum: censored), down while (k - 1) c fails -- until it holds. The
+       edge is k c. When it does not hold the bracket moves one coarse step at a time -- down while
+       (k - 1) c fails, up while k c survives -- until it holds; a bracket that reaches the scan's maximum
+       still surviving falls back to the full search (a cell is censored only when every coarse force
+       survives: islands high up must not pass for a censored cell). The
        coarse forces below (k - 1) c are not simulated: the bracket assumes they survive, as the full
        scan found in every cell of the default map (the comparison in docs/capability_map.md).
     2. Islands: above the edge, coarse forces are simulated upward until ``window`` consecutive ones
@@ -77,12 +79,12 @@ def _bracket_state(search: Search, survived: Mapping[float, bool], hint: float, 
         need = [f for f in ((k - 1) * c, k * c) if f > 0 and f not in survived]
         if need:
             return ("coarse", need)
-        if survived[k * c]:
-            if k == n:
-                return ("done", Boundary(k * c, None, (), False))
-            k += 1
-        elif k > 1 and not survived[(k - 1) * c]:
+        if k > 1 and not survived[(k - 1) * c]:
             k -= 1
+        elif survived[k * c]:
+            if k == n:      # survives at the scan's top: censored only if every coarse force survives
+                return _search_state(search, survived)
+            k += 1
         else:
             break
     hi, lo = k * c, (k - 1) * c if k > 1 else 0.0
