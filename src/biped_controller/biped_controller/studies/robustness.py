@@ -15,7 +15,8 @@ Per level:
   when ``WALK_STEPS`` impacts happen without a fall (the record gives the fall cause and time, the
   largest tracking error and |l|, and the observer's largest force estimate, which under model error
   is a fictitious force explaining the model's residual);
-* max push: the capability map's search (``capability_map.run_map`` on one cell: phase 0.5 of the
+* max push: the capability map's search (``capability_map.run_maps``, one one-cell map per (level,
+  mode, observer), all at once on the capability map's workers, after the walks: phase 0.5 of the
   first step = ``experiment.DEFAULT_START``, forward, 0.025 s; coarse scan then bisection, survival =
   ``experiment.survival``) with a coarse, per-mode search (:data:`SEARCHES`): the boundary is known to
   within the resolution only, and islands above the lowest failing edge are listed.
@@ -23,7 +24,9 @@ Per level:
 Records: the walk records in ``<store>/walks.jsonl`` and the push simulations in ``<store>/push.jsonl``
 (JSON Lines, resumable: a rerun skips every walk and simulation already stored; push records are keyed
 by the capability map's fingerprint, which contains the perturbation through the run settings).
-Noise is one realisation (seed 0): a boundary under noise is that realisation's.
+Noise is one realisation (seed 0): a boundary under noise is that realisation's. The early stop of
+``experiment.EarlyStop`` shortens the nominal rows' survival trials only (it was measured on the nominal
+plant); ``--full-trials`` turns it off there too.
 """
 from __future__ import annotations
 
