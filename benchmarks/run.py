@@ -41,6 +41,7 @@ TARGETS = {
     "lockstep_rate_hz": 1000.0,
     "inprocess_realtime_factor": 50.0,
     "max_push_table_s": 30.0,
+    "sweep_map_full_wall_s": 60.0,
 }
 
 
@@ -600,6 +601,14 @@ def markdown(R: dict) -> str:
     L.append(f"**5. Four-mode max-push table** (target <= {TARGETS['max_push_table_s']:.0f} s on 2 cores): "
              + (f"serial {_f(e['serial_s'])} s, parallel ({e['workers']} processes) {_f(e['parallel_s'])} s."
                 if e.get("available") else e.get("reason", "not available") + "."))
+    sw = R.get("sweep") or {}
+    if sw.get("available"):
+        L.append("")
+        L.append(f"**6. Sweep** (issue 19): {'a 2-phase map' if sw['quick'] else 'the default capability map'} "
+                 f"({sw['cells']} cells, {sw['workers']} processes, early stop + bracketed search): "
+                 f"{sw['simulations']} simulations in {_f(sw['wall_s'])} s = {_f(sw['sims_per_s'], 1)} sims/s "
+                 f"(target <= {TARGETS['sweep_map_full_wall_s']:.0f} s for the full map; load average "
+                 f"{sw['load_average_before'][0]:.1f} at the start).")
     return "\n".join(L) + "\n"
 
 
@@ -619,7 +628,8 @@ def update_readme(md: str, path: Path) -> None:
 
 
 def stable_keys(R: dict) -> dict:
-    """The figures of issue 11 under stable dotted keys (None when a part was not available)."""
+    """The figures of issues 11 and 19 under stable dotted keys (None when a part was not available)."""
+    from benchmarks.sweep_bench import keys as sweep_keys
     def get(*path):
         node = R
         for k in path:
@@ -640,6 +650,7 @@ def stable_keys(R: dict) -> dict:
         "dds.pingpong_steps_per_s": pp.get("rate_hz") if pp.get("available") else None,
         "dds.lockstep_with_recorder_steps_per_s": (ls.get("with_recorder") or {}).get("steps_per_s"),
         "table.parallel_wall_s": e.get("parallel_s") if e.get("available") else None,
+        **sweep_keys(R.get("sweep") or {"available": False}),
     }
 
 
@@ -702,6 +713,9 @@ def main(argv=None) -> int:
     R["inprocess"] = bench_inprocess(1 if quick else 5)
     log("5. max-push table")
     R["experiment"] = bench_experiment(quick)
+    log("6. sweep: the default capability map (early stop, bracketed search)")
+    from benchmarks.sweep_bench import bench_sweep
+    R["sweep"] = bench_sweep(quick)
     R["meta"]["wall_s"] = time.perf_counter() - T0
     R["keys"] = stable_keys(R)
     p50 = c["pieces_us"]["total"]["p50"]

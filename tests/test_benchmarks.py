@@ -53,12 +53,14 @@ def test_quick_benchmark_writes_json(tmp_path, ros_env):
                          "inprocess.fast_outcome_only.realtime_factor", "controller.step_p50_us_reference_engine",
                          "controller.step_p50_us", "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest",
                          "dds.lockstep_steps_per_s", "dds.pingpong_steps_per_s", "table.parallel_wall_s",
-                         "dds.lockstep_with_recorder_steps_per_s"}
+                         "dds.lockstep_with_recorder_steps_per_s", "sweep.map_full_wall_s", "sweep.sims_per_s"}
     for k in ("inprocess.fast.realtime_factor", "inprocess.reference.realtime_factor", "controller.step_p50_us",
               "inprocess.fast_outcome_only.realtime_factor", "controller.step_p50_us_reference_engine",
-              "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest"):
+              "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest", "sweep.sims_per_s"):
         assert isinstance(keys[k], float) and keys[k] > 0, (k, keys[k])
     assert "available" in R["experiment"]
+    assert keys["sweep.map_full_wall_s"] is None and R["sweep"]["quick"]       # --quick: a 2-phase map only
+    assert R["sweep"]["simulations"] > 0
     md = (tmp_path / "results.md").read_text()
     assert "| solver |" in md and "| piece |" in md
 

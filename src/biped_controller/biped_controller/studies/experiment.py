@@ -48,7 +48,7 @@ import yaml
 
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.gait_family import GaitFamily
-from biped_sim.robot.settings import default_config_dir
+from biped_sim.robot.settings import default_config_dir, read_settings
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 from biped_sim.plant.config import SimConfig, SimConfigError, load_sim_config
 from biped_sim.plant.push import Push
@@ -116,11 +116,14 @@ def _sim_config(items: tuple[tuple[str, object], ...]) -> SimConfig:
 class RunSettings:
     """Overrides of config/controller.yaml and config/simulator.yaml for a run (hashable, picklable: it
     travels to the worker processes). Empty = the config files as they are. ``perturbation`` (issue 14):
-    the plant's model error, friction and sensing, given to the simulator only (None: none)."""
+    the plant's model error, friction and sensing, given to the simulator only (None: none).
+    ``full_trials`` (issue 19): run every survival trial in full (no early stop); not part of
+    :meth:`describe` (an early-stopped trial has the outcome of the full one: ``EarlyStop``)."""
 
     controller: tuple[tuple[str, object], ...] = ()
     simulator: tuple[tuple[str, object], ...] = ()
     perturbation: PlantPerturbation | None = None
+    full_trials: bool = False    # True: no early stop (every survival trial runs in full), whatever config/studies.yaml says
 
     def sim_config(self) -> SimConfig:
         return _sim_config(self.simulator)
@@ -162,7 +165,8 @@ def _parse_value(key: str, text: str) -> object:
     return v
 
 
-def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | bool | None = None) -> RunSettings:
+def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | bool | None = None,
+                    full_trials: bool = False) -> RunSettings:
     """``RunSettings`` from ``KEY=VALUE`` strings and the observer switch ("on"/"off"/bool/None = config
     file). Raises :class:`OverrideError` naming an unknown or repeated key or a malformed item; a value
     out of range raises the config's own error (ControllerConfigError / SimConfigError, naming the key)
@@ -194,7 +198,7 @@ def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | boo
         if "disturbance_observer" in ctrl and ctrl["disturbance_observer"] != on:
             raise OverrideError("disturbance_observer: --observer and --set disagree")
         ctrl["disturbance_observer"] = on
-    return RunSettings(tuple(sorted(ctrl.items())), tuple(sorted(sim.items())))
+    return RunSettings(tuple(sorted(ctrl.items())), tuple(sorted(sim.items())), full_trials=bool(full_trials))
 
 
 def check_settings(settings: RunSettings) -> dict:
@@ -216,15 +220,15 @@ DEFAULT_SETTINGS = RunSettings()
 
 def _run(steps: int, mode: str, pushes: tuple[Push, ...] = (), *, integration_rate: bool = False,
          observer: bool | None = None, keep_qp: bool = False, settings: RunSettings = DEFAULT_SETTINGS,
-         keep_records: bool = True) -> RunResult:
+         keep_records: bool = True, on_impact=None) -> RunResult:
     ctx = context()
     if observer is not None:
         settings = RunSettings(tuple(sorted({**dict(settings.controller), "disturbance_observer": observer}.items())),
-                               settings.simulator, settings.perturbation)
+                               settings.simulator, settings.perturbation, settings.full_trials)
     ccfg = settings.ctrl_config(mode)
     return runner.run(steps=steps, mode=mode, pushes=pushes, sim_config=settings.sim_config(), ctrl_config=ccfg,
                       family=ctx.family, desc=ctx.desc, integration_rate=integration_rate, keep_qp=keep_qp,
-                      perturbation=settings.perturbation, keep_records=keep_records)
+                      perturbation=settings.perturbation, keep_records=keep_records, on_impact=on_impact)
 
 
 # ------------------------------------------------------------------------------------------ summaries
@@ -313,13 +317,13 @@ def push_step_index(start: float, duration: float, T: float) -> int:
 
 def push_run(force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, mode: str = "both",
              height: float | None = None, steps_after: int = SURVIVAL_STEPS, keep_qp: bool = False,
-             settings: RunSettings = DEFAULT_SETTINGS, keep_records: bool = True) -> RunResult:
+             settings: RunSettings = DEFAULT_SETTINGS, keep_records: bool = True, on_impact=None) -> RunResult:
     """One push (+ forward, i.e. on the back), then ``steps_after`` more steps. ``keep_records`` False: the
-    outcome only (``runner.run``), as a survival trial needs."""
+    outcome only (``runner.run``), as a survival trial needs; ``on_impact``: ``runner.run``'s early stop."""
     T = context().family.T
     steps = push_step_index(start, duration, T) + 1 + steps_after
     return _run(steps, mode, (Push(start, duration, float(force), height),), keep_qp=keep_qp, settings=settings,
-                keep_records=keep_records)
+                keep_records=keep_records, on_impact=on_impact)
 
 
 def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STEPS) -> tuple[bool, str]:
@@ -459,14 +463,101 @@ def push_figures(result: RunResult, outdir: Path, start: float, duration: float,
 
 
 # ------------------------------------------------------------------------------------------ max push
+class StudySettingsError(ValueError):
+    """``config/studies.yaml`` holds a value out of range (the message names the key)."""
+
+
+@dataclass(frozen=True)
+class EarlyStop:
+    """When a survival trial's outcome is decided (issue 19; ``config/studies.yaml``).
+
+    Once a control period after an impact at or after the end of the push has completed without a fall
+    (``runner.run``'s ``on_impact``: the controller's own post-impact torque has acted and passed the
+    plant's checks), the trial is *decided* (survived) when the walk is back on the preferred gait: the
+    plant's state (q, q') at that instant t within ``q`` [rad] and ``qd`` [rad/s] (max norm) of the
+    gait's orbit at the same time into the step, q_d(p_d, t - t_impact) and dq_d/dtau(p_d, t - t_impact)
+    (``GaitFamily.evaluate``; the same in either stance), and the controller's parameters as last decided
+    within ``p`` [m] of p_d, ``p_dot`` [m/s] of 0, ``tau_dot`` of 1, its observer's force estimate within
+    ``force`` [N] of 0. The rest of the trial would be the undisturbed walk from such a state, which walks
+    on and ends with p, tau' inside :data:`P_TOL`, :data:`TAU_DOT_TOL` (measured: docs/capability_map.md,
+    "Early stop"). Applied to the nominal plant with ideal sensors only (the measurement's plant): a
+    perturbed plant's trial runs in full."""
+
+    enabled: bool
+    q: float
+    qd: float
+    p: float
+    p_dot: float
+    tau_dot: float
+    force: float
+
+    KEYS = ("early_stop", "early_stop_q", "early_stop_qd", "early_stop_p", "early_stop_p_dot",
+            "early_stop_tau_dot", "early_stop_force")
+
+    @classmethod
+    def load(cls, path: str | os.PathLike | None = None) -> "EarlyStop":
+        p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
+        v = read_settings(p, cls.KEYS)
+        if not isinstance(v["early_stop"], bool):
+            raise StudySettingsError(f"{p}: 'early_stop' must be true or false, got {v['early_stop']!r}")
+        for k in cls.KEYS[1:]:
+            x = v[k]
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and x > 0):
+                raise StudySettingsError(f"{p}: '{k}' must be a finite number > 0, got {x!r}")
+        return cls(v["early_stop"], *(float(v[k]) for k in cls.KEYS[1:]))
+
+    def decided(self, sim, ctrl, push_end: float, family: GaitFamily) -> bool:
+        """The criterion above, on the latest impact of ``sim``, its state now and the state of ``ctrl``."""
+        imp = sim.impact_log[-1]
+        if imp.t < push_end:
+            return False
+        s = ctrl.state
+        if not (abs(s.p - family.p_d) <= self.p and abs(s.p_dot) <= self.p_dot and abs(s.tau_dot - 1.0) <= self.tau_dot
+                and abs(ctrl.force_estimate) <= self.force):
+            return False
+        q, qd = sim.fm.paper_from_state(sim.x, sim.v, sim.stance)
+        g = family.evaluate(family.p_d, sim.t - imp.t)
+        return bool(np.max(np.abs(q - g.q)) <= self.q and np.max(np.abs(qd - g.dq_dtau)) <= self.qd)
+
+
+@functools.lru_cache(maxsize=4)
+def _early_stop(stamp: int) -> EarlyStop:
+    return EarlyStop.load()
+
+
+def early_stop() -> EarlyStop:
+    """``config/studies.yaml``'s early stop, read again whenever the file changed."""
+    return _early_stop(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
+
+
 def survives(force: float, mode: str, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
              height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS) -> dict:
-    """One survival trial (JSON-ready): force, survived, reason, and a few numbers."""
-    res = push_run(force, duration, start, mode, height, settings=settings, keep_records=False)
-    ok, why = survival(res, start + duration)
+    """One survival trial (JSON-ready): force, survived, reason, and a few numbers. With the early stop
+    (``config/studies.yaml``, unless ``settings.full_trials`` or a perturbed plant) the trial ends at the
+    first impact where its outcome is decided (:class:`EarlyStop`): survived, ``decided_at_step`` = the
+    impacts walked by then; otherwise ``decided_at_step`` is None (the trial ran in full)."""
+    end = start + duration
+    on_impact = None
+    fired: list[int] = []
+    es = None if settings.full_trials else early_stop()
+    if es is not None and es.enabled and (settings.perturbation is None or settings.perturbation.is_zero):
+        fam = context().family
+
+        def stop_if_decided(sim, ctrl) -> bool:
+            if es.decided(sim, ctrl, end, fam):
+                fired.append(sim.impact_count)
+                return True
+            return False
+        on_impact = stop_if_decided
+    res = push_run(force, duration, start, mode, height, settings=settings, keep_records=False, on_impact=on_impact)
+    decided = bool(fired) and not res.fallen
+    if decided:
+        ok, why = True, "survived"
+    else:
+        ok, why = survival(res, end)
     return {"force": float(force), "mode": mode, "survived": ok, "reason": why,
             "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
-            "steps_walked": int(res.steps_walked)}
+            "steps_walked": int(res.steps_walked), "decided_at_step": int(res.steps_walked) if decided else None}
 
 
 def _trial(args: tuple) -> dict:
@@ -736,6 +827,8 @@ def _add_settings_args(a: argparse.ArgumentParser) -> None:
                         "off = the paper's controller as published")
     a.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a key of config/controller.yaml or config/simulator.yaml (repeatable)")
+    a.add_argument("--full-trials", action="store_true",
+                   help="run every survival trial in full (no early stop: config/studies.yaml early_stop)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -779,7 +872,7 @@ def main(argv: list[str] | None = None) -> int:
         _add_settings_args(a)
     args = ap.parse_args(argv)
     try:
-        settings = parse_overrides(args.overrides, args.observer)
+        settings = parse_overrides(args.overrides, args.observer, args.full_trials)
         described = check_settings(settings)
     except (OverrideError, ControllerConfigError, SimConfigError) as exc:
         ap.error(str(exc))

@@ -15,7 +15,8 @@ Per level:
   when ``WALK_STEPS`` impacts happen without a fall (the record gives the fall cause and time, the
   largest tracking error and |l|, and the observer's largest force estimate, which under model error
   is a fictitious force explaining the model's residual);
-* max push: the capability map's search (``capability_map.run_map`` on one cell: phase 0.5 of the
+* max push: the capability map's search (``capability_map.run_maps``, one one-cell map per (level,
+  mode, observer), all at once on the capability map's workers, after the walks: phase 0.5 of the
   first step = ``experiment.DEFAULT_START``, forward, 0.025 s; coarse scan then bisection, survival =
   ``experiment.survival``) with a coarse, per-mode search (:data:`SEARCHES`): the boundary is known to
   within the resolution only, and islands above the lowest failing edge are listed.
@@ -23,7 +24,9 @@ Per level:
 Records: the walk records in ``<store>/walks.jsonl`` and the push simulations in ``<store>/push.jsonl``
 (JSON Lines, resumable: a rerun skips every walk and simulation already stored; push records are keyed
 by the capability map's fingerprint, which contains the perturbation through the run settings).
-Noise is one realisation (seed 0): a boundary under noise is that realisation's.
+Noise is one realisation (seed 0): a boundary under noise is that realisation's. The early stop of
+``experiment.EarlyStop`` shortens the nominal rows' survival trials only (it was measured on the nominal
+plant); ``--full-trials`` turns it off there too.
 """
 from __future__ import annotations
 
@@ -108,9 +111,10 @@ def combos(modes, observers) -> list[tuple[str, bool]]:
     return [(m, obs) for obs in observers for m in modes if m != "none"] + ([("none", False)] if "none" in modes else [])
 
 
-def settings_for(perturbation: PlantPerturbation, observer: bool) -> RunSettings:
+def settings_for(perturbation: PlantPerturbation, observer: bool, full_trials: bool = False) -> RunSettings:
     """Run settings: the config files, the observer switch, the plant's perturbation."""
-    return RunSettings(controller=(("disturbance_observer", bool(observer)),), perturbation=perturbation)
+    return RunSettings(controller=(("disturbance_observer", bool(observer)),), perturbation=perturbation,
+                       full_trials=full_trials)
 
 
 # ------------------------------------------------------------------------------------------ walk
@@ -155,10 +159,10 @@ def _record_key(r: dict) -> str:
     return _walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"], r.get("fingerprint"))
 
 
-def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, log=print,
+def run_walks(levels, modes, observers, store: cmap.RecordStore, workers, log=print,
               simulate: bool = True) -> dict[str, dict]:
-    """Every (level, mode, observer) walk not yet in ``store``, on ``workers`` processes; returns the
-    records by key. Mode ``none`` ignores the observer (no QP: the estimate is never used), so it runs once,
+    """Every (level, mode, observer) walk not yet in ``store``, on ``workers`` (an executor of
+    ``studies.executor``, or a number of processes); returns the records by key. Mode ``none`` ignores the observer (no QP: the estimate is never used), so it runs once,
     with the observer as configured off. ``simulate`` False: only the stored records."""
     done = {_record_key(r): r for r in store.load() if r.get("kind") == "walk"}
     if not simulate:
@@ -179,17 +183,21 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, l
             f"observer {'on' if r['observer'] else 'off'}: {'survived' if r['survived'] else 'FELL'} "
             f"{r['steps_walked']} steps {r['fall_cause'] or ''} ({r['wall_time']:.0f} s)")
     if tasks:
-        with make_executor(workers, initializer=experiment.context) as ex:
-            ex.map(walk_record, tasks, on_result=keep)
+        if isinstance(workers, int):
+            with make_executor(workers, initializer=experiment.context) as ex:
+                ex.map(walk_record, tasks, on_result=keep)
+        else:
+            workers.map(walk_record, tasks, on_result=keep)
     return done
 
 
 # ------------------------------------------------------------------------------------------ max push
-def push_spec(perturbation: PlantPerturbation, mode: str, observer: bool) -> cmap.MapSpec:
-    """The capability map of one mode on the max-push cell, with the level's perturbation."""
+def push_spec(perturbation: PlantPerturbation, mode: str, observer: bool, full_trials: bool = False) -> cmap.MapSpec:
+    """The capability map of one mode on the max-push cell, with the level's perturbation (one cell: the
+    full search, no neighbour)."""
     return cmap.MapSpec(modes=(mode,), directions=(PUSH_CELL["direction"],), phases=(PUSH_CELL["phase"],),
                         durations=(PUSH_CELL["duration"],), search=SEARCHES[mode],
-                        settings=settings_for(perturbation, observer))
+                        settings=settings_for(perturbation, observer, full_trials))
 
 
 def no_fall_edge(records: dict[float, dict]) -> tuple[float, float | None]:
@@ -235,30 +243,35 @@ def stored_max_push(spec: cmap.MapSpec, records: list[dict]) -> dict | None:
             "coarse": spec.search.coarse, "scan_max": spec.search.fmax}
 
 
-def run_pushes(levels, modes, observers, store: cmap.RecordStore, executor, log=print) -> dict[tuple, dict]:
-    """Max push of every (level, mode, observer) through ``capability_map.run_map`` (resumable from
-    ``store``); returns {(level name, mode, observer): record}. Mode ``none`` runs with the observer off only
-    (its torque never uses the estimate). ``executor`` None: only what the store holds (no simulation)."""
+def run_pushes(levels, modes, observers, store: cmap.RecordStore, executor, log=print,
+               full_trials: bool = False) -> dict[tuple, dict]:
+    """Max push of every (level, mode, observer), all at once through ``capability_map.run_maps`` (one
+    one-cell map per row: every worker stays busy; resumable from ``store``); returns {(level name, mode,
+    observer): record}. Mode ``none`` runs with the observer off only (its torque never uses the
+    estimate). ``executor`` None: only what the store holds (no simulation). ``full_trials``: no early
+    stop (it applies to the nominal plant only in any case: ``experiment.EarlyStop``)."""
     out = {}
-    stored = store.load() if executor is None else []
-    for m, obs in combos(modes, observers):
-        for lv in levels:
-            spec = push_spec(lv.perturbation, m, obs)
-            if executor is None:
-                r = stored_max_push(spec, stored)
-                if r is not None:
-                    out[(lv.name, m, obs)] = dict(r, level=lv.name, mode=m, observer=obs,
-                                                  perturbation=lv.perturbation.as_dict())
-                continue
-            t0 = time.perf_counter()
-            run = cmap.run_map(spec, executor, store, batch=1)
-            r = max_push_record(run)
-            r.update(level=lv.name, mode=m, observer=obs, perturbation=lv.perturbation.as_dict(),
-                     simulated_now=run.simulated)
-            out[(lv.name, m, obs)] = r
-            log(f"  max push {lv.name:<28} {m:<4} observer {'on ' if obs else 'off'}: {r['max_force']:g} N "
-                f"(first failure {r['first_failure']}, {r['cause']}; {run.simulated} run now, {run.resumed} "
-                f"resumed, {time.perf_counter() - t0:.0f} s)")
+    keys = [(lv, m, obs) for m, obs in combos(modes, observers) for lv in levels]
+    specs = [push_spec(lv.perturbation, m, obs, full_trials) for lv, m, obs in keys]
+    if executor is None:
+        stored = store.load()
+        for (lv, m, obs), spec in zip(keys, specs):
+            r = stored_max_push(spec, stored)
+            if r is not None:
+                out[(lv.name, m, obs)] = dict(r, level=lv.name, mode=m, observer=obs,
+                                              perturbation=lv.perturbation.as_dict())
+        return out
+    t0 = time.perf_counter()
+    runs = cmap.run_maps(specs, executor, store, batch=1)
+    for (lv, m, obs), run in zip(keys, runs):
+        r = max_push_record(run)
+        r.update(level=lv.name, mode=m, observer=obs, perturbation=lv.perturbation.as_dict(),
+                 simulated_now=run.simulated)
+        out[(lv.name, m, obs)] = r
+        log(f"  max push {lv.name:<28} {m:<4} observer {'on ' if obs else 'off'}: {r['max_force']:g} N "
+            f"(first failure {r['first_failure']}, {r['cause']}; {run.simulated} run now, {run.resumed} resumed)")
+    log(f"max push: {sum(r.simulated for r in runs)} simulations run, {sum(r.resumed for r in runs)} resumed, "
+        f"{time.perf_counter() - t0:.0f} s")
     return out
 
 
@@ -373,6 +386,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="summary JSON")
     ap.add_argument("--table", type=Path, default=None, help="write the markdown table here")
     ap.add_argument("--figures", type=Path, default=None, help="directory for max_push.png")
+    ap.add_argument("--full-trials", action="store_true",
+                    help="run every survival trial in full (no early stop; it applies to the nominal plant only)")
     ap.add_argument("--report-only", action="store_true",
                     help="no simulation: the table, figure and JSON of what the store holds")
     args = ap.parse_args(argv)
@@ -394,15 +409,19 @@ def main(argv: list[str] | None = None) -> int:
     log = _log
     walks = {}
     pushes = {}
-    if args.what in ("walk", "both"):
-        walks = run_walks(levels, modes, observers, walks_store, args.workers, log, simulate=not args.report_only)
-    if args.what in ("push", "both"):
-        ex = None if args.report_only else cmap.make_executor(args.workers, None)
-        try:
-            pushes = run_pushes(levels, modes, observers, push_store, ex, log)
-        finally:
-            if ex is not None:
-                ex.close()
+    # one executor (the capability map's workers) for the walks and the push searches
+    ex = None if args.report_only else cmap.make_executor(args.workers, None)
+    try:
+        if args.what in ("walk", "both"):
+            walks = run_walks(levels, modes, observers, walks_store, ex if ex is not None else 1, log,
+                              simulate=not args.report_only)
+        if args.what in ("push", "both"):
+            pushes = run_pushes(levels, modes, observers, push_store, ex, log, args.full_trials)
+    finally:
+        if ex is not None:
+            ex.close()
+    wall = time.perf_counter() - t0
+    log(f"wall time {wall:.1f} s ({args.workers} workers)")
     table = table_markdown(levels, modes, observers, walks, pushes)
     print(table)
     if args.table is not None:
@@ -417,7 +436,8 @@ def main(argv: list[str] | None = None) -> int:
             "pushes": [dict(v, key=list(map(str, k))) for k, v in sorted(pushes.items(), key=str)],
             "searches": {m: {"coarse": s.coarse, "max": s.fmax, "resolution": s.resolution} for m, s in SEARCHES.items()},
             "push_cell": PUSH_CELL, "walk_steps": WALK_STEPS, "figures": figs,
-            "git": git_state(), "wall_time": time.perf_counter() - t0}, indent=1), encoding="utf-8")
+            "git": git_state(), "wall_time": wall, "workers": args.workers,
+            "full_trials": args.full_trials}, indent=1), encoding="utf-8")
     return 0
 
 

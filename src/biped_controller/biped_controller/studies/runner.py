@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -43,7 +44,8 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         family: GaitFamily | None = None, desc: RobotDescription | None = None,
         integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,
         extra_time_after_steps: float = 0.0, perturbation: PlantPerturbation | None = None,
-        compiled_loop: bool = True, keep_records: bool = True) -> RunResult:
+        compiled_loop: bool = True, keep_records: bool = True,
+        on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None) -> RunResult:
     """Walk ``steps`` steps (impacts) or until a fall. ``integration_rate``: the controller's torque law is
     evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` (issue 14) goes to the
     simulator only: the plant and the sensors differ, the controller keeps ``desc``.
@@ -53,7 +55,12 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     period by period (tested); the objects take every period with a QP, an impact or a fall.
     ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
     objects ran and the last period of each compiled segment -- the run's outcome (fall, impacts, the last
-    status) is the same, the time series is not there."""
+    status) is the same, the time series is not there.
+
+    ``on_impact(sim, ctrl)`` (the sweeps' early stop, issue 19) is called once per impact, once at least
+    one control period after it has completed without a fall (the controller's own post-impact torque
+    has acted and passed the plant's checks; ``sim.impact_log[-1]`` the impact, ``sim.t`` a control
+    instant after it); True ends the run there (``steps_walked`` then counts the impacts so far)."""
     desc = desc if desc is not None else load_description()
     family = family if family is not None else GaitFamily.load()
     scfg = sim_config if sim_config is not None else load_sim_config()
@@ -70,6 +77,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     limit = max_time if max_time is not None else (steps + 3) * family.T * 3
     records, statuses, qps = [], [], []
     seg = None
+    seen, pending = 0, False      # on_impact: impacts seen, one waiting for its first full period
     if compiled_loop and not integration_rate and not keep_qp and Segment.eligible(sim, ctrl):
         seg = Segment(sim, ctrl, keep_records=keep_records)
     while True:
@@ -82,6 +90,10 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
             statuses += stats
             if recs and sim.t >= t_stop:
                 break
+            if recs and pending and sim.impact_count == seen and sim.fall is None:
+                pending = False
+                if on_impact(sim, ctrl):
+                    break
         obs = sim.observe()
         out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance)
         statuses.append(out.status)
@@ -94,6 +106,13 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         records.append(rec)
         if rec.fallen or sim.fall is not None:
             break
+        if on_impact is not None:
+            if pending and sim.impact_count == seen:
+                pending = False
+                if on_impact(sim, ctrl):
+                    break
+            if sim.impact_count > seen:
+                seen, pending = sim.impact_count, True
         if sim.impact_count >= steps:
             if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1].t + extra_time_after_steps:
                 break

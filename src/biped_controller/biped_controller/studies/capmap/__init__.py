@@ -18,11 +18,15 @@ period of the preferred gait (``GaitFamily.T``, 0.463 s); the walk starts at t =
 initial state, the beginning of that first step (just after an impact). ``--phases N`` samples
 ``phase = k / N``, k = 0 .. N-1, so phase 0.5 is the paper's "middle of the first step"
 (``experiment.DEFAULT_START``) whenever N is even. A long push may end after the first impact; survival
-then counts the steps after the push's end.
+then counts the steps after the push's end. With the early stop (``experiment.EarlyStop``,
+config/studies.yaml; ``--full-trials`` turns it off) a trial back on the preferred gait one period after
+an impact after the push is decided there: survived, the outcome of the full trial (measured).
 
 Survival is ``experiment``'s criterion (``experiment.survival``): no fall until ``SURVIVAL_STEPS``
 impacts after the end of the push, and p back within ``P_TOL`` of p_d and tau' within ``TAU_DOT_TOL``
-of 1 at the end.
+of 1 at the end. With the early stop (``experiment.EarlyStop``, config/studies.yaml; ``--full-trials``
+turns it off) a trial back on the preferred gait one control period after an impact after the push ends
+there, survived: the outcome of the full trial (measured: docs/capability_map.md).
 
 Search per cell (mode, direction, phase, duration), as ``experiment.max_push_modes`` does it for one
 cell: the coarse forces ``experiment.coarse_forces(max, coarse)`` (coarse, 2 coarse, ... <= max) are all
@@ -35,6 +39,16 @@ largest survivable force below the lowest failing edge, known to within ``resolu
 coarse scan never fails is *censored* (boundary >= max). The search is a pure function of the records
 of the cell (:func:`plan_cell`): it names the simulations still needed, so simulations of many cells run
 in parallel and an interrupted map resumes from the records it stored.
+
+Bracketed search (issue 19; ``search_from_neighbours`` of config/studies.yaml, ``--search
+neighbours|full``): the first phase of each (mode, direction, duration) row is searched as above; every
+other cell starts once its lower-phase neighbour is done, from that neighbour's lowest failing coarse
+force k c: the pair ((k - 1) c, k c) is simulated and moved one coarse step at a time until the lower
+survives and the upper fails, then bisected at the same midpoints (same boundary, first failure and cause
+as the full search whenever no coarse force below the bracket fails); above the edge coarse forces are
+simulated until ``island_window`` consecutive ones fail (the islands found; ``Boundary.full`` False); a
+bracket still surviving at the scan's top falls back to the full search (censored only if every coarse
+force survives).
 
 Each boundary force F [N] of a push of duration d [s] is also reported as
   * impulse ``I = F d`` [N s] (exact in the simulator: the force is constant on each integration

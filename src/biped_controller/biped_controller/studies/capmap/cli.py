@@ -52,6 +52,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max", type=float, default=DEFAULT_MAX, help="largest force scanned [N]")
     ap.add_argument("--max-impulse", type=float, default=DEFAULT_MAX_IMPULSE,
                     help="largest impulse scanned [N s] (inf: none): long pushes scan up to this / duration")
+    ap.add_argument("--search", choices=("neighbours", "full"), default=None,
+                    help="neighbours: bracket each cell's edge from its lower-phase neighbour's (islands within "
+                         "island_window coarse steps above the edge); full: every coarse force of every cell "
+                         "(default: config/studies.yaml search_from_neighbours)")
     ap.add_argument("--height", type=float, default=None,
                     help="push point above the hip [m] (default: push_height of config/simulator.yaml)")
     ap.add_argument("--workers", type=int, default=cores, help=f"processes (default: all cores, {cores}); 1 = in process")
@@ -68,13 +72,13 @@ def main(argv: list[str] | None = None) -> int:
     experiment._add_settings_args(ap)
     args = ap.parse_args(argv)
     try:
-        settings = experiment.parse_overrides(args.overrides, args.observer)
+        settings = experiment.parse_overrides(args.overrides, args.observer, args.full_trials)
         experiment.check_settings(settings)
         if args.workers < 1:
             raise MapError(f"--workers must be >= 1, got {args.workers}")
         spec = MapSpec(tuple(_split(args.modes)), tuple(_split(args.directions)), phases_of(args.phases),
                        tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
-                       args.height, settings)
+                       args.height, settings, None if args.search is None else args.search == "neighbours")
     except (MapError, OverrideError, ControllerConfigError, SimConfigError) as exc:
         ap.error(str(exc))
     batch = args.batch if args.batch is not None else DEFAULT_BATCH["ray" if args.ray else "pool"]

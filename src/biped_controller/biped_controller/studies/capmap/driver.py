@@ -1,11 +1,13 @@
 """The map's driver: every cell's search served on an executor, records stored as they complete."""
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
+from typing import Sequence
 
 from biped_controller.studies import experiment
-from biped_controller.studies.capmap.search import Boundary, plan_cell, remaining_estimate
+from biped_controller.studies.capmap.search import Boundary, edge_index, plan_cell, remaining_estimate
 from biped_controller.studies.capmap.spec import Cell, MapError, MapSpec, SimSpec
 from biped_controller.studies.capmap.store import RecordStore, fingerprint
 from biped_controller.studies.capmap.task import record_key, simulate_batch
@@ -34,85 +36,151 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
     """Find the boundary of every cell of ``spec``: simulations not yet in ``store`` (same fingerprint)
     are run on ``executor`` (default: in this process) in batches of ``batch``, each record appended to
     the store as soon as its batch completes. Cells are served in order, bisection steps as soon as they
-    are known, at most two batches per executor slot in flight. ``simulate=False``: nothing is run, the
-    boundaries are those the store completes (the other cells are listed in ``MapRun.missing``)."""
+    are known, at most two batches per executor slot in flight. With ``spec.neighbours`` a cell's search
+    starts once its lower-phase neighbour's is done, bracketed from that neighbour's edge
+    (``search.plan_cell``); the first phase of each (mode, direction, duration) row is searched in full.
+    ``simulate=False``: nothing is run, the boundaries are those the store completes (the other cells are
+    listed in ``MapRun.missing``). One map of :func:`run_maps`."""
+    return run_maps([spec], executor, store, batch, progress, simulate)[0]
+
+
+def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None = None, batch: int = 1,
+             progress: ProgressBar | None = None, simulate: bool = True) -> list[MapRun]:
+    """:func:`run_map` of several maps at once on one executor and one store (each spec with its own
+    settings and fingerprint; the robustness table's many one-cell maps keep every worker busy)."""
     if not (isinstance(batch, int) and batch >= 1):
         raise MapError(f"batch must be an integer >= 1, got {batch!r}")
-    experiment.check_settings(spec.settings)     # a bad override fails here, before any simulation
+    for spec in specs:
+        experiment.check_settings(spec.settings)     # a bad override fails here, before any simulation
     ex = executor if executor is not None else SerialExecutor(simulate_batch)
-    fp = fingerprint(spec)
+    fps = [fingerprint(spec) for spec in specs]
     t0 = time.perf_counter()
-    cells = spec.cells()
-    index = {c: i for i, c in enumerate(cells)}
-    by_key = {(c.mode, c.direction, c.phase, c.duration): c for c in cells}
-    recs: dict[Cell, dict[float, dict]] = {c: {} for c in cells}
-    ignored = 0
-    for r in (store.load() if store is not None else []):
-        c = by_key.get(record_key(r)[:4])
-        if r.get("fingerprint") != fp or c is None or float(r["force"]) in recs[c]:
-            ignored += 1
-            continue
-        recs[c][float(r["force"])] = r
-    resumed = sum(len(v) for v in recs.values())
-    survived = {c: {f: bool(r["survived"]) for f, r in recs[c].items()} for c in cells}
-    needs: dict[Cell, list[float]] = {}
-    bounds: dict[Cell, Boundary] = {}
+    cells = [(i, c) for i, spec in enumerate(specs) for c in spec.cells()]
+    index = {c: k for k, c in enumerate(cells)}
+    by_key = {}
+    for i, c in cells:
+        by_key.setdefault((c.mode, c.direction, c.phase, c.duration), []).append((i, c))
+    # the lower-phase neighbour of each cell (bracketed searches only)
+    left: dict[tuple, tuple] = {}
+    for i, spec in enumerate(specs):
+        if spec.neighbours:
+            ph = sorted(spec.phases)
+            for c in spec.cells():
+                k = ph.index(c.phase)
+                if k > 0:
+                    left[(i, c)] = (i, Cell(c.mode, c.direction, ph[k - 1], c.duration))
+    right = {v: k for k, v in left.items()}
+    recs: dict[tuple, dict[float, dict]] = {ic: {} for ic in cells}
+    ignored = [0] * len(specs)
+    loaded = store.load() if store is not None else []
+    for r in loaded:
+        used = False
+        for ic in by_key.get(record_key(r)[:4], ()):
+            if r.get("fingerprint") == fps[ic[0]] and float(r["force"]) not in recs[ic]:
+                recs[ic][float(r["force"])] = r
+                used = True
+        if not used:
+            for i in range(len(specs)):
+                ignored[i] += 1
+    resumed = [sum(len(recs[(j, c)]) for j, c in cells if j == i) for i in range(len(specs))]
+    survived = {ic: {f: bool(r["survived"]) for f, r in recs[ic].items()} for ic in cells}
+    needs: dict[tuple, list[float]] = {}
+    bounds: dict[tuple, Boundary] = {}
     dirty = set(cells)
     inflight: dict = {}
     pending: set[tuple] = set()
-    simulated = 0
+    simulated = [0] * len(specs)
     max_inflight = 2 * max(1, ex.slots)
+
+    def plan(ic):
+        """(hint, window) of a cell's search, or None while its neighbour is unfinished."""
+        spec = specs[ic[0]]
+        if ic not in left:
+            return (None, 0)
+        b = bounds.get(left[ic])
+        if b is None:
+            return None
+        return (edge_index(b, spec.search.coarse), spec.island_window)
+
     try:
         while True:
-            for c in dirty:
-                forces, b = plan_cell(spec.search.for_duration(c.duration), survived[c])
+            while dirty:
+                ic = dirty.pop()
+                if ic in bounds:
+                    continue
+                hw = plan(ic)
+                if hw is None:
+                    continue
+                forces, b = plan_cell(specs[ic[0]].search.for_duration(ic[1].duration), survived[ic], *hw)
                 if b is not None:
-                    bounds[c] = b
-                    needs.pop(c, None)
+                    bounds[ic] = b
+                    needs.pop(ic, None)
+                    if ic in right:
+                        dirty.add(right[ic])
                 else:
-                    needs[c] = forces
-            dirty.clear()
-            queue = (SimSpec(c, f) for c in sorted(needs, key=index.__getitem__) for f in needs[c]
-                     if SimSpec(c, f).key() not in pending)
+                    needs[ic] = forces
+            queue = ((ic, SimSpec(ic[1], f)) for ic in sorted(needs, key=index.__getitem__) for f in needs[ic]
+                     if (ic[0],) + SimSpec(ic[1], f).key() not in pending)
             while simulate and len(inflight) < max_inflight:
-                chunk = [s for _, s in zip(range(batch), queue)]
+                chunk = []
+                for ic, s in queue:     # a batch holds simulations of one spec (one settings)
+                    if chunk and ic[0] != chunk[0][0][0]:
+                        break
+                    chunk.append((ic, s))
+                    if len(chunk) == batch:
+                        break
                 if not chunk:
                     break
-                h = ex.submit(tuple(chunk), spec.settings, spec.height)
+                i = chunk[0][0][0]
+                h = ex.submit(tuple(s for _, s in chunk), specs[i].settings, specs[i].height)
                 inflight[h] = chunk
-                pending.update(s.key() for s in chunk)
+                pending.update((ic[0],) + s.key() for ic, s in chunk)
+                queue = ((ic, SimSpec(ic[1], f)) for ic in sorted(needs, key=index.__getitem__) for f in needs[ic]
+                         if (ic[0],) + SimSpec(ic[1], f).key() not in pending)
             if progress is not None:
-                remaining = sum(remaining_estimate(spec.search.for_duration(c.duration), survived[c]) for c in needs)
-                progress.update(simulated, resumed, remaining)
+                remaining = 0
+                for ic in cells:
+                    if ic in bounds:
+                        continue
+                    hw = plan(ic) or (math.inf, specs[ic[0]].island_window)   # waiting: a bracket's estimate
+                    remaining += remaining_estimate(specs[ic[0]].search.for_duration(ic[1].duration), survived[ic], *hw)
+                progress.update(sum(simulated), sum(resumed), remaining)
             if not inflight:
                 break
             for h, out in ex.wait(list(inflight)):
                 chunk = inflight.pop(h)
-                if len(out) != len(chunk) or any(record_key(r) != s.key() for r, s in zip(out, chunk)):
+                if len(out) != len(chunk) or any(record_key(r) != s.key() for r, (_, s) in zip(out, chunk)):
                     raise MapError(f"the task returned records for other simulations than it was given "
-                                   f"({[record_key(r) for r in out]} for {[s.key() for s in chunk]})")
+                                   f"({[record_key(r) for r in out]} for {[s.key() for _, s in chunk]})")
+                i = chunk[0][0][0]
                 for r in out:
-                    r["fingerprint"] = fp
+                    r["fingerprint"] = fps[i]
                 if store is not None:
                     store.append(out)
-                for s, r in zip(chunk, out):
-                    pending.discard(s.key())
-                    recs[s.cell][s.force] = r
-                    survived[s.cell][s.force] = bool(r["survived"])
-                    dirty.add(s.cell)
-                simulated += len(out)
+                for (ic, s), r in zip(chunk, out):
+                    pending.discard((ic[0],) + s.key())
+                    recs[ic][s.force] = r
+                    survived[ic][s.force] = bool(r["survived"])
+                    dirty.add(ic)
+                simulated[i] += len(out)
     finally:
         if executor is None:
             ex.close()
     if progress is not None:
-        progress.update(simulated, resumed, 0, force=True)
+        progress.update(sum(simulated), sum(resumed), 0, force=True)
         progress.close()
     # experiment reads config/controller.yaml at every simulation: a file edited during the run would
     # mix settings under one fingerprint, so the fingerprint is taken again and reported
-    fp_end = fingerprint(spec)
-    if fp_end != fp and progress is not None and progress.stream is not None:
-        progress.stream.write(f"WARNING: the settings changed during the run (fingerprint {fp} -> {fp_end}): "
-                              "records made after the change are stored under the old fingerprint\n")
-    return MapRun(spec, fp, {c: bounds[c] for c in cells if c in bounds}, recs, simulated, resumed, ignored,
-                  time.perf_counter() - t0, ex.name if simulate else "none (report only)", fp_end,
-                  [c for c in cells if c not in bounds])
+    wall = time.perf_counter() - t0
+    runs = []
+    for i, spec in enumerate(specs):
+        fp_end = fingerprint(spec)
+        if fp_end != fps[i] and progress is not None and progress.stream is not None:
+            progress.stream.write(f"WARNING: the settings changed during the run (fingerprint {fps[i]} -> {fp_end}): "
+                                  "records made after the change are stored under the old fingerprint\n")
+        mine = spec.cells()
+        runs.append(MapRun(spec, fps[i], {c: bounds[(i, c)] for c in mine if (i, c) in bounds},
+                           {c: recs[(i, c)] for c in mine}, simulated[i], resumed[i], ignored[i], wall,
+                           ex.name if simulate else "none (report only)", fp_end,
+                           [c for c in mine if (i, c) not in bounds]))
+    return runs

@@ -31,7 +31,8 @@ def cell_summary(run: MapRun, cell: Cell) -> dict:
         "body_weight_fraction": body_weight_fraction(b.lo, M, g),
         "cause": first["cause"] if first else None, "reason": first["reason"] if first else None,
         "fall_time": first["fall_time"] if first else None,
-        "islands": list(b.islands), "island_ranges": island_ranges(b.islands, run.spec.search.coarse),
+        "islands": list(b.islands), "islands_complete": b.full,
+        "island_ranges": island_ranges(b.islands, run.spec.search.coarse),
         "island_impulses": [impulse(f, d) for f in b.islands],
         "simulations": len(run.records[cell]),
     }
@@ -160,6 +161,8 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
                 "max_impulse": s.search.max_impulse if math.isfinite(s.search.max_impulse) else None,
                 "scan_max_per_duration": {f"{d:g}": s.search.for_duration(d).fmax for d in s.durations},
                 "resolution": s.search.resolution, "height": s.height,
+                "search": "neighbours" if s.neighbours else "full", "island_window": s.island_window,
+                "early_stop": (not s.settings.full_trials) and experiment.early_stop().enabled,
                 "onset": f"start = phase * T of the first step, T = {ctx.family.T:g} s (walk starts at t = 0)",
                 "direction_sign": "forward = + force (on the back), backward = - force",
                 "survival": f"no fall for {experiment.SURVIVAL_STEPS} steps after the push end, "

@@ -1,6 +1,7 @@
 """The force search of one cell as a pure function of its records: coarse scan, islands, bisection."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -10,23 +11,19 @@ from biped_controller.studies.capmap.spec import Search
 
 @dataclass(frozen=True)
 class Boundary:
-    """The outcome of one cell's search (forces [N])."""
+    """The outcome of one cell's search (forces [N]). ``full``: every coarse force was simulated (the
+    islands are complete); False: the edge was bracketed from a neighbour (:func:`plan_cell`), the
+    islands are those within the island window above the edge."""
 
     lo: float                 # largest survivable force below the lowest failing edge (0: none)
     hi: float | None          # lowest failing force found (after bisection); None: censored
     islands: tuple[float, ...]
+    full: bool = True
 
 
-def _search_state(search: Search, survived: Mapping[float, bool]):
-    """Where a cell's search stands: ("coarse", missing coarse forces), ("bisect", lo, hi) with the
-    midpoint of [lo, hi] not simulated yet, or ("done", Boundary)."""
-    coarse = search.coarse_forces()
-    missing = [f for f in coarse if f not in survived]
-    if missing:
-        return ("coarse", missing)
-    lo, hi, islands = experiment.analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
-    if hi is None:
-        return ("done", Boundary(lo, None, tuple(islands)))
+def _bisect(search: Search, survived: Mapping[float, bool], lo: float, hi: float, islands: tuple, full: bool):
+    """Bisect [lo (survives), hi (fails)] at midpoints down to the resolution: ("bisect", lo, hi) with the
+    next midpoint not simulated yet, or ("done", Boundary)."""
     while hi - lo > search.resolution:
         mid = 0.5 * (lo + hi)
         if mid not in survived:
@@ -35,14 +32,81 @@ def _search_state(search: Search, survived: Mapping[float, bool]):
             lo = mid
         else:
             hi = mid
-    return ("done", Boundary(lo, hi, tuple(islands)))
+    return ("done", Boundary(lo, hi, islands, full))
 
 
-def plan_cell(search: Search, survived: Mapping[float, bool]) -> tuple[list[float], Boundary | None]:
+def _search_state(search: Search, survived: Mapping[float, bool]):
+    """Where a cell's full search stands: ("coarse", missing coarse forces), ("bisect", lo, hi) with the
+    midpoint of [lo, hi] not simulated yet, or ("done", Boundary)."""
+    coarse = search.coarse_forces()
+    missing = [f for f in coarse if f not in survived]
+    if missing:
+        return ("coarse", missing)
+    lo, hi, islands = experiment.analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
+    if hi is None:
+        return ("done", Boundary(lo, None, tuple(islands)))
+    return _bisect(search, survived, lo, hi, tuple(islands), True)
+
+
+def edge_index(b: Boundary, coarse: float) -> float:
+    """The coarse step k (force k * coarse) of a finished cell's lowest failing coarse force, the hint its
+    neighbour's search starts from; inf for a censored cell."""
+    if b.hi is None:
+        return math.inf
+    return float(math.ceil(b.hi / coarse - 1e-9))
+
+
+def _bracket_state(search: Search, survived: Mapping[float, bool], hint: float, window: int):
+    """The search bracketed from a neighbour's edge ``hint`` (a coarse step index, inf: censored).
+
+    1. Edge: with k the hint (clamped to the grid), the pair of coarse forces ((k - 1) c, k c) is
+       simulated; the bracket holds when the lower survives (or k = 1: 0 N) and the upper fails, and the
+       edge is k c. When it does not hold the bracket moves one coarse step at a time -- down while
+       (k - 1) c fails, up while k c survives -- until it holds; a bracket that reaches the scan's maximum
+       still surviving falls back to the full search (a cell is censored only when every coarse force
+       survives: islands high up must not pass for a censored cell). The
+       coarse forces below (k - 1) c are not simulated: the bracket assumes they survive, as the full
+       scan found in every cell of the default map (the comparison in docs/capability_map.md).
+    2. Islands: above the edge, coarse forces are simulated upward until ``window`` consecutive ones
+       fail (or the scan's maximum); every survivable one is an island (a survivable one found moves
+       the window up).
+    3. The edge's coarse interval is bisected at the midpoints of the full search: the same boundary,
+       first failure and cause whenever the edge's coarse interval is the same."""
+    coarse = search.coarse_forces()
+    c, n = search.coarse, len(coarse)
+    k = int(min(max(hint, 1), n))
+    while True:
+        need = [f for f in ((k - 1) * c, k * c) if f > 0 and f not in survived]
+        if need:
+            return ("coarse", need)
+        if k > 1 and not survived[(k - 1) * c]:
+            k -= 1
+        elif survived[k * c]:
+            if k == n:      # survives at the scan's top: censored only if every coarse force survives
+                return _search_state(search, survived)
+            k += 1
+        else:
+            break
+    hi, lo = k * c, (k - 1) * c if k > 1 else 0.0
+    j, fails = k, 0
+    while j < n and fails < window:
+        j += 1
+        f = j * c
+        if f not in survived:
+            return ("coarse", [f])
+        fails = 0 if survived[f] else fails + 1
+    islands = tuple(f for f in coarse if f > hi and survived.get(f, False))
+    return _bisect(search, survived, lo, hi, islands, False)
+
+
+def plan_cell(search: Search, survived: Mapping[float, bool], hint: float | None = None,
+              window: int = 0) -> tuple[list[float], Boundary | None]:
     """The search of one cell as a pure function of its trials so far (force [N] -> survived): either the
-    forces still to simulate (all missing coarse forces, else the next bisection midpoint) and None, or
-    [] and the :class:`Boundary`."""
-    st = _search_state(search, survived)
+    forces still to simulate and None, or [] and the :class:`Boundary`. ``hint`` None: the full search
+    (every coarse force, then the bisection midpoint); else the coarse step index of a neighbour's edge
+    (:func:`edge_index`) and the search is bracketed from it (:func:`_bracket_state`, island ``window``
+    in coarse steps)."""
+    st = _search_state(search, survived) if hint is None else _bracket_state(search, survived, hint, window)
     if st[0] == "coarse":
         return st[1], None
     if st[0] == "bisect":
@@ -59,12 +123,15 @@ def bisection_steps(width: float, resolution: float) -> int:
     return n
 
 
-def remaining_estimate(search: Search, survived: Mapping[float, bool]) -> int:
+def remaining_estimate(search: Search, survived: Mapping[float, bool], hint: float | None = None,
+                       window: int = 0) -> int:
     """Simulations a cell still needs, estimated (for the progress bar): the missing coarse forces plus
-    the bisection of one coarse step, or the bisection steps left."""
-    st = _search_state(search, survived)
+    the bisection of one coarse step, or the bisection steps left (bracketed: the bracket, the window
+    and the bisection)."""
+    st = _search_state(search, survived) if hint is None else _bracket_state(search, survived, hint, window)
     if st[0] == "coarse":
-        return len(st[1]) + bisection_steps(search.coarse, search.resolution)
+        extra = len(st[1]) if hint is None else 2 + window
+        return extra + bisection_steps(search.coarse, search.resolution)
     if st[0] == "bisect":
         return bisection_steps(st[2] - st[1], search.resolution)
     return 0

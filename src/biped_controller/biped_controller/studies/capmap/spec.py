@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
+
+from biped_sim.robot.settings import default_config_dir, read_settings
 
 from biped_controller.core.controller import MODES
 from biped_controller.studies import experiment
@@ -91,8 +94,20 @@ class MapSpec:
     search: Search = field(default_factory=Search)
     height: float | None = None          # push point above the hip [m]; None: push_height of the config
     settings: RunSettings = DEFAULT_SETTINGS
+    neighbours: bool | None = None       # bracket each cell from its lower-phase neighbour; None: config/studies.yaml
+    island_window: int | None = None     # coarse steps scanned above a bracketed edge; None: config/studies.yaml
 
     def __post_init__(self):
+        if self.neighbours is None or self.island_window is None:
+            cfg = search_settings()
+            if self.neighbours is None:
+                object.__setattr__(self, "neighbours", cfg["search_from_neighbours"])
+            if self.island_window is None:
+                object.__setattr__(self, "island_window", cfg["island_window"])
+        if not isinstance(self.neighbours, bool):
+            raise MapError(f"neighbours must be true or false, got {self.neighbours!r}")
+        if isinstance(self.island_window, bool) or not (isinstance(self.island_window, int) and self.island_window >= 0):
+            raise MapError(f"island_window must be an integer >= 0 [coarse steps], got {self.island_window!r}")
         def nonempty_unique(name, seq):
             if not seq:
                 raise MapError(f"{name}: at least one is needed")
@@ -118,6 +133,19 @@ class MapSpec:
     def cells(self) -> list[Cell]:
         return [Cell(m, d, ph, du) for m in self.modes for d in self.directions for ph in self.phases
                 for du in self.durations]
+
+
+def search_settings(path=None) -> dict:
+    """``search_from_neighbours`` and ``island_window`` of ``config/studies.yaml`` (a bad value raises
+    :class:`MapError` naming the key)."""
+    p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
+    v = read_settings(p, ("search_from_neighbours", "island_window"))
+    if not isinstance(v["search_from_neighbours"], bool):
+        raise MapError(f"{p}: 'search_from_neighbours' must be true or false, got {v['search_from_neighbours']!r}")
+    w = v["island_window"]
+    if isinstance(w, bool) or not (isinstance(w, int) and w >= 0):
+        raise MapError(f"{p}: 'island_window' must be an integer >= 0, got {w!r}")
+    return v
 
 
 def phases_of(n: int) -> tuple[float, ...]:

@@ -44,6 +44,7 @@ def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: fl
         "force": spec.force, "start": start, "signed_force": signed, "height": height,
         "survived": bool(trial["survived"]), "reason": trial["reason"], "cause": failure_cause(trial),
         "fall_time": trial["fall_time"], "steps_walked": int(trial["steps_walked"]),
+        "decided_at_step": trial.get("decided_at_step"),
     }
 
 
