@@ -52,7 +52,7 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.robot.settings import default_config_dir
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 from biped_sim.plant.config import SimConfig, SimConfigError, load_sim_config
-from biped_sim.plant.rigid import Simulator
+from biped_sim.plant.protocol import make_plant
 
 from biped_controller.studies import runner
 from biped_controller.core.controller import (MODES, NO_ADAPTATION, AdaptiveController, ControllerConfig, ControllerConfigError,
@@ -665,7 +665,7 @@ def probe_run(force: float, mode: str = "both", duration: float = DEFAULT_DURATI
     scfg = settings.sim_config()
     ccfg = settings.ctrl_config(mode)
     n_steps = steps if steps is not None else push_step_index(start, duration, ctx.family.T) + 1 + SURVIVAL_STEPS
-    sim = Simulator(ctx.desc, scfg, perturbation=settings.perturbation)
+    sim = make_plant(scfg.plant, ctx.desc, scfg, settings.perturbation)   # rigid or MuJoCo (--set plant=...)
     ctrl = AdaptiveController(ccfg, ctx.family, ctx.desc)
     q0, qd0 = ctx.family.initial_state()
     sim.reset(q0, qd0, LEFT)

@@ -48,6 +48,7 @@ from biped_controller.studies import experiment
 from biped_controller.studies import runner
 from biped_controller.core.controller import MODES
 from biped_controller.studies.experiment import RunSettings
+from biped_sim.plant.config import SimConfigError
 
 WALK_STEPS = 20
 PUSH_CELL = dict(direction="forward", phase=0.5, duration=0.025)
@@ -109,9 +110,17 @@ def combos(modes, observers) -> list[tuple[str, bool]]:
     return [(m, obs) for obs in observers for m in modes if m != "none"] + ([("none", False)] if "none" in modes else [])
 
 
+#: simulator overrides of ``--set KEY=VALUE`` (issue 24: ``--set plant=mujoco``); set by :func:`main` and, in the
+#: walk workers (spawned), by :func:`_worker_init`; part of every settings fingerprint, so stored records of
+#: another plant are never reused
+SIMULATOR_OVERRIDES: tuple[tuple[str, object], ...] = ()
+
+
 def settings_for(perturbation: PlantPerturbation, observer: bool) -> RunSettings:
-    """Run settings: the config files, the observer switch, the plant's perturbation."""
-    return RunSettings(controller=(("disturbance_observer", bool(observer)),), perturbation=perturbation)
+    """Run settings: the config files, the observer switch, the plant's perturbation (and ``--set``'s
+    simulator overrides, :data:`SIMULATOR_OVERRIDES`)."""
+    return RunSettings(controller=(("disturbance_observer", bool(observer)),), simulator=SIMULATOR_OVERRIDES,
+                       perturbation=perturbation)
 
 
 # ------------------------------------------------------------------------------------------ walk
@@ -160,7 +169,9 @@ def _record_key(r: dict) -> str:
     return _walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"], r.get("fingerprint"))
 
 
-def _worker_init() -> None:
+def _worker_init(simulator: tuple = ()) -> None:
+    global SIMULATOR_OVERRIDES
+    SIMULATOR_OVERRIDES = tuple(simulator)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     experiment.context()
 
@@ -183,7 +194,8 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, l
     log(f"walks: {len(tasks)} to run, {len(done)} stored")
     if tasks:
         if workers > 1:
-            with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_init) as ex:
+            with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
+                                    initargs=(SIMULATOR_OVERRIDES,)) as ex:
                 for r in ex.map(_walk_task, tasks):
                     store.append([r])
                     done[_record_key(r)] = r
@@ -391,7 +403,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--figures", type=Path, default=None, help="directory for max_push.png")
     ap.add_argument("--report-only", action="store_true",
                     help="no simulation: the table, figure and JSON of what the store holds")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a config/simulator.yaml setting for every run, e.g. --set plant=mujoco (repeatable)")
     args = ap.parse_args(argv)
+    global SIMULATOR_OVERRIDES
+    try:
+        st = experiment.parse_overrides(args.overrides)
+        if st.controller:
+            raise RobustnessError("--set: only config/simulator.yaml keys here (the table sets the controller's "
+                                  f"observer itself), got {', '.join(k for k, _ in st.controller)}")
+        SIMULATOR_OVERRIDES = st.simulator
+        experiment.check_settings(st)
+    except (experiment.OverrideError, SimConfigError, RobustnessError) as exc:
+        ap.error(str(exc))
     try:
         levels = _levels(args.levels)
         for m in args.modes:
