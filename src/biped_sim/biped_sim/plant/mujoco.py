@@ -344,14 +344,20 @@ class MujocoPlant:
         com = pin.centerOfMass(self.fm.model, self.fm.data, x)
         return float(0.5 * v @ M @ v + self.fm.mass * self.desc.gravity * com[2])
 
-    def _check_fall(self, t: float, x: list, v: list, hit: int) -> FallInfo | None:
-        """The physical falls (module docstring) at ``t``, state ``x, v`` (lists), ``hit`` a body capsule's geom."""
-        if not math.isfinite(sum(x) + sum(v)):
+    def _check_numerics(self, t: float) -> FallInfo | None:
+        """A non-finite state or a MuJoCo warning (bad qacc, qpos, qvel: MuJoCo then resets the state) by the
+        end ``t`` of a period: the ``numerical`` fall."""
+        if not math.isfinite(float(self.x.sum() + self.v.sum())):
             return FallInfo("numerical", t, "non-finite state")
         warn = self.data.warning
         for w in self._bad_warnings:
             if warn[w].number > 0:
                 return FallInfo("numerical", t, f"MuJoCo warning {mujoco.mjtWarning(w).name}")
+        return None
+
+    def _check_fall(self, t: float, x: list, hit: int) -> FallInfo | None:
+        """The physical falls (module docstring) at ``t``, configuration ``x`` (a list), ``hit`` a body
+        capsule's geom id touching the floor (or -1)."""
         if hit >= 0:
             return FallInfo("body_contact", t, f"{self._geom_names[hit]} touches the floor",
                             dict(geom=self._geom_names[hit]))
@@ -452,9 +458,8 @@ class MujocoPlant:
             m.opt.timestep = h
             mujoco.mj_step(m, d)
             cl, hit = self._contacts()          # at t0, applied over [t0, t1]
-            x1, v1 = d.qpos.copy(), d.qvel.copy()
-            vl = v1.tolist()
-            xl = x1.tolist()
+            xl = d.qpos.tolist()
+            vl = d.qvel.tolist()
             # work over the step with the velocity the positions advance with (semi-implicit Euler): actuators,
             # and each push times its point's x rate (hip x rate - height cos(th) th')
             work += h * sum(tq[i] * vl[3 + i] for i in range(6))
@@ -476,7 +481,7 @@ class MujocoPlant:
                 bf[2] += h * (ck[MY] + (kx - ax) * ck[FZ] - (kz - az) * ck[FX])
             self._diagnose(cl, h, x_prev)
             if self.trace is not None:
-                self.trace.append((t1, x1.copy()))
+                self.trace.append((t1, d.qpos.copy()))
             # touchdown sensing on the swing foot's normal force (the force of the step just taken)
             if cl[swing][FN] < thr:
                 if self._unloaded_since is None:
@@ -487,18 +492,22 @@ class MujocoPlant:
                 touchdown = True
             else:
                 self._unloaded_since = None
-            self.x, self.v = x1, v1
             x_prev = xl
             if touchdown:
                 t_end = t1
+                self.x, self.v = d.qpos.copy(), d.qvel.copy()
                 self.diagnostics.touchdown_forces.append(float(cl[swing][FN]))
                 self._touchdown(t_start, t1, x0, v0, np.array(own[swing]), work)
                 break
-            fall = self._check_fall(t1, xl, vl, hit)
+            fall = self._check_fall(t1, xl, hit)
             if fall is not None:
                 self.fall = fall
                 t_end = t1
                 break
+        if not touchdown:
+            self.x, self.v = d.qpos.copy(), d.qvel.copy()
+        if self.fall is None:
+            self.fall = self._check_numerics(t_end)
         dt = t_end - t_start
         total = np.array(by_foot[stance0]) + (0.0 if touchdown else np.array(by_foot[1 - stance0]))
         w = total / dt
