@@ -4,6 +4,11 @@ prints. Pure Python on ``runner.run`` (no ROS). Usage::
     python -m biped_controller.studies.plant_compare walk  [--steps 20] [--modes both tau p none] [--json F]
     python -m biped_controller.studies.plant_compare falls [--json F]
     python -m biped_controller.studies.plant_compare pushes [--dir docs/mujoco_runs] [--reuse]
+    python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off]
+
+``push``: one push (25 ms at t = 0.2315 s, 5 steps after it) on both plants: the outcome, and on MuJoCo the
+contact diagnostics over the run: what the rigid plant would have declared a fall (the friction cone, the
+centre of pressure at an edge, an unloaded stance foot) and how far the foot rolled and slid.
 
 ``pushes``: the four-mode max-push table (``scripts/experiment table``: forward, 25 ms at t = 0.2315 s) for
 both plants, observer on and off, side by side: the experiment's strict boundary (no fall for 10 steps and
@@ -161,6 +166,34 @@ def pushes_table(directory: Path, reuse: bool) -> tuple[str, dict]:
     return "\n".join(L), out
 
 
+def push_pair(force: float, mode: str, observer: bool) -> list[dict]:
+    from biped_sim.plant import mujoco as pm
+    from biped_controller.studies.experiment import RunSettings
+    st = RunSettings(controller=(("disturbance_observer", observer),))
+    out = []
+    for plant in PLANTS:
+        plants = []
+        orig = pm.MujocoPlant.reset
+
+        def grab(self, *a, **k):
+            plants.append(self)
+            return orig(self, *a, **k)
+        pm.MujocoPlant.reset = grab
+        try:
+            r = runner.run(steps=6, mode=mode, pushes=(Push(0.2315, 0.025, float(force)),),
+                           sim_config=load_sim_config(plant=plant), ctrl_config=st.ctrl_config(mode))
+        finally:
+            pm.MujocoPlant.reset = orig
+        row = dict(plant=plant, mode=mode, observer=observer, force=force, steps_walked=r.steps_walked,
+                   fall=r.fall_cause or None, fall_time=None if math.isnan(r.fall_time) else r.fall_time,
+                   detail=r.fall_detail or None, final_p=float(r.statuses[-1].p), final_tau_dot=float(r.statuses[-1].tau_dot))
+        if plants:
+            row["contact"] = plants[-1].diagnostics.as_dict()
+        out.append(row)
+        print(json.dumps(row), flush=True)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.plant_compare", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -175,8 +208,15 @@ def main(argv: list[str] | None = None) -> int:
     pu.add_argument("--dir", type=Path, default=Path("docs/mujoco_runs"))
     pu.add_argument("--reuse", action="store_true")
     pu.add_argument("--json", type=Path, default=None)
+    po = sub.add_parser("push")
+    po.add_argument("--force", type=float, required=True)
+    po.add_argument("--mode", default="both")
+    po.add_argument("--observer", choices=("on", "off"), default="on")
+    po.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
-    if a.cmd == "pushes":
+    if a.cmd == "push":
+        rows = push_pair(a.force, a.mode, a.observer == "on")
+    elif a.cmd == "pushes":
         table, rows = pushes_table(a.dir, a.reuse)
         print(table)
     elif a.cmd == "walk":
