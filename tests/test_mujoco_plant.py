@@ -296,3 +296,19 @@ def test_rigid_plant_records_bit_identical(name, kw, digest):
     _h(h, r.impacts)
     h.update(repr((r.steps_walked, r.fallen, r.fall_cause, r.fall_detail, r.fall_time)).encode())
     assert h.hexdigest()[:16] == digest
+
+
+def test_robustness_set_reaches_every_run(monkeypatch, capsys):
+    """scripts/robustness --set plant=mujoco: the walks' and pushes' settings carry it (and so their stored
+    records' fingerprint: a rigid record is never reused for MuJoCo); controller keys are refused."""
+    from biped_sim.plant.perturbation import PlantPerturbation
+    from biped_controller.studies import robustness as rb
+    zero = PlantPerturbation()
+    rigid_fp = rb.walk_fingerprint(zero, True)
+    monkeypatch.setattr(rb, "SIMULATOR_OVERRIDES", (("plant", "mujoco"),))
+    assert rb.settings_for(zero, True).sim_config().plant == "mujoco"
+    assert rb.push_spec(zero, "both", True).settings.sim_config().plant == "mujoco"
+    assert rb.walk_fingerprint(zero, True) != rigid_fp
+    with pytest.raises(SystemExit):
+        rb.main(["--set", "Kp=3", "--report-only"])
+    assert "only config/simulator.yaml keys" in capsys.readouterr().err
