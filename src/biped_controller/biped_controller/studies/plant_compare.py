@@ -5,6 +5,12 @@ prints. Pure Python on ``runner.run`` (no ROS). Usage::
     python -m biped_controller.studies.plant_compare falls [--json F]
     python -m biped_controller.studies.plant_compare pushes [--dir docs/mujoco_runs] [--reuse]
     python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off]
+    python -m biped_controller.studies.plant_compare cmap --rigid STORE --mujoco STORE
+
+``cmap``: the capability-map slice side by side from two stores of ``scripts/capability_map`` (one per plant,
+``--set plant=P --store STORE``): per cell (mode, direction, onset phase, duration), the strict boundary (the
+largest simulated force below the lowest one that failed the experiment's survival test) and the no-fall edge
+(the largest simulated force below the lowest one that fell), at the resolution of the simulated forces.
 
 ``push``: one push (25 ms at t = 0.2315 s, 5 steps after it) on both plants: the outcome, and on MuJoCo the
 contact diagnostics over the run: what the rigid plant would have declared a fall (the friction cone, the
@@ -194,6 +200,62 @@ def push_pair(force: float, mode: str, observer: bool) -> list[dict]:
     return out
 
 
+def cell_edges(records: list[dict]) -> dict:
+    """Per cell (mode, direction, phase, duration): strict boundary, no-fall edge, first fall cause, sims."""
+    cells: dict = {}
+    for r in records:
+        cells.setdefault((r["mode"], r["direction"], r["phase"], r["duration"]), []).append(r)
+    out = {}
+    for key, rs in cells.items():
+        rs = sorted(rs, key=lambda r: r["force"])
+        strict = nofall = 0.0
+        fall, cause = None, None
+        for r in rs:
+            if r["fall_time"] is not None:
+                fall, cause = r["force"], r["cause"]
+                break
+            nofall = r["force"]
+        for r in rs:
+            if not r["survived"]:
+                break
+            strict = r["force"]
+        out[key] = dict(strict=strict, no_fall=nofall, first_fall=fall, cause=cause, sims=len(rs))
+    return out
+
+
+def cmap_table(rigid: Path, mujoco: Path) -> tuple[str, dict]:
+    load = lambda f: [json.loads(line) for line in f.read_text(encoding="utf-8").splitlines() if line.strip()]   # noqa: E731
+    R, M = cell_edges(load(rigid)), cell_edges(load(mujoco))
+    # a cell counts once both plants' scans reached a fall (its no-fall edge is known); an interrupted map leaves
+    # the rest out (listed)
+    keys = sorted(k for k in set(R) & set(M) if R[k]["first_fall"] and M[k]["first_fall"])
+    missing = sorted(k for k in set(R) | set(M) if k not in keys)
+    L = ["| mode | direction | phase | rigid: strict [N] | rigid: no-fall edge [N] (first fall) | MuJoCo: strict [N] | "
+         "MuJoCo: no-fall edge [N] (first fall) |", "| --- | --- | ---: | ---: | --- | ---: | --- |"]
+    for k in keys:
+        r, m = R[k], M[k]
+        ff = lambda c: f"{c['no_fall']:g} ({c['first_fall']:g} N {c['cause']})" if c["first_fall"] else f">= {c['no_fall']:g}"   # noqa: E731
+        L.append(f"| {k[0]} | {k[1]} | {k[2]:g} | {r['strict']:g} | {ff(r)} | {m['strict']:g} | {ff(m)} |")
+    groups = sorted({(k[0], k[1]) for k in keys})
+    L += ["", "| mode | direction | cells | mean rigid strict [N] | mean rigid no-fall [N] | mean MuJoCo strict [N] | "
+          "mean MuJoCo no-fall [N] | cells MuJoCo no-fall > rigid no-fall |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    summary = {}
+    for g in groups:
+        ks = [k for k in keys if (k[0], k[1]) == g]
+        mean = lambda D, f: float(np.mean([D[k][f] for k in ks]))   # noqa: E731
+        above = sum(1 for k in ks if M[k]["no_fall"] > R[k]["no_fall"])
+        summary[f"{g[0]}/{g[1]}"] = dict(cells=len(ks), rigid_strict=mean(R, "strict"), rigid_no_fall=mean(R, "no_fall"),
+                                         mujoco_strict=mean(M, "strict"), mujoco_no_fall=mean(M, "no_fall"), above=above)
+        sm = summary[f"{g[0]}/{g[1]}"]
+        L.append(f"| {g[0]} | {g[1]} | {len(ks)} | {sm['rigid_strict']:.1f} | {sm['rigid_no_fall']:.1f} | "
+                 f"{sm['mujoco_strict']:.1f} | {sm['mujoco_no_fall']:.1f} | {above} of {len(ks)} |")
+    if missing:
+        L += ["", f"not complete on both plants ({len(missing)} cells): "
+              + ", ".join(f"{k[0]} {k[1]} {k[2]:g}" for k in missing)]
+    summary["missing"] = [list(k) for k in missing]
+    return "\n".join(L), summary
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.plant_compare", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -213,8 +275,15 @@ def main(argv: list[str] | None = None) -> int:
     po.add_argument("--mode", default="both")
     po.add_argument("--observer", choices=("on", "off"), default="on")
     po.add_argument("--json", type=Path, default=None)
+    cm = sub.add_parser("cmap")
+    cm.add_argument("--rigid", type=Path, required=True)
+    cm.add_argument("--mujoco", type=Path, required=True)
+    cm.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
-    if a.cmd == "push":
+    if a.cmd == "cmap":
+        table, rows = cmap_table(a.rigid, a.mujoco)
+        print(table)
+    elif a.cmd == "push":
         rows = push_pair(a.force, a.mode, a.observer == "on")
     elif a.cmd == "pushes":
         table, rows = pushes_table(a.dir, a.reuse)
