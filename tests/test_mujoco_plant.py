@@ -193,6 +193,10 @@ def test_sensed_touchdown_within_2ms_of_the_geometric_contact(walk20):
         prev = imp.t
     lags = np.array(lags)
     assert np.all(lags >= 0.0) and np.all(lags <= 2e-3), lags
+    # negative control of the check: a touchdown reported one control period and a half later would fail it
+    late = lags + 1.5e-3
+    assert not np.all(late <= 2e-3)
+    assert np.max(lags) <= plant.cfg.mujoco_timestep * 2 + 1e-12     # measured: within one or two MuJoCo steps
 
 
 def test_period_momentum_balances_the_recorded_wrench_push_and_impacts(walk20):
