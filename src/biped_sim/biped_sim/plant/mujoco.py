@@ -156,6 +156,10 @@ class MujocoPlant:
         self._leg_capsules = [gid(n + "_capsule") for n in legs]
         self._leg_bodies_l = self._leg_bodies.tolist()
         self._xp: list = []
+        # MuJoCo's arrays as numpy views, taken once (the same memory for the plant's life; mj_resetData keeps it)
+        self._opt = m.opt
+        self._cfrc, self._xpos, self._scom = self.data.cfrc_ext, self.data.xpos, self.data.subtree_com
+        self._xfrc_torso = self.data.xfrc_applied[self._torso]
         self._torso_capsule = gid("torso_capsule")
         self._elliptic = self.cfg.mujoco_cone == "elliptic"
         self._bad_warnings = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
@@ -257,11 +261,10 @@ class MujocoPlant:
         A thigh or shin with any external force, or a torso whose external force differs from the push
         (``xfrc_applied``), touches the floor. :meth:`contacts_from_list` computes the same from the
         contact list (the tests compare them)."""
-        d = self.data
-        mujoco.mj_rnePostConstraint(self.model, d)
-        cf = d.cfrc_ext.tolist()
-        xp = d.xpos.tolist()
-        cx, _, cz = d.subtree_com[self._torso].tolist()
+        mujoco.mj_rnePostConstraint(self.model, self.data)
+        cf = self._cfrc.tolist()
+        xp = self._xpos.tolist()
+        cx, _, cz = self._scom[self._torso].tolist()
         rows = []
         for b in self._foot_body:
             _, ty, _, fx, _, fz = cf[b]
@@ -274,7 +277,7 @@ class MujocoPlant:
                 hit = g
                 break
         else:
-            push = d.xfrc_applied[self._torso, :3].tolist()
+            push = self._xfrc_torso[:3].tolist()
             f = cf[self._torso][3:]
             if max(abs(f[i] - push[i]) for i in range(3)) > 1e-9 * (1.0 + abs(push[0])):
                 hit = self._torso_capsule
@@ -439,6 +442,7 @@ class MujocoPlant:
         t_end = t_grid_end
         touchdown = False
         d.ctrl[:] = tj
+        opt, mj_step = self._opt, mujoco.mj_step
         thr = self.cfg.mujoco_touch_threshold
         debounce = self.cfg.mujoco_swing_debounce - 1e-12
         swing = 1 - stance0
@@ -455,8 +459,8 @@ class MujocoPlant:
                 d.ctrl[:] = urdf_from_paper(np.clip(fn(t0 - t_start, *self.measured(d.qpos, d.qvel, obs_stance),
                                                        obs_stance), self._lo, self._hi), obs_stance)
                 tq = d.ctrl.tolist()
-            m.opt.timestep = h
-            mujoco.mj_step(m, d)
+            opt.timestep = h
+            mj_step(m, d)
             cl, hit = self._contacts()          # at t0, applied over [t0, t1]
             xl = d.qpos.tolist()
             vl = d.qvel.tolist()
