@@ -134,8 +134,11 @@ class RunSettings:
         """JSON-ready: the overrides and the effective settings (every key of both files)."""
         ctrl = asdict(self.ctrl_config(MODES[0]))
         del ctrl["mode"]
+        sim = asdict(self.sim_config())
+        if sim["plant"] == "rigid":   # the MuJoCo plant's keys do not act on the rigid one: left out, so the rigid
+            sim = {k: v for k, v in sim.items() if k != "plant" and not k.startswith("mujoco_")}   # fingerprints stay
         out = {"overrides": {**dict(self.controller), **dict(self.simulator)},
-               "controller": ctrl, "simulator": asdict(self.sim_config())}
+               "controller": ctrl, "simulator": sim}
         if self.perturbation is not None and not self.perturbation.is_zero:   # (absent: nominal plant)
             out["perturbation"] = self.perturbation.as_dict()
         return out
