@@ -219,7 +219,12 @@ def cell_edges(records: list[dict]) -> dict:
             if not r["survived"]:
                 break
             strict = r["force"]
-        out[key] = dict(strict=strict, no_fall=nofall, first_fall=fall, cause=cause, sims=len(rs))
+        # complete enough: the fall found and every coarse force below it simulated (an interrupted map, or two
+        # workers running a cell's forces out of order, can leave a gap)
+        from biped_controller.studies.capability_map import DEFAULT_COARSE
+        forces = {r["force"] for r in rs}
+        gap = fall is None or any(DEFAULT_COARSE * k not in forces for k in range(1, int(fall // DEFAULT_COARSE)))
+        out[key] = dict(strict=strict, no_fall=nofall, first_fall=None if gap else fall, cause=cause, sims=len(rs))
     return out
 
 
