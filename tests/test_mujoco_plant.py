@@ -84,7 +84,8 @@ def test_the_switch_and_its_errors():
     with pytest.raises(SimConfigError, match="plant must be one of"):
         load_sim_config(plant="bullet")
     with pytest.raises(SimConfigError, match="mujoco_timestep must divide control_period"):
-        load_sim_config(mujoco_timestep=0.0003)
+        load_sim_config(plant="mujoco", mujoco_timestep=0.0003)
+    assert load_sim_config(control_period=0.0013).control_period == 0.0013   # the rigid plant: any period
     with pytest.raises(SimConfigError, match="mujoco_cone"):
         load_sim_config(mujoco_cone="round")
     with pytest.raises(SimConfigError, match="mujoco_touch_threshold"):

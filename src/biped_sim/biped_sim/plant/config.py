@@ -86,7 +86,7 @@ class SimConfig:
             if not (math.isfinite(v) and v > 0):
                 raise SimConfigError(f"{name} must be finite and > 0, got {v}")
         n = self.control_period / self.mujoco_timestep
-        if abs(n - round(n)) > 1e-9 * n or round(n) < 1:
+        if self.plant == "mujoco" and (abs(n - round(n)) > 1e-9 * n or round(n) < 1):
             raise SimConfigError(f"mujoco_timestep must divide control_period ({self.control_period} s), "
                                  f"got {self.mujoco_timestep}")
         if not 0.0 < self.mujoco_solimp_dmin <= self.mujoco_solimp_dmax < 1.0:
