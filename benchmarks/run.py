@@ -421,6 +421,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         "fast_outcome_only": ("fast", {"keep_records": False}),     # compiled loop, outcome only (the sweeps)
         "fast_objects": ("fast", {"compiled_loop": False}),         # compiled kernels, objects every period
         "reference": ("reference", {}),                             # Pinocchio, Python
+        "mujoco": ("mujoco", {}),                                   # the MuJoCo plant (issue 24), compiled controller
     }
 
     from biped_sim.robot.description import load_description
@@ -428,6 +429,8 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     desc, family = load_description(), GaitFamily.load()
     configs = {(e, m): (load_sim_config(engine=e), load_controller_config(mode=m, engine=e))
                for e in ("fast", "reference") for m in ("none", "both")}
+    for m in ("none", "both"):   # the MuJoCo plant with the fast engine's controller (its compiled period)
+        configs[("mujoco", m)] = (load_sim_config(engine="fast", plant="mujoco"), configs[("fast", m)][1])
 
     def one(variant, mode, n):
         """The closed loop only: the robot, the family and the settings are read before the clock starts
@@ -461,6 +464,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     for engine in out:
         out[engine]["realtime_factor"] = out[engine]["both"]["realtime_factor"]
     out["fast_over_reference"] = out["fast"]["realtime_factor"] / out["reference"]["realtime_factor"]
+    out["mujoco_over_fast_objects"] = out["mujoco"]["realtime_factor"] / out["fast_objects"]["realtime_factor"]
     # legacy layout (mode -> figures) for the README table: the default engine
     out["none"], out["both"] = out["fast"]["none"], out["fast"]["both"]
     return out
@@ -587,11 +591,15 @@ def markdown(R: dict) -> str:
     L.append("Variants: `fast` = compiled loop (loop_kernels: many periods per call; the objects take the "
              "periods with a QP, an impact or a fall), every record kept (runner.run's default); "
              "`fast_outcome_only` = the same with keep_records=False (what survival sweeps run); `fast_objects` = "
-             "compiled kernels, the Python objects every period (compiled_loop=False); `reference` = Pinocchio.")
+             "compiled kernels, the Python objects every period (compiled_loop=False); `reference` = Pinocchio; "
+             "`mujoco` = the MuJoCo plant (`plant: mujoco`, issue 24; target >= 20x in mode both) with the controller's "
+             f"compiled period, objects every period: mujoco / fast_objects = {_f(ip.get('mujoco_over_fast_objects'), 2)}.")
     L.append("")
     L.append("| variant | mode | simulated s | wall s | sim s / wall s | us per 1 ms period |")
     L.append("| --- | --- | ---: | ---: | ---: | ---: |")
-    for engine in ("fast", "fast_outcome_only", "fast_objects", "reference"):
+    for engine in ("fast", "fast_outcome_only", "fast_objects", "reference", "mujoco"):
+        if engine not in ip:
+            continue
         for mode in ("none", "both"):
             v = ip[engine][mode]
             L.append(f"| {engine} | {mode} | {_f(v['sim_s'], 3)} | {_f(v['wall_s'], 2)} | "
@@ -642,6 +650,7 @@ def stable_keys(R: dict) -> dict:
         "inprocess.fast.realtime_factor": get("inprocess", "fast", "realtime_factor"),
         "inprocess.reference.realtime_factor": get("inprocess", "reference", "realtime_factor"),
         "inprocess.fast_outcome_only.realtime_factor": get("inprocess", "fast_outcome_only", "realtime_factor"),
+        "inprocess.mujoco.realtime_factor": get("inprocess", "mujoco", "realtime_factor"),
         "controller.step_p50_us_reference_engine": get("controller", "pieces_us", "total_reference_engine", "p50"),
         "controller.step_p50_us": get("controller", "pieces_us", "total", "p50"),
         "qp.early_out_p50_us": get("qp_bench", "early_out_p50_us"),

@@ -178,17 +178,18 @@ def test_controller_keeps_the_nominal_model(monkeypatch):
     from biped_controller.studies import runner
     made = {}
 
-    class SpySim(runner.Simulator):
-        def __init__(self, *a, **k):
-            super().__init__(*a, **k)
-            made["sim"] = self
+    make_plant = runner.make_plant
+
+    def spy_plant(*a, **k):     # runner builds its plant through make_plant (issue 24)
+        made["sim"] = make_plant(*a, **k)
+        return made["sim"]
 
     class SpyCtrl(runner.AdaptiveController):
         def __init__(self, *a, **k):
             super().__init__(*a, **k)
             made["ctrl"] = self
 
-    monkeypatch.setattr(runner, "Simulator", SpySim)
+    monkeypatch.setattr(runner, "make_plant", spy_plant)
     monkeypatch.setattr(runner, "AdaptiveController", SpyCtrl)
     p = PlantPerturbation(torso_mass_scale=1.2, shin_com_shift=0.03, thigh_inertia_scale=0.7, mu=0.5, delay=1)
     runner.run(steps=1, max_time=0.005, perturbation=p, desc=DESC)

@@ -52,7 +52,7 @@ from biped_sim.robot.settings import default_config_dir, read_settings
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 from biped_sim.plant.config import SimConfig, SimConfigError, load_sim_config
 from biped_sim.plant.push import Push
-from biped_sim.plant.rigid import Simulator
+from biped_sim.plant.protocol import make_plant
 
 from biped_controller.studies import runner
 from biped_controller.core.controller import (MODES, NO_ADAPTATION, AdaptiveController, ControllerConfig, ControllerConfigError,
@@ -138,8 +138,11 @@ class RunSettings:
         """JSON-ready: the overrides and the effective settings (every key of both files)."""
         ctrl = asdict(self.ctrl_config(MODES[0]))
         del ctrl["mode"]
+        sim = asdict(self.sim_config())
+        if sim["plant"] == "rigid":   # the MuJoCo plant's keys do not act on the rigid one: left out, so the rigid
+            sim = {k: v for k, v in sim.items() if k != "plant" and not k.startswith("mujoco_")}   # fingerprints stay
         out = {"overrides": {**dict(self.controller), **dict(self.simulator)},
-               "controller": ctrl, "simulator": asdict(self.sim_config())}
+               "controller": ctrl, "simulator": sim}
         if self.perturbation is not None and not self.perturbation.is_zero:   # (absent: nominal plant)
             out["perturbation"] = self.perturbation.as_dict()
         return out
@@ -721,7 +724,7 @@ def probe_run(force: float, mode: str = "both", duration: float = DEFAULT_DURATI
     scfg = settings.sim_config()
     ccfg = settings.ctrl_config(mode)
     n_steps = steps if steps is not None else push_step_index(start, duration, ctx.family.T) + 1 + SURVIVAL_STEPS
-    sim = Simulator(ctx.desc, scfg, perturbation=settings.perturbation)
+    sim = make_plant(scfg.plant, ctx.desc, scfg, settings.perturbation)   # rigid or MuJoCo (--set plant=...)
     ctrl = AdaptiveController(ccfg, ctx.family, ctx.desc)
     q0, qd0 = ctx.family.initial_state()
     sim.reset(q0, qd0, LEFT)

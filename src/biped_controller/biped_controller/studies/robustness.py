@@ -50,6 +50,7 @@ from biped_controller.core.controller import MODES
 from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.experiment import RunSettings
+from biped_sim.plant.config import SimConfigError
 
 WALK_STEPS = 20
 PUSH_CELL = dict(direction="forward", phase=0.5, duration=0.025)
@@ -111,17 +112,28 @@ def combos(modes, observers) -> list[tuple[str, bool]]:
     return [(m, obs) for obs in observers for m in modes if m != "none"] + ([("none", False)] if "none" in modes else [])
 
 
-def settings_for(perturbation: PlantPerturbation, observer: bool, full_trials: bool = False) -> RunSettings:
-    """Run settings: the config files, the observer switch, the plant's perturbation."""
-    return RunSettings(controller=(("disturbance_observer", bool(observer)),), perturbation=perturbation,
-                       full_trials=full_trials)
+#: simulator overrides of ``--set KEY=VALUE`` (issue 24: ``--set plant=mujoco``); set by :func:`main`, passed
+#: explicitly to every walk task and carried by every push spec's settings; part of every settings fingerprint,
+#: so stored records of another plant are never reused
+SIMULATOR_OVERRIDES: tuple[tuple[str, object], ...] = ()
+
+
+def settings_for(perturbation: PlantPerturbation, observer: bool, full_trials: bool = False,
+                 simulator: tuple[tuple[str, object], ...] | None = None) -> RunSettings:
+    """Run settings: the config files, the observer switch, the plant's perturbation, ``simulator`` overrides
+    (None: ``--set``'s, :data:`SIMULATOR_OVERRIDES`)."""
+    sim = SIMULATOR_OVERRIDES if simulator is None else tuple(simulator)
+    return RunSettings(controller=(("disturbance_observer", bool(observer)),), simulator=sim,
+                       perturbation=perturbation, full_trials=full_trials)
 
 
 # ------------------------------------------------------------------------------------------ walk
-def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, steps: int = WALK_STEPS) -> dict:
-    """One undisturbed walk of ``steps`` impacts (the pure task of a worker); JSON-ready record."""
+def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, steps: int = WALK_STEPS,
+                simulator: tuple[tuple[str, object], ...] | None = None) -> dict:
+    """One undisturbed walk of ``steps`` impacts (the pure task of a worker: ``simulator`` overrides passed
+    with it, never read from a global in a spawned worker); JSON-ready record."""
     ctx = experiment.context()
-    st = settings_for(perturbation, observer)
+    st = settings_for(perturbation, observer, simulator=simulator)
     t0 = time.perf_counter()
     res = runner.run(steps=steps, mode=mode, sim_config=st.sim_config(), ctrl_config=st.ctrl_config(mode),
                      family=ctx.family, desc=ctx.desc, perturbation=perturbation)
@@ -130,7 +142,7 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     est = [abs(s.force_estimate) for s in res.statuses]
     return {
         "kind": "walk", "perturbation": perturbation.as_dict(), "mode": mode, "observer": bool(observer),
-        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer), "survived": (not res.fallen) and res.steps_walked >= steps,
+        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer, simulator), "survived": (not res.fallen) and res.steps_walked >= steps,
         "steps_walked": int(res.steps_walked), "fall_cause": res.fall_cause or None,
         "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
         "fall_detail": res.fall_detail or None,
@@ -142,10 +154,11 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     }
 
 
-def walk_fingerprint(perturbation: PlantPerturbation, observer: bool) -> str:
+def walk_fingerprint(perturbation: PlantPerturbation, observer: bool,
+                     simulator: tuple[tuple[str, object], ...] | None = None) -> str:
     """The capability map's fingerprint of the walk's settings (controller and simulator settings with the
     perturbation, robot description, gait family file): a walk record is reused only while it matches."""
-    return cmap.fingerprint(cmap.MapSpec(settings=settings_for(perturbation, observer)))
+    return cmap.fingerprint(cmap.MapSpec(settings=settings_for(perturbation, observer, simulator=simulator)))
 
 
 def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool, steps: int,
@@ -173,7 +186,7 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers, log=pr
             for obs in ((False,) if m == "none" else observers):
                 k = _walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs))
                 if k not in done:
-                    tasks.append((lv.perturbation, m, obs, WALK_STEPS))
+                    tasks.append((lv.perturbation, m, obs, WALK_STEPS, SIMULATOR_OVERRIDES))
     log(f"walks: {len(tasks)} to run, {len(done)} stored")
 
     def keep(r: dict) -> None:
@@ -390,7 +403,19 @@ def main(argv: list[str] | None = None) -> int:
                     help="run every survival trial in full (no early stop; it applies to the nominal plant only)")
     ap.add_argument("--report-only", action="store_true",
                     help="no simulation: the table, figure and JSON of what the store holds")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a config/simulator.yaml setting for every run, e.g. --set plant=mujoco (repeatable)")
     args = ap.parse_args(argv)
+    global SIMULATOR_OVERRIDES
+    try:
+        st = experiment.parse_overrides(args.overrides)
+        if st.controller:
+            raise RobustnessError("--set: only config/simulator.yaml keys here (the table sets the controller's "
+                                  f"observer itself), got {', '.join(k for k, _ in st.controller)}")
+        SIMULATOR_OVERRIDES = st.simulator
+        experiment.check_settings(st)
+    except (experiment.OverrideError, SimConfigError, RobustnessError) as exc:
+        ap.error(str(exc))
     try:
         levels = _levels(args.levels)
         for m in args.modes:

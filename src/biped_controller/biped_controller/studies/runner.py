@@ -1,4 +1,7 @@
-"""In-process closed loop (no ROS, no DDS): Simulator + AdaptiveController, lockstep per control period.
+"""In-process closed loop (no ROS, no DDS): a plant + AdaptiveController, lockstep per control period.
+
+The plant is ``make_plant(sim_config.plant, ...)``: the rigid ``Simulator`` (default, the reference) or the
+MuJoCo plant (``--set plant=mujoco``); the compiled closed loop (``segment``) runs the rigid plant only.
 
 The node graph does exactly this over DDS; ``run`` is the reference the DDS run is compared with.
 """
@@ -15,7 +18,7 @@ from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.records import ImpactRecord, StepRecord
-from biped_sim.plant.rigid import Simulator
+from biped_sim.plant.protocol import make_plant
 
 from biped_controller.core.controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
 from biped_controller.studies.segment import Segment
@@ -67,7 +70,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     ccfg = ctrl_config if ctrl_config is not None else load_controller_config(mode=mode, period=scfg.control_period)
     if ccfg.period != scfg.control_period:
         ccfg = ControllerConfig(**{**ccfg.__dict__, "period": scfg.control_period})
-    sim = Simulator(desc, scfg, perturbation=perturbation)
+    sim = make_plant(scfg.plant, desc, scfg, perturbation)
     ctrl = AdaptiveController(ccfg, family, desc, keep_qp=keep_qp)
     q0, qd0 = family.initial_state()
     sim.reset(q0, qd0, LEFT)
@@ -78,7 +81,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     records, statuses, qps = [], [], []
     seg = None
     seen, pending = 0, False      # on_impact: impacts seen, one waiting for its first full period
-    if compiled_loop and not integration_rate and not keep_qp and Segment.eligible(sim, ctrl):
+    if compiled_loop and scfg.plant == "rigid" and not integration_rate and not keep_qp and Segment.eligible(sim, ctrl):
         seg = Segment(sim, ctrl, keep_records=keep_records)
     while True:
         if seg is not None:

@@ -1,7 +1,10 @@
 """ROS 2 node ``simulator``: the physical simulator in lockstep with the controller over DDS.
 
-Owns a :class:`biped_sim.plant.rigid.Simulator` (robot from ``config/biped.yaml``, ``SimConfig`` from
-the parameters below, which have the keys of ``config/simulator.yaml``). Initial state: the start of
+Owns a plant built by ``biped_sim.plant.protocol.make_plant`` from the parameter ``plant`` (``rigid``: the
+rigid ``Simulator``, the default; ``mujoco``: ``biped_sim.plant.mujoco.MujocoPlant``), robot from
+``config/biped.yaml``, ``SimConfig`` from the parameters below, which have the keys of
+``config/simulator.yaml`` (the ``mujoco_*`` keys set the MuJoCo plant's contact). What each message
+describes on the MuJoCo plant: DESIGN.md. Initial state: the start of
 the preferred gait (``GaitFamily.initial_state()``), LEFT stance, as the in-process
 ``runner.run``.
 
@@ -92,8 +95,8 @@ from biped_sim.graph.checks import RobotFilesError, check_urdf_joints
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation, plant_yaml
 from biped_sim.plant.push import Rejected
 from biped_sim.robot.loop import ENGINES
-from biped_sim.plant.config import SimConfig, SimConfigError, load_sim_config
-from biped_sim.plant.rigid import Simulator
+from biped_sim.plant.config import MUJOCO_CONES, MUJOCO_INTEGRATORS, PLANT_NAMES, SimConfig, SimConfigError, load_sim_config
+from biped_sim.plant.protocol import make_plant
 
 SIDES = ('left', 'right')
 WORLD_FRAME = 'world'
@@ -176,6 +179,12 @@ def read_sim_config(node: Node) -> SimConfig:
             kw[name] = get_int(node, name, default, lo=1, hi=1000)
         elif name == 'engine':
             kw[name] = get_str(node, name, default, choices=ENGINES)
+        elif name == 'plant':
+            kw[name] = get_str(node, name, default, choices=PLANT_NAMES)
+        elif name == 'mujoco_integrator':
+            kw[name] = get_str(node, name, default, choices=MUJOCO_INTEGRATORS)
+        elif name == 'mujoco_cone':
+            kw[name] = get_str(node, name, default, choices=MUJOCO_CONES)
         else:
             kw[name] = get_float(node, name, default)
     try:
@@ -230,7 +239,7 @@ class SimulatorNode(Node):
         except RobotFilesError as exc:
             raise ParameterError('urdf_path', f'{urdf_path or "generated URDF"}: {exc}') from exc
         self.perturbation = read_perturbation(self, self.desc)
-        self.sim = Simulator(self.desc, self.cfg, perturbation=self.perturbation)
+        self.sim = make_plant(self.cfg.plant, self.desc, self.cfg, self.perturbation)   # parameter 'plant'
         q0, qd0 = family.initial_state()
         self.sim.reset(q0, qd0, LEFT)
         self.tfb = TransformBuilder(self.urdf)
@@ -274,7 +283,7 @@ class SimulatorNode(Node):
         self.impacts_published = 0
         self.create_timer(0.02, self._on_timer)
         self.get_logger().info(
-            f'simulator ready: control_period {self.cfg.control_period} s, substeps {self.cfg.substeps}, '
+            f'simulator ready: plant {self.cfg.plant}, control_period {self.cfg.control_period} s, substeps {self.cfg.substeps}, '
             f'max_steps {self.max_steps}, max_time {self.max_time} s; waiting for the controller')
 
     # ------------------------------------------------------------------ parameters

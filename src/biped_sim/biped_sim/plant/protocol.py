@@ -1,7 +1,7 @@
 """The plant seen from outside: what the graph, the studies and the tests may ask of any engine.
 
-Pure Python, no ROS. Every engine (today the rigid one, :class:`biped_sim.plant.rigid.Simulator`;
-MuJoCo next) satisfies :class:`Plant`, and callers build one with :func:`make_plant` from a name, so a
+Pure Python, no ROS. Every engine (the rigid one, :class:`biped_sim.plant.rigid.Simulator`, the reference; MuJoCo,
+:class:`biped_sim.plant.mujoco.MujocoPlant`) satisfies :class:`Plant`, and callers build one with :func:`make_plant` from a name, so a
 second engine is one entry of :data:`PLANTS` and nothing else changes for its users.
 
 Conventions (DESIGN.md): paper coordinates (q, q') of the current stance for what the controller
@@ -14,13 +14,13 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from biped_sim.plant.config import SimConfig
+from biped_sim.plant.config import PLANT_NAMES, SimConfig
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
 from biped_sim.robot.description import RobotDescription
 
-PLANTS = ("rigid",)
+PLANTS = PLANT_NAMES   # ("rigid", "mujoco")
 
 
 class PlantError(ValueError):
@@ -74,4 +74,7 @@ def make_plant(name: str, desc: RobotDescription | None = None, config: SimConfi
     if name == "rigid":
         from biped_sim.plant.rigid import Simulator
         return Simulator(desc, config, perturbation)
+    if name == "mujoco":
+        from biped_sim.plant.mujoco import MujocoPlant     # imports mujoco only when chosen
+        return MujocoPlant(desc, config, perturbation)
     raise PlantError(f"plant must be one of {PLANTS}, got {name!r}")

@@ -1,0 +1,314 @@
+"""Rigid vs MuJoCo plant side by side (issue 24): the tables of ``docs/mujoco_plant.md`` that no other study
+prints. Pure Python on ``runner.run`` (no ROS). Usage::
+
+    python -m biped_controller.studies.plant_compare walk  [--steps 20] [--modes both tau p none] [--json F]
+    python -m biped_controller.studies.plant_compare falls [--json F]
+    python -m biped_controller.studies.plant_compare pushes [--dir docs/mujoco_runs] [--reuse]
+    python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off]
+    python -m biped_controller.studies.plant_compare cmap --rigid STORE --mujoco STORE
+
+``cmap``: the capability-map slice side by side from two stores of ``scripts/capability_map`` (one per plant,
+``--set plant=P --store STORE``): per cell (mode, direction, onset phase, duration), the strict boundary (the
+largest simulated force below the lowest one that failed the experiment's survival test) and the no-fall edge
+(the largest simulated force below the lowest one that fell), at the resolution of the simulated forces.
+
+``push``: one push (25 ms at t = 0.2315 s, 5 steps after it) on both plants: the outcome, and on MuJoCo the
+contact diagnostics over the run: what the rigid plant would have declared a fall (the friction cone, the
+centre of pressure at an edge, an unloaded stance foot) and how far the foot rolled and slid.
+
+``pushes``: the four-mode max-push table (``scripts/experiment table``: forward, 25 ms at t = 0.2315 s) for
+both plants, observer on and off, side by side: the experiment's strict boundary (no fall for 10 steps and
+|p - p_d|, |tau' - 1| <= 1e-3 at the end) and the *no-fall edge* (the largest scanned force below the
+lowest one that fell, at the scan's coarse step; the first falling force and its cause). Runs
+``scripts/experiment table --workers 2 --observer O --set plant=P --json DIR/table_P_observer_O.json`` for
+each (P, O), or with ``--reuse`` reads those files.
+
+``walk``: per plant and mode, an undisturbed walk of ``--steps`` steps: outcome, max tracking error [rad],
+step times [s] (mean, min, max over the steps walked), energy per step: the motors' absolute work
+sum_k sum_i |Gamma_i q'_i| dt [J] and the paper's criterion C = (1/p) int Gamma^T Gamma dt [N^2 m^2 s / m] per
+step (p = the step length the impacts give), final tau'; on MuJoCo the contact diagnostics (time the stance
+foot was unloaded, its centre of pressure within 1 mm of heel or toe, on the friction cone, pitched beyond
+1 mrad, its largest pitch and slip).
+
+``falls``: the measurement behind the MuJoCo plant's fall thresholds (``config/simulator.yaml``
+``mujoco_fall_hip_height``, ``mujoco_fall_foot_tilt``): pushes of 25 ms at t = 0.2315 s, forward and backward,
+modes both / tau / p, with only the body-contact fall active (the hip and foot checks set out of reach); per
+run: outcome, the largest stance-foot pitch and the lowest hip, and when the pitch first passed 0.05 / 0.1 /
+0.2 / 0.5 / 1 rad.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from biped_sim.plant.config import load_sim_config
+from biped_sim.plant.push import Push
+from biped_controller.studies import runner
+
+PLANTS = ("rigid", "mujoco")
+
+
+def _stance_pitch(records) -> np.ndarray:
+    X = np.array([r.x for r in records])
+    st = np.array([r.stance for r in records])
+    return np.where(st == 0, X[:, 2] + X[:, 3:6].sum(1), X[:, 2] + X[:, 6:9].sum(1))
+
+
+def walk_row(plant: str, mode: str, steps: int) -> dict:
+    """One undisturbed walk on ``plant`` (JSON-ready row, see the module docstring)."""
+    from biped_sim.plant import mujoco as pm
+    plants = []
+    orig = pm.MujocoPlant.reset
+
+    def grab(self, *a, **k):       # the plant object, for its contact diagnostics
+        plants.append(self)
+        return orig(self, *a, **k)
+    pm.MujocoPlant.reset = grab
+    try:
+        r = runner.run(steps=steps, mode=mode, sim_config=load_sim_config(plant=plant))
+    finally:
+        pm.MujocoPlant.reset = orig
+    ti = [0.0] + [i.t for i in r.impacts]
+    st = np.diff(ti)
+    work, crit = [], []
+    for a, b in zip(ti[:-1], ti[1:]):
+        recs = [x for x in r.records if a <= x.t < b]
+        work.append(sum(float(np.sum(np.abs(x.torque * x.qd))) * (x.t_end - x.t) for x in recs))
+        crit.append(sum(float(x.torque @ x.torque) * (x.t_end - x.t) for x in recs))
+    lengths = [abs(i.ankle_x - j.ankle_x) for i, j in zip(r.impacts[1:], r.impacts[:-1])]
+    p = float(np.mean(lengths)) if lengths else math.nan
+    row = {"plant": plant, "mode": mode, "steps_walked": r.steps_walked, "fallen": r.fallen,
+           "fall_cause": r.fall_cause, "fall_time": None if math.isnan(r.fall_time) else r.fall_time,
+           "max_tracking_error": runner.tracking_error(r),
+           "step_time_mean": float(np.mean(st)) if len(st) else None,
+           "step_time_min": float(np.min(st)) if len(st) else None, "step_time_max": float(np.max(st)) if len(st) else None,
+           "step_length_mean": p, "work_per_step": float(np.mean(work)) if work else None,
+           "criterion_per_step": float(np.mean(crit) / p) if crit and p == p else None,
+           "final_tau_dot": float(r.statuses[-1].tau_dot), "final_p": float(r.statuses[-1].p),
+           "max_stance_pitch": float(np.max(np.abs(_stance_pitch(r.records))))}
+    if plants:
+        row["contact"] = plants[-1].diagnostics.as_dict()
+    return row
+
+
+def falls_rows() -> list[dict]:
+    scfg = load_sim_config(plant="mujoco", mujoco_fall_hip_height=1e-6, mujoco_fall_foot_tilt=100.0)
+    out = []
+    for mode in ("both", "tau", "p"):
+        for f in (-1000, -800, -600, -500, 400, 500, 600, 700, 800):
+            r = runner.run(steps=5, mode=mode, pushes=(Push(0.2315, 0.025, float(f)),), sim_config=scfg, max_time=3.5)
+            pitch = np.abs(_stance_pitch(r.records))
+            X = np.array([x.x for x in r.records])
+            T = np.array([x.t for x in r.records])
+            out.append(dict(mode=mode, force=f, walked=r.steps_walked, fall=r.fall_cause or None,
+                            t_end=float(r.records[-1].t_end), max_pitch=float(pitch.max()), min_hip=float(X[:, 1].min()),
+                            first_pitch={a: (float(T[np.argmax(pitch > a)]) if (pitch > a).any() else None)
+                                         for a in (0.05, 0.1, 0.2, 0.5, 1.0)}))
+            print(json.dumps(out[-1]), flush=True)
+    return out
+
+
+def walk_table(rows: list[dict]) -> str:
+    L = ["| plant | mode | steps | fall | max tracking error [rad] | step time mean (min-max) [s] | "
+         "motor work / step [J] | C / step [N^2 m^2 s/m] | final tau' | max stance-foot pitch [rad] |",
+         "| --- | --- | ---: | --- | ---: | --- | ---: | ---: | ---: | ---: |"]
+    for r in rows:
+        f = lambda v, d: "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{d}f}"   # noqa: E731
+        L.append(f"| {r['plant']} | {r['mode']} | {r['steps_walked']} | {r['fall_cause'] or '-'} | "
+                 f"{f(r['max_tracking_error'], 4)} | {f(r['step_time_mean'], 4)} ({f(r['step_time_min'], 4)}-"
+                 f"{f(r['step_time_max'], 4)}) | {f(r['work_per_step'], 1)} | {f(r['criterion_per_step'], 0)} | "
+                 f"{f(r['final_tau_dot'], 5)} | {f(r['max_stance_pitch'], 4)} |")
+    c = [r for r in rows if "contact" in r]
+    if c:
+        L += ["", "| MuJoCo mode | MuJoCo steps | stance foot unloaded | CoP within 1 mm of an edge | on the friction cone | "
+              "pitched > 1 mrad | max pitch [rad] | max CoP [m] | max slip [m] |", "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+        for r in c:
+            d = r["contact"]
+            pc = lambda k: f"{100 * d[k] / d['time']:.1f} %" if d["time"] else "-"   # noqa: E731
+            L.append(f"| {r['mode']} | {d['steps']} | {pc('unloaded_time')} | {pc('edge_time')} | {pc('cone_time')} | "
+                     f"{pc('tilt_time')} | {d['max_tilt']:.4f} | {d['max_cop']:.4f} | {d['max_slip']:.2e} |")
+    return "\n".join(L)
+
+
+def no_fall_edge(trials: list[dict]) -> tuple[float, float | None, str]:
+    """(largest tried force below the lowest one that fell, that force or None, its fall cause)."""
+    lo, hi, cause = 0.0, None, ""
+    for t in sorted(trials, key=lambda t: t["force"]):
+        if t["fall_cause"]:
+            return lo, t["force"], t["fall_cause"]
+        lo = t["force"]
+    return lo, hi, cause
+
+
+def pushes_table(directory: Path, reuse: bool) -> tuple[str, dict]:
+    from biped_controller.studies import experiment
+    data = {}
+    for obs in ("on", "off"):
+        for plant in PLANTS:
+            f = directory / f"table_{plant}_observer_{obs}.json"
+            if not (reuse and f.is_file()):
+                experiment.main(["table", "--workers", "2", "--observer", obs, "--set", f"plant={plant}", "--json", str(f)])
+            data[(plant, obs)] = json.loads(f.read_text(encoding="utf-8"))["modes"]
+    L = ["| observer | mode | paper [N] | rigid: max push [N] (first failure) | MuJoCo: max push, strict [N] (first failure) | "
+         "rigid: no-fall edge [N], first fall | MuJoCo: no-fall edge [N], first fall |",
+         "| --- | --- | ---: | --- | --- | --- | --- |"]
+    out = {}
+    for obs in ("on", "off"):
+        for mode in ("none", "tau", "p", "both"):
+            cells = []
+            for plant in PLANTS:
+                m = data[(plant, obs)][mode]
+                lo, hi, cause = no_fall_edge(m["trials"])
+                out[f"{plant}/{obs}/{mode}"] = dict(max_force=m["max_force"], failure=m["failure_cause"], no_fall=lo,
+                                                    first_fall=hi, fall_cause=cause, islands=m["islands"])
+                cells.append((f"{m['max_force']:g} ({m['failure_cause']})", f"{lo:g}, {hi:g} N {cause}" if hi else f"> {lo:g}"))
+            paper = data[("rigid", obs)][mode]["paper"]
+            L.append(f"| {obs} | {mode} | {paper if paper else '-'} | {cells[0][0]} | {cells[1][0]} | {cells[0][1]} | {cells[1][1]} |")
+    return "\n".join(L), out
+
+
+def push_pair(force: float, mode: str, observer: bool) -> list[dict]:
+    from biped_sim.plant import mujoco as pm
+    from biped_controller.studies.experiment import RunSettings
+    st = RunSettings(controller=(("disturbance_observer", observer),))
+    out = []
+    for plant in PLANTS:
+        plants = []
+        orig = pm.MujocoPlant.reset
+
+        def grab(self, *a, **k):
+            plants.append(self)
+            return orig(self, *a, **k)
+        pm.MujocoPlant.reset = grab
+        try:
+            r = runner.run(steps=6, mode=mode, pushes=(Push(0.2315, 0.025, float(force)),),
+                           sim_config=load_sim_config(plant=plant), ctrl_config=st.ctrl_config(mode))
+        finally:
+            pm.MujocoPlant.reset = orig
+        row = dict(plant=plant, mode=mode, observer=observer, force=force, steps_walked=r.steps_walked,
+                   fall=r.fall_cause or None, fall_time=None if math.isnan(r.fall_time) else r.fall_time,
+                   detail=r.fall_detail or None, final_p=float(r.statuses[-1].p), final_tau_dot=float(r.statuses[-1].tau_dot))
+        if plants:
+            row["contact"] = plants[-1].diagnostics.as_dict()
+        out.append(row)
+        print(json.dumps(row), flush=True)
+    return out
+
+
+def cell_edges(records: list[dict]) -> dict:
+    """Per cell (mode, direction, phase, duration): strict boundary, no-fall edge, first fall cause, sims."""
+    cells: dict = {}
+    for r in records:
+        cells.setdefault((r["mode"], r["direction"], r["phase"], r["duration"]), []).append(r)
+    out = {}
+    for key, rs in cells.items():
+        rs = sorted(rs, key=lambda r: r["force"])
+        strict = nofall = 0.0
+        fall, cause = None, None
+        for r in rs:
+            if r["fall_time"] is not None:
+                fall, cause = r["force"], r["cause"]
+                break
+            nofall = r["force"]
+        for r in rs:
+            if not r["survived"]:
+                break
+            strict = r["force"]
+        # complete enough: the fall found and every coarse force below it simulated (an interrupted map, or two
+        # workers running a cell's forces out of order, can leave a gap)
+        from biped_controller.studies.capability_map import DEFAULT_COARSE
+        forces = {r["force"] for r in rs}
+        gap = fall is None or any(DEFAULT_COARSE * k not in forces for k in range(1, int(fall // DEFAULT_COARSE)))
+        out[key] = dict(strict=strict, no_fall=nofall, first_fall=None if gap else fall, cause=cause, sims=len(rs))
+    return out
+
+
+def cmap_table(rigid: Path, mujoco: Path) -> tuple[str, dict]:
+    load = lambda f: [json.loads(line) for line in f.read_text(encoding="utf-8").splitlines() if line.strip()]   # noqa: E731
+    R, M = cell_edges(load(rigid)), cell_edges(load(mujoco))
+    # a cell counts once both plants' scans reached a fall (its no-fall edge is known); an interrupted map leaves
+    # the rest out (listed)
+    keys = sorted(k for k in set(R) & set(M) if R[k]["first_fall"] and M[k]["first_fall"])
+    missing = sorted(k for k in set(R) | set(M) if k not in keys)
+    L = ["| mode | direction | phase | rigid: strict [N] | rigid: no-fall edge [N] (first fall) | MuJoCo: strict [N] | "
+         "MuJoCo: no-fall edge [N] (first fall) |", "| --- | --- | ---: | ---: | --- | ---: | --- |"]
+    for k in keys:
+        r, m = R[k], M[k]
+        ff = lambda c: f"{c['no_fall']:g} ({c['first_fall']:g} N {c['cause']})" if c["first_fall"] else f">= {c['no_fall']:g}"   # noqa: E731
+        L.append(f"| {k[0]} | {k[1]} | {k[2]:g} | {r['strict']:g} | {ff(r)} | {m['strict']:g} | {ff(m)} |")
+    groups = sorted({(k[0], k[1]) for k in keys})
+    L += ["", "| mode | direction | cells | mean rigid strict [N] | mean rigid no-fall [N] | mean MuJoCo strict [N] | "
+          "mean MuJoCo no-fall [N] | cells MuJoCo no-fall > rigid no-fall |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    summary = {}
+    for g in groups:
+        ks = [k for k in keys if (k[0], k[1]) == g]
+        mean = lambda D, f: float(np.mean([D[k][f] for k in ks]))   # noqa: E731
+        above = sum(1 for k in ks if M[k]["no_fall"] > R[k]["no_fall"])
+        summary[f"{g[0]}/{g[1]}"] = dict(cells=len(ks), rigid_strict=mean(R, "strict"), rigid_no_fall=mean(R, "no_fall"),
+                                         mujoco_strict=mean(M, "strict"), mujoco_no_fall=mean(M, "no_fall"), above=above)
+        sm = summary[f"{g[0]}/{g[1]}"]
+        L.append(f"| {g[0]} | {g[1]} | {len(ks)} | {sm['rigid_strict']:.1f} | {sm['rigid_no_fall']:.1f} | "
+                 f"{sm['mujoco_strict']:.1f} | {sm['mujoco_no_fall']:.1f} | {above} of {len(ks)} |")
+    if missing:
+        L += ["", f"not complete on both plants ({len(missing)} cells): "
+              + ", ".join(f"{k[0]} {k[1]} {k[2]:g}" for k in missing)]
+    summary["missing"] = [list(k) for k in missing]
+    return "\n".join(L), summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.plant_compare", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    w = sub.add_parser("walk")
+    w.add_argument("--steps", type=int, default=20)
+    w.add_argument("--modes", nargs="+", default=["both", "tau", "p", "none"])
+    w.add_argument("--json", type=Path, default=None)
+    fl = sub.add_parser("falls")
+    fl.add_argument("--json", type=Path, default=None)
+    pu = sub.add_parser("pushes")
+    pu.add_argument("--dir", type=Path, default=Path("docs/mujoco_runs"))
+    pu.add_argument("--reuse", action="store_true")
+    pu.add_argument("--json", type=Path, default=None)
+    po = sub.add_parser("push")
+    po.add_argument("--force", type=float, required=True)
+    po.add_argument("--mode", default="both")
+    po.add_argument("--observer", choices=("on", "off"), default="on")
+    po.add_argument("--json", type=Path, default=None)
+    cm = sub.add_parser("cmap")
+    cm.add_argument("--rigid", type=Path, required=True)
+    cm.add_argument("--mujoco", type=Path, required=True)
+    cm.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args(argv)
+    if a.cmd == "cmap":
+        table, rows = cmap_table(a.rigid, a.mujoco)
+        print(table)
+    elif a.cmd == "push":
+        rows = push_pair(a.force, a.mode, a.observer == "on")
+    elif a.cmd == "pushes":
+        table, rows = pushes_table(a.dir, a.reuse)
+        print(table)
+    elif a.cmd == "walk":
+        rows = [walk_row(pl, m, a.steps) for m in a.modes for pl in PLANTS]
+        print(walk_table(rows))
+    else:
+        rows = falls_rows()
+        surv = [r for r in rows if r["fall"] is None]
+        fell = [r for r in rows if r["fall"] is not None]
+        print(f"survived {len(surv)}: largest stance-foot pitch {max(r['max_pitch'] for r in surv):.4f} rad, lowest hip "
+              f"{min(r['min_hip'] for r in surv):.4f} m")
+        print(f"fell {len(fell)}: causes {sorted(set(r['fall'] for r in fell))}; pitch 0.05 -> 1 rad within "
+              f"{max(r['first_pitch'][1.0] - r['first_pitch'][0.05] for r in fell if r['first_pitch'][1.0]):.3f} s")
+    if a.json is not None:
+        a.json.parent.mkdir(parents=True, exist_ok=True)
+        a.json.write_text(json.dumps(rows, indent=1), encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
