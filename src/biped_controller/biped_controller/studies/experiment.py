@@ -28,7 +28,11 @@ deterministic (the simulator and the controller are); the functions are importab
 
 Survival (max-push): no fall until ``SURVIVAL_STEPS`` impacts after the end of the push, and at the end
 of the run p within ``P_TOL`` of p_d and tau' within ``TAU_DOT_TOL`` of 1 (the robot is back on its
-preferred gait). Survival need not be monotone in the force, so the search scans coarsely first, bisects
+preferred gait). With noisy sensors (a perturbation with ``noise_q``, ``noise_qd``, ``encoder_bits`` or
+``noise_pitch``) tau' is compared with the band ``TAU_DOT_TOL_NOISE`` instead (p keeps ``P_TOL``): the
+controller's tau' follows its estimate of the state, never settles exactly, and an undisturbed walk under
+the design-point noise already leaves 1 by up to 0.018 (docs/robustness.md); a pushed robot is back
+when it is as close to the gait as an unpushed one under the same noise. Survival need not be monotone in the force, so the search scans coarsely first, bisects
 the lowest failing edge, and reports every survivable coarse force above that edge ("islands").
 """
 from __future__ import annotations
@@ -69,6 +73,7 @@ DEFAULT_DURATION = 0.025        # paper: 0.025 s
 SURVIVAL_STEPS = 10             # impacts that must follow the end of the push
 P_TOL = 1e-3                    # |p - p_d| at the end of a survived run [m]
 TAU_DOT_TOL = 1e-3              # |tau' - 1| at the end of a survived run [-]
+TAU_DOT_TOL_NOISE = 0.02        # |tau' - 1| at the end of a survived run with noisy sensors [-] (module doc)
 ZOH_EXPLANATION = (
     "cause of the ZOH error: the torque is computed at each control instant and held for the period "
     "(1 ms) while the reference acceleration q_d'' (and the state) keep changing, an O(dt) acceleration "
@@ -196,6 +201,26 @@ def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | boo
     return RunSettings(tuple(sorted(ctrl.items())), tuple(sorted(sim.items())))
 
 
+def parse_perturbation(items: list[str] | tuple[str, ...] = ()) -> PlantPerturbation | None:
+    """A ``PlantPerturbation`` from ``FIELD=VALUE`` strings (values parsed as YAML scalars; None when
+    empty). Raises :class:`OverrideError` for a malformed or repeated item and ``PerturbationError``
+    naming a bad field or value."""
+    vals: dict[str, object] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise OverrideError(f"--perturb expects FIELD=VALUE, got {item!r}")
+        if key in vals:
+            raise OverrideError(f"--perturb {key}: given twice")
+        try:
+            v = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise OverrideError(f"--perturb {key}={text}: the value does not parse: {exc}") from exc
+        vals[key] = v
+    return PlantPerturbation.from_dict(vals) if vals else None
+
+
 def check_settings(settings: RunSettings) -> dict:
     """Build both configs once (a bad value raises the config's error naming the key); the description."""
     return settings.describe()
@@ -208,6 +233,8 @@ def print_settings(desc: dict) -> None:
     print("controller: " + ", ".join(f"{k}={c[k]}" for k in c))
     s = desc["simulator"]
     print("simulator: " + ", ".join(f"{k}={s[k]}" for k in s))
+    if "perturbation" in desc:
+        print("plant perturbation: " + PlantPerturbation.from_dict(desc["perturbation"]).label())
 
 
 DEFAULT_SETTINGS = RunSettings()
@@ -281,7 +308,11 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
 def walk(steps: int = 10, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS) -> dict:
     """Undisturbed walking, controller at the integration rate and at the control period (ZOH)."""
     out = {"steps": steps, "mode": mode, "explanation": ZOH_EXPLANATION}
+    pert = settings.perturbation
     for key, ir in (("integration_rate", True), ("zoh", False)):
+        if ir and pert is not None and not pert.sensing_is_perfect:
+            out[key] = None      # a torque function sees the true state at every RK4 stage: no sensor model
+            continue
         t0 = time.perf_counter()
         res = _run(steps, mode, integration_rate=ir, settings=settings)
         s = summarize(res)
@@ -296,10 +327,17 @@ def print_walk(r: dict) -> None:
           f"{'p range [m]':>17} {'tau_dot range':>17} {'wall [s]':>8}")
     for key, label in (("integration_rate", "integration rate"), ("zoh", "ZOH 1 ms")):
         s = r[key]
+        if s is None:
+            print(f"{label:<18} (not run: the sensor model needs held torques)")
+            continue
+        if s["fallen"]:
+            print(f"{label:<18} fall: {s['fall_cause']} at t = {s['fall_time']:.4f} s: {s['fall_detail']}")
         print(f"{label:<18} {s['steps_walked']:>5} {str(s['fallen']):>6} {s['max_tracking_error']:13.3e} "
               f"{s['max_tracking_error_before_first_impact']:10.2e} {s['max_tracking_error_after_first_impact']:12.2e} "
               f"{s['p_min']:8.5f}-{s['p_max']:8.5f} {s['tau_dot_min']:8.5f}-{s['tau_dot_max']:8.5f} {s['wall_time']:8.2f}")
     for key, label in (("integration_rate", "integration rate"), ("zoh", "ZOH 1 ms")):
+        if r[key] is None:
+            continue
         print(f"impact times ({label}): " + ", ".join(f"{x:.6f}" for x in r[key]["impact_times"]))
     print(r["explanation"])
 
@@ -321,9 +359,17 @@ def push_run(force: float, duration: float = DEFAULT_DURATION, start: float = DE
                 keep_records=keep_records)
 
 
-def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STEPS) -> tuple[bool, str]:
-    """(survived, reason) by the criterion of the module docstring."""
+def noisy_sensing(settings: RunSettings) -> bool:
+    """The run's sensors are noisy or quantised (survival then uses the noise band for tau')."""
+    p = settings.perturbation
+    return p is not None and bool(p.noise_q or p.noise_qd or p.encoder_bits or p.noise_pitch)
+
+
+def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STEPS, noisy: bool = False
+             ) -> tuple[bool, str]:
+    """(survived, reason) by the criterion of the module docstring (``noisy``: the band for noisy sensors)."""
     fam = context().family
+    tau_tol = TAU_DOT_TOL_NOISE if noisy else TAU_DOT_TOL
     if result.fallen:
         return False, f"fell: {result.fall_cause} at t = {result.fall_time:.4f} s"
     after = sum(1 for i in result.impacts if i.t >= push_end)
@@ -332,8 +378,8 @@ def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STE
     last = result.statuses[-1]
     if abs(last.p - fam.p_d) > P_TOL:
         return False, f"p = {last.p:.5f} m not back to p_d (|p - p_d| > {P_TOL})"
-    if abs(last.tau_dot - 1.0) > TAU_DOT_TOL:
-        return False, f"tau' = {last.tau_dot:.5f} not back to 1 (> {TAU_DOT_TOL})"
+    if abs(last.tau_dot - 1.0) > tau_tol:
+        return False, f"tau' = {last.tau_dot:.5f} not back to 1 (> {tau_tol})"
     return True, "survived"
 
 
@@ -341,7 +387,7 @@ def push_experiment(force: float, duration: float = DEFAULT_DURATION, start: flo
                     mode: str = "both", height: float | None = None, figures: str | Path | None = None,
                     settings: RunSettings = DEFAULT_SETTINGS) -> dict:
     res = push_run(force, duration, start, mode, height, settings=settings)
-    ok, why = survival(res, start + duration)
+    ok, why = survival(res, start + duration, noisy=noisy_sensing(settings))
     s = summarize(res, push_end=start + duration)
     out = {"force": force, "duration": duration, "start": start, "mode": mode, "height": height,
            "survived": ok, "reason": why, **s}
@@ -462,7 +508,7 @@ def survives(force: float, mode: str, duration: float = DEFAULT_DURATION, start:
              height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS) -> dict:
     """One survival trial (JSON-ready): force, survived, reason, and a few numbers."""
     res = push_run(force, duration, start, mode, height, settings=settings, keep_records=False)
-    ok, why = survival(res, start + duration)
+    ok, why = survival(res, start + duration, noisy=noisy_sensing(settings))
     return {"force": float(force), "mode": mode, "survived": ok, "reason": why,
             "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
             "steps_walked": int(res.steps_walked)}
@@ -675,7 +721,7 @@ def probe_run(force: float, mode: str = "both", duration: float = DEFAULT_DURATI
     records, statuses, est = [], [], []
     while True:
         obs = sim.observe()
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance)
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
         statuses.append(out.status)
         est.append(ctrl.force_estimate)
         rec = sim.step(out.torque)
@@ -771,6 +817,9 @@ def _add_settings_args(a: argparse.ArgumentParser) -> None:
                         "off = the paper's controller as published")
     a.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a key of config/controller.yaml or config/simulator.yaml (repeatable)")
+    a.add_argument("--perturb", dest="perturb", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a field of the plant's PlantPerturbation, e.g. torso_mass_scale=0.8, noise_q=5e-4, "
+                        "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -815,8 +864,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         settings = parse_overrides(args.overrides, args.observer)
+        pert = parse_perturbation(args.perturb)
+        if pert is not None:
+            settings = RunSettings(settings.controller, settings.simulator, pert)
         described = check_settings(settings)
-    except (OverrideError, ControllerConfigError, SimConfigError) as exc:
+    except (OverrideError, ControllerConfigError, SimConfigError, PerturbationError) as exc:
         ap.error(str(exc))
     print(f"scripts/experiment {' '.join(sys.argv[1:] if argv is None else argv)}")
     print_settings(described)
