@@ -156,9 +156,21 @@ def _ctrl_config(mode: str, controller: tuple, simulator: tuple, stamp: tuple[in
     return load_controller_config(mode=mode, period=_sim_config(simulator).control_period, **dict(controller))
 
 
+def _scalar(text: str) -> object:
+    """A YAML scalar, with numbers such as ``5e-4`` that YAML 1.1 reads as words taken as numbers."""
+    v = yaml.safe_load(text)
+    if isinstance(v, str):
+        for conv in (int, float):
+            try:
+                return conv(v)
+            except ValueError:
+                pass
+    return v
+
+
 def _parse_value(key: str, text: str) -> object:
     try:
-        v = yaml.safe_load(text)
+        v = _scalar(text)
     except yaml.YAMLError as exc:
         raise OverrideError(f"--set {key}={text}: the value does not parse: {exc}") from exc
     if not isinstance(v, (bool, int, float, str)):
@@ -214,7 +226,7 @@ def parse_perturbation(items: list[str] | tuple[str, ...] = ()) -> PlantPerturba
         if key in vals:
             raise OverrideError(f"--perturb {key}: given twice")
         try:
-            v = yaml.safe_load(text)
+            v = _scalar(text)
         except yaml.YAMLError as exc:
             raise OverrideError(f"--perturb {key}={text}: the value does not parse: {exc}") from exc
         vals[key] = v
@@ -655,7 +667,8 @@ def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float 
             bt = []
         results[m] = _result_for(m, tr, lo, hi, bt, isl, fmax, resolution, coarse)
         results[m]["direction"] = "forward" if sign > 0 else "backward"
-        results[m].update(duration=duration, start=start, height=height, settings=described)
+        results[m].update(duration=duration, start=start, height=height, settings=described,
+                          noisy_sensing=noisy_sensing(settings))
     return results
 
 
@@ -689,7 +702,8 @@ def print_max_push(results: dict[str, dict]) -> None:
     print(f"(push {r0['direction']} for {r0['duration']:g} s from t = {r0['start']:g} s at {h:g} m above the hip; "
           f"coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, edge bisected to {r0['resolution']:g} N; "
           f"survival = no fall for {SURVIVAL_STEPS} steps after the push, |p - p_d| <= {P_TOL} m and "
-          f"|tau' - 1| <= {TAU_DOT_TOL} at the end)")
+          f"|tau' - 1| <= {TAU_DOT_TOL_NOISE if r0.get('noisy_sensing') else TAU_DOT_TOL} at the end"
+          + (", the band for noisy sensors)" if r0.get("noisy_sensing") else ")"))
 
 
 # ------------------------------------------------------------------------------------------ probe
