@@ -299,3 +299,36 @@ def test_robustness_help_and_level_keys():
     assert rb._levels(["torso mass -20 %"])[0].key == "torso_mass-20"        # the table's text still works
     with pytest.raises(rb.RobustnessError, match="unknown level"):
         rb._levels(["torso_mass-25"])
+
+
+def test_qp_rows_carry_the_wrench_and_its_spread():
+    """The momentum observer's estimate enters the 17 'with estimate' rows as C dR on the five contact
+    offsets plus estimate_confidence x sqrt(C_i Sigma_dR C_i^T); the 17 rows without it are the nominal
+    ones; the matrix G is the same for both sets (checked against the rows built with no estimate)."""
+    from biped_sim.robot.fixed_foot import contact_rows
+    from biped_sim.robot.gait_family import GaitFamily
+    from biped_controller.core.controller import AdaptiveController
+    fam = GaitFamily.load()
+    q0, qd0 = fam.initial_state()
+    cfg = load_controller_config(mode="both", momentum_observer=True, engine="reference")
+    ctrl = AdaptiveController(cfg, fam, DESC)
+    ctrl.reset(0)
+    ctrl._advance_parameters(0.0, 0)
+    ref = ctrl._reference(q0, qd0)
+    dyn, jp = ctrl._model_terms(q0, qd0)
+    G0, h0 = ctrl._qp_rows(ref, dyn, dyn)                       # no estimate
+    S = np.array([[0.9, 0.1, 0.3], [0.2, -1.1, 0.05]])
+    W = np.array([50.0, -20.0, 3.0])
+    covW = np.diag([4.0, 9.0, 1.0])
+    ctrl.wrench = mom.Wrench(r=np.zeros(6), W=W, cov_W=covW, dR=S @ W, cov_dR=S @ covW @ S.T, S=S)
+    dyn_c, F = ctrl._observe(0.0, qd0, 0, dyn, jp)
+    assert F == 50.0
+    G, h = ctrl._qp_rows(ref, dyn, dyn_c)
+    assert np.array_equal(G, G0)
+    C, _ = contact_rows(cfg.margin_friction * DESC.mu, DESC.foot.l_min + cfg.margin_zmp, DESC.foot.l_max - cfg.margin_zmp)
+    spread = cfg.estimate_confidence * np.sqrt(np.einsum("ij,jk,ik->i", C, S @ covW @ S.T, C))
+    assert np.allclose(h[:5], h0[:5] - C @ (S @ W) - spread, rtol=0, atol=1e-9)
+    assert np.array_equal(h[5:17], h0[5:17])                     # torque rows: the estimate does not enter
+    assert np.allclose(h[17:34], h0[17:34], rtol=0, atol=1e-12)  # the rows without the estimate
+    # negative control: a wrong sign of the shift is seen
+    assert not np.allclose(h[:5], h0[:5] + C @ (S @ W) - spread, rtol=0, atol=1e-9)
