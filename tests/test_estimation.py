@@ -313,17 +313,17 @@ def test_qp_rows_carry_the_wrench_and_its_spread():
     cfg = load_controller_config(mode="both", momentum_observer=True, engine="reference")
     ctrl = AdaptiveController(cfg, fam, DESC)
     ctrl.reset(0)
-    ctrl._advance_parameters(0.0, 0)
-    ref = ctrl._reference(q0, qd0)
+    res = ctrl._begin(0.0, 0)
+    ref = ctrl._reference(q0, qd0, res)
     dyn, jp = ctrl._model_terms(q0, qd0)
-    G0, h0 = ctrl._qp_rows(ref, dyn, dyn)                       # no estimate
+    G0, h0 = ctrl._qp_rows(ref, dyn, dyn, res)                  # no estimate
     S = np.array([[0.9, 0.1, 0.3], [0.2, -1.1, 0.05]])
     W = np.array([50.0, -20.0, 3.0])
     covW = np.diag([4.0, 9.0, 1.0])
     ctrl.wrench = mom.Wrench(r=np.zeros(6), W=W, cov_W=covW, dR=S @ W, cov_dR=S @ covW @ S.T, S=S)
-    dyn_c, F = ctrl._observe(0.0, qd0, 0, dyn, jp)
+    dyn_c, F = ctrl._observe(res, qd0, dyn, jp)
     assert F == 50.0
-    G, h = ctrl._qp_rows(ref, dyn, dyn_c)
+    G, h = ctrl._qp_rows(ref, dyn, dyn_c, res)
     assert np.array_equal(G, G0)
     C, _ = contact_rows(cfg.margin_friction * DESC.mu, DESC.foot.l_min + cfg.margin_zmp, DESC.foot.l_max - cfg.margin_zmp)
     spread = cfg.estimate_confidence * np.sqrt(np.einsum("ij,jk,ik->i", C, S @ covW @ S.T, C))

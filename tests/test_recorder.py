@@ -477,7 +477,7 @@ def _need_rclpy():
 
 
 def _run_recorder(tmp_path, params: list[str]) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "biped_sim.recording.recorder_node", "--ros-args"]
+    cmd = [sys.executable, "-m", "biped_sim.graph.recorder_node", "--ros-args"]
     for p in params:
         cmd += ["-p", p]
     return subprocess.Popen(cmd, env=_ros_env(tmp_path), stdout=subprocess.PIPE,

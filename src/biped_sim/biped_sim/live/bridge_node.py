@@ -66,7 +66,7 @@ from biped_sim.live.bridge_core import (
 )
 from biped_sim.recording.mcap_recorder import RecorderError, build_message_definition
 from biped_sim.graph.params import ParameterError, get_bool, get_float, get_int, get_str, run_node
-from biped_sim.recording.recorder_node import RecorderNode, recording_qos
+from biped_sim.graph.recorder_node import RecorderNode, recording_qos
 
 NODE_NAME = gn.BRIDGE_NODE
 DEFAULT_HOST = '127.0.0.1'
