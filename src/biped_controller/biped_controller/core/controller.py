@@ -42,7 +42,7 @@ from biped_sim.robot.loop import ENGINES, load_loop_settings
 from biped_sim.robot.settings import SettingsError, default_config_dir, read_settings
 
 from biped_sim.robot.gait_family import GaitFamily, eq11
-from biped_sim.robot.fixed_foot import Dynamics, FixedFootModel, contact_rows
+from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
 from biped_sim.robot import numba_cache
 from biped_controller.core.period_layout import (
     CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WORK, M_, R_, W_)
@@ -94,6 +94,22 @@ class ControllerConfig:
     observer_height: float        # [m] assumed application height of the estimated force above the hip
     engine: str                   # "fast": compiled model terms (biped_sim.robot.fast_engine); "reference": Pinocchio
     period: float                 # [s] control period (config/simulator.yaml control_period)
+    # issue 22 (real sensing): core/sensing.py; with all of them off the controller is the one above
+    momentum_observer: bool       # the observer is the generalized-momentum one (else acceleration residual)
+    momentum_observer_gain: float   # [1/s] its bandwidth K
+    estimate_confidence: float      # [-] k: the QP's contact rows keep k sigma of the estimate's spread
+    state_estimator: bool         # Kalman filter on (q, q') (core/estimation.py)
+    sensor_noise_q: float           # [rad] encoder noise std the controller assumes
+    sensor_encoder_bits: int          # [bits per turn] encoder resolution it assumes (0: none)
+    sensor_noise_qd: float          # [rad/s] rate sensor noise std it assumes
+    sensor_noise_pitch: float       # [rad] IMU pitch noise std it assumes
+    estimator_accel_std: float      # [rad/s^2] the filter's process noise
+    estimator_impact_std: float     # [rad/s] added to each rate's std at a touchdown
+    delay_compensation: int           # [periods] known delay the Smith predictor compensates (0: none)
+    predictor_substeps: int           # RK4 steps per period of the predictor
+    predictor_touchdown_height: float   # [m] a swing sole this low at a period's end has touched down
+    predictor_clearance: float      # [m] the swing foot must have risen this high before
+    predictor_time_tolerance: float     # [s] a touchdown inside a substep located to this
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -117,7 +133,43 @@ class ControllerConfig:
             raise ControllerConfigError(f"observer_height must be a finite number, got {self.observer_height!r}")
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
+        for name in ("momentum_observer", "state_estimator"):
+            if not isinstance(getattr(self, name), bool):
+                raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        ints = {}
+        for name in ("sensor_encoder_bits", "delay_compensation", "predictor_substeps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v) or v < 0:
+                raise ControllerConfigError(f"{name} must be an integer >= 0, got {v!r}")
+            ints[name] = int(v)     # (a ROS parameter arrives as a float)
+        for name in ("momentum_observer_gain", "estimate_confidence", "sensor_noise_q", "sensor_noise_qd",
+                     "sensor_noise_pitch", "estimator_accel_std", "estimator_impact_std",
+                     "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
+        if self.momentum_observer and self.disturbance_observer and self.momentum_observer_gain <= 0:
+            raise ControllerConfigError("momentum_observer_gain must be > 0 with the momentum observer on")
+        if self.state_estimator and (self.estimator_accel_std <= 0 or
+                                     (self.sensor_noise_q <= 0 and ints["sensor_encoder_bits"] == 0)):
+            raise ControllerConfigError("estimator_accel_std must be > 0, and sensor_noise_q > 0 or "
+                                        "sensor_encoder_bits > 0, with the state estimator on")
+        if ints["delay_compensation"] > 0:
+            for name in ("predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance"):
+                if getattr(self, name) <= 0:
+                    raise ControllerConfigError(f"{name} must be > 0 with delay_compensation > 0")
+            if ints["predictor_substeps"] < 1:
+                raise ControllerConfigError("predictor_substeps must be >= 1 with delay_compensation > 0")
+        if any(getattr(self, k) != v or type(getattr(self, k)) is not int for k, v in ints.items()):
+            return replace(self, **ints)
         return self
+
+    @property
+    def real_sensing(self) -> bool:
+        """Any of issue 22's parts on: the sensing pipeline runs (Python steps, no compiled period)."""
+        return bool(self.state_estimator or self.delay_compensation > 0
+                    or (self.disturbance_observer and self.momentum_observer))
+
 
 
 def load_controller_config(path: str | Path | None = None, **overrides) -> ControllerConfig:
@@ -288,9 +340,15 @@ class AdaptiveController:
         self.gains = self._gains()
         self.cons = self._cons()
         self.memory = MEMORY.new()
+        self._sensing = None
+        self._extra_margin = np.zeros(N_CONSTRAINTS)
+        self.wrench = None             # the momentum observer's last estimate (momentum_observer.Wrench)
+        if self.cfg.real_sensing:
+            from biped_controller.core.sensing import SensingPipeline
+            self._sensing = SensingPipeline(self.cfg, self.desc)
         self.reset(None)
-        if self._fast is not None:
-            self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
+        if self._fast is not None and self._sensing is None:
+            self._kernel = _FastPeriod(self)   # the compiled period (fast engine; not with real sensing yet)
 
     def _gains(self) -> np.ndarray:
         """The ``GAINS`` array (eqs. 16, 20, the p range, the observer, the adapted parameters)."""
@@ -338,6 +396,9 @@ class AdaptiveController:
         mem[:] = 0.0
         mem[M_.p], mem[M_.tau_dot] = self.family.p_d, 1.0
         mem[M_.stance] = -1.0 if stance is None else stance
+        self.wrench = None
+        if self._sensing is not None:
+            self._sensing.reset()
 
     # --------------------------------------------------------------- the steps of one period
     def _begin(self, t: float, stance: int) -> np.ndarray:
@@ -392,6 +453,8 @@ class AdaptiveController:
         when the observer is off) and F [N]."""
         if not self.cfg.disturbance_observer:
             return dyn, 0.0
+        if self.cfg.momentum_observer:
+            return self._observe_momentum(dyn)
         j6 = Jp[3:]                       # Jp: (9,) x-row of the torso point Jacobian
         F = 0.0
         mode, mem = res[R_.obs_mode], self.memory
@@ -404,6 +467,23 @@ class AdaptiveController:
             F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
         delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
         return replace(dyn, h_b=dyn.h_b + delta), F
+
+    def _observe_momentum(self, dyn: Dynamics) -> tuple[Dynamics, float]:
+        """The momentum observer's torso wrench W (``momentum_observer``) moves the predicted ground force
+        by dR = S W; its covariance S Sigma_W S^T widens the contact rows of the estimate's QP rows by
+        ``estimate_confidence`` standard deviations each (row i: C_i dR, std sqrt(C_i Sigma_dR C_i^T)).
+        Returns the shifted dynamics and F_x [N] (the reported force estimate)."""
+        w = self.wrench
+        self._extra_margin = np.zeros(N_CONSTRAINTS)
+        if w is None:
+            return dyn, 0.0
+        hb = dyn.h_b.copy()
+        hb[:2] += w.dR
+        c, m = self.cfg, self.model
+        C, _ = contact_rows(c.margin_friction * m.mu, m.l_min + c.margin_zmp, m.l_max - c.margin_zmp)
+        var = np.einsum("ij,jk,ik->i", C, w.cov_dR, C)
+        self._extra_margin[:5] = c.estimate_confidence * np.sqrt(np.maximum(var, 0.0))
+        return replace(dyn, h_b=hb), float(w.W[0])
 
     def _qp_rows(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -426,6 +506,8 @@ class AdaptiveController:
             C, _ = contact_rows(mu, lm, lM)
             b0 = b.copy()
             b0[:5] -= C @ (dyn_c.h_b[:2] - dyn.h_b[:2])
+            if self._sensing is not None:
+                b = b + self._extra_margin      # the estimate's spread (momentum observer): its rows only
         AD = A @ ref.D
         Av = A @ ref.v
         dt = c.period
@@ -465,14 +547,24 @@ class AdaptiveController:
         return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
                              x_star=xs if keep else None)
 
-    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
+    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan) -> ControlOutput:
         """One control period: advance the parameters, observe, reference, rows, decide, torque, commit.
 
         With the fast engine the steps are one compiled call (``control_kernels.step``, the same
         equations) and, when x* is not feasible, the QP and one more call; a non-finite value anywhere
-        falls back to the Python steps below (the memory is then unchanged by the compiled call)."""
+        falls back to the Python steps below (the memory is then unchanged by the compiled call).
+
+        With real sensing (``ControllerConfig.real_sensing``, issue 22) the measurement (stance, q, q' and
+        the IMU's torso ``pitch`` [rad], NaN: none) goes through ``sensing.SensingPipeline`` first: the
+        Python steps run on its estimate, in the stance it predicts, and the torque returned is in the paper
+        order of the stance given here (relabelled when a touchdown is predicted before it is sensed)."""
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
+        told = stance
+        if self._sensing is not None:
+            view = self._sensing.process(t, q, qd, stance, pitch)
+            q, qd, stance = view.q, view.qd, view.stance
+            self.wrench = view.wrench
         if self._kernel is not None:
             out = self._kernel.compute(t, q, qd, stance)
             if out is not None:
@@ -500,6 +592,10 @@ class AdaptiveController:
         work[W_.A:W_.A + 6] = dyn.A
         self.ck.commit(self.memory, res, work, qd if qd.flags.c_contiguous else np.ascontiguousarray(qd),
                        float(t), int(stance))
+        if self._sensing is not None:
+            if stance != told:
+                torque = relabel(torque)        # sent in the order of the stance the plant told us
+            self._sensing.record(t, torque, told)
         return self._output(res, torque, t, stance, status, msg, G, h, xs)
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:

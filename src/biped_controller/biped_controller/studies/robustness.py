@@ -31,6 +31,7 @@ plant); ``--full-trials`` turns it off there too.
 from __future__ import annotations
 
 import argparse
+import re
 import json
 import math
 import signal
@@ -67,11 +68,14 @@ ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
 
 @dataclass(frozen=True)
 class Level:
-    """One row of the table: a name, the group it belongs to, and the perturbation."""
+    """One row of the table: a name (the table's text), the group it belongs to, the perturbation, and the
+    key that selects it on the command line (``--levels``: letters, digits and ``_ . + -`` only, so a
+    shell needs no quoting and argparse's help formatter no escaping)."""
 
     name: str
     group: str
     perturbation: PlantPerturbation
+    key: str
 
 
 def _inertias(scale: float) -> PlantPerturbation:
@@ -80,26 +84,30 @@ def _inertias(scale: float) -> PlantPerturbation:
 
 #: the table's rows, in order
 LEVELS: tuple[Level, ...] = (
-    Level("nominal", "nominal", PlantPerturbation()),
-    Level("torso mass -20 %", "model", PlantPerturbation(torso_mass_scale=0.8)),
-    Level("torso mass -10 %", "model", PlantPerturbation(torso_mass_scale=0.9)),
-    Level("torso mass +10 %", "model", PlantPerturbation(torso_mass_scale=1.1)),
-    Level("torso mass +20 %", "model", PlantPerturbation(torso_mass_scale=1.2)),
-    Level("torso CoM -2 cm", "model", PlantPerturbation(torso_com_shift=-0.02)),
-    Level("torso CoM +2 cm", "model", PlantPerturbation(torso_com_shift=0.02)),
-    Level("inertias -30 %", "model", _inertias(0.7)),
-    Level("inertias +30 %", "model", _inertias(1.3)),
-    Level("noise 1e-4 rad, 1e-2 rad/s", "sensing", PlantPerturbation(noise_q=1e-4, noise_qd=1e-2)),
-    Level("noise 5e-4 rad, 5e-2 rad/s", "sensing", PlantPerturbation(noise_q=5e-4, noise_qd=5e-2)),
-    Level("noise 1e-3 rad, 1e-1 rad/s", "sensing", PlantPerturbation(noise_q=1e-3, noise_qd=1e-1)),
-    Level("delay 1 period", "sensing", PlantPerturbation(delay=1)),
-    Level("delay 2 periods", "sensing", PlantPerturbation(delay=2)),
-    Level("delay 1 period, touchdown at once", "sensing", PlantPerturbation(delay=1, touchdown_delayed=False)),
-    Level("delay 2 periods, touchdown at once", "sensing", PlantPerturbation(delay=2, touchdown_delayed=False)),
-    Level("mu 0.5", "friction", PlantPerturbation(mu=0.5)),
-    Level("mu 0.4", "friction", PlantPerturbation(mu=0.4)),
+    Level("nominal", "nominal", PlantPerturbation(), "nominal"),
+    Level("torso mass -20 %", "model", PlantPerturbation(torso_mass_scale=0.8), "torso_mass-20"),
+    Level("torso mass -10 %", "model", PlantPerturbation(torso_mass_scale=0.9), "torso_mass-10"),
+    Level("torso mass +10 %", "model", PlantPerturbation(torso_mass_scale=1.1), "torso_mass+10"),
+    Level("torso mass +20 %", "model", PlantPerturbation(torso_mass_scale=1.2), "torso_mass+20"),
+    Level("torso CoM -2 cm", "model", PlantPerturbation(torso_com_shift=-0.02), "torso_com-2cm"),
+    Level("torso CoM +2 cm", "model", PlantPerturbation(torso_com_shift=0.02), "torso_com+2cm"),
+    Level("inertias -30 %", "model", _inertias(0.7), "inertias-30"),
+    Level("inertias +30 %", "model", _inertias(1.3), "inertias+30"),
+    Level("noise 1e-4 rad, 1e-2 rad/s", "sensing", PlantPerturbation(noise_q=1e-4, noise_qd=1e-2), "noise1e-4"),
+    Level("noise 5e-4 rad, 5e-2 rad/s", "sensing", PlantPerturbation(noise_q=5e-4, noise_qd=5e-2), "noise5e-4"),
+    Level("noise 5e-4 rad, 5e-2 rad/s, 14 bits", "sensing",
+          PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14), "noise5e-4_14bit"),
+    Level("noise 1e-3 rad, 1e-1 rad/s", "sensing", PlantPerturbation(noise_q=1e-3, noise_qd=1e-1), "noise1e-3"),
+    Level("delay 1 period", "sensing", PlantPerturbation(delay=1), "delay1"),
+    Level("delay 2 periods", "sensing", PlantPerturbation(delay=2), "delay2"),
+    Level("delay 1 period, touchdown at once", "sensing", PlantPerturbation(delay=1, touchdown_delayed=False), "delay1_touchdown_at_once"),
+    Level("delay 2 periods, touchdown at once", "sensing", PlantPerturbation(delay=2, touchdown_delayed=False), "delay2_touchdown_at_once"),
+    Level("mu 0.5", "friction", PlantPerturbation(mu=0.5), "mu0.5"),
+    Level("mu 0.4", "friction", PlantPerturbation(mu=0.4), "mu0.4"),
 )
 LEVELS_BY_NAME = {lv.name: lv for lv in LEVELS}
+LEVELS_BY_KEY = {lv.key: lv for lv in LEVELS}
+assert len(LEVELS_BY_KEY) == len(LEVELS) and all(re.fullmatch(r"[A-Za-z0-9_.+-]+", k) for k in LEVELS_BY_KEY)
 
 
 class RobustnessError(ValueError):
@@ -376,9 +384,10 @@ def _levels(names: list[str] | None) -> tuple[Level, ...]:
         return LEVELS
     out = []
     for n in names:
-        if n not in LEVELS_BY_NAME:
-            raise RobustnessError(f"--levels: unknown level {n!r}; known: {'; '.join(LEVELS_BY_NAME)}")
-        out.append(LEVELS_BY_NAME[n])
+        lv = LEVELS_BY_KEY.get(n) or LEVELS_BY_NAME.get(n)     # a key, or the table's text (quoted)
+        if lv is None:
+            raise RobustnessError(f"--levels: unknown level {n!r}; known keys: {' '.join(LEVELS_BY_KEY)}")
+        out.append(lv)
     return tuple(out)
 
 
@@ -389,8 +398,8 @@ def _terminate(signum, frame):
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="scripts/robustness", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--levels", nargs="+", default=None, metavar="NAME",
-                    help="level names (quoted; default all): " + "; ".join(LEVELS_BY_NAME))
+    ap.add_argument("--levels", nargs="+", default=None, metavar="KEY",
+                    help="level keys (default all): " + " ".join(LEVELS_BY_KEY))
     ap.add_argument("--modes", nargs="+", default=["both", "none"], help=f"any of {' '.join(MODES)}")
     ap.add_argument("--observer", nargs="+", choices=("on", "off"), default=["on", "off"])
     ap.add_argument("--what", choices=("walk", "push", "both"), default="both")

@@ -98,7 +98,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
                 if on_impact(sim, ctrl):
                     break
         obs = sim.observe()
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance)
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
         statuses.append(out.status)
         if keep_qp and out.G is not None:
             qps.append((out.G, out.h, out.x_star, out.status.qp_status))

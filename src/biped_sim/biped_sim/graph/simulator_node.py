@@ -202,7 +202,7 @@ def read_perturbation(node: Node, desc) -> PlantPerturbation:
     kw = {}
     for name in PlantPerturbation.__dataclass_fields__:
         key = f'perturbation.{name}'
-        if name in ('delay', 'seed'):
+        if name in ('delay', 'seed', 'encoder_bits'):
             kw[name] = get_int(node, key, getattr(zero, name), lo=0)
         elif name == 'touchdown_delayed':
             kw[name] = get_bool(node, key, getattr(zero, name))

@@ -24,13 +24,21 @@ Three kinds, all in one frozen :class:`PlantPerturbation` (every field defaults 
 * ground friction ``mu`` [-] of the plant (``None``: the description's); the simulator's slip check
   ``|F_x| <= mu F_z`` uses it, the controller's friction rows keep the nominal mu;
 * sensing: Gaussian noise of standard deviation ``noise_q`` [rad] on each paper joint angle q1..q6 and
-  ``noise_qd`` [rad/s] on each joint rate, and a delay of ``delay`` control periods; ``seed`` seeds the
-  noise (``numpy.random.default_rng(seed)``).
+  ``noise_qd`` [rad/s] on each joint rate, encoder quantisation of the angles (``encoder_bits``, 0 = none),
+  a torso pitch sensor (IMU) with Gaussian noise ``noise_pitch`` [rad], and a delay of ``delay`` control
+  periods; ``seed`` seeds the noise (``numpy.random.default_rng(seed)``).
 
 Sensor model (:class:`SensorModel`): at the start of every control period k the sensors take a sample
 of the true (stance, q, q') and add noise, q_s = q + noise_q z_q, q'_s = q' + noise_qd z_qd, with
 (z_q, z_qd) two fresh vectors of 6 standard normal draws (always drawn, in this order, whatever the
-standard deviations, so one seed gives the same noise sequence at every noise level). The controller
+standard deviations, so one seed gives the same noise sequence at every noise level). With
+``encoder_bits`` = b > 0 each angle is then quantised as an absolute encoder of b bits per turn reads it,
+q_s <- Delta round(q_s / Delta), Delta = 2 pi / 2^b [rad] (14 bits: 3.835e-4 rad); the rates are the
+rate sensor's (noise only). The IMU reports the torso's pitch in the world, theta = foot pitch + q1 + q2 +
+q3 (counter-clockwise positive, as the paper's angles; the rigid plant's stance foot is flat, so
+theta = q1 + q2 + q3 there), plus noise_pitch z_p, z_p drawn from a second generator
+``default_rng([seed, 1])`` (so the joint noise sequence of a seed is the same with or without an IMU).
+The pitch is part of the delayed sample. The controller
 at period k receives the sample of period k - delay (the first sample while k < delay: the sensors
 report the initial state until the pipeline is full). The stance flag is part of the delayed sample (a
 touchdown reaches the controller ``delay`` periods late); the time and the period index are not: the
@@ -58,6 +66,8 @@ from biped_sim.robot.description import RobotDescription
 LINKS: tuple[str, ...] = ("torso", "thigh", "shin", "foot")
 #: largest delay accepted [control periods] (a second at 1 kHz: far beyond anything walkable)
 MAX_DELAY = 1000
+#: largest encoder resolution accepted [bits per turn] (beyond 52 bits a float64 angle has no finer step)
+MAX_ENCODER_BITS = 52
 
 
 class PerturbationError(ValueError):
@@ -91,6 +101,8 @@ class PlantPerturbation:
     mu: float | None = None           # plant's friction coefficient; None: the description's
     noise_q: float = 0.0              # [rad] std of the noise on each measured joint angle
     noise_qd: float = 0.0             # [rad/s] std of the noise on each measured joint rate
+    encoder_bits: int = 0             # [bits per turn] quantisation of each measured angle; 0: none
+    noise_pitch: float = 0.0          # [rad] std of the noise on the IMU's torso pitch
     delay: int = 0                    # [control periods] between a sample and the controller
     touchdown_delayed: bool = True    # False: a touchdown restarts the delay line (reported at once)
     seed: int = 0                     # seed of the noise generator
@@ -103,10 +115,10 @@ class PlantPerturbation:
                     raise PerturbationError(f.name, f"must be true or false, got {v!r}")
                 object.__setattr__(self, f.name, bool(v))
                 continue
-            if f.name in ("delay", "seed"):
+            if f.name in ("delay", "seed", "encoder_bits"):
                 if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
                     raise PerturbationError(f.name, f"must be an integer, got {v!r}")
-                hi = MAX_DELAY if f.name == "delay" else 2**63 - 1
+                hi = {"delay": MAX_DELAY, "seed": 2**63 - 1, "encoder_bits": MAX_ENCODER_BITS}[f.name]
                 if not 0 <= int(v) <= hi:
                     raise PerturbationError(f.name, f"must be in [0, {hi}], got {v}")
                 object.__setattr__(self, f.name, int(v))
@@ -136,7 +148,13 @@ class PlantPerturbation:
     @property
     def sensing_is_perfect(self) -> bool:
         """No noise and no delay: the controller sees the true state."""
-        return self.noise_q == 0.0 and self.noise_qd == 0.0 and self.delay == 0
+        return (self.noise_q == 0.0 and self.noise_qd == 0.0 and self.delay == 0 and self.encoder_bits == 0
+                and self.noise_pitch == 0.0)
+
+    @property
+    def encoder_step(self) -> float:
+        """Quantisation step of the angles [rad]: 2 pi / 2^encoder_bits (0.0 without quantisation)."""
+        return 2.0 * math.pi / 2.0 ** self.encoder_bits if self.encoder_bits else 0.0
 
     @property
     def is_zero(self) -> bool:
@@ -149,7 +167,7 @@ class PlantPerturbation:
         out = {f.name: getattr(self, f.name) for f in fields(self)
                if f.name != "seed" and getattr(self, f.name) != getattr(zero, f.name)
                and not (f.name == "touchdown_delayed" and self.delay == 0)}
-        if self.noise_q or self.noise_qd:
+        if self.noise_q or self.noise_qd or self.noise_pitch:
             out["seed"] = self.seed
         return out
 
@@ -222,10 +240,13 @@ def plant_parameters(nominal: RobotDescription, perturbation: PlantPerturbation)
         "nominal": {**links(nominal), "mu": nominal.mu, "total_mass": nominal.total_mass,
                     "source": nominal.source},
         "sensing": {"noise_q_std_rad": perturbation.noise_q, "noise_qd_std_rad_per_s": perturbation.noise_qd,
+                    "encoder_bits": perturbation.encoder_bits, "encoder_step_rad": perturbation.encoder_step,
+                    "noise_pitch_std_rad": perturbation.noise_pitch,
                     "delay_periods": perturbation.delay, "touchdown_delayed": perturbation.touchdown_delayed,
                     "seed": perturbation.seed,
                     "model": "Gaussian noise added to each paper joint angle and rate when sampled at a period "
-                             "start; the controller receives the sample taken delay periods earlier "
+                             "start, angles then quantised (encoder_bits), an IMU torso pitch with its own noise; "
+                             "the controller receives the sample taken delay periods earlier "
                              "(stance included; time and period index are the current ones)"},
         "units": {"mass": "kg", "com": "m", "inertia": "kg m^2", "noise_q": "rad", "noise_qd": "rad/s",
                   "delay": "control periods"},
@@ -254,14 +275,18 @@ class SensorModel:
 
     def reset(self) -> None:
         self._rng = np.random.default_rng(self.perturbation.seed)
+        self._rng_imu = np.random.default_rng([self.perturbation.seed, 1])
         self._samples: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
+        self._pitch: dict[int, float] = {}
         self._first: int | None = None
         self._last: int | None = None
         self._segment: int | None = None          # first sampled period of the current stance
         self._stance: int | None = None
 
-    def sample(self, step: int, stance: int, q: np.ndarray, qd: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-        """The sensors' sample of period ``step`` (the true stance, q [rad], q' [rad/s] plus noise); a
+    def sample(self, step: int, stance: int, q: np.ndarray, qd: np.ndarray, pitch: float | None = None
+               ) -> tuple[int, np.ndarray, np.ndarray]:
+        """The sensors' sample of period ``step`` (the true stance, q [rad], q' [rad/s] plus noise, angles
+        quantised; ``pitch`` the true torso pitch [rad], None: q1 + q2 + q3, a flat stance foot); a
         repeated call for the same period returns the stored sample. Raises ``ValueError`` for a period
         older than the last one sampled (the sensors cannot go back in time)."""
         if step in self._samples:
@@ -277,6 +302,14 @@ class SensorModel:
             qs = qs + p.noise_q * zq
         if p.noise_qd > 0.0:
             qds = qds + p.noise_qd * zqd
+        if p.encoder_bits:
+            step_q = p.encoder_step
+            qs = step_q * np.round(qs / step_q)
+        th = float(q[0] + q[1] + q[2]) if pitch is None else float(pitch)
+        zp = float(self._rng_imu.standard_normal())
+        if p.noise_pitch > 0.0:
+            th += p.noise_pitch * zp
+        self._pitch[step] = th
         s = (int(stance), qs, qds)
         self._samples[step] = s
         if self._stance is None or int(stance) != self._stance:
@@ -286,6 +319,7 @@ class SensorModel:
         self._last = step
         for old in [k for k in self._samples if k < step - p.delay]:
             del self._samples[old]
+            del self._pitch[old]
         return s
 
     def reading(self, step: int) -> tuple[int, np.ndarray, np.ndarray]:
@@ -301,3 +335,13 @@ class SensorModel:
             raise ValueError(f"no sensor sample for period {k} (periods must be sampled one by one)")
         stance, q, qd = self._samples[k]
         return stance, q.copy(), qd.copy()
+
+    def pitch_reading(self, step: int) -> float:
+        """The IMU's torso pitch [rad] the controller receives at period ``step`` (the sample that
+        :meth:`reading` returns the joints of)."""
+        if step not in self._samples:
+            raise ValueError(f"no sensor sample for period {step}: sample() it first")
+        k = max(step - self.perturbation.delay, self._first)
+        if not self.perturbation.touchdown_delayed:
+            k = max(k, self._segment)
+        return self._pitch[k]

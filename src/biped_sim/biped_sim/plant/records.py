@@ -12,13 +12,15 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Observation:
-    """What the controller may measure at the start of a control period (paper coordinates)."""
+    """What the controller may measure at the start of a control period (paper coordinates); ``pitch``
+    the IMU's torso pitch in the world [rad], counter-clockwise positive (NaN: no IMU reading given)."""
 
     step: int
     t: float
     stance: int
     q: np.ndarray
     qd: np.ndarray
+    pitch: float = float("nan")
 
 
 @dataclass(frozen=True, eq=False)

@@ -152,11 +152,12 @@ class Simulator:
         stance, or with a perturbation's sensor model the noisy sample of ``delay`` periods ago (time and
         period index are the current ones)."""
         q, qd = self.fm.paper_from_state(self.x, self.v, self.stance)
+        pitch = float(self.x[2])          # the torso (the floating base) pitch in the world
         if self.sensor.identity:
-            return Observation(self.step_index, self.t, self.stance, q, qd)
-        self.sensor.sample(self.step_index, self.stance, q, qd)
+            return Observation(self.step_index, self.t, self.stance, q, qd, pitch)
+        self.sensor.sample(self.step_index, self.stance, q, qd, pitch)
         stance, qs, qds = self.sensor.reading(self.step_index)
-        return Observation(self.step_index, self.t, stance, qs, qds)
+        return Observation(self.step_index, self.t, stance, qs, qds, self.sensor.pitch_reading(self.step_index))
 
     def push_force_at(self, t: float) -> list[tuple[float, float]]:
         """(force [N], height [m]) of every push acting at instant ``t`` (on over [start, end))."""

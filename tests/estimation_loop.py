@@ -1,0 +1,67 @@
+"""A closed loop (simulator + controller, the order of ``runner.run``) that also keeps, per period, the true
+state, the controller's estimate and its momentum observer's output: the tests of issue 22 compare them."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from biped_sim.robot.description import LEFT, load_description
+from biped_sim.robot.gait_family import GaitFamily
+from biped_sim.plant.perturbation import PlantPerturbation
+from biped_sim.plant.rigid import Simulator
+
+from biped_controller.core.controller import AdaptiveController, load_controller_config
+
+
+@dataclass
+class Trace:
+    t: list = field(default_factory=list)
+    stance: list = field(default_factory=list)         # true stance at the period start
+    told: list = field(default_factory=list)           # stance the sensors reported
+    q: list = field(default_factory=list)              # true q, q' at the period start
+    qd: list = field(default_factory=list)
+    torque: list = field(default_factory=list)         # applied (record, true stance order)
+    est: list = field(default_factory=list)            # (q, qd, P) of the estimator or None
+    r: list = field(default_factory=list)              # momentum observer's r or None
+    W: list = field(default_factory=list)
+    records: list = field(default_factory=list)
+    statuses: list = field(default_factory=list)
+    fall: object = None
+
+
+def closed_loop(t_end: float, perturbation: PlantPerturbation | None = None, pushes=(), steps: int | None = None,
+                **overrides) -> Trace:
+    fam = GaitFamily.load()
+    desc = load_description()
+    sim = Simulator(desc, perturbation=perturbation)
+    ctrl = AdaptiveController(load_controller_config(mode="both", **overrides), fam, desc)
+    q0, qd0 = fam.initial_state()
+    sim.reset(q0, qd0, LEFT)
+    ctrl.reset(LEFT)
+    for p in pushes:
+        sim.schedule_push(*p)
+    tr = Trace()
+    while sim.t < t_end and sim.fall is None and (steps is None or sim.impact_count < steps):
+        q, qd = sim.fm.paper_from_state(sim.x, sim.v, sim.stance)
+        tr.t.append(sim.t)
+        tr.stance.append(sim.stance)
+        tr.q.append(q)
+        tr.qd.append(qd)
+        obs = sim.observe()
+        tr.told.append(obs.stance)
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
+        sp = ctrl._sensing
+        if sp is not None and sp.est is not None:
+            e = sp.est.estimate()
+            tr.est.append((e.q, e.qd, e.P))
+        else:
+            tr.est.append(None)
+        tr.r.append(None if ctrl.wrench is None else ctrl.wrench.r)
+        tr.W.append(None if ctrl.wrench is None else ctrl.wrench.W)
+        rec = sim.step(out.torque)
+        tr.torque.append(rec.torque)
+        tr.records.append(rec)
+        tr.statuses.append(out.status)
+    tr.fall = sim.fall
+    return tr
