@@ -23,6 +23,13 @@ status SOLVER_ERROR and x = x*.
 
 p is kept inside the family's valid range by two extra QP rows (p after one period within
 [p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min).
+
+Modes ``wbc`` and ``hybrid`` (issue 26; :mod:`wbc`) add a whole-body stage after the decision:
+``wbc`` keeps the reference (x = x*, as mode none: p = p_d, tau' = 1) and relaxes w itself by the
+whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = the tracking law's w;
+``hybrid`` decides (p'', tau'') exactly as mode ``both`` and runs the same whole-body QP around the
+adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
+Whenever w holds every row the whole-body stage changes nothing (bit for bit).
 """
 from __future__ import annotations
 
@@ -40,12 +47,18 @@ from biped_sim.robot.gait_family import GaitFamily, eq11
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
 from biped_controller.core.qp_types import UNCONSTRAINED
+from biped_controller.core.wbc import WholeBodyStage, weight_matrix
 
-MODES = ("none", "tau", "p", "both")
+MODES = ("none", "tau", "p", "both", "wbc", "hybrid")
+#: the parameters each mode's p/tau QP adapts (0: p'', 1: tau''); wbc keeps the reference fixed like none
+ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1)}
 # rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,
 # and 3 parameter-range rows (p within the family's range, tau' >= tau_dot_min)
 QP_ROWS = 2 * N_CONSTRAINTS + 3
 NO_ADAPTATION = 4
+NO_ADAPTATION_STATUS = NO_ADAPTATION
+_FIXED_REFERENCE = {"none": "mode none: classical computed torque",
+                    "wbc": "mode wbc: fixed reference, whole-body QP on w"}
 
 
 class ControllerConfigError(ValueError):
@@ -57,7 +70,7 @@ class ControllerConfig:
     """Controller settings. The values and their reasons live in ``config/controller.yaml`` only (the
     control period in ``config/simulator.yaml``): build one with :func:`load_controller_config`."""
 
-    mode: str                     # none | tau | p | both: which parameters the QP adapts
+    mode: str                     # none | tau | p | both | wbc | hybrid (MODES, ADAPTED)
     Kp: float                     # [1/s^2] joint PD stiffness of eq. (16)
     Kv: float                     # [1/s] joint PD damping of eq. (16)
     kp: float                     # [1/s^2] second task eq. (20), p -> p_d
@@ -72,6 +85,8 @@ class ControllerConfig:
     qp_solver: str                # "piqp" (the product's solver) or "exact" (dedicated n <= 2 solver)
     disturbance_observer: bool    # estimate a horizontal torso force (not in the paper) for the QP rows
     observer_height: float        # [m] assumed application height of the estimated force above the hip
+    wbc_weight_joint: float       # whole-body QP weight M = wbc_weight_joint I + wbc_weight_torso s s^T (wbc.py)
+    wbc_weight_torso: float       # torso-pitch task weight of M (s . w = torso pitch acceleration)
     engine: str                   # "fast": compiled model terms (biped_sim.robot.fast_engine); "reference": Pinocchio
     period: float                 # [s] control period (config/simulator.yaml control_period)
 
@@ -95,6 +110,10 @@ class ControllerConfig:
         if isinstance(self.observer_height, bool) or not isinstance(self.observer_height, (int, float)) \
                 or not math.isfinite(self.observer_height):
             raise ControllerConfigError(f"observer_height must be a finite number, got {self.observer_height!r}")
+        try:
+            weight_matrix(self.wbc_weight_joint, self.wbc_weight_torso)
+        except ValueError as exc:
+            raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
         return self
@@ -151,6 +170,9 @@ class ControllerStatusData:
     max_tracking_error: float
     predicted_reaction: np.ndarray = field(default_factory=lambda: np.zeros(2))
     force_estimate: float = 0.0
+    wbc_status: int = NO_ADAPTATION_STATUS   # whole-body stage (modes wbc, hybrid): qp_types status, or 4 = not run
+    wbc_active: int = 0                      # bit i: row CONSTRAINT_NAMES[i] active in the whole-body QP's answer
+    wbc_deviation: float = 0.0               # [rad/s^2] |w - w*| of the whole-body stage (0 when w* held)
 
 
 @dataclass(frozen=True)
@@ -203,7 +225,7 @@ class AdaptiveController:
         self.margin = np.concatenate([
             [c.margin_normal_force, 0.0, 0.0, 0.0, 0.0], np.full(12, c.margin_torque)])
         self._mu_ratio = c.margin_friction
-        self.adapted = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1)}[c.mode]
+        self.adapted = ADAPTED[c.mode]
         self._adapted_idx = list(self.adapted)
         self._fixed_idx = [i for i in (0, 1) if i not in self.adapted]
         n = len(self.adapted)
@@ -216,6 +238,8 @@ class AdaptiveController:
         self._prev: _Previous | None = None
         self._t_last = None            # time of the last decision [s]
         self.force_estimate = 0.0      # estimated horizontal force on the torso [N]
+        m = self.model
+        self.whole_body = WholeBodyStage.for_controller(c, m) if c.mode in ("wbc", "hybrid") else None
         if self._fast is not None:
             self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
 
@@ -328,7 +352,7 @@ class AdaptiveController:
         instance (None in mode none)."""
         x = ref.x_star.copy()
         if not self.adapted:
-            return x, NO_ADAPTATION, "mode none: classical computed torque", None, None, None
+            return x, NO_ADAPTATION, _FIXED_REFERENCE[self.cfg.mode], None, None, None
         try:
             Gall, hall = self._qp_rows(ref, dyn, dyn_c)
             idx, fixed = self._adapted_idx, self._fixed_idx
@@ -362,6 +386,11 @@ class AdaptiveController:
         dyn_c, F = self._observe(t, qd, stance, dyn, jp)
         x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c)
         w = ref.D @ x + ref.v                                    # eq. (17)
+        wb = None
+        if self.whole_body is not None:                          # modes wbc, hybrid (wbc.py)
+            wb = self.whole_body.decide(w, status, dyn.A, dyn.H, dyn.B, dyn.h_b, dyn_c.h_b)
+            if wb is not None:
+                w = wb.w
         torque = dyn.A @ w + dyn.H                               # eq. (15)
         cm = self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
@@ -374,6 +403,7 @@ class AdaptiveController:
             tightest=int(np.argmin(margins / self.model.row_scale)),
             zmp=float(torque[0] / R[1]) if R[1] != 0 else math.nan, stance=int(stance),
             max_tracking_error=float(np.max(np.abs(ref.error))), predicted_reaction=R, force_estimate=F,
+            **WholeBodyStage.status_fields(wb),
         )
         self.force_estimate = F
         self._prev = _Previous(qd=qd.copy(), w=w, A=dyn.A, stance=stance, t=t)
@@ -465,7 +495,7 @@ class _FastPeriod:
         xs_full = res[ck.R_XS:ck.R_XS + 2]
         Gr = hr = xs = None
         if not ctrl.adapted:
-            status, msg = NO_ADAPTATION, "mode none: classical computed torque"
+            status, msg = NO_ADAPTATION, _FIXED_REFERENCE[ctrl.cfg.mode]
         else:
             idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
             Gr, xs = G[:, idx], xs_full[idx]
@@ -485,12 +515,22 @@ class _FastPeriod:
         w = work[ck.W_W].copy()
         F = float(res[ck.R_F])
         p_dd, t_dd = float(res[ck.R_X]), float(res[ck.R_X + 1])
+        margins, tightest, zmp = res[ck.R_MARGINS:].copy(), int(res[ck.R_TIGHT]), float(res[ck.R_ZMP])
+        R = res[ck.R_R:ck.R_R + 2].copy()
+        wb = None
+        if ctrl.whole_body is not None:        # modes wbc, hybrid: the whole-body stage (wbc.py), in Python
+            A, H, B = work[ck.W_A:ck.W_A + 6], work[ck.W_H], work[ck.W_B:ck.W_B + 3]
+            hbc = res[ck.R_HBC:ck.R_HBC + 3]
+            wb = ctrl.whole_body.decide(w, status, A, H, B, res[ck.R_HB:ck.R_HB + 3], hbc)
+            if wb is not None and wb.status != UNCONSTRAINED:
+                w = wb.w
+                torque, R, margins, tightest, zmp = ctrl.whole_body.outputs(w, A, H, B, hbc)
         status_rec = ControllerStatusData(
             step=ctrl.step_index, t=t, mode=ctrl.cfg.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
             p_ddot=p_dd, tau_ddot=t_dd, p_ddot_star=float(xs_full[0]), tau_ddot_star=float(xs_full[1]),
-            qp_status=int(status), qp_message=msg, margins=res[ck.R_MARGINS:].copy(), tightest=int(res[ck.R_TIGHT]),
-            zmp=float(res[ck.R_ZMP]), stance=int(stance), max_tracking_error=float(res[ck.R_MAXERR]),
-            predicted_reaction=res[ck.R_R:ck.R_R + 2].copy(), force_estimate=F)
+            qp_status=int(status), qp_message=msg, margins=margins, tightest=tightest,
+            zmp=zmp, stance=int(stance), max_tracking_error=float(res[ck.R_MAXERR]),
+            predicted_reaction=R, force_estimate=F, **WholeBodyStage.status_fields(wb))
         ctrl.force_estimate = F
         ctrl._prev = _Previous(qd=qd.copy(), w=w, A=work[ck.W_A:ck.W_A + 6].copy(), stance=stance, t=t)
         ctrl._decision = (p_dd, t_dd)

@@ -46,7 +46,10 @@ class Segment:
 
     @staticmethod
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
-        return bool(sim._fast and getattr(ctrl, "_kernel", None) is not None and sim.sensor.identity)
+        # mode wbc checks its rows every period in Python (wbc.py); hybrid only after a p/tau QP, which the
+        # compiled loop hands to the objects anyway
+        return bool(sim._fast and getattr(ctrl, "_kernel", None) is not None and sim.sensor.identity
+                    and ctrl.cfg.mode != "wbc")
 
     def _pack(self) -> None:
         ctrl, sim, cst, fp = self.ctrl, self.sim, self.cst, self.fp
