@@ -235,3 +235,94 @@ def test_negative_control_a_wbc_that_ignores_a_row_fails_the_row_check(setting):
         assert prim > 1e-6, "dropping the active zmp_toe row changed nothing: the check could not fail"
         found += 1
     assert found >= 1, "no instance with zmp_toe active: the negative control checked nothing"
+
+
+# ----------------------------------------------------------------------------------------
+# the modes in closed loop (rigid plant, in process)
+# ----------------------------------------------------------------------------------------
+from biped_controller.core.wbc import NOT_RUN  # noqa: E402
+from biped_controller.studies import runner  # noqa: E402
+from biped_sim.plant.push import Push  # noqa: E402
+from biped_controller.core.qp_types import SOLVER_ERROR  # noqa: E402
+
+MID_STEP = 0.2315   # the paper's cell: mid first step, 25 ms
+
+
+def closed_loop(mode, force=0.0, steps=3, **overrides):
+    cfg = load_controller_config(mode=mode, **overrides)
+    pushes = (Push(MID_STEP, 0.025, force, None),) if force else ()
+    return runner.run(steps=steps, mode=mode, pushes=pushes, ctrl_config=cfg)
+
+
+def same_records(a, b, n=None):
+    """Bit-identical plant records (time, q, q', torque) and controller decisions over the first n periods."""
+    n = min(len(a.records), len(b.records)) if n is None else n
+    for k in range(n):
+        ra, rb = a.records[k], b.records[k]
+        for f in ("t", "q", "qd", "torque"):
+            if not np.array_equal(np.asarray(getattr(ra, f)), np.asarray(getattr(rb, f))):
+                return False, k, f
+        sa, sb = a.statuses[k], b.statuses[k]
+        for f in ("p", "p_dot", "tau", "tau_dot", "p_ddot", "tau_ddot", "margins", "zmp", "predicted_reaction",
+                  "force_estimate"):
+            if not np.array_equal(np.asarray(getattr(sa, f)), np.asarray(getattr(sb, f))):
+                return False, k, f
+    return True, n, ""
+
+
+def test_wbc_equals_none_bit_for_bit_when_no_row_binds():
+    """Undisturbed walk, 3 steps: the tracking law's w holds every row in every period (UNCONSTRAINED), and
+    the records of mode wbc (Python objects) are those of mode none (compiled loop) bit for bit. Negative
+    control: with the controller's ZMP margin at 80 mm (l within +-2 cm) the rows bind, and the same
+    comparison fails."""
+    none, wbc = closed_loop("none"), closed_loop("wbc")
+    assert not wbc.fallen and wbc.steps_walked == 3
+    assert len(wbc.records) == len(none.records) > 1000
+    assert all(s.wbc_status == UNCONSTRAINED for s in wbc.statuses)
+    ok, k, f = same_records(wbc, none)
+    assert ok, f"wbc differs from none at period {k} in {f}"
+    tight = closed_loop("wbc", steps=1, margin_zmp=0.08)
+    assert any(s.wbc_status == ACTIVE for s in tight.statuses)
+    ok, k, f = same_records(tight, none)
+    assert not ok, "negative control: binding rows left the records unchanged"
+
+
+def test_wbc_holds_every_row_while_feasible_under_a_push():
+    """200 N for 25 ms at mid-step: in every period where the whole-body QP was feasible (UNCONSTRAINED or
+    ACTIVE) the recorded margins of the 17 rows (robot's own rows, predicted for the chosen w) are >= the
+    controller's margins (>= 0), and the recorded l stays within the controller's foot range. Some periods
+    are ACTIVE (the check is not vacuous). Negative control: mode none under the same push records
+    violated rows (the check can fail)."""
+    cfg = load_controller_config()
+    res = closed_loop("wbc", 200.0, steps=2)
+    feas = [s for s in res.statuses if s.wbc_status in (UNCONSTRAINED, ACTIVE)]
+    assert sum(s.wbc_status == ACTIVE for s in feas) >= 20
+    tol = 1e-6
+    lim = 0.1 - cfg.margin_zmp
+    for s in feas:
+        m = np.asarray(s.margins)
+        assert np.all(m[:1] >= cfg.margin_normal_force - tol), (s.t, m)
+        assert np.all(m >= -tol), (s.t, m)
+        assert abs(s.zmp) <= lim + 1e-9, (s.t, s.zmp)
+    none = closed_loop("none", 200.0, steps=2)
+    worst = min(float(np.min(np.asarray(s.margins))) for s in none.statuses)
+    assert worst < -1.0, "negative control: mode none kept every row under the push"
+
+
+@pytest.mark.parametrize("force", [600.0])
+def test_hybrid_equals_both_while_the_adaptation_holds_the_rows(force):
+    """A push beyond mode both's limit: hybrid and both are bit-identical up to the first period where the
+    p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR), and the whole-body stage ran in
+    exactly those periods. Negative control: after the stage has changed w the records differ (the
+    comparison is able to fail)."""
+    both, hyb = closed_loop("both", force, steps=3), closed_loop("hybrid", force, steps=3)
+    first = next((k for k, s in enumerate(hyb.statuses) if s.qp_status in (INFEASIBLE_FALLBACK, SOLVER_ERROR)), None)
+    assert first is not None, "the p/tau QP stayed feasible: the test would compare identical modes only"
+    ok, k, f = same_records(hyb, both, first + 1 if hyb.statuses[first].wbc_status == UNCONSTRAINED else first)
+    assert ok, f"hybrid differs from both at period {k} ({f}) before the p/tau QP failed at {first}"
+    assert all(s.wbc_status == NOT_RUN for s in hyb.statuses if s.qp_status not in (INFEASIBLE_FALLBACK, SOLVER_ERROR))
+    assert all(s.wbc_status != NOT_RUN for s in hyb.statuses if s.qp_status in (INFEASIBLE_FALLBACK, SOLVER_ERROR))
+    changed = next((k for k, s in enumerate(hyb.statuses) if s.wbc_status not in (NOT_RUN, UNCONSTRAINED)), None)
+    assert changed is not None, "the whole-body stage never changed w"
+    ok, k, f = same_records(hyb, both)
+    assert not ok and k >= changed, "negative control: records equal after the stage changed w"
