@@ -326,3 +326,22 @@ def test_hybrid_equals_both_while_the_adaptation_holds_the_rows(force):
     assert changed is not None, "the whole-body stage never changed w"
     ok, k, f = same_records(hyb, both)
     assert not ok and k >= changed, "negative control: records equal after the stage changed w"
+
+
+def test_status_message_carries_the_whole_body_fields():
+    """The node's ControllerStatus carries every ControllerStatusData field, the whole-body ones included
+    (the live view and the Foxglove layout plot them); a status without them would fail here."""
+    import dataclasses
+    from biped_msgs_py.msg import ControllerStatus
+    from builtin_interfaces.msg import Time
+    from biped_controller.core.controller import ControllerStatusData
+    from biped_controller.graph.controller_node import status_message
+    fields = set(ControllerStatus.get_fields_and_field_types())
+    data_fields = {f.name for f in dataclasses.fields(ControllerStatusData)} - {"t"}
+    assert data_fields <= fields, data_fields - fields
+    res = closed_loop("wbc", 200.0, steps=1)
+    s = next(s for s in res.statuses if s.wbc_status == ACTIVE)
+    m = status_message(s, Time())
+    assert m.wbc_status == ACTIVE and m.wbc_active == s.wbc_active != 0
+    assert m.wbc_deviation == s.wbc_deviation > 0.0
+    assert m.mode == "wbc"

@@ -50,6 +50,8 @@ from biped_controller.core.qp_types import UNCONSTRAINED
 from biped_controller.core.wbc import WholeBodyStage, weight_matrix
 
 MODES = ("none", "tau", "p", "both", "wbc", "hybrid")
+#: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
+PAPER_MODES = ("none", "tau", "p", "both")
 #: the parameters each mode's p/tau QP adapts (0: p'', 1: tau''); wbc keeps the reference fixed like none
 ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1)}
 # rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,

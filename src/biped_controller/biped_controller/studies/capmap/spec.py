@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from biped_controller.core.controller import MODES
+from biped_controller.core.controller import MODES, PAPER_MODES
 from biped_controller.studies import experiment
 from biped_controller.studies.experiment import DEFAULT_SETTINGS, RunSettings
 
@@ -84,7 +84,7 @@ class Search:
 class MapSpec:
     """A whole map: the cells are the product modes x directions x phases x durations."""
 
-    modes: tuple[str, ...] = MODES
+    modes: tuple[str, ...] = PAPER_MODES
     directions: tuple[str, ...] = tuple(DIRECTIONS)
     phases: tuple[float, ...] = tuple(k / DEFAULT_PHASES for k in range(DEFAULT_PHASES))
     durations: tuple[float, ...] = DEFAULT_DURATIONS
