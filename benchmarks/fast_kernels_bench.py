@@ -35,7 +35,6 @@ if str(ROOT) not in sys.path:  # `python benchmarks/fast_kernels_bench.py`
     sys.path.insert(0, str(ROOT))
 
 from biped_sim.robot.fixed_foot import FixedFootModel  # noqa: E402
-from biped_sim.robot import planar_kernels as pk  # noqa: E402
 from biped_sim.robot.description import load_description  # noqa: E402
 from biped_sim.robot.fast_engine import FastFixedFootModel, FastFloatingModel  # noqa: E402
 from biped_sim.robot.floating import FloatingModel  # noqa: E402
@@ -98,6 +97,7 @@ def run(n_states: int, rounds: int) -> dict:
     ref, fast = FloatingModel(desc), FastFloatingModel(desc)
     ref_ctrl, fast_ctrl = FixedFootModel(desc), FastFixedFootModel(desc)
     ti, tf, cti, ctf = fast.ti, fast.tf, fast_ctrl.ti, fast_ctrl.tf
+    pk = fast.pk
     forces = np.array([f for f, _ in PUSH])
     heights = np.array([hh for _, hh in PUSH])
     xo, vo, w = np.empty(9), np.empty(9), np.empty(3)

@@ -75,13 +75,14 @@ def pct(a) -> dict:
 
 def generate_instances(forces, modes, steps: int = 2) -> list[dict]:
     """The controller's QP instances (G, h, x*) of short pushed runs; W from the controller config."""
-    from biped_controller.studies.runner import PushSpec, run
+    from biped_controller.studies.runner import run
+    from biped_sim.plant.push import Push
 
     out = []
     for mode in modes:
         for F in forces:
             t0 = time.perf_counter()
-            r = run(steps=steps, mode=mode, pushes=(PushSpec(PUSH_START, PUSH_DURATION, float(F)),), keep_qp=True)
+            r = run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, float(F)),), keep_qp=True)
             for G, h, xs, status in r.qp_instances:
                 out.append({"mode": mode, "force": float(F), "G": np.array(G, dtype=float),
                             "h": np.array(h, dtype=float), "x_star": np.array(xs, dtype=float),
@@ -127,14 +128,14 @@ def make_solvers(n: int, m: int, W: np.ndarray) -> dict:
 
     from biped_controller.core.qp import AdaptationQP, solve_with_qpsolvers
     from biped_controller.core.qp_exact import solve_exact
-    from biped_controller.core.qp_types import _configure
+    from biped_controller.core.qp import configure_piqp
 
     held = AdaptationQP(n, m, W)
     tight = AdaptationQP(n, m, W, polish=False)
     exact = AdaptationQP(n, m, W, solver="exact")
     H = np.diag(W)
     core = piqp.DenseSolver()
-    _configure(core.settings, 1e-10, 1e-11, 250)
+    configure_piqp(core.settings, 1e-10, 1e-11, 250)
     Pf, cf, Gf, hf = np.asfortranarray(H), np.zeros(n), np.asfortranarray(np.zeros((m, n))), np.ones(m)
     core.setup(Pf, cf, None, None, Gf, None, hf, None, None)
 
@@ -199,7 +200,7 @@ def profile_held_path(held, instances, repeats) -> dict:
     head-to-head run. Reads the solver's internals (a profiling tool, not an API)."""
     import daqp
 
-    from biped_controller.core.qp_types import ACTIVE, DEFAULT_FEAS_RTOL, _result
+    from biped_controller.core.qp_types import ACTIVE, DEFAULT_FEAS_RTOL, make_result
 
     k_mod, W, m, n = held._k, held.W, held.m, held.n
     H = np.diag(W)
@@ -231,7 +232,7 @@ def profile_held_path(held, instances, repeats) -> dict:
                 mv = k_mod.polish(G, h, xs, W, res.z_u, held._rows, res.x, DEFAULT_FEAS_RTOL, held.active_tol,
                                   x, z, act)
                 c6 = perf_counter_ns()
-                _result(x, ACTIVE, "solved (PIQP, polished)", mv, act, it, z)
+                make_result(x, ACTIVE, "solved (PIQP, polished)", mv, act, it, z)
                 c7 = perf_counter_ns()
                 for s_, a_, b_ in zip(steps, (c0, c1, c2, c3, c4, c5, c6), (c1, c2, c3, c4, c5, c6, c7)):
                     t[s_].append(b_ - a_)
@@ -327,7 +328,8 @@ def ratios(group: dict) -> dict:
 
 
 def run_bench(forces=(250.0, 600.0), modes=("both",), repeats: int = 30, instances: Path | None = None) -> dict:
-    from biped_controller.core import qp_fast  # noqa: F401 - compiles or loads the kernels before any timing
+    from biped_controller.core.qp import load_qp_fast
+    load_qp_fast()   # compiles or loads the kernels before any timing
     if instances is not None and Path(instances).exists():
         inst = load_instances(Path(instances))
         log(f"loaded {len(inst)} instances from {instances}")

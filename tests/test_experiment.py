@@ -21,7 +21,7 @@ import helpers
 from biped_controller.studies import experiment as ex
 from biped_controller.studies import runner
 from biped_controller.core.controller import ControllerConfigError, load_controller_config
-from biped_controller.studies.runner import PushSpec
+from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfigError, load_sim_config
 
 START, DURATION, FORCE = ex.DEFAULT_START, ex.DEFAULT_DURATION, 250.0
@@ -86,7 +86,7 @@ def test_probe_loop_is_the_runner_loop():
     s = ex.parse_overrides([], "on")
     until = START + DURATION + 0.005
     pr = ex.probe_run(FORCE, "both", settings=s, until=until)
-    ref = runner.run(steps=11, mode="both", pushes=(PushSpec(START, DURATION, FORCE),), sim_config=s.sim_config(),
+    ref = runner.run(steps=11, mode="both", pushes=(Push(START, DURATION, FORCE),), sim_config=s.sim_config(),
                      ctrl_config=s.ctrl_config("both"), family=ex.context().family, desc=ex.context().desc,
                      max_time=until)
     helpers.assert_same_run(pr.result, ref)

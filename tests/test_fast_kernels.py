@@ -20,7 +20,7 @@ import pytest
 from helpers import assert_close
 
 from biped_sim.robot.fixed_foot import FixedFootModel
-from biped_sim.robot import planar_kernels as pk
+from biped_sim.robot import numba_cache
 from biped_sim.robot.description import LEFT, RIGHT, load_description
 from biped_sim.robot.fast_engine import (
     PX, REV, Body, FastFixedFootModel, FastFloatingModel, Joint, PlanarTree, TreeError, fixed_foot_tree,
@@ -339,7 +339,7 @@ def test_kernels_reject_wrong_dtypes(fast):
     M = np.empty((9, 9))
     h = np.empty(9)
     with pytest.raises(TypeError):
-        pk.mass_bias(fast.ti, fast.tf, np.zeros(9, dtype=np.float32), np.zeros(9), M, h)
+        fast.pk.mass_bias(fast.ti, fast.tf, np.zeros(9, dtype=np.float32), np.zeros(9), M, h)
 
 
 # ------------------------------------------------------------------------------------------ controller side
@@ -449,23 +449,25 @@ def test_tree_validation_names_the_problem(desc):
 # ------------------------------------------------------------------------------------------ compile notice
 def test_compile_notice_only_without_a_matching_stamp(tmp_path):
     stamp = tmp_path / "cache" / "planar_kernels.stamp"
-    key = pk.cache_key(pk.Path(pk.__file__))
+    nc = numba_cache
+    key = nc.cache_key(nc.source_of("biped_sim.robot.planar_kernels"))
     out = io.StringIO()
-    assert pk.announce_compile(stamp, key, out) is True
-    assert out.getvalue().strip() == pk.COMPILE_NOTICE
-    pk.write_stamp(stamp, key)
+    assert nc.announce_compile(stamp, key, out) is True
+    assert out.getvalue().strip() == nc.COMPILE_NOTICE
+    nc.write_stamp(stamp, key)
     out = io.StringIO()
-    assert pk.announce_compile(stamp, key, out) is False
+    assert nc.announce_compile(stamp, key, out) is False
     assert out.getvalue() == ""
-    pk.write_stamp(stamp, "an older key")
-    assert pk.announce_compile(stamp, key, io.StringIO()) is True
-    assert pk.CACHE_DIR and pk.numba.config.CACHE_DIR
+    nc.write_stamp(stamp, "an older key")
+    assert nc.announce_compile(stamp, key, io.StringIO()) is True
+    import numba
+    assert nc.configure() == nc.cache_dir() and numba.config.CACHE_DIR == str(nc.cache_dir())
 
 
 def test_stale_cache_of_a_dependent_module_is_dropped(tmp_path):
     """A module compiled against another module's kernels: its cache files go when a dependency's source
     changes (numba itself only watches the module's own source), and stay otherwise."""
-    from biped_sim.robot.planar_kernels import drop_stale_cache
+    from biped_sim.robot.numba_cache import drop_stale_cache
     dep = tmp_path / "dep.py"
     dep.write_text("x = 1\n")
     cache = tmp_path / "cache" / "pkg_hash"

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from biped_controller.core import qp_exact
-from biped_controller.core import qp_fast
+from biped_controller.core.qp import load_qp_fast
 from biped_controller.core import qp_types
 from biped_controller.core.controller import QP_ROWS
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS
@@ -24,6 +24,8 @@ from biped_controller.core.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, 
 from biped_controller.core.qp_types import constraint_values, kkt_residuals
 
 from test_qp import rand_feasible, rand_infeasible, rand_W, scale
+
+qp_fast = load_qp_fast()   # the compiled kernels, loaded explicitly (numba_cache)
 
 ROOT = Path(__file__).resolve().parents[1]
 TOL = qp_types.DEFAULT_ACTIVE_TOL
@@ -57,7 +59,7 @@ def assert_kkt_answer(G, h, x_star, W, r, what):
             for key in ("primal", "dual", "complementarity", "stationarity"):
                 assert k[key] <= tol, (what, key, k[key], r)
     elif r.status == INFEASIBLE_FALLBACK:
-        e = qp_types.reg_weight(G, W)
+        e = qp_exact.reg_weight(G, W)
         grad = 2 * G.T @ np.maximum(G @ r.x - h, 0.0) + 2 * e * W * (r.x - x_star)
         assert np.max(np.abs(grad)) <= 1e-8 * sc_g ** 2 * scale(r.x) * scale(h), (what, grad, r)
         assert r.max_violation > 0.0
@@ -78,11 +80,12 @@ def real_instances(tmp_path_factory):
     25 ms (cached in the session's tmp directory)."""
     path = tmp_path_factory.getbasetemp() / "qp_real_instances.npz"
     if not path.exists():
-        from biped_controller.studies.runner import PushSpec, run
+        from biped_controller.studies.runner import run
+        from biped_sim.plant.push import Push
 
         arrays = {}
         for mode, force in RUNS:
-            r = run(steps=2, mode=mode, pushes=(PushSpec(0.2315, 0.025, force),), keep_qp=True)
+            r = run(steps=2, mode=mode, pushes=(Push(0.2315, 0.025, force),), keep_qp=True)
             for i, (G, h, xs, st) in enumerate(r.qp_instances):
                 key = f"{mode}_{force:g}_{i}"
                 arrays[key + "_G"], arrays[key + "_h"], arrays[key + "_x"] = G, h, xs
@@ -458,7 +461,8 @@ def test_adaptation_qp_solvers_on_real_instances(real_instances):
 
 
 def _import_qp_fast(env):
-    code = "import numba, biped_controller.core.qp_fast; print(numba.config.CACHE_DIR)"
+    code = ("import numba; from biped_controller.core.qp import load_qp_fast; load_qp_fast(); "
+            "print(numba.config.CACHE_DIR)")
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
 
 
@@ -474,7 +478,8 @@ def test_first_import_says_it_compiles_then_loads_silently(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     first = _import_qp_fast(env)
     assert first.returncode == 0, first.stderr
-    assert "compiling the QP kernels" in first.stderr and "compiled in" in first.stderr
+    from biped_sim.robot.numba_cache import COMPILE_NOTICE
+    assert COMPILE_NOTICE in first.stderr and "compiled in" in first.stderr
     assert list(tmp_path.rglob("qp_fast.early_out-*.nbi"))
     second = _import_qp_fast(env)
     assert second.returncode == 0, second.stderr

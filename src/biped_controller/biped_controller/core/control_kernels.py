@@ -1,9 +1,15 @@
 """Compiled (numba) control period of the adaptive controller, for the fast engine (issue 11).
 
-Pure numerics, no ROS: the per-period work of :class:`controller.AdaptiveController` in one call,
-with the same equations, units and row order as its reference (Python) steps, which stay the oracle
-of the tests (``engine: reference``):
+Pure numerics, no ROS, no side effects on import (load it through ``numba_cache.load``, as
+``controller`` does, so its cache is kept with its dependencies). The per-period work of
+:class:`controller.AdaptiveController` in one call, with the same equations, units and row order as its
+reference (Python) steps, which stay the oracle of the tests (``engine: reference``):
 
+* the period's start (:func:`begin`, also called by the Python steps): the parameters advance over the
+  elapsed time since the last decision, from integer nanoseconds (exact integration with the held
+  p'', tau''): p += p' h + p'' h^2 / 2, p' += p'' h (tau likewise), tau = 0 when the stance changed
+  (an impact); the observer's mode: no memory, the residual of the last period, or keep F (the last
+  period ended with an impact);
 * reference, eqs. (11), (16), (17), (20): q_d(p, tau) and its partial derivatives from the gait
   family's pieces (a_ij(p) = sum_m coef[k, i, j, m] (p - centers[k])^m, piece k = bisect_right(inner,
   p)), w = D x + v, D = [dq_d/dp, dq_d/dtau], x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau'));
@@ -15,70 +21,122 @@ of the tests (``engine: reference``):
   tau' >= tau_dot_min), the early-out decision "x* feasible" evaluated on the adapted columns
   exactly as ``qp_fast.early_out`` does (same expression, bit for bit);
 * when x* is feasible (or in mode none): w, the torque Gamma = A w + H (eq. 15), the margins of the
-  17 true constraints, the predicted reaction R = B w + h_b,c and the ZMP l = Gamma_1 / R_y.
+  17 true constraints, the predicted reaction R = B w + h_b,c and the ZMP l = Gamma_1 / R_y;
+* the period's end (:func:`commit`, also called by the Python steps): the memory takes the period's
+  parameters, its decision, t, the stance, F, q', w and A.
 
 When x* is not feasible the caller solves the QP (PIQP or the exact solver) on G, h and calls
-:func:`finish` with the answer. Any non-finite value sends the caller back to the reference path.
+:func:`finish` with the answer. Any non-finite value sends the caller back to the reference path
+(memory unchanged).
 
-Array layouts (all float64, C order; offsets named below):
-  par (PAR_SIZE,)   gains, margins, state, observer inputs (``P_*``)
-  cons (CONS_SIZE,) margin (17) | row_scale (17) | torque_min (6) | torque_max (6) | the QP's contact
-                    rows (5 x (C_x, C_y, e)) | the robot's contact rows (``model.contact_rows``)
-  prev (8, 6)       observer memory: q'_prev, w_prev, A_prev (6 rows)
-  work (WORK_ROWS, 6) outputs: torque, w, v, e, D^T (2 rows), A (6 rows), H, B (3 rows)
-  res (RES_SIZE,)   outputs: x (2), x* (2), F, max |e|, l, tightest, R (2), h_b (3), h_b,c (3), margins (17)
+Arrays (float64, C order; fields and offsets declared once in ``period_layout``): ``gains`` (GAINS),
+``cons`` (CONS), ``mem`` (MEMORY: the controller's own state), ``res`` (RES), ``work`` (WORK rows x 6).
 """
 from __future__ import annotations
 
 import math
-import os
-import sys
-from pathlib import Path
 
 import numba
 import numpy as np
 
+from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_kernels as pk
-from biped_controller.core import qp_fast
-from biped_controller.core.qp_fast import _rows_and_decision
+from biped_controller.core.period_layout import (
+    C_, G_, M_, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, QP_ROWS, R_, W_, CONS, RES, WORK, N_JOINTS)
+from biped_controller.core.qp_fast import rows_and_decision
 
-# compiled against planar_kernels and qp_fast: a change there must recompile this module
-pk.drop_stale_cache(__name__.rsplit(".", 1)[-1], [Path(m.__file__) for m in (pk, qp_fast)] + [Path(__file__)])
+numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
-N_ROWS = 17
-QP_ROWS = 2 * N_ROWS + 3
-
-# par offsets
-(P_KP, P_KV, P_KP2, P_KV2, P_PD, P_DT, P_PMIN, P_PMAX, P_TAUD_MIN, P_OBS_ON, P_OBS_H, P_P, P_PDOT, P_TAU,
- P_TAUDOT, P_OBS_MODE, P_OBS_DT, P_F_PREV, P_ADAPT_P, P_ADAPT_TAU) = range(20)
-PAR_SIZE = 20
-OBS_NONE, OBS_RESIDUAL, OBS_KEEP = 0, 1, 2      # P_OBS_MODE: no memory, residual of the last period, keep F
-# cons: margin (17) | row_scale (17) | torque_min (6) | torque_max (6) | the 5 contact rows of the QP
-# (controller's mu and foot range) | the robot's 5 contact rows; a contact row is (C_x, C_y, e) of
-# ``model.contact_rows``: C (R_x, R_y) + e Gamma_1 < 0 (the rows are written once, there)
-CONS_TMIN = 2 * N_ROWS
-CONS_TMAX = CONS_TMIN + 6
-CONS_QP_ROWS = CONS_TMAX + 6
-CONS_TRUE_ROWS = CONS_QP_ROWS + 15
-CONS_SIZE = CONS_TRUE_ROWS + 15
-# work rows
-W_TORQUE, W_W, W_V, W_E, W_DP, W_DTAU, W_A, W_H, W_B = 0, 1, 2, 3, 4, 5, 6, 12, 13
-WORK_ROWS = 16
-# res offsets
-R_X, R_XS, R_F, R_MAXERR, R_ZMP, R_TIGHT, R_R, R_HB, R_HBC, R_MARGINS = 0, 2, 4, 5, 6, 7, 8, 10, 13, 16
-RES_SIZE = R_MARGINS + N_ROWS
+N_ROWS = CONS.sizes["margin"]
+WORK_ROWS = WORK.size
+RES_SIZE = RES.size
 # return codes of ``step``
 FEASIBLE, NEEDS_QP, NONFINITE = 0, 1, 2
 
-_V = numba.types.Array(numba.types.float64, 1, "C")
-_VI = numba.types.Array(numba.types.int64, 1, "C")
-_M = numba.types.Array(numba.types.float64, 2, "C")
-_C4 = numba.types.Array(numba.types.float64, 4, "C")
-_I = numba.types.int64
+# numba types of the kernels' arguments (explicit signatures; also the compiled loop's)
+T_VEC = numba.types.Array(numba.types.float64, 1, "C")
+T_IVEC = numba.types.Array(numba.types.int64, 1, "C")
+T_MAT = numba.types.Array(numba.types.float64, 2, "C")
+T_ARR4 = numba.types.Array(numba.types.float64, 4, "C")
+T_INT = numba.types.int64
+T_FLOAT = numba.types.float64
+_V, _VI, _M, _C4, _I, _F = T_VEC, T_IVEC, T_MAT, T_ARR4, T_INT, T_FLOAT
 
-_STAMP = os.path.join(os.environ.get("NUMBA_CACHE_DIR", ""), "control_kernels.stamp")
-_KEY = pk.cache_key(Path(__file__))
-pk.announce_compile(Path(_STAMP), _KEY, sys.stderr)
+
+@numba.njit(cache=True)
+def advanced(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
+    """(p, p', tau, tau') after h [s] with constant p'' [m/s^2], tau'' [1/s] (exact integration):
+    p + (p' h + p'' h^2 / 2), p' + p'' h, likewise for tau."""
+    return (p + (p_dot * h + 0.5 * p_ddot * h * h), p_dot + p_ddot * h,
+            tau + (tau_dot * h + 0.5 * tau_ddot * h * h), tau_dot + tau_ddot * h)
+
+
+@numba.njit(numba.types.UniTuple(_F, 4)(_F, _F, _F, _F, _F, _F, _F), cache=True)
+def advance(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
+    """:func:`advanced` from Python (the torque law within a period)."""
+    return advanced(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h)
+
+
+@numba.njit(cache=True)
+def period_start(mem, t, stance, res):
+    """The period's parameters into res (p, p', tau, tau'), advanced from the memory over the elapsed
+    integer nanoseconds with the held decision; tau = 0 when the stance changed; the observer's mode
+    and elapsed time (RES.obs_mode, obs_dt). The memory is not changed."""
+    p, p_dot, tau, tau_dot = mem[M_.p], mem[M_.p_dot], mem[M_.tau], mem[M_.tau_dot]
+    decided = mem[M_.decided] != 0.0
+    dt_ns = 0.0
+    if decided:
+        dt_ns = (round(t * 1e9) - round(mem[M_.t_last] * 1e9)) * 1e-9
+        p, p_dot, tau, tau_dot = advanced(p, p_dot, tau, tau_dot, mem[M_.p_ddot], mem[M_.tau_ddot], dt_ns)
+    last = mem[M_.stance]
+    if last >= 0.0 and stance != int(last):
+        tau = 0.0
+    res[R_.p] = p
+    res[R_.p_dot] = p_dot
+    res[R_.tau] = tau
+    res[R_.tau_dot] = tau_dot
+    if not decided:
+        res[R_.obs_mode] = OBS_NONE
+    elif int(last) != stance:
+        res[R_.obs_mode] = OBS_KEEP
+    else:
+        res[R_.obs_mode] = OBS_RESIDUAL
+    res[R_.obs_dt] = dt_ns
+
+
+@numba.njit(cache=True)
+def period_commit(mem, res, work, qd, t, stance):
+    """The period is applied: the memory takes its parameters, decision, time, stance, F, q', w, A."""
+    mem[M_.p] = res[R_.p]
+    mem[M_.p_dot] = res[R_.p_dot]
+    mem[M_.tau] = res[R_.tau]
+    mem[M_.tau_dot] = res[R_.tau_dot]
+    mem[M_.p_ddot] = res[R_.x]
+    mem[M_.tau_ddot] = res[R_.x + 1]
+    mem[M_.decided] = 1.0
+    mem[M_.t_last] = t
+    mem[M_.stance] = stance
+    mem[M_.force] = res[R_.force]
+    mem[M_.step] += 1.0
+    for i in range(N_JOINTS):
+        mem[M_.prev_qd + i] = qd[i]
+        mem[M_.prev_w + i] = work[W_.w, i]
+        for k in range(N_JOINTS):
+            mem[M_.prev_A + N_JOINTS * i + k] = work[W_.A + i, k]
+
+
+@numba.njit(numba.types.int64(_V, _F, _I, _V), cache=True)
+def begin(mem, t, stance, res):
+    """:func:`period_start` from Python (the controller's Python steps)."""
+    period_start(mem, t, stance, res)
+    return 0
+
+
+@numba.njit(numba.types.int64(_V, _V, _M, _V, _F, _I), cache=True)
+def commit(mem, res, work, qd, t, stance):
+    """:func:`period_commit` from Python (the controller's Python steps)."""
+    period_commit(mem, res, work, qd, t, stance)
+    return 0
 
 
 @numba.njit(cache=True)
@@ -120,131 +178,131 @@ def _family(coef, inner, centers, p, tau, out):
 
 @numba.njit(cache=True)
 def _contact(cons, off, r, rx, ry, g1):
-    """Contact row r of the block at ``off`` of ``cons``: C_r (R_x, R_y) + e_r Gamma_1 (``model.contact_rows``)."""
+    """Contact row r of the block at ``off`` of ``cons``: C_r (R_x, R_y) + e_r Gamma_1 (``fixed_foot.contact_rows``)."""
     k = off + 3 * r
     return cons[k] * rx + cons[k + 1] * ry + cons[k + 2] * g1
 
 
 @numba.njit(cache=True)
-def _finish(par, cons, work, res):
-    """From x = res[R_X:R_X+2]: w = D x + v (eq. 17), Gamma = A w + H (eq. 15), the 17 margins (positive =
+def _finish(cons, work, res):
+    """From x = res[x]: w = D x + v (eq. 17), Gamma = A w + H (eq. 15), the 17 margins (positive =
     satisfied, the robot's own mu and foot, no controller margin), R = B w + h_b,c, l, the tightest row."""
-    x0 = res[R_X]
-    x1 = res[R_X + 1]
+    x0 = res[R_.x]
+    x1 = res[R_.x + 1]
     for i in range(6):
-        work[W_W, i] = work[W_DP, i] * x0 + work[W_DTAU, i] * x1 + work[W_V, i]
+        work[W_.w, i] = work[W_.dq_dp, i] * x0 + work[W_.dq_dtau, i] * x1 + work[W_.v, i]
     for i in range(6):
-        s = work[W_H, i]
+        s = work[W_.H, i]
         for k in range(6):
-            s += work[W_A + i, k] * work[W_W, k]
-        work[W_TORQUE, i] = s
-    rx = res[R_HBC]
-    ry = res[R_HBC + 1]
+            s += work[W_.A + i, k] * work[W_.w, k]
+        work[W_.torque, i] = s
+    rx = res[R_.h_b_c]
+    ry = res[R_.h_b_c + 1]
     for k in range(6):
-        rx += work[W_B, k] * work[W_W, k]
-        ry += work[W_B + 1, k] * work[W_W, k]
-    res[R_R] = rx
-    res[R_R + 1] = ry
-    g1 = work[W_TORQUE, 0]
-    mg = res[R_MARGINS:]
+        rx += work[W_.B, k] * work[W_.w, k]
+        ry += work[W_.B + 1, k] * work[W_.w, k]
+    res[R_.reaction] = rx
+    res[R_.reaction + 1] = ry
+    g1 = work[W_.torque, 0]
+    mg = res[R_.margins:R_.margins + N_ROWS]
     for r in range(5):
-        mg[r] = -_contact(cons, CONS_TRUE_ROWS, r, rx, ry, g1)
+        mg[r] = -_contact(cons, C_.true_rows, r, rx, ry, g1)
     for i in range(6):
-        mg[5 + i] = cons[CONS_TMAX + i] - work[W_TORQUE, i]
-        mg[11 + i] = work[W_TORQUE, i] - cons[CONS_TMIN + i]
+        mg[5 + i] = cons[C_.torque_max + i] - work[W_.torque, i]
+        mg[11 + i] = work[W_.torque, i] - cons[C_.torque_min + i]
     best = 0
-    bv = mg[0] / cons[N_ROWS]
+    bv = mg[0] / cons[C_.row_scale]
     for i in range(1, N_ROWS):
-        val = mg[i] / cons[N_ROWS + i]
+        val = mg[i] / cons[C_.row_scale + i]
         if val < bv:
             bv = val
             best = i
-    res[R_TIGHT] = best
-    res[R_ZMP] = g1 / ry if ry != 0.0 else math.nan
+    res[R_.tightest] = best
+    res[R_.zmp] = g1 / ry if ry != 0.0 else math.nan
 
 
-@numba.njit(numba.types.int64(_C4, _V, _V, _VI, _V, _V, _V, _V, _V, _M, _M, _V, _M, _V), cache=True)
-def step(coef, inner, centers, ti, tf, q, qd, par, cons, prev, G, h, work, res):
-    """One control period up to the QP decision (see the module docstring). Returns FEASIBLE (x = x*
-    and every output computed), NEEDS_QP (G, h filled; solve, put x in res, call ``finish``) or NONFINITE
-    (use the reference path). G (QP_ROWS, 2), h (QP_ROWS,) are filled whenever a parameter is adapted."""
+@numba.njit(cache=True)
+def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, work, res):
+    """The period up to the QP decision from the period's start in res (:func:`period_start`); the memory is
+    read (observer), not changed. Returns FEASIBLE, NEEDS_QP or NONFINITE (see :func:`step`)."""
     fam = np.empty((6, 6))
-    _family(coef, inner, centers, par[P_P], par[P_TAU], fam)
-    p_dot = par[P_PDOT]
-    tau_dot = par[P_TAUDOT]
-    kp_, kv_ = par[P_KP], par[P_KV]
+    _family(coef, inner, centers, res[R_.p], res[R_.tau], fam)
+    p_dot = res[R_.p_dot]
+    tau_dot = res[R_.tau_dot]
+    kp_, kv_ = gains[G_.Kp], gains[G_.Kv]
     maxerr = 0.0
     for i in range(6):
         qd_d = fam[1, i] * p_dot + fam[2, i] * tau_dot
         drift = fam[3, i] * p_dot ** 2 + fam[4, i] * tau_dot ** 2 + 2.0 * fam[5, i] * p_dot * tau_dot
         e = fam[0, i] - q[i]
-        work[W_E, i] = e
-        work[W_V, i] = drift + kv_ * (qd_d - qd[i]) + kp_ * e
-        work[W_DP, i] = fam[1, i]
-        work[W_DTAU, i] = fam[2, i]
+        work[W_.e, i] = e
+        work[W_.v, i] = drift + kv_ * (qd_d - qd[i]) + kp_ * e
+        work[W_.dq_dp, i] = fam[1, i]
+        work[W_.dq_dtau, i] = fam[2, i]
         if abs(e) > maxerr or e != e:
             maxerr = abs(e)
-    res[R_MAXERR] = maxerr
-    xs0 = -par[P_KV2] * p_dot + par[P_KP2] * (par[P_PD] - par[P_P])
-    xs1 = par[P_KV2] * (1.0 - tau_dot)
-    res[R_XS] = xs0
-    res[R_XS + 1] = xs1
-    res[R_X] = xs0
-    res[R_X + 1] = xs1
+    res[R_.max_error] = maxerr
+    xs0 = -gains[G_.kv] * p_dot + gains[G_.kp] * (gains[G_.p_d] - res[R_.p])
+    xs1 = gains[G_.kv] * (1.0 - tau_dot)
+    res[R_.x_star] = xs0
+    res[R_.x_star + 1] = xs1
+    res[R_.x] = xs0
+    res[R_.x + 1] = xs1
     # eq. (1) and the reaction rows: the locked-root chain (joints 0-2 at rest), q1..q6
     A = np.empty((6, 6))
     H = np.empty(6)
     B = np.empty((3, 6))
     hb = np.empty(3)
     jp = np.empty(9)
-    pk.fixed_root_terms(ti, tf, q, qd, par[P_OBS_H], A, H, B, hb, jp)
-    work[W_A:W_A + 6] = A
-    work[W_H] = H
-    work[W_B:W_B + 3] = B
-    res[R_HB:R_HB + 3] = hb
+    pk.fixed_root_terms(ti, tf, q, qd, gains[G_.observer_height], A, H, B, hb, jp)
+    work[W_.A:W_.A + 6] = A
+    work[W_.H] = H
+    work[W_.B:W_.B + 3] = B
+    res[R_.h_b:R_.h_b + 3] = hb
     hbc = np.empty(3)
     hbc[:] = hb
     F = 0.0
-    if par[P_OBS_ON] != 0.0:
-        mode = par[P_OBS_MODE]
+    if gains[G_.observer] != 0.0:
+        mode = res[R_.obs_mode]
         if mode == OBS_KEEP:
-            F = par[P_F_PREV]
+            F = mem[M_.force]
         elif mode == OBS_RESIDUAL:
-            dt = par[P_OBS_DT]
+            dt = res[R_.obs_dt]
             num = 0.0
             nrm = 0.0
             for i in range(6):
                 r = 0.0
                 for k in range(6):
-                    r += prev[2 + i, k] * ((qd[k] - prev[0, k]) / dt - prev[1, k])
+                    r += mem[M_.prev_A + 6 * i + k] * ((qd[k] - mem[M_.prev_qd + k]) / dt - mem[M_.prev_w + k])
                 num += jp[3 + i] * r
                 nrm += jp[3 + i] * jp[3 + i]
             F = num / nrm if nrm > 1e-12 else 0.0
         # h_b,c = h_b + B A^-1 j6 F - Jb F
         L = np.empty((6, 6))
         y = np.empty((1, 6))
-        if not pk._cholesky(A, L):
+        if not pk.cholesky(A, L):
             return NONFINITE
         for k in range(6):
             y[0, k] = jp[3 + k] * F
-        pk._chol_solve_rows(L, y)
+        pk.chol_solve_rows(L, y)
         for r in range(3):
             s = 0.0
             for k in range(6):
                 s += B[r, k] * y[0, k]
             hbc[r] = hb[r] + (s - jp[r] * F)
-    res[R_HBC:R_HBC + 3] = hbc
-    res[R_F] = F
+    res[R_.h_b_c:R_.h_b_c + 3] = hbc
+    res[R_.force] = F
     for i in range(6):
-        if not (math.isfinite(work[W_V, i]) and math.isfinite(work[W_DP, i]) and math.isfinite(work[W_DTAU, i])):
+        if not (math.isfinite(work[W_.v, i]) and math.isfinite(work[W_.dq_dp, i])
+                and math.isfinite(work[W_.dq_dtau, i])):
             return NONFINITE
     for r in range(3):
         if not math.isfinite(hbc[r]):
             return NONFINITE
-    ap = par[P_ADAPT_P] != 0.0
-    at = par[P_ADAPT_TAU] != 0.0
+    ap = gains[G_.adapt_p] != 0.0
+    at = gains[G_.adapt_tau] != 0.0
     if not (ap or at):
-        _finish(par, cons, work, res)
+        _finish(cons, work, res)
         return FEASIBLE
     # eq. (21): the 17 rows with the controller's margins, with (rows 0-16) and without (17-33) the estimate
     Aq = np.empty((N_ROWS, 6))
@@ -252,40 +310,40 @@ def step(coef, inner, centers, ti, tf, q, qd, par, cons, prev, G, h, work, res):
     b0 = np.empty(5)
     for r in range(5):
         for k in range(6):
-            Aq[r, k] = _contact(cons, CONS_QP_ROWS, r, B[0, k], B[1, k], A[0, k])
-        bq[r] = _contact(cons, CONS_QP_ROWS, r, hbc[0], hbc[1], H[0]) + cons[r]
-        b0[r] = _contact(cons, CONS_QP_ROWS, r, hb[0], hb[1], H[0]) + cons[r]
+            Aq[r, k] = _contact(cons, C_.qp_rows, r, B[0, k], B[1, k], A[0, k])
+        bq[r] = _contact(cons, C_.qp_rows, r, hbc[0], hbc[1], H[0]) + cons[C_.margin + r]
+        b0[r] = _contact(cons, C_.qp_rows, r, hb[0], hb[1], H[0]) + cons[C_.margin + r]
     for i in range(6):
         for k in range(6):
             Aq[5 + i, k] = A[i, k]
             Aq[11 + i, k] = -A[i, k]
-        bq[5 + i] = (H[i] - cons[CONS_TMAX + i]) + cons[5 + i]
-        bq[11 + i] = (cons[CONS_TMIN + i] - H[i]) + cons[11 + i]
+        bq[5 + i] = (H[i] - cons[C_.torque_max + i]) + cons[C_.margin + 5 + i]
+        bq[11 + i] = (cons[C_.torque_min + i] - H[i]) + cons[C_.margin + 11 + i]
     for r in range(N_ROWS):
         ad0 = 0.0
         ad1 = 0.0
         av = 0.0
         for k in range(6):
-            ad0 += Aq[r, k] * work[W_DP, k]
-            ad1 += Aq[r, k] * work[W_DTAU, k]
-            av += Aq[r, k] * work[W_V, k]
+            ad0 += Aq[r, k] * work[W_.dq_dp, k]
+            ad1 += Aq[r, k] * work[W_.dq_dtau, k]
+            av += Aq[r, k] * work[W_.v, k]
         G[r, 0] = ad0
         G[r, 1] = ad1
         G[N_ROWS + r, 0] = ad0
         G[N_ROWS + r, 1] = ad1
         h[r] = -(av + bq[r])
         h[N_ROWS + r] = -(av + (b0[r] if r < 5 else bq[r]))
-    dt = par[P_DT]
-    p, p_dot_ = par[P_P], par[P_PDOT]
+    dt = gains[G_.dt]
+    p, p_dot_ = res[R_.p], res[R_.p_dot]
     G[2 * N_ROWS, 0] = 0.5 * dt * dt
     G[2 * N_ROWS, 1] = 0.0
     G[2 * N_ROWS + 1, 0] = -0.5 * dt * dt
     G[2 * N_ROWS + 1, 1] = 0.0
     G[2 * N_ROWS + 2, 0] = 0.0
     G[2 * N_ROWS + 2, 1] = -dt
-    h[2 * N_ROWS] = par[P_PMAX] - p - p_dot_ * dt
-    h[2 * N_ROWS + 1] = p + p_dot_ * dt - par[P_PMIN]
-    h[2 * N_ROWS + 2] = tau_dot - par[P_TAUD_MIN]
+    h[2 * N_ROWS] = gains[G_.p_max] - p - p_dot_ * dt
+    h[2 * N_ROWS + 1] = p + p_dot_ * dt - gains[G_.p_min]
+    h[2 * N_ROWS + 2] = tau_dot - gains[G_.tau_dot_min]
     for r in range(QP_ROWS):
         if not (math.isfinite(G[r, 0]) and math.isfinite(G[r, 1]) and math.isfinite(h[r])):
             return NONFINITE
@@ -293,29 +351,41 @@ def step(coef, inner, centers, ti, tf, q, qd, par, cons, prev, G, h, work, res):
     # and moves to the right-hand side)
     v = np.empty(QP_ROWS)
     if ap and at:
-        feasible = _rows_and_decision(G, h, res[R_XS:R_XS + 2], v)
+        feasible = rows_and_decision(G, h, res[R_.x_star:R_.x_star + 2], v)
     else:
         col = 0 if ap else 1
         fixed = 1 - col
         Gr = np.empty((QP_ROWS, 1))
         hr = np.empty(QP_ROWS)
         xr = np.empty(1)
-        xr[0] = res[R_XS + col]
+        xr[0] = res[R_.x_star + col]
         for r in range(QP_ROWS):
             Gr[r, 0] = G[r, col]
-            hr[r] = h[r] - G[r, fixed] * res[R_XS + fixed]
-        feasible = _rows_and_decision(Gr, hr, xr, v)
+            hr[r] = h[r] - G[r, fixed] * res[R_.x_star + fixed]
+        feasible = rows_and_decision(Gr, hr, xr, v)
     if not feasible:
         return NEEDS_QP
-    _finish(par, cons, work, res)
+    _finish(cons, work, res)
     return FEASIBLE
 
 
-@numba.njit(numba.types.int64(_V, _V, _M, _V), cache=True)
-def finish(par, cons, work, res):
-    """After a QP: w, torque, margins, reaction, l and the tightest row for x = res[R_X:R_X+2]."""
-    _finish(par, cons, work, res)
+@numba.njit(numba.types.int64(_C4, _V, _V, _VI, _V, _V, _V, _F, _I, _V, _V, _V, _M, _V, _M, _V), cache=True)
+def step(coef, inner, centers, ti, tf, q, qd, t, stance, gains, cons, mem, G, h, work, res):
+    """One control period at time t [s] in ``stance`` up to the QP decision (module docstring). Returns
+    FEASIBLE (x = x*, every output computed, the memory committed), NEEDS_QP (G, h filled; solve, put x
+    in res, call :func:`finish`) or NONFINITE (use the reference path; the memory is unchanged).
+    G (QP_ROWS, 2), h (QP_ROWS,) are filled whenever a parameter is adapted."""
+    period_start(mem, t, stance, res)
+    code = period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, work, res)
+    if code == FEASIBLE:
+        period_commit(mem, res, work, qd, t, stance)
+    return code
+
+
+@numba.njit(numba.types.int64(_V, _V, _M, _V, _V, _F, _I), cache=True)
+def finish(cons, mem, work, res, qd, t, stance):
+    """After a QP: w, torque, margins, reaction, l and the tightest row for x = res[x]; the memory is
+    committed."""
+    _finish(cons, work, res)
+    period_commit(mem, res, work, qd, t, stance)
     return 0
-
-
-pk.write_stamp(Path(_STAMP), _KEY)

@@ -24,18 +24,24 @@ status SOLVER_ERROR and x = x*.
 p is kept inside the family's valid range by two extra QP rows (p after one period within
 [p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min).
 
+State: the controller's state between periods is one array, ``memory`` (``period_layout.MEMORY``), shared
+with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a
+period are ``control_kernels``' numba functions for every path (their one home).
+
 Modes ``wbc`` and ``hybrid`` (issue 26; :mod:`wbc`) add a whole-body stage after the decision:
 ``wbc`` keeps the reference (x = x*, as mode none: p = p_d, tau' = 1) and relaxes w itself by the
 whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = the tracking law's w;
 ``hybrid`` decides (p'', tau'') exactly as mode ``both`` and runs the same whole-body QP around the
 adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
-Whenever w holds every row the whole-body stage changes nothing (bit for bit).
+Whenever w holds every row the whole-body stage changes nothing (bit for bit). The stage runs in Python
+after the compiled period (or the Python steps) and overwrites the period's w in ``memory``.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -44,7 +50,10 @@ from biped_sim.robot.loop import ENGINES, load_loop_settings
 from biped_sim.robot.settings import SettingsError, default_config_dir, read_settings
 
 from biped_sim.robot.gait_family import GaitFamily, eq11
-from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows
+from biped_sim.robot.fixed_foot import Dynamics, FixedFootModel, contact_rows
+from biped_sim.robot import numba_cache
+from biped_controller.core.period_layout import (
+    CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WORK, M_, R_, W_)
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
 from biped_controller.core.qp_types import UNCONSTRAINED
 from biped_controller.core.wbc import WholeBodyStage, weight_matrix
@@ -54,13 +63,24 @@ MODES = ("none", "tau", "p", "both", "wbc", "hybrid")
 PAPER_MODES = ("none", "tau", "p", "both")
 #: the parameters each mode's p/tau QP adapts (0: p'', 1: tau''); wbc keeps the reference fixed like none
 ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1)}
-# rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,
-# and 3 parameter-range rows (p within the family's range, tau' >= tau_dot_min)
-QP_ROWS = 2 * N_CONSTRAINTS + 3
 NO_ADAPTATION = 4
 NO_ADAPTATION_STATUS = NO_ADAPTATION
-_FIXED_REFERENCE = {"none": "mode none: classical computed torque",
-                    "wbc": "mode wbc: fixed reference, whole-body QP on w"}
+MSG_NO_ADAPTATION = "mode none: classical computed torque"
+MSG_FIXED_REFERENCE = {"none": MSG_NO_ADAPTATION, "wbc": "mode wbc: fixed reference, whole-body QP on w"}
+MSG_X_STAR_FEASIBLE = "x* feasible"
+
+CONTROL_KERNELS = "biped_controller.core.control_kernels"
+# what the compiled period is compiled against besides its own source (kernels it calls, offsets it reads)
+CONTROL_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
+                           "biped_controller.core.period_layout", "biped_controller.core.qp_types",
+                           "biped_controller.core.qp_fast")
+
+
+def load_control_kernels():
+    """The compiled control period (``control_kernels``), through ``numba_cache.load``: its ``begin`` and
+    ``commit`` are the one home of the parameter advance, the observer's mode and the period's commit, for
+    the compiled period and the Python steps alike."""
+    return numba_cache.load(CONTROL_KERNELS, sources=CONTROL_KERNELS_SOURCES)
 
 
 class ControllerConfigError(ValueError):
@@ -72,7 +92,7 @@ class ControllerConfig:
     """Controller settings. The values and their reasons live in ``config/controller.yaml`` only (the
     control period in ``config/simulator.yaml``): build one with :func:`load_controller_config`."""
 
-    mode: str                     # none | tau | p | both | wbc | hybrid (MODES, ADAPTED)
+    mode: str                     # none | tau | p | both: which parameters the QP adapts
     Kp: float                     # [1/s^2] joint PD stiffness of eq. (16)
     Kv: float                     # [1/s] joint PD damping of eq. (16)
     kp: float                     # [1/s^2] second task eq. (20), p -> p_d
@@ -138,14 +158,23 @@ def load_controller_config(path: str | Path | None = None, **overrides) -> Contr
     return ControllerConfig(**kw).validate()
 
 
-@dataclass
 class ParamState:
-    """The trajectory parameters: stride p [m], p' [m/s], phase tau [s], tau' [-]."""
+    """The trajectory parameters: stride p [m], p' [m/s], phase tau [s], tau' [-]: a view of four fields of
+    an array (the controller's ``MEMORY``: the values at the last decision, i.e. at the start of the period
+    being applied; before the first decision the initial ones)."""
 
-    p: float
-    p_dot: float
-    tau: float
-    tau_dot: float
+    __slots__ = ("_a", "_o")
+
+    def __init__(self, array: np.ndarray, offset: int):
+        self._a, self._o = array, offset
+
+    p = property(lambda s: float(s._a[s._o]), lambda s, v: s._a.__setitem__(s._o, v))
+    p_dot = property(lambda s: float(s._a[s._o + 1]), lambda s, v: s._a.__setitem__(s._o + 1, v))
+    tau = property(lambda s: float(s._a[s._o + 2]), lambda s, v: s._a.__setitem__(s._o + 2, v))
+    tau_dot = property(lambda s: float(s._a[s._o + 3]), lambda s, v: s._a.__setitem__(s._o + 3, v))
+
+    def __repr__(self) -> str:
+        return f"ParamState(p={self.p!r}, p_dot={self.p_dot!r}, tau={self.tau!r}, tau_dot={self.tau_dot!r})"
 
 
 @dataclass(frozen=True)
@@ -177,6 +206,49 @@ class ControllerStatusData:
     wbc_deviation: float = 0.0               # [rad/s^2] |w - w*| of the whole-body stage (0 when w* held)
 
 
+_NEW = object.__new__
+_MG = RES.slice("margins")
+_RR = RES.slice("reaction")
+
+
+def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float], mode: str, stance: int,
+                   qp_status: int, qp_message: str) -> list[ControllerStatusData]:
+    """The one builder of :class:`ControllerStatusData`: from rows of the ``RES`` layout (n, RES.size), one a
+    period (the period's p, p', tau, tau', x = (p'', tau''), x*, margins, tightest row, l, max |e|, R, F),
+    with their period indices ``steps``, times [s], the mode, the stance and the QP's status and message.
+    Each instance's ``__dict__`` is filled at once (the frozen dataclass's ``__init__`` costs ~4 us, as
+    much as a compiled period); every field is set here, and ``margins`` / ``predicted_reaction`` are views
+    of ``rows`` (pass rows nobody writes again)."""
+    c = rows.T.tolist()     # columns, as exact Python floats
+    P, PD, TA, TAD, X0, X1, XS0, XS1 = (c[R_.p], c[R_.p_dot], c[R_.tau], c[R_.tau_dot], c[R_.x], c[R_.x + 1],
+                                        c[R_.x_star], c[R_.x_star + 1])
+    TIGHT, ZMP, ERR, F = [int(v) for v in c[R_.tightest]], c[R_.zmp], c[R_.max_error], c[R_.force]
+    MG, RR = rows[:, _MG], rows[:, _RR]
+    out = []
+    for j in range(len(P)):
+        s = _NEW(ControllerStatusData)
+        s.__dict__.update(
+            step=steps[j], t=times[j], mode=mode, p=P[j], p_dot=PD[j], tau=TA[j], tau_dot=TAD[j], p_ddot=X0[j],
+            tau_ddot=X1[j], p_ddot_star=XS0[j], tau_ddot_star=XS1[j], qp_status=qp_status, qp_message=qp_message,
+            margins=MG[j], tightest=TIGHT[j], zmp=ZMP[j], stance=stance, max_tracking_error=ERR[j],
+            predicted_reaction=RR[j], force_estimate=F[j])
+        out.append(s)
+    return out
+
+
+def computed_torque(A: np.ndarray, H: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Eq. (15): Gamma = A(q) w + H(q, q') [N m] (the Python steps; ``control_kernels._finish`` is its
+    compiled twin)."""
+    return A @ w + H
+
+
+def joint_law(q_d: np.ndarray, qd_d: np.ndarray, qdd_d: np.ndarray, q: np.ndarray, qd: np.ndarray,
+              Kp: float, Kv: float) -> np.ndarray:
+    """Eq. (16): w = q_d'' + K_v (q_d' - q') + K_p (q_d - q) [rad/s^2] (q_d'' without or with the p'', tau''
+    terms: the drift v of eq. (17), or the whole reference acceleration within a period)."""
+    return qdd_d + Kv * (qd_d - qd) + Kp * (q_d - q)
+
+
 @dataclass(frozen=True)
 class _Reference:
     """The reference terms of one period: w = D x + v (eq. 17), x* (eq. 20), tracking error q_d - q."""
@@ -188,17 +260,6 @@ class _Reference:
 
 
 @dataclass(frozen=True)
-class _Previous:
-    """What the observer needs of the last period: measured q', commanded w, A, stance, time."""
-
-    qd: np.ndarray
-    w: np.ndarray
-    A: np.ndarray
-    stance: int
-    t: float
-
-
-@dataclass(frozen=True)
 class ControlOutput:
     torque: np.ndarray            # paper q1..q6 [N m]
     status: ControllerStatusData
@@ -207,8 +268,22 @@ class ControlOutput:
     x_star: np.ndarray | None = None
 
 
+def _mem_scalar(name: str, kind=float):
+    o = getattr(M_, name)
+    return property(lambda self: kind(self.memory[o]), lambda self, v: self.memory.__setitem__(o, v),
+                    doc=f"MEMORY.{name} of the controller's state array")
+
+
 class AdaptiveController:
-    """Owns its FixedFootModel (own Pinocchio Data) and its PIQP solver object."""
+    """Owns its FixedFootModel (own Pinocchio Data) and its PIQP solver object.
+
+    Its state between periods is the array ``memory`` (``period_layout.MEMORY``: parameters, the held
+    decision, the last decision's time and stance, F, the observer's memory); ``state``, ``stance``,
+    ``step_index`` and ``force_estimate`` are views of it. The compiled period (``control_kernels``) and the
+    compiled loop (``loop_kernels``) take the same array."""
+
+    step_index = _mem_scalar("step", int)
+    force_estimate = _mem_scalar("force")      # estimated horizontal force on the torso [N]
 
     def __init__(self, config: ControllerConfig | None = None, family: GaitFamily | None = None,
                  desc: RobotDescription | None = None, keep_qp: bool = False):
@@ -216,6 +291,7 @@ class AdaptiveController:
         self.desc = desc if desc is not None else load_description()
         self.family = family if family is not None else GaitFamily.load()
         self.model = FixedFootModel(self.desc)
+        self.ck = load_control_kernels()
         self._fast = None
         self._kernel = None
         if self.cfg.engine == "fast":
@@ -228,62 +304,95 @@ class AdaptiveController:
             [c.margin_normal_force, 0.0, 0.0, 0.0, 0.0], np.full(12, c.margin_torque)])
         self._mu_ratio = c.margin_friction
         self.adapted = ADAPTED[c.mode]
+        self.whole_body = WholeBodyStage.for_controller(c, self.model) if c.mode in ("wbc", "hybrid") else None
         self._adapted_idx = list(self.adapted)
         self._fixed_idx = [i for i in (0, 1) if i not in self.adapted]
         n = len(self.adapted)
         self.qp = AdaptationQP(n, QP_ROWS, np.array([c.weight_p, c.weight_tau])[list(self.adapted)],
                                solver=c.qp_solver) if n else None
-        self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
-        self.stance: int | None = None
-        self.step_index = 0
-        self._decision = (0.0, 0.0)
-        self._prev: _Previous | None = None
-        self._t_last = None            # time of the last decision [s]
-        self.force_estimate = 0.0      # estimated horizontal force on the torso [N]
-        m = self.model
-        self.whole_body = WholeBodyStage.for_controller(c, m) if c.mode in ("wbc", "hybrid") else None
+        self.gains = self._gains()
+        self.cons = self._cons()
+        self.memory = MEMORY.new()
+        self.reset(None)
         if self._fast is not None:
             self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
 
+    def _gains(self) -> np.ndarray:
+        """The ``GAINS`` array (eqs. 16, 20, the p range, the observer, the adapted parameters)."""
+        c, fam, g = self.cfg, self.family, GAINS.new()
+        for name, value in (("Kp", c.Kp), ("Kv", c.Kv), ("kp", c.kp), ("kv", c.kv), ("p_d", fam.p_d), ("dt", c.period),
+                            ("p_min", fam.p_min), ("p_max", fam.p_max), ("tau_dot_min", c.tau_dot_min),
+                            ("observer", float(c.disturbance_observer)), ("observer_height", c.observer_height),
+                            ("adapt_p", float(0 in self.adapted)), ("adapt_tau", float(1 in self.adapted))):
+            g[getattr(GAINS.at, name)] = value
+        return g
+
+    def _cons(self) -> np.ndarray:
+        """The ``CONS`` array: the contact rows as data (``contact_rows``, written once): the QP's with the
+        controller's margins on mu and the foot range, the robot's own for the reported margins."""
+        c, m = self.cfg, self.model
+        qp_C, qp_e = contact_rows(c.margin_friction * m.mu, m.l_min + c.margin_zmp, m.l_max - c.margin_zmp)
+        true_C, true_e = contact_rows(m.mu, m.l_min, m.l_max)
+        cons = CONS.new()
+        for name, value in (("margin", self.margin), ("row_scale", m.row_scale), ("torque_min", m.torque_min),
+                            ("torque_max", m.torque_max), ("qp_rows", np.column_stack([qp_C, qp_e]).ravel()),
+                            ("true_rows", np.column_stack([true_C, true_e]).ravel())):
+            cons[CONS.slice(name)] = value
+        return cons
+
+    @property
+    def compiled_period(self) -> "_FastPeriod | None":
+        """The compiled period (fast engine), None on the Python steps."""
+        return self._kernel
+
+    @property
+    def state(self) -> ParamState:
+        """(p, p', tau, tau') at the last decision (a view of ``memory``)."""
+        return ParamState(self.memory, M_.p)
+
+    @property
+    def stance(self) -> int | None:
+        """The stance of the last decision (or of the reset); None before any."""
+        s = self.memory[M_.stance]
+        return None if s < 0 else int(s)
+
     def reset(self, stance: int | None = None) -> None:
-        self.state = ParamState(self.family.p_d, 0.0, 0.0, 1.0)
-        self.stance = stance
-        self.step_index = 0
-        self._prev = None
-        self.force_estimate = 0.0
-        self._t_last = None
+        """Back to the start: p = p_d, p' = 0, tau = 0, tau' = 1, no decision (p'' = tau'' = 0), no observer
+        memory, F = 0, period index 0; ``stance`` the stance the first period is expected in (None: any)."""
+        mem = self.memory
+        mem[:] = 0.0
+        mem[M_.p], mem[M_.tau_dot] = self.family.p_d, 1.0
+        mem[M_.stance] = -1.0 if stance is None else stance
 
     # --------------------------------------------------------------- the steps of one period
-    def _advance_parameters(self, t: float, stance: int) -> None:
-        """(p, p', tau, tau') advance over the time actually elapsed since the last decision, with the
-        constant p'', tau'' chosen then (exact integration; a period cut short by an impact is shorter).
-        The elapsed time comes from integer nanoseconds, so a time that travelled through a ROS stamp
-        gives bit-identical arithmetic to the in-process float time. At an impact (the measured stance
-        changes) the next step starts: tau = 0; p, p', tau' carry over."""
-        if self._t_last is not None:
-            h_el = (round(t * 1e9) - round(self._t_last * 1e9)) * 1e-9
-            s0 = self.state
-            p_dd0, t_dd0 = self._decision
-            s0.p += s0.p_dot * h_el + 0.5 * p_dd0 * h_el * h_el
-            s0.p_dot += p_dd0 * h_el
-            s0.tau += s0.tau_dot * h_el + 0.5 * t_dd0 * h_el * h_el
-            s0.tau_dot += t_dd0 * h_el
-        self._t_last = t
-        if self.stance is not None and stance != self.stance:
-            self.state.tau = 0.0
-        self.stance = stance
+    def _begin(self, t: float, stance: int) -> np.ndarray:
+        """The period's start (``control_kernels.begin``, the one home of the equation, shared with the
+        compiled period and loop): a ``RES`` row holding (p, p', tau, tau') advanced over the time actually
+        elapsed since the last decision with the p'', tau'' chosen then (exact integration, from integer
+        nanoseconds, so a time that travelled through a ROS stamp gives the same arithmetic; a period cut
+        short by an impact is shorter), tau = 0 when the stance changed (an impact: the next step starts;
+        p, p', tau' carry over), and the observer's mode. The memory is not changed."""
+        res = np.empty(RES.size)
+        self.ck.begin(self.memory, float(t), int(stance), res)
+        return res
 
-    def _reference(self, q: np.ndarray, qd: np.ndarray) -> _Reference:
+    def _params(self, res: np.ndarray | None) -> tuple[float, float, float, float]:
+        """(p, p', tau, tau') of the period (``res``, a RES row from :meth:`_begin`), or the memory's when None."""
+        a, o = (self.memory, M_.p) if res is None else (res, R_.p)
+        return float(a[o]), float(a[o + 1]), float(a[o + 2]), float(a[o + 3])
+
+    def _reference(self, q: np.ndarray, qd: np.ndarray, res: np.ndarray | None = None) -> _Reference:
         """Eqs. (11), (16), (17), (20): w = D x + v with D = [dq/dp, dq/dtau], x = (p'', tau''), and the
-        second task's x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau'))."""
-        s, c, fam = self.state, self.cfg, self.family
-        g = fam.evaluate(s.p, s.tau)
-        q_d, qd_d, qdd_drift = eq11(g, s.p_dot, s.tau_dot)
-        e = q_d - q
-        v = qdd_drift + c.Kv * (qd_d - qd) + c.Kp * e
+        second task's x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau')), at the period's parameters (``res``;
+        None: the memory's)."""
+        c, fam = self.cfg, self.family
+        p, p_dot, tau, tau_dot = self._params(res)
+        g = fam.evaluate(p, tau)
+        q_d, qd_d, qdd_drift = eq11(g, p_dot, tau_dot)
+        v = joint_law(q_d, qd_d, qdd_drift, q, qd, c.Kp, c.Kv)
         D = np.column_stack([g.dq_dp, g.dq_dtau])
-        x_star = np.array([-c.kv * s.p_dot + c.kp * (fam.p_d - s.p), c.kv * (1.0 - s.tau_dot)])
-        return _Reference(D=D, v=v, x_star=x_star, error=e)
+        x_star = np.array([-c.kv * p_dot + c.kp * (fam.p_d - p), c.kv * (1.0 - tau_dot)])
+        return _Reference(D=D, v=v, x_star=x_star, error=q_d - q)
 
     def _model_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[Dynamics, np.ndarray | None]:
         """Eq. (1) and the reaction rows (A, H, B, h_b), and the x-row of the torso point Jacobian at
@@ -296,32 +405,33 @@ class AdaptiveController:
         jp = self.model.torso_point_jacobian(q, h)[0] if self.cfg.disturbance_observer else None
         return dyn, jp
 
-    def _observe(self, t: float, qd: np.ndarray, stance: int, dyn: Dynamics, Jp: np.ndarray | None
+    def _observe(self, res: np.ndarray, qd: np.ndarray, dyn: Dynamics, Jp: np.ndarray | None
                  ) -> tuple[Dynamics, float]:
         """Disturbance observer (ours, not the paper's; ``disturbance_observer``): the joint-space residual
         of the last period, r = A (a_measured - w_applied), explained by a horizontal force F on the torso
         at ``observer_height`` (least squares, one unknown): r = J6^T F. F only enters the prediction of
         the ground reaction used by the QP: with F acting, the joint acceleration is w + A^-1 J6^T F, so
-        R = B (w + A^-1 J6^T F) + h_b - Jb^T F, i.e. h_b is shifted. One period of lag. Returns the
-        dynamics with the shifted h_b (``dyn`` itself when the observer is off) and F [N]."""
+        R = B (w + A^-1 J6^T F) + h_b - Jb^T F, i.e. h_b is shifted. One period of lag. After an impact
+        (mode keep) the residual is meaningless, but a push acting on the torso does not care about the
+        stance: the previous estimate is kept. Returns the dynamics with the shifted h_b (``dyn`` itself
+        when the observer is off) and F [N]."""
         if not self.cfg.disturbance_observer:
             return dyn, 0.0
         j6 = Jp[3:]                       # Jp: (9,) x-row of the torso point Jacobian
         F = 0.0
-        if self._prev is not None and self._prev.stance != stance:
-            # the last period ended with an impact: its residual is meaningless, but a push acting on the
-            # torso does not care about the stance: keep the previous estimate
-            F = self.force_estimate
-        elif self._prev is not None:
-            prev = self._prev
-            dt = (round(t * 1e9) - round(prev.t * 1e9)) * 1e-9
-            r = prev.A @ ((qd - prev.qd) / dt - prev.w)
+        mode, mem = res[R_.obs_mode], self.memory
+        if mode == OBS_KEEP:
+            F = float(mem[M_.force])
+        elif mode == OBS_RESIDUAL:
+            A_prev = mem[MEMORY.slice("prev_A")].reshape(6, 6)
+            r = A_prev @ ((qd - mem[MEMORY.slice("prev_qd")]) / res[R_.obs_dt] - mem[MEMORY.slice("prev_w")])
             nrm = float(j6 @ j6)
             F = float(j6 @ r) / nrm if nrm > 1e-12 else 0.0
         delta = dyn.B @ np.linalg.solve(dyn.A, j6 * F) - Jp[:3] * F
         return replace(dyn, h_b=dyn.h_b + delta), F
 
-    def _qp_rows(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics) -> tuple[np.ndarray, np.ndarray]:
+    def _qp_rows(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
         """Eq. (21): G x <= h over x = (p'', tau'') (both columns; the caller keeps the adapted ones).
 
         The 17 rows of eq. (18) with the controller's margins (tighter mu, l range, R_y >= margin, ...),
@@ -329,8 +439,9 @@ class AdaptiveController:
         (``dyn``), since the push may stop during the coming period (identical rows when F = 0). The
         estimate only shifts h_b, so the matrix rows are the same and only the five contact offsets differ
         by C (h_b,c - h_b). Then three parameter-range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max],
-        tau' + tau'' dt >= tau_dot_min."""
-        c, s, fam, m = self.cfg, self.state, self.family, self.model
+        tau' + tau'' dt >= tau_dot_min (at the period's parameters ``res``; None: the memory's)."""
+        c, fam, m = self.cfg, self.family, self.model
+        p, p_dot, _, tau_dot = self._params(res)
         mu = c.margin_friction * m.mu
         lm, lM = m.l_min + c.margin_zmp, m.l_max - c.margin_zmp
         cm = m.constraints(None, None, dyn_c, mu=mu, l_min=lm, l_max=lM)
@@ -345,165 +456,133 @@ class AdaptiveController:
         dt = c.period
         G = np.vstack([AD, AD, [[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]]])
         h = np.concatenate([-(Av + b), -(Av + b0),
-                            [fam.p_max - s.p - s.p_dot * dt, s.p + s.p_dot * dt - fam.p_min, s.tau_dot - c.tau_dot_min]])
+                            [fam.p_max - p - p_dot * dt, p + p_dot * dt - fam.p_min, tau_dot - c.tau_dot_min]])
         return G, h
 
-    def _decide(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics):
+    def _decide(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None):
         """Eqs. (19)-(21): x = x* when it satisfies the rows, else the QP's answer over the adapted
         parameters (the others stay at x*). Returns (x (2,), status, message, G, h, x*) with the reduced
         instance (None in mode none)."""
         x = ref.x_star.copy()
         if not self.adapted:
-            return x, NO_ADAPTATION, _FIXED_REFERENCE[self.cfg.mode], None, None, None
+            return x, NO_ADAPTATION, MSG_FIXED_REFERENCE[self.cfg.mode], None, None, None
         try:
-            Gall, hall = self._qp_rows(ref, dyn, dyn_c)
+            Gall, hall = self._qp_rows(ref, dyn, dyn_c, res)
             idx, fixed = self._adapted_idx, self._fixed_idx
             h = hall - Gall[:, fixed] @ x[fixed] if fixed else hall
             G, xs = Gall[:, idx], x[idx]
-            res = self.qp.solve(G, h, xs)
-            x[idx] = res.x
+            qres = self.qp.solve(G, h, xs)
+            x[idx] = qres.x
             if not np.all(np.isfinite(x)):
                 raise FloatingPointError("non-finite QP answer")
-            return x, res.status, res.message, G, h, xs
+            return x, qres.status, qres.message, G, h, xs
         except (FloatingPointError, np.linalg.LinAlgError) as exc:
             # numerical failure only (programming errors such as QPShapeError propagate): desired values
             return ref.x_star.copy(), SOLVER_ERROR, f"{type(exc).__name__}: {exc}", None, None, None
 
-    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
-        """One control period: advance the parameters, observe, reference, rows, decide, torque.
+    def _output(self, res: np.ndarray, torque: np.ndarray, t: float, stance: int, status: int, msg: str,
+                G, h, xs, wb=None) -> ControlOutput:
+        """The period's ``ControlOutput`` from its ``RES`` row (the one status builder); the period index
+        is the memory's, already advanced by the commit."""
+        rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
+                             self.cfg.mode, int(stance), int(status), msg)[0]
+        if self.whole_body is not None:
+            rec.__dict__.update(WholeBodyStage.status_fields(wb))
+        keep = self.keep_qp
+        return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
+                             x_star=xs if keep else None)
 
-        With the fast engine the steps after the advance are one compiled call
-        (``control_kernels.step``, the same equations) and, when x* is not feasible, the QP and one more
-        call; a non-finite value anywhere falls back to the reference steps below."""
+    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput:
+        """One control period: advance the parameters, observe, reference, rows, decide, torque, commit.
+
+        With the fast engine the steps are one compiled call (``control_kernels.step``, the same
+        equations) and, when x* is not feasible, the QP and one more call; a non-finite value anywhere
+        falls back to the Python steps below (the memory is then unchanged by the compiled call)."""
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
-        self._advance_parameters(t, stance)
         if self._kernel is not None:
             out = self._kernel.compute(t, q, qd, stance)
             if out is not None:
                 return out
-        s = self.state
-        ref = self._reference(q, qd)
+        res = self._begin(t, stance)
+        ref = self._reference(q, qd, res)
         dyn, jp = self._model_terms(q, qd)                     # eq. (1): A, H and the reaction rows
-        dyn_c, F = self._observe(t, qd, stance, dyn, jp)
-        x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c)
+        dyn_c, F = self._observe(res, qd, dyn, jp)
+        x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c, res)
         w = ref.D @ x + ref.v                                    # eq. (17)
         wb = None
         if self.whole_body is not None:                          # modes wbc, hybrid (wbc.py)
             wb = self.whole_body.decide(w, status, dyn.A, dyn.H, dyn.B, dyn.h_b, dyn_c.h_b)
             if wb is not None:
                 w = wb.w
-        torque = dyn.A @ w + dyn.H                               # eq. (15)
+        torque = computed_torque(dyn.A, dyn.H, w)                # eq. (15)
         cm = self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
         R = dyn_c.B[:2] @ w + dyn_c.h_b[:2]
-        p_dd, t_dd = float(x[0]), float(x[1])
-        status_rec = ControllerStatusData(
-            step=self.step_index, t=t, mode=self.cfg.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
-            p_ddot=p_dd, tau_ddot=t_dd, p_ddot_star=float(ref.x_star[0]), tau_ddot_star=float(ref.x_star[1]),
-            qp_status=int(status), qp_message=msg, margins=margins,
-            tightest=int(np.argmin(margins / self.model.row_scale)),
-            zmp=float(torque[0] / R[1]) if R[1] != 0 else math.nan, stance=int(stance),
-            max_tracking_error=float(np.max(np.abs(ref.error))), predicted_reaction=R, force_estimate=F,
-            **WholeBodyStage.status_fields(wb),
-        )
-        self.force_estimate = F
-        self._prev = _Previous(qd=qd.copy(), w=w, A=dyn.A, stance=stance, t=t)
-        self._decision = (p_dd, t_dd)
-        self._period_start = ParamState(s.p, s.p_dot, s.tau, s.tau_dot)
-        self.step_index += 1
-        keep = self.keep_qp
-        return ControlOutput(torque=torque, status=status_rec, G=G if keep else None, h=h if keep else None,
-                             x_star=xs if keep else None)
+        res[R_.x:R_.x + 2] = x
+        res[R_.x_star:R_.x_star + 2] = ref.x_star
+        res[R_.force] = F
+        res[R_.max_error] = np.max(np.abs(ref.error))
+        res[R_.zmp] = torque[0] / R[1] if R[1] != 0 else math.nan
+        res[R_.tightest] = np.argmin(margins / self.model.row_scale)
+        res[RES.slice("reaction")] = R
+        res[RES.slice("margins")] = margins
+        work = np.empty((WORK.size, 6))
+        work[W_.w] = w
+        work[W_.A:W_.A + 6] = dyn.A
+        self.ck.commit(self.memory, res, work, qd if qd.flags.c_contiguous else np.ascontiguousarray(qd),
+                       float(t), int(stance))
+        return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
-        """Computed torque at time s_time into the current period, with (p, tau) propagated by the
-        period's decision (p'', tau'') and no new QP: the controller "at the integration rate"."""
-        s0 = self._period_start
-        p_dd, t_dd = self._decision
-        p = s0.p + s0.p_dot * s_time + 0.5 * p_dd * s_time**2
-        pdot = s0.p_dot + p_dd * s_time
-        tau = s0.tau + s0.tau_dot * s_time + 0.5 * t_dd * s_time**2
-        taud = s0.tau_dot + t_dd * s_time
+        """Computed torque at time s_time [s] into the current period, with (p, tau) propagated from the
+        period's start by the period's decision (p'', tau'') and no new QP: the controller "at the
+        integration rate" (eqs. 11, 16, 15). Before any decision: the initial parameters, p'' = tau'' = 0."""
+        p0, pd0, tau0, taud0, p_dd, t_dd = (float(v) for v in self.memory[M_.p:M_.p + 6])
+        p, pdot, tau, taud = self.ck.advance(p0, pd0, tau0, taud0, p_dd, t_dd, float(s_time))   # the one advance
         qr, qdr, qddr = eq11(self.family.evaluate(p, tau), pdot, taud, p_dd, t_dd)
-        c = self.cfg
-        w = qddr + c.Kv * (qdr - qd) + c.Kp * (qr - q)
+        w = joint_law(qr, qdr, qddr, q, qd, self.cfg.Kp, self.cfg.Kv)
         dyn, _ = self._model_terms(q, qd)
-        return dyn.A @ w + dyn.H
+        return computed_torque(dyn.A, dyn.H, w)
 
 
 class _FastPeriod:
-    """The compiled period of an :class:`AdaptiveController` (fast engine): packs the controller's
-    settings once, its state every period, into the arrays of ``control_kernels.step`` and unpacks the
-    answer into the same ``ControlOutput`` and observer memory as the reference steps."""
+    """The compiled period of an :class:`AdaptiveController` (fast engine): ``control_kernels.step`` on the
+    controller's own arrays (gains, cons, memory), the QP when x* is not feasible, the same
+    ``ControlOutput`` as the Python steps."""
 
     def __init__(self, ctrl: AdaptiveController):
-        from biped_controller.core import control_kernels as ck
-        self.ck = ck
+        self.ck = ctrl.ck
         self.ctrl = ctrl
-        c, m, fam = ctrl.cfg, ctrl.model, ctrl.family
-        self.coef, self.inner, self.centers = fam.piece_arrays()
+        self.coef, self.inner, self.centers = ctrl.family.piece_arrays()
         self.ti, self.tf = ctrl._fast.ti, ctrl._fast.tf
-        par = np.zeros(ck.PAR_SIZE)
-        par[ck.P_KP], par[ck.P_KV], par[ck.P_KP2], par[ck.P_KV2] = c.Kp, c.Kv, c.kp, c.kv
-        par[ck.P_PD] = fam.p_d
-        par[ck.P_DT] = c.period
-        par[ck.P_PMIN], par[ck.P_PMAX], par[ck.P_TAUD_MIN] = fam.p_min, fam.p_max, c.tau_dot_min
-        par[ck.P_OBS_ON] = 1.0 if c.disturbance_observer else 0.0
-        par[ck.P_OBS_H] = c.observer_height
-        par[ck.P_ADAPT_P] = 1.0 if 0 in ctrl.adapted else 0.0
-        par[ck.P_ADAPT_TAU] = 1.0 if 1 in ctrl.adapted else 0.0
-        self.par = par
-        # the contact rows as data (model.contact_rows, written once): the QP's with the controller's
-        # margins on mu and the foot range, the robot's own for the reported margins
-        qp_C, qp_e = contact_rows(c.margin_friction * m.mu, m.l_min + c.margin_zmp, m.l_max - c.margin_zmp)
-        true_C, true_e = contact_rows(m.mu, m.l_min, m.l_max)
-        self.cons = np.concatenate([ctrl.margin, m.row_scale, m.torque_min, m.torque_max,
-                                    np.column_stack([qp_C, qp_e]).ravel(),
-                                    np.column_stack([true_C, true_e]).ravel()]).astype(float)
-        assert self.cons.size == ck.CONS_SIZE
-        self.prev = np.zeros((8, 6))
-        self.G = np.zeros((ck.QP_ROWS, 2))
-        self.h = np.zeros(ck.QP_ROWS)
+        self.G = np.zeros((QP_ROWS, 2))
+        self.h = np.zeros(QP_ROWS)
 
     def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput | None:
-        ck, ctrl, par = self.ck, self.ctrl, self.par
-        s = ctrl.state
-        par[ck.P_P], par[ck.P_PDOT], par[ck.P_TAU], par[ck.P_TAUDOT] = s.p, s.p_dot, s.tau, s.tau_dot
-        prev = ctrl._prev
-        if prev is None:
-            par[ck.P_OBS_MODE] = ck.OBS_NONE
-        elif prev.stance != stance:
-            par[ck.P_OBS_MODE] = ck.OBS_KEEP
-            par[ck.P_F_PREV] = ctrl.force_estimate
-        else:
-            par[ck.P_OBS_MODE] = ck.OBS_RESIDUAL
-            par[ck.P_OBS_DT] = (round(t * 1e9) - round(prev.t * 1e9)) * 1e-9
-            P = self.prev
-            P[0] = prev.qd
-            P[1] = prev.w
-            P[2:] = prev.A
+        ck, ctrl = self.ck, self.ctrl
         if q.dtype != np.float64 or not q.flags.c_contiguous:
             q = np.ascontiguousarray(q, dtype=float)
         if qd.dtype != np.float64 or not qd.flags.c_contiguous:
             qd = np.ascontiguousarray(qd, dtype=float)
-        work = np.empty((ck.WORK_ROWS, 6))
-        res = np.empty(ck.RES_SIZE)
+        work = np.empty((WORK.size, 6))
+        res = np.empty(RES.size)
         G, h = self.G, self.h
-        code = ck.step(self.coef, self.inner, self.centers, self.ti, self.tf, q, qd, par, self.cons, self.prev,
-                       G, h, work, res)
+        t, stance = float(t), int(stance)
+        code = ck.step(self.coef, self.inner, self.centers, self.ti, self.tf, q, qd, t, stance, ctrl.gains,
+                       ctrl.cons, ctrl.memory, G, h, work, res)
         if code == ck.NONFINITE:
             return None
-        xs_full = res[ck.R_XS:ck.R_XS + 2]
+        xs_full = res[R_.x_star:R_.x_star + 2]
         Gr = hr = xs = None
         if not ctrl.adapted:
-            status, msg = NO_ADAPTATION, _FIXED_REFERENCE[ctrl.cfg.mode]
+            status, msg = NO_ADAPTATION, MSG_FIXED_REFERENCE[ctrl.cfg.mode]
         else:
             idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
             Gr, xs = G[:, idx], xs_full[idx]
             hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
             if code == ck.FEASIBLE:
-                status, msg = UNCONSTRAINED, "x* feasible"
+                status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
             else:
                 qres = ctrl.qp.solve(Gr, hr, xs)
                 x = xs_full.copy()
@@ -511,33 +590,27 @@ class _FastPeriod:
                 if not np.all(np.isfinite(x)):
                     return None
                 status, msg = qres.status, qres.message
-                res[ck.R_X:ck.R_X + 2] = x
-                ck.finish(par, self.cons, work, res)
-        torque = work[ck.W_TORQUE].copy()
-        w = work[ck.W_W].copy()
-        F = float(res[ck.R_F])
-        p_dd, t_dd = float(res[ck.R_X]), float(res[ck.R_X + 1])
-        margins, tightest, zmp = res[ck.R_MARGINS:].copy(), int(res[ck.R_TIGHT]), float(res[ck.R_ZMP])
-        R = res[ck.R_R:ck.R_R + 2].copy()
-        wb = None
-        if ctrl.whole_body is not None:        # modes wbc, hybrid: the whole-body stage (wbc.py), in Python
-            A, H, B = work[ck.W_A:ck.W_A + 6], work[ck.W_H], work[ck.W_B:ck.W_B + 3]
-            hbc = res[ck.R_HBC:ck.R_HBC + 3]
-            wb = ctrl.whole_body.decide(w, status, A, H, B, res[ck.R_HB:ck.R_HB + 3], hbc)
-            if wb is not None and wb.status != UNCONSTRAINED:
-                w = wb.w
-                torque, R, margins, tightest, zmp = ctrl.whole_body.outputs(w, A, H, B, hbc)
-        status_rec = ControllerStatusData(
-            step=ctrl.step_index, t=t, mode=ctrl.cfg.mode, p=s.p, p_dot=s.p_dot, tau=s.tau, tau_dot=s.tau_dot,
-            p_ddot=p_dd, tau_ddot=t_dd, p_ddot_star=float(xs_full[0]), tau_ddot_star=float(xs_full[1]),
-            qp_status=int(status), qp_message=msg, margins=margins, tightest=tightest,
-            zmp=zmp, stance=int(stance), max_tracking_error=float(res[ck.R_MAXERR]),
-            predicted_reaction=R, force_estimate=F, **WholeBodyStage.status_fields(wb))
-        ctrl.force_estimate = F
-        ctrl._prev = _Previous(qd=qd.copy(), w=w, A=work[ck.W_A:ck.W_A + 6].copy(), stance=stance, t=t)
-        ctrl._decision = (p_dd, t_dd)
-        ctrl._period_start = ParamState(s.p, s.p_dot, s.tau, s.tau_dot)
-        ctrl.step_index += 1
-        keep = ctrl.keep_qp
-        return ControlOutput(torque=torque, status=status_rec, G=Gr.copy() if keep and Gr is not None else None,
-                             h=hr if keep else None, x_star=xs.copy() if keep and xs is not None else None)
+                res[R_.x:R_.x + 2] = x
+                ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
+        torque, wb = work[W_.torque].copy(), None
+        if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage (wbc.py), in Python
+            torque, wb = self._whole_body(work, res, torque, status)
+        return ctrl._output(res, torque, t, stance, status, msg,
+                            Gr.copy() if Gr is not None else None, hr, xs.copy() if xs is not None else None, wb)
+
+    def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):
+        """The whole-body stage after the compiled period (which has committed its w to ``memory``): when it
+        changes w, the torque, the reported margins, reaction, l and tightest row follow the new w, and the
+        memory's w (the observer's next residual) is the new w. Returns (torque, WBCResult or None)."""
+        ctrl = self.ctrl
+        A, H, B = work[W_.A:W_.A + 6], work[W_.H], work[W_.B:W_.B + 3]
+        hbc = res[R_.h_b_c:R_.h_b_c + 3]
+        wb = ctrl.whole_body.decide(work[W_.w].copy(), status, A, H, B, res[R_.h_b:R_.h_b + 3], hbc)
+        if wb is None or wb.status == UNCONSTRAINED:
+            return torque, wb
+        torque, R, margins, tightest, zmp = ctrl.whole_body.outputs(wb.w, A, H, B, hbc)
+        res[RES.slice("margins")] = margins
+        res[RES.slice("reaction")] = R
+        res[R_.tightest], res[R_.zmp] = tightest, zmp
+        ctrl.memory[MEMORY.slice("prev_w")] = wb.w
+        return torque, wb

@@ -29,6 +29,7 @@ from typing import Optional
 
 import numpy as np
 
+from biped_controller.core.qp_exact import least_violation_exact, reg_weight
 from biped_controller.core.qp_types import (
     ACTIVE,
     DEFAULT_ACTIVE_TOL,
@@ -42,21 +43,16 @@ from biped_controller.core.qp_types import (
     UNCONSTRAINED,
     QPResult,
     QPShapeError,
-    _as_float,
-    _bad_weight,
-    _configure,
-    _error_result,
-    _finish,
-    _nonfinite_name,
-    _piqp,
-    _result,
-    _SlackQP,
-    _unconstrained_result,
+    as_float,
+    bad_weight,
+    error_result,
+    finish_result,
+    make_result,
+    nonfinite_name,
+    unconstrained_result,
     constraint_values,
     kkt_residuals,
-    least_violation,
     objective,
-    reg_weight,
     validate,
     violation_message,
 )
@@ -97,10 +93,116 @@ _BOOL = np.dtype(bool)
 _empty = np.empty
 
 
-def _fast():
-    from biped_controller.core import qp_fast  # numba: compiled/loaded when a solver is built, not by users of the constants
+# ----------------------------------------------------------------------------------------
+# PIQP plumbing shared by the least-violation slack QP and AdaptationQP
+# ----------------------------------------------------------------------------------------
 
-    return qp_fast
+
+def piqp_module():
+    import piqp  # local import keeps `import qp_types` cheap for users of the exact solvers only
+
+    return piqp
+
+
+def configure_piqp(settings, eps_abs: float, eps_rel: float, max_iter: int, preconditioner_iter: Optional[int] = None,
+               check_duality_gap: bool = True) -> None:
+    """Set PIQP's termination tolerances (absolute in row units, relative dimensionless).
+
+    PIQP also stops on a duality-gap test whose defaults (1e-8 abs, 1e-9 rel) are much looser
+    than eps_abs here: with them an answer can sit ~1e-5 inside its active row with a 15 %
+    wrong multiplier while reporting primal/dual residuals ~1e-13. Tie them to eps_abs/rel, or
+    switch the test off (``check_duality_gap=False``) for a solve whose answer is checked
+    otherwise (AdaptationQP's screening solve, accepted only through the KKT check of the polish).
+    ``preconditioner_iter`` (Ruiz equilibration sweeps at setup/update; None keeps PIQP's default).
+    """
+    settings.eps_abs = eps_abs
+    settings.eps_rel = eps_rel
+    settings.eps_duality_gap_abs = eps_abs
+    settings.eps_duality_gap_rel = eps_rel
+    settings.check_duality_gap = bool(check_duality_gap)
+    settings.max_iter = max_iter
+    settings.verbose = False
+    settings.compute_timings = False
+    if preconditioner_iter is not None:
+        settings.preconditioner_iter = int(preconditioner_iter)
+
+
+class SlackQP:
+    """Least-violation problem as a QP in v = (x, s) in R^(n+m), solved by PIQP.
+
+    minimise   1/2 v^T P v + c^T v,  P = diag(2 eps_eff W, 2 I_m),  c = (-2 eps_eff W x*, 0)
+    subject to [G  -I] v <= h,  s >= 0  (x free).
+
+    At the optimum s = max(G x - h, 0), so the cost equals V(x) - const of
+    :func:`least_violation`. The solver object is set up once and updated afterwards.
+    """
+
+    def __init__(self, n: int, m: int, eps_abs: float = 1e-10, eps_rel: float = 1e-11, max_iter: int = 250):
+        piqp = piqp_module()
+        self.n, self.m = n, m
+        self._ok = piqp.Status.PIQP_SOLVED
+        self.solver = piqp.DenseSolver()
+        configure_piqp(self.solver.settings, eps_abs, eps_rel, max_iter)
+        N = n + m
+        self._P = np.asfortranarray(np.eye(N))
+        self._c = np.zeros(N)
+        self._A = np.asfortranarray(np.hstack([np.zeros((m, n)), -np.eye(m)]))
+        self._xl = np.concatenate([np.full(n, -np.inf), np.zeros(m)])
+        self.solver.setup(self._P, self._c, None, None, self._A, None, np.ones(m), self._xl, None)
+
+    def solve(self, G, h, x_star, W, eps_reg):
+        n = self.n
+        e = reg_weight(G, W, eps_reg)
+        idx = np.arange(n)
+        self._P[idx, idx] = 2.0 * e * W
+        self._c[:n] = -2.0 * e * W * x_star
+        self._A[:, :n] = G
+        self.solver.update(P=self._P, c=self._c, G=self._A, h_u=np.ascontiguousarray(h))
+        status = self.solver.solve()
+        res = self.solver.result
+        x = np.array(res.x[:n], dtype=float, copy=True)
+        return x, int(res.info.iter), status == self._ok and np.all(np.isfinite(x))
+
+
+# ----------------------------------------------------------------------------------------
+# KKT residuals (the oracle of the tests)
+# ----------------------------------------------------------------------------------------
+
+
+def least_violation(G, h, x_star, W, eps_reg: float = DEFAULT_EPS_REG, active_tol: float = DEFAULT_ACTIVE_TOL,
+                    prefix: str = "infeasible") -> QPResult:
+    """Least-violation answer used when G x <= h has no solution.
+
+    Minimises ``V(x) = sum_i max((G x - h)_i, 0)^2 + eps_eff (x - x*)^T W (x - x*)`` with
+    ``eps_eff = reg_weight(G, W, eps_reg)``. V is strictly convex and C^1, so the answer is
+    unique; as eps_reg -> 0 it tends to the W-closest-to-x* minimiser of the summed squared
+    violations. For n <= 2 it is solved exactly by :func:`least_violation_exact`; for larger n
+    by :class:`SlackQP` (PIQP on the slack formulation). Status INFEASIBLE_FALLBACK.
+    """
+    G, h, x_star, W = validate(G, h, x_star, W)
+    n = G.shape[1]
+    if n <= 2:
+        x, it = least_violation_exact(G, h, x_star, W, eps_reg)
+    else:
+        sq = SlackQP(n, G.shape[0])
+        x, it, ok = sq.solve(G, h, x_star, W, eps_reg)
+        if not ok:
+            return error_result(x_star, G, h, "least-violation slack QP failed", active_tol)
+    return finish_result(x, G, h, INFEASIBLE_FALLBACK, violation_message(G, h, x, prefix), active_tol, it)
+
+
+QP_FAST = "biped_controller.core.qp_fast"
+QP_FAST_SOURCES = ("biped_controller.core.qp_types",)
+
+
+def load_qp_fast():
+    """The compiled QP kernels (``qp_fast``), loaded through ``numba_cache.load`` when a solver is built,
+    not by users of the constants."""
+    from biped_sim.robot import numba_cache
+
+    return numba_cache.load(QP_FAST, sources=QP_FAST_SOURCES)
+
+
 
 
 def polish(G, h, x_star, W, z, x, feas_rtol: float = DEFAULT_FEAS_RTOL):
@@ -116,13 +218,13 @@ def polish(G, h, x_star, W, z, x, feas_rtol: float = DEFAULT_FEAS_RTOL):
     four). Returns (x, z) or None (keep the unpolished answer). Compiled: :func:`qp_fast.polish`.
     """
     G, h, x_star, W = validate(G, h, x_star, W)
-    z = _as_float(z, "z")
-    x = _as_float(x, "x")
+    z = as_float(z, "z")
+    x = as_float(x, "x")
     if z.shape != h.shape or x.shape != x_star.shape:
         raise QPShapeError(f"z {z.shape} / x {x.shape} do not match h {h.shape} / x_star {x_star.shape}")
     m, n = G.shape
     xp, zp, active = np.empty(n), np.empty(m), np.empty(m, dtype=bool)
-    mv = _fast().polish(G, h, x_star, W, z, np.arange(m, dtype=np.int64), x, float(feas_rtol), DEFAULT_ACTIVE_TOL,
+    mv = load_qp_fast().polish(G, h, x_star, W, z, np.arange(m, dtype=np.int64), x, float(feas_rtol), DEFAULT_ACTIVE_TOL,
                         xp, zp, active)
     return (xp, zp) if mv == mv else None
 
@@ -148,7 +250,7 @@ class AdaptationQP:
     solver : "piqp" (default) or "exact" (n <= 2 only; the compiled exact solver).
     active_tol : tolerance (row units) for the ``active`` mask.
     eps_reg : relative regularisation of the least-violation fallback (see
-        :func:`qp_types.least_violation`).
+        :func:`least_violation`).
     fallback : for solver="piqp", what answers when PIQP does not solve: "exact" (n <= 2,
         default there) or "piqp" (slack QP on a second, also pre-built PIQP solver; the default
         and only choice for n > 2).
@@ -184,7 +286,7 @@ class AdaptationQP:
                  screen_eps: float = DEFAULT_SCREEN_EPS, preconditioner_iter: Optional[int] = 0):
         if n < 1 or m < 1:
             raise QPShapeError(f"n and m must be >= 1, got n={n}, m={m}")
-        W = _as_float(W, "W")
+        W = as_float(W, "W")
         if W.shape != (n,):
             raise QPShapeError(f"W has shape {W.shape}, expected ({n},) (the diagonal)")
         if not np.all(np.isfinite(W)) or not np.all(W > 0):
@@ -199,7 +301,7 @@ class AdaptationQP:
             raise ValueError(f"fallback must be 'exact' (n <= 2) or 'piqp', got {fallback!r} with n={n}")
         if not (screen_eps > 0.0):
             raise ValueError(f"screen_eps must be > 0, got {screen_eps}")
-        self._k = _fast()
+        self._k = load_qp_fast()
         self.n, self.m = int(n), int(m)
         self.solver_name = solver
         self.active_tol = float(active_tol)
@@ -218,7 +320,7 @@ class AdaptationQP:
         self._slack = None
         if solver == "exact":
             return
-        self._piqp_mod = _piqp()
+        self._piqp_mod = piqp_module()
         self._status_solved = self._piqp_mod.Status.PIQP_SOLVED
         self._piqp_settings = (float(eps_abs), float(eps_rel), int(max_iter), preconditioner_iter,
                                float(screen_eps))
@@ -228,7 +330,7 @@ class AdaptationQP:
         self._h_buf = np.ones(m)
         self._rows = np.arange(m, dtype=np.int64)
         self._held_for(self.m)
-        self._slack = _SlackQP(n, m, eps_abs, eps_rel, max_iter) if fallback == "piqp" else None
+        self._slack = SlackQP(n, m, eps_abs, eps_rel, max_iter) if fallback == "piqp" else None
 
     @property
     def piqp_solvers(self) -> dict:
@@ -246,7 +348,7 @@ class AdaptationQP:
 
         def held(eps_a, eps_r, precond, gap):
             s = self._piqp_mod.DenseSolver()
-            _configure(s.settings, eps_a, eps_r, max_iter, precond, gap)
+            configure_piqp(s.settings, eps_a, eps_r, max_iter, precond, gap)
             s.setup(self._P, self._c, None, None, G, None, h, None, None)
             return s
 
@@ -259,7 +361,7 @@ class AdaptationQP:
 
     def set_weights(self, W) -> None:
         """Change the diagonal weight W (n,) (updates PIQP's P in place; no rebuild)."""
-        W = _as_float(W, "W")
+        W = as_float(W, "W")
         if W.shape != (self.n,):
             raise QPShapeError(f"W has shape {W.shape}, expected ({self.n},)")
         if not np.all(np.isfinite(W)) or not np.all(W > 0):
@@ -303,9 +405,9 @@ class AdaptationQP:
         active = _empty(self.m, _BOOL)
         code = self._k.early_out(G, h, x_star, tol, active)
         if code == 0:
-            return _result(x_star.copy(), UNCONSTRAINED, "x* feasible", 0.0, active, 0, self._z0)
+            return make_result(x_star.copy(), UNCONSTRAINED, "x* feasible", 0.0, active, 0, self._z0)
         if code == 2:
-            return _error_result(x_star, G, h, f"non-finite values in {_nonfinite_name(G, h, x_star, None)}", tol)
+            return error_result(x_star, G, h, f"non-finite values in {nonfinite_name(G, h, x_star, None)}", tol)
         if self.solver_name == "exact":
             return self._exact(G, h, x_star, "", 0)
         return self._piqp_solve(G, h, x_star)
@@ -319,7 +421,7 @@ class AdaptationQP:
             G, h, x_star, self.W, self.active_tol, self.eps_reg, DEFAULT_FEAS_RTOL, DEFAULT_PARALLEL_TOL,
             DEFAULT_ZERO_ROW_RTOL, x, z, active)
         msg = k.message(kind, i, j, G, h, x)
-        return _result(x, int(st), prefix + msg, float(mv), active, int(iterations + it),
+        return make_result(x, int(st), prefix + msg, float(mv), active, int(iterations + it),
                        None if st == INFEASIBLE_FALLBACK else z)
 
     def _run(self, solver, held: _Held):
@@ -338,7 +440,7 @@ class AdaptationQP:
             mv = self._k.polish(G, h, x_star, self.W, res.z_u, self._rows, res.x, DEFAULT_FEAS_RTOL, self.active_tol,
                                 x, z, active)
             if mv == mv:  # not NaN: accepted
-                return _result(x, ACTIVE, polished_msg, mv, active, it, z)
+                return make_result(x, ACTIVE, polished_msg, mv, active, it, z)
         if raw_msg is None:
             return None
         x = np.array(res.x, dtype=float, copy=True)
@@ -346,7 +448,7 @@ class AdaptationQP:
             return None
         z = np.zeros(self.m)
         z[self._rows[:k]] = res.z_u
-        return _finish(x, G, h, ACTIVE, raw_msg, self.active_tol, it, z)
+        return finish_result(x, G, h, ACTIVE, raw_msg, self.active_tol, it, z)
 
     def _piqp_solve(self, G, h, x_star) -> QPResult:
         k = self._k.load_piqp(G, h, x_star, self.W, self._g_buf, self._h_buf, self._c, self._rows)
@@ -378,10 +480,10 @@ class AdaptationQP:
             return self._exact(G, h, x_star, f"PIQP status {status_name}; exact solver: ", it)
         x, it2, ok = self._slack.solve(G, h, x_star, self.W, self.eps_reg)
         if not ok:
-            return _error_result(x_star, G, h, f"PIQP status {status_name}; least-violation slack QP failed",
+            return error_result(x_star, G, h, f"PIQP status {status_name}; least-violation slack QP failed",
                                  self.active_tol)
         msg = violation_message(G, h, x, prefix=f"PIQP status {status_name}; infeasible")
-        return _finish(x, G, h, INFEASIBLE_FALLBACK, msg, self.active_tol, it + it2)
+        return finish_result(x, G, h, INFEASIBLE_FALLBACK, msg, self.active_tol, it + it2)
 
 
 # ----------------------------------------------------------------------------------------
@@ -401,12 +503,12 @@ def solve_with_qpsolvers(G, h, x_star, W, solver: str = "piqp", *, active_tol: f
     import qpsolvers
 
     G, h, x_star, W = validate(G, h, x_star, W)
-    bad = _nonfinite_name(G, h, x_star, W)
-    if bad is not None or _bad_weight(W):
-        return _error_result(x_star, G, h, f"non-finite or invalid values in {bad or 'W'}", active_tol)
+    bad = nonfinite_name(G, h, x_star, W)
+    if bad is not None or bad_weight(W):
+        return error_result(x_star, G, h, f"non-finite or invalid values in {bad or 'W'}", active_tol)
     v_star = constraint_values(G, x_star, h)
     if skip_if_feasible and np.all(v_star <= 0.0):
-        return _unconstrained_result(x_star, v_star, active_tol)
+        return unconstrained_result(x_star, v_star, active_tol)
     problem = qpsolvers.Problem(np.diag(W), -W * x_star, G, h)
     try:
         sol = qpsolvers.solve_problem(problem, solver=solver, **solver_kwargs)
@@ -418,5 +520,5 @@ def solve_with_qpsolvers(G, h, x_star, W, solver: str = "piqp", *, active_tol: f
     if sol is not None and sol.found and sol.x is not None and np.all(np.isfinite(sol.x)):
         x = np.array(sol.x, dtype=float, copy=True)
         z = None if sol.z is None else np.array(sol.z, dtype=float, copy=True)
-        return _finish(x, G, h, ACTIVE, f"solved ({solver} via qpsolvers)", active_tol, 0, z)
+        return finish_result(x, G, h, ACTIVE, f"solved ({solver} via qpsolvers)", active_tol, 0, z)
     return least_violation(G, h, x_star, W, eps_reg, active_tol, prefix=f"{solver}: {why}; infeasible")

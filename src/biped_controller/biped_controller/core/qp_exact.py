@@ -29,7 +29,7 @@ Zero-norm rows (|g_i| <= 1e-13 max_j |g_j|): the constraint 0 <= h_i is infeasib
 h_i < -tol, ignored otherwise.
 
 No feasible candidate -> the problem is infeasible; the answer is the least-violation point
-(see :func:`qp_types.least_violation_exact`, re-exported here), status INFEASIBLE_FALLBACK.
+(see :func:`least_violation_exact`), status INFEASIBLE_FALLBACK.
 """
 
 from __future__ import annotations
@@ -47,18 +47,140 @@ from biped_controller.core.qp_types import (
     QPResult,
     ROUNDING_RTOL,
     QPShapeError,
-    _error_result,
-    _finish,
-    _nonfinite_name,
-    _unconstrained_result,
+    error_result,
+    finish_result,
+    nonfinite_name,
+    unconstrained_result,
     constraint_values,
-    least_violation_exact,
-    min_piecewise_quadratic_1d,
     validate,
     violation_message,
 )
 
-__all__ = ["solve_exact", "least_violation_exact", "min_piecewise_quadratic_1d"]
+__all__ = ["solve_exact", "least_violation_exact", "min_piecewise_quadratic_1d", "reg_weight"]
+
+# ----------------------------------------------------------------------------------------
+# the exact least-violation point (the INFEASIBLE_FALLBACK answer for n <= 2)
+# ----------------------------------------------------------------------------------------
+
+
+def reg_weight(G, W, eps_reg: float = DEFAULT_EPS_REG) -> float:
+    """Effective regularisation weight eps_eff = eps_reg * min_i |g_i W^-1/2|^2 (> 0).
+
+    The minimum is over the rows with non-negligible norm (> 1e-13 of the largest). With this
+    scaling the regulariser is dimensionally consistent with the squared violations, invariant
+    to a common rescaling of W, and moves the answer by at most ~eps_reg |x - x*| along any
+    row direction (pulling x towards x* costs violation^2 ~ |g_i W^-1/2|^2 delta^2 in every
+    row), so eps_reg is a pure relative number.
+    """
+    n2 = np.sum(G * G / W[None, :], axis=1)
+    big = float(np.max(n2, initial=0.0))
+    if not (big > 0.0 and np.isfinite(big)):
+        return eps_reg
+    return eps_reg * float(np.min(n2[n2 > 1e-26 * big]))
+
+
+def min_piecewise_quadratic_1d(alpha, beta, q: float, t0: float) -> float:
+    """Exact minimiser of phi(t) = sum_i max(alpha_i t - beta_i, 0)^2 + q (t - t0)^2, q >= 0.
+
+    phi is convex and C^1; phi'(t)/2 = sum_i alpha_i max(alpha_i t - beta_i, 0) + q (t - t0)
+    is continuous, non-decreasing and piecewise linear with kinks at t_i = beta_i / alpha_i.
+    We evaluate it at the sorted kinks (vectorised, m x m), locate the interval where it
+    changes sign, and solve the linear equation valid on that interval (fixed set S of
+    positive terms): t = (sum_S alpha_i beta_i + q t0) / (sum_S alpha_i^2 + q).
+    """
+    alpha = np.asarray(alpha, float)
+    beta = np.asarray(beta, float)
+    nz = alpha != 0.0
+    a, b = alpha[nz], beta[nz]
+    if a.size == 0:
+        return float(t0)
+    bp = np.sort(b / a)
+    D = np.sum(a[None, :] * np.maximum(a[None, :] * bp[:, None] - b[None, :], 0.0), axis=1) + q * (bp - t0)
+    ge = D >= 0.0
+    k = int(np.argmax(ge)) if np.any(ge) else bp.size
+    if k < bp.size and D[k] == 0.0:
+        return float(bp[k])
+    lo = bp[k - 1] if k > 0 else -np.inf
+    hi = bp[k] if k < bp.size else np.inf
+    if np.isfinite(lo) and np.isfinite(hi):
+        tm = 0.5 * (lo + hi)
+    elif np.isfinite(lo):
+        tm = lo + max(1.0, abs(lo))
+    elif np.isfinite(hi):
+        tm = hi - max(1.0, abs(hi))
+    else:  # pragma: no cover - bp is non-empty
+        tm = 0.0
+    S = a * tm - b > 0.0
+    den = float(np.dot(a[S], a[S])) + q
+    if den <= 0.0:  # flat piece (q = 0, no positive term): phi' constant, pick the finite end
+        return float(lo if np.isfinite(lo) else (hi if np.isfinite(hi) else t0))
+    t = (float(np.dot(a[S], b[S])) + q * t0) / den
+    return float(min(max(t, lo), hi))
+
+
+def least_violation_exact(G, h, x_star, W, eps_reg: float = DEFAULT_EPS_REG, max_iter: int = 100):
+    """Exact least-violation point for n in {1, 2}. Returns (x, iterations).
+
+    Minimises ``V(x) = sum_i max(g_i x - h_i, 0)^2 + e (x - x*)^T W (x - x*)`` with
+    ``e = reg_weight(G, W, eps_reg) > 0`` (see :func:`least_violation`).
+
+    In scaled coordinates y = W^1/2 (x - x*), a_i = g_i W^-1/2, r_i = h_i - g_i x*:
+    ``F(y) = sum_i max(a_i y - r_i, 0)^2 + e |y|^2`` — strongly convex, C^1, piecewise
+    quadratic (one quadratic per cell of the arrangement of the lines a_i y = r_i).
+
+    * n = 1: F is the 1-D function of :func:`min_piecewise_quadratic_1d` -> exact in one shot.
+    * n = 2: generalised Newton with exact line search. At y let S = {i: a_i y > r_i}; the
+      Newton direction d minimises the quadratic piece F_S; the step length minimises F exactly
+      along y + t d (again a 1-D piecewise quadratic). F decreases strictly at every step that
+      is not at the minimiser and has finitely many pieces, and once S is the optimal cell's set
+      the full Newton step lands exactly on the minimiser (finite termination, as in
+      Mangasarian's finite Newton method for piecewise-quadratic strongly convex functions).
+      Stops when the full step is taken with an unchanged S, or the step is below rounding.
+    """
+    G, h, x_star, W = validate(G, h, x_star, W)
+    n = G.shape[1]
+    if n > 2:
+        raise QPShapeError(f"least_violation_exact handles n = 1 or 2, G has {n} columns")
+    sw = np.sqrt(W)
+    A = G / sw[None, :]
+    r = -constraint_values(G, x_star, h)
+    e = reg_weight(G, W, eps_reg)
+    if n == 1:
+        t = min_piecewise_quadratic_1d(A[:, 0], r, e, 0.0)
+        return x_star + np.array([t]) / sw, 1
+
+    y = np.zeros(2)
+    S_prev = None
+    it = 0
+    for it in range(1, max_iter + 1):
+        u = A @ y - r
+        S = u > 0.0
+        AS = A[S]
+        g = AS.T @ u[S] + e * y
+        H = AS.T @ AS
+        h00, h01, h11 = H[0, 0] + e, H[0, 1], H[1, 1] + e
+        dH = h00 * h11 - h01 * h01
+        if dH > 1e-13 * h00 * h11 and np.isfinite(dH):
+            d = -np.array([h11 * g[0] - h01 * g[1], h00 * g[1] - h01 * g[0]]) / dH
+        else:
+            # numerically singular piece (one active row and a regularisation below rounding, e.g.
+            # rows spanning many decades): minimum-norm Newton step; the exact line search below
+            # still decreases F, so the iteration stays monotone and finite.
+            d = -np.linalg.lstsq(np.array([[h00, h01], [h01, h11]]), g, rcond=1e-13)[0]
+            if not np.all(np.isfinite(d)):
+                break
+        dd = float(d @ d)
+        if not dd > (4e-16 * max(float(np.linalg.norm(y)), 1e-300)) ** 2:
+            break
+        t = min_piecewise_quadratic_1d(A @ d, -u, e * dd, -float(y @ d) / dd)
+        y = y + t * d
+        full = abs(t - 1.0) <= 1e-12
+        if full and S_prev is not None and np.array_equal(S, S_prev):
+            break
+        S_prev = S if full else None
+    return x_star + y / sw, it
+
+
 
 _ZERO_ROW_RTOL = DEFAULT_ZERO_ROW_RTOL
 _PAIR_CACHE: dict = {}
@@ -86,12 +208,12 @@ def solve_exact(G, h, x_star, W, *, active_tol: float = DEFAULT_ACTIVE_TOL, eps_
     m, n = G.shape
     if n > 2:
         raise QPShapeError(f"qp_exact handles n = 1 or 2, G has {n} columns")
-    bad = _nonfinite_name(G, h, x_star, W)
+    bad = nonfinite_name(G, h, x_star, W)
     if bad is not None or not np.all(W > 0):
-        return _error_result(x_star, G, h, f"non-finite or invalid values in {bad or 'W'}", active_tol)
+        return error_result(x_star, G, h, f"non-finite or invalid values in {bad or 'W'}", active_tol)
     v_star = constraint_values(G, x_star, h)
     if np.all(v_star <= 0.0):
-        return _unconstrained_result(x_star, v_star, active_tol)
+        return unconstrained_result(x_star, v_star, active_tol)
 
     sq = np.einsum("ij,ij->i", G, G)
     gmax2 = sq.max() if m else 0.0
@@ -124,7 +246,7 @@ def solve_exact(G, h, x_star, W, *, active_tol: float = DEFAULT_ACTIVE_TOL, eps_
             # multiplier of the binding bound (the tightest one on the side of x*)
             i_loc = int(np.argmin(np.where(up, b, np.inf))) if xs > x0 else int(np.argmax(np.where(up, -np.inf, b)))
             z[i_loc if keep is None else keep[i_loc]] = W[0] * (xs - x0) / g[i_loc]
-        return _finish(np.array([x0]), G, h, ACTIVE, "solved (exact, n=1)", active_tol, 0, z)
+        return finish_result(np.array([x0]), G, h, ACTIVE, "solved (exact, n=1)", active_tol, 0, z)
 
     # ---- n == 2: candidate enumeration -------------------------------------------------
     # Stage 1: projections onto the violated rows. A feasible projection onto row i is the
@@ -142,7 +264,7 @@ def solve_exact(G, h, x_star, W, *, active_tol: float = DEFAULT_ACTIVE_TOL, eps_
         x = X[c]
         i = viol[c]
         z[i if keep is None else keep[i]] = lam[c]
-        return _finish(x, G, h, ACTIVE, f"solved (exact, n=2, projection on row {i if keep is None else keep[i]})",
+        return finish_result(x, G, h, ACTIVE, f"solved (exact, n=2, projection on row {i if keep is None else keep[i]})",
                        active_tol, 0, z)
 
     # Stage 2: vertices of non-parallel pairs.
@@ -170,7 +292,7 @@ def solve_exact(G, h, x_star, W, *, active_tol: float = DEFAULT_ACTIVE_TOL, eps_
     if keep is not None:
         i, j = keep[i], keep[j]
     z[i], z[j] = zi, zj
-    return _finish(x, G, h, ACTIVE, f"solved (exact, n=2, vertex of rows {i}, {j})", active_tol, 0, z)
+    return finish_result(x, G, h, ACTIVE, f"solved (exact, n=2, vertex of rows {i}, {j})", active_tol, 0, z)
 
 
 def _pair_multipliers(gi, gj, det, rhs):
@@ -214,4 +336,4 @@ def _best_feasible(X, Gk, hk, absG, absh, x_star, W, feas_rtol, valid=None):
 
 def _infeasible(G, h, x_star, W, eps_reg, active_tol, prefix="infeasible") -> QPResult:
     x, it = least_violation_exact(G, h, x_star, W, eps_reg)
-    return _finish(x, G, h, INFEASIBLE_FALLBACK, violation_message(G, h, x, prefix), active_tol, it)
+    return finish_result(x, G, h, INFEASIBLE_FALLBACK, violation_message(G, h, x, prefix), active_tol, it)

@@ -7,7 +7,7 @@ Kernels, each one call from Python:
   no fused multiply-add without fastmath), so the decision is qp_exact's bit for bit.
 * :func:`solve_small` -- the exact optimum for n <= 2, a compiled counterpart of
   :func:`qp_exact.solve_exact` with the same candidates, tolerances, tie rules, multipliers and
-  least-violation fallback (:func:`qp_types.least_violation_exact`). Candidates: x*, the
+  least-violation fallback (:func:`qp_exact.least_violation_exact`). Candidates: x*, the
   projections onto violated rows, then the vertices of non-parallel pairs. Vertices are visited
   first for pairs holding a row violated at x* (the support of the optimal multipliers always
   holds one: sum_i z_i (g_i x* - h_i) = |x* - x|_W^2 > 0), then the remaining pairs only when
@@ -21,9 +21,10 @@ Kernels, each one call from Python:
 * :func:`load_piqp` -- drops duplicated rows (exact presolve) and fills PIQP's held buffers.
 
 The four kernels called from Python have explicit signatures (float64 arrays of any layout --
-the controller's G is column-major -- and float64 scalars): importing this module compiles them
-or loads them from the cache in ``<repo>/build/numba-cache`` (``NUMBA_CACHE_DIR`` when set), and
-says so on stderr when it compiles (~30 s on the project machine; loading takes ~1 s). Other
+the controller's G is column-major -- and float64 scalars): importing this module (through
+``biped_sim.robot.numba_cache.load``, which keeps the cache in ``<repo>/build/numba-cache`` and says
+on stderr when it compiles, ~30 s on the project machine; loading takes ~1 s) compiles them or loads
+them from the cache. Other
 argument types raise TypeError instead of compiling on the fly. The kernels do not check shapes
 (numba does not bound-check): call them through :func:`solve_exact`, :func:`qp.polish` or
 :class:`qp.AdaptationQP`, which do.
@@ -31,25 +32,13 @@ argument types raise TypeError instead of compiling on the fly. The kernels do n
 
 from __future__ import annotations
 
-import glob
 import math
-import os
-import sys
-import time
 
-if not os.environ.get("NUMBA_CACHE_DIR"):
-    from biped_sim.robot.settings import repo_root
+import numba
+import numpy as np
 
-    os.environ["NUMBA_CACHE_DIR"] = str(repo_root() / "build" / "numba-cache")
-    if "numba" in sys.modules:  # imported earlier without a cache directory: re-read the environment
-        from numba.core import config as _numba_config
-
-        _numba_config.reload_config()
-
-import numba  # noqa: E402
-import numpy as np  # noqa: E402
-
-from biped_controller.core.qp_types import (  # noqa: E402
+from biped_sim.robot import numba_cache
+from biped_controller.core.qp_types import (
     ACTIVE,
     DEFAULT_ACTIVE_TOL,
     DEFAULT_EPS_REG,
@@ -62,11 +51,13 @@ from biped_controller.core.qp_types import (  # noqa: E402
     UNCONSTRAINED,
     QPResult,
     QPShapeError,
-    _error_result,
-    _result,
+    error_result,
+    make_result,
     validate,
     violation_message,
 )
+
+numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
 __all__ = ["solve_exact", "message", "early_out", "solve_small", "polish", "load_piqp",
            "EARLY_FEASIBLE", "EARLY_NOT_FEASIBLE", "EARLY_NONFINITE",
@@ -88,33 +79,12 @@ KIND_INFEASIBLE_ZERO_ROW = 5  # least-violation answer, a zero-norm row with h <
 KIND_ERROR = 6             # non-finite data (bad = 0 G, 1 h, 2 x_star, 3 W) or W <= 0 (bad = 3)
 
 _jit = numba.njit(cache=True)
-_KERNELS = ("early_out", "solve_small", "polish", "load_piqp")
 
 
 def _kernel(*arg_types):
     """Decorator of a kernel called from Python: compiled now for these argument types."""
     return numba.njit([arg_types], cache=True)
 
-
-def _cache_is_fresh() -> bool:
-    """True when each kernel called from Python has a cache index at least as new as this file
-    (numba names them <module>.<function>-<first line>.py<version>.nbi)."""
-    root = os.environ.get("NUMBA_CACHE_DIR", "")
-    src = os.path.getmtime(__file__)
-    ver = f"{sys.version_info.major}{sys.version_info.minor}"
-    mod = __name__.rsplit(".", 1)[-1]
-    for name in _KERNELS:
-        found = glob.glob(os.path.join(glob.escape(root), "**", f"{mod}.{name}-*.py{ver}.nbi"), recursive=True)
-        if not any(os.path.getmtime(p) >= src for p in found):
-            return False
-    return True
-
-
-_COMPILING = not _cache_is_fresh()
-if _COMPILING:
-    _T0 = time.perf_counter()
-    print(f"{__name__}: compiling the QP kernels (once; cached in {os.environ['NUMBA_CACHE_DIR']}) ...",
-          file=sys.stderr, flush=True)
 
 _A2 = numba.types.Array(numba.types.float64, 2, "A")   # any layout: the controller's G is column-major
 _A1 = numba.types.Array(numba.types.float64, 1, "A")
@@ -133,7 +103,7 @@ _f8 = numba.types.float64
 
 
 @_jit
-def _rows_and_decision(G, h, x, v):
+def rows_and_decision(G, h, x, v):
     """Fill v = G x - h as :func:`qp_types.constraint_values` evaluates it (rows summed left to
     right, no fused multiply-add) and return True when every v_i <= 0 (NaN counts as > 0)."""
     m, n = G.shape
@@ -188,7 +158,7 @@ def early_out(G, h, x_star, active_tol, active):
     if _first_nonfinite(G, h, x_star, x_star, False) >= 0:
         return EARLY_NONFINITE
     v = np.empty(m)
-    if not _rows_and_decision(G, h, x_star, v):
+    if not rows_and_decision(G, h, x_star, v):
         return EARLY_NOT_FEASIBLE
     for i in range(m):
         active[i] = v[i] >= -active_tol
@@ -196,7 +166,7 @@ def early_out(G, h, x_star, active_tol, active):
 
 
 # ----------------------------------------------------------------------------------------
-# least violation (compiled counterpart of qp_types.least_violation_exact)
+# least violation (compiled counterpart of qp_exact.least_violation_exact)
 # ----------------------------------------------------------------------------------------
 
 
@@ -224,7 +194,7 @@ def _reg_weight(G, W, eps_reg):
 @_jit
 def _min_pwq_1d(alpha, beta, q, t0):
     """Exact minimiser of sum_i max(alpha_i t - beta_i, 0)^2 + q (t - t0)^2 (see
-    :func:`qp_types.min_piecewise_quadratic_1d`, same steps)."""
+    :func:`qp_exact.min_piecewise_quadratic_1d`, same steps)."""
     k = 0
     for i in range(alpha.size):
         if alpha[i] != 0.0:
@@ -319,7 +289,7 @@ def _sym2_pinv_solve(h00, h01, h11, g0, g1, rcond):
 @_jit
 def _least_violation(G, h, xs, W, eps_reg, max_iter):
     """(x, iterations): the exact least-violation point, n in {1, 2} (steps of
-    :func:`qp_types.least_violation_exact`)."""
+    :func:`qp_exact.least_violation_exact`)."""
     m, n = G.shape
     sw = np.sqrt(W)
     A = np.empty((m, n))
@@ -439,7 +409,7 @@ def _through(G, h, k, X0, X1, xs0, xs1, feas_rtol):
 
 
 @_jit
-def _finish(G, h, x, active_tol, active):
+def finish_result(G, h, x, active_tol, active):
     """max(max(G x - h), 0) and the active mask G x - h >= -active_tol."""
     m, n = G.shape
     vmax = -np.inf
@@ -476,7 +446,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
     if bad >= 0:
         return SOLVER_ERROR, np.nan, 0, KIND_ERROR, bad, -1
     v = np.empty(m)
-    if _rows_and_decision(G, h, x_star, v):
+    if rows_and_decision(G, h, x_star, v):
         for i in range(m):
             active[i] = v[i] >= -active_tol
         return UNCONSTRAINED, 0.0, 0, KIND_UNCONSTRAINED, -1, -1
@@ -509,7 +479,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
     if zero_row_infeasible:
         xl, it = _least_violation(G, h, x_star, W, eps_reg, 100)
         x[:] = xl
-        mv = _finish(G, h, x, active_tol, active)
+        mv = finish_result(G, h, x, active_tol, active)
         return INFEASIBLE_FALLBACK, mv, it, KIND_INFEASIBLE_ZERO_ROW, -1, -1
 
     if n == 1:
@@ -527,7 +497,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
         if lo > hi and lo - hi > feas_rtol * (abs(lo) + abs(hi)):
             xl, it = _least_violation(G, h, x_star, W, eps_reg, 100)
             x[:] = xl
-            mv = _finish(G, h, x, active_tol, active)
+            mv = finish_result(G, h, x, active_tol, active)
             return INFEASIBLE_FALLBACK, mv, it, KIND_INFEASIBLE, -1, -1
         if lo > hi:
             x0 = 0.5 * (lo + hi)
@@ -552,7 +522,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
                         best, row = val, k
             z[row] = W[0] * (xs - x0) / G[row, 0]
         x[0] = x0
-        mv = _finish(G, h, x, active_tol, active)
+        mv = finish_result(G, h, x, active_tol, active)
         return ACTIVE, mv, 0, KIND_INTERVAL, row, -1
 
     # ---- n == 2 ------------------------------------------------------------------------
@@ -585,7 +555,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
         x[0] = bx0
         x[1] = bx1
         z[bi] = blam
-        mv = _finish(G, h, x, active_tol, active)
+        mv = finish_result(G, h, x, active_tol, active)
         return ACTIVE, mv, 0, KIND_PROJECTION, bi, -1
 
     # stage 2: vertices. Pairs with a violated row first, then the rest with the distance bound.
@@ -634,7 +604,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
     if bi < 0:
         xl, it = _least_violation(G, h, x_star, W, eps_reg, 100)
         x[:] = xl
-        mv = _finish(G, h, x, active_tol, active)
+        mv = finish_result(G, h, x, active_tol, active)
         return INFEASIBLE_FALLBACK, mv, it, KIND_INFEASIBLE, -1, -1
     x[0] = bx0
     x[1] = bx1
@@ -668,7 +638,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
                 break
     z[bi] = zi
     z[bj] = zj
-    mv = _finish(G, h, x, active_tol, active)
+    mv = finish_result(G, h, x, active_tol, active)
     return ACTIVE, mv, 0, KIND_VERTEX, bi, bj
 
 
@@ -843,7 +813,7 @@ def polish(G, h, x_star, W, z_sub, rows, x, feas_rtol, active_tol, xo, zo, activ
         return np.nan
     for k in range(ns):
         zo[sel[k]] = max(lam[k], 0.0)
-    return _finish(G, h, xo, active_tol, active)
+    return finish_result(G, h, xo, active_tol, active)
 
 
 @_kernel(_A2, _A1, _A1, _A1, _C1, _C1, _C1, _I1C)
@@ -927,10 +897,6 @@ def solve_exact(G, h, x_star, W, *, active_tol: float = DEFAULT_ACTIVE_TOL, eps_
     st, mv, it, kind, i, j = solve_small(G, h, x_star, W, float(active_tol), float(eps_reg), float(feas_rtol),
                                          float(parallel_tol), DEFAULT_ZERO_ROW_RTOL, x, z, active)
     if st == SOLVER_ERROR:
-        return _error_result(x_star, G, h, message(kind, i, j, G, h, x), float(active_tol))
+        return error_result(x_star, G, h, message(kind, i, j, G, h, x), float(active_tol))
     z_out = z if st in (UNCONSTRAINED, ACTIVE) else None
-    return _result(x, int(st), message(kind, i, j, G, h, x), float(mv), active, int(it), z_out)
-
-
-if _COMPILING:
-    print(f"{__name__}: compiled in {time.perf_counter() - _T0:.0f} s", file=sys.stderr, flush=True)
+    return make_result(x, int(st), message(kind, i, j, G, h, x), float(mv), active, int(it), z_out)

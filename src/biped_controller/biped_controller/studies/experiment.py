@@ -52,6 +52,7 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.robot.settings import default_config_dir
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 from biped_sim.plant.config import SimConfig, SimConfigError, load_sim_config
+from biped_sim.plant.push import Push
 from biped_sim.plant.rigid import Simulator
 
 from biped_controller.studies import runner
@@ -60,7 +61,7 @@ from biped_controller.core.controller import (MODES, NO_ADAPTATION, AdaptiveCont
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
 from biped_controller.core.qp import STATUS_NAMES
 from biped_controller.studies.executor import CountingBar, ProgressBar, make_executor
-from biped_controller.studies.runner import PushSpec, RunResult
+from biped_controller.studies.runner import RunResult
 
 #: The paper's largest survivable push [N] (250 N-class push on the back during 0.025 s at mid-step);
 #: mode "none" (classical computed torque) has no number in the paper.
@@ -214,7 +215,7 @@ def print_settings(desc: dict) -> None:
 DEFAULT_SETTINGS = RunSettings()
 
 
-def _run(steps: int, mode: str, pushes: tuple[PushSpec, ...] = (), *, integration_rate: bool = False,
+def _run(steps: int, mode: str, pushes: tuple[Push, ...] = (), *, integration_rate: bool = False,
          observer: bool | None = None, keep_qp: bool = False, settings: RunSettings = DEFAULT_SETTINGS,
          keep_records: bool = True) -> RunResult:
     ctx = context()
@@ -318,7 +319,7 @@ def push_run(force: float, duration: float = DEFAULT_DURATION, start: float = DE
     outcome only (``runner.run``), as a survival trial needs."""
     T = context().family.T
     steps = push_step_index(start, duration, T) + 1 + steps_after
-    return _run(steps, mode, (PushSpec(start, duration, float(force), height),), keep_qp=keep_qp, settings=settings,
+    return _run(steps, mode, (Push(start, duration, float(force), height),), keep_qp=keep_qp, settings=settings,
                 keep_records=keep_records)
 
 

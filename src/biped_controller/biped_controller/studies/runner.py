@@ -21,11 +21,6 @@ from biped_controller.studies.segment import Segment
 from biped_sim.robot.gait_family import GaitFamily
 
 
-# One push type from the service to the simulator (biped_sim.plant.push.Push); PushSpec is its former name here,
-# kept only until every caller says Push.
-PushSpec = Push
-
-
 @dataclass
 class RunResult:
     records: list[StepRecord]
@@ -36,7 +31,8 @@ class RunResult:
     fall_detail: str
     fall_time: float
     impacts: list[ImpactRecord]
-    qp_instances: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+    # with keep_qp: (G, h, x*, qp_status) of every period that built a QP instance
+    qp_instances: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = field(default_factory=list)
 
     def series(self, name: str) -> np.ndarray:
         return np.array([getattr(s, name) for s in self.statuses])

@@ -34,22 +34,51 @@ from typing import Callable
 import numpy as np
 
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import FloatingModel, paper_from_urdf, urdf_from_paper
+from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
+from biped_sim.robot.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
 from biped_sim.plant.push import Push, PushBook, PushLimits
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
+from biped_sim.plant.rigid_layout import L_, S_, SIM_LIMITS, SIM_STATE
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
+
+
+def _state_field(name: str, kind):
+    """A property over field ``name`` of the simulator's ``sim_state`` array: a scalar as ``kind``, a vector
+    as a view (assigning copies into the array)."""
+    sl = SIM_STATE.slice(name)
+    if SIM_STATE.sizes[name] == 1:
+        o = sl.start
+        return property(lambda self: kind(self.sim_state[o]), lambda self, v: self.sim_state.__setitem__(o, v),
+                        doc=f"SIM_STATE.{name}")
+
+    def set_(self, value):
+        self.sim_state[sl] = value
+    return property(lambda self: self.sim_state[sl], set_, doc=f"SIM_STATE.{name} (a view of the state array)")
 
 
 class Simulator:
     """Owns its FloatingModel (own Pinocchio Data).
 
+    Its per-period state is the array ``sim_state`` (``rigid_layout.SIM_STATE``): ``t``, ``step_index``,
+    ``stance``, ``cleared``, ``anchor``, ``x``, ``v`` are views of it (``x``, ``v``, ``anchor`` are array views:
+    copy them to keep a value); its fixed limits are ``limits`` (``SIM_LIMITS``). The compiled closed loop
+    takes the same arrays.
+
     ``perturbation`` (issue 14, ``biped_sim.plant.perturbation``; None = none): the simulated plant is
     ``perturbation.apply(desc)`` (``self.desc``: masses, centres of mass, inertias, friction of the fall
     checks), ``self.nominal_desc`` is ``desc`` as given (the controller's model); :meth:`observe` returns
     what the sensors report (noise, delay: ``self.sensor``) while every record keeps the true state."""
+
+    t = _state_field("t", float)
+    step_index = _state_field("step", int)
+    stance = _state_field("stance", int)
+    cleared = _state_field("cleared", bool)
+    anchor = _state_field("anchor", None)
+    x = _state_field("x", None)
+    v = _state_field("v", None)
 
     def __init__(self, desc: RobotDescription | None = None, config: SimConfig | None = None,
                  perturbation: PlantPerturbation | None = None):
@@ -58,26 +87,34 @@ class Simulator:
         self.desc = self.perturbation.apply(self.nominal_desc)      # the plant
         self.sensor = SensorModel(self.perturbation)
         self.cfg = (config if config is not None else load_sim_config()).validate()
-        if self.cfg.engine == "fast":
-            from biped_sim.robot.fast_engine import FastFloatingModel   # loads the compiled kernels only when used
-            from biped_sim.robot import planar_kernels
-            self.fm = FastFloatingModel(self.desc)
-            self._pk = planar_kernels
-        else:
-            self.fm = FloatingModel(self.desc)
-        self._fast = self.cfg.engine == "fast"
+        self.fm: FloatingBaseModel = make_floating_model(self.desc, self.cfg.engine)
+        self._fast = isinstance(self.fm, CompiledFloatingModel)
+        self._pk = self.fm.pk if self._fast else None       # the compiled kernels (fast engine)
         self._tau_const: np.ndarray | None = None   # the period's held URDF torque (fast RK4 kernel)
         self.book = self._new_book()
-        self.x = np.zeros(9)
-        self.v = np.zeros(9)
+        self.sim_state = SIM_STATE.new()
         self.stance = LEFT
-        self.anchor = np.zeros(3)
-        self.t = 0.0
-        self.step_index = 0
+        self.limits = self._limits()
         self.fall: FallInfo | None = None
         self.impact_count = 0
         self.cleared = False
         self.impact_log: list[ImpactRecord] = []
+
+    @property
+    def compiled(self) -> bool:
+        """True on the fast engine (the compiled kernels: ``self.fm`` is a ``CompiledFloatingModel``)."""
+        return self._fast
+
+    def _limits(self) -> np.ndarray:
+        """The ``SIM_LIMITS`` array of this plant and configuration."""
+        d, c, lim = self.desc, self.cfg, SIM_LIMITS.new()
+        lo, hi = d.torque_limits()
+        for name, value in (("mu", d.mu), ("l_min", d.foot.l_min), ("l_max", d.foot.l_max),
+                            ("touchdown_tolerance", c.touchdown_tolerance), ("clearance", c.clearance_before_touchdown),
+                            ("liftoff_penetration", c.liftoff_penetration), ("dt", c.control_period),
+                            ("substeps", float(c.substeps)), ("torque_min", lo), ("torque_max", hi)):
+            lim[SIM_LIMITS.slice(name)] = value
+        return lim
 
     # ------------------------------------------------------------ setup
     def reset(self, q: np.ndarray, qd: np.ndarray, stance: int = LEFT, ankle_x: float = 0.0) -> None:
@@ -295,9 +332,9 @@ class Simulator:
                     return None
                 if act:
                     forces[i], heights[i] = act[0]
-        foot = self.desc.foot
-        lim = np.array([self.desc.mu, foot.l_min, foot.l_max, self.cfg.touchdown_tolerance,
-                        self.cfg.clearance_before_touchdown, self.cfg.liftoff_penetration, float(self.cleared)])
+        L = self.limits     # the period kernel's limits: mu, l_min, l_max, td tolerance, clearance, penetration, cleared
+        lim = np.array([L[L_.mu], L[L_.l_min], L[L_.l_max], L[L_.touchdown_tolerance], L[L_.clearance],
+                        L[L_.liftoff_penetration], self.sim_state[S_.cleared]])
         xo = np.empty(9)
         vo = np.empty(9)
         w0 = np.empty(3)
@@ -306,7 +343,7 @@ class Simulator:
                            int(self.stance), self.anchor, lim, xo, vo, w0, out)
         if status != pk.PERIOD_DONE:
             return None
-        x, v = self.x, self.v
+        x, v = self.x.copy(), self.v.copy()
         q, qd = self.fm.paper_from_state(x, v, self.stance)
         if obs_stance != self.stance:     # the record keeps the true stance: the torque in its paper order
             applied = paper_from_urdf(self._tau_const, self.stance)

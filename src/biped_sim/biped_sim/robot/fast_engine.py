@@ -11,8 +11,9 @@ the ``RobotDescription`` (lengths, masses, centres of mass, inertias of ``config
 * ``FastFixedFootModel``: the controller's single-support terms ``A, H, B, h_b`` (as
   ``FixedFootModel.dynamics``) and the x row of ``torso_point_jacobian`` in one call.
 
-The numba cache lives in ``<repo>/build/numba-cache`` (``NUMBA_CACHE_DIR`` unless already set);
-the first import after a change of the kernels compiles them (~15-30 s) and says so on stderr.
+The kernels are loaded when a model is built (``planar_kernels()``: ``numba_cache.load``, cache in
+``<repo>/build/numba-cache``); the first run after a change of the kernels compiles them (~15-30 s) and
+says so on stderr. Importing this module compiles nothing.
 """
 from __future__ import annotations
 
@@ -22,11 +23,19 @@ from typing import Sequence
 
 import numpy as np
 
-from biped_sim.robot import planar_kernels as pk
-from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import ContactSolution, ImpactResult, SimulationError, paper_from_urdf, urdf_from_paper
+from biped_sim.robot import numba_cache
+from biped_sim.robot import planar_abi as abi
+from biped_sim.robot.description import RobotDescription, load_description
+from biped_sim.robot.floating import ContactSolution, FloatingModel, ImpactResult, SimulationError
 
-PX, PZ, REV = pk.PX, pk.PZ, pk.REV
+PX, PZ, REV = abi.PX, abi.PZ, abi.REV
+PLANAR_KERNELS = "biped_sim.robot.planar_kernels"
+
+
+def planar_kernels():
+    """The compiled planar kernels (``planar_kernels``), loaded through ``numba_cache.load`` (compiled on
+    the first run after a change, then loaded from the cache)."""
+    return numba_cache.load(PLANAR_KERNELS, sources=("biped_sim.robot.planar_abi",))
 _NO_PUSH = np.empty(0)
 
 
@@ -117,7 +126,7 @@ class PlanarTree:
                       + [j.offset[0] for j in self.joints] + [j.offset[1] for j in self.joints]
                       + [b.mass for b in self.bodies] + [b.com[0] for b in self.bodies]
                       + [b.com[1] for b in self.bodies] + [b.inertia for b in self.bodies], dtype=np.float64)
-        assert ti.size == pk.HEADER_I + 2 * nj + nb and tf.size == pk.HEADER_F + 2 * nj + 4 * nb
+        assert ti.size == abi.HEADER_I + 2 * nj + nb and tf.size == abi.HEADER_F + 2 * nj + 4 * nb
         return ti, tf
 
 
@@ -187,7 +196,7 @@ class StepBatch:
 
 
 def _check(status: int, what: str) -> None:
-    if status != pk.STATUS_OK:
+    if status != abi.STATUS_OK:
         raise SimulationError(f"fast engine: {what}: singular contact system or non-finite state")
 
 
@@ -202,6 +211,7 @@ class FastFloatingModel:
         self.desc = desc if desc is not None else load_description()
         self.tree = floating_tree(self.desc)
         self.ti, self.tf = self.tree.arrays()
+        self.pk = planar_kernels()
         self.mass = float(sum(b.mass for b in self.tree.bodies))
         self.joint_names = tuple(j.name for j in self.tree.joints[3:])
         self.nv = len(self.tree.joints)
@@ -210,8 +220,8 @@ class FastFloatingModel:
     # ---------------------------------------------------------------- kinematics
     def _point(self, x: np.ndarray, v: np.ndarray, joint: int, lx: float, lz: float) -> tuple[np.ndarray, np.ndarray]:
         J = np.empty((3, self.nv))
-        out = np.empty(pk.POINT_SIZE)
-        pk.point_state(self.ti, self.tf, x, v, joint, lx, lz, J, out)
+        out = np.empty(abi.POINT_SIZE)
+        self.pk.point_state(self.ti, self.tf, x, v, joint, lx, lz, J, out)
         return J, out
 
     def foot_pose(self, x: np.ndarray, foot: int) -> np.ndarray:
@@ -244,37 +254,21 @@ class FastFloatingModel:
 
     def swing_probe(self, x: np.ndarray, v: np.ndarray, foot: int) -> np.ndarray:
         """[lowest sole z [m], ankle z rate [m/s], z rate of that sole point [m/s]] of ``foot``."""
-        out = np.empty(pk.PROBE_SIZE)
-        pk.swing_probe(self.ti, self.tf, x, v, int(foot), out)
+        out = np.empty(abi.PROBE_SIZE)
+        self.pk.swing_probe(self.ti, self.tf, x, v, int(foot), out)
         return out
 
     # ---------------------------------------------------------------- paper <-> floating state
-    def state_from_paper(
-        self, q: np.ndarray, qd: np.ndarray, stance: int, ankle_x: float = 0.0, foot_pitch: float = 0.0
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Floating state with the stance foot at (ankle_x, 0, foot_pitch), at rest, and paper (q, q')."""
-        x = np.zeros(9)
-        x[3:] = urdf_from_paper(q, stance)
-        x[2] = foot_pitch - float(np.sum(x[3:6] if stance == LEFT else x[6:9]))
-        pose = self.foot_pose(x, stance)
-        x[0] += ankle_x - pose[0]
-        x[1] += 0.0 - pose[1]
-        v = np.zeros(9)
-        v[3:] = urdf_from_paper(qd, stance)
-        Jc = self.contact_jacobian(x, stance)
-        v[:3] = np.linalg.solve(Jc[:, :3], -Jc[:, 3:] @ v[3:])
-        return x, v
-
-    @staticmethod
-    def paper_from_state(x: np.ndarray, v: np.ndarray, stance: int) -> tuple[np.ndarray, np.ndarray]:
-        return paper_from_urdf(x[3:], stance), paper_from_urdf(v[3:], stance)
+    # the reference model's maths, written once (``FloatingModel``), on this engine's foot pose and Jacobian
+    state_from_paper = FloatingModel.state_from_paper
+    paper_from_state = staticmethod(FloatingModel.paper_from_state)
 
     # ---------------------------------------------------------------- dynamics
     def mass_bias(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(M(x) (9, 9), h(x, v) (9,)): M a + h = tau (h: Coriolis, centrifugal, gravity)."""
         M = np.empty((self.nv, self.nv))
         h = np.empty(self.nv)
-        pk.mass_bias(self.ti, self.tf, x, v, M, h)
+        self.pk.mass_bias(self.ti, self.tf, x, v, M, h)
         return M, h
 
     def mass_matrix(self, x: np.ndarray) -> np.ndarray:
@@ -290,27 +284,27 @@ class FastFloatingModel:
         """Solve M a + h = tau + J_c^T lambda, J_c a + J_c' v = 0 (Schur complement on the 3 contact rows)."""
         a = np.empty(self.nv)
         lam = np.empty(3)
-        _check(pk.contact_dynamics(self.ti, self.tf, x, v, tau, int(foot), a, lam), "contact dynamics")
+        _check(self.pk.contact_dynamics(self.ti, self.tf, x, v, tau, int(foot), a, lam), "contact dynamics")
         return ContactSolution(a=a, wrench=lam)
 
     def free_dynamics(self, x: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Acceleration with no contact (flight): M^-1 (tau - h)."""
         a = np.empty(self.nv)
-        _check(pk.free_dynamics(self.ti, self.tf, x, v, tau, a), "free dynamics")
+        _check(self.pk.free_dynamics(self.ti, self.tf, x, v, tau, a), "free dynamics")
         return a
 
     def impact(self, x: np.ndarray, v: np.ndarray, new_stance: int) -> ImpactResult:
         """Instantaneous inelastic impact of foot ``new_stance`` (Schur complement form):
         Lambda = -(J M^-1 J^T)^-1 J v-,  v+ = v- + M^-1 J^T Lambda; the other foot is released."""
         v_plus = np.empty(self.nv)
-        out = np.empty(pk.IMPACT_SIZE)
-        _check(pk.impact(self.ti, self.tf, x, v, int(new_stance), v_plus, out), "impact")
+        out = np.empty(abi.IMPACT_SIZE)
+        _check(self.pk.impact(self.ti, self.tf, x, v, int(new_stance), v_plus, out), "impact")
         return ImpactResult(v_plus=v_plus, impulse=out[0:3].copy(), old_foot_velocity=out[3:6].copy(),
                             energy_loss=float(out[6]))
 
     def _energy(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         out = np.empty(5)
-        pk.energy(self.ti, self.tf, x, v, out)
+        self.pk.energy(self.ti, self.tf, x, v, out)
         return out
 
     def kinetic_energy(self, x: np.ndarray, v: np.ndarray) -> float:
@@ -329,7 +323,7 @@ class FastFloatingModel:
         x[2] first, then x[0], x[1]); v <- v - M^-1 J^T (J M^-1 J^T)^-1 J v at the corrected x."""
         xo = np.empty(self.nv)
         vo = np.empty(self.nv)
-        _check(pk.project(self.ti, self.tf, x, v, int(foot), anchor, xo, vo), "projection")
+        _check(self.pk.project(self.ti, self.tf, x, v, int(foot), anchor, xo, vo), "projection")
         return xo, vo
 
     def rk4_step(self, x: np.ndarray, v: np.ndarray, tau_j: np.ndarray, pushes: Sequence[tuple[float, float]],
@@ -342,7 +336,7 @@ class FastFloatingModel:
         vo = np.empty(self.nv)
         w = np.empty(3)
         fs, hs = push_arrays(pushes)
-        _check(pk.rk4_step(self.ti, self.tf, x, v, tau_j, fs, hs, int(foot), anchor, float(h), xo, vo, w), "RK4 step")
+        _check(self.pk.rk4_step(self.ti, self.tf, x, v, tau_j, fs, hs, int(foot), anchor, float(h), xo, vo, w), "RK4 step")
         return xo, vo, w
 
     def rk4_steps(self, x: np.ndarray, v: np.ndarray, tau_j: np.ndarray, pushes: Sequence[tuple[float, float]],
@@ -353,9 +347,9 @@ class FastFloatingModel:
         X = np.empty((n, self.nv))
         V = np.empty((n, self.nv))
         W = np.empty((n, 3))
-        P = np.empty((n, pk.PROBE_SIZE))
+        P = np.empty((n, abi.PROBE_SIZE))
         fs, hs = push_arrays(pushes)
-        done = pk.rk4_steps(self.ti, self.tf, x, v, tau_j, fs, hs, int(foot), anchor, float(h), X, V, W, P)
+        done = self.pk.rk4_steps(self.ti, self.tf, x, v, tau_j, fs, hs, int(foot), anchor, float(h), X, V, W, P)
         return StepBatch(X, V, W, P, int(done))
 
 
@@ -368,6 +362,7 @@ class FastFixedFootModel:
         self.desc = desc if desc is not None else load_description()
         self.tree = fixed_foot_tree(self.desc)
         self.ti, self.tf = self.tree.arrays()
+        self.pk = planar_kernels()
         self.mass = float(sum(b.mass for b in self.tree.bodies))
 
     def terms(self, q: np.ndarray, qd: np.ndarray, height: float = 0.0
@@ -380,13 +375,13 @@ class FastFixedFootModel:
         B = np.empty((3, 6))
         hb = np.empty(3)
         jp = np.empty(9)
-        pk.fixed_root_terms(self.ti, self.tf, q, qd, float(height), A, H, B, hb, jp)
+        self.pk.fixed_root_terms(self.ti, self.tf, q, qd, float(height), A, H, B, hb, jp)
         return A, H, B, hb, jp
 
     def terms_into(self, q: np.ndarray, qd: np.ndarray, height: float, A: np.ndarray, H: np.ndarray,
                    B: np.ndarray, hb: np.ndarray, jp: np.ndarray) -> None:
         """``terms`` into caller-owned arrays (float64, C order, shapes as ``terms`` returns): no allocation."""
-        pk.fixed_root_terms(self.ti, self.tf, q, qd, height, A, H, B, hb, jp)
+        self.pk.fixed_root_terms(self.ti, self.tf, q, qd, height, A, H, B, hb, jp)
 
     def _energy(self, q: np.ndarray, qd: np.ndarray | None) -> np.ndarray:
         qf = np.zeros(9)
@@ -395,7 +390,7 @@ class FastFixedFootModel:
         if qd is not None:
             vf[3:] = qd
         out = np.empty(5)
-        pk.energy(self.ti, self.tf, qf, vf, out)
+        self.pk.energy(self.ti, self.tf, qf, vf, out)
         return out
 
     def com(self, q: np.ndarray) -> np.ndarray:

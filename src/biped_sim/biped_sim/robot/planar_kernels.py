@@ -45,102 +45,17 @@ after a non-finite state); outputs are then undefined.
 """
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import sys
-from importlib.metadata import version as _dist_version
-from pathlib import Path
-from typing import TextIO
 
-from biped_sim.robot.settings import repo_root
+import numpy as np
+from numba import njit
 
-# Compiled code is cached in the repository's ignored build area (set before numba reads its config).
-CACHE_DIR = os.environ.setdefault("NUMBA_CACHE_DIR", str(repo_root() / "build" / "numba-cache"))
-COMPILE_NOTICE = "fast engine: compiling numba kernels (first run, ~15 s)..."
+from biped_sim.robot import numba_cache
+from biped_sim.robot.planar_abi import (  # noqa: F401  (the kernels' constants, also read as pk.<name>)
+    HEADER_F, HEADER_I, IMPACT_SIZE, PERIOD_DONE, PERIOD_EVENT, PERIOD_LIMITS_SIZE, PERIOD_OUT_SIZE, POINT_SIZE,
+    PROBE_SIZE, PX, PZ, REV, STATUS_OK, STATUS_SINGULAR)
 
-
-def cache_key(source: Path) -> str:
-    """What numba's on-disk cache of this module depends on: the source (content, mtime and size, which
-    numba's index checks), the numba version and the Python version."""
-    st = source.stat()
-    h = hashlib.sha256(source.read_bytes())
-    h.update(f"|{st.st_mtime!r}|{st.st_size}|numba {_dist_version('numba')}|{sys.version}".encode())
-    return h.hexdigest()
-
-
-def announce_compile(stamp: Path, key: str, stream: TextIO) -> bool:
-    """Print COMPILE_NOTICE on ``stream`` unless ``stamp`` records ``key`` (the cache is then warm).
-    Returns True when it printed."""
-    try:
-        if stamp.read_text(encoding="utf-8").strip() == key:
-            return False
-    except OSError:
-        pass
-    print(COMPILE_NOTICE, file=stream, flush=True)
-    return True
-
-
-def write_stamp(stamp: Path, key: str) -> None:
-    """Record ``key`` in ``stamp`` (atomic replace; a read-only build area is not an error)."""
-    try:
-        stamp.parent.mkdir(parents=True, exist_ok=True)
-        tmp = stamp.with_name(f"{stamp.name}.{os.getpid()}.tmp")
-        tmp.write_text(key + "\n", encoding="utf-8")
-        os.replace(tmp, stamp)
-    except OSError:
-        pass
-
-
-def drop_stale_cache(module: str, sources: list[Path], cache_dir: str | None = None) -> bool:
-    """numba keys the on-disk cache of a module on that module's own source only, so a kernel compiled
-    against another module's kernels (control_kernels calls these, loop_kernels calls both) keeps their
-    old machine code -- and their old array layouts -- after that other module changes. Call this at the
-    top of such a module, before its kernels are compiled or loaded: when the sources it depends on
-    (its own included) changed since the last call, its cached files (``<module>.*.nbi/.nbc`` under the
-    cache directory) are deleted, so numba compiles it afresh. Returns True when it deleted."""
-    root = Path(cache_dir or CACHE_DIR)
-    h = hashlib.sha256()
-    for src in sources:
-        h.update(src.read_bytes())
-    key = h.hexdigest()
-    stamp = root / f"{module}.deps"
-    try:
-        if stamp.read_text(encoding="utf-8").strip() == key:
-            return False
-    except OSError:
-        pass
-    dropped = False
-    if root.is_dir():
-        for f in list(root.rglob(f"{module}.*.nb[ic]")):
-            try:
-                f.unlink()
-                dropped = True
-            except OSError:
-                pass
-    write_stamp(stamp, key)
-    return dropped
-
-
-_STAMP = Path(CACHE_DIR) / "planar_kernels.stamp"
-_KEY = cache_key(Path(__file__))
-announce_compile(_STAMP, _KEY, sys.stderr)
-
-import numba  # noqa: E402
-import numpy as np  # noqa: E402
-from numba import njit  # noqa: E402
-
-if not numba.config.CACHE_DIR:  # numba was imported earlier without NUMBA_CACHE_DIR
-    numba.config.CACHE_DIR = CACHE_DIR
-
-PX, PZ, REV = 0, 1, 2
-HEADER_I = 5  # nj, nb, push_joint, foot_0, foot_1
-HEADER_F = 3  # g, l_min, l_max
-STATUS_OK = 0
-STATUS_SINGULAR = 1
-PROBE_SIZE = 3   # swing probe: lowest sole z [m], ankle z rate [m/s], lowest sole point z rate [m/s]
-POINT_SIZE = 8   # point state: x, z, angle, vx, vz, omega, drift_x, drift_z
-IMPACT_SIZE = 7  # impulse (3), old foot velocity (3), energy loss
+numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
 # rows of the kinematics array K (10, nj)
 _TH, _C, _S, _PX, _PZ, _OM, _VX, _VZ, _AX, _AZ = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
@@ -388,7 +303,7 @@ def _energy(ti, tf, K, out):
 
 # ------------------------------------------------------------------------------------------ linear algebra
 @njit(cache=True)
-def _cholesky(A, L):
+def cholesky(A, L):
     """Lower Cholesky factor A = L L^T of the symmetric positive definite A (n, n), stored in L with its
     diagonal inverted (L[j, j] holds 1 / L_jj: the solves multiply instead of divide). False if A is
     not positive definite."""
@@ -410,8 +325,8 @@ def _cholesky(A, L):
 
 
 @njit(cache=True)
-def _chol_solve_rows(L, B):
-    """Every row b of B (r, n) <- A^-1 b, A = L L^T (factor from _cholesky). The rows are processed
+def chol_solve_rows(L, B):
+    """Every row b of B (r, n) <- A^-1 b, A = L L^T (factor from cholesky). The rows are processed
     side by side so that their dependency chains overlap."""
     r, n = B.shape
     for i in range(n):
@@ -477,7 +392,7 @@ def _contact_rows(ti, K, L, fj, J, Y):
     _point_jacobian(ti, K, fj, 0.0, 0.0, J)
     for i in range(3):
         Y[i, :] = J[i, :]
-    _chol_solve_rows(L, Y)
+    chol_solve_rows(L, Y)
 
 
 @njit(cache=True)
@@ -506,7 +421,7 @@ def _contact_accel(ti, tf, x, v, tau, fj, a, lam, W):
     J = R[0:3]
     Y = R[3:7]  # (M^-1 J^T)^T and, in row 3, a_free = M^-1 (tau - h)
     _mass_bias(ti, tf, K, M, h, Cm)
-    if not _cholesky(M, L):
+    if not cholesky(M, L):
         return False
     for k in range(a.shape[0]):
         Y[3, k] = tau[k] - h[k]
@@ -546,7 +461,7 @@ def _project(ti, tf, x, v, fj, anchor, W):
     x[1] += anchor[1] - K[_PZ, fj]
     _kinematics(ti, tf, x, v, K)
     _mass_bias(ti, tf, K, M, U[0], Cm)
-    if not _cholesky(M, L):
+    if not cholesky(M, L):
         return False
     J = R[0:3]
     Y = R[3:6]
@@ -669,11 +584,11 @@ def free_dynamics(ti, tf, q, v, tau, a):
     K, M, L, R, U, Cm = _workspace(ti[0])
     _kinematics(ti, tf, q, v, K)
     _mass_bias(ti, tf, K, M, U[0], Cm)
-    if not _cholesky(M, L):
+    if not cholesky(M, L):
         return STATUS_SINGULAR
     for k in range(a.shape[0]):
         a[k] = tau[k] - U[0, k]
-    _chol_solve_rows(L, a.reshape((1, a.shape[0])))
+    chol_solve_rows(L, a.reshape((1, a.shape[0])))
     return STATUS_OK
 
 
@@ -699,7 +614,7 @@ def impact(ti, tf, x, v, new_foot, v_plus, out):
     n = ti[0]
     _kinematics(ti, tf, x, v, K)
     _mass_bias(ti, tf, K, M, U[0], Cm)
-    if not _cholesky(M, L):
+    if not cholesky(M, L):
         return STATUS_SINGULAR
     J = R[0:3]
     Y = R[3:6]
@@ -818,13 +733,6 @@ def fixed_root_terms(ti, tf, q, qd, height, A, H, B, hb, jp):
     return STATUS_OK
 
 
-# period outcome (``period``): completed, or handed back to the caller's event path untouched
-PERIOD_DONE = 0
-PERIOD_EVENT = 1
-PERIOD_LIMITS_SIZE = 7   # mu, l_min, l_max, touchdown_tolerance, clearance, liftoff_penetration, cleared
-PERIOD_OUT_SIZE = 4      # status, cleared after, push impulse [N s], interval of the event (-1: none)
-
-
 @njit(_sig(_VI, _V, _V, _V, _V, _V, _V, _V, _I, _V, _V, _V, _V, _V, _V), cache=True)
 def period(ti, tf, x, v, tau_j, knots, forces, heights, foot, anchor, lim, x_out, v_out, w0, out):
     """One control period of the simulator in one call, for the common case with nothing to decide.
@@ -901,8 +809,3 @@ def period(ti, tf, x, v, tau_j, knots, forces, heights, foot, anchor, lim, x_out
     out[2] = impulse
     out[3] = -1.0
     return PERIOD_DONE
-
-
-# Every public kernel has an explicit signature, so all of them are compiled (or loaded from the cache)
-# by now: record that the cache is warm for this source.
-write_stamp(_STAMP, _KEY)

@@ -1,0 +1,66 @@
+"""The controller's per-period state and arrays, declared once (issue 23).
+
+Pure Python + NumPy, no ROS. Each layout is a :class:`biped_sim.robot.layout.Layout`: named fields of
+a flat float64 array (2-D arrays: named rows of 6 columns), offsets generated from the declaration.
+:class:`controller.AdaptiveController` keeps its state in a ``MEMORY`` array (properties over it),
+``control_kernels`` (one compiled period) and ``loop_kernels`` (many periods) take the same arrays and
+read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time constants by numba).
+
+* ``GAINS`` (fixed per controller): K_p, K_v of eq. (16) [1/s^2, 1/s], k_p, k_v of eq. (20) [1/s^2, 1/s],
+  p_d [m], the control period dt [s], the family's p range [m], tau_dot_min [-], the observer switch
+  and height [m], which parameters are adapted (0/1).
+* ``CONS`` (fixed per controller): the QP's margins of the 17 rows, the rows' scales, the torque limits
+  [N m], the 5 contact rows of the QP (controller's mu and foot range) and the robot's own 5, each row
+  (C_x, C_y, e) of ``fixed_foot.contact_rows``: C (R_x, R_y) + e Gamma_1 < 0.
+* ``MEMORY`` (the controller's state between periods): the parameters (p [m], p' [m/s], tau [s],
+  tau' [-]) at the last decision (the start of the period being applied), the decision (p'' [m/s^2],
+  tau'' [1/s]) held over it, whether a decision was taken since the reset, its time t_last [s], the
+  stance of the last decision (or of the reset; -1 none), the force estimate F [N], the period index,
+  and the observer's memory of the last period: q'_prev [rad/s], w_prev [rad/s^2], A_prev (6 x 6).
+* ``RES`` (one period's answer; also the status row of the compiled loop): the period's parameters,
+  x = (p'', tau''), x*, F, max |q_d - q|, the ZMP l [m], the tightest row, R = (R_x, R_y) [N], h_b and
+  h_b,c, the 17 margins (positive = satisfied), and the observer mode and elapsed time of the period.
+* ``WORK`` (rows of 6): torque Gamma [N m], w [rad/s^2], v, e = q_d - q, dq_d/dp, dq_d/dtau, A (6 rows),
+  H, B (3 rows).
+"""
+from __future__ import annotations
+
+from biped_sim.robot.fixed_foot import N_CONSTRAINTS
+from biped_sim.robot.layout import Layout
+
+N_JOINTS = 6
+# rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,
+# and 3 parameter-range rows (p within the family's range, tau' >= tau_dot_min)
+QP_ROWS = 2 * N_CONSTRAINTS + 3
+
+GAINS = Layout("gains", [
+    ("Kp", 1), ("Kv", 1), ("kp", 1), ("kv", 1), ("p_d", 1), ("dt", 1), ("p_min", 1), ("p_max", 1),
+    ("tau_dot_min", 1), ("observer", 1), ("observer_height", 1), ("adapt_p", 1), ("adapt_tau", 1)])
+
+CONTACT_ROWS = 5
+CONS = Layout("cons", [
+    ("margin", N_CONSTRAINTS), ("row_scale", N_CONSTRAINTS), ("torque_min", N_JOINTS), ("torque_max", N_JOINTS),
+    ("qp_rows", 3 * CONTACT_ROWS), ("true_rows", 3 * CONTACT_ROWS)])
+
+MEMORY = Layout("memory", [
+    ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("p_ddot", 1), ("tau_ddot", 1),
+    ("decided", 1), ("t_last", 1), ("stance", 1), ("force", 1), ("step", 1),
+    ("prev_qd", N_JOINTS), ("prev_w", N_JOINTS), ("prev_A", N_JOINTS * N_JOINTS)])
+
+RES = Layout("res", [
+    ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("x", 2), ("x_star", 2), ("force", 1), ("max_error", 1),
+    ("zmp", 1), ("tightest", 1), ("reaction", 2), ("h_b", 3), ("h_b_c", 3), ("margins", N_CONSTRAINTS),
+    ("obs_mode", 1), ("obs_dt", 1)])
+
+WORK = Layout("work", [
+    ("torque", 1), ("w", 1), ("v", 1), ("e", 1), ("dq_dp", 1), ("dq_dtau", 1), ("A", N_JOINTS), ("H", 1), ("B", 3)])
+
+# the offsets, as numba reads them (module globals: compile-time constants)
+G_ = GAINS.at
+C_ = CONS.at
+M_ = MEMORY.at
+R_ = RES.at
+W_ = WORK.at
+
+# RES.obs_mode: the observer's input this period
+OBS_NONE, OBS_RESIDUAL, OBS_KEEP = 0, 1, 2      # no memory | residual of the last period | keep F (impact)
