@@ -345,3 +345,15 @@ def test_status_message_carries_the_whole_body_fields():
     assert m.wbc_status == ACTIVE and m.wbc_active == s.wbc_active != 0
     assert m.wbc_deviation == s.wbc_deviation > 0.0
     assert m.mode == "wbc"
+
+
+def test_table_modes_option():
+    """``scripts/experiment table --modes``: any distinct known modes; unknown, repeated or empty -> the
+    option's error (argparse names it)."""
+    import argparse
+    from biped_controller.studies.experiment import TABLE_MODES, _modes_arg
+    assert _modes_arg("none,wbc,both,hybrid") == ("none", "wbc", "both", "hybrid")
+    assert TABLE_MODES == ("none", "tau", "p", "both")
+    for bad in ("none,bogus", "wbc,wbc", ",", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="modes"):
+            _modes_arg(bad)
