@@ -27,6 +27,14 @@ p is kept inside the family's valid range by two extra QP rows (p after one peri
 State: the controller's state between periods is one array, ``memory`` (``period_layout.MEMORY``), shared
 with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a
 period are ``control_kernels``' numba functions for every path (their one home).
+
+Modes ``wbc`` and ``hybrid`` (issue 26; :mod:`wbc`) add a whole-body stage after the decision:
+``wbc`` keeps the reference (x = x*, as mode none: p = p_d, tau' = 1) and relaxes w itself by the
+whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = the tracking law's w;
+``hybrid`` decides (p'', tau'') exactly as mode ``both`` and runs the same whole-body QP around the
+adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
+Whenever w holds every row the whole-body stage changes nothing (bit for bit). The stage runs in Python
+after the compiled period (or the Python steps) and overwrites the period's w in ``memory``.
 """
 from __future__ import annotations
 
@@ -48,10 +56,17 @@ from biped_controller.core.period_layout import (
     CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WORK, M_, R_, W_)
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
 from biped_controller.core.qp_types import UNCONSTRAINED
+from biped_controller.core.wbc import WholeBodyStage, weight_matrix
 
-MODES = ("none", "tau", "p", "both")
+MODES = ("none", "tau", "p", "both", "wbc", "hybrid")
+#: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
+PAPER_MODES = ("none", "tau", "p", "both")
+#: the parameters each mode's p/tau QP adapts (0: p'', 1: tau''); wbc keeps the reference fixed like none
+ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1)}
 NO_ADAPTATION = 4
+NO_ADAPTATION_STATUS = NO_ADAPTATION
 MSG_NO_ADAPTATION = "mode none: classical computed torque"
+MSG_FIXED_REFERENCE = {"none": MSG_NO_ADAPTATION, "wbc": "mode wbc: fixed reference, whole-body QP on w"}
 MSG_X_STAR_FEASIBLE = "x* feasible"
 
 CONTROL_KERNELS = "biped_controller.core.control_kernels"
@@ -92,6 +107,8 @@ class ControllerConfig:
     qp_solver: str                # "piqp" (the product's solver) or "exact" (dedicated n <= 2 solver)
     disturbance_observer: bool    # estimate a horizontal torso force (not in the paper) for the QP rows
     observer_height: float        # [m] assumed application height of the estimated force above the hip
+    wbc_weight_joint: float       # whole-body QP weight M = wbc_weight_joint I + wbc_weight_torso s s^T (wbc.py)
+    wbc_weight_torso: float       # torso-pitch task weight of M (s . w = torso pitch acceleration)
     engine: str                   # "fast": compiled model terms (biped_sim.robot.fast_engine); "reference": Pinocchio
     period: float                 # [s] control period (config/simulator.yaml control_period)
     # issue 22 (real sensing): core/sensing.py; with all of them off the controller is the one above
@@ -131,6 +148,10 @@ class ControllerConfig:
         if isinstance(self.observer_height, bool) or not isinstance(self.observer_height, (int, float)) \
                 or not math.isfinite(self.observer_height):
             raise ControllerConfigError(f"observer_height must be a finite number, got {self.observer_height!r}")
+        try:
+            weight_matrix(self.wbc_weight_joint, self.wbc_weight_torso)
+        except ValueError as exc:
+            raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
         for name in ("momentum_observer", "state_estimator"):
@@ -232,6 +253,9 @@ class ControllerStatusData:
     max_tracking_error: float
     predicted_reaction: np.ndarray = field(default_factory=lambda: np.zeros(2))
     force_estimate: float = 0.0
+    wbc_status: int = NO_ADAPTATION_STATUS   # whole-body stage (modes wbc, hybrid): qp_types status, or 4 = not run
+    wbc_active: int = 0                      # bit i: row CONSTRAINT_NAMES[i] active in the whole-body QP's answer
+    wbc_deviation: float = 0.0               # [rad/s^2] |w - w*| of the whole-body stage (0 when w* held)
 
 
 _NEW = object.__new__
@@ -331,7 +355,8 @@ class AdaptiveController:
         self.margin = np.concatenate([
             [c.margin_normal_force, 0.0, 0.0, 0.0, 0.0], np.full(12, c.margin_torque)])
         self._mu_ratio = c.margin_friction
-        self.adapted = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1)}[c.mode]
+        self.adapted = ADAPTED[c.mode]
+        self.whole_body = WholeBodyStage.for_controller(c, self.model) if c.mode in ("wbc", "hybrid") else None
         self._adapted_idx = list(self.adapted)
         self._fixed_idx = [i for i in (0, 1) if i not in self.adapted]
         n = len(self.adapted)
@@ -522,7 +547,7 @@ class AdaptiveController:
         instance (None in mode none)."""
         x = ref.x_star.copy()
         if not self.adapted:
-            return x, NO_ADAPTATION, MSG_NO_ADAPTATION, None, None, None
+            return x, NO_ADAPTATION, MSG_FIXED_REFERENCE[self.cfg.mode], None, None, None
         try:
             Gall, hall = self._qp_rows(ref, dyn, dyn_c, res)
             idx, fixed = self._adapted_idx, self._fixed_idx
@@ -538,11 +563,13 @@ class AdaptiveController:
             return ref.x_star.copy(), SOLVER_ERROR, f"{type(exc).__name__}: {exc}", None, None, None
 
     def _output(self, res: np.ndarray, torque: np.ndarray, t: float, stance: int, status: int, msg: str,
-                G, h, xs) -> ControlOutput:
+                G, h, xs, wb=None) -> ControlOutput:
         """The period's ``ControlOutput`` from its ``RES`` row (the one status builder); the period index
         is the memory's, already advanced by the commit."""
         rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
                              self.cfg.mode, int(stance), int(status), msg)[0]
+        if self.whole_body is not None:
+            rec.__dict__.update(WholeBodyStage.status_fields(wb))
         keep = self.keep_qp
         return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
                              x_star=xs if keep else None)
@@ -575,6 +602,11 @@ class AdaptiveController:
         dyn_c, F = self._observe(res, qd, dyn, jp)
         x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c, res)
         w = ref.D @ x + ref.v                                    # eq. (17)
+        wb = None
+        if self.whole_body is not None:                          # modes wbc, hybrid (wbc.py)
+            wb = self.whole_body.decide(w, status, dyn.A, dyn.H, dyn.B, dyn.h_b, dyn_c.h_b)
+            if wb is not None:
+                w = wb.w
         torque = computed_torque(dyn.A, dyn.H, w)                # eq. (15)
         cm = self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
@@ -596,7 +628,7 @@ class AdaptiveController:
             if stance != told:
                 torque = relabel(torque)        # sent in the order of the stance the plant told us
             self._sensing.record(t, torque, told)
-        return self._output(res, torque, t, stance, status, msg, G, h, xs)
+        return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
         """Computed torque at time s_time [s] into the current period, with (p, tau) propagated from the
@@ -640,7 +672,7 @@ class _FastPeriod:
         xs_full = res[R_.x_star:R_.x_star + 2]
         Gr = hr = xs = None
         if not ctrl.adapted:
-            status, msg = NO_ADAPTATION, MSG_NO_ADAPTATION
+            status, msg = NO_ADAPTATION, MSG_FIXED_REFERENCE[ctrl.cfg.mode]
         else:
             idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
             Gr, xs = G[:, idx], xs_full[idx]
@@ -656,5 +688,25 @@ class _FastPeriod:
                 status, msg = qres.status, qres.message
                 res[R_.x:R_.x + 2] = x
                 ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
-        return ctrl._output(res, work[W_.torque].copy(), t, stance, status, msg,
-                            Gr.copy() if Gr is not None else None, hr, xs.copy() if xs is not None else None)
+        torque, wb = work[W_.torque].copy(), None
+        if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage (wbc.py), in Python
+            torque, wb = self._whole_body(work, res, torque, status)
+        return ctrl._output(res, torque, t, stance, status, msg,
+                            Gr.copy() if Gr is not None else None, hr, xs.copy() if xs is not None else None, wb)
+
+    def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):
+        """The whole-body stage after the compiled period (which has committed its w to ``memory``): when it
+        changes w, the torque, the reported margins, reaction, l and tightest row follow the new w, and the
+        memory's w (the observer's next residual) is the new w. Returns (torque, WBCResult or None)."""
+        ctrl = self.ctrl
+        A, H, B = work[W_.A:W_.A + 6], work[W_.H], work[W_.B:W_.B + 3]
+        hbc = res[R_.h_b_c:R_.h_b_c + 3]
+        wb = ctrl.whole_body.decide(work[W_.w].copy(), status, A, H, B, res[R_.h_b:R_.h_b + 3], hbc)
+        if wb is None or wb.status == UNCONSTRAINED:
+            return torque, wb
+        torque, R, margins, tightest, zmp = ctrl.whole_body.outputs(wb.w, A, H, B, hbc)
+        res[RES.slice("margins")] = margins
+        res[RES.slice("reaction")] = R
+        res[R_.tightest], res[R_.zmp] = tightest, zmp
+        ctrl.memory[MEMORY.slice("prev_w")] = wb.w
+        return torque, wb

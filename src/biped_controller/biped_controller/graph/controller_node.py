@@ -3,7 +3,7 @@
 Owns an :class:`biped_controller.core.controller.AdaptiveController`; its configuration comes from the
 parameters, which have the keys of ``config/controller.yaml`` (defaults from that file) plus
 ``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
-``mode`` is validated against none | tau | p | both.
+``mode`` is validated against none | tau | p | both | wbc | hybrid (``controller.MODES``).
 
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
@@ -97,6 +97,9 @@ def status_message(s, stamp) -> ControllerStatus:
     m.max_tracking_error = float(s.max_tracking_error)
     m.predicted_reaction = np.asarray(s.predicted_reaction, dtype=float).tolist()
     m.force_estimate = float(s.force_estimate)
+    m.wbc_status = int(s.wbc_status)
+    m.wbc_active = int(s.wbc_active)
+    m.wbc_deviation = float(s.wbc_deviation)
     return m
 
 

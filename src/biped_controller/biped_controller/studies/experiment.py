@@ -10,7 +10,8 @@ lockstep, no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
                                                paper's Figs. 3-7
   max-push  --mode M [--resolution 5] [--max 2000] [--coarse 50]
                                                largest survivable push force
-  table     [--workers N]                      max-push for the four modes next to the paper's values
+  table     [--workers N] [--modes M,M,...]    max-push for the four modes (or the modes named, e.g.
+                                               none,tau,p,both,wbc,hybrid) next to the paper's values
   probe     --force F [--mode M] [--start S]   one push, the controller's view period by period while
                                                it acts: true push vs the observer's estimate, predicted
                                                vs actual ground reaction and l, QP status, tightest row
@@ -898,6 +899,19 @@ def _add_settings_args(a: argparse.ArgumentParser) -> None:
                         "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation)")
 
 
+#: the modes of ``table`` by default: the paper's four
+TABLE_MODES: tuple[str, ...] = ("none", "tau", "p", "both")
+
+
+def _modes_arg(text: str) -> tuple[str, ...]:
+    """``--modes none,wbc,...``: known modes, each once, at least one (argparse names the option)."""
+    modes = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in modes if m not in MODES]
+    if not modes or bad or len(set(modes)) != len(modes):
+        raise argparse.ArgumentTypeError(f"expected distinct modes out of {','.join(MODES)}, got {text!r}")
+    return modes
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="scripts/experiment", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -922,10 +936,14 @@ def main(argv: list[str] | None = None) -> int:
             a.add_argument("--after", type=float, default=0.010, help="print this long after the push end [s]")
         a.add_argument("--json", type=Path)
         _add_settings_args(a)
-    for name, hlp in (("max-push", "largest survivable push for one mode"), ("table", "max-push for all four modes")):
+    for name, hlp in (("max-push", "largest survivable push for one mode"),
+                      ("table", "max-push for the four modes, or for --modes")):
         a = sub.add_parser(name, help=hlp)
         if name == "max-push":
             a.add_argument("--mode", choices=MODES, default="both")
+        else:
+            a.add_argument("--modes", type=_modes_arg, default=TABLE_MODES,
+                           help=f"comma-separated modes (default {','.join(TABLE_MODES)}; any of {','.join(MODES)})")
         a.add_argument("--resolution", type=float, default=5.0, help="bisection resolution [N]")
         a.add_argument("--max", type=float, default=2000.0, help="largest force scanned [N]")
         a.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
@@ -958,7 +976,7 @@ def main(argv: list[str] | None = None) -> int:
         r = probe(args.force, args.mode, args.duration, args.start, args.height, settings, after=args.after)
         print_probe(r)
     else:
-        modes = (args.mode,) if args.cmd == "max-push" else ("none", "tau", "p", "both")
+        modes = (args.mode,) if args.cmd == "max-push" else args.modes
         t0 = time.perf_counter()
         res = max_push_modes(modes, args.resolution, args.max, args.coarse, args.duration, args.start,
                              height=args.height, workers=max(1, args.workers),

@@ -62,6 +62,9 @@ SEARCHES: dict[str, cmap.Search] = {
     "tau": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
     "p": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
     "both": cmap.Search(coarse=40.0, fmax=960.0, resolution=20.0),
+    # issue 26 (5 N table at the paper's cell, observer on): wbc 112.5 N, hybrid 771.9 N
+    "wbc": cmap.Search(coarse=20.0, fmax=400.0, resolution=10.0),
+    "hybrid": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
 }
 ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
 
@@ -348,7 +351,8 @@ def figure(levels, modes, observers, pushes: dict, out: Path) -> Path:
     import matplotlib.pyplot as plt
 
     series = [(m, obs) for m, obs in combos(modes, observers) if any((lv.name, m, obs) in pushes for lv in levels)]
-    colors = {"none": "0.45", "tau": "tab:blue", "p": "tab:orange", "both": "tab:green"}
+    colors = {"none": "0.45", "tau": "tab:blue", "p": "tab:orange", "both": "tab:green", "wbc": "tab:purple",
+              "hybrid": "tab:red"}
     fig, ax = plt.subplots(figsize=(8.5, 0.42 * len(levels) + 1.6))
     y = np.arange(len(levels))
     hgt = 0.8 / max(len(series), 1)

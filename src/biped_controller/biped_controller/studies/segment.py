@@ -55,7 +55,10 @@ class Segment:
 
     @staticmethod
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
-        return bool(sim.compiled and getattr(ctrl, "compiled_period", None) is not None and sim.sensor.identity)
+        # mode wbc checks its rows every period in Python (wbc.py); hybrid only after a p/tau QP, which the
+        # compiled loop hands to the objects anyway
+        return bool(sim.compiled and getattr(ctrl, "compiled_period", None) is not None and sim.sensor.identity
+                    and ctrl.cfg.mode != "wbc")
 
     def run(self, t_stop: float, max_periods: int = 1 << 40) -> tuple[list[StepRecord], list[ControllerStatusData]]:
         """Periods until one needs Python, ``t_stop`` [s] is reached (the period reaching it included) or

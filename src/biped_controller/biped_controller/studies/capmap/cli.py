@@ -11,7 +11,7 @@ from typing import Sequence
 
 from biped_sim.plant.config import SimConfigError
 
-from biped_controller.core.controller import MODES, ControllerConfigError
+from biped_controller.core.controller import MODES, PAPER_MODES, ControllerConfigError
 from biped_controller.studies import capmap, experiment
 from biped_controller.studies.capmap.driver import run_map
 from biped_controller.studies.capmap.executors import DEFAULT_BATCH, SerialExecutor, make_executor
@@ -43,7 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     ap = argparse.ArgumentParser(prog="scripts/capability_map", description=capmap.__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--modes", nargs="+", default=list(MODES), help=f"any of {' '.join(MODES)} (default all)")
+    ap.add_argument("--modes", nargs="+", default=list(PAPER_MODES),
+                    help=f"any of {' '.join(MODES)} (default the paper's {' '.join(PAPER_MODES)})")
     ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
     ap.add_argument("--phases", type=int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
     ap.add_argument("--durations", nargs="+", type=float, default=list(DEFAULT_DURATIONS), help="push durations [s]")

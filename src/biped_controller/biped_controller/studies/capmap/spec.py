@@ -9,7 +9,7 @@ from pathlib import Path
 
 from biped_sim.robot.settings import default_config_dir, read_settings
 
-from biped_controller.core.controller import MODES
+from biped_controller.core.controller import MODES, PAPER_MODES
 from biped_controller.studies import experiment
 from biped_controller.studies.experiment import DEFAULT_SETTINGS, RunSettings
 
@@ -87,7 +87,7 @@ class Search:
 class MapSpec:
     """A whole map: the cells are the product modes x directions x phases x durations."""
 
-    modes: tuple[str, ...] = MODES
+    modes: tuple[str, ...] = PAPER_MODES
     directions: tuple[str, ...] = tuple(DIRECTIONS)
     phases: tuple[float, ...] = tuple(k / DEFAULT_PHASES for k in range(DEFAULT_PHASES))
     durations: tuple[float, ...] = DEFAULT_DURATIONS
