@@ -14,6 +14,12 @@ Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad o
 - ``compression`` (string, ``zstd`` | ``lz4`` | ``none``; default ``zstd``): MCAP chunk compression.
 - ``chunk_size``  (int bytes, 4096 .. 1073741824; default 262144): uncompressed chunk size, which
   also bounds what a SIGKILL loses.
+- ``chunk_time``  (float s, 0 or 0.001 .. 3600; 0 = by size only): a chunk is also written out once its
+  first message is this old (wall clock; checked at each message and by a steady timer every
+  ``chunk_time`` / 2), so a SIGKILL loses at most about ``chunk_time`` s of messages (plus what DDS still
+  held for the recorder). ``config/graph.yaml`` sets it.
+- ``sync``        (bool, default false): ``fdatasync`` each chunk (a power cut then loses at most the chunk
+  being built; without it, what the kernel had not written back yet too).
 
 The bag is finished cleanly on SIGINT and SIGTERM (own handlers stop the spin loop, then
 ``finish()`` runs) and when the ROS context is shut down by anything else.
@@ -29,6 +35,7 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -49,6 +56,8 @@ from biped_sim.recording.mcap_recorder import (
 COMPRESSIONS = ("zstd", "lz4", "none")
 MIN_CHUNK_SIZE = 4096
 MAX_CHUNK_SIZE = 1 << 30
+MIN_CHUNK_TIME = 0.001   # s: below, a chunk per message or two (the index would outweigh the data)
+MAX_CHUNK_TIME = 3600.0
 
 
 def _policy_name(value, table: Dict[object, str]) -> str:
@@ -125,14 +134,20 @@ class RecorderNode(Node):
         self.declare_parameter("output_dir", "")
         self.declare_parameter("compression", "zstd")
         self.declare_parameter("chunk_size", DEFAULT_CHUNK_SIZE)
-        output_dir, compression, chunk_size = self._read_parameters()
+        self.declare_parameter("chunk_time", 0.0)
+        self.declare_parameter("sync", False)
+        output_dir, compression, chunk_size, chunk_time, sync = self._read_parameters()
 
         self.failure: Optional[RecorderError] = None
         self.done = False   # run_node leaves its loop (then drains and finishes) once set
         self._prefixes = self._prefixes_list()
         self._specs = self._recordable_topics()
         self._writer = Rosbag2McapWriter(output_dir, prefixes=self._prefixes,
-                                         compression=compression, chunk_size=chunk_size)
+                                         compression=compression, chunk_size=chunk_size,
+                                         chunk_time=chunk_time or None, sync=sync)
+        if chunk_time:   # a steady timer (the node's own clock is sim time): closes a quiet graph's chunk too
+            self._chunk_timer = self.create_timer(chunk_time / 2, self._poll_chunk,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._subscriptions_by_topic = {}
         for spec in self._specs:
             callback = functools.partial(self._on_message, spec)
@@ -140,7 +155,8 @@ class RecorderNode(Node):
                 spec.msg_class(), spec.name, callback, recording_qos(spec.qos_profile), raw=True)
         self.get_logger().info(
             f"recording {len(self._specs)} topics to {self._writer.bag_dir} "
-            f"({compression}, chunks of {chunk_size} B)")
+            f"({compression}, chunks of {chunk_size} B"
+            f"{f' or {chunk_time} s' if chunk_time else ''}{', synced' if sync else ''})")
 
     # -- parameters ----------------------------------------------------------------------------
 
@@ -164,7 +180,15 @@ class RecorderNode(Node):
             raise ParameterError(
                 "chunk_size",
                 f"must be in [{MIN_CHUNK_SIZE}, {MAX_CHUNK_SIZE}] bytes; got {chunk_size}")
-        return output_dir, compression, chunk_size
+        raw = self.get_parameter("chunk_time")
+        if raw.type_ not in (Parameter.Type.DOUBLE, Parameter.Type.INTEGER):
+            raise ParameterError("chunk_time", f"expected a number of seconds, got {raw.type_.name.lower()}")
+        chunk_time = float(raw.value)
+        if not (chunk_time == 0.0 or MIN_CHUNK_TIME <= chunk_time <= MAX_CHUNK_TIME):
+            raise ParameterError(
+                "chunk_time", f"must be 0 (by size only) or in [{MIN_CHUNK_TIME}, {MAX_CHUNK_TIME}] s; got {chunk_time}")
+        sync = value("sync", Parameter.Type.BOOL)
+        return output_dir, compression, chunk_size, chunk_time, sync
 
     @staticmethod
     def _prefixes_list() -> List[Path]:
@@ -226,6 +250,17 @@ class RecorderNode(Node):
                 from rclpy.serialization import deserialize_message
                 from std_msgs.msg import String
                 self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
+        except RecorderError as exc:
+            self.failure = exc
+            self.get_logger().error(f"recording stopped: {exc}")
+            self.done = True
+
+    def _poll_chunk(self) -> None:
+        """(steady timer) Write the open chunk out once it is ``chunk_time`` old."""
+        if self.failure is not None or self._writer.finished:
+            return
+        try:
+            self._writer.poll()
         except RecorderError as exc:
             self.failure = exc
             self.get_logger().error(f"recording stopped: {exc}")
