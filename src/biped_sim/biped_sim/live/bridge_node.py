@@ -39,6 +39,12 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``message_backlog`` (int 16..1000000, default 20000): messages queued per client before the
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
+- ``drain_batch`` (int 0..100000, default 0): messages taken directly from a subscription's queue after
+  the one the executor handed over, in the same callback (as the recorder does). The executor's round
+  per message (rclpy's ``SingleThreadedExecutor`` in Python: wait set, task, callback) costs far more
+  than passing the message on, and at 15 topics x 1 kHz the bridge fell behind the graph (issue 20:
+  ``/sim/state`` 25-28 ms late at p50); 0 = one message per round, the behaviour before.
+  ``config/graph.yaml`` sets it.
 
 Exit status: 0 on SIGINT/SIGTERM, 2 for a bad parameter or a server that cannot start (port in use).
 """
@@ -144,6 +150,7 @@ class BridgeNode(Node):
         # true: a per-step stream is read only while a client watches it (less load on a busy machine; a
         # stream subscribed on demand starts after DDS discovery, some 0.1-0.3 s of messages later)
         self.lazy_streams = get_bool(self, 'lazy_streams', False)
+        self.drain_batch = get_int(self, 'drain_batch', 0, lo=0, hi=100_000)
 
         self.sim_time_ns = 0
         self.clock_errors = 0
@@ -224,9 +231,25 @@ class BridgeNode(Node):
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self._channels[topic].log(msg, log_time=self.sim_time_ns)
 
+    def _on_ready(self, topic: str, handler, msg: bytes) -> None:
+        """(executor thread) The message the executor took, then up to ``drain_batch`` more already
+        waiting on the same subscription, taken directly (in arrival order; each one is logged with the
+        sim time of the latest /clock handled so far)."""
+        handler(msg)
+        sub = self._ros_subs.get(topic)
+        for _ in range(self.drain_batch):
+            if sub is None:
+                return
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, True)
+            if taken is None:
+                return
+            handler(taken[0])
+
     def _subscribe(self, topic: str) -> None:
         spec = self._specs[topic]
-        callback = self._on_clock if topic == gn.CLOCK else functools.partial(self._on_message, topic)
+        handler = self._on_clock if topic == gn.CLOCK else functools.partial(self._on_message, topic)
+        callback = functools.partial(self._on_ready, topic, handler)
         self._ros_subs[topic] = self.create_subscription(spec.msg_class(), topic, callback,
                                                          recording_qos(spec.qos_profile), raw=True)
 
