@@ -5,12 +5,14 @@
 **Kills** (the whole graph from ``biped_sim.graph.launch``, ``--steps 0``, paced at ``real_time_factor`` 1.0,
 each launch in its own ROS domain from ``domain_coordinator``, 127.0.0.1 only). Per run: once ``/clock``
 runs, wait a seeded random wall time (uniform in ``[--min-wait, --max-wait]`` s, ``random.Random(seed)``),
-read the sim time this process last received on ``/clock`` (a plain DDS subscriber, its own thread:
-what the graph had published at that instant, minus ~0.2 ms of delivery), SIGKILL the recorder, let the
-launcher stop the graph. Then, from the bag alone: the largest log time (sim time) of the messages of
-its complete chunks (``bag_reader.read_truncated``) -> **lost = sim time at the kill - last recorded
-time**; ``bag_reader.recover_bag`` rewrites it into a finished bag that ``read_bag`` must open with the
-same message count. Configurations, interleaved so the machine's drift hits both alike:
+note the wall time (``time.time_ns()``, CLOCK_REALTIME, the clock DDS source timestamps use) and SIGKILL
+the recorder; the launcher stops the graph. A plain DDS subscriber in this process (raw, keep-last 5000,
+its own thread) keeps every ``/clock`` with its source timestamp; the **sim time at the kill** is the
+latest ``/clock`` published before the kill instant (by source timestamp, so this probe's own lag under
+load does not count). From the bag alone (``bag_reader.read_truncated``: the messages of its complete
+chunks): **lost = sim time at the kill - the last recorded log time** (sim s), and in wall terms the kill
+instant - the latest recorded ``publish_time``. ``bag_reader.recover_bag`` rewrites the bag into a
+finished one that ``read_bag`` must open with the same message count. Configurations, interleaved so the machine's drift hits both alike:
 ``after`` = ``config/graph.yaml`` as committed (chunks closed by size or by ``chunk_time``), ``before`` =
 the same with ``chunk_time: 0`` (by size only, the behaviour before issue 20), ``--before`` runs of it.
 
@@ -49,30 +51,37 @@ from benchmarks.bridge_bench import Domain  # noqa: E402
 
 
 class ClockProbe:
-    """The latest ``/clock`` sim time [s] received, spun in its own thread."""
+    """Every ``/clock`` as (DDS source timestamp ns, sim time ns), spun in its own thread."""
 
     def __init__(self, domain: int):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
-        from rosgraph_msgs.msg import Clock
         from biped_sim.graph import names as gn
+        from biped_sim.recording.recorder_node import recording_qos
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = rclpy.create_node('durability_probe', context=self.ctx)
-        self.latest = -1.0
-        self.node.create_subscription(Clock, gn.CLOCK, self._on, gn.QOS_CLOCK)
+        self.rows: list[tuple[int, int]] = []
+        spec = gn.TOPICS[gn.CLOCK]
+        self.node.create_subscription(spec.msg_class(), gn.CLOCK, self._on, recording_qos(spec.qos_profile), raw=True)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
-    def _on(self, m) -> None:
-        self.latest = m.clock.sec + 1e-9 * m.clock.nanosec
+    def _on(self, msg: bytes, info) -> None:
+        from biped_sim.live.bridge_core import clock_ns
+        self.rows.append((int(info['source_timestamp']), clock_ns(msg)))
 
     def _spin(self) -> None:
         while not self._stop.is_set():
             self.executor.spin_once(timeout_sec=0.05)
+
+    def sim_time_before(self, wall_ns: int) -> float | None:
+        """The latest sim time [s] published at or before ``wall_ns`` (source timestamp)."""
+        times = [sim for src, sim in self.rows if src <= wall_ns]
+        return max(times) * 1e-9 if times else None
 
     def close(self) -> None:
         import rclpy
@@ -108,31 +117,34 @@ def kill_run(dom: Domain, tmp: Path, params: Path, wait: float, timeout: float =
             proc = subprocess.Popen(cmd, cwd=ROOT, env=dom.env, stdout=fh, stderr=subprocess.STDOUT)
         try:
             t0 = time.monotonic()
-            while probe.latest < 0:
+            while not probe.rows:
                 if proc.poll() is not None or time.monotonic() - t0 > timeout:
                     raise RuntimeError('the graph did not start: ' + log.read_text(errors='replace')[-1500:])
                 time.sleep(0.01)
+            first_src = probe.rows[0][0]
             time.sleep(wait)
             pid = node_pids(proc.pid)['recorder']
-            t_kill = probe.latest
+            kill_ns = time.time_ns()
             os.kill(pid, signal.SIGKILL)
-            out['sim_time_at_kill'] = t_kill
             proc.wait(timeout)
             out['launcher_exit_code'] = proc.returncode
+            time.sleep(0.5)   # the probe takes what is still queued for it
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
     finally:
         probe.close()
-    d = read_truncated(bag)
-    last = (d['end_ns'] or 0) * 1e-9
+    out['sim_time_at_kill'] = probe.sim_time_before(kill_ns)
     # sim s per wall s from the first /clock to the kill: below 1 on a loaded machine, where a wall-clock
     # chunk_time holds fewer sim seconds of messages
-    out['real_time_factor_reached'] = out['sim_time_at_kill'] / wait if wait > 0 else None
+    out['real_time_factor_reached'] = out['sim_time_at_kill'] / ((kill_ns - first_src) * 1e-9)
+    d = read_truncated(bag)
+    last = (d['end_ns'] or 0) * 1e-9
+    last_pub = max((m[2] for m in d['messages']), default=0)
     out.update(complete_chunks=d['complete_chunks'], bad_chunks=d['bad_chunks'], messages=d['message_count'],
                last_recorded_sim_time=last, lost_s=out['sim_time_at_kill'] - last,
-               mcap_bytes=os.path.getsize(next(bag.glob('*.mcap'))))
+               lost_wall_s=(kill_ns - last_pub) * 1e-9, mcap_bytes=os.path.getsize(next(bag.glob('*.mcap'))))
     rep = recover_bag(bag, tmp / 'recovered')
     back = read_bag(tmp / 'recovered')
     out['recovered_messages'] = rep.message_count
@@ -234,6 +246,8 @@ def main(argv=None) -> int:
                ['recorder']['ros__parameters'].get('chunk_time'),
                'lost_s': {k: _stats([r['lost_s'] for r in runs if r['kind'] == k and 'lost_s' in r])
                           for k in ('after', 'before')},
+               'lost_wall_s': {k: _stats([r['lost_wall_s'] for r in runs if r['kind'] == k and 'lost_wall_s' in r])
+                               for k in ('after', 'before')},
                'real_time_factor_reached': _stats([r['real_time_factor_reached'] for r in runs
                                                    if r.get('real_time_factor_reached')]),
                'runs': runs}
@@ -245,10 +259,11 @@ def main(argv=None) -> int:
                            'on_over_off': float(np.mean(on) / np.mean(off))}
     print('==== recorder durability ====')
     for k in ('after', 'before'):
-        s = summary['lost_s'][k]
+        s, w = summary['lost_s'][k], summary['lost_wall_s'][k]
         if s['n']:
             print(f"{k:6s} ({'chunk_time ' + str(summary['chunk_time_after']) + ' s' if k == 'after' else 'size only'}): "
-                  f"{s['n']} kills, lost p50 {1e3 * s['p50']:.0f} ms, max {1e3 * s['max']:.0f} ms, "
+                  f"{s['n']} kills, lost p50 {1e3 * s['p50']:.0f} ms, max {1e3 * s['max']:.0f} ms of sim time "
+                  f"(wall: p50 {1e3 * w['p50']:.0f} ms, max {1e3 * w['max']:.0f} ms), "
                   f"all recovered readable: {all(r.get('recovered_readable') for r in runs if r['kind'] == k)}")
     rt = summary['real_time_factor_reached']
     if rt['n']:

@@ -630,11 +630,11 @@ def _need_rclpy():
     from biped_sim.graph import names as graph_names  # noqa: F401
 
 
-def _run_recorder(tmp_path, params: list[str]) -> subprocess.Popen:
+def _run_recorder(tmp_path, params: list[str], env: dict | None = None) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "biped_sim.recording.recorder_node", "--ros-args"]
     for p in params:
         cmd += ["-p", p]
-    return subprocess.Popen(cmd, env=_ros_env(tmp_path), stdout=subprocess.PIPE,
+    return subprocess.Popen(cmd, env=env or _ros_env(tmp_path), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
 
@@ -653,7 +653,7 @@ def test_node_rejects_bad_parameter(tmp_path, param, value):
 
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
-def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal):
+def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal, ros_domain):
     _need_rclpy()
     import rclpy
     from rclpy.node import Node
@@ -661,8 +661,9 @@ def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal
     from std_msgs.msg import String
     from biped_sim.graph import names as graph_names
 
-    env = _ros_env(tmp_path)
-    proc = _run_recorder(tmp_path, [f"output_dir:={tmp_path / 'rec'}", "chunk_size:=4096"])
+    # a domain of our own (domain_coordinator): a pid-derived id could be another test run's on a shared machine
+    env = dict(_ros_env(tmp_path), ROS_DOMAIN_ID=str(ros_domain))
+    proc = _run_recorder(tmp_path, [f"output_dir:={tmp_path / 'rec'}", "chunk_size:=4096"], env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
     try:
@@ -752,7 +753,7 @@ def test_foxglove_js_reader_decodes_every_message(tmp_path, prefix, compression)
 
 # ------------------------------------------------------------------------------ SIGKILL -> recover (issue 20)
 @pytest.mark.timeout(300)
-def test_killed_recorder_node_bag_recovered(tmp_path):
+def test_killed_recorder_node_bag_recovered(tmp_path, ros_domain):
     """The recorder node (chunks by time: chunk_time 0.05 s, chunk_size far above what is published)
     killed with SIGKILL while /clock is published: ``scripts/bag recover`` makes a finished, indexed bag
     that the mcap reader and Foxglove's @mcap/core open, holding every message up to the last complete
@@ -765,9 +766,9 @@ def test_killed_recorder_node_bag_recovered(tmp_path):
     from rosgraph_msgs.msg import Clock
     from biped_sim.graph import names as graph_names
 
-    env = _ros_env(tmp_path)
+    env = dict(_ros_env(tmp_path), ROS_DOMAIN_ID=str(ros_domain))   # a domain of our own (domain_coordinator)
     bag_dir = tmp_path / "rec"
-    proc = _run_recorder(tmp_path, [f"output_dir:={bag_dir}", "chunk_size:=16777216", "chunk_time:=0.05"])
+    proc = _run_recorder(tmp_path, [f"output_dir:={bag_dir}", "chunk_size:=16777216", "chunk_time:=0.05"], env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
     sent = 0
@@ -775,11 +776,11 @@ def test_killed_recorder_node_bag_recovered(tmp_path):
         node = Node("fake_sim", context=context)
         clock_pub = node.create_publisher(Clock, graph_names.CLOCK, graph_names.TOPICS[graph_names.CLOCK].qos_profile)
         deadline = time.monotonic() + 60
-        while clock_pub.get_subscription_count() < 1:
+        mcap_path = bag_dir / "rec_0.mcap"
+        while clock_pub.get_subscription_count() < 1 or not mcap_path.is_file():
             assert proc.poll() is None, proc.communicate()[1]
             assert time.monotonic() < deadline, "recorder never subscribed"
             time.sleep(0.1)
-        mcap_path = bag_dir / "rec_0.mcap"
         deadline = time.monotonic() + 120
         while True:   # publish until several time-closed chunks are on disk (bounded; no timing assumed)
             for _ in range(20):

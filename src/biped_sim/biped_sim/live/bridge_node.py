@@ -39,9 +39,11 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``message_backlog`` (int 16..1000000, default 20000): messages queued per client before the
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
-- ``drain_batch`` (int 0..100000, default 0): messages taken directly from a subscription's queue after
-  the one the executor handed over, in the same callback (as the recorder does). The executor's round
-  per message (rclpy's ``SingleThreadedExecutor`` in Python: wait set, task, callback) costs far more
+- ``drain_batch`` (int 0..100000, default 0): after the message the executor handed over, at most this
+  many more are taken directly, in the same callback, from *every* subscription (passes over them until
+  one takes nothing; each topic's messages in their order; ``/clock`` first in each pass, so the log time
+  is the newest sim time), as the recorder does. The executor's round per message (rclpy's
+  ``SingleThreadedExecutor`` in Python: wait set over every subscription, task, callback) costs far more
   than passing the message on, and at 15 topics x 1 kHz the bridge fell behind the graph (issue 20:
   ``/sim/state`` 25-28 ms late at p50); 0 = one message per round, the behaviour before.
   ``config/graph.yaml`` sets it.
@@ -202,6 +204,7 @@ class BridgeNode(Node):
         self._specs = {spec.name: spec for spec in specs}
         self._streams = {spec.name for spec in specs if self.lazy_streams and spec.qos in gn.STREAM_QOS}
         self._ros_subs: dict = {}
+        self._handlers: dict = {}
         self._wanted: dict[str, int] = {}         # topic -> clients subscribed (SDK threads, under _lock)
         self._lock = threading.Lock()
         for spec in specs:
@@ -231,25 +234,33 @@ class BridgeNode(Node):
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self._channels[topic].log(msg, log_time=self.sim_time_ns)
 
-    def _on_ready(self, topic: str, handler, msg: bytes) -> None:
+    def _handler(self, topic: str):
+        return self._on_clock if topic == gn.CLOCK else functools.partial(self._on_message, topic)
+
+    def _on_ready(self, topic: str, msg: bytes) -> None:
         """(executor thread) The message the executor took, then up to ``drain_batch`` more already
-        waiting on the same subscription, taken directly (in arrival order; each one is logged with the
-        sim time of the latest /clock handled so far)."""
-        handler(msg)
-        sub = self._ros_subs.get(topic)
-        for _ in range(self.drain_batch):
-            if sub is None:
+        waiting on every subscription, taken directly (module docstring: ``drain_batch``)."""
+        self._handlers[topic](msg)
+        left = self.drain_batch
+        while left > 0:
+            taken_pass = 0
+            for other, sub in list(self._ros_subs.items()):   # /clock first (subscribed first)
+                handler = self._handlers[other]
+                while left > 0:
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    handler(taken[0])
+                    taken_pass += 1
+                    left -= 1
+            if taken_pass == 0:
                 return
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, True)
-            if taken is None:
-                return
-            handler(taken[0])
 
     def _subscribe(self, topic: str) -> None:
         spec = self._specs[topic]
-        handler = self._on_clock if topic == gn.CLOCK else functools.partial(self._on_message, topic)
-        callback = functools.partial(self._on_ready, topic, handler)
+        self._handlers[topic] = self._handler(topic)
+        callback = functools.partial(self._on_ready, topic)
         self._ros_subs[topic] = self.create_subscription(spec.msg_class(), topic, callback,
                                                          recording_qos(spec.qos_profile), raw=True)
 
