@@ -519,6 +519,10 @@ class Rosbag2McapWriter:
     def topics(self) -> Dict[str, TopicInfo]:
         return dict(self._topics)
 
+    def has_topic(self, topic: str) -> bool:
+        """Whether ``topic`` is registered (without copying :attr:`topics`)."""
+        return topic in self._topics
+
     @property
     def finished(self) -> bool:
         return self._finished
@@ -584,10 +588,11 @@ class Rosbag2McapWriter:
             info = self.register_topic(topic, type_name)
         else:
             self._check_open()
-            pkg, name = normalize_type_name(type_name)
-            if info.type_name != f"{pkg}/msg/{name}":
-                raise RecorderError(
-                    f"topic {topic} is recorded as {info.type_name}, not {type_name}")
+            if type_name != info.type_name:   # the recorded pkg/msg/Type as given: no parsing per message
+                pkg, name = normalize_type_name(type_name)
+                if info.type_name != f"{pkg}/msg/{name}":
+                    raise RecorderError(
+                        f"topic {topic} is recorded as {info.type_name}, not {type_name}")
         log_time_ns = int(log_time_ns)
         publish_time_ns = int(publish_time_ns)
         if log_time_ns < 0 or publish_time_ns < 0:

@@ -253,7 +253,7 @@ class RecorderNode(Node):
         log_time = self.get_clock().now().nanoseconds
         publish_time = int(info["source_timestamp"]) if info else 0
         try:
-            if spec.name not in self._writer.topics:
+            if not self._writer.has_topic(spec.name):
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
             self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
             if spec.name == graph_names.SIM_PLANT:
