@@ -125,7 +125,7 @@ class DdsProbe:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from biped_sim.graph import names as gn
-        from biped_sim.recording.recorder_node import recording_qos
+        from biped_sim.graph.recorder_node import recording_qos
         os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)

@@ -21,7 +21,7 @@ _LINE = re.compile(r"run over: (?P<reason>[^;]*); (?P<steps>\d+) control steps, 
 def measure(sim_seconds: float, domain_cls, timeout: float = 180.0) -> dict:
     with domain_cls() as dom:
         ctrl = subprocess.Popen([sys.executable, "-m", "biped_controller.graph.controller_node", "--ros-args",
-                                 "-p", "use_sim_time:=true"],
+                                 "-p", "use_sim_time:=true", "-p", "wait_for_recorder:=false"],
                                 cwd=ROOT, env=dom.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             sim = subprocess.run([sys.executable, "-m", "biped_sim.graph.simulator_node", "--ros-args",

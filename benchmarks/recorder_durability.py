@@ -57,7 +57,7 @@ class ClockProbe:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from biped_sim.graph import names as gn
-        from biped_sim.recording.recorder_node import recording_qos
+        from biped_sim.graph.recorder_node import recording_qos
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = rclpy.create_node('durability_probe', context=self.ctx)

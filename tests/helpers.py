@@ -1,21 +1,13 @@
-"""Shared test helpers: tolerant comparison that prints both sides, central finite differences,
-and access to the project's pure-Python packages when they are not installed."""
+"""Shared test helpers: tolerant comparison that prints both sides, central finite differences.
+(The project's packages are installed in the venv by scripts/setup, editable: no path set-up here.)"""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for _pkg in ("biped_sim", "biped_controller"):
-    _p = str(ROOT / "src" / _pkg)
-    try:
-        __import__(_pkg)
-    except ImportError:
-        if _p not in sys.path:
-            sys.path.insert(0, _p)
 
 CONFIG = ROOT / "config" / "biped.yaml"
 

@@ -36,7 +36,7 @@ SUBPROTOCOL = 'foxglove.sdk.v1'
 
 # ------------------------------------------------------------------------------------------ pure core
 def _prefixes():
-    from biped_sim.recording.recorder_node import RecorderNode
+    from biped_sim.graph.recorder_node import RecorderNode
     return RecorderNode._prefixes_list()
 
 

@@ -5,7 +5,6 @@ from dataclasses import replace
 
 import numpy as np
 
-import helpers  # noqa: F401  (puts src/ on the path when the packages are not installed)
 from biped_controller.core.controller import AdaptiveController, load_controller_config
 from biped_sim.robot.gait_family import GaitFamily
 

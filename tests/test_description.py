@@ -11,7 +11,6 @@ import pinocchio as pin
 import pytest
 import yaml
 
-import helpers  # noqa: F401
 from helpers import CONFIG, assert_close
 
 from biped_sim.robot.description import (

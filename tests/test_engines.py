@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import pytest
 
-import helpers  # noqa: F401
 from helpers import assert_same_fields, assert_same_run
 from biped_controller.studies import runner
 from biped_controller.core.controller import load_controller_config

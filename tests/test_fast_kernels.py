@@ -17,7 +17,6 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-import helpers  # noqa: F401
 from helpers import assert_close
 
 from biped_sim.robot.fixed_foot import FixedFootModel

@@ -260,7 +260,7 @@ def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path
     from biped_sim.graph import names as gn
     from biped_sim.graph.push_client import call_apply_push
     from biped_sim.graph.soak import push_delay
-    from biped_sim.recording.bag_summary import analyze_bag
+    from biped_sim.graph.bag_summary import analyze_bag
 
     proc, bag, ready = _launch(tmp_path, dict(os.environ), '--steps', '0', '--sim-param', 'max_time:=600.0',
                                '--sim-param', 'real_time_factor:=0.0')

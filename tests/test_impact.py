@@ -6,7 +6,6 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-import helpers  # noqa: F401
 from helpers import assert_close, directional_diff
 
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel

@@ -22,15 +22,15 @@ PACKAGES = {"biped_sim": ROOT / "src" / "biped_sim" / "biped_sim",
             "biped_controller": ROOT / "src" / "biped_controller" / "biped_controller"}
 # The ROS layer: nodes and the tools that talk to a running graph. Everything else is pure core.
 ROS_LAYER = {
-    "biped_sim.graph.simulator_node", "biped_sim.graph.disturbance_node", "biped_sim.recording.recorder_node", "biped_sim.live.bridge_node",
+    "biped_sim.graph.simulator_node", "biped_sim.graph.disturbance_node", "biped_sim.graph.recorder_node", "biped_sim.live.bridge_node",
     "biped_sim.graph.names", "biped_sim.graph.params", "biped_sim.graph.launch", "biped_sim.graph.push_client",
-    "biped_sim.graph.demo", "biped_sim.graph.soak", "biped_sim.recording.bag_summary", "biped_controller.graph.controller_node",
+    "biped_sim.graph.demo", "biped_sim.graph.soak", "biped_sim.graph.bag_summary", "biped_controller.graph.controller_node",
 }
 # room -> the rooms it may import (besides itself). A module's room is its sub-package.
 ROOMS = {
     "biped_sim.robot": set(),
     "biped_sim.plant": {"biped_sim.robot"},
-    "biped_sim.recording": {"biped_sim.robot", "biped_sim.graph"},
+    "biped_sim.recording": {"biped_sim.robot"},
     "biped_sim.graph": {"biped_sim.robot", "biped_sim.plant", "biped_sim.recording"},
     "biped_sim.live": {"biped_sim.robot", "biped_sim.graph", "biped_sim.recording"},
     "biped_controller.core": {"biped_sim.robot"},

@@ -7,7 +7,6 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-import helpers  # noqa: F401  (puts src/ packages on sys.path if needed)
 from helpers import (
     assert_close,
     central_diff,

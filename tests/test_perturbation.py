@@ -450,7 +450,7 @@ def test_recorded_perturbed_run_carries_the_true_plant_in_the_bag_metadata(ros_d
     import sys
     import yaml
     from mcap.reader import make_reader
-    from biped_sim.recording.recorder_node import PLANT_METADATA
+    from biped_sim.graph.recorder_node import PLANT_METADATA
     from biped_sim.robot.settings import repo_root
     bag = tmp_path / "bag"
     r = subprocess.run([sys.executable, "-m", "biped_sim.graph.launch", "--bag", str(bag), "--steps", "1",

@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import helpers  # noqa: F401
 from biped_controller.studies import runner
 from biped_sim.plant.push import Push
 from biped_sim.plant.rigid import Simulator

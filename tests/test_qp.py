@@ -629,17 +629,19 @@ def test_status_constants_equal_the_message_constants():
 
 
 def _imported_modules(path: Path) -> set:
-    """Modules a source file imports (relative imports resolved inside biped_controller)."""
+    """Modules a source file imports (relative imports resolved inside biped_controller.core; ``from
+    package import module`` counts the module)."""
     out = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
-            base = "biped_controller." if node.level else ""
-            if node.module:
+            base = "biped_controller.core." if node.level else ""
+            if node.module and node.module not in ("biped_controller.core",):
                 out.add(base + node.module)
             else:
-                out.update(base + a.name for a in node.names)
+                pkg = base.rstrip(".") if not node.module else node.module
+                out.update(f"{pkg}.{a.name}" for a in node.names)
     return out
 
 

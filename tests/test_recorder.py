@@ -631,7 +631,7 @@ def _need_rclpy():
 
 
 def _run_recorder(tmp_path, params: list[str], env: dict | None = None) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "biped_sim.recording.recorder_node", "--ros-args"]
+    cmd = [sys.executable, "-m", "biped_sim.graph.recorder_node", "--ros-args"]
     for p in params:
         cmd += ["-p", p]
     return subprocess.Popen(cmd, env=env or _ros_env(tmp_path), stdout=subprocess.PIPE,

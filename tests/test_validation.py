@@ -3,6 +3,7 @@ parameter files' loaders (pure: no ROS)."""
 
 from __future__ import annotations
 
+import ast
 import copy
 import math
 
@@ -318,3 +319,57 @@ def test_family_description_check():
     check_urdf_joints(urdf)
     with pytest.raises(RobotFilesError, match='left_knee'):
         check_urdf_joints(urdf.replace('"left_knee"', '"l_knee"'))
+
+
+def test_graph_yaml_every_key_has_a_reason():
+    """Every parameter in config/graph.yaml carries its reason (a comment on its line or the line above)."""
+    from biped_sim.robot.settings import default_config_dir
+    lines = (default_config_dir() / 'graph.yaml').read_text().splitlines()
+    missing = []
+    for i, ln in enumerate(lines):
+        s = ln.strip()
+        if not s or s.startswith('#') or s.endswith(':') and 'ros__parameters' in s:
+            continue
+        indent = len(ln) - len(ln.lstrip())
+        if indent >= 4 and ':' in s:     # a parameter line (node: and ros__parameters: are shallower)
+            if '#' not in ln and not lines[i - 1].strip().startswith('#'):
+                missing.append(s)
+    assert not missing, f'config/graph.yaml keys without a reason: {missing}'
+
+
+def _literal_defaults(path):
+    """(reader, name) of every get_float/int/bool/str(node, 'name', <default>) call with a default in ``path``."""
+    tree = ast.parse(path.read_text())
+    out = []
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                and node.func.id in ('get_float', 'get_int', 'get_bool', 'get_str')
+                and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant)):
+            if len(node.args) >= 3 or any(k.arg == 'default' for k in node.keywords):
+                out.append((node.func.id, node.args[1].value))
+    return out
+
+
+def test_node_defaults_come_from_graph_yaml():
+    """A node parameter that config/graph.yaml lists is read without a code default (graph_default supplies it),
+    and graph_default finds every one of them; the checker catches a planted literal default."""
+    from biped_sim.graph.params import GraphDefaultsError, graph_default
+    from biped_sim.robot.settings import default_config_dir, repo_root
+    g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
+    nodes = {'simulator': 'src/biped_sim/biped_sim/graph/simulator_node.py',
+             'controller': 'src/biped_controller/biped_controller/graph/controller_node.py',
+             'disturbance': 'src/biped_sim/biped_sim/graph/disturbance_node.py'}
+    for node, rel in nodes.items():
+        keys = set(g[node]['ros__parameters'])
+        repeated = [(f, n) for f, n in _literal_defaults(repo_root() / rel) if n in keys]
+        assert not repeated, f'{rel} repeats config/graph.yaml defaults: {repeated}'
+        for k in keys:
+            assert graph_default(node, k) == g[node]['ros__parameters'][k]
+    with pytest.raises(GraphDefaultsError, match="'simulator' has no default for parameter 'no_such_key'"):
+        graph_default('simulator', 'no_such_key')
+
+
+def test_literal_default_checker_finds_a_planted_one(tmp_path):
+    f = tmp_path / 'node.py'
+    f.write_text("x = get_float(self, 'max_time', 0.0, lo=0.0)\ny = get_int(self, 'max_steps', lo=0)\n")
+    assert _literal_defaults(f) == [('get_float', 'max_time')]

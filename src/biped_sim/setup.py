@@ -20,7 +20,7 @@ setup(
         'console_scripts': [
             'simulator = biped_sim.graph.simulator_node:main',
             'disturbance = biped_sim.graph.disturbance_node:main',
-            'recorder = biped_sim.recording.recorder_node:main',
+            'recorder = biped_sim.graph.recorder_node:main',
             'bridge = biped_sim.live.bridge_node:main',
         ],
     },

@@ -105,9 +105,9 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(gn.CONTROLLER_NODE, **kwargs)
         self.cfg = read_controller_config(self)
-        declare_executor(self, 'events')
-        self.state_timeout = get_float(self, 'state_timeout', 2.0, lo=0.0, lo_open=True)
-        self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
+        declare_executor(self)
+        self.state_timeout = get_float(self, 'state_timeout', lo=0.0, lo_open=True)
+        self.wait_for_recorder = get_bool(self, 'wait_for_recorder')
         desc, family = load_robot_files(self)
         self.ctrl = AdaptiveController(self.cfg, family, desc)
         self.ctrl.reset()

@@ -37,7 +37,6 @@ import argparse
 import functools
 import json
 import math
-import multiprocessing as mp
 import os
 import sys
 import time
@@ -59,6 +58,7 @@ from biped_controller.core.controller import (MODES, NO_ADAPTATION, AdaptiveCont
                          load_controller_config)
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
 from biped_controller.core.qp import STATUS_NAMES
+from biped_controller.studies.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.runner import PushSpec, RunResult
 
 #: The paper's largest survivable push [N] (250 N-class push on the back during 0.025 s at mid-step);
@@ -529,56 +529,23 @@ def _result_for(mode: str, coarse_trials: list[dict], lo: float, hi: float | Non
     }
 
 
-class Progress:
-    def __init__(self, total: int, label: str, enabled: bool = True):
-        self.total, self.done, self.label, self.enabled = total, 0, label, enabled
-        self.t0 = time.perf_counter()
-
-    def __call__(self, n: int = 1, total: int | None = None) -> None:
-        self.done += n
-        if total is not None:
-            self.total = total
-        if not self.enabled:
-            return
-        w = 30
-        k = int(w * min(self.done, self.total) / max(self.total, 1))
-        sys.stderr.write(f"\r{self.label} [{'#' * k}{'.' * (w - k)}] {self.done}/{self.total} runs "
-                         f"{time.perf_counter() - self.t0:6.1f} s")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
-
-
-def _pool(workers: int):
-    return mp.get_context("spawn").Pool(workers, initializer=_worker_init)
-
-
-def _worker_init() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    context()  # each worker loads its own description, family and settings (and builds its own models per run)
-
-
 def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float = 2000.0, coarse: float = 50.0,
                    duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, height: float | None = None,
                    workers: int = 1, progress: bool = True, sign: float = 1.0,
                    settings: RunSettings = DEFAULT_SETTINGS) -> dict[str, dict]:
-    """Largest survivable push for each mode: coarse scan (all modes' trials together, over a pool of
-    ``workers`` processes), then a bisection of each mode's lowest failing edge (modes in parallel).
-    Every result carries ``settings`` (the overrides and the effective controller/simulator settings)."""
+    """Largest survivable push for each mode: coarse scan (all modes' trials together, over the studies'
+    executor with ``workers`` processes), then a bisection of each mode's lowest failing edge (modes in
+    parallel). Every result carries ``settings`` (the overrides and the effective controller/simulator
+    settings)."""
     described = check_settings(settings)   # a bad override fails here, before any worker starts
     forces = coarse_forces(fmax, coarse)
     tasks = [(sign * f, m, duration, start, height, settings) for m in modes for f in forces]
     bis_est = len(modes) * max(0, math.ceil(math.log2(max(coarse / resolution, 1.0))))
-    bar = Progress(len(tasks) + bis_est, "max-push " + ",".join(modes), progress)
-    coarse_res: list[dict] = []
-    pool = _pool(workers) if workers > 1 else None
+    bar = CountingBar(len(tasks) + bis_est, ProgressBar(sys.stderr if progress else None,
+                                                        label="max-push " + ",".join(modes)))
+    ex = make_executor(workers, initializer=context)
     try:
-        it = pool.imap(_trial, tasks) if pool else map(_trial, tasks)
-        for r in it:
-            coarse_res.append(r)
-            bar()
+        coarse_res = ex.map(_trial, [(t,) for t in tasks], on_result=lambda r: bar())
         per_mode = {}
         bis_tasks = []
         for m in modes:
@@ -588,17 +555,14 @@ def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float 
             if hi is not None:
                 bis_tasks.append((m, lo, hi, resolution, duration, start, height, sign, settings))
         bis_out = {}
-        if pool and len(bis_tasks) > 1:
-            for mode, lo, hi, tr in pool.imap(_bisect_task, bis_tasks):
+        if workers > 1 and len(bis_tasks) > 1:
+            for mode, lo, hi, tr in ex.map(_bisect_task, [(t,) for t in bis_tasks], on_result=lambda r: bar(len(r[3]))):
                 bis_out[mode] = (lo, hi, tr)
-                bar(len(tr))
         else:
             for (m, lo, hi, res_, d, s0, h, sg, st) in bis_tasks:
                 bis_out[m] = bisect_edge(m, lo, hi, res_, d, s0, h, progress=bar, sign=sg, settings=st)
     finally:
-        if pool:
-            pool.close()
-            pool.join()
+        ex.close()
     bar.close()
     results = {}
     for m in modes:

@@ -28,11 +28,8 @@ Noise is one realisation (seed 0): a boundary under noise is that realisation's.
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import json
 import math
-import multiprocessing as mp
-import os
 import signal
 import sys
 import time
@@ -47,6 +44,8 @@ from biped_controller.studies import capability_map as cmap
 from biped_controller.studies import experiment
 from biped_controller.studies import runner
 from biped_controller.core.controller import MODES
+from biped_controller.studies.executor import make_executor
+from biped_controller.studies.provenance import git_state
 from biped_controller.studies.experiment import RunSettings
 
 WALK_STEPS = 20
@@ -139,10 +138,6 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     }
 
 
-def _walk_task(args: tuple) -> dict:
-    return walk_record(*args)
-
-
 def walk_fingerprint(perturbation: PlantPerturbation, observer: bool) -> str:
     """The capability map's fingerprint of the walk's settings (controller and simulator settings with the
     perturbation, robot description, gait family file): a walk record is reused only while it matches."""
@@ -158,11 +153,6 @@ def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool,
 
 def _record_key(r: dict) -> str:
     return _walk_key(r["perturbation"], r["mode"], r["observer"], r["steps"], r.get("fingerprint"))
-
-
-def _worker_init() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    experiment.context()
 
 
 def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, log=print,
@@ -181,22 +171,16 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers: int, l
                 if k not in done:
                     tasks.append((lv.perturbation, m, obs, WALK_STEPS))
     log(f"walks: {len(tasks)} to run, {len(done)} stored")
+
+    def keep(r: dict) -> None:
+        store.append([r])
+        done[_record_key(r)] = r
+        log(f"  walk {PlantPerturbation.from_dict(r['perturbation']).label()} {r['mode']} "
+            f"observer {'on' if r['observer'] else 'off'}: {'survived' if r['survived'] else 'FELL'} "
+            f"{r['steps_walked']} steps {r['fall_cause'] or ''} ({r['wall_time']:.0f} s)")
     if tasks:
-        if workers > 1:
-            with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_init) as ex:
-                for r in ex.map(_walk_task, tasks):
-                    store.append([r])
-                    done[_record_key(r)] = r
-                    log(f"  walk {PlantPerturbation.from_dict(r['perturbation']).label()} {r['mode']} "
-                        f"observer {'on' if r['observer'] else 'off'}: {'survived' if r['survived'] else 'FELL'} "
-                        f"{r['steps_walked']} steps {r['fall_cause'] or ''} ({r['wall_time']:.0f} s)")
-        else:
-            for t in tasks:
-                r = walk_record(*t)
-                store.append([r])
-                done[_record_key(r)] = r
-                log(f"  walk {PlantPerturbation.from_dict(r['perturbation']).label()} {r['mode']}: "
-                    f"{'survived' if r['survived'] else 'FELL'} {r['steps_walked']} steps {r['fall_cause'] or ''}")
+        with make_executor(workers, initializer=experiment.context) as ex:
+            ex.map(walk_record, tasks, on_result=keep)
     return done
 
 
@@ -433,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
             "pushes": [dict(v, key=list(map(str, k))) for k, v in sorted(pushes.items(), key=str)],
             "searches": {m: {"coarse": s.coarse, "max": s.fmax, "resolution": s.resolution} for m, s in SEARCHES.items()},
             "push_cell": PUSH_CELL, "walk_steps": WALK_STEPS, "figures": figs,
-            "git": cmap.git_state(), "wall_time": time.perf_counter() - t0}, indent=1), encoding="utf-8")
+            "git": git_state(), "wall_time": time.perf_counter() - t0}, indent=1), encoding="utf-8")
     return 0
 
 

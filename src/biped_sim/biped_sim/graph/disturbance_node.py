@@ -57,16 +57,16 @@ class DisturbanceNode(Node):
         overrides = [p for p in kwargs.pop('parameter_overrides', []) if p.name != 'use_sim_time']
         overrides.append(Parameter('use_sim_time', Parameter.Type.BOOL, True))
         super().__init__(gn.DISTURBANCE_NODE, parameter_overrides=overrides, **kwargs)
-        desc_path = get_str(self, 'description_path', '')
+        desc_path = get_str(self, 'description_path')
         try:
             desc = load_description(desc_path or None)
         except (DescriptionError, OSError, ValueError) as exc:
             raise ParameterError('description_path', str(exc)) from exc
-        max_force = get_float(self, 'max_force', 2000.0, lo=0.0, lo_open=True)
-        max_duration = get_float(self, 'max_duration', 1.0, lo=0.0, lo_open=True)
+        max_force = get_float(self, 'max_force', lo=0.0, lo_open=True)
+        max_duration = get_float(self, 'max_duration', lo=0.0, lo_open=True)
         default_height = get_float(self, 'push_height', load_sim_config().push_height, lo=0.0,
                                    hi=desc.torso.length)
-        horizon = get_float(self, 'horizon', 3600.0, lo=0.0, lo_open=True)
+        horizon = get_float(self, 'horizon', lo=0.0, lo_open=True)
         self.book = PushBook(PushLimits(max_force, max_duration, desc.torso.length, default_height, horizon))
         forces = get_float_list(self, 'schedule_forces')
         starts = get_float_list(self, 'schedule_starts')

@@ -1,9 +1,14 @@
 """Declared-parameter helpers shared by the biped's ROS 2 nodes (ROS layer).
 
 Every parameter is declared with ``dynamic_typing`` so that a wrong type in a parameters file never
-raises inside rclpy with an unrelated message: :func:`declare_and_read` reads each value back,
-checks its type and range and raises :class:`ParameterError` naming the parameter. Nodes catch it in
-``main()``, log it and exit with status 2 before anything is published.
+raises inside rclpy with an unrelated message: the ``get_*`` readers read each value back, check its
+type and range and raise :class:`ParameterError` naming the parameter. Nodes catch it in ``main()``,
+log it and exit with status 2 before anything is published.
+
+Defaults: a node parameter's default is its value in ``config/graph.yaml`` (the node's
+``ros__parameters``; each with its reason there), read by :func:`graph_default` when a ``get_*`` is
+called without one, so no value of that file is repeated in code. Settings that have their home in
+``config/simulator.yaml`` / ``config/controller.yaml`` are passed explicitly from those files.
 """
 
 from __future__ import annotations
@@ -12,7 +17,11 @@ import math
 import sys
 import signal
 import time
+from functools import lru_cache
+from pathlib import Path
 from typing import Any, Callable, Iterable, Optional, Sequence
+
+import yaml
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
@@ -29,6 +38,35 @@ class ParameterError(ValueError):
         self.name = name
 
 
+class GraphDefaultsError(LookupError):
+    """config/graph.yaml has no default for a parameter a node reads (a programming error: the message
+    names the node, the parameter and the file)."""
+
+
+@lru_cache(maxsize=4)
+def _graph_tree(path: str) -> dict:
+    with open(path, encoding="utf-8") as fh:
+        tree = yaml.safe_load(fh) or {}
+    if not isinstance(tree, dict):
+        raise GraphDefaultsError(f"{path}: expected <node>: {{ros__parameters: {{...}}}}")
+    return tree
+
+
+def graph_default(node_name: str, name: str, path: str | Path | None = None) -> Any:
+    """The default of parameter ``name`` of node ``node_name``: its value in ``config/graph.yaml``."""
+    if path is None:
+        from biped_sim.robot.settings import default_config_dir
+        path = default_config_dir() / "graph.yaml"
+    params = (_graph_tree(str(path)).get(node_name) or {}).get("ros__parameters") or {}
+    if name not in params:
+        raise GraphDefaultsError(f"{path}: node '{node_name}' has no default for parameter '{name}'")
+    return params[name]
+
+
+def _default(node: Node, name: str, default: Any) -> Any:
+    return graph_default(node.get_name(), name) if default is None else default
+
+
 def _declare(node: Node, name: str, default: Any):
     desc = ParameterDescriptor(name=name, dynamic_typing=True)
     try:
@@ -37,9 +75,9 @@ def _declare(node: Node, name: str, default: Any):
         raise ParameterError(name, str(exc)) from exc
 
 
-def get_float(node: Node, name: str, default: float, *, lo: float | None = None, hi: float | None = None,
+def get_float(node: Node, name: str, default: float | None = None, *, lo: float | None = None, hi: float | None = None,
               lo_open: bool = False, allow_nan: bool = False) -> float:
-    v = _declare(node, name, float(default))
+    v = _declare(node, name, float(_default(node, name, default)))
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise ParameterError(name, f"expected a number, got {v!r}")
     v = float(v)
@@ -54,8 +92,8 @@ def get_float(node: Node, name: str, default: float, *, lo: float | None = None,
     return v
 
 
-def get_int(node: Node, name: str, default: int, *, lo: int | None = None, hi: int | None = None) -> int:
-    v = _declare(node, name, int(default))
+def get_int(node: Node, name: str, default: int | None = None, *, lo: int | None = None, hi: int | None = None) -> int:
+    v = _declare(node, name, int(_default(node, name, default)))
     if isinstance(v, bool) or not isinstance(v, int):
         raise ParameterError(name, f"expected an integer, got {v!r}")
     if lo is not None and v < lo:
@@ -65,15 +103,15 @@ def get_int(node: Node, name: str, default: int, *, lo: int | None = None, hi: i
     return int(v)
 
 
-def get_bool(node: Node, name: str, default: bool) -> bool:
-    v = _declare(node, name, bool(default))
+def get_bool(node: Node, name: str, default: bool | None = None) -> bool:
+    v = _declare(node, name, bool(_default(node, name, default)))
     if not isinstance(v, bool):
         raise ParameterError(name, f"expected true or false, got {v!r}")
     return v
 
 
-def get_str(node: Node, name: str, default: str, *, choices: Sequence[str] | None = None) -> str:
-    v = _declare(node, name, str(default))
+def get_str(node: Node, name: str, default: str | None = None, *, choices: Sequence[str] | None = None) -> str:
+    v = _declare(node, name, str(_default(node, name, default)))
     if not isinstance(v, str):
         raise ParameterError(name, f"expected a string, got {v!r}")
     if choices is not None and v not in choices:
@@ -104,8 +142,8 @@ def load_robot_files(node: Node):
     """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
     (empty = config/biped.yaml, config/gait_family.json), checked against each other."""
     from biped_sim.graph.checks import RobotFilesError, load_robot_files as _load
-    desc_path = get_str(node, 'description_path', '')
-    fam_path = get_str(node, 'gait_family_path', '')
+    desc_path = get_str(node, 'description_path')
+    fam_path = get_str(node, 'gait_family_path')
     try:
         return _load(desc_path, fam_path)
     except RobotFilesError as exc:
@@ -156,9 +194,10 @@ def wait_all_acked(node: Node, timeout: float) -> list[str]:
     return late
 
 
-def declare_executor(node: Node, default: str) -> str:
-    """Declare the ``executor`` parameter (one of EXECUTORS); a bad value raises ParameterError naming it."""
-    v = _declare(node, 'executor', default)
+def declare_executor(node: Node) -> str:
+    """Declare the ``executor`` parameter (one of EXECUTORS; default from config/graph.yaml); a bad value
+    raises ParameterError naming it."""
+    v = _declare(node, 'executor', _default(node, 'executor', None))
     if v not in EXECUTORS:
         raise ParameterError('executor', f"must be one of {', '.join(EXECUTORS)}, got {v!r}")
     return v

@@ -214,9 +214,9 @@ class SimulatorNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(gn.SIMULATOR_NODE, **kwargs)
-        self.declare_parameter_errors()
+        self._read_parameters()
         self.desc, family = load_robot_files(self)
-        urdf_path = get_str(self, 'urdf_path', '')
+        urdf_path = get_str(self, 'urdf_path')
         if urdf_path:
             try:
                 with open(urdf_path, encoding='utf-8') as fh:
@@ -278,27 +278,29 @@ class SimulatorNode(Node):
             f'max_steps {self.max_steps}, max_time {self.max_time} s; waiting for the controller')
 
     # ------------------------------------------------------------------ parameters
-    def declare_parameter_errors(self):
+    def _read_parameters(self):
+        """Declare and read every parameter (defaults: config/graph.yaml, config/simulator.yaml); a bad one raises
+        ParameterError naming it, before anything is created."""
         if self.get_parameter('use_sim_time').value:
             raise ParameterError('use_sim_time', 'the simulator is the clock source: must be false')
         self.cfg = read_sim_config(self)
-        declare_executor(self, 'events')
-        self.max_steps = get_int(self, 'max_steps', 0, lo=0)
-        self.max_time = get_float(self, 'max_time', 0.0, lo=0.0)
-        self.command_timeout = get_float(self, 'command_timeout', 5.0, lo=0.0, lo_open=True)
-        self.start_timeout = get_float(self, 'start_timeout', 60.0, lo=0.0, lo_open=True)
-        self.start_delay = get_float(self, 'start_delay', 0.2, lo=0.0)
-        self.linger = get_float(self, 'linger', 0.5, lo=0.0, hi=60.0)
+        declare_executor(self)
+        self.max_steps = get_int(self, 'max_steps', lo=0)
+        self.max_time = get_float(self, 'max_time', lo=0.0)
+        self.command_timeout = get_float(self, 'command_timeout', lo=0.0, lo_open=True)
+        self.start_timeout = get_float(self, 'start_timeout', lo=0.0, lo_open=True)
+        self.start_delay = get_float(self, 'start_delay', lo=0.0)
+        self.linger = get_float(self, 'linger', lo=0.0, hi=60.0)
         # after the linger, wait (at most this long) until every subscriber has acknowledged everything
-        self.ack_timeout = get_float(self, 'ack_timeout', 5.0, lo=0.0, hi=60.0)
-        self.wait_for_recorder = get_bool(self, 'wait_for_recorder', False)
-        self.wait_for_pushes = get_int(self, 'wait_for_pushes', 0, lo=0)
+        self.ack_timeout = get_float(self, 'ack_timeout', lo=0.0, hi=60.0)
+        self.wait_for_recorder = get_bool(self, 'wait_for_recorder')
+        self.wait_for_pushes = get_int(self, 'wait_for_pushes', lo=0)
         # the live bridge (launch --live): wait until this node sees it on /clock, so that its readers are
         # among the subscribers every published topic must have matched before the first state
-        self.wait_for_bridge = get_bool(self, 'wait_for_bridge', False)
+        self.wait_for_bridge = get_bool(self, 'wait_for_bridge')
         # pacing: 1.0 = sim time follows the wall clock (a live viewer sees real time), 0 = as fast as
         # the lockstep allows (experiments), r = r x real time
-        self.real_time_factor = get_float(self, 'real_time_factor', 0.0, lo=0.0, hi=1000.0)
+        self.real_time_factor = get_float(self, 'real_time_factor', lo=0.0, hi=1000.0)
 
     # ------------------------------------------------------------------ start
     def _missing_for_start(self) -> list[str]:

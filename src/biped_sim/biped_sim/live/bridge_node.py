@@ -39,7 +39,7 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``message_backlog`` (int 16..1000000, default 20000): messages queued per client before the
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
-- ``drain_batch`` (int 0..100000, default 0): after the message the executor handed over, at most this
+- ``drain_batch`` (int 0..100000; 0 = one message per executor round): after the message the executor handed over, at most this
   many more are taken directly, in the same callback, from *every* subscription (passes over them until
   one takes nothing; each topic's messages in their order; ``/clock`` first in each pass, so the log time
   is the newest sim time), as the recorder does. The executor's round per message (rclpy's
@@ -74,11 +74,9 @@ from biped_sim.live.bridge_core import (
 )
 from biped_sim.recording.mcap_recorder import RecorderError, build_message_definition
 from biped_sim.graph.params import ParameterError, get_bool, get_float, get_int, get_str, run_node
-from biped_sim.recording.recorder_node import RecorderNode, recording_qos
+from biped_sim.graph.recorder_node import RecorderNode, recording_qos
 
 NODE_NAME = gn.BRIDGE_NODE
-DEFAULT_HOST = '127.0.0.1'
-DEFAULT_PORT = 8765
 SERVER_NAME = 'biped'
 
 
@@ -143,16 +141,16 @@ class BridgeNode(Node):
         from foxglove import Channel, MessageSchema, Schema, Service, ServiceSchema
         from foxglove.websocket import Capability
 
-        self.host = get_str(self, 'host', DEFAULT_HOST).strip()
+        self.host = get_str(self, 'host').strip()
         if not self.host:
             raise ParameterError('host', 'must name an address to bind (empty)')
-        port = get_int(self, 'port', DEFAULT_PORT, lo=0, hi=65535)
-        self.service_timeout = get_float(self, 'service_timeout', 10.0, lo=0.0, lo_open=True)
-        backlog = get_int(self, 'message_backlog', 20000, lo=16, hi=1_000_000)
+        port = get_int(self, 'port', lo=0, hi=65535)
+        self.service_timeout = get_float(self, 'service_timeout', lo=0.0, lo_open=True)
+        backlog = get_int(self, 'message_backlog', lo=16, hi=1_000_000)
         # true: a per-step stream is read only while a client watches it (less load on a busy machine; a
         # stream subscribed on demand starts after DDS discovery, some 0.1-0.3 s of messages later)
-        self.lazy_streams = get_bool(self, 'lazy_streams', False)
-        self.drain_batch = get_int(self, 'drain_batch', 0, lo=0, hi=100_000)
+        self.lazy_streams = get_bool(self, 'lazy_streams')
+        self.drain_batch = get_int(self, 'drain_batch', lo=0, hi=100_000)
 
         self.sim_time_ns = 0
         self.clock_errors = 0

@@ -14,11 +14,11 @@ Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad o
 - ``compression`` (string, ``zstd`` | ``lz4`` | ``none``; default ``zstd``): MCAP chunk compression.
 - ``chunk_size``  (int bytes, 4096 .. 1073741824; default 262144): uncompressed chunk size, which
   also bounds what a SIGKILL loses.
-- ``chunk_time``  (float s, 0 or 0.001 .. 3600; 0 = by size only): a chunk is also written out once its
+- ``chunk_time``  (float s, 0 or 0.001 .. 3600; 0 = by size only; default: ``config/graph.yaml``): a chunk is also written out once its
   first message is this old (wall clock; checked at each message and by a steady timer every
   ``chunk_time`` / 2), so a SIGKILL loses at most about ``chunk_time`` s of messages (plus what DDS still
   held for the recorder). ``config/graph.yaml`` sets it.
-- ``sync``        (bool, default false): ``fdatasync`` each chunk (a power cut then loses at most the chunk
+- ``sync``        (bool; default: ``config/graph.yaml``): ``fdatasync`` each chunk (a power cut then loses at most the chunk
   being built; without it, what the kernel had not written back yet too).
 
 The bag is finished cleanly on SIGINT and SIGTERM (own handlers stop the spin loop, then
@@ -42,7 +42,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, ReliabilityPolicy
 
 from biped_sim.graph import names as graph_names
-from biped_sim.graph.params import ParameterError, run_node
+from biped_sim.graph.params import ParameterError, graph_default, run_node
 from biped_sim.recording.mcap_recorder import (
     DEFAULT_CHUNK_SIZE,
     INFINITE_DURATION,
@@ -134,8 +134,8 @@ class RecorderNode(Node):
         self.declare_parameter("output_dir", "")
         self.declare_parameter("compression", "zstd")
         self.declare_parameter("chunk_size", DEFAULT_CHUNK_SIZE)
-        self.declare_parameter("chunk_time", 0.0)
-        self.declare_parameter("sync", False)
+        self.declare_parameter("chunk_time", float(graph_default(graph_names.RECORDER_NODE, "chunk_time")))
+        self.declare_parameter("sync", bool(graph_default(graph_names.RECORDER_NODE, "sync")))
         output_dir, compression, chunk_size, chunk_time, sync = self._read_parameters()
 
         self.failure: Optional[RecorderError] = None

@@ -1,0 +1,73 @@
+"""Push-recovery capability map: the survival boundary in force over onset phase x direction x duration,
+for each adaptation mode, on a local process pool or a Ray cluster (issue 12).
+
+Run through ``scripts/capability_map [options]`` (``--help``); e.g. the default full map (4 modes x 2
+directions x 20 phases x 3 durations) on two processes, resumable, with figures and a summary::
+
+    scripts/capability_map --workers 2 --store build/capability_map/records.jsonl \\
+        --out docs/figures/capability_map --json build/capability_map/summary.json
+
+What one simulation is (:func:`simulate`, the pure task function every executor runs): the in-process
+closed loop of ``experiment.survives`` (``runner.run``: Simulator + AdaptiveController, no ROS) with one
+push of magnitude ``force`` [N] on the torso (``push_height`` of config/simulator.yaml unless
+``--height``), horizontal, ``+`` forward (on the back) for direction ``forward`` and ``-`` for
+``backward``, acting over [start, start + duration) [s] of simulated time.
+
+Onset phase: a fraction ``phase`` in [0, 1) of the *first* step, ``start = phase * T`` [s], with T the
+period of the preferred gait (``GaitFamily.T``, 0.463 s); the walk starts at t = 0 from the family's
+initial state, the beginning of that first step (just after an impact). ``--phases N`` samples
+``phase = k / N``, k = 0 .. N-1, so phase 0.5 is the paper's "middle of the first step"
+(``experiment.DEFAULT_START``) whenever N is even. A long push may end after the first impact; survival
+then counts the steps after the push's end.
+
+Survival is ``experiment``'s criterion (``experiment.survival``): no fall until ``SURVIVAL_STEPS``
+impacts after the end of the push, and p back within ``P_TOL`` of p_d and tau' within ``TAU_DOT_TOL``
+of 1 at the end.
+
+Search per cell (mode, direction, phase, duration), as ``experiment.max_push_modes`` does it for one
+cell: the coarse forces ``experiment.coarse_forces(max, coarse)`` (coarse, 2 coarse, ... <= max) are all
+simulated, with ``max`` lowered to ``max_impulse / duration`` for long pushes (default 50 N s = 2000 N x
+0.025 s: the same impulse range for every duration, 500 N at 0.1 s, 250 N at 0.2 s); ``experiment.analyse_coarse`` gives the last survivable force below the first failing one
+(lo, 0 when the first fails), the first failing coarse force (hi) and the survivable coarse forces above
+it (the islands: survival is not monotone in the force); then [lo, hi] is bisected at midpoints down to
+``resolution`` [N] (the midpoints of ``experiment.bisect_edge``; tested equal). The boundary is the
+largest survivable force below the lowest failing edge, known to within ``resolution``; a cell whose
+coarse scan never fails is *censored* (boundary >= max). The search is a pure function of the records
+of the cell (:func:`plan_cell`): it names the simulations still needed, so simulations of many cells run
+in parallel and an interrupted map resumes from the records it stored.
+
+Each boundary force F [N] of a push of duration d [s] is also reported as
+  * impulse ``I = F d`` [N s] (exact in the simulator: the force is constant on each integration
+    interval, split at the push's start and end);
+  * the change of the centre of mass's horizontal velocity the push alone causes,
+    ``delta v_com = F d / M`` [m/s], M the robot's total mass from its description (momentum theorem on
+    the whole robot with the push as the only external impulse; the ground reaction during the push is
+    not counted, so this is a property of the push, comparable across robots);
+  * a fraction of body weight ``F / (M g)`` [-] (g from the description), the convention of humanoid
+    push-recovery test suites.
+The failure cause is that of the first failing force after the bisection (hi): the simulator's fall
+cause (``tip_toe``, ``tip_heel``, ``slip``, ``take_off``, ``no_liftoff``, ``numerical``) or, without a
+fall, ``p_not_back`` / ``tau_dot_not_back`` (not back on the preferred gait) or ``time_limit``.
+
+Records: one JSON object per simulation, one per line (JSON Lines), appended as each simulation
+completes (:class:`RecordStore`); a rerun with the same store skips every simulation already stored for
+the same *fingerprint* (sha256 of the controller and simulator settings, the robot description, the gait
+family file, the survival criterion and the push height; records of another fingerprint stay in the file
+and are ignored). The code is not fingerprinted: after a change of the controller or the simulator that
+changes results, start a new store (the summary records the git commit and the modified files). A torn last line (a run killed while writing) is cut
+off. A notebook loads the file with ``load_records(path)`` or ``pandas.read_json(path, lines=True)``.
+
+Executors: in-process (``--workers 1``), a local process pool (``--workers N``, default: all cores) or
+Ray (``--ray``: a local Ray instance with ``num_cpus = --workers``; ``--ray ADDRESS``: an existing
+cluster, whose nodes must have this package installed). All run the same :func:`simulate_batch` on
+batches of ``--batch`` simulations (default 1 on the pool, 4 on Ray: a failing simulation takes ~0.1 s,
+less than Ray's per-task overhead pays for). The simulator and the controller are deterministic, so every
+executor gives the same records (tested).
+
+Modules: ``spec`` (cells, search, map), ``metrics`` (conversions), ``task`` (one simulation and its
+record), ``store`` (records, fingerprint), ``search`` (one cell's search), ``driver`` (``run_map``),
+``executors`` (the shared ``studies.executor`` bound to the task), ``findings`` (summary), ``figures``,
+``cli``; ``studies.capability_map`` re-exports them (the public API and ``python -m``).
+
+Pure: no ROS import.
+"""

@@ -1,0 +1,128 @@
+"""``scripts/capability_map``: the command line of the map (``--help``)."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from biped_sim.plant.config import SimConfigError
+
+from biped_controller.core.controller import MODES, ControllerConfigError
+from biped_controller.studies import capmap, experiment
+from biped_controller.studies.capmap.driver import run_map
+from biped_controller.studies.capmap.executors import DEFAULT_BATCH, SerialExecutor, make_executor
+from biped_controller.studies.capmap.figures import figures
+from biped_controller.studies.capmap.findings import findings_text, summary
+from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATIONS, DEFAULT_MAX, DEFAULT_MAX_IMPULSE,
+                                                  DEFAULT_PHASES, DEFAULT_RESOLUTION, DIRECTIONS, Cell, MapError,
+                                                  MapSpec, Search, phases_of)
+from biped_controller.studies.capmap.store import RecordStore
+from biped_controller.studies.executor import ProgressBar
+from biped_controller.studies.experiment import OverrideError
+from biped_controller.studies.provenance import git_state
+
+
+def _split(values: Sequence[str]) -> list[str]:
+    return [x for v in values for x in v.split(",") if x]
+
+
+def _dump(path: Path, data: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+
+
+def _terminate(signum, frame):
+    raise SystemExit(128 + signum)
+
+
+def main(argv: list[str] | None = None) -> int:
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    ap = argparse.ArgumentParser(prog="scripts/capability_map", description=capmap.__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--modes", nargs="+", default=list(MODES), help=f"any of {' '.join(MODES)} (default all)")
+    ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
+    ap.add_argument("--phases", type=int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
+    ap.add_argument("--durations", nargs="+", type=float, default=list(DEFAULT_DURATIONS), help="push durations [s]")
+    ap.add_argument("--resolution", type=float, default=DEFAULT_RESOLUTION, help="bisection resolution [N]")
+    ap.add_argument("--coarse", type=float, default=DEFAULT_COARSE, help="coarse scan step [N]")
+    ap.add_argument("--max", type=float, default=DEFAULT_MAX, help="largest force scanned [N]")
+    ap.add_argument("--max-impulse", type=float, default=DEFAULT_MAX_IMPULSE,
+                    help="largest impulse scanned [N s] (inf: none): long pushes scan up to this / duration")
+    ap.add_argument("--height", type=float, default=None,
+                    help="push point above the hip [m] (default: push_height of config/simulator.yaml)")
+    ap.add_argument("--workers", type=int, default=cores, help=f"processes (default: all cores, {cores}); 1 = in process")
+    ap.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                    help="run on Ray: a local instance (num_cpus = --workers) or the cluster at ADDRESS")
+    ap.add_argument("--batch", type=int, default=None, help="simulations per task (default 1, 4 on Ray)")
+    ap.add_argument("--store", type=Path, default=Path("build/capability_map/records.jsonl"),
+                    help="per-simulation records (JSON Lines), resumed by a rerun")
+    ap.add_argument("--out", type=Path, default=None, help="directory for the PNG figures")
+    ap.add_argument("--json", type=Path, default=None, help="summary JSON")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--report-only", action="store_true",
+                    help="run nothing: summary and figures from the store (incomplete cells are left out)")
+    experiment._add_settings_args(ap)
+    args = ap.parse_args(argv)
+    try:
+        settings = experiment.parse_overrides(args.overrides, args.observer)
+        experiment.check_settings(settings)
+        if args.workers < 1:
+            raise MapError(f"--workers must be >= 1, got {args.workers}")
+        spec = MapSpec(tuple(_split(args.modes)), tuple(_split(args.directions)), phases_of(args.phases),
+                       tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
+                       args.height, settings)
+    except (MapError, OverrideError, ControllerConfigError, SimConfigError) as exc:
+        ap.error(str(exc))
+    batch = args.batch if args.batch is not None else DEFAULT_BATCH["ray" if args.ray else "pool"]
+    print(f"scripts/capability_map {' '.join(sys.argv[1:] if argv is None else argv)}")
+    print(f"{len(spec.cells())} cells: modes {','.join(spec.modes)} x directions {','.join(spec.directions)} x "
+          f"{len(spec.phases)} phases x durations {','.join(f'{d:g}' for d in spec.durations)} s; coarse "
+          f"{spec.search.coarse:g} N to " + ", ".join(f"{spec.search.for_duration(d).fmax:g} N ({d:g} s)" for d in spec.durations)
+          + f", bisection to {spec.search.resolution:g} N; store {args.store}")
+    ex = SerialExecutor() if args.report_only else make_executor(args.workers, args.ray)
+    # a kill (SIGTERM) unwinds like Ctrl-C: the executor is closed (no orphaned workers) and every record
+    # stored so far stays for the next run
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        run = run_map(spec, ex, RecordStore(args.store), batch, None if args.no_progress else ProgressBar(),
+                      simulate=not args.report_only)
+    finally:
+        ex.close()
+    figs = figures(run, args.out) if args.out is not None else []
+    summ = summary(run, figs)
+    summ["run"]["argv"] = list(sys.argv[1:] if argv is None else argv)
+    summ["run"]["workers"] = args.workers
+    summ["run"]["batch"] = batch
+    summ["run"]["store"] = str(args.store)
+    summ["run"]["git"] = git_state()
+    r = summ["run"]
+    print(f"{r['simulations_in_map']} simulations in the map: {r['simulations_run']} run now, "
+          f"{r['simulations_resumed']} resumed from the store ({r['store_records_ignored']} store records of "
+          f"other settings/code/cells ignored); wall time {r['wall_time']:.1f} s, "
+          + (f"{r['rate']:.3f} sims/s ({r['executor']}, {args.workers} workers, batch {batch})" if r["rate"] else "nothing run"))
+    print(f"{'mode':<5} {'dir':<8} {'dur':>5} " + " ".join(f"{p:>8g}" for p in spec.phases))
+    for m in spec.modes:
+        for dr in spec.directions:
+            for du in spec.durations:
+                row = []
+                for ph in spec.phases:
+                    b = run.boundaries.get(Cell(m, dr, ph, du))
+                    if b is None:
+                        row.append(f"{'?':>8}")
+                        continue
+                    row.append(f"{b.lo:>7.2f}{'+' if b.hi is None else ('*' if b.islands else ' ')}")
+                print(f"{m:<5} {dr:<8} {du:>5g} " + " ".join(row))
+    print("(boundary force [N] per onset phase; * = islands above the edge, + = censored: survived up to the scan's max"
+          + (f"; ? = search incomplete: {len(run.missing)} cells)" if run.missing else ")"))
+    for line in findings_text(summ["findings"]):
+        print(line)
+    for p in figs:
+        print(f"figure: {p}")
+    if args.json is not None:
+        _dump(args.json, summ)
+        print(f"summary: {args.json}")
+    return 0

@@ -1,0 +1,133 @@
+"""The capability map's specification: cells (mode, direction, onset phase, duration), the force search
+of a cell, the whole map, and their defaults. Units: forces [N], durations [s], impulses [N s], phases
+as fractions of the first step."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from biped_controller.core.controller import MODES
+from biped_controller.studies import experiment
+from biped_controller.studies.experiment import DEFAULT_SETTINGS, RunSettings
+
+#: direction name -> sign of the force (+ forward: on the back)
+DIRECTIONS: dict[str, float] = {"forward": 1.0, "backward": -1.0}
+DEFAULT_PHASES = 20
+DEFAULT_DURATIONS: tuple[float, ...] = (0.025, 0.1, 0.2)
+DEFAULT_RESOLUTION = 5.0      # bisection resolution [N] (experiment's max-push default)
+DEFAULT_COARSE = 50.0         # coarse scan step [N] (experiment's max-push default)
+DEFAULT_MAX = 2000.0          # largest force scanned [N] (experiment's max-push default)
+DEFAULT_MAX_IMPULSE = 50.0    # largest impulse scanned [N s]: 2000 N x 0.025 s, the same range for every duration
+
+
+class MapError(ValueError):
+    """The map's specification, its store or its executor is unusable (the message says what)."""
+
+
+
+@dataclass(frozen=True, order=True)
+class Cell:
+    """One boundary to find: adaptation mode, push direction, onset phase (fraction of the first step),
+    push duration [s]."""
+
+    mode: str
+    direction: str
+    phase: float
+    duration: float
+
+
+@dataclass(frozen=True)
+class SimSpec:
+    """One simulation: a cell and a force magnitude [N] (>= 0; the direction gives the sign)."""
+
+    cell: Cell
+    force: float
+
+    def key(self) -> tuple:
+        c = self.cell
+        return (c.mode, c.direction, c.phase, c.duration, self.force)
+
+
+@dataclass(frozen=True)
+class Search:
+    """The force search of a cell: coarse step and largest force [N], bisection resolution [N]; and the
+    largest impulse scanned [N s] (inf: no bound), which lowers the largest force of long pushes to
+    ``max_impulse / duration`` (never below one coarse step): :meth:`for_duration`."""
+
+    coarse: float = DEFAULT_COARSE
+    fmax: float = DEFAULT_MAX
+    resolution: float = DEFAULT_RESOLUTION
+    max_impulse: float = DEFAULT_MAX_IMPULSE
+
+    def __post_init__(self):
+        for name in ("coarse", "fmax", "resolution"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise MapError(f"{name} must be a finite number > 0 [N], got {v!r}")
+        if self.fmax < self.coarse:
+            raise MapError(f"max ({self.fmax} N) must be >= the coarse step ({self.coarse} N)")
+        if not (isinstance(self.max_impulse, (int, float)) and self.max_impulse > 0):
+            raise MapError(f"max_impulse must be > 0 [N s] (inf: no bound), got {self.max_impulse!r}")
+
+    def coarse_forces(self) -> tuple[float, ...]:
+        return tuple(experiment.coarse_forces(self.fmax, self.coarse))
+
+    def for_duration(self, duration: float) -> "Search":
+        """The search of a push of ``duration`` [s]: largest force min(max, max_impulse / duration), at
+        least one coarse step. Its coarse forces are a prefix of the unbounded ones, so records serve
+        searches of any bound."""
+        fmax = max(self.coarse, min(self.fmax, self.max_impulse / duration))
+        return Search(self.coarse, fmax, self.resolution)
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """A whole map: the cells are the product modes x directions x phases x durations."""
+
+    modes: tuple[str, ...] = MODES
+    directions: tuple[str, ...] = tuple(DIRECTIONS)
+    phases: tuple[float, ...] = tuple(k / DEFAULT_PHASES for k in range(DEFAULT_PHASES))
+    durations: tuple[float, ...] = DEFAULT_DURATIONS
+    search: Search = field(default_factory=Search)
+    height: float | None = None          # push point above the hip [m]; None: push_height of the config
+    settings: RunSettings = DEFAULT_SETTINGS
+
+    def __post_init__(self):
+        def nonempty_unique(name, seq):
+            if not seq:
+                raise MapError(f"{name}: at least one is needed")
+            if len(set(seq)) != len(seq):
+                raise MapError(f"{name}: repeated values in {list(seq)}")
+        for name in ("modes", "directions", "phases", "durations"):
+            nonempty_unique(name, getattr(self, name))
+        for m in self.modes:
+            if m not in MODES:
+                raise MapError(f"modes: unknown mode {m!r}; choose from {', '.join(MODES)}")
+        for d in self.directions:
+            if d not in DIRECTIONS:
+                raise MapError(f"directions: unknown direction {d!r}; choose from {', '.join(DIRECTIONS)}")
+        for ph in self.phases:
+            if not (isinstance(ph, float) and 0.0 <= ph < 1.0):
+                raise MapError(f"phases: each must be a float in [0, 1) (a fraction of the step), got {ph!r}")
+        for d in self.durations:
+            if not (isinstance(d, float) and math.isfinite(d) and d > 0):
+                raise MapError(f"durations: each must be a float > 0 [s], got {d!r}")
+        if self.height is not None and not (math.isfinite(self.height) and self.height >= 0):
+            raise MapError(f"height must be >= 0 [m] above the hip, got {self.height!r}")
+
+    def cells(self) -> list[Cell]:
+        return [Cell(m, d, ph, du) for m in self.modes for d in self.directions for ph in self.phases
+                for du in self.durations]
+
+
+def phases_of(n: int) -> tuple[float, ...]:
+    """``n`` onset phases k / n, k = 0 .. n - 1 (fractions of the step)."""
+    if not (isinstance(n, int) and n >= 1):
+        raise MapError(f"--phases must be an integer >= 1, got {n!r}")
+    return tuple(k / n for k in range(n))
+
+
+def onset_time(phase: float, T: float) -> float:
+    """Push start [s] for an onset ``phase`` of the first step of period ``T`` [s]: ``phase * T``."""
+    return phase * T
+

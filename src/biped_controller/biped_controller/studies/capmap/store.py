@@ -1,0 +1,99 @@
+"""The map's records: one JSON object per simulation in a JSON Lines file, resumable, keyed by the
+settings' fingerprint."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Iterable
+
+from biped_sim.robot.settings import default_config_dir
+
+from biped_controller.studies import experiment
+from biped_controller.studies.capmap.spec import MapError, MapSpec
+
+RECORD_VERSION = 1
+
+
+class StoreError(MapError):
+    """The record store cannot be read (a malformed line other than a torn last one; the line is named)."""
+
+
+
+def fingerprint(spec: MapSpec) -> str:
+    """sha256 (16 hex digits) of everything a record depends on besides its own key and the code: the
+    effective controller and simulator settings, the robot description, the gait family file, the
+    survival criterion and the push height. The code is not in it (the tree is edited by many hands, and
+    a comment must not void a map): after a change of the controller or the simulator that changes
+    results, use a new store; every summary records the git commit and the modified files."""
+    ctx = experiment.context()
+    h = hashlib.sha256()
+    inputs = {
+        "version": RECORD_VERSION,
+        "settings": experiment.check_settings(spec.settings),
+        "description": {k: v for k, v in asdict(ctx.desc).items() if k != "source"},
+        "survival": {"steps": experiment.SURVIVAL_STEPS, "p_tol": experiment.P_TOL,
+                     "tau_dot_tol": experiment.TAU_DOT_TOL},
+        "height": spec.height,
+    }
+    h.update(json.dumps(inputs, sort_keys=True, default=str).encode())
+    h.update((default_config_dir() / "gait_family.json").read_bytes())
+    return h.hexdigest()[:16]
+
+
+# ------------------------------------------------------------------------------------------ store
+class RecordStore:
+    """JSON Lines file of simulation records, appended one line per record (flushed at once)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self.repaired_bytes = 0
+
+    def load(self) -> list[dict]:
+        """Every record in the file (none if it does not exist). A last line without its newline that
+        does not parse (a write cut short) is removed from the file; any other malformed line raises
+        :class:`StoreError`."""
+        if not self.path.exists():
+            return []
+        data = self.path.read_bytes()
+        out = []
+        pos = 0
+        lineno = 0
+        while pos < len(data):
+            nl = data.find(b"\n", pos)
+            end = len(data) if nl < 0 else nl
+            line = data[pos:end]
+            lineno += 1
+            if line.strip():
+                try:
+                    rec = json.loads(line)
+                    if not isinstance(rec, dict):
+                        raise ValueError("not a JSON object")
+                except ValueError as exc:
+                    if nl < 0:   # torn last line: cut it off so that appends start on a fresh line
+                        with open(self.path, "r+b") as fh:
+                            fh.truncate(pos)
+                        self.repaired_bytes = len(data) - pos
+                        break
+                    raise StoreError(f"{self.path}:{lineno}: not a JSON record ({exc})") from exc
+                if nl < 0:       # a complete record without its newline: add it before appending
+                    with open(self.path, "ab") as fh:
+                        fh.write(b"\n")
+                out.append(rec)
+            pos = end + 1
+        return out
+
+    def append(self, records: Iterable[dict]) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "a", encoding="utf-8") as fh:
+            for r in records:
+                fh.write(json.dumps(r, sort_keys=True, allow_nan=False) + "\n")
+            fh.flush()
+
+
+def load_records(path: str | os.PathLike, fingerprint_: str | None = None) -> list[dict]:
+    """The records of a store (for notebooks), optionally only those of one fingerprint."""
+    recs = RecordStore(path).load()
+    return [r for r in recs if fingerprint_ is None or r.get("fingerprint") == fingerprint_]

@@ -1,0 +1,60 @@
+"""What one simulation of the map is (the pure task function every executor runs) and its record."""
+from __future__ import annotations
+
+from typing import Callable, Mapping, Sequence
+
+from biped_controller.studies import experiment
+from biped_controller.studies.capmap.spec import DIRECTIONS, MapError, SimSpec, onset_time
+from biped_controller.studies.experiment import DEFAULT_SETTINGS, RunSettings
+
+
+def worker_init() -> None:
+    """Run once in each worker process: load the description, family and settings once."""
+    experiment.context()
+
+
+def failure_cause(trial: Mapping) -> str:
+    """The cause of a failed trial of ``experiment.survives``: the simulator's fall cause when it fell,
+    otherwise which part of ``experiment.survival`` failed (``p_not_back``, ``tau_dot_not_back``,
+    ``time_limit``); ``""`` when it survived."""
+    if trial["survived"]:
+        return ""
+    if trial.get("fall_cause"):
+        return str(trial["fall_cause"])
+    reason = str(trial["reason"])
+    if reason.startswith("p ="):
+        return "p_not_back"
+    if reason.startswith("tau'"):
+        return "tau_dot_not_back"
+    if reason.startswith("only"):
+        return "time_limit"
+    raise MapError(f"unrecognised failure reason from experiment.survival: {reason!r}")
+
+
+def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: float | None = None) -> dict:
+    """One simulation (the pure task function): ``experiment.survives`` with the push of ``spec``; the
+    record (JSON-ready, deterministic: the same spec gives the same record in any process)."""
+    c = spec.cell
+    T = experiment.context().family.T
+    start = onset_time(c.phase, T)
+    signed = DIRECTIONS[c.direction] * spec.force
+    trial = experiment.survives(signed, c.mode, c.duration, start, height, settings)
+    return {
+        "mode": c.mode, "direction": c.direction, "phase": c.phase, "duration": c.duration,
+        "force": spec.force, "start": start, "signed_force": signed, "height": height,
+        "survived": bool(trial["survived"]), "reason": trial["reason"], "cause": failure_cause(trial),
+        "fall_time": trial["fall_time"], "steps_walked": int(trial["steps_walked"]),
+    }
+
+
+def simulate_batch(batch: Sequence[SimSpec], settings: RunSettings = DEFAULT_SETTINGS,
+                   height: float | None = None) -> list[dict]:
+    """The unit of work of every executor: :func:`simulate` on each spec, in order."""
+    return [simulate(s, settings, height) for s in batch]
+
+
+TaskFn = Callable[[Sequence[SimSpec], RunSettings, "float | None"], list]
+
+
+def record_key(rec: Mapping) -> tuple:
+    return (rec["mode"], rec["direction"], float(rec["phase"]), float(rec["duration"]), float(rec["force"]))
