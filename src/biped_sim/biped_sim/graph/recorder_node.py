@@ -4,7 +4,9 @@ Node ``recorder``. Every topic of :data:`biped_sim.graph.names.TOPICS` is subscr
 ``raw=True`` (the CDR bytes are passed through, never deserialized) and with the topic's QoS.
 For each message:
 
-- ``log_time``  = the node's clock (``use_sim_time`` is forced on: the latest ``/clock``);
+- ``log_time``  = the sim time of the latest ``/clock`` the recorder has recorded before this message (so
+  log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); before
+  the first one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
 - ``publish_time`` = the source timestamp DDS hands over in the message info.
 
 Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad one makes
@@ -39,6 +41,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, ReliabilityPolicy
 
 from biped_sim.graph import names as graph_names
@@ -139,6 +142,7 @@ class RecorderNode(Node):
         output_dir, compression, chunk_size, chunk_time, sync = self._read_parameters()
 
         self.failure: Optional[RecorderError] = None
+        self._sim_ns: Optional[int] = None   # sim time [ns] of the latest /clock recorded (the log time)
         self.done = False   # run_node leaves its loop (then drains and finishes) once set
         self._prefixes = self._prefixes_list()
         self._specs = self._recordable_topics()
@@ -250,7 +254,11 @@ class RecorderNode(Node):
     def _record(self, spec, msg: bytes, info) -> None:
         if self.failure is not None or self._writer.finished:
             return
-        log_time = self.get_clock().now().nanoseconds
+        if spec.name == graph_names.CLOCK:
+            from rosgraph_msgs.msg import Clock
+            clock = deserialize_message(msg, Clock).clock
+            self._sim_ns = clock.sec * 1_000_000_000 + clock.nanosec
+        log_time = self._sim_ns if self._sim_ns is not None else self.get_clock().now().nanoseconds
         publish_time = int(info["source_timestamp"]) if info else 0
         try:
             if not self._writer.has_topic(spec.name):
@@ -258,7 +266,6 @@ class RecorderNode(Node):
             self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
             if spec.name == graph_names.SIM_PLANT:
                 # the plant's true parameters (issue 14) also as the bag's metadata record 'biped_plant'
-                from rclpy.serialization import deserialize_message
                 from std_msgs.msg import String
                 self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
         except RecorderError as exc:
