@@ -149,6 +149,12 @@ def kill_run(dom: Domain, tmp: Path, params: Path, wait: float, timeout: float =
     back = read_bag(tmp / 'recovered')
     out['recovered_messages'] = rep.message_count
     out['recovered_readable'] = bool(back['has_summary'] and back['message_count'] == d['message_count'])
+    from mcap.reader import make_reader
+    with open(rep.mcap_path, 'rb') as f:   # how much sim time a chunk of a given size holds
+        summary = make_reader(f).get_summary()
+    span = (back['end_ns'] - back['start_ns']) * 1e-9 if back['end_ns'] else 0.0
+    out['uncompressed_bytes_per_sim_s'] = (sum(ci.uncompressed_size for ci in summary.chunk_indexes) / span
+                                           if span > 0 else None)
     out['recovered_bag'] = str(tmp / 'recovered')
     return out
 
