@@ -245,6 +245,8 @@ def test_push_delay_is_never_in_the_past():
 
 
 STALE = 0.3   # sim s the graph moves on between reading /clock and the request made from it
+LEAD = 1.0    # sim s from the /clock reading to the planned onset (the push event must reach the simulator
+              # before its onset: unpaced, 1 sim s is ~0.7 s wall; the soak's --min-lead is 0.5 s at real time)
 
 
 def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path):
@@ -289,9 +291,9 @@ def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path
         wait_clock(0.5)
         for k in range(3):
             seen = latest['t']
-            planned = seen + 0.1
+            planned = seen + LEAD
             wait_clock(planned + STALE)            # the graph has passed the planned onset
-            delay = push_delay(planned, seen, min_lead=0.1)
+            delay = push_delay(planned, seen, min_lead=LEAD)
             r = call_apply_push(60.0 * (-1) ** k, 0.025, delay=delay, timeout=60, context=ctx)
             answers.append((delay, r))
             assert r.accepted, r.message
@@ -312,6 +314,11 @@ def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path
                for k, (_, r) in enumerate(answers)]
     a = analyze_bag(bag, planned)
     assert a['push_events'] == 3 and a['applied_impulse_outside_windows'] == 0, a['problems']
-    assert not [p for p in a['problems'] if 'push' in p and 'expected one per period' not in p], a['problems']
+    # each push as the service scheduled it (/push_events) and applied over exactly its window (/sim/push:
+    # F x d, nothing outside); the run was stopped by SIGINT, so the per-period counts of its last period
+    # and the momentum estimate of the effect (10 % of a 1.5 N s push) are not what this test is about
+    assert not [p for p in a['problems'] if p.startswith('requested push')], a['problems']
+    assert not [p for p in a['problems'] if p.startswith('/sim/push') and 'expected one per period' not in p], \
+        a['problems']
     for effect in a['push_effects']:
-        assert effect['applied_impulse'] == pytest.approx(effect['force'] * 0.025, rel=1e-9), effect
+        assert effect['applied_impulse'] == pytest.approx(effect['force'] * 0.025, rel=1e-9), (effect, a['problems'])
