@@ -23,6 +23,11 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   rate-off runs too, so both sides of the rate comparison carry the same subscriber). The rate-on runs
   give the same figures under the as-fast-as-possible burst (queueing).
 
+- **latency before/after** (issue 20; ``--latency-pairs`` pairs, alternated): the real-time runs above
+  are made once per bridge setting, ``drain_batch`` 0 (one message per executor round: the bridge before
+  issue 20) and the value of ``config/graph.yaml`` (the rest of the file as committed), each with a
+  client on every channel and one on the layout's topics; every frame is counted against the bag.
+
 Percentiles: numpy ``percentile`` (linear). Nothing is asserted; figures are printed (and --json).
 """
 from __future__ import annotations
@@ -159,14 +164,28 @@ def _stats(values) -> dict:
             'max': float(a.max())}
 
 
+def bridge_params(tmp: Path, drain_batch: int | None) -> Path | None:
+    """config/graph.yaml with the bridge's drain_batch replaced (None: the file as committed)."""
+    if drain_batch is None:
+        return None
+    import yaml
+    tree = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
+    tree['bridge']['ros__parameters']['drain_batch'] = int(drain_batch)
+    path = tmp / f'graph_drain_{drain_batch}.yaml'
+    path.write_text(yaml.safe_dump(tree))
+    return path
+
+
 def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, timeout: float = 600.0,
-              only: tuple[str, ...] | None = None) -> dict:
+              only: tuple[str, ...] | None = None, params: Path | None = None) -> dict:
     """One launch; the simulator's rate, and with ``live`` the client's latencies (ms)."""
     tmp.mkdir(parents=True, exist_ok=True)
     bag, ready, log = tmp / 'bag', tmp / 'ready', tmp / 'launch.log'
     port = free_port()
     cmd = [sys.executable, '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--ready-file', str(ready),
            '--steps', str(steps)]
+    if params is not None:
+        cmd += ['--params', str(params)]
     if live:
         cmd += ['--live', '--port', str(port)]
     cmd += ['--sim-param', f'real_time_factor:={rtf}', '--sim-param', f'start_delay:={START_DELAY}']
@@ -227,7 +246,10 @@ def latencies(bag: Path, topics: dict, frames: list) -> dict:
             if key in pub_joint:
                 lat[topic].append((recv - pub_joint[key]) * 1e-6)
     out = {'frames_per_topic': dict(sorted((k, v) for k, v in counts.items() if k)),
-           'bag_states': len(pub_state)}
+           'bag_states': len(pub_state), 'bag_counts': dict(d['counts'])}
+    # every frame delivered: each watched topic's frames = its messages in the bag
+    out['every_frame_delivered'] = all(counts.get(t, 0) == d['counts'].get(t, 0)
+                                       for t in set(topics.values()) if t in counts)
     for topic, v in lat.items():
         out[f'latency_ms {topic}'] = _stats(v)
     return out
@@ -238,6 +260,8 @@ def main(argv=None) -> int:
     ap.add_argument('--pairs', type=int, default=3, help='off/on pairs of as-fast-as-possible runs')
     ap.add_argument('--steps', type=int, default=2, help='walking steps per rate run')
     ap.add_argument('--live-steps', type=int, default=1, help='walking steps of the real-time latency run')
+    ap.add_argument('--latency-pairs', type=int, default=1,
+                    help='before (drain_batch 0) / after (config/graph.yaml) pairs of real-time latency runs')
     ap.add_argument('--json', type=Path, default=None)
     a = ap.parse_args(argv)
     t0 = time.monotonic()
@@ -250,12 +274,17 @@ def main(argv=None) -> int:
                 runs.append(r)
                 print(json.dumps(r), flush=True)
         # real time: a client on every channel (15 topics x 1 kHz through one Python client), then one
-        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf)
-        for i, only in enumerate((None, LAYOUT_TOPICS)):
-            r = run_graph(dom, Path(tmp) / f'live_{i}', live=True, rtf=1.0, steps=a.live_steps, only=only)
-            r['kind'] = 'latency' if only is None else 'latency_layout'
-            runs.append(r)
-            print(json.dumps(r), flush=True)
+        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf); before (drain_batch 0)
+        # and after (config/graph.yaml), alternated
+        for k in range(a.latency_pairs):
+            for setting, drain in (('before', 0), ('after', None)):
+                for i, only in enumerate((None, LAYOUT_TOPICS)):
+                    r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
+                                  steps=a.live_steps, only=only, params=bridge_params(Path(tmp), drain))
+                    r['kind'] = 'latency' if only is None else 'latency_layout'
+                    r['bridge'] = setting
+                    runs.append(r)
+                    print(json.dumps({k2: v for k2, v in r.items() if k2 != 'bag_counts'}), flush=True)
     off = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and not r['live'] and r['steps_per_s']]
     on = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and r['live'] and r['steps_per_s']]
     summary = {'date': time.strftime('%Y-%m-%d %H:%M:%S'), 'cpus': os.cpu_count(), 'machine': platform.machine(),
@@ -273,9 +302,11 @@ def main(argv=None) -> int:
                 s = r.get(f'latency_ms {key}', {'n': 0})
                 if s['n']:
                     path = 'DDS only ' if key.startswith('dds') else 'WebSocket'
-                    print(f"latency {r['kind']:14s} bridge {'on ' if r['live'] else 'off'} "
+                    print(f"latency {r['kind']:14s} {r.get('bridge', ''):6s} bridge {'on ' if r['live'] else 'off'} "
                           f"rtf {r['real_time_factor']:.0f} {path} {key.split()[-1]:14s}: "
-                          f"n {s['n']}, p50 {s['p50']:.2f} ms, p99 {s['p99']:.2f} ms, max {s['max']:.2f} ms")
+                          f"n {s['n']}, p50 {s['p50']:.2f} ms, p99 {s['p99']:.2f} ms, max {s['max']:.2f} ms"
+                          + (f", every frame: {r.get('every_frame_delivered')}, {r['steps_per_s']:.0f} steps/s"
+                             if key == '/sim/state' else ''))
     print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")
     if a.json:
         a.json.write_text(json.dumps(summary, indent=2) + '\n')

@@ -231,3 +231,94 @@ def test_short_soak(ros_domain, tmp_path):
     b = s['bag_check']
     assert b['sequence_gaps'] == 0 and b['survived'] and b['push_events'] == len(s['plan']) >= 5
     assert b['pushes_checked'] + b['pushes_not_checkable'] == b['push_events'] and b['pushes_checked'] >= 3
+
+
+def test_push_delay_is_never_in_the_past():
+    """The soak's relative request: delay = planned onset - the sim time seen, at least min_lead."""
+    from biped_sim.graph.soak import push_delay
+    assert push_delay(5.0, 4.0, 0.5) == 1.0          # on time: the onset stays the planned one
+    assert push_delay(5.0, 4.9, 0.5) == 0.5          # late view: at least min_lead after the service's own now
+    assert push_delay(5.0, 7.0, 0.5) == 0.5          # the planned onset has passed: still in the future
+    for bad in ((math.nan, 1.0, 0.5), (1.0, math.inf, 0.5), (1.0, 0.0, 0.0)):
+        with pytest.raises(ValueError):
+            push_delay(*bad)
+
+
+STALE = 0.3   # sim s the graph moves on between reading /clock and the request made from it
+LEAD = 1.0    # sim s from the /clock reading to the planned onset (the push event must reach the simulator
+              # before its onset: unpaced, 1 sim s is ~0.7 s wall; the soak's --min-lead is 0.5 s at real time)
+
+
+def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path):
+    """The graph unpaced (as fast as it can: the busiest it gets); this process reads /clock, then lets the
+    graph run on STALE sim s past the onset it planned from that reading before it requests the push, as a
+    loaded requester would. The relative form (the soak's ``push_delay`` + ``use_delay``) is accepted every
+    time and the push acts at the onset the service answered (the bag's /push_events and /sim/push); the
+    absolute form of a start the service's clock has passed is rejected "in the past" (the failure of the
+    soak under load; the service's time is known exactly from its answer: scheduled_start - delay)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
+    from biped_sim.graph import names as gn
+    from biped_sim.graph.push_client import call_apply_push
+    from biped_sim.graph.soak import push_delay
+    from biped_sim.graph.bag_summary import analyze_bag
+
+    proc, bag, ready = _launch(tmp_path, dict(os.environ), '--steps', '0', '--sim-param', 'max_time:=600.0',
+                               '--sim-param', 'real_time_factor:=0.0')
+    pids: set[int] = set()
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('busy_probe', context=ctx)
+    latest = {'t': -1.0}
+    node.create_subscription(Clock, gn.CLOCK, lambda m: latest.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
+                             gn.QOS_CLOCK)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+
+    def wait_clock(t: float, timeout: float = 300.0) -> float:
+        t0 = time.monotonic()
+        while latest['t'] < t:
+            assert proc.poll() is None, proc.communicate()[0][-3000:]
+            assert time.monotonic() - t0 < timeout, f'/clock did not reach {t} s (at {latest["t"]})'
+            ex.spin_once(timeout_sec=0.05)
+        return latest['t']
+
+    answers = []
+    try:
+        _wait_ready(proc, ready)
+        pids |= _descendants(proc.pid)
+        wait_clock(0.5)
+        for k in range(3):
+            seen = latest['t']
+            planned = seen + LEAD
+            wait_clock(planned + STALE)            # the graph has passed the planned onset
+            delay = push_delay(planned, seen, min_lead=LEAD)
+            r = call_apply_push(60.0 * (-1) ** k, 0.025, delay=delay, timeout=60, context=ctx)
+            answers.append((delay, r))
+            assert r.accepted, r.message
+            service_now = r.scheduled_start - delay
+            assert service_now >= seen - 1e-9
+            late = call_apply_push(60.0, 0.025, start=service_now - 1e-3, timeout=60, context=ctx)
+            assert not late.accepted and 'start must not be in the past' in late.message, late.message
+        wait_clock(max(r.scheduled_end for _, r in answers) + 0.2)
+        pids |= _descendants(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 128 + signal.SIGINT, out[-3000:]
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        _kill_tree(proc, pids | _descendants(proc.pid))
+    planned = [dict(start=r.scheduled_start, duration=0.025, force=60.0 * (-1) ** k, id=r.push_id)
+               for k, (_, r) in enumerate(answers)]
+    a = analyze_bag(bag, planned)
+    assert a['push_events'] == 3 and a['applied_impulse_outside_windows'] == 0, a['problems']
+    # each push as the service scheduled it (/push_events) and applied over exactly its window (/sim/push:
+    # F x d, nothing outside); the run was stopped by SIGINT, so the per-period counts of its last period
+    # and the momentum estimate of the effect (10 % of a 1.5 N s push) are not what this test is about
+    assert not [p for p in a['problems'] if p.startswith('requested push')], a['problems']
+    assert not [p for p in a['problems'] if p.startswith('/sim/push') and 'expected one per period' not in p], \
+        a['problems']
+    for effect in a['push_effects']:
+        assert effect['applied_impulse'] == pytest.approx(effect['force'] * 0.025, rel=1e-9), (effect, a['problems'])

@@ -24,13 +24,14 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from biped_sim.recording import mcap_recorder
-from biped_sim.recording.bag_reader import read_bag, read_truncated
+from biped_sim.recording.bag_reader import BagReadError, read_bag, read_truncated, recover_bag
 from biped_sim.recording.mcap_recorder import (
     QosProfile,
     RecorderError,
     Rosbag2McapWriter,
     build_message_definition,
     find_type_hash,
+    qos_from_yaml,
 )
 
 VENV = Path(sys.prefix)
@@ -358,6 +359,159 @@ def test_truncated_read_after_sigkill(tmp_path, prefix):
     assert got["complete_chunks"] > 5 and got["bad_chunks"] == 0 and got["truncated"]
 
 
+# ------------------------------------------------------------------------------ durability (issue 20)
+class FakeClock:
+    """A monotonic clock the test moves by hand [s]."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _chatter(i: int) -> bytes:
+    return cdr_string(f"msg {i}")
+
+
+def test_chunk_closed_by_time_and_written_through(tmp_path, prefix):
+    """chunk_time: a chunk is written out once its first message is chunk_time old (at the next message or
+    at poll()), whatever its size; what is written reads back while the writer is still open."""
+    clock = FakeClock()
+    bag = Rosbag2McapWriter(tmp_path / "t", prefixes=[VENV], compression="zstd", chunk_size=1 << 20,
+                            chunk_time=0.05, clock=clock)
+    for i in range(40):                      # 10 ms apart: chunks of the messages of 50 ms
+        bag.write("/chatter", "std_msgs/msg/String", _chatter(i), 1000 + i, i)
+        clock.t += 0.01
+    on_disk = read_truncated(bag.mcap_path)  # the writer is open: no summary, only written chunks
+    assert bag.chunks_written == on_disk["complete_chunks"] >= 6
+    assert [m[1] for m in on_disk["messages"]] == [1000 + i for i in range(on_disk["message_count"])]
+    assert 40 - 6 <= on_disk["message_count"] < 40          # the open chunk holds the last < 6
+    bag.close_chunk()                                       # written out now
+    assert read_truncated(bag.mcap_path)["message_count"] == 40
+    assert bag.poll() is False                              # an empty chunk is never written
+    bag.write("/chatter", "std_msgs/msg/String", _chatter(40), 1040, 40)
+    clock.t += 0.049
+    assert bag.poll() is False                              # its first message is not 0.05 s old yet
+    clock.t += 0.002
+    assert bag.poll() is True                               # now it is: written out (a quiet graph's tail)
+    assert read_truncated(bag.mcap_path)["message_count"] == 41
+    bag.finish()
+    with open(bag.mcap_path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    spans = [(ci.message_start_time, ci.message_end_time) for ci in summary.chunk_indexes]
+    assert all(e - s <= 5 for s, e in spans), spans         # log times 1 apart: <= 6 messages per chunk
+    # negative control: by size only, everything stays in one chunk until finish()
+    clock2 = FakeClock()
+    bag2 = Rosbag2McapWriter(tmp_path / "s", prefixes=[VENV], compression="zstd", chunk_size=1 << 20, clock=clock2)
+    for i in range(40):
+        bag2.write("/chatter", "std_msgs/msg/String", _chatter(i), 1000 + i, i)
+        clock2.t += 0.01
+    assert bag2.poll() is False and read_truncated(bag2.mcap_path)["message_count"] == 0
+    bag2.finish()
+
+
+def test_sync_fdatasyncs_every_chunk(tmp_path, monkeypatch):
+    synced = []
+    real = os.fdatasync
+    monkeypatch.setattr(mcap_recorder.os, "fdatasync", lambda fd: (synced.append(fd), real(fd)))
+    for sync in (True, False):
+        synced.clear()
+        bag = Rosbag2McapWriter(tmp_path / f"sync{sync}", prefixes=[VENV], compression="zstd",
+                                chunk_size=4096, sync=sync)
+        for i in range(2000):
+            bag.write("/chatter", "std_msgs/msg/String", _chatter(i), 1000 + i, i)
+        assert bag.chunks_written >= 5
+        assert len(synced) == bag.syncs == (bag.chunks_written if sync else 0)
+        bag.finish()
+
+
+@pytest.mark.parametrize("kwargs, named", [(dict(chunk_time=0.0), "chunk_time"), (dict(chunk_time=-1.0), "chunk_time"),
+                                           (dict(chunk_time=float("nan")), "chunk_time"),
+                                           (dict(chunk_time=True), "chunk_time"), (dict(sync="yes"), "sync")])
+def test_bad_durability_options_raise_before_anything_is_written(tmp_path, kwargs, named):
+    with pytest.raises(RecorderError, match=named):
+        Rosbag2McapWriter(tmp_path / "bad", prefixes=[VENV], **kwargs)
+    assert not (tmp_path / "bad").exists()
+
+
+def test_qos_yaml_round_trip():
+    profiles = (QosProfile(durability="transient_local", depth=1, deadline=(1, 500)),
+                QosProfile(reliability="best_effort", history="keep_all"))
+    text = mcap_recorder._qos_yaml(profiles)
+    assert qos_from_yaml(text) == profiles
+    assert qos_from_yaml("") == ()
+    with pytest.raises(RecorderError, match="offered_qos_profiles"):
+        qos_from_yaml("{a: 1}")
+
+
+def _write_plant_bag(bag_dir: Path, prefix, n=300):
+    bag, written = write_bag(bag_dir, [prefix, VENV], compression="zstd", chunk_size=2048, n=n)
+    return written
+
+
+def test_recover_every_cut_gives_a_finished_indexed_bag(tmp_path, prefix):
+    """recover_bag on the file cut anywhere: a finished bag (summary, indexes, metadata.yaml) whose messages
+    are exactly those of the source's complete chunks (checked with the mcap reader and read_truncated),
+    channels and schemas kept (QoS, type hash, schema text), metadata records copied."""
+    src = tmp_path / "src"
+    with Rosbag2McapWriter(src, prefixes=[prefix, VENV], compression="zstd", chunk_size=2048) as bag:
+        bag.register_topic("/gait", "test_msgs/msg/Gait", [QosProfile(durability="transient_local", depth=1)])
+        bag.add_metadata("biped_plant", {"yaml": "mass: 1"})
+        for i in range(300):
+            t = 1_000_000_000 + 1_000_000 * i
+            if i % 3 == 0:
+                bag.write("/gait", "test_msgs/msg/Gait", gait_cdr(i)[0], t, 5 + i)
+            else:
+                bag.write("/chatter", "std_msgs/msg/String", cdr_string(f"hello {i}"), t, 5 + i)
+    data = (src / "src_0.mcap").read_bytes()
+    with open(src / "src_0.mcap", "rb") as f:
+        reader = make_reader(f)
+        src_summary = reader.get_summary()
+    src_channels = {c.topic: c for c in src_summary.channels.values()}
+    src_schemas = {s.name: s.data for s in src_summary.schemas.values()}
+    chunks = _chunk_ranges(src / "src_0.mcap")
+    cuts = sorted({len(data) // 3, chunks[3][0], chunks[3][0] - 1, chunks[-1][0] + 1, len(data) - 1, len(data)})
+    piece = tmp_path / "piece.mcap"
+    for k, cut in enumerate(cuts):
+        piece.write_bytes(data[:cut])
+        expect = read_truncated(piece)
+        out = tmp_path / f"out{k}"
+        report = recover_bag(piece, out)
+        assert report.message_count == expect["message_count"] > 0 and report.unattributed == 0
+        assert report.truncated == (cut < len(data) - 8) and report.bad_chunks == 0   # footer, then 8 B magic
+        got = read_bag(out)                                  # through the summary: finished and indexed
+        assert got["has_summary"] and got["counts"] == {t: n for t, n in expect["counts"].items() if n}
+        with open(report.mcap_path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            msgs = [(c.topic, m.log_time, m.publish_time, m.data) for _, c, m in reader.iter_messages()]
+            metadata = {r.name: r.metadata for r in reader.iter_metadata()}
+        assert msgs == [(t, lt, pt, d) for t, lt, pt, d in expect["messages"]], cut
+        assert summary.statistics.message_count == len(msgs) and len(summary.chunk_indexes) >= 1
+        assert all(ci.message_index_offsets for ci in summary.chunk_indexes)
+        for c in summary.channels.values():
+            assert c.metadata == src_channels[c.topic].metadata
+            assert summary.schemas[c.schema_id].data == src_schemas[summary.schemas[c.schema_id].name]
+        assert metadata["biped_plant"] == {"yaml": "mass: 1"} and "rosbag2" in metadata
+        meta = yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        assert meta["message_count"] == len(msgs)
+
+
+def test_recover_refuses_bad_input_and_changes_nothing(tmp_path, prefix):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    with pytest.raises(BagReadError, match="no MCAP header"):
+        recover_bag(junk, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    write_bag(tmp_path / "good", [prefix, VENV], n=30)
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "keep.txt").write_text("mine")
+    with pytest.raises(RecorderError, match="not empty"):
+        recover_bag(tmp_path / "good", tmp_path / "busy")
+    assert [p.name for p in (tmp_path / "busy").iterdir()] == ["keep.txt"]
+
+
 # ------------------------------------------------------------------------------ errors
 def test_unwritable_directory_raises_before_creating_anything(tmp_path):
     blocker = tmp_path / "a_file"
@@ -476,11 +630,11 @@ def _need_rclpy():
     from biped_sim.graph import names as graph_names  # noqa: F401
 
 
-def _run_recorder(tmp_path, params: list[str]) -> subprocess.Popen:
+def _run_recorder(tmp_path, params: list[str], env: dict | None = None) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "biped_sim.graph.recorder_node", "--ros-args"]
     for p in params:
         cmd += ["-p", p]
-    return subprocess.Popen(cmd, env=_ros_env(tmp_path), stdout=subprocess.PIPE,
+    return subprocess.Popen(cmd, env=env or _ros_env(tmp_path), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
 
@@ -499,7 +653,7 @@ def test_node_rejects_bad_parameter(tmp_path, param, value):
 
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
-def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal):
+def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal, ros_domain):
     _need_rclpy()
     import rclpy
     from rclpy.node import Node
@@ -507,8 +661,9 @@ def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal
     from std_msgs.msg import String
     from biped_sim.graph import names as graph_names
 
-    env = _ros_env(tmp_path)
-    proc = _run_recorder(tmp_path, [f"output_dir:={tmp_path / 'rec'}", "chunk_size:=4096"])
+    # a domain of our own (domain_coordinator): a pid-derived id could be another test run's on a shared machine
+    env = dict(_ros_env(tmp_path), ROS_DOMAIN_ID=str(ros_domain))
+    proc = _run_recorder(tmp_path, [f"output_dir:={tmp_path / 'rec'}", "chunk_size:=4096"], env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
     try:
@@ -594,3 +749,82 @@ def test_foxglove_js_reader_decodes_every_message(tmp_path, prefix, compression)
             assert msg["transforms"][1]["transform"]["translation"]["x"] == 2.0
             assert msg["phase"]["tau"] == expect["tau"] and msg["label"] == expect["label"]
             assert [p["index"] for p in msg["phases"]] == [0, 1]
+
+
+# ------------------------------------------------------------------------------ SIGKILL -> recover (issue 20)
+@pytest.mark.timeout(300)
+def test_killed_recorder_node_bag_recovered(tmp_path, ros_domain):
+    """The recorder node (chunks by time: chunk_time 0.05 s, chunk_size far above what is published)
+    killed with SIGKILL while /clock is published: ``scripts/bag recover`` makes a finished, indexed bag
+    that the mcap reader and Foxglove's @mcap/core open, holding every message up to the last complete
+    chunk: /clock k = 0..n-1 without a gap, identical to what the truncated file's complete chunks hold."""
+    _need_rclpy()
+    import json
+    import shutil
+    import rclpy
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+    from biped_sim.graph import names as graph_names
+
+    env = dict(_ros_env(tmp_path), ROS_DOMAIN_ID=str(ros_domain))   # a domain of our own (domain_coordinator)
+    bag_dir = tmp_path / "rec"
+    proc = _run_recorder(tmp_path, [f"output_dir:={bag_dir}", "chunk_size:=16777216", "chunk_time:=0.05"], env)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
+    sent = 0
+    try:
+        node = Node("fake_sim", context=context)
+        clock_pub = node.create_publisher(Clock, graph_names.CLOCK, graph_names.TOPICS[graph_names.CLOCK].qos_profile)
+        deadline = time.monotonic() + 60
+        mcap_path = bag_dir / "rec_0.mcap"
+        while clock_pub.get_subscription_count() < 1 or not mcap_path.is_file():
+            assert proc.poll() is None, proc.communicate()[1]
+            assert time.monotonic() < deadline, "recorder never subscribed"
+            time.sleep(0.1)
+        deadline = time.monotonic() + 120
+        while True:   # publish until several time-closed chunks are on disk (bounded; no timing assumed)
+            for _ in range(20):
+                msg = Clock()
+                msg.clock.sec, msg.clock.nanosec = divmod(10**9 + 10**6 * sent, 10**9)
+                clock_pub.publish(msg)
+                sent += 1
+                time.sleep(0.002)
+            if read_truncated(mcap_path)["complete_chunks"] >= 4:
+                break
+            assert proc.poll() is None, proc.communicate()[1]
+            assert time.monotonic() < deadline, "no time-closed chunks reached the file"
+        proc.send_signal(signal.SIGKILL)      # while messages are still being published
+        for _ in range(20):
+            clock_pub.publish(Clock())
+        proc.communicate(timeout=60)
+        assert proc.returncode == -signal.SIGKILL
+        node.destroy_node()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        rclpy.shutdown(context=context)
+    assert not (bag_dir / "metadata.yaml").exists()
+    truncated = read_truncated(bag_dir, decode=True)
+    assert truncated["truncated"] and truncated["bad_chunks"] == 0
+    out = tmp_path / "recovered"
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([str(root / "scripts" / "bag"), "recover", str(bag_dir), str(out)], capture_output=True,
+                       text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    got = read_bag(out, decode=True)
+    assert got["has_summary"] and got["counts"][graph_names.CLOCK] == truncated["counts"][graph_names.CLOCK] > 0
+    ks = [(m[3].clock.sec * 10**9 + m[3].clock.nanosec - 10**9) // 10**6 for m in got["messages"]]
+    # from the first message the recorder's reader took (the first few can go before it has matched the
+    # writer: DDS discovery, not the recorder) to the last complete chunk, without a gap
+    assert ks == list(range(ks[0], ks[0] + len(ks))) and ks[0] + len(ks) <= sent, \
+        "every message up to the last complete chunk, no gap"
+    assert [(m[0], m[1], m[2]) for m in got["messages"]] == [(m[0], m[1], m[2]) for m in truncated["messages"]]
+    if shutil.which("node") is None or not (JS_DIR / "node_modules" / "@mcap" / "core").is_dir():
+        pytest.fail("the Node.js reader (tests/js, scripts/setup) is needed for this test")
+    js = subprocess.run(["node", str(JS_DIR / "read_bag.mjs"), str(out / "recovered_0.mcap")],
+                        capture_output=True, text=True, timeout=120, cwd=JS_DIR)
+    assert js.returncode == 0, js.stderr
+    doc = json.loads(js.stdout)
+    assert doc["messageCount"] == str(len(ks)) and doc["counts"] == {graph_names.CLOCK: len(ks)}
+    assert [int(m["msg"]["clock"]["nanosec"]) for m in doc["messages"]] == \
+        [m[3].clock.nanosec for m in got["messages"]]

@@ -4,7 +4,9 @@ Node ``recorder``. Every topic of :data:`biped_sim.graph.names.TOPICS` is subscr
 ``raw=True`` (the CDR bytes are passed through, never deserialized) and with the topic's QoS.
 For each message:
 
-- ``log_time``  = the node's clock (``use_sim_time`` is forced on: the latest ``/clock``);
+- ``log_time``  = the sim time of the latest ``/clock`` the recorder has recorded before this message (so
+  log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); before
+  the first one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
 - ``publish_time`` = the source timestamp DDS hands over in the message info.
 
 Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad one makes
@@ -14,6 +16,12 @@ Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad o
 - ``compression`` (string, ``zstd`` | ``lz4`` | ``none``; default ``zstd``): MCAP chunk compression.
 - ``chunk_size``  (int bytes, 4096 .. 1073741824; default 262144): uncompressed chunk size, which
   also bounds what a SIGKILL loses.
+- ``chunk_time``  (float s, 0 or 0.001 .. 3600; 0 = by size only; default: ``config/graph.yaml``): a chunk is also written out once its
+  first message is this old (wall clock; checked at each message and by a steady timer every
+  ``chunk_time`` / 2), so a SIGKILL loses at most about ``chunk_time`` s of messages (plus what DDS still
+  held for the recorder). ``config/graph.yaml`` sets it.
+- ``sync``        (bool; default: ``config/graph.yaml``): ``fdatasync`` each chunk (a power cut then loses at most the chunk
+  being built; without it, what the kernel had not written back yet too).
 
 The bag is finished cleanly on SIGINT and SIGTERM (own handlers stop the spin loop, then
 ``finish()`` runs) and when the ROS context is shut down by anything else.
@@ -29,13 +37,15 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, ReliabilityPolicy
 
 from biped_sim.graph import names as graph_names
-from biped_sim.graph.params import ParameterError, run_node
+from biped_sim.graph.params import ParameterError, graph_default, run_node
 from biped_sim.recording.mcap_recorder import (
     DEFAULT_CHUNK_SIZE,
     INFINITE_DURATION,
@@ -49,6 +59,8 @@ from biped_sim.recording.mcap_recorder import (
 COMPRESSIONS = ("zstd", "lz4", "none")
 MIN_CHUNK_SIZE = 4096
 MAX_CHUNK_SIZE = 1 << 30
+MIN_CHUNK_TIME = 0.001   # s: below, a chunk per message or two (the index would outweigh the data)
+MAX_CHUNK_TIME = 3600.0
 
 
 def _policy_name(value, table: Dict[object, str]) -> str:
@@ -104,7 +116,7 @@ def qos_from_rclpy(profile) -> QosProfile:
 
 
 PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
-DRAIN_BATCH = 64   # messages taken per executor callback from the subscription that fired (see _on_message)
+DRAIN_BATCH = 256  # messages taken at most per executor callback, from every subscription (see _on_message)
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
 DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
 
@@ -125,14 +137,21 @@ class RecorderNode(Node):
         self.declare_parameter("output_dir", "")
         self.declare_parameter("compression", "zstd")
         self.declare_parameter("chunk_size", DEFAULT_CHUNK_SIZE)
-        output_dir, compression, chunk_size = self._read_parameters()
+        self.declare_parameter("chunk_time", float(graph_default(graph_names.RECORDER_NODE, "chunk_time")))
+        self.declare_parameter("sync", bool(graph_default(graph_names.RECORDER_NODE, "sync")))
+        output_dir, compression, chunk_size, chunk_time, sync = self._read_parameters()
 
         self.failure: Optional[RecorderError] = None
+        self._sim_ns: Optional[int] = None   # sim time [ns] of the latest /clock recorded (the log time)
         self.done = False   # run_node leaves its loop (then drains and finishes) once set
         self._prefixes = self._prefixes_list()
         self._specs = self._recordable_topics()
         self._writer = Rosbag2McapWriter(output_dir, prefixes=self._prefixes,
-                                         compression=compression, chunk_size=chunk_size)
+                                         compression=compression, chunk_size=chunk_size,
+                                         chunk_time=chunk_time or None, sync=sync)
+        if chunk_time:   # a steady timer (the node's own clock is sim time): closes a quiet graph's chunk too
+            self._chunk_timer = self.create_timer(chunk_time / 2, self._poll_chunk,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._subscriptions_by_topic = {}
         for spec in self._specs:
             callback = functools.partial(self._on_message, spec)
@@ -140,7 +159,8 @@ class RecorderNode(Node):
                 spec.msg_class(), spec.name, callback, recording_qos(spec.qos_profile), raw=True)
         self.get_logger().info(
             f"recording {len(self._specs)} topics to {self._writer.bag_dir} "
-            f"({compression}, chunks of {chunk_size} B)")
+            f"({compression}, chunks of {chunk_size} B"
+            f"{f' or {chunk_time} s' if chunk_time else ''}{', synced' if sync else ''})")
 
     # -- parameters ----------------------------------------------------------------------------
 
@@ -164,7 +184,15 @@ class RecorderNode(Node):
             raise ParameterError(
                 "chunk_size",
                 f"must be in [{MIN_CHUNK_SIZE}, {MAX_CHUNK_SIZE}] bytes; got {chunk_size}")
-        return output_dir, compression, chunk_size
+        raw = self.get_parameter("chunk_time")
+        if raw.type_ not in (Parameter.Type.DOUBLE, Parameter.Type.INTEGER):
+            raise ParameterError("chunk_time", f"expected a number of seconds, got {raw.type_.name.lower()}")
+        chunk_time = float(raw.value)
+        if not (chunk_time == 0.0 or MIN_CHUNK_TIME <= chunk_time <= MAX_CHUNK_TIME):
+            raise ParameterError(
+                "chunk_time", f"must be 0 (by size only) or in [{MIN_CHUNK_TIME}, {MAX_CHUNK_TIME}] s; got {chunk_time}")
+        sync = value("sync", Parameter.Type.BOOL)
+        return output_dir, compression, chunk_size, chunk_time, sync
 
     @staticmethod
     def _prefixes_list() -> List[Path]:
@@ -198,34 +226,59 @@ class RecorderNode(Node):
                            durability=d["durability"])]
 
     def _on_message(self, spec, msg: bytes, info) -> None:
-        """One message from the executor, then up to DRAIN_BATCH more already waiting on the same
-        subscription, taken directly: the executor's wait-set round per message costs more than writing
-        the message, and at 1 kHz x 10 topics the recorder would fall behind the lockstep."""
+        """One message from the executor, then what is already waiting on *every* subscription, taken
+        directly (passes over the subscriptions until one takes nothing; at most DRAIN_BATCH in all; each
+        topic's messages in their order). The executor's round per message (Python wait set over every
+        subscription, task, callback) costs more than writing the message: at 1 kHz x 15 topics, taking only
+        the subscription that fired left the recorder ~0.3-0.5 s behind a real-time graph on a loaded
+        2-core machine (issue 20), and what DDS still holds for the recorder dies with it on SIGKILL."""
         self._record(spec, msg, info)
-        sub = self._subscriptions_by_topic.get(spec.name)
-        for _ in range(DRAIN_BATCH):
-            if sub is None or self.failure is not None or self._writer.finished:
+        taken_total = 0
+        while taken_total < DRAIN_BATCH:
+            taken_pass = 0
+            for other in self._specs:
+                sub = self._subscriptions_by_topic.get(other.name)
+                while sub is not None and taken_total < DRAIN_BATCH:
+                    if self.failure is not None or self._writer.finished:
+                        return
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    self._record(other, taken[0], taken[1])
+                    taken_pass += 1
+                    taken_total += 1
+            if taken_pass == 0:
                 return
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, True)
-            if taken is None:
-                return
-            self._record(spec, taken[0], taken[1])
 
     def _record(self, spec, msg: bytes, info) -> None:
         if self.failure is not None or self._writer.finished:
             return
-        log_time = self.get_clock().now().nanoseconds
+        if spec.name == graph_names.CLOCK:
+            from rosgraph_msgs.msg import Clock
+            clock = deserialize_message(msg, Clock).clock
+            self._sim_ns = clock.sec * 1_000_000_000 + clock.nanosec
+        log_time = self._sim_ns if self._sim_ns is not None else self.get_clock().now().nanoseconds
         publish_time = int(info["source_timestamp"]) if info else 0
         try:
-            if spec.name not in self._writer.topics:
+            if not self._writer.has_topic(spec.name):
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
             self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
             if spec.name == graph_names.SIM_PLANT:
                 # the plant's true parameters (issue 14) also as the bag's metadata record 'biped_plant'
-                from rclpy.serialization import deserialize_message
                 from std_msgs.msg import String
                 self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
+        except RecorderError as exc:
+            self.failure = exc
+            self.get_logger().error(f"recording stopped: {exc}")
+            self.done = True
+
+    def _poll_chunk(self) -> None:
+        """(steady timer) Write the open chunk out once it is ``chunk_time`` old."""
+        if self.failure is not None or self._writer.finished:
+            return
+        try:
+            self._writer.poll()
         except RecorderError as exc:
             self.failure = exc
             self.get_logger().error(f"recording stopped: {exc}")

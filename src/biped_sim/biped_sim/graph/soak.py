@@ -5,10 +5,15 @@
 2. while it walks, requests pushes through ``/apply_push``: a seeded plan (``push_plan``) of pushes every
    ``--every`` sim seconds (uniform in [every/2, 3 every/2]), alternating random directions, magnitudes
    uniform in [--min-force, --max-forward] forward and [--min-force, --max-backward] backward,
-   0.025 s each; each one is requested (absolute start) about ``--lead`` sim seconds before its onset,
-   sim time being read from ``/clock`` (keep-last 1, sampled a few times per wall second); the simulator
+   0.025 s each; each one is requested about ``--lead`` sim seconds before its planned onset, sim time
+   being read from ``/clock`` (keep-last 1, sampled a few times per wall second), in the service's delay
+   form: onset = the disturbance node's own sim time when it receives the request + ``delay``, with
+   ``delay`` = planned onset - the sim time seen here, at least ``--min-lead``. A request therefore
+   cannot arrive late ("start must not be in the past"), however far the graph moved on since this
+   process read ``/clock`` (a loaded machine); the push acts at the onset the service answers
+   (``scheduled_start``, >= the planned one when this process lags), which the checks use. The simulator
    is paced at ``--real-time-factor`` (default 1.0: the lockstep graph runs ~5x faster than real time
-   unpaced, which would outrun requests made 1 sim s ahead);
+   unpaced);
 3. samples VmRSS (``/proc/<pid>/status``) of each node process every ``--mem-every`` sim seconds;
 4. after the run, checks from the MCAP alone (``analyze_bag``): the ``/sim/state`` sequence has no gap
    or repeat, every per-step topic holds exactly the states' stamps (the period-topics all but the
@@ -112,8 +117,19 @@ def _log(msg: str) -> None:
     print(f'soak: {msg}', file=sys.stderr, flush=True)
 
 
+def push_delay(planned_start: float, seen_sim_time: float, min_lead: float) -> float:
+    """The ``delay`` [s] of a relative ``/apply_push`` request for a push planned at ``planned_start`` (sim s),
+    made when this process last saw sim time ``seen_sim_time``: the time left until the planned onset, at least
+    ``min_lead`` (the service adds it to its own, later or equal, sim time, so the onset is never in the past
+    and the simulator gets the event before the onset)."""
+    if not (math.isfinite(planned_start) and math.isfinite(seen_sim_time)) or not min_lead > 0:
+        raise ValueError(f'push_delay: finite times and min_lead > 0 needed, got {planned_start}, '
+                         f'{seen_sim_time}, {min_lead}')
+    return max(min_lead, planned_start - seen_sim_time)
+
+
 def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_force: float = 80.0,
-             max_forward: float = 150.0, max_backward: float = 150.0, lead: float = 1.0,
+             max_forward: float = 150.0, max_backward: float = 150.0, lead: float = 1.0, min_lead: float = 0.5,
              mem_every: float = 10.0, timeout: float | None = None, real_time_factor: float = 1.0) -> dict:
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy
@@ -172,12 +188,16 @@ def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_f
                 now = latest['t']
                 if next_push < len(plan) and now >= plan[next_push]['start'] - lead:
                     p = plan[next_push]
+                    delay = push_delay(p['start'], now, min_lead)
                     req = ApplyPush.Request(force=float(p['force']), duration=float(p['duration']),
-                                            start=float(p['start']), use_delay=False, delay=0.0, height=math.nan)
+                                            start=0.0, use_delay=True, delay=delay, height=math.nan)
                     fut = client.call_async(req)
                     ex.spin_until_future_complete(fut, timeout_sec=30.0)
                     res = fut.result() if fut.done() else None
-                    entry = dict(p, requested_at_sim=now, accepted=bool(res and res.accepted),
+                    accepted = bool(res and res.accepted)
+                    # the onset the service scheduled (its own sim time + delay): what /push_events carries
+                    entry = dict(p, planned_start=p['start'], start=float(res.scheduled_start) if accepted else math.nan,
+                                 delay=delay, requested_at_sim=now, accepted=accepted,
                                  id=int(res.push_id) if res else 0, message=res.message if res else 'no answer')
                     result['requested'].append(entry)
                     if not entry['accepted']:
@@ -279,7 +299,12 @@ def main(argv=None) -> int:
                     help="the simulator's pacing (1.0: sim time follows the wall clock, as a robot would; the "
                          "pushes are requested ~1 sim s ahead from /clock read every 0.2 s wall, so the graph "
                          "must not outrun the requests by much: keep it <= 2)")
+    ap.add_argument('--lead', type=float, default=1.0, help='sim s before a planned onset at which it is requested')
+    ap.add_argument('--min-lead', type=float, default=0.5,
+                    help='smallest delay of a request [sim s] (when this process lags the graph)')
     a = ap.parse_args(argv)
+    if not 0 < a.min_lead <= a.lead:
+        ap.error('--min-lead must be in (0, --lead]')
     if not 0 < a.real_time_factor <= 2:
         ap.error('--real-time-factor must be in (0, 2]')
     if not a.minutes > 0:
@@ -291,7 +316,8 @@ def main(argv=None) -> int:
     bag = (a.bag or repo_root() / 'runs' / f'soak_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
     bag.parent.mkdir(parents=True, exist_ok=True)
     r = run_soak(a.minutes, bag, seed=a.seed, every=a.every, min_force=a.min_force, max_forward=a.max_forward,
-                 max_backward=a.max_backward, timeout=a.timeout, real_time_factor=a.real_time_factor)
+                 max_backward=a.max_backward, lead=a.lead, min_lead=a.min_lead, timeout=a.timeout,
+                 real_time_factor=a.real_time_factor)
     print_summary(r)
     if a.json:
         a.json.write_text(json.dumps(r, indent=2, default=float) + '\n')

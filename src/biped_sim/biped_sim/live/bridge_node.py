@@ -39,6 +39,14 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``message_backlog`` (int 16..1000000, default 20000): messages queued per client before the
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
+- ``drain_batch`` (int 0..100000; 0 = one message per executor round): after the message the executor handed over, at most this
+  many more are taken directly, in the same callback, from *every* subscription (passes over them until
+  one takes nothing; each topic's messages in their order; ``/clock`` first in each pass, so the log time
+  is the newest sim time), as the recorder does. The executor's round per message (rclpy's
+  ``SingleThreadedExecutor`` in Python: wait set over every subscription, task, callback) costs far more
+  than passing the message on, and at 15 topics x 1 kHz the bridge fell behind the graph (issue 20:
+  ``/sim/state`` 25-28 ms late at p50); 0 = one message per round, the behaviour before.
+  ``config/graph.yaml`` sets it.
 
 Exit status: 0 on SIGINT/SIGTERM, 2 for a bad parameter or a server that cannot start (port in use).
 """
@@ -69,8 +77,6 @@ from biped_sim.graph.params import ParameterError, get_bool, get_float, get_int,
 from biped_sim.graph.recorder_node import RecorderNode, recording_qos
 
 NODE_NAME = gn.BRIDGE_NODE
-DEFAULT_HOST = '127.0.0.1'
-DEFAULT_PORT = 8765
 SERVER_NAME = 'biped'
 
 
@@ -135,15 +141,16 @@ class BridgeNode(Node):
         from foxglove import Channel, MessageSchema, Schema, Service, ServiceSchema
         from foxglove.websocket import Capability
 
-        self.host = get_str(self, 'host', DEFAULT_HOST).strip()
+        self.host = get_str(self, 'host').strip()
         if not self.host:
             raise ParameterError('host', 'must name an address to bind (empty)')
-        port = get_int(self, 'port', DEFAULT_PORT, lo=0, hi=65535)
-        self.service_timeout = get_float(self, 'service_timeout', 10.0, lo=0.0, lo_open=True)
-        backlog = get_int(self, 'message_backlog', 20000, lo=16, hi=1_000_000)
+        port = get_int(self, 'port', lo=0, hi=65535)
+        self.service_timeout = get_float(self, 'service_timeout', lo=0.0, lo_open=True)
+        backlog = get_int(self, 'message_backlog', lo=16, hi=1_000_000)
         # true: a per-step stream is read only while a client watches it (less load on a busy machine; a
         # stream subscribed on demand starts after DDS discovery, some 0.1-0.3 s of messages later)
-        self.lazy_streams = get_bool(self, 'lazy_streams', False)
+        self.lazy_streams = get_bool(self, 'lazy_streams')
+        self.drain_batch = get_int(self, 'drain_batch', lo=0, hi=100_000)
 
         self.sim_time_ns = 0
         self.clock_errors = 0
@@ -195,6 +202,7 @@ class BridgeNode(Node):
         self._specs = {spec.name: spec for spec in specs}
         self._streams = {spec.name for spec in specs if self.lazy_streams and spec.qos in gn.STREAM_QOS}
         self._ros_subs: dict = {}
+        self._handlers: dict = {}
         self._wanted: dict[str, int] = {}         # topic -> clients subscribed (SDK threads, under _lock)
         self._lock = threading.Lock()
         for spec in specs:
@@ -224,9 +232,33 @@ class BridgeNode(Node):
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self._channels[topic].log(msg, log_time=self.sim_time_ns)
 
+    def _handler(self, topic: str):
+        return self._on_clock if topic == gn.CLOCK else functools.partial(self._on_message, topic)
+
+    def _on_ready(self, topic: str, msg: bytes) -> None:
+        """(executor thread) The message the executor took, then up to ``drain_batch`` more already
+        waiting on every subscription, taken directly (module docstring: ``drain_batch``)."""
+        self._handlers[topic](msg)
+        left = self.drain_batch
+        while left > 0:
+            taken_pass = 0
+            for other, sub in list(self._ros_subs.items()):   # /clock first (subscribed first)
+                handler = self._handlers[other]
+                while left > 0:
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    handler(taken[0])
+                    taken_pass += 1
+                    left -= 1
+            if taken_pass == 0:
+                return
+
     def _subscribe(self, topic: str) -> None:
         spec = self._specs[topic]
-        callback = self._on_clock if topic == gn.CLOCK else functools.partial(self._on_message, topic)
+        self._handlers[topic] = self._handler(topic)
+        callback = functools.partial(self._on_ready, topic)
         self._ros_subs[topic] = self.create_subscription(spec.msg_class(), topic, callback,
                                                          recording_qos(spec.qos_profile), raw=True)
 

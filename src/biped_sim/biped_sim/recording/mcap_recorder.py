@@ -18,9 +18,20 @@ time), ``publish_time`` = source time.
 
 Messages arrive already CDR-serialized (raw pass-through); nothing here decodes them.
 
-Loss bound after a crash (SIGKILL): the current, not yet written chunk (at most ``chunk_size``
-bytes of uncompressed records) and the summary. Complete chunks are on disk (the file is written
-unbuffered) and :func:`biped_sim.recording.bag_reader.read_truncated` reads them back.
+Durability. A chunk is written out when it holds ``chunk_size`` bytes of uncompressed records *or*
+(``chunk_time``) when its first message was added ``chunk_time`` seconds ago (monotonic wall clock;
+checked at every message and by :meth:`Rosbag2McapWriter.poll`, which the recorder node calls from a
+timer so a quiet graph's last messages are closed too). The file is written unbuffered, so a written
+chunk is in the kernel's page cache at once:
+
+- a crash of the process (SIGKILL) loses the chunk being built (at most ``chunk_time`` s of messages, or
+  ``chunk_size`` bytes) and the summary; every written chunk reads back
+  (:func:`biped_sim.recording.bag_reader.read_truncated`) and
+  :func:`biped_sim.recording.bag_reader.recover_bag` rewrites the file into a finished, indexed bag;
+- a power cut (or kernel crash) also loses what the kernel had not written back yet: with ``sync`` off,
+  up to the kernel's dirty-page expiry (Linux ``vm.dirty_expire_centisecs``, 30 s by default) on top;
+  with ``sync`` on, every chunk is ``fdatasync``-ed when written, so the bound stays one chunk (the
+  cost of a sync per chunk is measured by ``benchmarks/recorder_durability.py``).
 """
 
 from __future__ import annotations
@@ -28,8 +39,10 @@ from __future__ import annotations
 import dataclasses
 import errno
 import json
+import math
 import os
 import re
+import time
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
@@ -61,6 +74,7 @@ __all__ = [
     "normalize_type_name",
     "prefixes_from_env",
     "available_compression",
+    "qos_from_yaml",
     "METADATA_VERSION",
     "DEFAULT_CHUNK_SIZE",
 ]
@@ -275,6 +289,33 @@ class BagSummary:
     complete: bool                      # False if an I/O error cut the recording short
 
 
+def qos_from_yaml(text: str) -> Tuple["QosProfile", ...]:
+    """The profiles of an MCAP channel's ``offered_qos_profiles`` YAML text (as :func:`_qos_yaml` writes it;
+    unknown keys are ignored, missing ones take :class:`QosProfile`'s field defaults).
+
+    :raises RecorderError: when the text is not a YAML list of mappings."""
+    try:
+        items = yaml.safe_load(text) if text else []
+    except yaml.YAMLError as exc:
+        raise RecorderError(f"offered_qos_profiles is not YAML: {exc}") from exc
+    if items is None:
+        items = []
+    if not isinstance(items, list) or not all(isinstance(i, dict) for i in items):
+        raise RecorderError(f"offered_qos_profiles is not a list of profiles: {text!r}")
+    fields = {f.name for f in dataclasses.fields(QosProfile)}
+    out = []
+    for item in items:
+        kwargs: Dict[str, Any] = {}
+        for key, value in item.items():
+            if key not in fields:
+                continue
+            if isinstance(value, dict) and set(value) == {"sec", "nsec"}:
+                value = (int(value["sec"]), int(value["nsec"]))
+            kwargs[key] = value
+        out.append(QosProfile(**kwargs))
+    return tuple(out)
+
+
 class _UnbufferedSink:
     """Write-through file sink: what the mcap Writer hands over reaches the OS at once.
 
@@ -303,6 +344,10 @@ class _UnbufferedSink:
     def flush(self) -> None:
         pass
 
+    def sync(self) -> None:
+        """``fdatasync``: what was written is on the storage device (survives a power cut)."""
+        os.fdatasync(self._file.fileno())
+
     def close(self) -> None:
         try:
             os.fsync(self._file.fileno())
@@ -323,13 +368,19 @@ class Rosbag2McapWriter:
     :param compression: 'zstd' | 'lz4' | 'none' | 'auto' (best available, see
         :func:`available_compression`).
     :param chunk_size: uncompressed bytes per chunk before it is written out.
+    :param chunk_time: seconds (monotonic wall clock) after a chunk's first message at which the chunk is
+        written out even if not full (checked at each message and by :meth:`poll`); None = by size only.
+    :param sync: ``fdatasync`` the file after each chunk written (a power cut then loses at most the
+        chunk being built; see the module docstring).
+    :param clock: monotonic time source [s] for ``chunk_time`` (tests pass their own).
     :raises RecorderError: at construction, before anything is written, if the directory
         cannot be created or written, already holds files, or the compression is unavailable.
     """
 
     def __init__(self, bag_dir: os.PathLike | str, *, prefixes: Sequence[os.PathLike | str],
                  compression: str = "auto", chunk_size: int = DEFAULT_CHUNK_SIZE,
-                 ros_distro: str = ROS_DISTRO) -> None:
+                 chunk_time: Optional[float] = None, sync: bool = False,
+                 clock=time.monotonic, ros_distro: str = ROS_DISTRO) -> None:
         self._finished = False
         self._summary: Optional[BagSummary] = None
         self._sink: Optional[_UnbufferedSink] = None
@@ -347,6 +398,17 @@ class Rosbag2McapWriter:
             raise RecorderError("compression 'lz4' requested but the lz4 module is missing")
         if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
             raise RecorderError(f"chunk_size must be a positive integer; got {chunk_size!r}")
+        if chunk_time is not None and (isinstance(chunk_time, bool) or not isinstance(chunk_time, (int, float))
+                                       or not math.isfinite(chunk_time) or chunk_time <= 0):
+            raise RecorderError(f"chunk_time must be a finite number of seconds > 0 (or None); got {chunk_time!r}")
+        if not isinstance(sync, bool):
+            raise RecorderError(f"sync must be a bool; got {sync!r}")
+        self.chunk_time = None if chunk_time is None else float(chunk_time)
+        self.sync = sync
+        self._clock = clock
+        self._chunk_opened: Optional[float] = None   # clock() at the first message of the open chunk
+        self.chunks_written = 0                      # chunks (and data records) handed to the file
+        self.syncs = 0
 
         self.compression = compression
         self.chunk_size = chunk_size
@@ -457,18 +519,25 @@ class Rosbag2McapWriter:
     def topics(self) -> Dict[str, TopicInfo]:
         return dict(self._topics)
 
+    def has_topic(self, topic: str) -> bool:
+        """Whether ``topic`` is registered (without copying :attr:`topics`)."""
+        return topic in self._topics
+
     @property
     def finished(self) -> bool:
         return self._finished
 
     def register_topic(self, topic: str, type_name: str,
                        qos_profiles: Optional[Iterable[QosProfile]] = None,
-                       type_hash: Optional[str] = None) -> TopicInfo:
+                       type_hash: Optional[str] = None, definition: Optional[str] = None) -> TopicInfo:
         """Register a topic's channel (and its type's schema) if not yet done.
 
         :param qos_profiles: profiles offered by the topic's publishers (default: one default
             profile, reliable + volatile, depth 10).
         :param type_hash: RIHS01 hash; by default read from the type's ``.json`` file.
+        :param definition: the schema's ``ros2msg`` text; by default built from the ``.msg`` files
+            (:func:`build_message_definition`). Given when copying a bag (its own schema is kept); the
+            first topic of a type decides its schema.
         :raises RecorderError: if the topic exists with another type, or the type's definition
             cannot be found.
         """
@@ -489,7 +558,8 @@ class Rosbag2McapWriter:
         schema_id = self._schemas.get(full_type)
         try:
             if schema_id is None:
-                definition = build_message_definition(full_type, self.prefixes)
+                if definition is None:
+                    definition = build_message_definition(full_type, self.prefixes)
                 schema_id = self._writer.register_schema(
                     name=full_type, encoding="ros2msg", data=definition.encode("utf-8"))
                 self._schemas[full_type] = schema_id
@@ -518,24 +588,63 @@ class Rosbag2McapWriter:
             info = self.register_topic(topic, type_name)
         else:
             self._check_open()
-            pkg, name = normalize_type_name(type_name)
-            if info.type_name != f"{pkg}/msg/{name}":
-                raise RecorderError(
-                    f"topic {topic} is recorded as {info.type_name}, not {type_name}")
+            if type_name != info.type_name:   # the recorded pkg/msg/Type as given: no parsing per message
+                pkg, name = normalize_type_name(type_name)
+                if info.type_name != f"{pkg}/msg/{name}":
+                    raise RecorderError(
+                        f"topic {topic} is recorded as {info.type_name}, not {type_name}")
         log_time_ns = int(log_time_ns)
         publish_time_ns = int(publish_time_ns)
         if log_time_ns < 0 or publish_time_ns < 0:
             raise RecorderError(f"negative timestamp on {topic}: {log_time_ns}, {publish_time_ns}")
         try:
+            before = self._sink.tell()
             self._writer.add_message(channel_id=info.channel_id, log_time=log_time_ns,
                                      data=bytes(data), publish_time=publish_time_ns,
                                      sequence=info.message_count)
+            if self._sink.tell() != before:   # the size limit closed the chunk (this message inside)
+                self._after_chunk()
+            elif self._chunk_opened is None:
+                self._chunk_opened = self._clock()
+            self.poll()
         except OSError as exc:
             self._fail(exc)
         info.message_count += 1
         self._count += 1
         self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns, log_time_ns)
         self._end_ns = log_time_ns if self._end_ns is None else max(self._end_ns, log_time_ns)
+
+    def poll(self) -> bool:
+        """Write the open chunk out if its first message is ``chunk_time`` s old (no-op without
+        ``chunk_time``, on an empty chunk, or on a finished bag). Returns whether a chunk was written.
+
+        :raises RecorderError: on an I/O error (after finishing what can be finished)."""
+        if (self.chunk_time is None or self._finished or self._chunk_opened is None
+                or self._clock() - self._chunk_opened < self.chunk_time):
+            return False
+        self.close_chunk()
+        return True
+
+    def close_chunk(self) -> None:
+        """Write the chunk being built out now (compressed, with its message indexes), and sync it when
+        ``sync``. No-op on an empty chunk.
+
+        :raises RecorderError: on an I/O error (after finishing what can be finished) or a finished bag."""
+        self._check_open()
+        if self._chunk_opened is None:
+            return
+        try:
+            self._writer.flush()   # mcap: finishes the chunk in progress and writes it to the sink
+            self._after_chunk()
+        except OSError as exc:
+            self._fail(exc)
+
+    def _after_chunk(self) -> None:
+        self._chunk_opened = None
+        self.chunks_written += 1
+        if self.sync:
+            self._sink.sync()
+            self.syncs += 1
 
     def add_metadata(self, name: str, data: Dict[str, str]) -> None:
         """Write an MCAP metadata record ``name`` (string keys and values) now, in the data section (it is
