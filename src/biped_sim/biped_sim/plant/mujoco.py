@@ -62,7 +62,7 @@ import numpy as np
 
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
-from biped_sim.plant.push import Push, PushBook, PushLimits
+from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import FloatingModel, paper_from_urdf, urdf_from_paper
@@ -118,7 +118,7 @@ class ContactDiagnostics:
                 if k != "touchdown_forces"}
 
 
-class MujocoPlant:
+class MujocoPlant(ScheduledPushes):
     """The biped on MuJoCo (see the module docstring). ``perturbation`` as for the rigid plant: the model
     is built from ``perturbation.apply(desc)`` (masses, centres of mass, inertias, friction), the sensors
     (noise, delay) act on :meth:`observe` only."""
@@ -182,9 +182,6 @@ class MujocoPlant:
         self._unloaded_since: float | None = None
         self._armed = False
 
-    def _new_book(self) -> PushBook:
-        return PushBook(PushLimits(math.inf, math.inf, self.desc.torso.length, self.cfg.push_height))
-
     def _new_diagnostics(self) -> ContactDiagnostics:
         # the edge band: 1 mm, the rigid plant's tip boundary seen through a soft contact's corner spread; the
         # roll tilt: the sole's far end 0.1 mm above the floor (0.1 m x 1e-3 rad), far above the 0.36 um sink
@@ -212,21 +209,6 @@ class MujocoPlant:
         self._armed = False
         if self.trace is not None:
             self.trace = [(0.0, self.x.copy())]
-
-    @property
-    def pushes(self) -> list[Push]:
-        return self.book.pushes
-
-    def schedule_push(self, start: float, duration: float, force: float, height: float | None = None,
-                      push_id: int | None = None) -> Push:
-        """Schedule a push (raises ``push.Rejected`` naming the field); ``height`` None/NaN = the default."""
-        h = math.nan if height is None else height
-        return self.book.add(self.book.check(force, duration, start, h, None), push_id)
-
-    def interval_pushes(self, t0: float, t1: float) -> tuple[tuple[float, float], ...]:
-        """(force [N], height [m]) of the pushes acting over [t0, t1] (steps are split at push boundaries)."""
-        tm = 0.5 * (t0 + t1)
-        return tuple((p.force, p.height) for p in self.pushes if p.start <= tm < p.end)
 
     # ------------------------------------------------------------ queries
     @staticmethod

@@ -144,3 +144,33 @@ class PushBook:
         scheduled = replace(push, id=pid)
         self.pushes.append(scheduled)
         return scheduled
+
+
+class ScheduledPushes:
+    """The push schedule of a plant engine (a mixin of every engine; no ROS): ``self.book`` holds the pushes,
+    validated by :func:`validate_push` with physical limits only (any force and duration, a point on the
+    torso ``self.desc.torso.length``, no overlap; default height ``self.cfg.push_height``); the service adds
+    its own bounds upstream."""
+
+    def _new_book(self) -> PushBook:
+        return PushBook(PushLimits(math.inf, math.inf, self.desc.torso.length, self.cfg.push_height))
+
+    @property
+    def pushes(self) -> list[Push]:
+        return self.book.pushes
+
+    def schedule_push(self, start: float, duration: float, force: float, height: float | None = None,
+                      push_id: int | None = None) -> Push:
+        """Schedule a push (raises :class:`Rejected` naming the field, nothing changed); ``height`` None/NaN =
+        the default."""
+        h = math.nan if height is None else height
+        return self.book.add(self.book.check(force, duration, start, h, None), push_id)
+
+    def interval_pushes(self, t0: float, t1: float) -> tuple[tuple[float, float], ...]:
+        """The pushes acting over the integration interval [t0, t1], as (force [N], height [m]).
+
+        Intervals are split exactly at every push start and end, so a push either covers an interval
+        entirely or not at all; the test uses the interval's midpoint, which is robust to the rounding of
+        the boundaries. The force is then constant over the interval, at every integration stage."""
+        tm = 0.5 * (t0 + t1)
+        return tuple((p.force, p.height) for p in self.pushes if p.start <= tm < p.end)

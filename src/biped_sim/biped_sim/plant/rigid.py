@@ -36,7 +36,7 @@ import numpy as np
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
 from biped_sim.robot.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
-from biped_sim.plant.push import Push, PushBook, PushLimits
+from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
@@ -59,7 +59,7 @@ def _state_field(name: str, kind):
     return property(lambda self: self.sim_state[sl], set_, doc=f"SIM_STATE.{name} (a view of the state array)")
 
 
-class Simulator:
+class Simulator(ScheduledPushes):
     """Owns its FloatingModel (own Pinocchio Data).
 
     Its per-period state is the array ``sim_state`` (``rigid_layout.SIM_STATE``): ``t``, ``step_index``,
@@ -131,21 +131,6 @@ class Simulator:
         self.book = self._new_book()
         self.sensor.reset()
 
-    def _new_book(self) -> PushBook:
-        """The simulator's pushes: validated by ``push.validate_push`` with physical limits only (any force
-        and duration, a point on the torso, no overlap); the service adds its own bounds upstream."""
-        return PushBook(PushLimits(math.inf, math.inf, self.desc.torso.length, self.cfg.push_height))
-
-    @property
-    def pushes(self) -> list[Push]:
-        return self.book.pushes
-
-    def schedule_push(self, start: float, duration: float, force: float, height: float | None = None,
-                      push_id: int | None = None) -> Push:
-        """Schedule a push (raises ``push.Rejected`` naming the field); ``height`` None/NaN = the default."""
-        h = math.nan if height is None else height
-        return self.book.add(self.book.check(force, duration, start, h, None), push_id)
-
     # ------------------------------------------------------------ queries
     def observe(self) -> Observation:
         """What the controller measures at the start of the current period: the true paper (q, q') and
@@ -162,15 +147,6 @@ class Simulator:
     def push_force_at(self, t: float) -> list[tuple[float, float]]:
         """(force [N], height [m]) of every push acting at instant ``t`` (on over [start, end))."""
         return [(p.force, p.height) for p in self.pushes if p.start <= t < p.end]
-
-    def interval_pushes(self, t0: float, t1: float) -> tuple[tuple[float, float], ...]:
-        """The pushes acting over the integration interval [t0, t1], as (force [N], height [m]).
-
-        Intervals are split exactly at every push start and end (``step``), so a push either covers an
-        interval entirely or not at all; the test uses the interval's midpoint, which is robust to the
-        rounding of the boundaries. The force is then constant over the interval, at every RK4 stage."""
-        tm = 0.5 * (t0 + t1)
-        return tuple((p.force, p.height) for p in self.pushes if p.start <= tm < p.end)
 
     def _generalized_force(self, x: np.ndarray, tau_j: np.ndarray, pushes) -> np.ndarray:
         tau = np.zeros(9)
