@@ -358,7 +358,9 @@ def test_node_defaults_come_from_graph_yaml():
     g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
     nodes = {'simulator': 'src/biped_sim/biped_sim/graph/simulator_node.py',
              'controller': 'src/biped_controller/biped_controller/graph/controller_node.py',
-             'disturbance': 'src/biped_sim/biped_sim/graph/disturbance_node.py'}
+             'disturbance': 'src/biped_sim/biped_sim/graph/disturbance_node.py',
+             'recorder': 'src/biped_sim/biped_sim/graph/recorder_node.py',
+             'bridge': 'src/biped_sim/biped_sim/live/bridge_node.py'}
     for node, rel in nodes.items():
         keys = set(g[node]['ros__parameters'])
         repeated = [(f, n) for f, n in _literal_defaults(repo_root() / rel) if n in keys]
