@@ -239,7 +239,10 @@ def test_push_delay_is_never_in_the_past():
     assert push_delay(5.0, 4.0, 0.5) == 1.0          # on time: the onset stays the planned one
     assert push_delay(5.0, 4.9, 0.5) == 0.5          # late view: at least min_lead after the service's own now
     assert push_delay(5.0, 7.0, 0.5) == 0.5          # the planned onset has passed: still in the future
-    for bad in ((math.nan, 1.0, 0.5), (1.0, math.inf, 0.5), (1.0, 0.0, 0.0)):
+    # a requester that fell behind asks for two pushes in a row: the second waits for the first's end
+    assert push_delay(5.0, 7.0, 0.5, not_before=7.8) == pytest.approx(0.8)
+    assert push_delay(5.0, 4.0, 0.5, not_before=4.2) == 1.0   # on time: the plan's onset is already later
+    for bad in ((math.nan, 1.0, 0.5), (1.0, math.inf, 0.5), (1.0, 0.0, 0.0), (1.0, 0.0, 0.5, math.nan)):
         with pytest.raises(ValueError):
             push_delay(*bad)
 

@@ -45,6 +45,9 @@ from pathlib import Path
 from biped_sim.graph.bag_summary import analyze_bag
 
 PUSH_DURATION = 0.025
+# [s] between one push's end and the next one's onset when the requester fell behind: one control period,
+# far above the rounding of the service's now + delay, far below the plan's spacing (every x 0.5)
+SEPARATION = 1e-3
 NODE_NAMES = ('simulator', 'controller', 'disturbance', 'recorder')
 MEMORY_GROWTH_LIMIT = 0.10
 
@@ -117,15 +120,18 @@ def _log(msg: str) -> None:
     print(f'soak: {msg}', file=sys.stderr, flush=True)
 
 
-def push_delay(planned_start: float, seen_sim_time: float, min_lead: float) -> float:
+def push_delay(planned_start: float, seen_sim_time: float, min_lead: float, not_before: float = -math.inf) -> float:
     """The ``delay`` [s] of a relative ``/apply_push`` request for a push planned at ``planned_start`` (sim s),
     made when this process last saw sim time ``seen_sim_time``: the time left until the planned onset, at least
     ``min_lead`` (the service adds it to its own, later or equal, sim time, so the onset is never in the past
-    and the simulator gets the event before the onset)."""
-    if not (math.isfinite(planned_start) and math.isfinite(seen_sim_time)) or not min_lead > 0:
+    and the simulator gets the event before the onset), and at least until ``not_before`` (sim s: the end of
+    the push accepted before, so that a requester that fell behind and asks for two pushes in a row never
+    asks for overlapping ones: the onset is the service's now + delay >= seen + delay >= not_before)."""
+    if not (math.isfinite(planned_start) and math.isfinite(seen_sim_time)) or not min_lead > 0 \
+            or math.isnan(not_before):
         raise ValueError(f'push_delay: finite times and min_lead > 0 needed, got {planned_start}, '
-                         f'{seen_sim_time}, {min_lead}')
-    return max(min_lead, planned_start - seen_sim_time)
+                         f'{seen_sim_time}, {min_lead}, {not_before}')
+    return max(min_lead, planned_start - seen_sim_time, not_before - seen_sim_time)
 
 
 def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_force: float = 80.0,
@@ -175,6 +181,7 @@ def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_f
             if not client.wait_for_service(timeout_sec=60):
                 raise RuntimeError(f'{gn.APPLY_PUSH} not available')
             next_push = 0
+            not_before = -math.inf     # sim s: the end of the last accepted push plus one control period
             next_mem = mem_first_at
             final_sampled = False
             while launcher.poll() is None:
@@ -188,7 +195,7 @@ def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_f
                 now = latest['t']
                 if next_push < len(plan) and now >= plan[next_push]['start'] - lead:
                     p = plan[next_push]
-                    delay = push_delay(p['start'], now, min_lead)
+                    delay = push_delay(p['start'], now, min_lead, not_before)
                     req = ApplyPush.Request(force=float(p['force']), duration=float(p['duration']),
                                             start=0.0, use_delay=True, delay=delay, height=math.nan)
                     fut = client.call_async(req)
@@ -200,6 +207,8 @@ def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_f
                                  delay=delay, requested_at_sim=now, accepted=accepted,
                                  id=int(res.push_id) if res else 0, message=res.message if res else 'no answer')
                     result['requested'].append(entry)
+                    if accepted:
+                        not_before = float(res.scheduled_end) + SEPARATION
                     if not entry['accepted']:
                         result['problems'].append(f'push {p} not accepted: {entry["message"]}')
                     next_push += 1
