@@ -12,7 +12,11 @@ of the package's ament-index prefix), each with ``--ros-args --params-file FILE`
 
 Then it waits for the simulator to finish and stops the others (SIGINT; SIGTERM after
 ``--stop-timeout`` s; SIGKILL after as long again), the recorder last so that it gets the last
-messages. It isolates nothing (children inherit ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE).
+messages: every node waits (at most 5 s: Fast DDS re-sends a lost sample after its next heartbeat,
+every 3 s) for its reliable subscribers to acknowledge what it published before it exits, and the
+recorder, once no publisher is left, takes everything still queued before it finishes the bag
+(``--recorder-stop-timeout``, 30 s, between its SIGINT and SIGTERM).
+It isolates nothing (children inherit ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE).
 
 - A node that exits before the simulator finished: "launch: node 'X' died unexpectedly (exit code
   N)", every other node is stopped, exit status 1.
@@ -171,7 +175,10 @@ def parse_args(argv=None):
                     help='extra simulator parameter (repeatable)')
     ap.add_argument('--ctrl-param', action='append', default=[], metavar='KEY:=VALUE',
                     help='extra controller parameter (repeatable)')
-    ap.add_argument('--stop-timeout', type=float, default=5.0, help='s between SIGINT, SIGTERM and SIGKILL')
+    ap.add_argument('--stop-timeout', type=float, default=10.0, help='s between SIGINT, SIGTERM and SIGKILL')
+    ap.add_argument('--recorder-stop-timeout', type=float, default=30.0,
+                    help='s the recorder gets between SIGINT and SIGTERM (it drains its queues, then finishes the '
+                         'bag: done as soon as they are empty; its own limit is 25 s)')
     ap.add_argument('--start-timeout', type=float, default=60.0, help='s to wait for the recorder')
     ap.add_argument('--grace', type=float, default=7.0,
                     help='s the survivors get after a node died (the simulator detects a dead controller)')
@@ -297,7 +304,7 @@ def main(argv=None) -> int:
         order = [children[n] for n in ('simulator', 'controller', 'disturbance', 'bridge') if n in children]
         stop_children(order, args.stop_timeout)
         if 'recorder' in children:
-            stop_children([children['recorder']], args.stop_timeout)
+            stop_children([children['recorder']], args.recorder_stop_timeout)
             rc = children['recorder'].poll()
             if rc not in (0, None) and status == 0:
                 log(f'recorder exited with {rc}')

@@ -28,6 +28,9 @@ from rclpy.node import Node
 
 EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
+ACK_TIMEOUT = 5.0   # s a stopping node waits for its reliable subscribers' acknowledgements: longer than Fast DDS's
+                    # heartbeat period (3 s), the wait of a sample lost on the way (re-sent after the next heartbeat)
+                    # (the launcher gives 10 s from SIGINT to SIGTERM)
 
 
 class ParameterError(ValueError):
@@ -208,8 +211,9 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
     ``ParameterError`` or one of ``startup_errors`` -> a message on stderr and exit code
     EXIT_BAD_PARAMETER, nothing half-started), spin until SIGINT/SIGTERM, external shutdown, or the node
     sets ``node.done``; then ``node.after_spin(executor, signum)`` if the node has one (a recorder
-    drains and finishes its bag, the simulator reports why it stopped) gives the exit code (default 0).
-    Cleans up in every case."""
+    drains and finishes its bag, the simulator reports why it stopped) gives the exit code (default 0);
+    then at most ACK_TIMEOUT s for every reliable subscriber to acknowledge what the node published
+    (:func:`wait_all_acked`). Cleans up in every case."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
@@ -235,6 +239,11 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
             restore_handlers(previous)
         after = getattr(node, 'after_spin', None)
         code = after(executor, stop['signal']) if after is not None else 0
+        # whatever the reason of the stop: the node's last messages reach the recorder before the process
+        # (and the DDS writer history holding what a lagging reader has not acknowledged) is gone
+        late = wait_all_acked(node, ACK_TIMEOUT)
+        if late:
+            node.get_logger().warning(f'not acknowledged within {ACK_TIMEOUT} s: {", ".join(late)}')
         return EXIT_OK if code is None else int(code)
     finally:
         if node is not None:

@@ -117,8 +117,9 @@ def qos_from_rclpy(profile) -> QosProfile:
 
 PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
 DRAIN_BATCH = 256  # messages taken at most per executor callback, from every subscription (see _on_message)
-DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request
-DRAIN_MAX = 4.0    # s, upper bound of the drain (below the launcher's 5 s SIGINT -> SIGTERM timeout)
+DRAIN_PER_TOPIC = 16  # messages taken at most from one subscription per pass (no topic starves another)
+DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request (publishers left)
+DRAIN_MAX = 25.0   # s, upper bound of the drain (below the launcher's recorder stop timeout, 30 s)
 
 
 class RecorderNode(Node):
@@ -227,29 +228,44 @@ class RecorderNode(Node):
 
     def _on_message(self, spec, msg: bytes, info) -> None:
         """One message from the executor, then what is already waiting on *every* subscription, taken
-        directly (passes over the subscriptions until one takes nothing; at most DRAIN_BATCH in all; each
-        topic's messages in their order). The executor's round per message (Python wait set over every
-        subscription, task, callback) costs more than writing the message: at 1 kHz x 15 topics, taking only
-        the subscription that fired left the recorder ~0.3-0.5 s behind a real-time graph on a loaded
-        2-core machine (issue 20), and what DDS still holds for the recorder dies with it on SIGKILL."""
+        directly (:meth:`_take_waiting`, at most DRAIN_BATCH). The executor's round per message (Python wait
+        set over every subscription, task, callback) costs more than writing the message: at 1 kHz x 15
+        topics, taking only the subscription that fired left the recorder ~0.3-0.5 s behind a real-time
+        graph on a loaded 2-core machine (issue 20), and what DDS still holds for the recorder dies with it
+        on SIGKILL."""
         self._record(spec, msg, info)
+        self._take_waiting(DRAIN_BATCH)
+
+    def _take_waiting(self, budget: int) -> int:
+        """Take what waits in the subscriptions' DDS queues, in passes over every subscription with at most
+        DRAIN_PER_TOPIC from each per pass (each topic's messages in their order; a lagging recorder's
+        backlog on the first topics never starves the later ones: a pass that took everything of /clock
+        before looking at /push_events left the later topics' tail unrecorded when the drain ended), until
+        a pass takes nothing or ``budget`` messages are taken. Returns how many were taken."""
         taken_total = 0
-        while taken_total < DRAIN_BATCH:
+        while taken_total < budget:
             taken_pass = 0
             for other in self._specs:
                 sub = self._subscriptions_by_topic.get(other.name)
-                while sub is not None and taken_total < DRAIN_BATCH:
+                taken_topic = 0
+                while sub is not None and taken_topic < DRAIN_PER_TOPIC and taken_total < budget:
                     if self.failure is not None or self._writer.finished:
-                        return
+                        return taken_total
                     with sub.handle:
                         taken = sub.handle.take_message(sub.msg_type, True)
                     if taken is None:
                         break
                     self._record(other, taken[0], taken[1])
-                    taken_pass += 1
+                    taken_topic += 1
                     taken_total += 1
+                taken_pass += taken_topic
             if taken_pass == 0:
-                return
+                break
+        return taken_total
+
+    def _publishers_left(self) -> int:
+        """Publishers the graph still has on the recorded topics (0 once every other node has exited)."""
+        return sum(self.count_publishers(spec.name) for spec in self._specs)
 
     def _record(self, spec, msg: bytes, info) -> None:
         if self.failure is not None or self._writer.finished:
@@ -299,24 +315,42 @@ class RecorderNode(Node):
 
     def after_spin(self, executor, _signum) -> int:
         """Drain, then finish the bag (``run_node``): a stop request can arrive while messages are still
-        queued (the recorder may lag the 1 kHz lockstep on a loaded machine). Keep taking them until
-        nothing has arrived for DRAIN_IDLE seconds (at most DRAIN_MAX). Exit 1 if finishing failed."""
+        queued (the recorder may lag the 1 kHz lockstep on a loaded machine). Take what waits (fairly over
+        the topics) until the queues are empty and either no publisher is left on the recorded topics (the
+        launcher stops the recorder last, after every other node has had its messages acknowledged: then
+        the queues hold everything there will ever be) or nothing new has arrived for DRAIN_IDLE s (a
+        recorder stopped while the graph runs on); at most DRAIN_MAX s. Exit 1 if finishing failed."""
         status = 0
+        t0 = time.monotonic()
+        drained, why = 0, f"time limit {DRAIN_MAX} s"
         try:
-            t_end = time.monotonic() + DRAIN_MAX
-            last_total, last_change = -1, time.monotonic()
-            while rclpy.ok(context=self.context) and time.monotonic() < t_end:
-                executor.spin_once(timeout_sec=0.02)
-                total = sum(self.counts.values())
+            t_end = t0 + DRAIN_MAX
+            last_change = time.monotonic()
+            while rclpy.ok(context=self.context) and time.monotonic() < t_end and self.failure is None:
+                before = sum(self.counts.values())
+                self._take_waiting(DRAIN_BATCH)
+                taken = sum(self.counts.values()) - before
+                drained += taken
                 now = time.monotonic()
-                if total != last_total:
-                    last_total, last_change = total, now
-                elif now - last_change >= DRAIN_IDLE:
+                if taken:
+                    last_change = now
+                    continue
+                if self._publishers_left() == 0:
+                    why = "queues empty, no publisher left"
                     break
+                if now - last_change >= DRAIN_IDLE:
+                    why = f"queues empty, nothing new for {DRAIN_IDLE} s"
+                    break
+                before = sum(self.counts.values())
+                executor.spin_once(timeout_sec=0.02)   # timers; a new message wakes it (and is recorded)
+                if sum(self.counts.values()) != before:
+                    drained += sum(self.counts.values()) - before
+                    last_change = time.monotonic()
         except ExternalShutdownException:
-            pass  # the context was shut down: finish the bag below
+            why = "context shut down"   # finish the bag below
         finally:
             executor.remove_node(self)
+            self.get_logger().info(f"drained {drained} messages in {time.monotonic() - t0:.2f} s ({why})")
             try:
                 self.finish()
             except RecorderError as exc:

@@ -1,0 +1,90 @@
+"""Fingerprint of the rigid plant's closed loop: one hash over the records of a fixed set of runs.
+
+    python -m biped_controller.studies.fingerprint [--skip-prefix PREFIX ...]
+
+A refactoring that must not change behaviour prints the same line before and after (on the same
+machine: the hash covers every bit of every float, so a different CPU or library build may differ).
+The runs: walks, pushes and falls in the paper's four modes and the two baseline modes, with the
+compiled closed loop on and off (the objects and the compiled loop must agree with each other too:
+each pair is also compared). Every field of every ``StepRecord``, ``ImpactRecord`` and controller
+status enters the hash, in order, except status fields named with a ``--skip-prefix`` (a field added
+on purpose is skipped so that the rest can still be compared).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import sys
+
+import numpy as np
+
+from biped_sim.plant.push import Push
+from biped_controller.studies.runner import run
+
+# (name, steps, mode, pushes)
+RUNS = (
+    ("walk-both", 4, "both", ()),
+    ("walk-none", 3, "none", ()),
+    ("push-both", 4, "both", (Push(0.9, 0.025, 300.0),)),
+    ("push-tau", 4, "tau", (Push(0.9, 0.025, 200.0),)),
+    ("push-p", 4, "p", (Push(0.9, 0.025, 150.0),)),
+    ("back-both", 4, "both", (Push(1.2, 0.025, -150.0),)),
+    ("fall-both", 4, "both", (Push(0.9, 0.025, 1500.0),)),
+    ("push-wbc", 3, "wbc", (Push(0.9, 0.025, 150.0),)),
+    ("push-hybrid", 3, "hybrid", (Push(0.9, 0.025, 300.0),)),
+)
+
+
+def _feed(h, value) -> None:
+    if isinstance(value, np.ndarray):
+        h.update(np.ascontiguousarray(value, dtype=np.float64).tobytes())
+    elif isinstance(value, float):
+        h.update(np.float64(value).tobytes())
+    else:
+        h.update(repr(value).encode())
+
+
+def _digest(result, skip: tuple[str, ...]) -> str:
+    h = hashlib.sha256()
+    for rec in result.records:
+        for f in dataclasses.fields(rec):
+            _feed(h, getattr(rec, f.name))
+    for imp in result.impacts:
+        for f in dataclasses.fields(imp):
+            _feed(h, getattr(imp, f.name))
+    for st in result.statuses:
+        for f in dataclasses.fields(st):
+            if not f.name.startswith(skip):
+                _feed(h, getattr(st, f.name))
+    _feed(h, (result.steps_walked, result.fallen, result.fall_cause, result.fall_detail, float(result.fall_time)))
+    return h.hexdigest()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="fingerprint", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--skip-prefix", action="append", default=[], help="status fields to leave out (repeatable)")
+    args = ap.parse_args(argv)
+    skip = tuple(args.skip_prefix)
+    total = hashlib.sha256()
+    disagree = []
+    for name, steps, mode, pushes in RUNS:
+        digests = {}
+        for compiled in (True, False):
+            r = run(steps, mode, pushes, compiled_loop=compiled)
+            digests[compiled] = _digest(r, skip)
+            print(f"{name:12s} compiled={compiled!s:5s} steps={r.steps_walked} fallen={r.fallen} "
+                  f"{digests[compiled][:16]}", flush=True)
+        if digests[True] != digests[False]:
+            disagree.append(name)
+        total.update(digests[True].encode())
+        total.update(digests[False].encode())
+    print(f"fingerprint {total.hexdigest()}")
+    if disagree:
+        print(f"compiled loop and objects disagree: {', '.join(disagree)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
