@@ -6,6 +6,14 @@ prints. Pure Python on ``runner.run`` (no ROS). Usage::
     python -m biped_controller.studies.plant_compare pushes [--dir docs/mujoco_runs] [--reuse]
     python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off]
     python -m biped_controller.studies.plant_compare cmap --rigid STORE --mujoco STORE
+    python -m biped_controller.studies.plant_compare fingerprint
+
+``fingerprint``: one sha256 over everything the MuJoCo plant records in a fixed set of runs (walks, pushes in
+three modes, a backward push, a fall, the classical controller's fall, sensor noise and delay, a torque law
+evaluated at every MuJoCo step): every field of every ``StepRecord``, ``ImpactRecord`` and controller status
+(hashed as ``studies.fingerprint`` hashes the rigid plant's), the outcome, and the plant's contact diagnostics
+(each counter and the touchdown forces). A change to the plant that must not change behaviour (a speed-up)
+prints the same last line before and after, on the same machine.
 
 ``cmap``: the capability-map slice side by side from two stores of ``scripts/capability_map`` (one per plant,
 ``--set plant=P --store STORE``): per cell (mode, direction, onset phase, duration), the strict boundary (the
@@ -200,6 +208,60 @@ def push_pair(force: float, mode: str, observer: bool) -> list[dict]:
     return out
 
 
+# (name, steps, mode, pushes, perturbation keywords, runner keywords)
+FINGERPRINT_RUNS = (
+    ("walk-both", 4, "both", (), {}, {}),
+    ("walk-none", 3, "none", (), {}, {}),
+    ("push-both", 4, "both", (Push(0.9, 0.025, 300.0),), {}, {}),
+    ("push-tau", 4, "tau", (Push(0.9, 0.025, 200.0),), {}, {}),
+    ("push-p", 4, "p", (Push(0.9, 0.025, 150.0),), {}, {}),
+    ("back-both", 4, "both", (Push(1.2, 0.025, -150.0),), {}, {}),
+    ("fall-both", 4, "both", (Push(0.2315, 0.025, 1500.0),), {}, {}),
+    ("noise-both", 3, "both", (), {"noise_q": 1e-4, "noise_qd": 1e-2, "seed": 3}, {}),
+    ("delay-both", 3, "both", (), {"delay": 1}, {}),
+    ("rate-both", 2, "both", (Push(0.3, 0.025, 200.0),), {}, {"integration_rate": True}),
+)
+
+
+def mujoco_fingerprint(out=print) -> str:
+    """The hash of ``FINGERPRINT_RUNS`` on the MuJoCo plant (module docstring, ``fingerprint``); prints one
+    line per run and the total."""
+    import dataclasses
+    import hashlib
+
+    from biped_sim.plant import mujoco as pm
+    from biped_sim.plant.perturbation import PlantPerturbation
+    from biped_controller.studies.fingerprint import _digest, _feed
+
+    scfg = load_sim_config(plant="mujoco")
+    total = hashlib.sha256()
+    orig = pm.MujocoPlant.reset
+    plants: list = []
+
+    def grab(self, *a, **k):
+        plants.append(self)
+        return orig(self, *a, **k)
+    pm.MujocoPlant.reset = grab
+    try:
+        for name, steps, mode, pushes, pert, kw in FINGERPRINT_RUNS:
+            plants.clear()
+            r = runner.run(steps, mode, pushes, sim_config=scfg,
+                           perturbation=PlantPerturbation(**pert) if pert else None, **kw)
+            h = hashlib.sha256(_digest(r, ()).encode())
+            dg = plants[-1].diagnostics
+            for f in dataclasses.fields(dg):
+                _feed(h, np.asarray(getattr(dg, f.name), dtype=float) if f.name == "touchdown_forces"
+                      else getattr(dg, f.name))
+            digest = h.hexdigest()
+            total.update(digest.encode())
+            out(f"{name:12s} steps={r.steps_walked} fallen={r.fallen} {r.fall_cause or '-':13s} "
+                f"periods={len(r.records)} {digest[:16]}")
+    finally:
+        pm.MujocoPlant.reset = orig
+    out(f"mujoco fingerprint {total.hexdigest()}")
+    return total.hexdigest()
+
+
 def cell_edges(records: list[dict]) -> dict:
     """Per cell (mode, direction, phase, duration): strict boundary, no-fall edge, first fall cause, sims."""
     cells: dict = {}
@@ -284,7 +346,11 @@ def main(argv: list[str] | None = None) -> int:
     cm.add_argument("--rigid", type=Path, required=True)
     cm.add_argument("--mujoco", type=Path, required=True)
     cm.add_argument("--json", type=Path, default=None)
+    sub.add_parser("fingerprint")
     a = ap.parse_args(argv)
+    if a.cmd == "fingerprint":
+        mujoco_fingerprint()
+        return 0
     if a.cmd == "cmap":
         table, rows = cmap_table(a.rigid, a.mujoco)
         print(table)

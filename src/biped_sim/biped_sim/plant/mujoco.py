@@ -64,6 +64,7 @@ from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
 from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
+from biped_sim.robot import numba_cache
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import FloatingModel, paper_from_urdf, urdf_from_paper
 from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, FOOT_GEOMS, MjcfContact, make_mjcf
@@ -72,6 +73,13 @@ TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
 FOOT_BODIES = ("left_foot", "right_foot")
 # rows of the per-step contact summary (per foot): force x, force z, moment about that foot's ankle, normal
 FX, FZ, MY, FN = range(4)
+MUJOCO_KERNELS = "biped_sim.plant.mujoco_kernels"
+
+
+def load_kernels():
+    """The compiled bookkeeping of a MuJoCo step (``mujoco_kernels``), through ``numba_cache.load`` (compiled
+    on first use, then cached in ``build/numba-cache``)."""
+    return numba_cache.load(MUJOCO_KERNELS)
 
 
 class MujocoPlantError(RuntimeError):
@@ -164,6 +172,7 @@ class MujocoPlant(ScheduledPushes):
         self._elliptic = self.cfg.mujoco_cone == "elliptic"
         self._bad_warnings = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
                                                     mujoco.mjtWarning.mjWARN_BADQVEL))
+        self._warn_number = self.data.warning.number    # a view: MuJoCo's warning counters
         self._h = self.cfg.mujoco_timestep
         self._lo, self._hi = (np.array(b) for b in self.desc.torque_limits())
         self._ar3 = np.arange(3)
@@ -178,14 +187,55 @@ class MujocoPlant(ScheduledPushes):
         self.impact_log: list[ImpactRecord] = []
         self.book = self._new_book()
         self.trace: list[tuple[float, np.ndarray]] | None = None   # set to [] to log (t, x) at every MuJoCo step
-        self.diagnostics = self._new_diagnostics()
-        self._unloaded_since: float | None = None
-        self._armed = False
+        # set to a function f(plant) to see the plant after every MuJoCo step's bookkeeping (the tests)
+        self.probe: Callable[["MujocoPlant"], None] | None = None
+        # the compiled bookkeeping of a MuJoCo step and its arrays (mujoco_kernels: acc the accumulators, the
+        # sensing state and the diagnostics; ip the indices; fp the constants)
+        k = self._k = load_kernels()
+        self._after_step = k.after_step
+        self._acc = np.zeros(k.ACC_SIZE)
+        self._ip = np.zeros(k.IP_SIZE, dtype=np.int64)
+        self._ip[k.I_FOOT_BODY:k.I_FOOT_BODY + 2] = self._foot_body
+        self._ip[k.I_TORSO] = self._torso
+        self._ip[k.I_LEG_BODY:k.I_LEG_BODY + 4] = self._leg_bodies
+        self._ip[k.I_LEG_GEOM:k.I_LEG_GEOM + 4] = self._leg_capsules
+        self._ip[k.I_TORSO_GEOM] = self._torso_capsule
+        self._fp = np.zeros(k.FP_SIZE)
+        dg = self._new_diagnostics()
+        self._edge_band, self._roll_tilt = dg.edge_band, dg.roll_tilt
+        ft = self.desc.foot
+        self._fp[[k.F_THR, k.F_DEBOUNCE, k.F_HIP_MIN, k.F_TILT_MAX, k.F_EDGE_LO, k.F_EDGE_HI, k.F_CONE, k.F_ROLL]] = (
+            self.cfg.mujoco_touch_threshold, self.cfg.mujoco_swing_debounce - 1e-12, self.cfg.mujoco_fall_hip_height,
+            self.cfg.mujoco_fall_foot_tilt, ft.l_min + dg.edge_band, ft.l_max - dg.edge_band, 0.99 * self.desc.mu,
+            dg.roll_tilt)
+        self._touchdown_forces: list[float] = []
+        self._mj_arrays = (self._cfrc, self._xpos, self._scom, self.data.qpos, self.data.qvel, self.data.xfrc_applied,
+                           self.data.ctrl)
+        self._new_stance(LEFT, 0.0)
 
     def _new_diagnostics(self) -> ContactDiagnostics:
         # the edge band: 1 mm, the rigid plant's tip boundary seen through a soft contact's corner spread; the
         # roll tilt: the sole's far end 0.1 mm above the floor (0.1 m x 1e-3 rad), far above the 0.36 um sink
         return ContactDiagnostics(edge_band=1e-3, roll_tilt=1e-3)
+
+    @property
+    def diagnostics(self) -> ContactDiagnostics:
+        """The run's contact diagnostics so far (a snapshot; the kernel's counters, ``mujoco_kernels.A_DIAG``)."""
+        a = self._acc[self._k.A_DIAG:self._k.A_DIAG + 9].tolist()
+        return ContactDiagnostics(edge_band=self._edge_band, roll_tilt=self._roll_tilt, steps=int(a[0]), time=a[1],
+                                  unloaded_time=a[2], edge_time=a[3], cone_time=a[4], tilt_time=a[5], max_cop=a[6],
+                                  max_tilt=a[7], max_slip=a[8], touchdown_forces=list(self._touchdown_forces))
+
+    def _new_stance(self, stance: int, anchor_x: float) -> None:
+        """The kernel's view of a new stance foot: its index, its leg's first joint in x, its pitch now (the
+        next MuJoCo step's start), its ankle's anchor; the swing foot's sensing starts afresh."""
+        k, acc = self._k, self._acc
+        self._ip[k.I_STANCE] = stance
+        self._ip[k.I_J0] = 3 if stance == LEFT else 6
+        acc[k.A_PITCH] = self.foot_pitch(self.x, stance)
+        acc[k.A_UNLOADED_SINCE] = math.nan
+        acc[k.A_ARMED] = 0.0
+        self._fp[k.F_ANCHOR_X] = anchor_x
 
     # ------------------------------------------------------------ setup
     def reset(self, q: np.ndarray, qd: np.ndarray, stance: int = LEFT, ankle_x: float = 0.0) -> None:
@@ -204,9 +254,9 @@ class MujocoPlant(ScheduledPushes):
         self.impact_log = []
         self.book = self._new_book()
         self.sensor.reset()
-        self.diagnostics = self._new_diagnostics()
-        self._unloaded_since = None
-        self._armed = False
+        self._acc[:] = 0.0
+        self._touchdown_forces = []
+        self._new_stance(stance, self.anchor[0])
         if self.trace is not None:
             self.trace = [(0.0, self.x.copy())]
 
@@ -331,12 +381,13 @@ class MujocoPlant(ScheduledPushes):
 
     def _check_numerics(self, t: float) -> FallInfo | None:
         """A non-finite state or a MuJoCo warning (bad qacc, qpos, qvel: MuJoCo then resets the state) by the
-        end ``t`` of a period: the ``numerical`` fall."""
-        if not math.isfinite(float(self.x.sum() + self.v.sum())):
+        end ``t`` of a period: the ``numerical`` fall (the state's sum from the last step's bookkeeping:
+        finite iff every entry is)."""
+        if not math.isfinite(self._acc[self._k.A_STATE_SUM]):
             return FallInfo("numerical", t, "non-finite state")
-        warn = self.data.warning
+        warn = self._warn_number.tolist()
         for w in self._bad_warnings:
-            if warn[w].number > 0:
+            if warn[w] > 0:
                 return FallInfo("numerical", t, f"MuJoCo warning {mujoco.mjtWarning(w).name}")
         return None
 
@@ -356,39 +407,18 @@ class MujocoPlant(ScheduledPushes):
                             f"{self.cfg.mujoco_fall_foot_tilt} rad", dict(pitch=tilt))
         return None
 
-    def _diagnose(self, c: list, h: float, x) -> None:
-        """Count the contact-limit excursions of one MuJoCo step (``c`` per foot rows, ``x`` the step's start)."""
-        dg = self.diagnostics
-        fx, fz, my, fn = c[self.stance]
-        dg.steps += 1
-        dg.time += h
-        if fn < self.cfg.mujoco_touch_threshold:
-            dg.unloaded_time += h
-        else:
-            l = my / fz
-            if abs(l) > dg.max_cop:
-                dg.max_cop = abs(l)
-            ft = self.desc.foot
-            if l < ft.l_min + dg.edge_band or l > ft.l_max - dg.edge_band:
-                dg.edge_time += h
-            if abs(fx) >= 0.99 * self.desc.mu * fz:
-                dg.cone_time += h
-        tilt = abs(self.foot_pitch(x, self.stance))
-        if tilt > dg.max_tilt:
-            dg.max_tilt = tilt
-        if tilt > dg.roll_tilt:
-            dg.tilt_time += h
-        slip = abs(self._xp[self._foot_body[self.stance]][0] - self.anchor[0])
-        if slip > dg.max_slip:
-            dg.max_slip = slip
-
     def step(self, torque: np.ndarray | TorqueFn) -> StepRecord:
         """Advance one control period (see the module docstring): held paper-order torques [N m] for the
         stance the controller was told (or a function ``(s, q, qd, stance)`` of the measured state, evaluated
-        at every MuJoCo step). Ends at the next grid instant, at a sensed touchdown or at a fall."""
+        at every MuJoCo step). Ends at the next grid instant, at a sensed touchdown or at a fall.
+
+        After each ``mj_step`` (+ ``mj_rnePostConstraint`` for the bodies' external forces) one compiled call
+        (``mujoco_kernels.after_step``) does the step's bookkeeping -- contact rows, the period's sums, work,
+        diagnostics, touchdown sensing, the fall pre-check -- on MuJoCo's arrays in place; Python names a fall,
+        adds a push's work and builds the record."""
         if self.fall is not None:
             raise RuntimeError("the robot has fallen; reset() the plant")
-        m, d = self.model, self.data
+        m, d, k = self.model, self.data, self._k
         dt_nom = self.cfg.control_period
         t_start = self.t
         t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
@@ -398,113 +428,96 @@ class MujocoPlant(ScheduledPushes):
                 raise PerturbationError("noise_q/noise_qd/delay", "a torque function sees the true state at every "
                                         "step: use held torques (the sensor model applies to observe())")
             obs_stance = self.observe().stance
+        lo, hi = self._lo, self._hi
         if callable(torque):
             fn = torque
-            applied = np.clip(fn(0.0, *self.measured(self.x, self.v, obs_stance), obs_stance), self._lo, self._hi)
+            applied = np.minimum(np.maximum(fn(0.0, *self.measured(self.x, self.v, obs_stance), obs_stance), lo), hi)
         else:
             fn = None
-            applied = np.clip(np.asarray(torque, dtype=float), self._lo, self._hi)
+            applied = np.minimum(np.maximum(np.asarray(torque, dtype=float), lo), hi)
         tj = urdf_from_paper(applied, obs_stance)
-        if obs_stance != self.stance:
-            applied = paper_from_urdf(tj, self.stance)
+        stance0 = self.stance
+        if obs_stance != stance0:
+            applied = paper_from_urdf(tj, stance0)
         n_sub = max(1, int(math.ceil((t_grid_end - t_start) / self._h - 1e-9)))
         hh = (t_grid_end - t_start) / n_sub
         knots = [t_start + i * hh for i in range(n_sub)] + [t_grid_end]
-        cuts = {c for p in self.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
-        knots = sorted(set(knots) | cuts)
+        has_pushes = bool(self.book.pushes)
+        if has_pushes:
+            cuts = {c for p in self.book.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
+            knots = sorted(set(knots) | cuts)
         x0, v0 = self.x.copy(), self.v.copy()
-        q, qd = paper_from_urdf(x0[3:], self.stance), paper_from_urdf(v0[3:], self.stance)
-        first = self.interval_pushes(knots[0], knots[1])
-        stance0 = self.stance
+        q, qd = paper_from_urdf(x0[3:], stance0), paper_from_urdf(v0[3:], stance0)
+        first = self.interval_pushes(knots[0], knots[1]) if has_pushes else ()
         impacts0 = self.impact_count
-        by_foot = [[0.0] * 3, [0.0] * 3]   # per foot: sum h [F_x, F_z, m about the stance ankle]
-        own = [[0.0] * 3, [0.0] * 3]       # per foot: sum h [F_x, F_z, m about its own ankle]
+        acc = self._acc
+        acc[:k.A_PITCH] = 0.0            # the period's sums and work
         impulse = 0.0
-        work = 0.0
         t_end = t_grid_end
         touchdown = False
+        fall = None
         d.ctrl[:] = tj
-        opt, mj_step = self._opt, mujoco.mj_step
-        thr = self.cfg.mujoco_touch_threshold
-        debounce = self.cfg.mujoco_swing_debounce - 1e-12
-        swing = 1 - stance0
-        foot_st, foot_sw = self._foot_body[stance0], self._foot_body[swing]
-        has_pushes = bool(self.book.pushes)
-        tq = tj.tolist()
-        x_prev = x0.tolist()
+        opt, mj_step, rne, after = self._opt, mujoco.mj_step, mujoco.mj_rnePostConstraint, self._after_step
+        arrays = self._mj_arrays
+        ip, fp = self._ip, self._fp
+        pushes = ()
         for t0, t1 in zip(knots[:-1], knots[1:]):
-            h = t1 - t0
-            pushes = self.interval_pushes(t0, t1) if has_pushes else ()
             if has_pushes:
+                pushes = self.interval_pushes(t0, t1)
                 self._set_push(pushes)
             if fn is not None:
                 d.ctrl[:] = urdf_from_paper(np.clip(fn(t0 - t_start, *self.measured(d.qpos, d.qvel, obs_stance),
-                                                       obs_stance), self._lo, self._hi), obs_stance)
-                tq = d.ctrl.tolist()
-            opt.timestep = h
+                                                       obs_stance), lo, hi), obs_stance)
+            opt.timestep = t1 - t0
             mj_step(m, d)
-            cl, hit = self._contacts()          # at t0, applied over [t0, t1]
-            xl = d.qpos.tolist()
-            vl = d.qvel.tolist()
-            # work over the step with the velocity the positions advance with (semi-implicit Euler): actuators,
-            # and each push times its point's x rate (hip x rate - height cos(th) th')
-            work += h * sum(tq[i] * vl[3 + i] for i in range(6))
-            for f, hgt in pushes:
-                impulse += f * h
-                work += h * f * (vl[0] - hgt * math.cos(xl[2]) * vl[2])
-            xp = self._xp
-            ax, _, az = xp[foot_st]
-            for k, ck in enumerate(cl):
-                if ck[FZ] == 0.0 and ck[FX] == 0.0:
-                    continue
-                o, bf = own[k], by_foot[k]
-                o[0] += h * ck[FX]
-                o[1] += h * ck[FZ]
-                o[2] += h * ck[MY]
-                kx, _, kz = xp[foot_sw if k == swing else foot_st]
-                bf[0] += h * ck[FX]
-                bf[1] += h * ck[FZ]
-                bf[2] += h * (ck[MY] + (kx - ax) * ck[FZ] - (kz - az) * ck[FX])
-            self._diagnose(cl, h, x_prev)
+            rne(m, d)                    # cfrc_ext: the forces of t0, applied over [t0, t1]
+            code = after(*arrays, acc, ip, fp, t0, t1)
+            if pushes:
+                # the push's work: its force times its point's x rate (hip x rate - height cos(th) th'), with the
+                # velocity the positions advance with (semi-implicit Euler)
+                h = t1 - t0
+                xv, thv, th = d.qvel[0], d.qvel[2], d.qpos[2]
+                for f, hgt in pushes:
+                    impulse += f * h
+                    acc[k.A_WORK] += h * f * (xv - hgt * math.cos(th) * thv)
+            if self.probe is not None:
+                self.probe(self)
             if self.trace is not None:
                 self.trace.append((t1, d.qpos.copy()))
-            # touchdown sensing on the swing foot's normal force (the force of the step just taken)
-            if cl[swing][FN] < thr:
-                if self._unloaded_since is None:
-                    self._unloaded_since = t0
-                if t1 - self._unloaded_since >= debounce:
-                    self._armed = True
-            elif self._armed:
-                touchdown = True
-            else:
-                self._unloaded_since = None
-            x_prev = xl
-            if touchdown:
-                t_end = t1
-                self.x, self.v = d.qpos.copy(), d.qvel.copy()
-                self.diagnostics.touchdown_forces.append(float(cl[swing][FN]))
-                self._touchdown(t_start, t1, x0, v0, np.array(own[swing]), work)
-                break
-            fall = self._check_fall(t1, xl, hit)
-            if fall is not None:
-                self.fall = fall
-                t_end = t1
-                break
-        if not touchdown:
-            self.x, self.v = d.qpos.copy(), d.qvel.copy()
-        if self.fall is None:
-            self.fall = self._check_numerics(t_end)
-        dt = t_end - t_start
-        total = np.array(by_foot[stance0]) + (0.0 if touchdown else np.array(by_foot[1 - stance0]))
-        w = total / dt
+            if code:
+                if code == k.TOUCHDOWN:
+                    touchdown = True
+                    t_end = t1
+                    break
+                fall = self._check_fall(t1, d.qpos.tolist(), int(acc[k.A_HIT]))
+                if fall is not None:
+                    t_end = t1
+                    break
+        self.x, self.v = d.qpos.copy(), d.qvel.copy()
+        by = acc[k.A_BY:k.A_BY + 6]
+        s3 = 3 * stance0
+        if touchdown:
+            sw = 3 * (1 - stance0)
+            self._touchdown_forces.append(float(acc[k.A_ROWS + 4 * (1 - stance0) + 3]))
+            total = by[s3:s3 + 3] + 0.0
+            self._touchdown(t_start, t_end, x0, v0, acc[k.A_OWN + sw:k.A_OWN + sw + 3].copy(), float(acc[k.A_WORK]))
+        else:
+            total = by[s3:s3 + 3] + by[3 - s3:6 - s3]
+        if fall is None:
+            fall = self._check_numerics(t_end)
+        self.fall = fall
+        w = total / (t_end - t_start)
         self.step_index += 1
         self.t = t_end
-        return StepRecord(step=self.step_index - 1, t=t_start, stance=stance0, q=q, qd=qd, base=x0[:3].copy(),
-                          base_dot=v0[:3].copy(), x=x0, v=v0, torque=applied, wrench=w,
-                          cop=float(w[2] / w[1]) if w[1] != 0 else math.nan,
-                          push_force=float(sum(f for f, _ in first)), impacts=impacts0,
-                          fallen=self.fall is not None, fall_cause=self.fall.cause if self.fall else "",
-                          fall_detail=self.fall.detail if self.fall else "", t_end=t_end, push_impulse=impulse)
+        # the record's fields at once (a frozen dataclass's __init__ costs as much as the rest of the period)
+        rec = object.__new__(StepRecord)
+        rec.__dict__.update(step=self.step_index - 1, t=t_start, stance=stance0, q=q, qd=qd, base=x0[:3].copy(),
+                            base_dot=v0[:3].copy(), x=x0, v=v0, torque=applied, wrench=w,
+                            cop=float(w[2] / w[1]) if w[1] != 0 else math.nan,
+                            push_force=float(sum(f for f, _ in first)), impacts=impacts0,
+                            fallen=fall is not None, fall_cause=fall.cause if fall else "",
+                            fall_detail=fall.detail if fall else "", t_end=t_end, push_impulse=impulse)
+        return rec
 
     def _touchdown(self, t_minus: float, t: float, x_minus: np.ndarray, v_minus: np.ndarray,
                    impulse: np.ndarray, work: float) -> None:
@@ -523,5 +536,4 @@ class MujocoPlant(ScheduledPushes):
             old_foot_velocity=self.fm.foot_velocity(x, v, old), ankle_x=float(ank[0])))
         self.stance = new
         self.anchor = np.array([float(ank[0]), 0.0, 0.0])
-        self._unloaded_since = None
-        self._armed = False
+        self._new_stance(new, self.anchor[0])

@@ -1,0 +1,179 @@
+"""Compiled (numba) bookkeeping of one MuJoCo step of the MuJoCo plant (issue 24): what
+``biped_sim.plant.mujoco.MujocoPlant.step`` does after each ``mj_step`` + ``mj_rnePostConstraint``.
+
+Pure numerics, no MuJoCo calls, no side effects on import (load it through ``numba_cache.load``, as
+``mujoco.load_kernels`` does, so its cache is kept right). The arrays are MuJoCo's own (``MjData`` fields as
+NumPy views, read only) and two of the plant's: ``acc`` (float64, the period's accumulators and the sensing
+state, layout ``A_*`` below, read and written) and ``ip`` (int64 indices, ``I_*``); ``fp`` (float64, ``F_*``) the
+period's constants. The operations and their order are those of the plant's Python reference
+(``MujocoPlant._contacts`` for the contact rows, the module docstring of ``plant.mujoco`` for the rest): IEEE
+double arithmetic, no fast-math, so the results are bit-identical to it (``plant_compare fingerprint``, and
+``tests/test_mujoco_plant.py`` compares the rows with ``_contacts`` and with MuJoCo's contact list).
+
+Per MuJoCo step [t0, t1] of length h, the step just taken (forces of t0 applied over [t0, t1]):
+
+* contact rows per foot k (world frame, on the robot): F_x = f_x, F_z = f_z, the moment about the foot's ankle
+  p, counter-clockwise, m = -(tau_y + (c_z - p_z) f_x - (c_x - p_x) f_z) (``cfrc_ext``: force f and moment tau
+  about the subtree centre of mass c), and the normal force f_z; a thigh or shin with any external force, or
+  a torso whose external force differs from the push (``xfrc_applied``) by more than 1e-9 (1 + |push_x|),
+  touches the floor (``A_HIT``: its capsule's geom id, else -1);
+* sums h [F_x, F_z, m] per foot about its own ankle (``A_OWN``) and about the stance ankle (``A_BY``; moment
+  m + (x_k - x_a) F_z - (z_k - z_a) F_x), skipped for a foot with F_x = F_z = 0;
+* actuator work h sum_i Gamma_i q'_i over the six joints with the step's end velocity (``A_WORK``; the push's
+  work is added by the caller);
+* contact diagnostics of the stance foot (``ContactDiagnostics``: ``A_DIAG``): unloaded (normal force below
+  the touch threshold), centre of pressure l = m / F_z beyond the edge band, |F_x| >= 0.99 mu F_z, pitch
+  (at the step's start, ``A_PITCH``) beyond the roll tilt, the largest |l|, |pitch| and ankle slip;
+* touchdown sensing on the swing foot's normal force (``A_UNLOADED_SINCE``, NaN = loaded; ``A_ARMED``);
+* the stance foot's pitch at the step's end (``A_PITCH``), the sum of the state (``A_STATE_SUM``: finite iff
+  every entry is) and the fall pre-check.
+
+Returns ``CONTINUE``, ``TOUCHDOWN`` (the swing foot loaded after its debounce) or ``MAYBE_FALL`` (a body
+capsule on the floor, the hip below its height or the stance foot past its tilt: the caller names the fall).
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from biped_sim.robot import numba_cache
+
+numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
+
+CONTINUE, TOUCHDOWN, MAYBE_FALL = 0, 1, 2
+
+# acc (float64): the period's accumulators and the sensing state
+A_BY = 0              # [6] per foot (left, right) sum h [F_x, F_z, m about the stance ankle]
+A_OWN = 6             # [6] per foot sum h [F_x, F_z, m about its own ankle]
+A_WORK = 12           # actuator (+ push, by the caller) work over the period [J]
+A_PITCH = 13          # stance foot's pitch at the current step's start [rad]
+A_UNLOADED_SINCE = 14  # swing foot unloaded since [s]; NaN: loaded
+A_ARMED = 15          # 1.0: the swing foot has been unloaded for the debounce
+A_ROWS = 16           # [8] the last step's rows per foot: F_x, F_z, m about its ankle, normal force
+A_HIT = 24            # the last step's body capsule on the floor (geom id) or -1
+A_DIAG = 25           # [9] steps, time, unloaded_time, edge_time, cone_time, tilt_time, max_cop, max_tilt, max_slip
+A_STATE_SUM = 34      # sum of qpos and qvel at the step's end (finite iff the state is)
+ACC_SIZE = 35
+
+# ip (int64): indices
+I_STANCE, I_FOOT_BODY, I_TORSO, I_J0, I_LEG_BODY, I_LEG_GEOM, I_TORSO_GEOM = 0, 1, 3, 4, 5, 9, 13
+IP_SIZE = 14
+
+# fp (float64): the period's constants
+F_THR, F_DEBOUNCE, F_HIP_MIN, F_TILT_MAX, F_EDGE_LO, F_EDGE_HI, F_CONE, F_ROLL, F_ANCHOR_X = range(9)
+FP_SIZE = 9
+
+_M2 = numba.types.Array(numba.float64, 2, "C")
+_V = numba.types.Array(numba.float64, 1, "C")
+_IV = numba.types.Array(numba.int64, 1, "C")
+
+
+@numba.njit(numba.int64(_M2, _M2, _M2, _V, _V, _M2, _V, _V, _IV, _V, numba.float64, numba.float64),
+            cache=True, nogil=True)
+def after_step(cfrc, xpos, scom, qpos, qvel, xfrc, ctrl, acc, ip, fp, t0, t1):  # pragma: no cover (compiled)
+    """The bookkeeping of the MuJoCo step [t0, t1] just taken (module docstring)."""
+    h = t1 - t0
+    stance = ip[I_STANCE]
+    swing = 1 - stance
+    torso = ip[I_TORSO]
+    # contact rows per foot (MujocoPlant._contacts)
+    cx = scom[torso, 0]
+    cz = scom[torso, 2]
+    for k in range(2):
+        b = ip[I_FOOT_BODY + k]
+        ty = cfrc[b, 1]
+        fx = cfrc[b, 3]
+        fz = cfrc[b, 5]
+        px = xpos[b, 0]
+        pz = xpos[b, 2]
+        acc[A_ROWS + 4 * k] = fx
+        acc[A_ROWS + 4 * k + 1] = fz
+        acc[A_ROWS + 4 * k + 2] = -(ty + (cz - pz) * fx - (cx - px) * fz)
+        acc[A_ROWS + 4 * k + 3] = fz
+    hit = -1
+    for i in range(4):
+        b = ip[I_LEG_BODY + i]
+        if cfrc[b, 3] != 0.0 or cfrc[b, 4] != 0.0 or cfrc[b, 5] != 0.0:
+            hit = ip[I_LEG_GEOM + i]
+            break
+    if hit < 0:
+        dmax = abs(cfrc[torso, 3] - xfrc[torso, 0])
+        e = abs(cfrc[torso, 4] - xfrc[torso, 1])
+        if e > dmax:
+            dmax = e
+        e = abs(cfrc[torso, 5] - xfrc[torso, 2])
+        if e > dmax:
+            dmax = e
+        if dmax > 1e-9 * (1.0 + abs(xfrc[torso, 0])):
+            hit = ip[I_TORSO_GEOM]
+    acc[A_HIT] = hit
+    # actuator work with the step's end velocity (the positions advance with it)
+    acc[A_WORK] += h * (0.0 + ctrl[0] * qvel[3] + ctrl[1] * qvel[4] + ctrl[2] * qvel[5] + ctrl[3] * qvel[6]
+                        + ctrl[4] * qvel[7] + ctrl[5] * qvel[8])
+    # the feet's sums
+    bst = ip[I_FOOT_BODY + stance]
+    ax = xpos[bst, 0]
+    az = xpos[bst, 2]
+    for k in range(2):
+        fx = acc[A_ROWS + 4 * k]
+        fz = acc[A_ROWS + 4 * k + 1]
+        my = acc[A_ROWS + 4 * k + 2]
+        if fz == 0.0 and fx == 0.0:
+            continue
+        acc[A_OWN + 3 * k] += h * fx
+        acc[A_OWN + 3 * k + 1] += h * fz
+        acc[A_OWN + 3 * k + 2] += h * my
+        bk = ip[I_FOOT_BODY + k]
+        kx = xpos[bk, 0]
+        kz = xpos[bk, 2]
+        acc[A_BY + 3 * k] += h * fx
+        acc[A_BY + 3 * k + 1] += h * fz
+        acc[A_BY + 3 * k + 2] += h * (my + (kx - ax) * fz - (kz - az) * fx)
+    # contact diagnostics of the stance foot (its state at the step's start for the pitch)
+    fx = acc[A_ROWS + 4 * stance]
+    fz = acc[A_ROWS + 4 * stance + 1]
+    my = acc[A_ROWS + 4 * stance + 2]
+    fn = acc[A_ROWS + 4 * stance + 3]
+    acc[A_DIAG] += 1.0
+    acc[A_DIAG + 1] += h
+    if fn < fp[F_THR]:
+        acc[A_DIAG + 2] += h
+    else:
+        l = my / fz
+        if abs(l) > acc[A_DIAG + 6]:
+            acc[A_DIAG + 6] = abs(l)
+        if l < fp[F_EDGE_LO] or l > fp[F_EDGE_HI]:
+            acc[A_DIAG + 3] += h
+        if abs(fx) >= fp[F_CONE] * fz:
+            acc[A_DIAG + 4] += h
+    tilt = abs(acc[A_PITCH])
+    if tilt > acc[A_DIAG + 7]:
+        acc[A_DIAG + 7] = tilt
+    if tilt > fp[F_ROLL]:
+        acc[A_DIAG + 5] += h
+    slip = abs(ax - fp[F_ANCHOR_X])
+    if slip > acc[A_DIAG + 8]:
+        acc[A_DIAG + 8] = slip
+    # touchdown sensing on the swing foot's normal force
+    touchdown = False
+    if acc[A_ROWS + 4 * swing + 3] < fp[F_THR]:
+        if acc[A_UNLOADED_SINCE] != acc[A_UNLOADED_SINCE]:     # NaN: was loaded
+            acc[A_UNLOADED_SINCE] = t0
+        if t1 - acc[A_UNLOADED_SINCE] >= fp[F_DEBOUNCE]:
+            acc[A_ARMED] = 1.0
+    elif acc[A_ARMED] != 0.0:
+        touchdown = True
+    else:
+        acc[A_UNLOADED_SINCE] = np.nan
+    total = 0.0
+    for i in range(qpos.shape[0]):
+        total += qpos[i] + qvel[i]
+    acc[A_STATE_SUM] = total
+    j0 = ip[I_J0]
+    pitch = qpos[2] + (qpos[j0] + qpos[j0 + 1] + qpos[j0 + 2])
+    acc[A_PITCH] = pitch
+    if touchdown:
+        return TOUCHDOWN
+    if hit >= 0 or qpos[1] < fp[F_HIP_MIN] or abs(pitch) > fp[F_TILT_MAX]:
+        return MAYBE_FALL
+    return CONTINUE
