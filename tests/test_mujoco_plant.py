@@ -95,29 +95,43 @@ def test_the_switch_and_its_errors():
 
 
 # ------------------------------------------------------------------------------------------ contact
-def test_contact_forces_two_ways_agree():
-    """The plant's per-foot wrench (MuJoCo's per-body external forces) equals the one summed over the contact
-    list and its constraint forces, over the first step of a walk with a push (landing included)."""
+def test_contact_forces_three_ways_agree():
+    """The per-foot wrench and the body-contact test of the plant's compiled step bookkeeping
+    (``mujoco_kernels.after_step``) equal, bit for bit, the Python reference ``MujocoPlant._contacts``
+    (MuJoCo's per-body external forces), and within 1e-9 of the largest normal force the rows summed over
+    MuJoCo's contact list and its constraint forces (``contacts_from_list``), after every MuJoCo step of the
+    first step of a walk with a push (landing included). Negative control: the two feet's rows, swapped,
+    do not agree (the comparison sees the loads)."""
     from biped_controller.studies import runner
     from biped_sim.plant import mujoco as pm
+    from biped_sim.plant import mujoco_kernels as mk
     seen = []
-    orig = pm.MujocoPlant._contacts
 
-    def both(self):
-        a, ha = orig(self)
-        b, hb = self.contacts_from_list()
-        seen.append((np.max(np.abs(np.array(a) - b)), ha == hb, max(b[0][3], b[1][3])))
-        return a, ha
+    def probe(plant):
+        k = plant._acc[mk.A_ROWS:mk.A_ROWS + 8].reshape(2, 4)
+        khit = int(plant._acc[mk.A_HIT])
+        a, ha = plant._contacts()
+        b, hb = plant.contacts_from_list()
+        seen.append((np.array_equal(k, np.array(a)) and khit == ha, np.max(np.abs(k - b)), khit == hb,
+                     max(b[0][3], b[1][3]), np.max(np.abs(k[::-1] - b))))
+    orig = pm.MujocoPlant.reset
+
+    def reset(self, *a, **kw):
+        self.probe = probe
+        return orig(self, *a, **kw)
     mp = pytest.MonkeyPatch()
-    mp.setattr(pm.MujocoPlant, "_contacts", both)
+    mp.setattr(pm.MujocoPlant, "reset", reset)
     try:
         r = runner.run(steps=1, mode="both", sim_config=MJ, pushes=(Push(0.2315, 0.025, 200.0),))
     finally:
         mp.undo()
     assert r.steps_walked == 1 and len(seen) >= 900      # 2 MuJoCo steps per period, 0.45 s
-    err = np.array([s[0] for s in seen])
-    assert np.max(err) < 1e-9 * max(s[2] for s in seen)
-    assert all(s[1] for s in seen)
+    assert all(s[0] for s in seen)
+    fmax = max(s[3] for s in seen)
+    assert fmax > 300.0
+    assert max(s[1] for s in seen) < 1e-9 * fmax
+    assert all(s[2] for s in seen)
+    assert max(s[4] for s in seen) > 100.0           # swapped feet: caught
 
 
 def test_observed_stance_ankle_is_measured_against_the_ground():
