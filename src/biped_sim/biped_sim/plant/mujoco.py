@@ -66,7 +66,7 @@ from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
 from biped_sim.robot import numba_cache
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import FloatingModel, paper_from_urdf, urdf_from_paper
+from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, paper_from_urdf, urdf_from_paper
 from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, FOOT_GEOMS, MjcfContact, make_mjcf
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
@@ -192,7 +192,7 @@ class MujocoPlant(ScheduledPushes):
         # the compiled bookkeeping of a MuJoCo step and its arrays (mujoco_kernels: acc the accumulators, the
         # sensing state and the diagnostics; ip the indices; fp the constants)
         k = self._k = load_kernels()
-        self._after_step = k.after_step
+        self._after_step, self._begin, self._end, self._measure = k.after_step, k.begin_period, k.end_period, k.measure
         self._acc = np.zeros(k.ACC_SIZE)
         self._ip = np.zeros(k.IP_SIZE, dtype=np.int64)
         self._ip[k.I_FOOT_BODY:k.I_FOOT_BODY + 2] = self._foot_body
@@ -268,16 +268,19 @@ class MujocoPlant(ScheduledPushes):
 
     def measured(self, x: np.ndarray, v: np.ndarray, stance: int) -> tuple[np.ndarray, np.ndarray]:
         """Paper (q, q') as the robot measures them: encoders, with q1 (q1') the stance shin's angle (rate)
-        to the ground = ankle encoder + the stance foot's pitch (rate)."""
-        q, qd = paper_from_urdf(x[3:], stance), paper_from_urdf(v[3:], stance)
-        q[0] += self.foot_pitch(x, stance)
-        qd[0] += self.foot_pitch(v, stance)
-        return q, qd
+        to the ground = ankle encoder + the stance foot's pitch (rate) (``mujoco_kernels.measure``: the
+        operations of ``paper_from_urdf`` and ``foot_pitch``, bit for bit)."""
+        out = np.empty(12)
+        self._measure(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float),
+                      PAPER_FROM_URDF[stance], 3 if stance == LEFT else 6, out)
+        return out[:6], out[6:]
 
     def observe(self) -> Observation:
         q, qd = self.measured(self.x, self.v, self.stance)
         if self.sensor.identity:
-            return Observation(self.step_index, self.t, self.stance, q, qd)
+            obs = object.__new__(Observation)     # the fields at once (as StepRecord's)
+            obs.__dict__.update(step=self.step_index, t=self.t, stance=self.stance, q=q, qd=qd, pitch=math.nan)
+            return obs
         self.sensor.sample(self.step_index, self.stance, q, qd)
         stance, qs, qds = self.sensor.reading(self.step_index)
         return Observation(self.step_index, self.t, stance, qs, qds)
@@ -429,16 +432,12 @@ class MujocoPlant(ScheduledPushes):
                                         "step: use held torques (the sensor model applies to observe())")
             obs_stance = self.observe().stance
         lo, hi = self._lo, self._hi
+        stance0 = self.stance
         if callable(torque):
             fn = torque
-            applied = np.minimum(np.maximum(fn(0.0, *self.measured(self.x, self.v, obs_stance), obs_stance), lo), hi)
+            torque = fn(0.0, *self.measured(self.x, self.v, obs_stance), obs_stance)
         else:
             fn = None
-            applied = np.minimum(np.maximum(np.asarray(torque, dtype=float), lo), hi)
-        tj = urdf_from_paper(applied, obs_stance)
-        stance0 = self.stance
-        if obs_stance != stance0:
-            applied = paper_from_urdf(tj, stance0)
         n_sub = max(1, int(math.ceil((t_grid_end - t_start) / self._h - 1e-9)))
         hh = (t_grid_end - t_start) / n_sub
         knots = [t_start + i * hh for i in range(n_sub)] + [t_grid_end]
@@ -446,17 +445,17 @@ class MujocoPlant(ScheduledPushes):
         if has_pushes:
             cuts = {c for p in self.book.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
             knots = sorted(set(knots) | cuts)
-        x0, v0 = self.x.copy(), self.v.copy()
-        q, qd = paper_from_urdf(x0[3:], stance0), paper_from_urdf(v0[3:], stance0)
         first = self.interval_pushes(knots[0], knots[1]) if has_pushes else ()
         impacts0 = self.impact_count
         acc = self._acc
-        acc[:k.A_PITCH] = 0.0            # the period's sums and work
+        # the period's record row: the clipped torque (to ctrl in URDF order), the state at its start; sums zeroed
+        row = np.empty(k.ROW_SIZE)
+        self._begin(np.ascontiguousarray(torque, dtype=float), lo, hi, PAPER_FROM_URDF[obs_stance],
+                    PAPER_FROM_URDF[stance0], obs_stance != stance0, d.qpos, d.qvel, d.ctrl, acc, row)
         impulse = 0.0
         t_end = t_grid_end
         touchdown = False
         fall = None
-        d.ctrl[:] = tj
         opt, mj_step, rne, after = self._opt, mujoco.mj_step, mujoco.mj_rnePostConstraint, self._after_step
         arrays = self._mj_arrays
         ip, fp = self._ip, self._fp
@@ -494,27 +493,25 @@ class MujocoPlant(ScheduledPushes):
                     t_end = t1
                     break
         self.x, self.v = d.qpos.copy(), d.qvel.copy()
-        by = acc[k.A_BY:k.A_BY + 6]
-        s3 = 3 * stance0
+        x0, v0 = row[k.R_X:k.R_X + 9], row[k.R_V:k.R_V + 9]
         if touchdown:
             sw = 3 * (1 - stance0)
             self._touchdown_forces.append(float(acc[k.A_ROWS + 4 * (1 - stance0) + 3]))
-            total = by[s3:s3 + 3] + 0.0
             self._touchdown(t_start, t_end, x0, v0, acc[k.A_OWN + sw:k.A_OWN + sw + 3].copy(), float(acc[k.A_WORK]))
-        else:
-            total = by[s3:s3 + 3] + by[3 - s3:6 - s3]
         if fall is None:
             fall = self._check_numerics(t_end)
         self.fall = fall
-        w = total / (t_end - t_start)
+        self._end(acc, row, stance0, touchdown, t_end - t_start)
         self.step_index += 1
         self.t = t_end
-        # the record's fields at once (a frozen dataclass's __init__ costs as much as the rest of the period)
+        # the record's fields at once (a frozen dataclass's __init__ costs as much as the rest of the period),
+        # its arrays views of the period's row
         rec = object.__new__(StepRecord)
-        rec.__dict__.update(step=self.step_index - 1, t=t_start, stance=stance0, q=q, qd=qd, base=x0[:3].copy(),
-                            base_dot=v0[:3].copy(), x=x0, v=v0, torque=applied, wrench=w,
-                            cop=float(w[2] / w[1]) if w[1] != 0 else math.nan,
-                            push_force=float(sum(f for f, _ in first)), impacts=impacts0,
+        rec.__dict__.update(step=self.step_index - 1, t=t_start, stance=stance0, q=row[k.R_Q:k.R_Q + 6],
+                            qd=row[k.R_QD:k.R_QD + 6], base=row[k.R_BASE:k.R_BASE + 3],
+                            base_dot=row[k.R_BASE_DOT:k.R_BASE_DOT + 3], x=x0, v=v0,
+                            torque=row[k.R_TORQUE:k.R_TORQUE + 6], wrench=row[k.R_WRENCH:k.R_WRENCH + 3],
+                            cop=float(row[k.R_COP]), push_force=float(sum(f for f, _ in first)), impacts=impacts0,
                             fallen=fall is not None, fall_cause=fall.cause if fall else "",
                             fall_detail=fall.detail if fall else "", t_end=t_end, push_impulse=impulse)
         return rec

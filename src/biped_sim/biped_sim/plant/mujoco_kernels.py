@@ -42,6 +42,12 @@ numba_cache.require_configured(__name__)   # a check: import this module with nu
 
 CONTINUE, TOUCHDOWN, MAYBE_FALL = 0, 1, 2
 
+# row (float64): one period's record, its fields as views (StepRecord): the state at the period's start in
+# paper order (q, qd) and floating (x, v; base = x[:3], base_dot = v[:3]), the applied paper-order torque, the
+# mean ground wrench over the period, its centre of pressure
+R_Q, R_QD, R_BASE, R_BASE_DOT, R_X, R_V, R_TORQUE, R_WRENCH, R_COP = 0, 6, 12, 15, 18, 27, 36, 42, 45
+ROW_SIZE = 46
+
 # acc (float64): the period's accumulators and the sensing state
 A_BY = 0              # [6] per foot (left, right) sum h [F_x, F_z, m about the stance ankle]
 A_OWN = 6             # [6] per foot sum h [F_x, F_z, m about its own ankle]
@@ -66,6 +72,86 @@ FP_SIZE = 9
 _M2 = numba.types.Array(numba.float64, 2, "C")
 _V = numba.types.Array(numba.float64, 1, "C")
 _IV = numba.types.Array(numba.int64, 1, "C")
+
+
+@numba.njit(numba.void(_V, _V, _V, _M2, _M2, numba.boolean, _V, _V, _V, _V, _V), cache=True, nogil=True)
+def begin_period(torque, lo, hi, p_told, p_true, remap, qpos, qvel, ctrl, acc, row):  # pragma: no cover (compiled)
+    """A period's start: the paper-order torque ``torque`` clipped to [lo, hi] (NaN stays NaN, as np.clip), to
+    URDF joint order for the stance the controller was told (tau_j = P_told^T applied), written to ``ctrl``; the
+    applied torque back in the true stance's paper order (P_true tau_j) when the two stances differ (``remap``);
+    the record's state (q = P_true x[3:], qd = P_true v[3:], x, v, base, base_dot) in ``row``; the period's sums
+    in ``acc`` zeroed. The products with the permutations P (entries 0, +-1) are summed from +0.0 in column
+    order, as NumPy's matmul gives them: exact, a zero is +0.0, a NaN or inf anywhere makes every entry NaN."""
+    for i in range(6):
+        a = torque[i]
+        if a < lo[i]:
+            a = lo[i]
+        if a > hi[i]:
+            a = hi[i]
+        row[R_TORQUE + i] = a
+    for j in range(6):
+        s = 0.0
+        for i in range(6):
+            s += p_told[i, j] * row[R_TORQUE + i]
+        ctrl[j] = s
+    if remap:
+        for i in range(6):
+            s = 0.0
+            for j in range(6):
+                s += p_true[i, j] * ctrl[j]
+            row[R_TORQUE + i] = s
+    for i in range(6):
+        s = 0.0
+        sd = 0.0
+        for j in range(6):
+            s += p_true[i, j] * qpos[3 + j]
+            sd += p_true[i, j] * qvel[3 + j]
+        row[R_Q + i] = s
+        row[R_QD + i] = sd
+    for i in range(9):
+        row[R_X + i] = qpos[i]
+        row[R_V + i] = qvel[i]
+    for i in range(3):
+        row[R_BASE + i] = qpos[i]
+        row[R_BASE_DOT + i] = qvel[i]
+    for i in range(A_PITCH):
+        acc[i] = 0.0
+
+
+@numba.njit(numba.void(_V, _V, _M2, numba.int64, _V), cache=True, nogil=True)
+def measure(x, v, p, j0, out):  # pragma: no cover (compiled)
+    """(q, q') as the robot measures them (``MujocoPlant.measured``) in ``out[:6]``, ``out[6:]``: the encoders in
+    paper order (P x[3:], P v[3:], P the stance's permutation, summed as ``begin_period`` does), then q1 (q1')
+    plus the stance foot's pitch (rate) x[2] + (x[j0] + x[j0 + 1] + x[j0 + 2]), j0 its leg's first joint."""
+    for i in range(6):
+        s = 0.0
+        sd = 0.0
+        for j in range(6):
+            s += p[i, j] * x[3 + j]
+            sd += p[i, j] * v[3 + j]
+        out[i] = s
+        out[6 + i] = sd
+    out[0] = out[0] + (x[2] + (x[j0] + x[j0 + 1] + x[j0 + 2]))
+    out[6] = out[6] + (v[2] + (v[j0] + v[j0 + 1] + v[j0 + 2]))
+
+
+@numba.njit(numba.void(_V, _V, numba.int64, numba.boolean, numba.float64), cache=True, nogil=True)
+def end_period(acc, row, stance, touchdown, dt):  # pragma: no cover (compiled)
+    """A period's end: the mean ground wrench over the period ``dt`` [s] in ``row`` -- both feet's sums about
+    the stance ankle (stance first), the landing foot's left out when the period ends in a touchdown (its
+    impact carries it) -- and its centre of pressure m / F_z (NaN when F_z = 0)."""
+    s3 = 3 * stance
+    w3 = 3 - s3
+    for i in range(3):
+        if touchdown:
+            tot = acc[A_BY + s3 + i] + 0.0
+        else:
+            tot = acc[A_BY + s3 + i] + acc[A_BY + w3 + i]
+        row[R_WRENCH + i] = tot / dt
+    if row[R_WRENCH + 1] != 0.0:
+        row[R_COP] = row[R_WRENCH + 2] / row[R_WRENCH + 1]
+    else:
+        row[R_COP] = np.nan
 
 
 @numba.njit(numba.int64(_M2, _M2, _M2, _V, _V, _M2, _V, _V, _IV, _V, numba.float64, numba.float64),
