@@ -438,33 +438,39 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         engine, kw = variants[variant]
         scfg, ccfg = configs[(engine, mode)]
         gc.collect()    # the previous runs' records are garbage: their collection is not this run's time
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         r = run(steps=n, mode=mode, sim_config=scfg, ctrl_config=ccfg, desc=desc, family=family, **kw)
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         sim_t = r.records[-1].t_end
-        return r, sim_t, wall
+        return r, sim_t, wall, cpu
 
     for v in variants:
         one(v, "both", 1)
     out: dict = {v: {} for v in variants}
     for mode in ("none", "both"):
-        acc = {e: [0.0, 0.0, None] for e in out}
+        acc = {e: [0.0, 0.0, None, 0.0] for e in out}
         for _ in range(repeats):
             for engine in out:
-                r, sim_t, wall = one(engine, mode, steps)
+                r, sim_t, wall, cpu = one(engine, mode, steps)
                 acc[engine][0] += sim_t
                 acc[engine][1] += wall
                 acc[engine][2] = (r.steps_walked, r.fallen)   # not the records: they would stay alive
+                acc[engine][3] += cpu
                 del r
-        for engine, (sim_t, wall, (walked, fallen)) in acc.items():
+        for engine, (sim_t, wall, (walked, fallen), cpu) in acc.items():
             periods = round(sim_t / repeats / 1e-3)   # 1 ms periods (the outcome-only run keeps few records)
+            # CPU time of this process beside the wall time: on a machine shared with other jobs the wall time
+            # counts their time slices too, the CPU time (user + system) only this loop's
             out[engine][mode] = {"steps_walked": walked, "fallen": fallen, "periods": periods,
                                  "sim_s": sim_t, "wall_s": wall, "realtime_factor": sim_t / wall,
-                                 "us_per_period": wall / (periods * repeats) * 1e6}
+                                 "us_per_period": wall / (periods * repeats) * 1e6,
+                                 "cpu_s": cpu, "realtime_factor_cpu": sim_t / cpu}
     for engine in out:
         out[engine]["realtime_factor"] = out[engine]["both"]["realtime_factor"]
     out["fast_over_reference"] = out["fast"]["realtime_factor"] / out["reference"]["realtime_factor"]
     out["mujoco_over_fast_objects"] = out["mujoco"]["realtime_factor"] / out["fast_objects"]["realtime_factor"]
+    out["mujoco_over_fast_objects_cpu"] = (out["mujoco"]["both"]["realtime_factor_cpu"]
+                                           / out["fast_objects"]["both"]["realtime_factor_cpu"])
     # legacy layout (mode -> figures) for the README table: the default engine
     out["none"], out["both"] = out["fast"]["none"], out["fast"]["both"]
     return out
@@ -593,17 +599,20 @@ def markdown(R: dict) -> str:
              "`fast_outcome_only` = the same with keep_records=False (what survival sweeps run); `fast_objects` = "
              "compiled kernels, the Python objects every period (compiled_loop=False); `reference` = Pinocchio; "
              "`mujoco` = the MuJoCo plant (`plant: mujoco`, issue 24; target >= 20x in mode both) with the controller's "
-             f"compiled period, objects every period: mujoco / fast_objects = {_f(ip.get('mujoco_over_fast_objects'), 2)}.")
+             f"compiled period, objects every period: mujoco / fast_objects = {_f(ip.get('mujoco_over_fast_objects'), 2)} "
+             f"(by CPU time {_f(ip.get('mujoco_over_fast_objects_cpu'), 2)}). CPU s: this process's user + system "
+             "time, which on a shared machine leaves out the other jobs' time slices that the wall time counts.")
     L.append("")
-    L.append("| variant | mode | simulated s | wall s | sim s / wall s | us per 1 ms period |")
-    L.append("| --- | --- | ---: | ---: | ---: | ---: |")
+    L.append("| variant | mode | simulated s | wall s | sim s / wall s | us per 1 ms period | CPU s | sim s / CPU s |")
+    L.append("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for engine in ("fast", "fast_outcome_only", "fast_objects", "reference", "mujoco"):
         if engine not in ip:
             continue
         for mode in ("none", "both"):
             v = ip[engine][mode]
             L.append(f"| {engine} | {mode} | {_f(v['sim_s'], 3)} | {_f(v['wall_s'], 2)} | "
-                     f"{_f(v['realtime_factor'], 2)} | {_f(v['us_per_period'], 0)} |")
+                     f"{_f(v['realtime_factor'], 2)} | {_f(v['us_per_period'], 0)} | {_f(v.get('cpu_s'), 2)} | "
+                     f"{_f(v.get('realtime_factor_cpu'), 2)} |")
     L.append("")
     e = R["experiment"]
     L.append(f"**5. Four-mode max-push table** (target <= {TARGETS['max_push_table_s']:.0f} s on 2 cores): "
@@ -651,6 +660,7 @@ def stable_keys(R: dict) -> dict:
         "inprocess.reference.realtime_factor": get("inprocess", "reference", "realtime_factor"),
         "inprocess.fast_outcome_only.realtime_factor": get("inprocess", "fast_outcome_only", "realtime_factor"),
         "inprocess.mujoco.realtime_factor": get("inprocess", "mujoco", "realtime_factor"),
+        "inprocess.mujoco.realtime_factor_cpu": get("inprocess", "mujoco", "both", "realtime_factor_cpu"),
         "controller.step_p50_us_reference_engine": get("controller", "pieces_us", "total_reference_engine", "p50"),
         "controller.step_p50_us": get("controller", "pieces_us", "total", "p50"),
         "qp.early_out_p50_us": get("qp_bench", "early_out_p50_us"),
@@ -663,6 +673,41 @@ def stable_keys(R: dict) -> dict:
     }
 
 
+def inprocess_only(json_path: Path, steps: int = 5, repeats: int = 3) -> int:
+    """Section 4 alone, merged into ``json_path`` (``--inprocess-only``): every variant interleaved in one run,
+    the load average (1 min) before and after it recorded beside the figures."""
+    load0 = os.getloadavg()[0]
+    date = time.strftime("%Y-%m-%d %H:%M:%S")
+    t0 = time.perf_counter()
+    ip = bench_inprocess(steps, repeats)
+    meta = {"date": date, "steps": steps, "repeats": repeats, "cpus": os.cpu_count(),
+            "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
+            "loadavg_1min_before": load0, "loadavg_1min_after": os.getloadavg()[0],
+            "wall_s": time.perf_counter() - t0}
+    R = json.loads(json_path.read_text(encoding="utf-8")) if json_path.exists() else {}
+    R["inprocess_side_by_side"] = {"meta": meta, **{k: v for k, v in ip.items() if k not in ("none", "both")}}
+    keys = R.setdefault("keys", {})
+    for v in ("fast", "fast_objects", "mujoco"):
+        keys[f"inprocess_side_by_side.{v}.realtime_factor"] = ip[v]["realtime_factor"]
+        keys[f"inprocess_side_by_side.{v}.realtime_factor_cpu"] = ip[v]["both"]["realtime_factor_cpu"]
+    keys["inprocess.mujoco.realtime_factor"] = ip["mujoco"]["realtime_factor"]
+    keys["inprocess.mujoco.realtime_factor_cpu"] = ip["mujoco"]["both"]["realtime_factor_cpu"]
+    keys["inprocess.mujoco_over_fast_objects"] = ip["mujoco_over_fast_objects"]
+    keys["inprocess.mujoco_over_fast_objects_cpu"] = ip["mujoco_over_fast_objects_cpu"]
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(R, indent=1, default=float) + "\n", encoding="utf-8")
+    print(f"in-process loop, mode both, {date}, load average {load0:.1f} -> {meta['loadavg_1min_after']:.1f} "
+          f"on {meta['cpus']} CPUs:")
+    print("| variant | sim s / wall s | us per period (wall) | sim s / CPU s | us per period (CPU) |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    for v in ("fast", "fast_outcome_only", "fast_objects", "reference", "mujoco"):
+        b = ip[v]["both"]
+        print(f"| {v} | {b['realtime_factor']:.2f} | {b['us_per_period']:.0f} | {b['realtime_factor_cpu']:.2f} | "
+              f"{b['cpu_s'] / (b['periods'] * repeats) * 1e6:.0f} |")
+    print(f"mujoco / fast_objects: wall {ip['mujoco_over_fast_objects']:.3f}, CPU {ip['mujoco_over_fast_objects_cpu']:.3f}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="biped benchmarks")
     ap.add_argument("--quick", action="store_true", help="a few hundred steps / instances")
@@ -671,8 +716,14 @@ def main(argv=None) -> int:
     ap.add_argument("--readme", default=None, help="README to refresh (default: the repository's, "
                     "full runs writing the default JSON only)")
     ap.add_argument("--no-readme", action="store_true")
+    ap.add_argument("--inprocess-only", action="store_true",
+                    help="section 4 alone (the MuJoCo plant beside the rigid one, issue 24): merged into the JSON as "
+                         "'inprocess_side_by_side' with its own date and load average, with the keys "
+                         "inprocess.mujoco.*; the rest of the JSON and the README block are left as they are")
     a = ap.parse_args(argv)
     json_path = Path(a.json)
+    if a.inprocess_only:
+        return inprocess_only(json_path)
     md_path = Path(a.md) if a.md else json_path.with_suffix(".md")
     T0 = time.perf_counter()
     quick = a.quick

@@ -104,7 +104,7 @@ def test_contact_forces_three_ways_agree():
     do not agree (the comparison sees the loads)."""
     from biped_controller.studies import runner
     from biped_sim.plant import mujoco as pm
-    from biped_sim.plant import mujoco_kernels as mk
+    mk = pm.load_kernels()
     seen = []
 
     def probe(plant):
@@ -338,3 +338,28 @@ def test_robustness_set_reaches_every_run(monkeypatch, capsys):
     with pytest.raises(SystemExit):
         rb.main(["--set", "Kp=3", "--report-only"])
     assert "only config/simulator.yaml keys" in capsys.readouterr().err
+
+
+# the digests of plant_compare.FINGERPRINT_RUNS before the MuJoCo step's bookkeeping was compiled (the plant's
+# pure-Python step of commit 9b97d77; the total `plant_compare fingerprint` eabdf4b7... is the same before and
+# after); machine-specific, as the rigid plant's above
+MUJOCO_DIGESTS = {
+    "walk-both": "f50a671800a97c3793be234a747b854a176acd08ced2d188250be05f2bc3fb25",
+    "delay-both": "d3a0e0e878ed290c7f0fc54e2e7e0b681ffc81d6ab95fdb3fdcedd814fb6d22f",
+}
+
+
+@pytest.mark.parametrize("name", sorted(MUJOCO_DIGESTS))
+def test_mujoco_records_bit_identical_to_the_python_step(name):
+    """Every field of every record, status and impact and the contact diagnostics of a 4-step walk, and of a
+    3-step walk with the touchdown reported one period late (the told and the true stance differ for a period
+    after each touchdown), hash as with the plant's former pure-Python step: the compiled bookkeeping
+    (mujoco_kernels) changes no bit. Negative control: one record's torque changed by one ulp changes the hash."""
+    from biped_controller.studies import plant_compare, fingerprint
+    spec = next(s for s in plant_compare.FINGERPRINT_RUNS if s[0] == name)
+    digest, r = plant_compare.run_digest(spec)
+    assert digest == MUJOCO_DIGESTS[name]
+    a = fingerprint._digest(r, ())
+    rec = r.records[len(r.records) // 2]
+    rec.torque[0] = np.nextafter(rec.torque[0], np.inf)
+    assert fingerprint._digest(r, ()) != a

@@ -223,9 +223,9 @@ FINGERPRINT_RUNS = (
 )
 
 
-def mujoco_fingerprint(out=print) -> str:
-    """The hash of ``FINGERPRINT_RUNS`` on the MuJoCo plant (module docstring, ``fingerprint``); prints one
-    line per run and the total."""
+def run_digest(run_spec: tuple, scfg=None) -> tuple[str, "runner.RunResult"]:
+    """sha256 of one of ``FINGERPRINT_RUNS`` on the MuJoCo plant (module docstring, ``fingerprint``) and its
+    result."""
     import dataclasses
     import hashlib
 
@@ -233,8 +233,8 @@ def mujoco_fingerprint(out=print) -> str:
     from biped_sim.plant.perturbation import PlantPerturbation
     from biped_controller.studies.fingerprint import _digest, _feed
 
-    scfg = load_sim_config(plant="mujoco")
-    total = hashlib.sha256()
+    name, steps, mode, pushes, pert, kw = run_spec
+    scfg = scfg if scfg is not None else load_sim_config(plant="mujoco")
     orig = pm.MujocoPlant.reset
     plants: list = []
 
@@ -243,21 +243,29 @@ def mujoco_fingerprint(out=print) -> str:
         return orig(self, *a, **k)
     pm.MujocoPlant.reset = grab
     try:
-        for name, steps, mode, pushes, pert, kw in FINGERPRINT_RUNS:
-            plants.clear()
-            r = runner.run(steps, mode, pushes, sim_config=scfg,
-                           perturbation=PlantPerturbation(**pert) if pert else None, **kw)
-            h = hashlib.sha256(_digest(r, ()).encode())
-            dg = plants[-1].diagnostics
-            for f in dataclasses.fields(dg):
-                _feed(h, np.asarray(getattr(dg, f.name), dtype=float) if f.name == "touchdown_forces"
-                      else getattr(dg, f.name))
-            digest = h.hexdigest()
-            total.update(digest.encode())
-            out(f"{name:12s} steps={r.steps_walked} fallen={r.fallen} {r.fall_cause or '-':13s} "
-                f"periods={len(r.records)} {digest[:16]}")
+        r = runner.run(steps, mode, pushes, sim_config=scfg,
+                       perturbation=PlantPerturbation(**pert) if pert else None, **kw)
     finally:
         pm.MujocoPlant.reset = orig
+    h = hashlib.sha256(_digest(r, ()).encode())
+    dg = plants[-1].diagnostics
+    for f in dataclasses.fields(dg):
+        _feed(h, np.asarray(getattr(dg, f.name), dtype=float) if f.name == "touchdown_forces" else getattr(dg, f.name))
+    return h.hexdigest(), r
+
+
+def mujoco_fingerprint(out=print) -> str:
+    """The hash of ``FINGERPRINT_RUNS`` on the MuJoCo plant (module docstring, ``fingerprint``); prints one
+    line per run and the total."""
+    import hashlib
+
+    scfg = load_sim_config(plant="mujoco")
+    total = hashlib.sha256()
+    for spec in FINGERPRINT_RUNS:
+        digest, r = run_digest(spec, scfg)
+        total.update(digest.encode())
+        out(f"{spec[0]:12s} steps={r.steps_walked} fallen={r.fallen} {r.fall_cause or '-':13s} "
+            f"periods={len(r.records)} {digest[:16]}")
     out(f"mujoco fingerprint {total.hexdigest()}")
     return total.hexdigest()
 
