@@ -271,8 +271,9 @@ class MujocoPlant(ScheduledPushes):
         to the ground = ankle encoder + the stance foot's pitch (rate) (``mujoco_kernels.measure``: the
         operations of ``paper_from_urdf`` and ``foot_pitch``, bit for bit)."""
         out = np.empty(12)
-        self._measure(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float),
-                      PAPER_FROM_URDF[stance], 3 if stance == LEFT else 6, out)
+        if type(x) is not np.ndarray or type(v) is not np.ndarray:
+            x, v = np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float)
+        self._measure(x, v, PAPER_FROM_URDF[stance], 3 if stance == LEFT else 6, out)
         return out[:6], out[6:]
 
     def observe(self) -> Observation:
@@ -388,10 +389,12 @@ class MujocoPlant(ScheduledPushes):
         finite iff every entry is)."""
         if not math.isfinite(self._acc[self._k.A_STATE_SUM]):
             return FallInfo("numerical", t, "non-finite state")
-        warn = self._warn_number.tolist()
-        for w in self._bad_warnings:
-            if warn[w] > 0:
-                return FallInfo("numerical", t, f"MuJoCo warning {mujoco.mjtWarning(w).name}")
+        warn = self._warn_number
+        b0, b1, b2 = self._bad_warnings
+        if warn[b0] or warn[b1] or warn[b2]:
+            for w in self._bad_warnings:
+                if warn[w] > 0:
+                    return FallInfo("numerical", t, f"MuJoCo warning {mujoco.mjtWarning(w).name}")
         return None
 
     def _check_fall(self, t: float, x: list, hit: int) -> FallInfo | None:
@@ -440,7 +443,8 @@ class MujocoPlant(ScheduledPushes):
             fn = None
         n_sub = max(1, int(math.ceil((t_grid_end - t_start) / self._h - 1e-9)))
         hh = (t_grid_end - t_start) / n_sub
-        knots = [t_start + i * hh for i in range(n_sub)] + [t_grid_end]
+        knots = [t_start + i * hh for i in range(n_sub)]
+        knots.append(t_grid_end)
         has_pushes = bool(self.book.pushes)
         if has_pushes:
             cuts = {c for p in self.book.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
@@ -511,7 +515,8 @@ class MujocoPlant(ScheduledPushes):
                             qd=row[k.R_QD:k.R_QD + 6], base=row[k.R_BASE:k.R_BASE + 3],
                             base_dot=row[k.R_BASE_DOT:k.R_BASE_DOT + 3], x=x0, v=v0,
                             torque=row[k.R_TORQUE:k.R_TORQUE + 6], wrench=row[k.R_WRENCH:k.R_WRENCH + 3],
-                            cop=float(row[k.R_COP]), push_force=float(sum(f for f, _ in first)), impacts=impacts0,
+                            cop=float(row[k.R_COP]), push_force=float(sum(f for f, _ in first)) if first else 0.0,
+                            impacts=impacts0,
                             fallen=fall is not None, fall_cause=fall.cause if fall else "",
                             fall_detail=fall.detail if fall else "", t_end=t_end, push_impulse=impulse)
         return rec
