@@ -660,7 +660,6 @@ def stable_keys(R: dict) -> dict:
         "inprocess.reference.realtime_factor": get("inprocess", "reference", "realtime_factor"),
         "inprocess.fast_outcome_only.realtime_factor": get("inprocess", "fast_outcome_only", "realtime_factor"),
         "inprocess.mujoco.realtime_factor": get("inprocess", "mujoco", "realtime_factor"),
-        "inprocess.mujoco.realtime_factor_cpu": get("inprocess", "mujoco", "both", "realtime_factor_cpu"),
         "controller.step_p50_us_reference_engine": get("controller", "pieces_us", "total_reference_engine", "p50"),
         "controller.step_p50_us": get("controller", "pieces_us", "total", "p50"),
         "qp.early_out_p50_us": get("qp_bench", "early_out_p50_us"),
