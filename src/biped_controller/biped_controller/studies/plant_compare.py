@@ -7,6 +7,12 @@ prints. Pure Python on ``runner.run`` (no ROS). Usage::
     python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off]
     python -m biped_controller.studies.plant_compare cmap --rigid STORE --mujoco STORE
     python -m biped_controller.studies.plant_compare fingerprint
+    python -m biped_controller.studies.plant_compare robustness --rigid JSON ... --mujoco JSON ...
+
+``robustness``: the max-push rows of ``scripts/robustness`` side by side from its summary JSONs (``--json``, one or
+more per plant; a row found in several files is taken from the last): per perturbation and observer, the strict
+boundary (largest survived force below the first failure, the first failure and its cause) and the no-fall
+edge (largest force below the first fall, the first fall; "no fall to F" when the scan never fell).
 
 ``fingerprint``: one sha256 over everything the MuJoCo plant records in a fixed set of runs (walks, pushes in
 three modes, a backward push, a fall, the classical controller's fall, sensor noise and delay, a torque law
@@ -270,6 +276,40 @@ def mujoco_fingerprint(out=print) -> str:
     return total.hexdigest()
 
 
+def robustness_table(rigid: list[Path], mujoco: list[Path]) -> tuple[str, dict]:
+    """The side-by-side max-push rows (module docstring, ``robustness``)."""
+    def rows(files):
+        out = {}
+        for f in files:
+            for r in json.loads(Path(f).read_text(encoding="utf-8")).get("pushes", []):
+                out[(r["level"], bool(r["observer"]), r["mode"])] = r
+        return out
+    R, M = rows(rigid), rows(mujoco)
+    def strict(r):
+        return f"{r['max_force']:g} ({r['first_failure']:g}, {r['cause']})" if r.get("first_failure") is not None \
+            else f">= {r['max_force']:g}"
+    def nofall(r):
+        return (f"{r['max_force_no_fall']:g} ({r['first_fall']:g})" if r.get("first_fall") is not None
+                else f"no fall to {r['max_force_no_fall']:g}")
+    L = ["| perturbation | mode | observer | rigid: max push [N] (first failure) | rigid: no-fall edge [N] (first fall) | "
+         "MuJoCo: max push, strict [N] (first failure) | MuJoCo: no-fall edge [N] (first fall) |",
+         "| --- | --- | --- | --- | --- | --- | --- |"]
+    out = {}
+    order = ("nominal", "torso mass +20 %", "inertias +30 %", "noise 1e-4 rad, 1e-2 rad/s", "delay 1 period",
+             "delay 1 period, touchdown at once", "mu 0.5")
+    rank = lambda lv: order.index(lv) if lv in order else len(order)   # noqa: E731
+    for key in sorted(set(R) | set(M), key=lambda k: (not k[1], k[2], rank(k[0]), k[0])):
+        r, m = R.get(key), M.get(key)
+        cell = lambda x, f: f(x) if x is not None else "not run"   # noqa: E731
+        L.append(f"| {key[0]} | {key[2]} | {'on' if key[1] else 'off'} | {cell(r, strict)} | {cell(r, nofall)} | "
+                 f"{cell(m, strict)} | {cell(m, nofall)} |")
+        out["/".join((key[0], key[2], "on" if key[1] else "off"))] = {
+            p: (None if x is None else {k: x.get(k) for k in ("max_force", "first_failure", "cause", "max_force_no_fall",
+                                                               "first_fall", "islands", "simulations")})
+            for p, x in (("rigid", r), ("mujoco", m))}
+    return "\n".join(L), out
+
+
 def cell_edges(records: list[dict]) -> dict:
     """Per cell (mode, direction, phase, duration): strict boundary, no-fall edge, first fall cause, sims."""
     cells: dict = {}
@@ -355,12 +395,19 @@ def main(argv: list[str] | None = None) -> int:
     cm.add_argument("--mujoco", type=Path, required=True)
     cm.add_argument("--json", type=Path, default=None)
     sub.add_parser("fingerprint")
+    rb = sub.add_parser("robustness")
+    rb.add_argument("--rigid", type=Path, nargs="+", required=True)
+    rb.add_argument("--mujoco", type=Path, nargs="+", required=True)
+    rb.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     if a.cmd == "fingerprint":
         mujoco_fingerprint()
         return 0
     if a.cmd == "cmap":
         table, rows = cmap_table(a.rigid, a.mujoco)
+        print(table)
+    elif a.cmd == "robustness":
+        table, rows = robustness_table(a.rigid, a.mujoco)
         print(table)
     elif a.cmd == "push":
         rows = push_pair(a.force, a.mode, a.observer == "on")
