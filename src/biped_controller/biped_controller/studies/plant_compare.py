@@ -26,7 +26,7 @@ prints the same last line before and after, on the same machine.
 largest simulated force below the lowest one that failed the experiment's survival test) and the no-fall edge
 (the largest simulated force below the lowest one that fell), at the resolution of the simulated forces.
 
-``push``: one push (25 ms at t = 0.2315 s, 5 steps after it) on both plants: the outcome, and on MuJoCo the
+``push``: one push (25 ms at t = 0.2315 s or ``--start``, 5 steps after it) on both plants: the outcome, and on MuJoCo the
 contact diagnostics over the run: what the rigid plant would have declared a fall (the friction cone, the
 centre of pressure at an edge, an unloaded stance foot) and how far the foot rolled and slid.
 
@@ -186,7 +186,7 @@ def pushes_table(directory: Path, reuse: bool) -> tuple[str, dict]:
     return "\n".join(L), out
 
 
-def push_pair(force: float, mode: str, observer: bool) -> list[dict]:
+def push_pair(force: float, mode: str, observer: bool, start: float = 0.2315) -> list[dict]:
     from biped_sim.plant import mujoco as pm
     from biped_controller.studies.experiment import RunSettings
     st = RunSettings(controller=(("disturbance_observer", observer),))
@@ -200,11 +200,11 @@ def push_pair(force: float, mode: str, observer: bool) -> list[dict]:
             return orig(self, *a, **k)
         pm.MujocoPlant.reset = grab
         try:
-            r = runner.run(steps=6, mode=mode, pushes=(Push(0.2315, 0.025, float(force)),),
+            r = runner.run(steps=6, mode=mode, pushes=(Push(start, 0.025, float(force)),),
                            sim_config=load_sim_config(plant=plant), ctrl_config=st.ctrl_config(mode))
         finally:
             pm.MujocoPlant.reset = orig
-        row = dict(plant=plant, mode=mode, observer=observer, force=force, steps_walked=r.steps_walked,
+        row = dict(plant=plant, mode=mode, observer=observer, force=force, start=start, steps_walked=r.steps_walked,
                    fall=r.fall_cause or None, fall_time=None if math.isnan(r.fall_time) else r.fall_time,
                    detail=r.fall_detail or None, final_p=float(r.statuses[-1].p), final_tau_dot=float(r.statuses[-1].tau_dot))
         if plants:
@@ -389,6 +389,8 @@ def main(argv: list[str] | None = None) -> int:
     po.add_argument("--force", type=float, required=True)
     po.add_argument("--mode", default="both")
     po.add_argument("--observer", choices=("on", "off"), default="on")
+    po.add_argument("--start", type=float, default=0.2315, help="push onset [s] (default 0.2315 s, phase 0.5; "
+                    "onset phase k/20 of the capability map: k/20 x 0.463 s; negative --force: backward)")
     po.add_argument("--json", type=Path, default=None)
     cm = sub.add_parser("cmap")
     cm.add_argument("--rigid", type=Path, required=True)
@@ -410,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
         table, rows = robustness_table(a.rigid, a.mujoco)
         print(table)
     elif a.cmd == "push":
-        rows = push_pair(a.force, a.mode, a.observer == "on")
+        rows = push_pair(a.force, a.mode, a.observer == "on", a.start)
     elif a.cmd == "pushes":
         table, rows = pushes_table(a.dir, a.reuse)
         print(table)
