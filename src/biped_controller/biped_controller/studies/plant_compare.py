@@ -331,25 +331,32 @@ def cell_edges(records: list[dict]) -> dict:
             strict = r["force"]
         # complete enough: the fall found and every coarse force below it simulated (an interrupted map, or two
         # workers running a cell's forces out of order, can leave a gap)
-        from biped_controller.studies.capability_map import DEFAULT_COARSE
+        from biped_controller.studies.capability_map import DEFAULT_COARSE, DEFAULT_MAX
         forces = {r["force"] for r in rs}
         gap = fall is None or any(DEFAULT_COARSE * k not in forces for k in range(1, int(fall // DEFAULT_COARSE)))
-        out[key] = dict(strict=strict, no_fall=nofall, first_fall=None if gap else fall, cause=cause, sims=len(rs))
+        # censored: every coarse force up to the scan's maximum simulated and none fell (no-fall edge >= it)
+        censored = fall is None and all(DEFAULT_COARSE * k in forces
+                                        for k in range(1, int(DEFAULT_MAX // DEFAULT_COARSE) + 1))
+        out[key] = dict(strict=strict, no_fall=nofall, first_fall=None if gap else fall, cause=cause, sims=len(rs),
+                        censored=censored)
     return out
 
 
 def cmap_table(rigid: Path, mujoco: Path) -> tuple[str, dict]:
     load = lambda f: [json.loads(line) for line in f.read_text(encoding="utf-8").splitlines() if line.strip()]   # noqa: E731
     R, M = cell_edges(load(rigid)), cell_edges(load(mujoco))
-    # a cell counts once both plants' scans reached a fall (its no-fall edge is known); an interrupted map leaves
-    # the rest out (listed)
-    keys = sorted(k for k in set(R) & set(M) if R[k]["first_fall"] and M[k]["first_fall"])
+    # a cell counts once both plants' scans reached a fall (its no-fall edge is known) or scanned every coarse force
+    # without one (censored: the edge is at least the scan's maximum); an interrupted map leaves the rest out
+    # (listed)
+    done = lambda c: bool(c["first_fall"]) or c.get("censored", False)   # noqa: E731
+    keys = sorted(k for k in set(R) & set(M) if done(R[k]) and done(M[k]))
     missing = sorted(k for k in set(R) | set(M) if k not in keys)
     L = ["| mode | direction | phase | rigid: strict [N] | rigid: no-fall edge [N] (first fall) | MuJoCo: strict [N] | "
          "MuJoCo: no-fall edge [N] (first fall) |", "| --- | --- | ---: | ---: | --- | ---: | --- |"]
     for k in keys:
         r, m = R[k], M[k]
-        ff = lambda c: f"{c['no_fall']:g} ({c['first_fall']:g} N {c['cause']})" if c["first_fall"] else f">= {c['no_fall']:g}"   # noqa: E731
+        ff = lambda c: (f"{c['no_fall']:g} ({c['first_fall']:g} N {c['cause']})" if c["first_fall"]   # noqa: E731
+                        else f">= {c['no_fall']:g} (no fall)")
         L.append(f"| {k[0]} | {k[1]} | {k[2]:g} | {r['strict']:g} | {ff(r)} | {m['strict']:g} | {ff(m)} |")
     groups = sorted({(k[0], k[1]) for k in keys})
     L += ["", "| mode | direction | cells | mean rigid strict [N] | mean rigid no-fall [N] | mean MuJoCo strict [N] | "
