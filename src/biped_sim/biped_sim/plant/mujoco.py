@@ -1,7 +1,8 @@
 """The second plant: the biped on MuJoCo (pip ``mujoco``), behind the same :class:`~biped_sim.plant.protocol.Plant`
 interface as the rigid :class:`~biped_sim.plant.rigid.Simulator`.
 
-Pure Python (MuJoCo + NumPy; Pinocchio's ``FloatingModel`` only at reset and at impacts), no ROS.
+MuJoCo + NumPy, the per-step bookkeeping compiled (``mujoco_kernels``, numba, bit-identical to the Python it
+replaced); Pinocchio's ``FloatingModel`` only at reset and at impacts; no ROS.
 
 Model: ``biped_sim.robot.mjcf.make_mjcf`` from the (perturbed) description and the ``mujoco_*`` settings of
 ``config/simulator.yaml``; ``qpos``/``qvel`` are the floating state ``x = [x_hip, z_hip, theta, lh, lk, la, rh,
