@@ -1,0 +1,391 @@
+"""Compiled (numba) sensing pipeline of one control period: the Kalman joint-state estimator and the
+generalized-momentum observer (issue 22), for the controller's compiled period.
+
+Pure numerics, no ROS, no side effects on import (load it through ``numba_cache.load``, as
+``estimation_compiled`` does). The same equations, units and order as the Python cores, which stay the
+oracle of the tests (``sensing.SensingPipeline`` on ``estimation.JointStateEstimator`` and
+``momentum_observer.MomentumObserver``, Pinocchio):
+
+* estimator time update over dt [s] with a = A(x_q)^-1 (Gamma - H(x_q, x_q') + r) (the model's
+  acceleration under the torque applied, Gamma = the sent torque clipped to the limits, relabelled
+  -Gamma[::-1] if it was sent for the other stance; r the observer's last disturbance):
+  x_q += x_q' dt + a dt^2 / 2, x_q' += a dt, P <- F P F^T + Q (``estimation`` module docstring);
+* measurement update (Joseph form) with z = (q_enc, q'_rate [, pitch]), H = [[I, 0], [0, I] [, [1 1 1 0..]]],
+  R = diag(var_q, var_qd [, var_pitch]): K = P H^T S^-1 (S = H P H^T + R, Cholesky),
+  x += K (z - H x), P <- (I - K H) P (I - K H)^T + K R K^T;
+* a sensed touchdown between the two (the sample's stance differs from the estimate's) returns
+  NEEDS_IMPACT after the time update: the caller applies the model's flat-foot impact map
+  (``predictor.flat_foot_impact``, Python: once per step) and calls :func:`sense_finish`;
+* momentum observer (De Luca & Mattone): p = A q', beta = g(q) - C(q, q')^T q',
+  I += (Gamma + r) dt - (beta_prev + beta) dt / 2, r = K (p - p(0) - I); restart (p(0) = p, r = J_j^T W of
+  the previous wrench) at the first sample, at a stance change or without a previous torque. Here
+  C^T q' is the gradient of the kinetic energy T = q'^T A(q) q' / 2 at fixed q' (the identity
+  (C^T q')_i = q'^T (dA/dq_i) q' / 2 holds for every C with A' = C + C^T), in closed form on the planar
+  chain: for hinge i with origin velocity u_i and the bodies b of its subtree (mass m_b, centre-of-mass
+  velocity v_b), dT/dq_i = sum_b m_b v_b . perp(v_b - u_i) = sum_b m_b (v_bx u_iz - v_bz u_ix),
+  perp(x, z) = (-z, x) (a body's angular velocity does not depend on q in the plane). g = H(q, 0);
+* the torso wrench W = (J_j J_j^T)^-1 J_j r (the least-squares solution of J_j^T W = r, J_j (3 x 6) of
+  full row rank: Pinocchio's pseudo-inverse in the oracle), cov_W = J^+ (K^2 A cov_q' A) J^+T +
+  diag((W_restart e^{-K (t - t_restart)})^2), S = (B A^-1 J_j^T - J_r^T)[:2], dR = S W, cov_dR = S cov_W S^T,
+  and the QP's contact rows widened by k sqrt(C_r cov_dR C_r^T) (``controller._observe_momentum``).
+
+Arrays (float64, C order): ``conf`` (``estimation_layout.SCONF``), ``s`` (``SENS``), ``ti``/``tf`` the
+fixed-foot tree (``fast_engine.fixed_foot_tree``).
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from biped_sim.robot import numba_cache
+from biped_sim.robot import planar_kernels as pk
+from biped_controller.core.estimation_layout import S_, SC_
+
+numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
+
+# return codes of ``sense``
+DONE, NEEDS_IMPACT, SINGULAR = 0, 1, 2
+N = 6
+NX = 12
+
+_V = numba.types.Array(numba.types.float64, 1, "C")
+_VI = numba.types.Array(numba.types.int64, 1, "C")
+_F = numba.types.float64
+_I = numba.types.int64
+
+
+# ------------------------------------------------------------------------------------------ model terms
+@numba.njit(cache=True)
+def _terms(ti, tf, q, qd, A, H):
+    """A (6, 6), H (6,) of the locked-root chain at (q, q') (``planar_kernels.fixed_root_terms``' maths)."""
+    B = np.empty((3, 6))
+    hb = np.empty(3)
+    jp = np.empty(9)
+    pk.fixed_root_terms(ti, tf, q, qd, 0.0, A, H, B, hb, jp)
+
+
+@numba.njit(cache=True)
+def momentum_terms(ti, tf, q, qd, height, A, B, beta, J):
+    """The observer's model terms at (q, q'): A (6, 6), B (3, 6) (root rows of the mass matrix),
+    beta (6,) = g(q) - C(q, q')^T q' (module docstring), J (3, 9) rows x, z velocity of the torso point
+    ``height`` [m] above the hip and the torso's pitch rate (all 9 coordinates of the locked-root chain)."""
+    n = ti[0]
+    K, M, L, R, U, Cm = pk._workspace(n)
+    qf = np.zeros(n)
+    vf = np.zeros(n)
+    for i in range(N):
+        qf[3 + i] = q[i]
+        vf[3 + i] = qd[i]
+    g = U[0]
+    zero = np.zeros(n)
+    pk._kinematics(ti, tf, qf, zero, K)
+    pk._mass_bias(ti, tf, K, M, g, Cm)            # M(q), g(q) = h(q, 0)
+    for i in range(N):
+        for k in range(N):
+            A[i, k] = M[3 + i, 3 + k]
+    for r in range(3):
+        for k in range(N):
+            B[r, k] = M[r, 3 + k]
+    Jt = np.empty((3, n))
+    pk._point_jacobian(ti, K, ti[2], 0.0, height, Jt)
+    for r in range(3):
+        for k in range(n):
+            J[r, k] = Jt[r, k]
+    # velocities: C^T q' = dT/dq (module docstring)
+    pk._kinematics(ti, tf, qf, vf, K)
+    nb = ti[1]
+    ob = pk.HEADER_F + 2 * n
+    ctq = np.zeros(n)
+    for b in range(nb):
+        j = ti[pk.HEADER_I + 2 * n + b]
+        m = tf[ob + b]
+        _, _, rx, rz = pk._point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
+        om = K[pk._OM, j]
+        vx = K[pk._VX, j] - om * rz
+        vz = K[pk._VZ, j] + om * rx
+        i = j
+        while i >= 0:                            # every hinge whose subtree holds body b
+            if pk._jtype(ti, i) == pk.REV:
+                ctq[i] += m * (vx * K[pk._VZ, i] - vz * K[pk._VX, i])
+            i = pk._parent(ti, i)
+    for i in range(N):
+        beta[i] = g[3 + i] - ctq[3 + i]
+
+
+# ------------------------------------------------------------------------------------------ the estimator
+@numba.njit(cache=True)
+def _est_reset(conf, s, q, qd):
+    """x = (q, q' from the rate sensor, or 0 with variance 1e2 without one), P diagonal."""
+    vq = conf[SC_.var_q]
+    use_qd = conf[SC_.var_qd] >= 0.0
+    vqd = max(conf[SC_.var_qd], 1e-30) if use_qd else 1e2
+    for i in range(NX * NX):
+        s[S_.P + i] = 0.0
+    for i in range(N):
+        s[S_.x + i] = q[i]
+        s[S_.x + N + i] = qd[i] if use_qd else 0.0
+        s[S_.P + i * NX + i] = vq
+        s[S_.P + (N + i) * NX + N + i] = vqd
+
+
+@numba.njit(cache=True)
+def _est_predict(conf, s, dt, a):
+    """Time update over dt [s] with the acceleration a held (module docstring)."""
+    for i in range(N):
+        q = s[S_.x + i]
+        qd = s[S_.x + N + i]
+        s[S_.x + i] = q + qd * dt + 0.5 * a[i] * dt * dt
+        s[S_.x + N + i] = qd + a[i] * dt
+    P = s[S_.P:S_.P + NX * NX].reshape((NX, NX))
+    # F P F^T with F = [[I, dt I], [0, I]]: rows then columns i <- i + dt (i + 6) for i < 6
+    T = P.copy()
+    for i in range(N):
+        for c in range(NX):
+            T[i, c] = P[i, c] + dt * P[N + i, c]
+    for r in range(NX):
+        for i in range(N):
+            P[r, i] = T[r, i] + dt * T[r, N + i]
+        for i in range(N, NX):
+            P[r, i] = T[r, i]
+    s2 = conf[SC_.sigma_acc] ** 2
+    q11 = 0.25 * dt ** 4 * s2
+    q12 = 0.5 * dt ** 3 * s2
+    q22 = dt * dt * s2
+    for i in range(N):
+        P[i, i] += q11
+        P[i, N + i] += q12
+        P[N + i, i] += q12
+        P[N + i, N + i] += q22
+
+
+@numba.njit(cache=True)
+def _est_update(conf, s, q, qd, pitch):
+    """Measurement update, Joseph form (module docstring). False if S is not positive definite."""
+    use_qd = conf[SC_.var_qd] >= 0.0
+    use_pitch = conf[SC_.var_pitch] >= 0.0 and math.isfinite(pitch)
+    m = N + (N if use_qd else 0) + (1 if use_pitch else 0)
+    Hm = np.zeros((m, NX))
+    z = np.empty(m)
+    rv = np.empty(m)
+    for i in range(N):
+        Hm[i, i] = 1.0
+        z[i] = q[i]
+        rv[i] = conf[SC_.var_q]
+    k = N
+    if use_qd:
+        for i in range(N):
+            Hm[k + i, N + i] = 1.0
+            z[k + i] = qd[i]
+            rv[k + i] = max(conf[SC_.var_qd], 1e-30)
+        k += N
+    if use_pitch:
+        Hm[k, 0] = 1.0
+        Hm[k, 1] = 1.0
+        Hm[k, 2] = 1.0
+        z[k] = pitch
+        rv[k] = max(conf[SC_.var_pitch], 1e-30)
+    P = s[S_.P:S_.P + NX * NX].reshape((NX, NX))
+    x = s[S_.x:S_.x + NX]
+    PHt = P @ Hm.T                   # (12, m)
+    S = Hm @ PHt
+    for i in range(m):
+        S[i, i] += rv[i]
+    L = np.empty((m, m))
+    if not pk.cholesky(S, L):
+        return False
+    Kg = PHt.copy()                  # rows of P H^T solved: K = P H^T S^-1
+    pk.chol_solve_rows(L, Kg)
+    inn = z - Hm @ x
+    x += Kg @ inn
+    IKH = -(Kg @ Hm)
+    for i in range(NX):
+        IKH[i, i] += 1.0
+    KR = Kg * rv                     # K R (R diagonal)
+    Pn = IKH @ P @ IKH.T + KR @ Kg.T
+    P[:, :] = Pn
+    return True
+
+
+# ------------------------------------------------------------------------------------------ the observer
+@numba.njit(cache=True)
+def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd):
+    """One sample of the momentum observer (module docstring); outputs into s (W, cov_W, dR, cov_dR, S,
+    extra). False on a singular model."""
+    Kg = conf[SC_.K]
+    A = np.empty((N, N))
+    B = np.empty((3, N))
+    beta = np.empty(N)
+    J = np.empty((3, 9))
+    momentum_terms(ti, tf, q, qd, conf[SC_.height], A, B, beta, J)
+    p = A @ qd
+    Jj = np.ascontiguousarray(J[:, 3:])
+    if restart:
+        started = s[S_.mo_started] != 0.0
+        for i in range(N):
+            r0 = 0.0
+            if started:
+                for a in range(3):
+                    r0 += Jj[a, i] * s[S_.W + a]
+            s[S_.p0 + i] = p[i]
+            s[S_.I + i] = -r0 / Kg
+            s[S_.r + i] = r0
+        for a in range(3):
+            s[S_.W_restart + a] = s[S_.W + a] if started else 0.0
+        s[S_.since] = 0.0
+        s[S_.mo_started] = 1.0
+    else:
+        for i in range(N):
+            s[S_.I + i] = (s[S_.I + i] + (applied[i] + s[S_.r + i]) * dt) - 0.5 * (s[S_.beta + i] + beta[i]) * dt
+        for i in range(N):
+            s[S_.r + i] = Kg * (p[i] - s[S_.p0 + i] - s[S_.I + i])
+        s[S_.since] += dt
+    for i in range(N):
+        s[S_.beta + i] = beta[i]
+    s[S_.mo_stance] = stance
+    # W = (Jj Jj^T)^-1 Jj r: the pseudo-inverse of Jj^T (full column rank)
+    G = Jj @ Jj.T
+    Lg = np.empty((3, 3))
+    if not pk.cholesky(G, Lg):
+        return False
+    pinv = Jj.copy()                                  # rows: (Jj Jj^T)^-1 Jj, column by column
+    pinvT = np.ascontiguousarray(pinv.T)               # (6, 3): rows solved
+    pk.chol_solve_rows(Lg, pinvT)
+    pinv = np.ascontiguousarray(pinvT.T)               # (3, 6)
+    r = s[S_.r:S_.r + N]
+    W = pinv @ r
+    for a in range(3):
+        s[S_.W + a] = W[a]
+    covr = (Kg * Kg) * (A @ cov_qd @ A)
+    covW = pinv @ covr @ pinv.T
+    dec = math.exp(-Kg * s[S_.since])
+    for a in range(3):
+        wr = s[S_.W_restart + a] * dec
+        covW[a, a] += wr * wr
+    # S = (B A^-1 Jj^T - Jr^T)[:2]
+    La = np.empty((N, N))
+    if not pk.cholesky(A, La):
+        return False
+    Y = Jj.copy()                                     # rows: A^-1 Jj[a]
+    pk.chol_solve_rows(La, Y)
+    Sm = np.empty((2, 3))
+    for a in range(2):
+        for c in range(3):
+            v = 0.0
+            for k in range(N):
+                v += B[a, k] * Y[c, k]
+            Sm[a, c] = v - J[c, a]
+    dR = Sm @ W
+    covdR = Sm @ covW @ Sm.T
+    for a in range(3):
+        for c in range(3):
+            s[S_.cov_W + 3 * a + c] = covW[a, c]
+    for a in range(2):
+        s[S_.dR + a] = dR[a]
+        for c in range(2):
+            s[S_.cov_dR + 2 * a + c] = covdR[a, c]
+        for c in range(3):
+            s[S_.S + 3 * a + c] = Sm[a, c]
+    for row in range(5):
+        cx = conf[SC_.qp_rows + 2 * row]
+        cy = conf[SC_.qp_rows + 2 * row + 1]
+        var = cx * (covdR[0, 0] * cx + covdR[0, 1] * cy) + cy * (covdR[1, 0] * cx + covdR[1, 1] * cy)
+        s[S_.extra + row] = conf[SC_.confidence] * math.sqrt(max(var, 0.0))
+    return True
+
+
+# ------------------------------------------------------------------------------------------ one period
+@numba.njit(cache=True)
+def _elapsed_applied(conf, s, t, stance, applied):
+    """dt [s] from integer nanoseconds since the last decision, and the torque it applied (clipped,
+    relabelled when it was sent for the other stance than the state's at the last sample)."""
+    dt = (round(t * 1e9) - round(s[S_.t_prev] * 1e9)) * 1e-9
+    same = int(s[S_.told_prev]) == int(s[S_.stance])
+    for i in range(N):
+        j = i if same else N - 1 - i
+        g = min(max(s[S_.torque_prev + j], conf[SC_.torque_min + j]), conf[SC_.torque_max + j])
+        applied[i] = g if same else -g
+    return dt
+
+
+@numba.njit(_I(_VI, _V, _V, _V, _F, _V, _V, _I, _F, _V, _V), cache=True)
+def sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
+    """The rest of :func:`sense` after the time update (and the touchdown's impact map)."""
+    first = s[S_.started] == 0.0
+    est = conf[SC_.estimator] != 0.0
+    if est:
+        if first:
+            _est_reset(conf, s, q, qd)
+        elif not _est_update(conf, s, q, qd, pitch):
+            return SINGULAR
+        for i in range(N):
+            q_out[i] = s[S_.x + i]
+            qd_out[i] = s[S_.x + N + i]
+    else:
+        for i in range(N):
+            q_out[i] = q[i]
+            qd_out[i] = qd[i]
+    if conf[SC_.observer] != 0.0:
+        cov = np.empty((N, N))
+        if est:
+            for i in range(N):
+                for k in range(N):
+                    cov[i, k] = s[S_.P + (N + i) * NX + N + k]
+        else:
+            cov[:, :] = 0.0
+            v = conf[SC_.noise_qd] ** 2
+            for i in range(N):
+                cov[i, i] = v
+        applied = np.zeros(N)
+        dt = 0.0
+        restart = first or s[S_.decided] == 0.0 or stance != int(s[S_.stance]) or s[S_.mo_started] == 0.0
+        if not first and s[S_.decided] != 0.0:
+            dt = _elapsed_applied(conf, s, t, stance, applied)
+        if restart:
+            dt = 0.0
+        if not _observer(ti, tf, conf, s, q_out, qd_out, stance, restart, applied, dt, cov):
+            return SINGULAR
+    s[S_.started] = 1.0
+    s[S_.stance] = stance
+    return DONE
+
+
+@numba.njit(_I(_VI, _V, _V, _V, _F, _V, _V, _I, _F, _V, _V), cache=True)
+def sense(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
+    """The pipeline for the sample (q, q', stance, pitch) at t [s] (delay 0: the sample is the present):
+    the estimator's time update, then, unless the stance changed (NEEDS_IMPACT: the caller applies the
+    impact to x and P and calls :func:`sense_finish`), the measurement update and the observer. q_out,
+    q_out' <- the state the controller acts on. SINGULAR: a model matrix was not positive definite."""
+    if s[S_.started] != 0.0 and conf[SC_.estimator] != 0.0:
+        applied = np.empty(N)
+        dt = _elapsed_applied(conf, s, t, stance, applied)
+        A = np.empty((N, N))
+        H = np.empty(N)
+        xq = s[S_.x:S_.x + N].copy()
+        xv = s[S_.x + N:S_.x + NX].copy()
+        _terms(ti, tf, xq, xv, A, H)
+        L = np.empty((N, N))
+        if not pk.cholesky(A, L):
+            return SINGULAR
+        a = np.empty((1, N))
+        for i in range(N):
+            rr = s[S_.r + i] if conf[SC_.observer] != 0.0 else 0.0
+            a[0, i] = applied[i] - H[i] + rr
+        pk.chol_solve_rows(L, a)
+        _est_predict(conf, s, dt, a[0])
+        if stance != int(s[S_.stance]):
+            return NEEDS_IMPACT
+    return sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out)
+
+
+@numba.njit(_I(_V, _V, _V), cache=True)
+def into_res(s, conf, out):
+    """out (8,) <- [dR (2) [N], F_x = W[0] [N], the five rows' widening [N]] (the controller's RES fields)."""
+    observer = conf[SC_.observer] != 0.0
+    out[0] = s[S_.dR] if observer else 0.0
+    out[1] = s[S_.dR + 1] if observer else 0.0
+    out[2] = s[S_.W] if observer else 0.0
+    for r in range(5):
+        out[3 + r] = s[S_.extra + r] if observer else 0.0
+    return 0
