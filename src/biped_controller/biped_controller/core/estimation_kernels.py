@@ -10,9 +10,11 @@ oracle of the tests (``sensing.SensingPipeline`` on ``estimation.JointStateEstim
   acceleration under the torque applied, Gamma = the sent torque clipped to the limits, relabelled
   -Gamma[::-1] if it was sent for the other stance; r the observer's last disturbance):
   x_q += x_q' dt + a dt^2 / 2, x_q' += a dt, P <- F P F^T + Q (``estimation`` module docstring);
-* measurement update (Joseph form) with z = (q_enc, q'_rate [, pitch]), H = [[I, 0], [0, I] [, [1 1 1 0..]]],
+* measurement update with z = (q_enc, q'_rate [, pitch]), H = [[I, 0], [0, I] [, [1 1 1 0..]]],
   R = diag(var_q, var_qd [, var_pitch]): K = P H^T S^-1 (S = H P H^T + R, Cholesky),
-  x += K (z - H x), P <- (I - K H) P (I - K H)^T + K R K^T;
+  x += K (z - H x), P <- (I - K H) P (I - K H)^T + K R K^T (Joseph form, the Python core); here as
+  sequential scalar updates, one measurement at a time (R diagonal: the same estimate and covariance,
+  round-off apart), k = P h^T / (h P h^T + r), x += k (z - h x), P -= k (P h^T)^T;
 * a sensed touchdown between the two (the sample's stance differs from the estimate's) returns
   NEEDS_IMPACT after the time update: the caller applies the model's flat-foot impact map
   (``predictor.flat_foot_impact``, Python: once per step) and calls :func:`sense_finish`;
@@ -67,9 +69,11 @@ def _terms(ti, tf, q, qd, A, H):
 
 
 @numba.njit(cache=True)
-def momentum_terms(ti, tf, q, qd, height, A, B, beta, J):
-    """The observer's model terms at (q, q'): A (6, 6), B (3, 6) (root rows of the mass matrix),
-    beta (6,) = g(q) - C(q, q')^T q' (module docstring), J (3, 9) rows x, z velocity of the torso point
+def momentum_terms(ti, tf, q, qd, height, A, B, beta, J, H):
+    """The observer's model terms at (q, q') from one kinematics pass: A (6, 6), B (3, 6) (root rows of the
+    mass matrix), H (6,) = h(q, q') (so A, H also serve the estimator's next time update at this state),
+    beta (6,) = g(q) - C(q, q')^T q' (module docstring; g_i = g0 sum_b m_b (x_b - x_i) over the bodies of
+    hinge i's subtree, x_i its origin, g0 gravity along -z), J (3, 9) rows x, z velocity of the torso point
     ``height`` [m] above the hip and the torso's pitch rate (all 9 coordinates of the locked-root chain)."""
     n = ti[0]
     K, M, L, R, U, Cm = pk._workspace(n)
@@ -78,30 +82,31 @@ def momentum_terms(ti, tf, q, qd, height, A, B, beta, J):
     for i in range(N):
         qf[3 + i] = q[i]
         vf[3 + i] = qd[i]
-    g = U[0]
-    zero = np.zeros(n)
-    pk._kinematics(ti, tf, qf, zero, K)
-    pk._mass_bias(ti, tf, K, M, g, Cm)            # M(q), g(q) = h(q, 0)
+    h = U[0]
+    pk._kinematics(ti, tf, qf, vf, K)
+    pk._mass_bias(ti, tf, K, M, h, Cm)            # M(q), h(q, q')
     for i in range(N):
+        H[i] = h[3 + i]
         for k in range(N):
             A[i, k] = M[3 + i, 3 + k]
     for r in range(3):
         for k in range(N):
             B[r, k] = M[r, 3 + k]
-    Jt = np.empty((3, n))
+    Jt = R[7:10]
     pk._point_jacobian(ti, K, ti[2], 0.0, height, Jt)
     for r in range(3):
         for k in range(n):
             J[r, k] = Jt[r, k]
-    # velocities: C^T q' = dT/dq (module docstring)
-    pk._kinematics(ti, tf, qf, vf, K)
+    # g(q) and C^T q' = dT/dq (module docstring), both over each hinge's subtree
+    g0 = tf[0]
     nb = ti[1]
     ob = pk.HEADER_F + 2 * n
     ctq = np.zeros(n)
+    grav = np.zeros(n)
     for b in range(nb):
         j = ti[pk.HEADER_I + 2 * n + b]
         m = tf[ob + b]
-        _, _, rx, rz = pk._point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
+        px, _, rx, rz = pk._point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
         om = K[pk._OM, j]
         vx = K[pk._VX, j] - om * rz
         vz = K[pk._VZ, j] + om * rx
@@ -109,9 +114,10 @@ def momentum_terms(ti, tf, q, qd, height, A, B, beta, J):
         while i >= 0:                            # every hinge whose subtree holds body b
             if pk._jtype(ti, i) == pk.REV:
                 ctq[i] += m * (vx * K[pk._VZ, i] - vz * K[pk._VX, i])
+                grav[i] += m * (px - K[pk._PX, i])
             i = pk._parent(ti, i)
     for i in range(N):
-        beta[i] = g[3 + i] - ctq[3 + i]
+        beta[i] = g0 * grav[3 + i] - ctq[3 + i]
 
 
 # ------------------------------------------------------------------------------------------ the estimator
@@ -161,50 +167,46 @@ def _est_predict(conf, s, dt, a):
 
 
 @numba.njit(cache=True)
+def _scalar_update(P, x, c, z, rv, ph):
+    """One scalar measurement z = h x + noise (variance rv), h = e_c (c >= 0) or e_0 + e_1 + e_2 (c = -1):
+    k = P h^T / (h P h^T + rv), x += k (z - h x), P <- P - k (P h^T)^T (symmetric by construction).
+    False if h P h^T + rv is not > 0."""
+    for r in range(NX):
+        ph[r] = P[r, c] if c >= 0 else P[r, 0] + P[r, 1] + P[r, 2]
+    sv = (ph[c] if c >= 0 else ph[0] + ph[1] + ph[2]) + rv
+    if not sv > 0.0:
+        return False
+    inv = 1.0 / sv
+    inn = z - (x[c] if c >= 0 else x[0] + x[1] + x[2])
+    for r in range(NX):
+        x[r] += ph[r] * inv * inn
+    for r in range(NX):
+        kr = ph[r] * inv
+        for cc in range(r, NX):
+            v = P[r, cc] - kr * ph[cc]
+            P[r, cc] = v
+            P[cc, r] = v
+    return True
+
+
+@numba.njit(cache=True)
 def _est_update(conf, s, q, qd, pitch):
-    """Measurement update, Joseph form (module docstring). False if S is not positive definite."""
-    use_qd = conf[SC_.var_qd] >= 0.0
-    use_pitch = conf[SC_.var_pitch] >= 0.0 and math.isfinite(pitch)
-    m = N + (N if use_qd else 0) + (1 if use_pitch else 0)
-    Hm = np.zeros((m, NX))
-    z = np.empty(m)
-    rv = np.empty(m)
-    for i in range(N):
-        Hm[i, i] = 1.0
-        z[i] = q[i]
-        rv[i] = conf[SC_.var_q]
-    k = N
-    if use_qd:
-        for i in range(N):
-            Hm[k + i, N + i] = 1.0
-            z[k + i] = qd[i]
-            rv[k + i] = max(conf[SC_.var_qd], 1e-30)
-        k += N
-    if use_pitch:
-        Hm[k, 0] = 1.0
-        Hm[k, 1] = 1.0
-        Hm[k, 2] = 1.0
-        z[k] = pitch
-        rv[k] = max(conf[SC_.var_pitch], 1e-30)
+    """Measurement update (module docstring), as sequential scalar updates (R is diagonal, so this is the
+    batch update K = P H^T S^-1 of the Python core, round-off apart): encoders, rates, pitch. False if a
+    variance is not positive."""
     P = s[S_.P:S_.P + NX * NX].reshape((NX, NX))
     x = s[S_.x:S_.x + NX]
-    PHt = P @ Hm.T                   # (12, m)
-    S = Hm @ PHt
-    for i in range(m):
-        S[i, i] += rv[i]
-    L = np.empty((m, m))
-    if not pk.cholesky(S, L):
-        return False
-    Kg = PHt.copy()                  # rows of P H^T solved: K = P H^T S^-1
-    pk.chol_solve_rows(L, Kg)
-    inn = z - Hm @ x
-    x += Kg @ inn
-    IKH = -(Kg @ Hm)
-    for i in range(NX):
-        IKH[i, i] += 1.0
-    KR = Kg * rv                     # K R (R diagonal)
-    Pn = IKH @ P @ IKH.T + KR @ Kg.T
-    P[:, :] = Pn
+    ph = np.empty(NX)
+    for i in range(N):
+        if not _scalar_update(P, x, i, q[i], conf[SC_.var_q], ph):
+            return False
+    if conf[SC_.var_qd] >= 0.0:
+        for i in range(N):
+            if not _scalar_update(P, x, N + i, qd[i], max(conf[SC_.var_qd], 1e-30), ph):
+                return False
+    if conf[SC_.var_pitch] >= 0.0 and math.isfinite(pitch):
+        if not _scalar_update(P, x, -1, pitch, max(conf[SC_.var_pitch], 1e-30), ph):
+            return False
     return True
 
 
@@ -218,9 +220,21 @@ def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd):
     B = np.empty((3, N))
     beta = np.empty(N)
     J = np.empty((3, 9))
-    momentum_terms(ti, tf, q, qd, conf[SC_.height], A, B, beta, J)
-    p = A @ qd
-    Jj = np.ascontiguousarray(J[:, 3:])
+    H = s[S_.H_est:S_.H_est + N]
+    momentum_terms(ti, tf, q, qd, conf[SC_.height], A, B, beta, J, H)
+    for i in range(N):
+        for k in range(N):
+            s[S_.A_est + N * i + k] = A[i, k]
+    p = np.empty(N)
+    for i in range(N):
+        v = 0.0
+        for k in range(N):
+            v += A[i, k] * qd[k]
+        p[i] = v
+    Jj = np.empty((3, N))
+    for a in range(3):
+        for k in range(N):
+            Jj[a, k] = J[a, 3 + k]
     if restart:
         started = s[S_.mo_started] != 0.0
         for i in range(N):
@@ -245,20 +259,56 @@ def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd):
         s[S_.beta + i] = beta[i]
     s[S_.mo_stance] = stance
     # W = (Jj Jj^T)^-1 Jj r: the pseudo-inverse of Jj^T (full column rank)
-    G = Jj @ Jj.T
+    G = np.empty((3, 3))
+    for a in range(3):
+        for c in range(3):
+            v = 0.0
+            for k in range(N):
+                v += Jj[a, k] * Jj[c, k]
+            G[a, c] = v
     Lg = np.empty((3, 3))
     if not pk.cholesky(G, Lg):
         return False
-    pinv = Jj.copy()                                  # rows: (Jj Jj^T)^-1 Jj, column by column
-    pinvT = np.ascontiguousarray(pinv.T)               # (6, 3): rows solved
-    pk.chol_solve_rows(Lg, pinvT)
-    pinv = np.ascontiguousarray(pinvT.T)               # (3, 6)
-    r = s[S_.r:S_.r + N]
-    W = pinv @ r
+    pinvT = np.empty((N, 3))                          # rows: columns of Jj, solved
+    for k in range(N):
+        for a in range(3):
+            pinvT[k, a] = Jj[a, k]
+    pk.chol_solve_rows(Lg, pinvT)                     # pinv[a, k] = pinvT[k, a]
+    W = np.zeros(3)
     for a in range(3):
+        for k in range(N):
+            W[a] += pinvT[k, a] * s[S_.r + k]
         s[S_.W + a] = W[a]
-    covr = (Kg * Kg) * (A @ cov_qd @ A)
-    covW = pinv @ covr @ pinv.T
+    # cov_r = K^2 A cov A, cov_W = pinv cov_r pinv^T (+ the carried wrench's decaying square)
+    T1 = np.empty((N, N))
+    for i in range(N):
+        for k in range(N):
+            v = 0.0
+            for j in range(N):
+                v += A[i, j] * cov_qd[j, k]
+            T1[i, k] = v
+    covr = np.empty((N, N))
+    k2 = Kg * Kg
+    for i in range(N):
+        for k in range(N):
+            v = 0.0
+            for j in range(N):
+                v += T1[i, j] * A[j, k]
+            covr[i, k] = k2 * v
+    T2 = np.empty((3, N))
+    for a in range(3):
+        for k in range(N):
+            v = 0.0
+            for j in range(N):
+                v += pinvT[j, a] * covr[j, k]
+            T2[a, k] = v
+    covW = np.empty((3, 3))
+    for a in range(3):
+        for c in range(3):
+            v = 0.0
+            for k in range(N):
+                v += T2[a, k] * pinvT[k, c]
+            covW[a, c] = v
     dec = math.exp(-Kg * s[S_.since])
     for a in range(3):
         wr = s[S_.W_restart + a] * dec
@@ -276,8 +326,18 @@ def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd):
             for k in range(N):
                 v += B[a, k] * Y[c, k]
             Sm[a, c] = v - J[c, a]
-    dR = Sm @ W
-    covdR = Sm @ covW @ Sm.T
+    dR = np.zeros(2)
+    covdR = np.zeros((2, 2))
+    for a in range(2):
+        for c in range(3):
+            dR[a] += Sm[a, c] * W[c]
+    for a in range(2):
+        for b in range(2):
+            v = 0.0
+            for c in range(3):
+                for e in range(3):
+                    v += Sm[a, c] * covW[c, e] * Sm[b, e]
+            covdR[a, b] = v
     for a in range(3):
         for c in range(3):
             s[S_.cov_W + 3 * a + c] = covW[a, c]
@@ -362,9 +422,15 @@ def sense(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
         dt = _elapsed_applied(conf, s, t, stance, applied)
         A = np.empty((N, N))
         H = np.empty(N)
-        xq = s[S_.x:S_.x + N].copy()
-        xv = s[S_.x + N:S_.x + NX].copy()
-        _terms(ti, tf, xq, xv, A, H)
+        if conf[SC_.observer] != 0.0:            # the observer computed them at this estimate last period
+            for i in range(N):
+                H[i] = s[S_.H_est + i]
+                for k in range(N):
+                    A[i, k] = s[S_.A_est + N * i + k]
+        else:
+            xq = s[S_.x:S_.x + N].copy()
+            xv = s[S_.x + N:S_.x + NX].copy()
+            _terms(ti, tf, xq, xv, A, H)
         L = np.empty((N, N))
         if not pk.cholesky(A, L):
             return SINGULAR

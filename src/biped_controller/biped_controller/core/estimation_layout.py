@@ -17,7 +17,8 @@ sides cannot disagree on where a field lives (the same pattern as ``period_layou
   observer's memory (started, stance, r [N m], W [N, N, N m], the integral I [N m s], p(0) [N m s],
   beta [N m], the wrench carried over at the last restart, the time since it [s]) and its outputs for the
   QP (cov_W (3 x 3), dR [N] and cov_dR (2 x 2) of the predicted ground force, S (2 x 3), the five contact
-  rows' widening k sigma [N]).
+  rows' widening k sigma [N]), and A (6 x 6), H [N m] of the model at the estimate the observer last saw
+  (the estimator's next time update starts there).
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ SENS = Layout("sensing", [
     ("x", N_STATE), ("P", N_STATE * N_STATE), ("started", 1), ("stance", 1),
     ("decided", 1), ("t_prev", 1), ("torque_prev", 6), ("told_prev", 1),
     ("mo_started", 1), ("mo_stance", 1), ("r", 6), ("W", 3), ("I", 6), ("p0", 6), ("beta", 6), ("W_restart", 3),
-    ("since", 1), ("cov_W", 9), ("dR", 2), ("cov_dR", 4), ("S", 6), ("extra", 5)])
+    ("since", 1), ("cov_W", 9), ("dR", 2), ("cov_dR", 4), ("S", 6), ("extra", 5), ("A_est", 36), ("H_est", 6)])
 
 SC_ = SCONF.at
 S_ = SENS.at
