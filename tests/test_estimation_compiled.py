@@ -152,3 +152,56 @@ def test_compiled_step_with_estimation_equals_the_reference(python_run):
 def test_state_layout_fields():
     """The state array holds the estimate at offset 0 (the tests' trace reads it there)."""
     assert SENS.at.x == 0 and SENS.sizes["x"] == 12
+
+
+# ------------------------------------------------------------------------------ the predictor
+def test_predictor_pieces_against_python():
+    """The swing sole's lowest height and the flat-foot impact map (on the fixed-foot tree, root at the
+    stance ankle) against ``DelayPredictor.lowest_sole`` and ``predictor.flat_foot_impact`` (Pinocchio's
+    floating model, root at the torso) at seeded random states, to round-off; negative control: the
+    relabelling without laying the landing foot flat differs."""
+    from biped_sim.robot.floating import FloatingModel
+    from biped_sim.robot.fixed_foot import relabel
+    from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
+    ek = load_estimation_kernels()
+    fast = FastFixedFootModel(DESC)
+    fm = FloatingModel(DESC)
+    dp = DelayPredictor(DESC, 2, 2, 1e-3, 1e-8, 1e-4, 1e-9)
+    rng = np.random.default_rng(11)
+    worst, gap = 0.0, 0.0
+    qo, qdo = np.empty(6), np.empty(6)
+    for _ in range(10):
+        q = np.array([0.15, 0.3, -0.4, -0.2, 0.6, -0.3]) + rng.uniform(-0.1, 0.1, 6)
+        qd = rng.uniform(-1.0, 1.0, 6)
+        worst = max(worst, abs(ek.lowest_sole(fast.ti, fast.tf, q) - dp.lowest_sole(q)))
+        assert ek.flat_foot_impact(fast.ti, fast.tf, q, qd, qo, qdo)
+        qn, qdn = flat_foot_impact(fm, q, qd, 0)
+        worst = max(worst, _rel(qo, qn), _rel(qdo, qdn))
+        gap = max(gap, _rel(qo, relabel(q)))
+    assert worst < 1e-10, worst
+    assert gap > 1e-3
+
+
+@pytest.fixture(scope="module")
+def delayed_run():
+    """A delay of 2 periods (touchdown delayed too) with the momentum observer and the predictor, on the Python
+    cores and the reference engine, one touchdown (predicted 2 periods before it is sensed) included."""
+    tr = closed_loop(T_RUN, PlantPerturbation(delay=2), python_sensing=True, engine="reference",
+                     momentum_observer=True, delay_compensation=2)
+    assert tr.fall is None and tr.records[-1].impacts >= 1
+    assert any(s.stance != o[3] for s, o in zip(tr.statuses, tr.obs))     # acted in a predicted stance
+    return tr
+
+
+def test_compiled_step_with_the_predictor_equals_the_reference(delayed_run):
+    """The compiled step with the compiled predictor against the Python pipeline and steps on the same
+    delayed observations: torques within 1e-6 N m (the stance acted in included: a wrong predicted touchdown
+    would relabel the torque); negative control: the compiled step predicting 1 period for the 2 differs."""
+    cfg = load_controller_config(mode="both", engine="fast", momentum_observer=True, delay_compensation=2)
+    ctrl = AdaptiveController(cfg, desc=DESC)
+    assert ctrl.compiled_period is not None and isinstance(ctrl._sensing, CompiledSensing)
+    dtq, dF, nst = _drive(delayed_run, ctrl)
+    assert dtq < 1e-6 and dF < 1e-6 and nst == 0, (dtq, dF, nst)
+    wrong = AdaptiveController(load_controller_config(mode="both", engine="fast", momentum_observer=True,
+                                                      delay_compensation=1), desc=DESC)
+    assert _drive(delayed_run, wrong)[0] > 1.0

@@ -330,9 +330,9 @@ def _mem_scalar(name: str, kind=float):
 class AdaptiveController:
     """Owns its FixedFootModel (own Pinocchio Data) and its PIQP solver object.
 
-    Real sensing (issue 22, ``ControllerConfig.real_sensing``): on the fast engine without a delay the
-    estimator and the momentum observer run as compiled kernels (``estimation_compiled.CompiledSensing``)
-    before the compiled period; with a delay (the Smith predictor), on the reference engine, or with
+    Real sensing (issue 22, ``ControllerConfig.real_sensing``): on the fast engine the estimator, the
+    momentum observer and the Smith predictor run as compiled kernels (``estimation_compiled.CompiledSensing``)
+    before the compiled period; on the reference engine, or with
     ``python_sensing`` True (the tests' oracle) the Python pipeline (``sensing.SensingPipeline``) and the
     Python steps.
 
@@ -376,7 +376,7 @@ class AdaptiveController:
         self._extra_margin = np.zeros(N_CONSTRAINTS)
         self._compiled_sensing = False
         if self.cfg.real_sensing:
-            if self._fast is not None and self.cfg.delay_compensation == 0 and not python_sensing:
+            if self._fast is not None and not python_sensing:
                 # issue 22: the estimator and the momentum observer as compiled kernels (estimation_kernels)
                 from biped_controller.core.estimation_compiled import CompiledSensing
                 m = self.model
@@ -389,7 +389,7 @@ class AdaptiveController:
                 self._sensing = SensingPipeline(self.cfg, self.desc)
         self.reset(None)
         if self._fast is not None and (self._sensing is None or self._compiled_sensing):
-            self._kernel = _FastPeriod(self)   # the compiled period (fast engine; the predictor stays in Python)
+            self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
 
     def _gains(self) -> np.ndarray:
         """The ``GAINS`` array (eqs. 16, 20, the p range, the observer, the adapted parameters)."""
@@ -419,6 +419,11 @@ class AdaptiveController:
     def wrench(self):
         """The momentum observer's last estimate (``momentum_observer.Wrench``; None: none)."""
         return self._sensing.wrench if self._sensing is not None else None
+
+    @wrench.setter
+    def wrench(self, value) -> None:
+        """Set the Python pipeline's estimate (tests of the QP rows; the compiled pipeline's is its state)."""
+        self._sensing.wrench = value
 
     @property
     def compiled_period(self) -> "_FastPeriod | None":
@@ -615,7 +620,9 @@ class AdaptiveController:
             out = self._kernel.compute(t, q, qd, stance)
             if out is not None:
                 if self._sensing is not None:
-                    self._sensing.record(t, out.torque, told)   # delay 0: the stance acted in is the told one
+                    if stance != told:      # a touchdown predicted before it is sensed: sent in the told order
+                        out = replace(out, torque=relabel(out.torque))
+                    self._sensing.record(t, out.torque, told)
                 return out
         res = self._begin(t, stance)
         ref = self._reference(q, qd, res)

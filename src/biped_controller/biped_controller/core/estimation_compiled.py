@@ -1,12 +1,16 @@
-"""The sensing pipeline on compiled kernels (issue 22): the estimator and the momentum observer of
-``sensing.SensingPipeline`` without a delay, for the controller's compiled period.
+"""The sensing pipeline on compiled kernels (issue 22): the estimator, the momentum observer and the Smith
+predictor of ``sensing.SensingPipeline``, for the controller's compiled period.
 
 Pure Python + NumPy around ``estimation_kernels`` (numba), no ROS. One :class:`CompiledSensing` per
 controller keeps its state in one array (``estimation_layout.SENS``) that the kernels update in place; the
 Python cores stay the oracle (tests: the same seeded noisy run period by period, to round-off). A sensed
 touchdown (once a step) takes the model's flat-foot impact map in Python (``predictor.flat_foot_impact``,
-the same function as the Python pipeline's); everything else is one compiled call a period. The Smith
-predictor (``delay_compensation`` > 0) is not compiled: the controller keeps the Python pipeline then.
+the same function as the Python pipeline's); everything else is one compiled call a period. With a known
+delay of d > 0 periods (``delay_compensation``) the bookkeeping of the delayed samples is the Python
+pipeline's (which period's sample, the interval since the previous one and the torque applied over it, from
+the log of the controller's decisions), the estimator and the observer run on the sample, and the predictor
+(``estimation_kernels.predict``: RK4 on the fixed-foot chain, the touchdown and its flat-foot impact map
+compiled) takes it to the present through the last d decisions.
 """
 from __future__ import annotations
 
@@ -18,7 +22,11 @@ from biped_sim.robot import numba_cache
 from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.floating import FloatingModel
 
-from biped_controller.core.estimation import RELABEL, EstimatorConfig
+from collections import deque
+
+from biped_sim.robot.fixed_foot import relabel
+
+from biped_controller.core.estimation import RELABEL, Estimate, EstimatorConfig
 from biped_controller.core.estimation_layout import SCONF, SENS, SC_, S_
 from biped_controller.core.momentum_observer import Wrench
 from biped_controller.core.predictor import flat_foot_impact
@@ -44,8 +52,7 @@ class CompiledSensing:
 
     def __init__(self, cfg, desc: RobotDescription, ti: np.ndarray, tf: np.ndarray, qp_rows: np.ndarray,
                  torque_min: np.ndarray, torque_max: np.ndarray):
-        if int(cfg.delay_compensation) != 0:
-            raise ValueError("delay_compensation: the compiled pipeline has no predictor (use SensingPipeline)")
+        self.d = int(cfg.delay_compensation)
         self.ek = load_estimation_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
@@ -72,21 +79,37 @@ class CompiledSensing:
         c[SCONF.slice("qp_rows")] = np.asarray(qp_rows, dtype=float).ravel()
         c[SCONF.slice("torque_min")] = torque_min
         c[SCONF.slice("torque_max")] = torque_max
+        c[SC_.period] = cfg.period
+        c[SC_.pred_substeps] = cfg.predictor_substeps
+        c[SC_.pred_td_height] = cfg.predictor_touchdown_height
+        c[SC_.pred_clearance] = cfg.predictor_clearance
+        c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
         self.conf = c
+        self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
         self.state = SENS.new()
         self.fm = FloatingModel(desc)
         self._q = np.empty(6)
         self._qd = np.empty(6)
+        self._qp = np.empty(6)
+        self._qdp = np.empty(6)
+        self._pout = np.empty(2)
+        self._hist = np.zeros((max(self.d, 1), 8))
         self.reset()
 
     def reset(self) -> None:
         s = self.state
         s[:] = 0.0
         s[SENS.slice("P")] = np.eye(12).ravel()   # as JointStateEstimator.__init__ (overwritten at the first sample)
+        s[S_.pred_sample_stance] = -1.0
+        self.k = 0                                # periods decided since the reset
+        self.log: deque = deque(maxlen=self.d + 2)   # (t, torque sent, told stance) of the last decisions
+        self._j = None                            # the period of the last sample used (delay > 0)
 
     def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
         """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object
         reuses: copy to keep)."""
+        if self.d > 0:
+            return self._sense_delayed(float(t), q, qd, int(stance), float(pitch))
         ek, s = self.ek, self.state
         code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), self._q, self._qd)
         if code == ek.NEEDS_IMPACT:
@@ -96,6 +119,47 @@ class CompiledSensing:
         if code != ek.DONE:
             raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
         return self._q, self._qd, int(stance)
+
+    def _decision(self, j: int):
+        return self.log[j - (self.k - len(self.log))]
+
+    def _sense_delayed(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float):
+        """Delay d > 0 (``SensingPipeline.process``): the sample is that of period j = max(k - d, 0), taken at
+        the instant of the controller's decision j; a new one goes through the estimator and the observer
+        (the interval since the previous sample and the torque applied over it from the log), then the
+        predictor takes the sample's state to t through the last d decisions."""
+        ek, s = self.ek, self.state
+        j = max(self.k - self.d, 0)
+        new = self._j is None or j > self._j
+        if new:
+            t_s = t
+            if self._j is not None:
+                t_prev, tau_prev, told_prev = self._decision(self._j)
+                t_s = t if j == self.k else self._decision(j)[0]
+                s[S_.t_prev] = t_prev
+                s[S_.torque_prev:S_.torque_prev + 6] = tau_prev
+                s[S_.told_prev] = told_prev
+                s[S_.decided] = 1.0
+            code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+            if code == ek.NEEDS_IMPACT:
+                self._impact()
+                code = ek.sense_finish(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+            if code != ek.DONE:
+                raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
+            self._j = j
+        elif self.estimator:
+            self._q[:], self._qd[:] = s[S_.x:S_.x + 6], s[S_.x + 6:S_.x + 12]
+        else:
+            self._q[:], self._qd[:] = q, qd
+        n = min(self.d, len(self.log))
+        for i in range(n):
+            tt, tau, told = self.log[len(self.log) - n + i]
+            self._hist[i, 0], self._hist[i, 1], self._hist[i, 2:] = tt, told, tau
+        code = ek.predict(self.ti, self.tf, self.conf, s, self._hist, n, t, self._q, self._qd, stance,
+                          self._qp, self._qdp, self._pout)
+        if code != ek.DONE:
+            raise SensingSingular("the compiled predictor met a singular model matrix")
+        return self._qp, self._qdp, int(self._pout[0])
 
     def _impact(self) -> None:
         """The sensed touchdown on the time-updated estimate (``estimation.JointStateEstimator.relabel_impact``
@@ -115,6 +179,10 @@ class CompiledSensing:
 
     def record(self, t: float, torque_sent: np.ndarray, told: int) -> None:
         """The decision of this period: the torque sent, in the paper order of the told stance."""
+        if self.d > 0:
+            self.log.append((float(t), np.array(torque_sent, dtype=float), int(told)))
+            self.k += 1
+            return
         s = self.state
         s[S_.t_prev] = t
         s[S_.torque_prev:S_.torque_prev + 6] = torque_sent

@@ -455,3 +455,183 @@ def into_res(s, conf, out):
     for r in range(5):
         out[3 + r] = s[S_.extra + r] if observer else 0.0
     return 0
+
+
+# ------------------------------------------------------------------------------------------ the predictor
+@numba.njit(cache=True)
+def _accel(ti, tf, q, qd, tau, a):
+    """a <- A(q)^-1 (tau - H(q, q')) on the locked-root chain (single support, stance foot fixed). False if
+    A is not positive definite."""
+    A = np.empty((N, N))
+    H = np.empty(N)
+    _terms(ti, tf, q, qd, A, H)
+    L = np.empty((N, N))
+    if not pk.cholesky(A, L):
+        return False
+    b = np.empty((1, N))
+    for i in range(N):
+        b[0, i] = tau[i] - H[i]
+    pk.chol_solve_rows(L, b)
+    for i in range(N):
+        a[i] = b[0, i]
+    return True
+
+
+@numba.njit(cache=True)
+def _rk4(ti, tf, q, qd, tau, h, q_out, qd_out):
+    """One classical RK4 step of length h [s] of A q'' + H = tau from (q, q') (``DelayPredictor._rk4``)."""
+    k1v = np.empty(N)
+    k2v = np.empty(N)
+    k3v = np.empty(N)
+    k4v = np.empty(N)
+    qs = np.empty(N)
+    vs = np.empty(N)
+    ok = _accel(ti, tf, q, qd, tau, k1v)
+    for i in range(N):
+        qs[i] = q[i] + 0.5 * h * qd[i]
+        vs[i] = qd[i] + 0.5 * h * k1v[i]
+    k2q = vs.copy()
+    ok = ok and _accel(ti, tf, qs, vs, tau, k2v)
+    for i in range(N):
+        qs[i] = q[i] + 0.5 * h * k2q[i]
+        vs[i] = qd[i] + 0.5 * h * k2v[i]
+    k3q = vs.copy()
+    ok = ok and _accel(ti, tf, qs, vs, tau, k3v)
+    for i in range(N):
+        qs[i] = q[i] + h * k3q[i]
+        vs[i] = qd[i] + h * k3v[i]
+    k4q = vs.copy()
+    ok = ok and _accel(ti, tf, qs, vs, tau, k4v)
+    for i in range(N):
+        q_out[i] = q[i] + (h / 6.0) * (qd[i] + 2 * k2q[i] + 2 * k3q[i] + k4q[i])
+        qd_out[i] = qd[i] + (h / 6.0) * (k1v[i] + 2 * k2v[i] + 2 * k3v[i] + k4v[i])
+    return ok
+
+
+@numba.njit(cache=True)
+def lowest_sole(ti, tf, q):
+    """Height [m] of the swing foot's lowest sole point (heel l_min or toe l_max along its frame) above the
+    stance sole line, stance foot flat (``DelayPredictor.lowest_sole``)."""
+    n = ti[0]
+    K = np.empty((10, n))
+    qf = np.zeros(n)
+    for i in range(N):
+        qf[3 + i] = q[i]
+    pk._kinematics(ti, tf, qf, qf, K)
+    fj = ti[4]
+    th = K[pk._TH, fj]
+    z = K[pk._PZ, fj]
+    return z + min(tf[1] * math.sin(th), tf[2] * math.sin(th))
+
+
+@numba.njit(cache=True)
+def flat_foot_impact(ti, tf, q, qd, q_out, qd_out):
+    """The flat-foot touchdown (``predictor.flat_foot_impact``) on the fixed-foot tree, whose root is a free
+    planar joint at the stance ankle: the landing foot laid flat by its ankle (q6 -= sum q), the inelastic
+    impact of the tree's foot 1 with the stance foot at rest (``planar_kernels.impact``: the same map as the
+    floating model's, another choice of root), then the legs relabelled: q -> -q[::-1]. False if singular."""
+    n = ti[0]
+    qf = np.zeros(n)
+    vf = np.zeros(n)
+    s = 0.0
+    for i in range(N):
+        s += q[i]
+    for i in range(N):
+        qf[3 + i] = q[i]
+        vf[3 + i] = qd[i]
+    qf[3 + N - 1] -= s
+    vp = np.empty(n)
+    out = np.empty(7)
+    if pk.impact(ti, tf, qf, vf, 1, vp, out) != pk.STATUS_OK:
+        return False
+    for i in range(N):
+        q_out[i] = -qf[3 + N - 1 - i]
+        qd_out[i] = -vp[3 + N - 1 - i]
+    return True
+
+
+@numba.njit(_I(_VI, _V, _V, _V, numba.types.Array(numba.types.float64, 2, "C"), _I, _F, _V, _V, _I, _V, _V, _V),
+            cache=True)
+def predict(ti, tf, conf, s, hist, n_hist, t_now, q, qd, stance, q_out, qd_out, out):
+    """The Smith predictor (``predictor.DelayPredictor.predict``, its module docstring): from the sample (q,
+    q', stance) taken at hist[0, 0] through the decisions hist[:n_hist] (rows [t [s], told stance, torque
+    sent (6) [N m]]) to t_now [s]: RK4 with SCONF.pred_substeps steps per period, the torque clipped and
+    relabelled when it was sent for the other stance than the predicted one, a touchdown (swing sole at
+    or below the ground once it cleared) through the flat-foot impact map. q_out, qd_out <- the predicted
+    present state; out <- [its stance, touchdowns predicted]. Returns 0, or SINGULAR."""
+    if stance != int(s[S_.pred_sample_stance]):
+        s[S_.pred_cleared] = 0.0
+        s[S_.pred_sample_stance] = stance
+    if lowest_sole(ti, tf, q) > conf[SC_.pred_clearance]:
+        s[S_.pred_cleared] = 1.0
+    cleared = s[S_.pred_cleared] != 0.0
+    clr, tdh, ttol = conf[SC_.pred_clearance], conf[SC_.pred_td_height], conf[SC_.pred_t_tol]
+    per, sub = conf[SC_.period], conf[SC_.pred_substeps]
+    qc = q.copy()
+    vc = qd.copy()
+    qn = np.empty(N)
+    vn = np.empty(N)
+    qe = np.empty(N)
+    ve = np.empty(N)
+    tau_told = np.empty(N)
+    tau = np.empty(N)
+    st = stance
+    n_td = 0
+    for i in range(n_hist):
+        t0 = hist[i, 0]
+        t1 = hist[i + 1, 0] if i + 1 < n_hist else t_now
+        dt = t1 - t0
+        if dt <= 0:
+            continue
+        n = max(1, int(math.ceil(sub * dt / per - 1e-9)))
+        h = dt / n
+        told = int(hist[i, 1])
+        for k in range(N):
+            tau_told[k] = min(max(hist[i, 2 + k], conf[SC_.torque_min + k]), conf[SC_.torque_max + k])
+        for j in range(n):
+            for k in range(N):
+                tau[k] = tau_told[k] if told == st else -tau_told[N - 1 - k]
+            if not _rk4(ti, tf, qc, vc, tau, h, qn, vn):
+                return SINGULAR
+            z = lowest_sole(ti, tf, qn)
+            if cleared and z < -tdh:
+                lo_ = 0.0
+                hi_ = h
+                while hi_ - lo_ > ttol:
+                    mid = 0.5 * (lo_ + hi_)
+                    _rk4(ti, tf, qc, vc, tau, mid, qe, ve)
+                    if lowest_sole(ti, tf, qe) > 0.0:
+                        lo_ = mid
+                    else:
+                        hi_ = mid
+                _rk4(ti, tf, qc, vc, tau, hi_, qe, ve)
+                if not flat_foot_impact(ti, tf, qe, ve, qc, vc):
+                    return SINGULAR
+                st = 1 - st
+                cleared = False
+                n_td += 1
+                rest = h - hi_
+                if rest > 0:
+                    for k in range(N):
+                        tau[k] = tau_told[k] if told == st else -tau_told[N - 1 - k]
+                    _rk4(ti, tf, qc, vc, tau, rest, qn, vn)
+                    qc[:] = qn
+                    vc[:] = vn
+                continue
+            qc[:] = qn
+            vc[:] = vn
+            if z > clr:
+                cleared = True
+            if cleared and j == n - 1 and z <= tdh:
+                if not flat_foot_impact(ti, tf, qc, vc, qe, ve):
+                    return SINGULAR
+                qc[:] = qe
+                vc[:] = ve
+                st = 1 - st
+                cleared = False
+                n_td += 1
+    q_out[:] = qc
+    qd_out[:] = vc
+    out[0] = st
+    out[1] = n_td
+    return DONE
