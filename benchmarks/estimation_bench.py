@@ -2,8 +2,8 @@
 a closed loop on the rigid plant, p50/p99, side by side in one run: the plain compiled step (estimation
 off), the compiled step with the compiled sensing pipeline (``controller.step_p50_us_estimation``: the
 real-sensor profile, estimator + momentum observer, under noise 5e-4 rad, 5e-2 rad/s and 14 bits; and the
-momentum observer alone on perfect sensors), and the Python pipeline with the Python steps (the oracle;
-the predictor, d = 2, is only there). Writes ``benchmarks/estimation_results.json``; targets are printed,
+momentum observer alone on perfect sensors; the observer and the predictor for a delay of 2 periods), and
+the Python pipeline with the Python steps (the oracle). Writes ``benchmarks/estimation_results.json``; targets are printed,
 never asserted.
 
     .venv/bin/python -m benchmarks.estimation_bench [--seconds 1.0] [--rounds 3]
@@ -38,6 +38,8 @@ CASES = {
     "controller.step_p50_us_compiled_no_estimation": (dict(), PlantPerturbation(), False),
     "controller.step_p50_us_estimation": (REAL, NOISY, False),
     "controller.step_p50_us_momentum_observer": (dict(momentum_observer=True), PlantPerturbation(), False),
+    "controller.step_p50_us_predictor_d2": (dict(momentum_observer=True, delay_compensation=2),
+                                            PlantPerturbation(delay=2), False),
     "controller.step_p50_us_momentum_observer_python": (dict(momentum_observer=True), PlantPerturbation(), True),
     "controller.step_p50_us_estimation_python": (REAL, NOISY, True),
     "controller.step_p50_us_predictor_d2_python": (dict(momentum_observer=True, delay_compensation=2),
