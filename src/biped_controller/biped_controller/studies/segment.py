@@ -57,8 +57,9 @@ class Segment:
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
         # mode wbc checks its rows every period in Python (wbc.py); hybrid only after a p/tau QP, which the
         # compiled loop hands to the objects anyway
+        # (real sensing, issue 22: the compiled loop has no sensing pipeline; the controller's compiled step has)
         return bool(sim.compiled and getattr(ctrl, "compiled_period", None) is not None and sim.sensor.identity
-                    and ctrl.cfg.mode != "wbc")
+                    and ctrl.cfg.mode != "wbc" and not ctrl.cfg.real_sensing)
 
     def run(self, t_stop: float, max_periods: int = 1 << 40) -> tuple[list[StepRecord], list[ControllerStatusData]]:
         """Periods until one needs Python, ``t_stop`` [s] is reached (the period reaching it included) or
