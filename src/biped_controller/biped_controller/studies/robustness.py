@@ -65,6 +65,9 @@ SEARCHES: dict[str, cmap.Search] = {
     # issue 26 (5 N table at the paper's cell, observer on): wbc 112.5 N, hybrid 771.9 N
     "wbc": cmap.Search(coarse=20.0, fmax=400.0, resolution=10.0),
     "hybrid": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
+    # issue 21 (the torso parameter; docs/torso_parameter.md has the 5 N table): searched like tau and hybrid
+    "lambda": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
+    "all": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
 }
 ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
 
