@@ -240,3 +240,41 @@ def test_node_message_carries_lambda():
     m = status_message(s, Time())
     assert (m.lam, m.lam_dot, m.lam_ddot, m.lam_ddot_star) == (s.lam, s.lam_dot, s.lam_ddot, s.lam_ddot_star)
     assert m.mode == "all"
+
+
+def test_runner_falls_back_to_the_objects_in_the_torso_modes():
+    """compiled_loop=True with mode all runs the objects (the compiled loop has no lambda): the same
+    records and statuses as compiled_loop=False, field for field."""
+    import dataclasses
+    a = run(1, "all", (Push(0.2315, 0.025, 300.0),), compiled_loop=True)
+    b = run(1, "all", (Push(0.2315, 0.025, 300.0),), compiled_loop=False)
+    assert len(a.records) == len(b.records) > 0
+
+    def same(x, y):
+        for f in dataclasses.fields(x):
+            u, v = getattr(x, f.name), getattr(y, f.name)
+            if isinstance(u, np.ndarray):
+                assert np.array_equal(u, v, equal_nan=True), f.name
+            elif isinstance(u, float) and np.isnan(u):
+                assert np.isnan(v), f.name
+            else:
+                assert u == v, f.name
+    for x, y in zip(a.records, b.records):
+        same(x, y)
+    for x, y in zip(a.statuses, b.statuses):
+        same(x, y)
+    assert max(abs(s.lam) for s in a.statuses) > 0
+
+
+def test_studies_accept_the_torso_modes():
+    from biped_controller.studies.capmap.spec import MapError, MapSpec
+    from biped_controller.studies.robustness import SEARCHES
+    from biped_controller.studies.experiment import _modes_arg
+    import argparse
+    assert MapSpec(modes=("lambda", "all", "both")).modes == ("lambda", "all", "both")
+    with pytest.raises(MapError, match="torso"):
+        MapSpec(modes=("torso",))
+    assert set(TORSO_MODES) <= set(SEARCHES)
+    assert _modes_arg("none,tau,p,both,lambda,all")[-2:] == ("lambda", "all")
+    with pytest.raises(argparse.ArgumentTypeError):
+        _modes_arg("both,lamda")

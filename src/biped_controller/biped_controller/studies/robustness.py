@@ -355,7 +355,7 @@ def figure(levels, modes, observers, pushes: dict, out: Path) -> Path:
 
     series = [(m, obs) for m, obs in combos(modes, observers) if any((lv.name, m, obs) in pushes for lv in levels)]
     colors = {"none": "0.45", "tau": "tab:blue", "p": "tab:orange", "both": "tab:green", "wbc": "tab:purple",
-              "hybrid": "tab:red"}
+              "hybrid": "tab:red", "lambda": "tab:brown", "all": "tab:cyan"}
     fig, ax = plt.subplots(figsize=(8.5, 0.42 * len(levels) + 1.6))
     y = np.arange(len(levels))
     hgt = 0.8 / max(len(series), 1)
