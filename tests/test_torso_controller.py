@@ -278,3 +278,27 @@ def test_studies_accept_the_torso_modes():
     assert _modes_arg("none,tau,p,both,lambda,all")[-2:] == ("lambda", "all")
     with pytest.raises(argparse.ArgumentTypeError):
         _modes_arg("both,lamda")
+
+
+def test_torso_cost_sums_over_the_common_horizon():
+    """studies/torso.costs: every mode's sums stop at the shortest run's end; recomputed here from the
+    records period by period (work = sum |Gamma_i q'_i| dt, torque^2 = sum |Gamma|^2 dt), and a run
+    compared with itself gives equal numbers (negative control: the longer run's full sum differs)."""
+    from biped_controller.studies.torso import costs
+    long = run(2, "both", ())
+    short = run(1, "both", ())
+    out = costs({"both": long, "all": short}, push_end=0.0)
+    hz = short.records[-1].t_end
+    assert out["horizon_s"] == hz
+    work = sq = 0.0
+    for r in long.records:
+        if r.t >= hz:
+            break
+        dt = min(r.t_end, hz) - r.t
+        work += float(np.sum(np.abs(np.asarray(r.torque) * np.asarray(r.qd)))) * dt
+        sq += float(np.sum(np.asarray(r.torque) ** 2)) * dt
+    assert out["modes"]["both"]["abs_work_J"] == pytest.approx(work, rel=1e-12)
+    assert out["modes"]["both"]["torque_sq_integral"] == pytest.approx(sq, rel=1e-12)
+    assert out["modes"]["all"]["abs_work_J"] == pytest.approx(out["modes"]["both"]["abs_work_J"], rel=1e-12)
+    full = sum(float(np.sum(np.abs(np.asarray(r.torque) * np.asarray(r.qd)))) * (r.t_end - r.t) for r in long.records)
+    assert full > 1.2 * work
