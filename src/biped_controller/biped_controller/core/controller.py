@@ -35,6 +35,13 @@ whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = 
 adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
 Whenever w holds every row the whole-body stage changes nothing (bit for bit). The stage runs in Python
 after the compiled period (or the Python steps) and overwrites the period's w in ``memory``.
+
+Modes ``lambda`` and ``all`` (issue 21; docs/torso_parameter.md) add a third parameter, the torso offset
+lambda [rad] of ``gait_family.with_torso``: q_d(p, tau, lambda) = q_d(p, tau) + lambda phi(tau/T) e. Then
+D = [dq/dp, dq/dtau, dq/dlambda], x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
+lambda, four more rows (lambda and lambda' after one period within +-lambda_max, +-lambda_dot_max), held
+hard on a least-violation answer; lambda, lambda' advance exactly like p, p' and carry over an impact.
+``lambda`` adapts lambda alone (p'', tau'' = x*), ``all`` the three. Python steps only (no compiled period).
 """
 from __future__ import annotations
 
