@@ -302,3 +302,27 @@ def test_torso_cost_sums_over_the_common_horizon():
     assert out["modes"]["all"]["abs_work_J"] == pytest.approx(out["modes"]["both"]["abs_work_J"], rel=1e-12)
     full = sum(float(np.sum(np.abs(np.asarray(r.torque) * np.asarray(r.qd)))) * (r.t_end - r.t) for r in long.records)
     assert full > 1.2 * work
+
+
+def test_torque_within_period_starts_at_the_period_torque_with_lambda():
+    """The integration-rate law (torque_within_period) at s = 0 is the period's own torque: the same
+    reference (with lambda, lambda', lambda'') and the same decision, once lambda != 0. Negative control:
+    with the torso terms dropped (lambda'' = 0 in the memory) the torque differs."""
+    from biped_sim.robot.description import LEFT
+    rec = run(2, "both", (Push(0.2315, 0.025, 500.0),))
+    ctrl = AdaptiveController(load_controller_config(mode="all"))
+    ctrl.reset(LEFT)
+    checked = 0
+    for r in rec.records:
+        out = ctrl.compute(r.t, r.q, r.qd, r.stance)
+        if abs(out.status.lam) > 1e-4 and abs(out.status.lam_ddot) > 1e-2:
+            tw = ctrl.torque_within_period(0.0, r.q, r.qd, r.stance)
+            np.testing.assert_allclose(tw, out.torque, rtol=1e-9, atol=1e-9)
+            saved = ctrl.memory[M_.lam_ddot]
+            ctrl.memory[M_.lam_ddot] = 0.0
+            assert not np.allclose(ctrl.torque_within_period(0.0, r.q, r.qd, r.stance), out.torque, rtol=1e-6, atol=1e-6)
+            ctrl.memory[M_.lam_ddot] = saved
+            checked += 1
+            if checked >= 5:
+                break
+    assert checked >= 1
