@@ -169,8 +169,8 @@ def test_all_uses_lambda_under_a_push_and_returns_it(pushed_all):
 
 
 def test_mode_lambda_walks_without_a_push_with_lambda_zero():
-    """Nothing at stake: lambda''* = 0 at lambda = lambda' = 0, x* feasible, lambda stays 0 and the walk
-    is mode tau's with tau' = 1 kept... i.e. the controller's reference is the preferred gait."""
+    """Nothing at stake: lambda''* = 0 at lambda = lambda' = 0, so without a push lambda stays (near) 0 and
+    the reference is the preferred gait's."""
     res = run(2, "lambda", ())
     assert not res.fallen and res.steps_walked == 2
     assert np.max(np.abs(res.series("lam"))) < 1e-6
