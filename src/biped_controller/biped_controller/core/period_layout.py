@@ -17,7 +17,9 @@ read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time con
   tau' [-]) at the last decision (the start of the period being applied), the decision (p'' [m/s^2],
   tau'' [1/s]) held over it, whether a decision was taken since the reset, its time t_last [s], the
   stance of the last decision (or of the reset; -1 none), the force estimate F [N], the period index,
-  and the observer's memory of the last period: q'_prev [rad/s], w_prev [rad/s^2], A_prev (6 x 6).
+  and the observer's memory of the last period: q'_prev [rad/s], w_prev [rad/s^2], A_prev (6 x 6); then
+  (issue 21, modes lambda and all, Python steps only; 0 otherwise) the torso offset lambda [rad], lambda'
+  [rad/s] at the last decision and its decision lambda'' [rad/s^2].
 * ``RES`` (one period's answer; also the status row of the compiled loop): the period's parameters,
   x = (p'', tau''), x*, F, max |q_d - q|, the ZMP l [m], the tightest row, R = (R_x, R_y) [N], h_b and
   h_b,c, the 17 margins (positive = satisfied), and the observer mode and elapsed time of the period;
@@ -50,7 +52,8 @@ CONS = Layout("cons", [
 MEMORY = Layout("memory", [
     ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("p_ddot", 1), ("tau_ddot", 1),
     ("decided", 1), ("t_last", 1), ("stance", 1), ("force", 1), ("step", 1),
-    ("prev_qd", N_JOINTS), ("prev_w", N_JOINTS), ("prev_A", N_JOINTS * N_JOINTS)])
+    ("prev_qd", N_JOINTS), ("prev_w", N_JOINTS), ("prev_A", N_JOINTS * N_JOINTS),
+    ("lam", 1), ("lam_dot", 1), ("lam_ddot", 1)])
 
 RES = Layout("res", [
     ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("x", 2), ("x_star", 2), ("force", 1), ("max_error", 1),
