@@ -404,7 +404,7 @@ class AdaptiveController:
         self._extra_margin = np.zeros(N_CONSTRAINTS)
         self._compiled_sensing = False
         if self.cfg.real_sensing:
-            if self._fast is not None and not python_sensing:
+            if self._fast is not None and not python_sensing and not self.torso:
                 # issue 22: the estimator and the momentum observer as compiled kernels (estimation_kernels)
                 from biped_controller.core.estimation_compiled import CompiledSensing
                 m = self.model
