@@ -66,6 +66,7 @@ def main(argv=None) -> int:
            "rows": {}}
     times = {name: [] for name, _, _ in rows}
     solved = {name: [0, 0] for name, _, _ in rows}       # whole-body QP changed w: [compiled/PIQP any, total]
+    counts = {name: {} for name, _, _ in rows}          # compiled stage: solved by the active set / by PIQP
     cfgs = {mode: load_controller_config(mode=mode) for _, mode, _ in rows}
     for _ in range(a.replays):                            # interleaved: every row sees the same machine load
         for name, mode, src in rows:
@@ -80,15 +81,19 @@ def main(argv=None) -> int:
                 tl.append(perf_counter_ns() - t0)
                 solved[name][0] += o.status.wbc_status in (ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR)
                 solved[name][1] += 1
+            if ctrl.compiled_period is not None and ctrl.compiled_period.wk is not None:
+                for k, v in ctrl.compiled_period.stage_counts.items():
+                    counts[name][k] = counts[name].get(k, 0) + v
     out["meta"]["load_avg_1min_end"] = os.getloadavg()[0]
     for name, mode, src in rows:
         us = np.asarray(times[name], float) / 1e3
         out["rows"][name] = {"mode": mode, "states_of": f"{runs[src]['mode']} at {runs[src]['force']} N",
                              "p50_us": float(np.percentile(us, 50)), "p99_us": float(np.percentile(us, 99)),
-                             "steps": int(us.size), "whole_body_changed_w": int(solved[name][0])}
+                             "steps": int(us.size), "whole_body_changed_w": int(solved[name][0]),
+                             "compiled_stage": counts[name]}
         r = out["rows"][name]
         print(f"{name:<20} p50 {r['p50_us']:7.1f} us  p99 {r['p99_us']:8.1f} us  steps {us.size}  "
-              f"whole-body stage changed w in {r['whole_body_changed_w']}  ({r['states_of']})")
+              f"whole-body stage changed w in {r['whole_body_changed_w']} {counts[name]}  ({r['states_of']})")
     R_ = out["rows"]
     out["keys"] = {"controller.step_p50_us_wbc": R_["wbc"]["p50_us"],
                    "controller.step_p50_us_hybrid": R_["hybrid"]["p50_us"],

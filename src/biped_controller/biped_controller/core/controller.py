@@ -33,8 +33,11 @@ Modes ``wbc`` and ``hybrid`` (issue 26; :mod:`wbc`) add a whole-body stage after
 whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = the tracking law's w;
 ``hybrid`` decides (p'', tau'') exactly as mode ``both`` and runs the same whole-body QP around the
 adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
-Whenever w holds every row the whole-body stage changes nothing (bit for bit). The stage runs in Python
-after the compiled period (or the Python steps) and overwrites the period's w in ``memory``.
+Whenever w holds every row the whole-body stage changes nothing (bit for bit). With the compiled period
+the stage is compiled too (``wbc_kernels``, PIQP when its active set does not settle; the compiled loop
+runs it as well); the Python steps (and ``_FastPeriod.python_stage``, the tests' oracle) run
+``wbc.WholeBodyStage``. Either overwrites the period's w (in ``memory``, the observer's next residual),
+torque and reported outputs when it changes w.
 """
 from __future__ import annotations
 
@@ -679,6 +682,7 @@ class _FastPeriod:
         # ``python_stage`` True runs the Python stage (wbc.WholeBodyStage, the tests' oracle) instead
         self.wk = load_wbc_kernels() if ctrl.whole_body is not None else None
         self.python_stage = False
+        self.stage_counts = {"solved": 0, "piqp": 0}   # periods the compiled stage changed w / handed to PIQP
         self.Gw = np.zeros((2 * N_CONSTRAINTS, 6))
         self.hw = np.zeros(2 * N_CONSTRAINTS)
 
@@ -733,7 +737,10 @@ class _FastPeriod:
         ctrl, wk = self.ctrl, self.wk
         run = ctrl.whole_body.mode == "wbc" or status in (INFEASIBLE_FALLBACK, SOLVER_ERROR)
         code = wk.stage(ctrl.wbc, ctrl.cons, ctrl.memory, work, res, self.Gw, self.hw, bool(run))
-        if code == wk.NEEDS_PIQP:
+        if code == wk.SOLVED:
+            self.stage_counts["solved"] += 1
+        elif code == wk.NEEDS_PIQP:
+            self.stage_counts["piqp"] += 1
             w_star = work[W_.w].copy()
             wb = ctrl.whole_body.qp.solve(self.Gw, self.hw, w_star)
             wk.apply(ctrl.cons, ctrl.memory, work, res, self.Gw, self.hw, w_star,

@@ -29,6 +29,11 @@ UNCONSTRAINED (G w* <= h with zero tolerance, evaluated on w itself; w = w* bit 
 ACTIVE, INFEASIBLE_FALLBACK (no w holds every row: the least-violation answer
 ``argmin sum_i max(G w - h, 0)_i^2 + eps (w - w*)^T M (w - w*)``, the p/tau QP's own definition, which
 is invariant under the change of variable), SOLVER_ERROR (non-finite data; w = w*).
+
+This module is the Python stage and the oracle; :mod:`wbc_kernels` is its compiled twin (the controller's
+compiled period and the compiled loop run it; the rows there are these rows to the bit, the early-out the
+same expression, and its active-set answer this QP's optimum to round-off; this held PIQP answers when
+the compiled iteration does not settle).
 """
 from __future__ import annotations
 
