@@ -37,7 +37,7 @@ MODES = ("none", "both", "wbc", "hybrid")
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--force", type=float, default=553.125)
-    ap.add_argument("--wbc-force", type=float, default=240.0)
+    ap.add_argument("--wbc-force", type=float, default=230.0)
     ap.add_argument("--steps", type=int, default=4)
     ap.add_argument("--replays", type=int, default=3)
     ap.add_argument("--json", type=Path, default=Path(__file__).with_name("wbc_step_results.json"))
