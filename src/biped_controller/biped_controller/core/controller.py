@@ -589,7 +589,7 @@ class AdaptiveController:
                 G, h, xs, wb=None) -> ControlOutput:
         """The period's ``ControlOutput`` from its ``RES`` row (the one status builder); the period index
         is the memory's, already advanced by the commit."""
-        if wb is not False:      # the Python stage's answer (False: the compiled stage wrote res itself)
+        if wb is not False and self.whole_body is not None:   # the Python stage's (False: the compiled one wrote res)
             for k, v in WholeBodyStage.status_fields(wb).items():
                 res[getattr(R_, k)] = v
         rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
