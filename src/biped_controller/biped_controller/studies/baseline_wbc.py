@@ -198,6 +198,39 @@ def slice_report(cells: dict, title: str) -> tuple[list[str], dict]:
                "cells": {f"{k[0]}/{k[1]}/{k[2]:g}": v for k, v in sorted(cells.items())}}
 
 
+def refine(records: list[dict], coarse: float, step: float, out: Path, overrides: list[str]) -> list[dict]:
+    """Bisect the no-fall edge of ``hybrid`` (and of ``both`` when its edge is on the coarse grid) in the cells
+    the goal check left unresolved, between the edge and the first fall, down to ``step`` [N]: survival
+    trials (``experiment.survives``, the map's trial, ``--set`` settings) appended to ``out`` (JSON Lines, the
+    store's fields). Returns the new records."""
+    from biped_controller.studies.experiment import survives
+    settings = parse_overrides(overrides, None)
+    cells = no_fall_slice(records, coarse)
+    _, rep_ = slice_report(cells, "")
+    new = []
+    for d, p, _v in rep_["goal"]["resolution"]:
+        for mode in ("hybrid", "both"):
+            c = cells[(mode, d, p)]
+            lo, hi = c["force"], c["first_fall"]
+            src = next(r for r in records if (r["mode"], r["direction"], float(r["phase"])) == (mode, d, p))
+            while hi is not None and hi - lo > step:
+                f = 0.5 * (lo + hi)
+                t = survives(f if d == "forward" else -f, mode, src["duration"], src["start"], None, settings)
+                r = {"mode": mode, "direction": d, "phase": p, "duration": src["duration"], "start": src["start"],
+                     "force": f, "fall_time": t["fall_time"], "cause": t["fall_cause"], "survived": t["survived"],
+                     "reason": t["reason"], "refined": True}
+                new.append(r)
+                with out.open("a", encoding="utf-8") as fh:
+                    fh.write(json.dumps(r) + "\n")
+                print(f"refine {mode} {d} {p:g}: {f:g} N {'fell ' + t['fall_cause'] if t['fall_time'] is not None else 'no fall'}",
+                      flush=True)
+                if t["fall_time"] is None:
+                    lo = f
+                else:
+                    hi = f
+    return new
+
+
 def slice_main(args) -> int:
     out, lines = {}, []
     if args.slice_rigid is not None:
@@ -205,9 +238,11 @@ def slice_main(args) -> int:
                                        f"rigid plant: boundary [N] ({args.slice_rigid})")
         lines += L + [""]
     if args.slice_mujoco is not None:
-        recs = [json.loads(x) for x in args.slice_mujoco.read_text().splitlines() if x.strip()]
+        recs = [json.loads(x) for f in args.slice_mujoco for x in f.read_text().splitlines() if x.strip()]
+        if args.refine is not None:
+            recs += refine(recs, args.coarse, args.refine_step, args.refine, args.overrides)
         L, out["mujoco"] = slice_report(no_fall_slice(recs, args.coarse),
-                                        f"MuJoCo: no-fall edge [N] ({args.slice_mujoco}; coarse step {args.coarse:g} N)")
+                                        f"MuJoCo: no-fall edge [N] ({', '.join(map(str, args.slice_mujoco))}; coarse step {args.coarse:g} N)")
         lines += L
     print("\n".join(lines))
     if args.json is not None:
@@ -225,7 +260,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-figure", action="store_true")
     ap.add_argument("--slice-rigid", type=Path, default=None, help="capability-map summary JSON (rigid plant)")
-    ap.add_argument("--slice-mujoco", type=Path, default=None, help="capability-map store (JSON Lines, MuJoCo)")
+    ap.add_argument("--slice-mujoco", type=Path, nargs="+", default=None,
+                    help="capability-map store(s) (JSON Lines, MuJoCo; refinements from --refine included)")
+    ap.add_argument("--refine", type=Path, default=None,
+                    help="with --slice-mujoco: bisect hybrid's/both's no-fall edge in unresolved cells, append to this file")
+    ap.add_argument("--refine-step", type=float, default=12.5, help="[N] bisection step of --refine")
     ap.add_argument("--coarse", type=float, default=100.0, help="[N] the MuJoCo map's coarse step")
     ap.add_argument("--json", type=Path, default=None, help="with --slice-*: the slice as JSON")
     args = ap.parse_args(argv)
