@@ -201,3 +201,31 @@ def test_stage_does_not_run_in_hybrid_while_the_adaptation_holds(wk):
         assert np.array_equal(ctrl.memory[MEMORY.slice("prev_w")], work[W_.w])
     else:
         assert np.array_equal(ctrl.memory, mem0) and np.array_equal(work, work0)
+
+
+def test_piqp_answers_when_no_w_holds_every_row():
+    """Torque limits shrunk to +-5 N m (gravity alone needs more): no w holds every row, the compiled active
+    set does not settle, the held PIQP gives the least-violation answer (INFEASIBLE_FALLBACK) and
+    wbc_kernels.apply takes it: the same status, active rows and torque (to round-off) as the Python stage
+    on the same period, and the counter says PIQP answered. Negative control: with the real limits the same
+    period is answered by the compiled stage without PIQP."""
+    def shrunk(python_stage):
+        ctrl = AdaptiveController(load_controller_config(mode="wbc"))
+        ctrl.compiled_period.python_stage = python_stage
+        from biped_controller.core.period_layout import CONS
+        ctrl.cons[CONS.slice("torque_min")] = -5.0
+        ctrl.cons[CONS.slice("torque_max")] = 5.0
+        ctrl.whole_body.torque_min = np.full(6, -5.0)
+        ctrl.whole_body.torque_max = np.full(6, 5.0)
+        return ctrl
+    fam = AdaptiveController(load_controller_config(mode="wbc")).family
+    q, qd = fam.initial_state()
+    a, b = shrunk(False), shrunk(True)
+    oa, ob = a.compute(0.0, q, qd, 0), b.compute(0.0, q, qd, 0)
+    assert oa.status.wbc_status == ob.status.wbc_status == INFEASIBLE_FALLBACK
+    assert oa.status.wbc_active == ob.status.wbc_active
+    assert_close(oa.torque, ob.torque, 1e-9, "torque", rel=True)
+    assert a.compiled_period.stage_counts["piqp"] == 1 and a.compiled_period.stage_counts["solved"] == 0
+    c = AdaptiveController(load_controller_config(mode="wbc"))
+    c.compute(0.0, q, qd, 0)
+    assert c.compiled_period.stage_counts["piqp"] == 0
