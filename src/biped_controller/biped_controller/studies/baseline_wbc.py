@@ -231,17 +231,46 @@ def refine(records: list[dict], coarse: float, step: float, out: Path, overrides
     return new
 
 
+def slice_figure(cells: dict, title: str, path: Path) -> None:
+    """Edge [N] against onset phase, one line per mode, forward and backward side by side (a missing cell
+    is a gap in its line)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    phases = sorted({k[2] for k in cells})
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for a, d in zip(ax, ("forward", "backward")):
+        for m in SLICE_MODES:
+            v = [cells.get((m, d, p), {}).get("force") for p in phases]
+            if any(x is not None for x in v):
+                a.plot(phases, [np.nan if x is None else x for x in v], "o-", ms=3, label=m)
+        a.set_title(f"{d}, 25 ms")
+        a.set_xlabel("onset phase of the first step")
+        a.grid(alpha=0.3)
+    ax[0].set_ylabel("edge [N]")
+    ax[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def slice_main(args) -> int:
     out, lines = {}, []
     if args.slice_rigid is not None:
-        L, out["rigid"] = slice_report(rigid_slice(json.loads(args.slice_rigid.read_text())),
-                                       f"rigid plant: boundary [N] ({args.slice_rigid})")
+        cells = rigid_slice(json.loads(args.slice_rigid.read_text()))
+        L, out["rigid"] = slice_report(cells, f"rigid plant: boundary [N] ({args.slice_rigid})")
         lines += L + [""]
+        if args.figure is not None:
+            slice_figure(cells, f"rigid plant: boundary ({args.slice_rigid})", args.figure)
     if args.slice_mujoco is not None:
         recs = [json.loads(x) for f in args.slice_mujoco for x in f.read_text().splitlines() if x.strip()]
         if args.refine is not None:
             recs += refine(recs, args.coarse, args.refine_step, args.refine, args.overrides)
-        L, out["mujoco"] = slice_report(no_fall_slice(recs, args.coarse),
+        cells = no_fall_slice(recs, args.coarse)
+        if args.figure is not None:
+            slice_figure(cells, "MuJoCo: no-fall edge", args.figure)
+        L, out["mujoco"] = slice_report(cells,
                                         f"MuJoCo: no-fall edge [N] ({', '.join(map(str, args.slice_mujoco))}; coarse step {args.coarse:g} N)")
         lines += L
     print("\n".join(lines))
@@ -267,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--refine-step", type=float, default=12.5, help="[N] bisection step of --refine")
     ap.add_argument("--coarse", type=float, default=100.0, help="[N] the MuJoCo map's coarse step")
     ap.add_argument("--json", type=Path, default=None, help="with --slice-*: the slice as JSON")
+    ap.add_argument("--figure", type=Path, default=None, help="with --slice-*: PNG of the edges by phase")
     args = ap.parse_args(argv)
     if args.slice_rigid is not None or args.slice_mujoco is not None:
         return slice_main(args)
