@@ -272,6 +272,7 @@ class ControllerStatusData:
 
 
 _NEW = object.__new__
+_SENS_RES = slice(RES.at.sens_dR, RES.at.sens_margin + RES.sizes["sens_margin"])
 _MG = RES.slice("margins")
 _RR = RES.slice("reaction")
 
@@ -347,6 +348,12 @@ def _mem_scalar(name: str, kind=float):
 class AdaptiveController:
     """Owns its FixedFootModel (own Pinocchio Data) and its PIQP solver object.
 
+    Real sensing (issue 22, ``ControllerConfig.real_sensing``): on the fast engine the estimator, the
+    momentum observer and the Smith predictor run as compiled kernels (``estimation_compiled.CompiledSensing``)
+    before the compiled period; on the reference engine, or with
+    ``python_sensing`` True (the tests' oracle) the Python pipeline (``sensing.SensingPipeline``) and the
+    Python steps.
+
     Its state between periods is the array ``memory`` (``period_layout.MEMORY``: parameters, the held
     decision, the last decision's time and stance, F, the observer's memory); ``state``, ``stance``,
     ``step_index`` and ``force_estimate`` are views of it. The compiled period (``control_kernels``) and the
@@ -356,7 +363,7 @@ class AdaptiveController:
     force_estimate = _mem_scalar("force")      # estimated horizontal force on the torso [N]
 
     def __init__(self, config: ControllerConfig | None = None, family: GaitFamily | None = None,
-                 desc: RobotDescription | None = None, keep_qp: bool = False):
+                 desc: RobotDescription | None = None, keep_qp: bool = False, python_sensing: bool = False):
         self.cfg = (config if config is not None else load_controller_config()).validate()
         self.desc = desc if desc is not None else load_description()
         self.family = family if family is not None else GaitFamily.load()
@@ -390,13 +397,22 @@ class AdaptiveController:
         self.memory = MEMORY.new()
         self._sensing = None
         self._extra_margin = np.zeros(N_CONSTRAINTS)
-        self.wrench = None             # the momentum observer's last estimate (momentum_observer.Wrench)
+        self._compiled_sensing = False
         if self.cfg.real_sensing:
-            from biped_controller.core.sensing import SensingPipeline
-            self._sensing = SensingPipeline(self.cfg, self.desc)
+            if self._fast is not None and not python_sensing:
+                # issue 22: the estimator and the momentum observer as compiled kernels (estimation_kernels)
+                from biped_controller.core.estimation_compiled import CompiledSensing
+                m = self.model
+                qp_C, _ = contact_rows(c.margin_friction * m.mu, m.l_min + c.margin_zmp, m.l_max - c.margin_zmp)
+                self._sensing = CompiledSensing(self.cfg, self.desc, self._fast.ti, self._fast.tf, qp_C,
+                                                m.torque_min, m.torque_max)
+                self._compiled_sensing = True
+            else:
+                from biped_controller.core.sensing import SensingPipeline
+                self._sensing = SensingPipeline(self.cfg, self.desc)
         self.reset(None)
-        if self._fast is not None and self._sensing is None:
-            self._kernel = _FastPeriod(self)   # the compiled period (fast engine; not with real sensing yet)
+        if self._fast is not None and (self._sensing is None or self._compiled_sensing):
+            self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
 
     def _gains(self) -> np.ndarray:
         """The ``GAINS`` array (eqs. 16, 20, the p range, the observer, the adapted parameters)."""
@@ -404,7 +420,8 @@ class AdaptiveController:
         for name, value in (("Kp", c.Kp), ("Kv", c.Kv), ("kp", c.kp), ("kv", c.kv), ("p_d", fam.p_d), ("dt", c.period),
                             ("p_min", fam.p_min), ("p_max", fam.p_max), ("tau_dot_min", c.tau_dot_min),
                             ("observer", float(c.disturbance_observer)), ("observer_height", c.observer_height),
-                            ("adapt_p", float(0 in self.adapted)), ("adapt_tau", float(1 in self.adapted))):
+                            ("adapt_p", float(0 in self.adapted)), ("adapt_tau", float(1 in self.adapted)),
+                            ("momentum", float(c.disturbance_observer and c.momentum_observer))):
             g[getattr(GAINS.at, name)] = value
         return g
 
@@ -420,6 +437,16 @@ class AdaptiveController:
                             ("true_rows", np.column_stack([true_C, true_e]).ravel())):
             cons[CONS.slice(name)] = value
         return cons
+
+    @property
+    def wrench(self):
+        """The momentum observer's last estimate (``momentum_observer.Wrench``; None: none)."""
+        return self._sensing.wrench if self._sensing is not None else None
+
+    @wrench.setter
+    def wrench(self, value) -> None:
+        """Set the Python pipeline's estimate (tests of the QP rows; the compiled pipeline's is its state)."""
+        self._sensing.wrench = value
 
     @property
     def compiled_period(self) -> "_FastPeriod | None":
@@ -444,7 +471,6 @@ class AdaptiveController:
         mem[:] = 0.0
         mem[M_.p], mem[M_.tau_dot] = self.family.p_d, 1.0
         mem[M_.stance] = -1.0 if stance is None else stance
-        self.wrench = None
         if self._sensing is not None:
             self._sensing.reset()
 
@@ -613,12 +639,14 @@ class AdaptiveController:
         qd = np.asarray(qd, dtype=float)
         told = stance
         if self._sensing is not None:
-            view = self._sensing.process(t, q, qd, stance, pitch)
-            q, qd, stance = view.q, view.qd, view.stance
-            self.wrench = view.wrench
+            q, qd, stance = self._sensing.sense(t, q, qd, stance, pitch)
         if self._kernel is not None:
             out = self._kernel.compute(t, q, qd, stance)
             if out is not None:
+                if self._sensing is not None:
+                    if stance != told:      # a touchdown predicted before it is sensed: sent in the told order
+                        out = replace(out, torque=relabel(out.torque))
+                    self._sensing.record(t, out.torque, told)
                 return out
         res = self._begin(t, stance)
         ref = self._reference(q, qd, res)
@@ -694,6 +722,8 @@ class _FastPeriod:
             qd = np.ascontiguousarray(qd, dtype=float)
         work = np.empty((WORK.size, 6))
         res = np.empty(RES.size)
+        if ctrl._compiled_sensing:              # issue 22: the momentum observer's inputs to the period
+            ctrl._sensing.into_res(res[_SENS_RES])
         G, h = self.G, self.h
         t, stance = float(t), int(stance)
         code = ck.step(self.coef, self.inner, self.centers, self.ti, self.tf, q, qd, t, stance, ctrl.gains,

@@ -312,6 +312,10 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
         "max_p_excursion": float(np.max(np.abs(p - fam.p_d))),
         "tau_max": float(tau.max()),
         "tau_dot_min": float(taud.min()), "tau_dot_max": float(taud.max()),
+        # the observer's |force estimate| over the run [N] (issue 22: without a push it is noise and model error)
+        "force_estimate_abs_p50": float(np.percentile(np.abs([s.force_estimate for s in st]), 50)) if st else 0.0,
+        "force_estimate_abs_p95": float(np.percentile(np.abs([s.force_estimate for s in st]), 95)) if st else 0.0,
+        "force_estimate_abs_max": float(np.max(np.abs([s.force_estimate for s in st]))) if st else 0.0,
         "max_tau_dot_excursion": float(np.max(np.abs(taud - 1.0))),
         "max_abs_l": float(np.max(np.abs(cop[ok]))) if np.any(ok) else math.nan,
         "l_at_fall": float(rec[-1].cop) if result.fallen else None,
@@ -360,6 +364,9 @@ def print_walk(r: dict) -> None:
         if r[key] is None:
             continue
         print(f"impact times ({label}): " + ", ".join(f"{x:.6f}" for x in r[key]["impact_times"]))
+        s = r[key]
+        print(f"force estimate |F| ({label}): p50 {s['force_estimate_abs_p50']:.1f} N, p95 "
+              f"{s['force_estimate_abs_p95']:.1f} N, max {s['force_estimate_abs_max']:.1f} N")
     print(r["explanation"])
 
 

@@ -59,8 +59,10 @@ class Segment:
         # modes wbc, hybrid: the compiled whole-body stage runs in the loop (wbc_kernels); a period where it
         # needs PIQP, or where hybrid's p/tau QP runs, goes to the objects; the Python stage (the tests'
         # oracle, ``python_stage``) never runs in the loop
+        # (real sensing, issue 22: the compiled loop has no sensing pipeline; the controller's compiled step has)
         fp = getattr(ctrl, "compiled_period", None)
-        return bool(sim.compiled and fp is not None and sim.sensor.identity and not fp.python_stage)
+        return bool(sim.compiled and fp is not None and sim.sensor.identity and not fp.python_stage
+                    and not ctrl.cfg.real_sensing)
 
     def run(self, t_stop: float, max_periods: int = 1 << 40) -> tuple[list[StepRecord], list[ControllerStatusData]]:
         """Periods until one needs Python, ``t_stop`` [s] is reached (the period reaching it included) or
