@@ -264,7 +264,9 @@ def slice_main(args) -> int:
         if args.figure is not None:
             slice_figure(cells, f"rigid plant: boundary ({args.slice_rigid})", args.figure)
     if args.slice_mujoco is not None:
-        recs = [json.loads(x) for f in args.slice_mujoco for x in f.read_text().splitlines() if x.strip()]
+        import gzip
+        text = lambda f: gzip.open(f, "rt").read() if f.suffix == ".gz" else f.read_text()   # noqa: E731
+        recs = [json.loads(x) for f in args.slice_mujoco for x in text(f).splitlines() if x.strip()]
         if args.refine is not None:
             recs += refine(recs, args.coarse, args.refine_step, args.refine, args.overrides)
         cells = no_fall_slice(recs, args.coarse)
