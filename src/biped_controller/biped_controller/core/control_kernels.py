@@ -193,6 +193,13 @@ def _finish(cons, work, res):
     x1 = res[R_.x + 1]
     for i in range(6):
         work[W_.w, i] = work[W_.dq_dp, i] * x0 + work[W_.dq_dtau, i] * x1 + work[W_.v, i]
+    _outputs(cons, work, res)
+
+
+@numba.njit(cache=True)
+def _outputs(cons, work, res):
+    """From w = work[w]: Gamma = A w + H (eq. 15), the 17 margins, R, l, the tightest row (of :func:`_finish`;
+    also the whole-body stage's, ``wbc_kernels``)."""
     for i in range(6):
         s = work[W_.H, i]
         for k in range(6):

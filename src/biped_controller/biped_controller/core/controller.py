@@ -33,8 +33,11 @@ Modes ``wbc`` and ``hybrid`` (issue 26; :mod:`wbc`) add a whole-body stage after
 whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = the tracking law's w;
 ``hybrid`` decides (p'', tau'') exactly as mode ``both`` and runs the same whole-body QP around the
 adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
-Whenever w holds every row the whole-body stage changes nothing (bit for bit). The stage runs in Python
-after the compiled period (or the Python steps) and overwrites the period's w in ``memory``.
+Whenever w holds every row the whole-body stage changes nothing (bit for bit). With the compiled period
+the stage is compiled too (``wbc_kernels``, PIQP when its active set does not settle; the compiled loop
+runs it as well); the Python steps (and ``_FastPeriod.python_stage``, the tests' oracle) run
+``wbc.WholeBodyStage``. Either overwrites the period's w (in ``memory``, the observer's next residual),
+torque and reported outputs when it changes w.
 
 Modes ``lambda`` and ``all`` (issue 21; docs/torso_parameter.md) add a third parameter, the torso offset
 lambda [rad] of ``gait_family.with_torso``: q_d(p, tau, lambda) = q_d(p, tau) + lambda phi(tau/T) e. Then
@@ -60,10 +63,10 @@ from biped_sim.robot.gait_family import GaitFamily, eq11, eq11_torso
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
 from biped_sim.robot import numba_cache
 from biped_controller.core.period_layout import (
-    CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WORK, M_, R_, W_)
+    CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WBC, WORK, M_, R_, W_, WB_)
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
-from biped_controller.core.qp_types import ACTIVE, UNCONSTRAINED
-from biped_controller.core.wbc import WholeBodyStage, weight_matrix
+from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
+from biped_controller.core.wbc import NOT_RUN, WBC_MODES, WholeBodyStage, weight_matrix
 
 MODES = ("none", "tau", "p", "both", "wbc", "hybrid", "lambda", "all")
 #: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
@@ -88,6 +91,16 @@ CONTROL_KERNELS = "biped_controller.core.control_kernels"
 CONTROL_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
                            "biped_controller.core.period_layout", "biped_controller.core.qp_types",
                            "biped_controller.core.qp_fast")
+
+
+WBC_KERNELS = "biped_controller.core.wbc_kernels"
+WBC_KERNELS_SOURCES = CONTROL_KERNELS_SOURCES + (CONTROL_KERNELS,)
+
+
+def load_wbc_kernels():
+    """The compiled whole-body stage (``wbc_kernels``, modes wbc and hybrid) through ``numba_cache.load``."""
+    load_control_kernels()
+    return numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
 
 
 def load_control_kernels():
@@ -302,6 +315,9 @@ def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float
                                         c[R_.x_star], c[R_.x_star + 1])
     TIGHT, ZMP, ERR, F = [int(v) for v in c[R_.tightest]], c[R_.zmp], c[R_.max_error], c[R_.force]
     MG, RR = rows[:, _MG], rows[:, _RR]
+    wbc = mode in WBC_MODES       # the whole-body stage's fields (RES wbc_*); the class defaults otherwise
+    if wbc:
+        WS, WA, WD = ([int(v) for v in c[R_.wbc_status]], [int(v) for v in c[R_.wbc_active]], c[R_.wbc_deviation])
     out = []
     for j in range(len(P)):
         s = _NEW(ControllerStatusData)
@@ -310,6 +326,8 @@ def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float
             tau_ddot=X1[j], p_ddot_star=XS0[j], tau_ddot_star=XS1[j], qp_status=qp_status, qp_message=qp_message,
             margins=MG[j], tightest=TIGHT[j], zmp=ZMP[j], stance=stance, max_tracking_error=ERR[j],
             predicted_reaction=RR[j], force_estimate=F[j])
+        if wbc:
+            s.__dict__.update(wbc_status=WS[j], wbc_active=WA[j], wbc_deviation=WD[j])
         out.append(s)
     return out
 
@@ -388,7 +406,12 @@ class AdaptiveController:
             [c.margin_normal_force, 0.0, 0.0, 0.0, 0.0], np.full(12, c.margin_torque)])
         self._mu_ratio = c.margin_friction
         self.adapted = ADAPTED[c.mode]
-        self.whole_body = WholeBodyStage.for_controller(c, self.model) if c.mode in ("wbc", "hybrid") else None
+        self.whole_body = WholeBodyStage.for_controller(c, self.model) if c.mode in WBC_MODES else None
+        self.wbc = WBC.new()           # the compiled stage's constants (period_layout.WBC; mode 0: off)
+        if self.whole_body is not None:
+            self.wbc[WB_.mode] = WBC_MODES[c.mode]
+            self.wbc[WBC.slice("M")] = self.whole_body.qp.M.ravel()
+            self.wbc[WBC.slice("Minv")] = np.linalg.inv(self.whole_body.qp.M).ravel()
         self.torso = c.mode in TORSO_MODES     # the reference has the torso parameter lambda (issue 21)
         nx = 3 if self.torso else 2
         self._adapted_idx = list(self.adapted)
@@ -675,10 +698,11 @@ class AdaptiveController:
                 G, h, xs, wb=None, torso: tuple[float, float, float, float] | None = None) -> ControlOutput:
         """The period's ``ControlOutput`` from its ``RES`` row (the one status builder); the period index
         is the memory's, already advanced by the commit."""
+        if wb is not False and self.whole_body is not None:   # the Python stage's (False: the compiled one wrote res)
+            for k, v in WholeBodyStage.status_fields(wb).items():
+                res[getattr(R_, k)] = v
         rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
                              self.cfg.mode, int(stance), int(status), msg)[0]
-        if self.whole_body is not None:
-            rec.__dict__.update(WholeBodyStage.status_fields(wb))
         if torso is not None:
             rec.__dict__.update(lam=torso[0], lam_dot=torso[1], lam_ddot=torso[2], lam_ddot_star=torso[3])
         keep = self.keep_qp
@@ -778,6 +802,13 @@ class _FastPeriod:
         self.ti, self.tf = ctrl._fast.ti, ctrl._fast.tf
         self.G = np.zeros((QP_ROWS, 2))
         self.h = np.zeros(QP_ROWS)
+        # modes wbc, hybrid: the compiled whole-body stage (wbc_kernels) with PIQP when it does not settle;
+        # ``python_stage`` True runs the Python stage (wbc.WholeBodyStage, the tests' oracle) instead
+        self.wk = load_wbc_kernels() if ctrl.whole_body is not None else None
+        self.python_stage = False
+        self.stage_counts = {"solved": 0, "piqp": 0}   # periods the compiled stage changed w / handed to PIQP
+        self.Gw = np.zeros((2 * N_CONSTRAINTS, 6))
+        self.hw = np.zeros(2 * N_CONSTRAINTS)
 
     def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput | None:
         ck, ctrl = self.ck, self.ctrl
@@ -815,10 +846,34 @@ class _FastPeriod:
                 res[R_.x:R_.x + 2] = x
                 ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
         torque, wb = work[W_.torque].copy(), None
-        if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage (wbc.py), in Python
-            torque, wb = self._whole_body(work, res, torque, status)
+        if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage
+            if self.python_stage:
+                torque, wb = self._whole_body(work, res, torque, status)
+            else:
+                torque, wb = self._whole_body_compiled(work, res, status, t)
         return ctrl._output(res, torque, t, stance, status, msg,
                             Gr.copy() if Gr is not None else None, hr, xs.copy() if xs is not None else None, wb)
+
+    def _whole_body_compiled(self, work: np.ndarray, res: np.ndarray, status: int, t: float):
+        """The compiled whole-body stage (``wbc_kernels.stage``) after the compiled period (which has
+        committed its w to ``memory``): it writes the stage's status fields into ``res`` and, when it changes
+        w, the torque, outputs and the memory's w; when its active-set iteration does not settle, the held
+        PIQP of the Python stage answers (least violation when no w holds every row) and ``wbc_kernels.apply``
+        takes that w. Returns (torque, False: the status fields are in ``res``)."""
+        ctrl, wk = self.ctrl, self.wk
+        run = ctrl.whole_body.mode == "wbc" or status in (INFEASIBLE_FALLBACK, SOLVER_ERROR)
+        code = wk.stage(ctrl.wbc, ctrl.cons, ctrl.memory, work, res, self.Gw, self.hw, bool(run))
+        if code == wk.SOLVED:
+            self.stage_counts["solved"] += 1
+        elif code == wk.NEEDS_PIQP:
+            self.stage_counts["piqp"] += 1
+            w_star = work[W_.w].copy()
+            wb = ctrl.whole_body.qp.solve(self.Gw, self.hw, w_star)
+            wk.apply(ctrl.cons, ctrl.memory, work, res, self.Gw, self.hw, w_star,
+                     np.ascontiguousarray(wb.w, dtype=float), int(wb.status))
+        elif code == wk.NONFINITE:      # non-finite rows: w* is kept (the Python stage's SOLVER_ERROR)
+            res[R_.wbc_status] = SOLVER_ERROR
+        return work[W_.torque].copy(), False
 
     def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):
         """The whole-body stage after the compiled period (which has committed its w to ``memory``): when it

@@ -59,7 +59,10 @@ RES = Layout("res", [
     ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("x", 2), ("x_star", 2), ("force", 1), ("max_error", 1),
     ("zmp", 1), ("tightest", 1), ("reaction", 2), ("h_b", 3), ("h_b_c", 3), ("margins", N_CONSTRAINTS),
     ("obs_mode", 1), ("obs_dt", 1),
-    ("sens_dR", 2), ("sens_force", 1), ("sens_margin", 5)])
+    ("sens_dR", 2), ("sens_force", 1), ("sens_margin", 5),
+    # issue 26, the whole-body stage (core/wbc_kernels.py): its qp_types status (4: not run), the active rows
+    # as a bit mask over the 17 (folded over both blocks), |w - w*| [rad/s^2]
+    ("wbc_status", 1), ("wbc_active", 1), ("wbc_deviation", 1)])
 
 WORK = Layout("work", [
     ("torque", 1), ("w", 1), ("v", 1), ("e", 1), ("dq_dp", 1), ("dq_dtau", 1), ("A", N_JOINTS), ("H", 1), ("B", 3)])
@@ -73,3 +76,9 @@ W_ = WORK.at
 
 # RES.obs_mode: the observer's input this period
 OBS_NONE, OBS_RESIDUAL, OBS_KEEP = 0, 1, 2      # no memory | residual of the last period | keep F (impact)
+
+# issue 26: the whole-body stage's constants (core/wbc_kernels.py): its mode (WBC_MODE_*), its weight M and
+# M^-1 (6 x 6, row-major; M = wbc_weight_joint I + wbc_weight_torso s s^T, core/wbc.py)
+WBC = Layout("wbc", [("mode", 1), ("M", N_JOINTS * N_JOINTS), ("Minv", N_JOINTS * N_JOINTS)])
+WB_ = WBC.at
+WBC_MODE_OFF, WBC_MODE_WBC, WBC_MODE_HYBRID = 0, 1, 2
