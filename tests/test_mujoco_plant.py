@@ -284,8 +284,9 @@ def test_fall_checks_each_fire(monkeypatch):
 
 # ------------------------------------------------------------------------------------------ rigid unchanged
 # status fields added after these digests were taken (issue 26: the whole-body stage's status, constant
-# outside modes wbc / hybrid); every other field of every record is hashed
-_NEWER_FIELDS = ("wbc_status", "wbc_active", "wbc_deviation")
+# outside modes wbc / hybrid; issue 21: the torso parameter's, 0 outside modes lambda / all); every other field of
+# every record is hashed
+_NEWER_FIELDS = ("wbc_status", "wbc_active", "wbc_deviation", "lam", "lam_dot", "lam_ddot", "lam_ddot_star")
 
 
 def _h(h, o):
@@ -340,12 +341,13 @@ def test_robustness_set_reaches_every_run(monkeypatch, capsys):
     assert "only config/simulator.yaml keys" in capsys.readouterr().err
 
 
-# the digests of plant_compare.FINGERPRINT_RUNS before the MuJoCo step's bookkeeping was compiled (the plant's
-# pure-Python step of commit 9b97d77; the total `plant_compare fingerprint` eabdf4b7... is the same before and
-# after); machine-specific, as the rigid plant's above
+# the digests of plant_compare.FINGERPRINT_RUNS with the plant's pure-Python step (main 1752382's
+# plant/mujoco.py put in place of the compiled one, the rest of the code this branch merged with main; the
+# total `plant_compare fingerprint` d134575e... is the same with either; on 9b97d77 both gave eabdf4b7...);
+# machine-specific, as the rigid plant's above
 MUJOCO_DIGESTS = {
-    "walk-both": "f50a671800a97c3793be234a747b854a176acd08ced2d188250be05f2bc3fb25",
-    "delay-both": "d3a0e0e878ed290c7f0fc54e2e7e0b681ffc81d6ab95fdb3fdcedd814fb6d22f",
+    "walk-both": "52f5edce62f7b572218df441e6b862f91746ec3a09b2892c2f17bf1dfb45c3dd",
+    "delay-both": "eb79b4e57d856a9a5de579de75ee98a93307b624148ea720eb4140a25621765f",
 }
 
 

@@ -253,7 +253,8 @@ def test_kernel_modules_import_without_side_effects(tmp_path):
             "import biped_sim.robot.fast_engine, biped_sim.plant.rigid, biped_controller.core.controller\n"
             "import biped_controller.core.qp, biped_controller.studies.segment, biped_controller.studies.runner\n"
             "kern = [m for m in ('biped_sim.robot.planar_kernels', 'biped_controller.core.qp_fast',\n"
-            "        'biped_controller.core.control_kernels', 'biped_controller.studies.loop_kernels') if m in sys.modules]\n"
+            "        'biped_controller.core.control_kernels', 'biped_controller.core.wbc_kernels',\n"
+            "        'biped_controller.studies.loop_kernels') if m in sys.modules]\n"
             "print(kern, 'NUMBA_CACHE_DIR' in os.environ, repr(numba.config.CACHE_DIR))\n")
     out = _python(code, env)
     assert out.returncode == 0, out.stderr

@@ -29,6 +29,11 @@ UNCONSTRAINED (G w* <= h with zero tolerance, evaluated on w itself; w = w* bit 
 ACTIVE, INFEASIBLE_FALLBACK (no w holds every row: the least-violation answer
 ``argmin sum_i max(G w - h, 0)_i^2 + eps (w - w*)^T M (w - w*)``, the p/tau QP's own definition, which
 is invariant under the change of variable), SOLVER_ERROR (non-finite data; w = w*).
+
+This module is the Python stage and the oracle; :mod:`wbc_kernels` is its compiled twin (the controller's
+compiled period and the compiled loop run it; the rows there are these rows to the bit, the early-out the
+same expression, and its active-set answer this QP's optimum to round-off; this held PIQP answers when
+the compiled iteration does not settle).
 """
 from __future__ import annotations
 
@@ -38,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS
+from biped_controller.core.period_layout import WBC_MODE_HYBRID, WBC_MODE_WBC
 from biped_controller.core.qp import AdaptationQP
 from biped_controller.core.qp_types import (
     DEFAULT_ACTIVE_TOL,
@@ -79,16 +85,17 @@ def rows_on_w(A: np.ndarray, H: np.ndarray, B: np.ndarray, h_b: np.ndarray, h_b_
     (R = B[:2] w + h_b[:2], [N]); h_b_c (3,) the same drift with the observer's estimated force (h_b when
     off); C (5, 2), e (5,) the controller's contact rows (``contact_rows`` with its tighter mu and foot
     range); margin (17,) subtracted from the right-hand side; torque limits (6,) [N m]."""
+    # element by element, (C_r0 x_0 + C_r1 x_1) + e_r y: no BLAS, the same bits as wbc_kernels.rows
     A_q = np.empty((N_CONSTRAINTS, N_JOINTS))
-    A_q[:5] = C @ B[:2] + np.outer(e, A[0])
+    A_q[:5] = (C[:, :1] * B[0] + C[:, 1:2] * B[1]) + e[:, None] * A[0]
     A_q[5:11] = A
     A_q[11:17] = -A
     b_c = np.empty(N_CONSTRAINTS)
-    b_c[:5] = C @ h_b_c[:2] + e * H[0]
+    b_c[:5] = (C[:, 0] * h_b_c[0] + C[:, 1] * h_b_c[1]) + e * H[0]
     b_c[5:11] = H - torque_max
     b_c[11:17] = torque_min - H
     b_0 = b_c.copy()
-    b_0[:5] = C @ h_b[:2] + e * H[0]
+    b_0[:5] = (C[:, 0] * h_b[0] + C[:, 1] * h_b[1]) + e * H[0]
     G = np.vstack([A_q, A_q])
     h = np.concatenate([-(b_c + margin), -(b_0 + margin)])
     return G, h
@@ -187,6 +194,8 @@ class WholeBodyQP:
 
 #: status of a whole-body stage that did not run (the ControllerStatus constant NO_ADAPTATION)
 NOT_RUN = 4
+#: the modes with a whole-body stage, and their code in the compiled stage's constants (period_layout.WBC)
+WBC_MODES = {"wbc": WBC_MODE_WBC, "hybrid": WBC_MODE_HYBRID}
 
 
 class WholeBodyStage:

@@ -6,7 +6,18 @@ hybrid on the rigid plant, writes ``findings.json`` (per mode: outcome, fall ins
 instants, periods where the whole-body QP was active and its rows, the state at the fall) and the
 figure ``push_<F>N.png``: p, tau', the whole-body QP's active rows, |w - w*| and the impact instants
 over time. ``--set`` takes the keys of ``scripts/experiment`` (e.g. the plant rule
-``liftoff_penetration``).
+``liftoff_penetration``, or ``plant=mujoco``).
+
+``python -m biped_controller.studies.baseline_wbc --slice-rigid SUMMARY [--slice-mujoco STORE --coarse 100]
+[--json F]`` prints the capability-map slice of issue 26 per (mode, direction, onset phase) and checks the
+goal hybrid >= max(both, wbc) cell by cell: on the rigid plant the map's boundary (``scripts/capability_map
+--json`` summary: the largest survived force below the lowest failing one, bisected); on MuJoCo, whose strict
+survival test collapses for the adaptive modes (tau' stays 0.997-0.999 in the contact chatter,
+``docs/mujoco_plant.md``), the *no-fall edge* from the map's store: the largest simulated force that did not
+fall below the lowest one that fell, counted when every coarse force (``--coarse``) below that one was
+simulated (``--search full``) or the two are within half a coarse step (bisected: mode wbc, whose strict test
+is the no-fall test since p and tau' stay fixed). A cell where hybrid's edge is below the others' but its
+first fall above them is reported as not resolved at the scan's step.
 """
 from __future__ import annotations
 
@@ -65,7 +76,7 @@ def summarise(mode: str, res) -> dict:
     return out
 
 
-def figure(runs: dict, force: float, path: Path) -> None:
+def figure(runs: dict, force: float, path: Path, plant: str = "rigid", start: float = DEFAULT_START) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -98,12 +109,176 @@ def figure(runs: dict, force: float, path: Path) -> None:
     ax[4].set_xlabel("t [s] (dotted: impacts; x: fall)")
     ax[0].legend(fontsize=8)
     ax[4].set_xlim(0.0, min(1.5, max(float(r.statuses[-1].t) for r in runs.values()) + 0.05))
-    ax[0].set_title(f"{force:g} N forward for {DEFAULT_DURATION * 1e3:g} ms at t = {DEFAULT_START} s (rigid plant)")
+    ax[0].set_title(f"{force:g} N forward for {DEFAULT_DURATION * 1e3:g} ms at t = {start:g} s ({plant} plant)")
     for a in ax:
-        a.axvspan(DEFAULT_START, DEFAULT_START + DEFAULT_DURATION, color="0.9")
+        a.axvspan(start, start + DEFAULT_DURATION, color="0.9")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+SLICE_MODES = ("none", "wbc", "both", "hybrid")
+
+
+def rigid_slice(summary: dict) -> dict:
+    """{(mode, direction, phase): {force, cause, fall_time, islands}} from a capability-map summary (0.025 s)."""
+    return {(b["mode"], b["direction"], float(b["phase"])): {
+        "force": float(b["force"]), "cause": b["cause"], "fall_time": b["fall_time"], "islands": b["island_ranges"]}
+        for b in summary["boundaries"]}
+
+
+def no_fall_slice(records: list[dict], coarse: float) -> dict:
+    """{(mode, direction, phase): {force: the no-fall edge (the largest simulated force that did not fall
+    below the lowest one that fell), first_fall, cause, fall_time, complete}} from a map's store (module
+    docstring). ``complete``: a fall was found and either every coarse force below it was simulated
+    (``--search full``) or the edge was bisected to within half a coarse step of it; else ``force`` is None."""
+    cells: dict = {}
+    for r in records:
+        cells.setdefault((r["mode"], r["direction"], float(r["phase"])), {})[r["force"]] = r
+    out = {}
+    for key, by_force in cells.items():
+        falls = sorted(f for f, r in by_force.items() if r["fall_time"] is not None)
+        if not falls:
+            out[key] = {"force": None, "first_fall": None, "cause": "", "fall_time": None, "complete": False,
+                        "largest_simulated": max(by_force)}
+            continue
+        ff = falls[0]
+        edge = max((f for f in by_force if f < ff), default=0.0)
+        grid = all(any(abs(f - coarse * k) < 1e-9 for f in by_force) for k in range(1, int(round(ff / coarse))))
+        complete = grid or ff - edge <= 0.5 * coarse
+        out[key] = {"force": edge if complete else None, "first_fall": ff, "cause": by_force[ff]["cause"],
+                    "fall_time": by_force[ff]["fall_time"], "complete": complete}
+    return out
+
+
+def slice_report(cells: dict, title: str) -> tuple[list[str], dict]:
+    """Markdown rows (mode x direction over the onset phases, means) and the goal check per cell:
+    hybrid >= max(both, wbc) where the three are known."""
+    phases = sorted({k[2] for k in cells})
+    L = [f"### {title}", "", "| mode | dir | " + " | ".join(f"{p:g}" for p in phases) + " | mean |",
+         "| --- | --- | " + " | ".join("---:" for _ in phases) + " | ---: |"]
+    for d in ("forward", "backward"):
+        for m in SLICE_MODES:
+            vals = [cells.get((m, d, p), {}).get("force") for p in phases]
+            if all(v is None for v in vals):
+                continue
+            known = [v for v in vals if v is not None]
+            L.append(f"| {m} | {d[:4]} | " + " | ".join("-" if v is None else f"{v:g}" for v in vals)
+                     + f" | {np.mean(known):.1f} ({len(known)}) |")
+    goal = {"met": [], "missed": [], "resolution": [], "unknown": []}
+    for d in ("forward", "backward"):
+        for p in phases:
+            v = {m: cells.get((m, d, p), {}).get("force") for m in ("wbc", "both", "hybrid")}
+            if any(x is None for x in v.values()):
+                goal["unknown"].append([d, p])
+                continue
+            best = max(v["both"], v["wbc"])
+            up = cells[("hybrid", d, p)].get("first_fall")
+            if v["hybrid"] >= best:
+                goal["met"].append([d, p])
+            elif up is not None and up > best:     # hybrid's edge lies in [force, first_fall): not resolved
+                goal["resolution"].append([d, p, v])
+            else:
+                goal["missed"].append([d, p, v])
+    L += ["", f"goal hybrid >= max(both, wbc): met in {len(goal['met'])} cells, missed in {len(goal['missed'])}"
+          + "".join(f"; missed {g[0]} {g[1]:g}: " + ", ".join(f"{k} {x:g}" for k, x in g[2].items())
+                    for g in goal["missed"])
+          + f"; not resolved at the scan's step in {len(goal['resolution'])}"
+          + "".join(f" ({g[0]} {g[1]:g}: " + ", ".join(f"{k} {x:g}" for k, x in g[2].items()) + ")"
+                    for g in goal["resolution"])
+          + f"; not measured for all three: {len(goal['unknown'])}"]
+    causes: dict = {}
+    for (m, d, p), c in cells.items():
+        if c.get("cause"):
+            causes.setdefault(m, {}).setdefault(c["cause"], 0)
+            causes[m][c["cause"]] += 1
+    L.append("first failure causes: " + "; ".join(f"{m} " + ", ".join(f"{k} {n}" for k, n in sorted(cs.items()))
+                                                  for m, cs in sorted(causes.items())))
+    return L, {"goal": goal, "causes": causes,
+               "cells": {f"{k[0]}/{k[1]}/{k[2]:g}": v for k, v in sorted(cells.items())}}
+
+
+def refine(records: list[dict], coarse: float, step: float, out: Path, overrides: list[str]) -> list[dict]:
+    """Bisect the no-fall edge of ``hybrid`` (and of ``both`` when its edge is on the coarse grid) in the cells
+    the goal check left unresolved, between the edge and the first fall, down to ``step`` [N]: survival
+    trials (``experiment.survives``, the map's trial, ``--set`` settings) appended to ``out`` (JSON Lines, the
+    store's fields). Returns the new records."""
+    from biped_controller.studies.experiment import survives
+    settings = parse_overrides(overrides, None)
+    cells = no_fall_slice(records, coarse)
+    _, rep_ = slice_report(cells, "")
+    new = []
+    for d, p, _v in rep_["goal"]["resolution"]:
+        for mode in ("hybrid", "both"):
+            c = cells[(mode, d, p)]
+            lo, hi = c["force"], c["first_fall"]
+            src = next(r for r in records if (r["mode"], r["direction"], float(r["phase"])) == (mode, d, p))
+            while hi is not None and hi - lo > step:
+                f = 0.5 * (lo + hi)
+                t = survives(f if d == "forward" else -f, mode, src["duration"], src["start"], None, settings)
+                r = {"mode": mode, "direction": d, "phase": p, "duration": src["duration"], "start": src["start"],
+                     "force": f, "fall_time": t["fall_time"], "cause": t["fall_cause"], "survived": t["survived"],
+                     "reason": t["reason"], "refined": True}
+                new.append(r)
+                with out.open("a", encoding="utf-8") as fh:
+                    fh.write(json.dumps(r) + "\n")
+                print(f"refine {mode} {d} {p:g}: {f:g} N {'fell ' + t['fall_cause'] if t['fall_time'] is not None else 'no fall'}",
+                      flush=True)
+                if t["fall_time"] is None:
+                    lo = f
+                else:
+                    hi = f
+    return new
+
+
+def slice_figure(cells: dict, title: str, path: Path) -> None:
+    """Edge [N] against onset phase, one line per mode, forward and backward side by side (a missing cell
+    is a gap in its line)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    phases = sorted({k[2] for k in cells})
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for a, d in zip(ax, ("forward", "backward")):
+        for m in SLICE_MODES:
+            v = [cells.get((m, d, p), {}).get("force") for p in phases]
+            if any(x is not None for x in v):
+                a.plot(phases, [np.nan if x is None else x for x in v], "o-", ms=3, label=m)
+        a.set_title(f"{d}, 25 ms")
+        a.set_xlabel("onset phase of the first step")
+        a.grid(alpha=0.3)
+    ax[0].set_ylabel("edge [N]")
+    ax[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def slice_main(args) -> int:
+    out, lines = {}, []
+    if args.slice_rigid is not None:
+        cells = rigid_slice(json.loads(args.slice_rigid.read_text()))
+        L, out["rigid"] = slice_report(cells, f"rigid plant: boundary [N] ({args.slice_rigid})")
+        lines += L + [""]
+        if args.figure is not None:
+            slice_figure(cells, f"rigid plant: boundary ({args.slice_rigid})", args.figure)
+    if args.slice_mujoco is not None:
+        import gzip
+        text = lambda f: gzip.open(f, "rt").read() if f.suffix == ".gz" else f.read_text()   # noqa: E731
+        recs = [json.loads(x) for f in args.slice_mujoco for x in text(f).splitlines() if x.strip()]
+        if args.refine is not None:
+            recs += refine(recs, args.coarse, args.refine_step, args.refine, args.overrides)
+        cells = no_fall_slice(recs, args.coarse)
+        if args.figure is not None:
+            slice_figure(cells, "MuJoCo: no-fall edge", args.figure)
+        L, out["mujoco"] = slice_report(cells,
+                                        f"MuJoCo: no-fall edge [N] ({', '.join(map(str, args.slice_mujoco))}; coarse step {args.coarse:g} N)")
+        lines += L
+    print("\n".join(lines))
+    if args.json is not None:
+        args.json.write_text(json.dumps(out, indent=1))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -111,27 +286,39 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--force", type=float, default=300.0, help="[N], + forward (on the back)")
     ap.add_argument("--out", type=Path, default=Path("docs/baseline_wbc"))
+    ap.add_argument("--start", type=float, default=DEFAULT_START, help="[s] onset of the push (default mid first step)")
     ap.add_argument("--observer", choices=("on", "off"), default=None)
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-figure", action="store_true")
+    ap.add_argument("--slice-rigid", type=Path, default=None, help="capability-map summary JSON (rigid plant)")
+    ap.add_argument("--slice-mujoco", type=Path, nargs="+", default=None,
+                    help="capability-map store(s) (JSON Lines, MuJoCo; refinements from --refine included)")
+    ap.add_argument("--refine", type=Path, default=None,
+                    help="with --slice-mujoco: bisect hybrid's/both's no-fall edge in unresolved cells, append to this file")
+    ap.add_argument("--refine-step", type=float, default=12.5, help="[N] bisection step of --refine")
+    ap.add_argument("--coarse", type=float, default=100.0, help="[N] the MuJoCo map's coarse step")
+    ap.add_argument("--json", type=Path, default=None, help="with --slice-*: the slice as JSON")
+    ap.add_argument("--figure", type=Path, default=None, help="with --slice-*: PNG of the edges by phase")
     args = ap.parse_args(argv)
+    if args.slice_rigid is not None or args.slice_mujoco is not None:
+        return slice_main(args)
     try:
         settings: RunSettings = parse_overrides(args.overrides, args.observer)
     except OverrideError as exc:
         ap.error(str(exc))
     args.out.mkdir(parents=True, exist_ok=True)
-    runs = {m: push_run(args.force, DEFAULT_DURATION, DEFAULT_START, m, None, settings=settings) for m in MODES}
-    out = {"force": args.force, "duration": DEFAULT_DURATION, "start": DEFAULT_START,
+    runs = {m: push_run(args.force, DEFAULT_DURATION, args.start, m, None, settings=settings) for m in MODES}
+    out = {"force": args.force, "duration": DEFAULT_DURATION, "start": args.start,
            "overrides": args.overrides, "observer": args.observer,
            "argv": list(sys.argv[1:] if argv is None else argv),
            "modes": {m: summarise(m, r) for m, r in runs.items()}}
-    tag = f"push_{args.force:g}N" + "".join("_" + o.replace("=", "_") for o in args.overrides)
+    tag = f"push_{args.force:g}N" + (f"_at_{args.start:g}s" if args.start != DEFAULT_START else "") + "".join("_" + o.replace("=", "_") for o in args.overrides)
     (args.out / f"{tag}.json").write_text(json.dumps(out, indent=1))
     for m, s in out["modes"].items():
         print(f"{m:<7} fallen={s['fallen']} {s['fall_cause'] or '-'} t={s['fall_time']} impacts={s['impacts']} "
               f"wbc active={s['wbc_periods_active']} infeasible={s['wbc_periods_infeasible']} rows={s['wbc_rows_active_periods']}")
     if not args.no_figure:
-        figure(runs, args.force, args.out / f"{tag}.png")
+        figure(runs, args.force, args.out / f"{tag}.png", settings.sim_config().plant, args.start)
     return 0
 
 

@@ -40,7 +40,8 @@ from biped_sim.robot import planar_kernels as pk
 from biped_sim.robot.layout import Layout
 from biped_sim.plant.rigid_layout import L_, S_
 from biped_controller.core import control_kernels as ck
-from biped_controller.core.period_layout import QP_ROWS, RES, W_, WORK
+from biped_controller.core import wbc_kernels as wk
+from biped_controller.core.period_layout import QP_ROWS, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -93,10 +94,11 @@ def _knots(t_start, dt_nom, substeps, pushes, knots):
 @numba.njit(numba.types.int64(
     _C4, _V, _V, _VI, _V, _V, _V, _V,                           # controller: family, tree, gains, cons, mem
     _VI, _V, _V, _V, _M, _C3,                                   # simulator: tree, sst, slim, pushes, perm
-    _F, _I, _B, _M, _M, _V), cache=True)                        # t_stop, max_periods, ring, rec, sta, out
+    _F, _I, _B, _M, _M, _V,                                     # t_stop, max_periods, ring, rec, sta, out
+    _V), cache=True)                                            # wbc: the whole-body stage's constants
 def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                 sti, stf, sst, slim, pushes, perm,
-                t_stop, max_periods, ring, rec, sta, out):
+                t_stop, max_periods, ring, rec, sta, out, wbc):
     """Run periods while nothing needs Python (module docstring). Returns the number of periods done;
     out[0] = why the segment ended (END_*)."""
     cap = rec.shape[0]
@@ -114,6 +116,9 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
     vo = np.empty(9)
     w0 = np.empty(3)
     pout = np.empty(pk.PERIOD_OUT_SIZE)
+    Gw = np.empty((wk.WBC_ROWS, 6))
+    hw = np.empty(wk.WBC_ROWS)
+    wmode = wbc[WB_.mode]
     x = sst[S_.x:S_.x + 9]
     v = sst[S_.v:S_.v + 9]
     anchor = sst[S_.anchor:S_.anchor + 3].copy()
@@ -144,6 +149,15 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         if code != ck.FEASIBLE:
             out[0] = END_NONFINITE
             return n_done
+        # 2b. modes wbc, hybrid: the whole-body stage (hybrid: not run, the p/tau answer x* holds its rows)
+        if wmode != WBC_MODE_OFF:
+            wcode = wk.run_stage(wbc, cons, mem, work, res, Gw, hw, wmode == WBC_MODE_WBC, False)
+            if wcode == wk.NEEDS_PIQP:
+                out[0] = END_QP
+                return n_done
+            if wcode == wk.NONFINITE:
+                out[0] = END_NONFINITE
+                return n_done
         # 3. torque: clipped, to the URDF joints
         for i in range(6):
             applied[i] = min(max(work[W_.torque, i], slim[L_.torque_min + i]), slim[L_.torque_max + i])

@@ -18,8 +18,8 @@ from biped_sim.plant.records import StepRecord
 from biped_sim.plant.rigid import Simulator
 
 from biped_controller.core.controller import (
-    CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_NO_ADAPTATION, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
-    AdaptiveController, ControllerStatusData, status_records)
+    CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
+    TORSO_MODES, WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
 from biped_controller.core.period_layout import RES
 from biped_controller.core.qp_types import UNCONSTRAINED
 
@@ -27,13 +27,14 @@ _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 
 LOOP_KERNELS = "biped_controller.studies.loop_kernels"
 # what the compiled loop is compiled against besides its own source
-LOOP_KERNELS_SOURCES = CONTROL_KERNELS_SOURCES + (CONTROL_KERNELS, "biped_sim.plant.rigid_layout")
+LOOP_KERNELS_SOURCES = CONTROL_KERNELS_SOURCES + (CONTROL_KERNELS, WBC_KERNELS, "biped_sim.plant.rigid_layout")
 
 
 def load_loop_kernels():
     """The compiled closed loop (``loop_kernels``) through ``numba_cache.load`` (cache kept with its
     dependencies: the planar kernels, the compiled period, the layouts)."""
     numba_cache.load(CONTROL_KERNELS, sources=CONTROL_KERNELS_SOURCES)
+    numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
     return numba_cache.load(LOOP_KERNELS, sources=LOOP_KERNELS_SOURCES)
 
 
@@ -55,10 +56,15 @@ class Segment:
 
     @staticmethod
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
-        # mode wbc checks its rows every period in Python (wbc.py); hybrid only after a p/tau QP, which the
-        # compiled loop hands to the objects anyway
-        return bool(sim.compiled and getattr(ctrl, "compiled_period", None) is not None and sim.sensor.identity
-                    and ctrl.cfg.mode != "wbc")
+        # modes wbc, hybrid: the compiled whole-body stage runs in the loop (wbc_kernels); a period where it
+        # needs PIQP, or where hybrid's p/tau QP runs, goes to the objects; the Python stage (the tests'
+        # oracle, ``python_stage``) never runs in the loop
+        # (real sensing, issue 22: the compiled loop has no sensing pipeline; the controller's compiled step has;
+        # modes lambda and all, issue 21: no compiled period yet)
+        fp = getattr(ctrl, "compiled_period", None)
+        return bool(sim.compiled and fp is not None and sim.sensor.identity and not fp.python_stage
+                    and not ctrl.cfg.real_sensing
+                    and ctrl.cfg.mode not in TORSO_MODES)
 
     def run(self, t_stop: float, max_periods: int = 1 << 40) -> tuple[list[StepRecord], list[ControllerStatusData]]:
         """Periods until one needs Python, ``t_stop`` [s] is reached (the period reaching it included) or
@@ -69,7 +75,7 @@ class Segment:
         step0, cstep0, stance = sim.step_index, ctrl.step_index, sim.stance
         n = lk.run_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
                            sim.fm.ti, sim.fm.tf, sim.sim_state, sim.limits, pushes, _PERM,
-                           float(t_stop), int(max_periods), not self.keep, self.rec, self.sta, self.out)
+                           float(t_stop), int(max_periods), not self.keep, self.rec, self.sta, self.out, ctrl.wbc)
         self.ended = lk.END_NAMES[int(self.out[0])]
         if n == 0:
             return [], []
@@ -85,7 +91,7 @@ class Segment:
         from the controller's one builder (``status_records``)."""
         R = self.lk.REC.at
         impacts = self.sim.impact_count
-        status, msg = ((NO_ADAPTATION, MSG_NO_ADAPTATION) if not self.ctrl.adapted
+        status, msg = ((NO_ADAPTATION, MSG_FIXED_REFERENCE[self.ctrl.cfg.mode]) if not self.ctrl.adapted
                        else (UNCONSTRAINED, MSG_X_STAR_FEASIBLE))
         sel = [k % cap for k in idx]
         rows = self.rec[sel]
