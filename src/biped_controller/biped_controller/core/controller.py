@@ -52,6 +52,7 @@ from biped_sim.robot.settings import SettingsError, default_config_dir, read_set
 from biped_sim.robot.gait_family import GaitFamily, eq11
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
 from biped_sim.robot import numba_cache
+from biped_sim.robot.layout import SnapshotUnsupported
 from biped_controller.core.period_layout import (
     CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WORK, M_, R_, W_)
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
@@ -424,6 +425,23 @@ class AdaptiveController:
         self.wrench = None
         if self._sensing is not None:
             self._sensing.reset()
+
+    def snapshot(self) -> np.ndarray:
+        """The state between two periods (issue 19): a copy of ``memory``. The held solvers (PIQP, the
+        whole-body QP) keep no answer from one call to the next that changes the next answer (every solve
+        starts afresh from the instance: tested by reusing a controller across trials), so the memory is all
+        there is. Raises :class:`SnapshotUnsupported` with real sensing (its filters hold state of their
+        own)."""
+        if self._sensing is not None:
+            raise SnapshotUnsupported("AdaptiveController.snapshot: real sensing (estimator, observer, predictor) "
+                                      "carries state outside memory")
+        return self.memory.copy()
+
+    def restore(self, memory: np.ndarray) -> None:
+        """Back to the state of :meth:`snapshot` (copied into ``memory``; the same object goes on)."""
+        self.memory[:] = memory
+        self.wrench = None
+        self._extra_margin = np.zeros(N_CONSTRAINTS)
 
     # --------------------------------------------------------------- the steps of one period
     def _begin(self, t: float, stance: int) -> np.ndarray:
