@@ -687,30 +687,47 @@ class _FastPeriod:
                        ctrl.cons, ctrl.memory, G, h, work, res)
         if code == ck.NONFINITE:
             return None
-        xs_full = res[R_.x_star:R_.x_star + 2]
         Gr = hr = xs = None
         if not ctrl.adapted:
             status, msg = NO_ADAPTATION, MSG_FIXED_REFERENCE[ctrl.cfg.mode]
+        elif code == ck.FEASIBLE:
+            Gr, hr, xs = self.reduced(G, h, res)
+            status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
         else:
-            idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
-            Gr, xs = G[:, idx], xs_full[idx]
-            hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
-            if code == ck.FEASIBLE:
-                status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
-            else:
-                qres = ctrl.qp.solve(Gr, hr, xs)
-                x = xs_full.copy()
-                x[idx] = qres.x
-                if not np.all(np.isfinite(x)):
-                    return None
-                status, msg = qres.status, qres.message
-                res[R_.x:R_.x + 2] = x
-                ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
+            answer = self.solve_qp(G, h, res)
+            if answer is None:
+                return None
+            x, status, msg, Gr, hr, xs = answer
+            res[R_.x:R_.x + 2] = x
+            ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
         torque, wb = work[W_.torque].copy(), None
         if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage (wbc.py), in Python
             torque, wb = self._whole_body(work, res, torque, status)
         return ctrl._output(res, torque, t, stance, status, msg,
                             Gr.copy() if Gr is not None else None, hr, xs.copy() if xs is not None else None, wb)
+
+    def reduced(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
+        """The QP over the adapted parameters of the rows G x <= h (x = (p'', tau'')) and x* of ``res``: a
+        parameter that is not adapted stays at x* and moves to the right-hand side. Returns (G_r, h_r, x*_r)."""
+        ctrl = self.ctrl
+        xs_full = res[R_.x_star:R_.x_star + 2]
+        idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
+        Gr, xs = G[:, idx], xs_full[idx]
+        hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
+        return Gr, hr, xs
+
+    def solve_qp(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
+        """The period's decision when x* is not feasible (``control_kernels.step`` returned NEEDS_QP with G,
+        h and ``res``): the controller's QP on the adapted parameters. Returns (x (2,), status, message, G_r,
+        h_r, x*_r), or None when the answer is not finite (the caller takes the reference path). Also the
+        compiled loop's QP periods (``segment``): one home of the decision."""
+        Gr, hr, xs = self.reduced(G, h, res)
+        qres = self.ctrl.qp.solve(Gr, hr, xs)
+        x = res[R_.x_star:R_.x_star + 2].copy()
+        x[self.ctrl._adapted_idx] = qres.x
+        if not np.all(np.isfinite(x)):
+            return None
+        return x, qres.status, qres.message, Gr, hr, xs
 
     def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):
         """The whole-body stage after the compiled period (which has committed its w to ``memory``): when it

@@ -58,8 +58,10 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     needs Python run in the compiled loop (``segment.Segment``), with records identical to the objects'
     period by period (tested); the objects take every period with a QP, an impact or a fall.
     ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
-    objects ran and the last period of each compiled segment -- the run's outcome (fall, impacts, the last
-    status) is the same, the time series is not there.
+    objects ran and the run's last period -- the run's outcome (fall, impacts, the last status) is the
+    same, the time series is not there. The compiled loop also takes the periods that need the QP: the
+    controller decides them between two calls (``Segment.decide``, issue 19), the objects take the impacts,
+    the falls and the modes whose whole-body stage follows a QP.
 
     ``on_impact(sim, ctrl)`` (the sweeps' early stop, issue 19) is called once per impact, one control
     period after it, once that period has completed without a fall (the controller's own post-impact torque
@@ -214,6 +216,8 @@ class ClosedLoop:
         keep_qp = self.keep_qp
         seg = self._segment(compiled_loop, keep_records, integration_rate)
         again = False
+        decision = None
+        last_in_seg = False       # the last period run so far was the compiled loop's
         while True:
             if seg is not None:
                 t_stop = limit
@@ -221,21 +225,30 @@ class ClosedLoop:
                     t_stop = min(limit, sim.impact_log[steps - 1].t + extra_time_after_steps)
                 # an impact waiting for its check: one period, then the check; if the outcome is not decided
                 # there, once more at the end of the next segment (where the compiled loop hands back anyway)
-                recs, stats = seg.run(t_stop, 1 if (pending and on_impact is not None) else 1 << 40)
+                recs, stats = seg.run(t_stop, 1 if (pending and on_impact is not None) else 1 << 40, decision,
+                                      build=keep_records)
                 records += recs
                 statuses += stats
-                if recs and sim.t >= t_stop:
+                ran = seg.n > 0
+                last_in_seg = ran or last_in_seg
+                if ran and sim.t >= t_stop:
                     break
-                if recs and again and sim.impact_count == seen and sim.fall is None:
+                if ran and again and sim.impact_count == seen and sim.fall is None:
                     again = False
                     if on_impact(sim, ctrl):
                         break
-                if recs and pending and sim.impact_count == seen and sim.fall is None:
+                if ran and pending and sim.impact_count == seen and sim.fall is None:
                     pending = False
                     if on_impact is not None:
                         again = True
                         if on_impact(sim, ctrl):
                             break
+                # a period that needs the QP: decided here, taken by the next call (issue 19); the objects
+                # take it where the compiled loop cannot (and whenever that call hands it back unrun)
+                decision = seg.decide() if not (decision is not None and not ran) else None
+                if decision is not None:
+                    continue
+            last_in_seg = False
             obs = sim.observe()
             out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
             statuses.append(out.status)
@@ -259,6 +272,10 @@ class ClosedLoop:
                     break
             if sim.t >= limit:
                 break
+        if seg is not None and last_in_seg:       # outcome only: the run's last period, when the compiled loop ran it
+            recs, stats = seg.last()
+            records += recs
+            statuses += stats
         fall = sim.fall
         return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
                          fallen=fall is not None, fall_cause=fall.cause if fall else "",
