@@ -95,21 +95,20 @@ def _knots(t_start, dt_nom, substeps, pushes, knots):
     _C4, _V, _V, _VI, _V, _V, _V, _V,                           # controller: family, tree, gains, cons, mem
     _VI, _V, _V, _V, _M, _C3,                                   # simulator: tree, sst, slim, pushes, perm
     _F, _I, _B, _M, _M, _V,                                     # t_stop, max_periods, ring, rec, sta, out
-    _M, _V, _V, _V, _B), cache=True)                            # QP: G, h, res, x, x given for the first period
+    _M, _V, _V, _M, _V, _B), cache=True)                        # QP: G, h, res, work, x, x given for the 1st period
 def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                 sti, stf, sst, slim, pushes, perm,
                 t_stop, max_periods, ring, rec, sta, out,
-                G, h, res, qp_x, qp_given):
+                G, h, res, work, qp_x, qp_given):
     """Run periods while nothing needs Python (module docstring). Returns the number of periods done;
     out[0] = why the segment ended (END_*). A period that needs the QP ends the segment with its rows in
-    ``G`` (QP_ROWS, 2), ``h`` and its ``res`` row (x*, the parameters); the caller solves it and calls
-    again with the decision in ``qp_x`` and ``qp_given`` True: the first period (the same one, computed
-    again, bit for bit) then takes x = qp_x (``control_kernels.period_outputs``, as the controller's
-    ``finish`` does) and the segment goes on."""
+    ``G`` (QP_ROWS, 2), ``h``, its ``res`` row (x*, the parameters) and ``work`` (WORK rows); the caller
+    solves it and calls again, those arrays untouched, with the decision in ``qp_x`` and ``qp_given`` True:
+    the first period (the same one: the state has not moved) then takes x = qp_x
+    (``control_kernels.period_outputs``, as the controller's ``finish`` does) and the segment goes on."""
     cap = rec.shape[0]
     q = np.empty(6)
     qd = np.empty(6)
-    work = np.empty((WORK_ROWS, 6))
     applied = np.empty(6)
     tj = np.empty(6)
     knots = np.empty(64)
@@ -140,16 +139,18 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
             q[i] = sq
             qd[i] = sv
         # 2. controller: the period's start (advance, observer mode; the memory is committed with the period)
-        ck.period_start(mem, t, stance, res)
-        code = ck.period_step(coef, inner, centers, cti, ctf, q, qd, gains, cons, mem, G, h, work, res)
-        if code == ck.NEEDS_QP:
-            if not (qp_given and n_done == 0):
-                out[0] = END_QP
-                return n_done
+        if qp_given and n_done == 0:
+            # the QP period handed back by the last call, its res and work as they were left: the decision
             res[R_.x] = qp_x[0]
             res[R_.x + 1] = qp_x[1]
             ck.period_outputs(cons, work, res)
             code = ck.FEASIBLE
+        else:
+            ck.period_start(mem, t, stance, res)
+            code = ck.period_step(coef, inner, centers, cti, ctf, q, qd, gains, cons, mem, G, h, work, res)
+            if code == ck.NEEDS_QP:
+                out[0] = END_QP
+                return n_done
         if code != ck.FEASIBLE:
             out[0] = END_NONFINITE
             return n_done

@@ -20,7 +20,7 @@ from biped_sim.plant.rigid import Simulator
 from biped_controller.core.controller import (
     CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_NO_ADAPTATION, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
     AdaptiveController, ControllerStatusData, status_records)
-from biped_controller.core.period_layout import QP_ROWS, RES
+from biped_controller.core.period_layout import QP_ROWS, RES, WORK
 from biped_controller.core.qp_types import UNCONSTRAINED
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
@@ -58,7 +58,10 @@ class Segment:
         self.G = np.zeros((QP_ROWS, 2))
         self.h = np.zeros(QP_ROWS)
         self.res = np.zeros(RES.size)
+        self.work = np.zeros((WORK.size, 6))
         self.qp_x = np.zeros(2)
+        self._pushes_key: tuple = ()
+        self._pushes = np.zeros((0, 4))
         # the compiled loop takes the QP periods too, with the controller's decision (not in modes whose
         # whole-body stage follows a QP: hybrid)
         self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
@@ -78,15 +81,18 @@ class Segment:
         handed back, which this call then takes first. ``build`` False (``keep_records`` False only): nothing
         is built, :meth:`last` builds the last period's record when it is wanted (a run's last period)."""
         sim, ctrl, fp, lk = self.sim, self.ctrl, self.fp, self.lk
-        ps = sim.book.pushes
-        pushes = np.array([[p.start, p.end, p.force, p.height] for p in ps], dtype=float).reshape(len(ps), 4)
+        ps = tuple(sim.book.pushes)
+        if ps != self._pushes_key:      # (start, end, force, height) of each push, built when the schedule changes
+            self._pushes = np.array([[p.start, p.end, p.force, p.height] for p in ps], dtype=float).reshape(len(ps), 4)
+            self._pushes_key = ps
+        pushes = self._pushes
         step0, cstep0, stance = sim.step_index, ctrl.step_index, sim.stance
         if decision is not None:
             self.qp_x[:] = decision[0]
         self.n = n = lk.run_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
                            sim.fm.ti, sim.fm.tf, sim.sim_state, sim.limits, pushes, _PERM,
                            float(t_stop), int(max_periods), not self.keep, self.rec, self.sta, self.out,
-                           self.G, self.h, self.res, self.qp_x, decision is not None)
+                           self.G, self.h, self.res, self.work, self.qp_x, decision is not None)
         self.ended = lk.END_NAMES[int(self.out[0])]
         if n == 0:
             return [], []
