@@ -121,3 +121,34 @@ def test_walk_to_refuses_scheduled_pushes():
     loop.sim.schedule_push(0.1, 0.025, 100.0)
     with pytest.raises(ValueError, match="pushes are already scheduled"):
         loop.walk_to(0.2)
+
+
+@pytest.mark.parametrize("mode,force", [("both", -300.0), ("tau", 400.0), ("p", -150.0), ("hybrid", 300.0)])
+def test_the_compiled_loop_takes_the_qp_periods_bit_for_bit(monkeypatch, mode, force):
+    """The periods that need the QP are decided between two calls of the compiled loop (Segment.decide) and
+    run by it: records, statuses (QP status and message included) and impacts are the objects' bit for bit;
+    hybrid's whole-body stage keeps them with the objects (decide answers None)."""
+    from biped_controller.studies import segment
+    from biped_controller.core.qp_types import UNCONSTRAINED
+    from biped_controller.core.controller import NO_ADAPTATION
+    answers = []
+    orig = segment.Segment.decide
+
+    def counting(self):
+        d = orig(self)
+        answers.append(d is not None)
+        return d
+    monkeypatch.setattr(segment.Segment, "decide", counting)
+    kw = dict(steps=3, mode=mode, pushes=(Push(0.2315, 0.1, force),))
+    loop = runner.run(**kw)
+    taken = sum(answers)
+    objects = runner.run(compiled_loop=False, **kw)
+    n_qp = sum(1 for s in objects.statuses if s.qp_status not in (UNCONSTRAINED, NO_ADAPTATION))
+    assert n_qp >= 20, n_qp
+    if mode == "hybrid":
+        assert taken == 0 and answers
+    else:
+        assert taken >= 0.9 * n_qp, (taken, n_qp)
+    assert len(loop.records) == len(objects.records)
+    assert digest(loop.records, loop.statuses, loop.impacts, loop) == \
+        digest(objects.records, objects.statuses, objects.impacts, objects)
