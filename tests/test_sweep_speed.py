@@ -152,3 +152,20 @@ def test_the_compiled_loop_takes_the_qp_periods_bit_for_bit(monkeypatch, mode, f
     assert len(loop.records) == len(objects.records)
     assert digest(loop.records, loop.statuses, loop.impacts, loop) == \
         digest(objects.records, objects.statuses, objects.impacts, objects)
+
+
+def test_the_pool_keeps_at_most_max_loops_and_drops_their_snapshots():
+    ctx = experiment.context()
+    s = experiment.DEFAULT_SETTINGS
+    pool = runner.LoopPool(max_loops=2)
+    loops = [pool.loop(s.sim_config(), s.ctrl_config(m), ctx.family, ctx.desc) for m in ("none", "tau")]
+    for lp in loops:
+        pool.snapshot_at(lp, 0.1)
+    assert pool.loop(s.sim_config(), s.ctrl_config("none"), ctx.family, ctx.desc) is loops[0]   # reused, now recent
+    p_loop = pool.loop(s.sim_config(), s.ctrl_config("p"), ctx.family, ctx.desc)                # "tau" goes
+    assert pool.loop(s.sim_config(), s.ctrl_config("none"), ctx.family, ctx.desc) is loops[0]
+    assert pool.loop(s.sim_config(), s.ctrl_config("tau"), ctx.family, ctx.desc) is not loops[1]
+    assert all(k[0] is not loops[1] for k in pool._snaps) and pool.walks == 2
+    assert p_loop is not loops[0]
+    with pytest.raises(ValueError, match="max_loops"):
+        runner.LoopPool(max_loops=0)

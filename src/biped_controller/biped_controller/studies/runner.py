@@ -287,10 +287,16 @@ class LoopPool:
     """Closed loops kept for reuse within one process (the sweeps' worker processes, issue 19): one
     :class:`ClosedLoop` per settings (plant and controller configuration, perturbation, robot, family), and
     per loop the snapshots at the push onsets asked for (:meth:`snapshot_at`), at most ``max_snapshots``
-    (the oldest dropped first; each holds two small arrays)."""
+    (the oldest dropped first; each holds two small arrays). At most ``max_loops`` loops are kept (the least
+    recently used dropped with its snapshots: a loop's compiled-loop buffers hold a few MB, and the
+    robustness table asks for one loop per plant perturbation and mode)."""
 
-    def __init__(self, max_snapshots: int = 512):
+    def __init__(self, max_snapshots: int = 512, max_loops: int = 8):
+        if not (isinstance(max_loops, int) and max_loops >= 1 and isinstance(max_snapshots, int) and max_snapshots >= 1):
+            raise ValueError(f"LoopPool: max_loops and max_snapshots must be integers >= 1, got {max_loops!r}, "
+                             f"{max_snapshots!r}")
         self.max_snapshots = max_snapshots
+        self.max_loops = max_loops
         self._loops: dict = {}
         self._snaps: dict = {}
         self.walks = 0          # walks to an onset simulated (the others were restored)
@@ -298,9 +304,13 @@ class LoopPool:
     def loop(self, sim_config: SimConfig, ctrl_config: ControllerConfig, family: GaitFamily, desc: RobotDescription,
              perturbation: PlantPerturbation | None = None, keep_qp: bool = False) -> ClosedLoop:
         key = (sim_config, ctrl_config, id(family), id(desc), perturbation, keep_qp)
-        lp = self._loops.get(key)
+        lp = self._loops.pop(key, None)
         if lp is None or lp.family is not family or lp.desc is not desc:
-            lp = self._loops[key] = ClosedLoop(sim_config, ctrl_config, family, desc, perturbation, keep_qp)
+            lp = ClosedLoop(sim_config, ctrl_config, family, desc, perturbation, keep_qp)
+            while len(self._loops) >= self.max_loops:          # the least recently used goes, with its snapshots
+                old = self._loops.pop(next(iter(self._loops)))
+                self._snaps = {k: v for k, v in self._snaps.items() if k[0] is not old}
+        self._loops[key] = lp      # most recently used last
         return lp
 
     def snapshot_at(self, loop: ClosedLoop, t_push: float) -> LoopSnapshot | None:
@@ -309,7 +319,7 @@ class LoopPool:
         model, real sensing: the caller runs from the start)."""
         if not loop.snapshots:
             return None
-        key = (id(loop), float(t_push))
+        key = (loop, float(t_push))
         snap = self._snaps.get(key)
         if snap is None:
             loop.reset()
