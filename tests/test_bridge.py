@@ -322,6 +322,17 @@ def _launch(tmp: Path, port: int, *extra: str) -> tuple[subprocess.Popen, Path, 
     return proc, bag, ready
 
 
+def _interrupt(proc: subprocess.Popen, timeout: float = 30.0) -> str:
+    """SIGINT, wait (bounded; then SIGKILL); return the output."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return out
+
+
 def _finish(proc: subprocess.Popen, tmp: Path, timeout: float = 300.0) -> str:
     """Wait (bounded) for the launcher; kill what is left; return its output."""
     try:
@@ -429,12 +440,7 @@ def test_bridge_alone_latched_time_and_unavailable_service(rclpy_context):
     try:
         first, late, (resp, failure) = asyncio.run(scenario())
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = _interrupt(proc)
         node.destroy_node()
     assert proc.returncode == 0, out[-3000:]
     prefixes = _prefixes()
@@ -494,12 +500,7 @@ def test_bridge_subscribes_to_a_stream_only_while_a_client_watches_it(rclpy_cont
     try:
         always, before, during, still_off, after = asyncio.run(scenario())
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
+        _interrupt(proc)
         node.destroy_node()
     assert always, 'the bridge must always read /clock, latched and event topics'
     assert not before, 'no stream before a client watches it'
@@ -564,12 +565,7 @@ def test_bridge_passes_a_burst_on_in_order(rclpy_context, drain_batch):
     try:
         client = asyncio.run(scenario())
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = _interrupt(proc)
         node.destroy_node()
     assert proc.returncode == 0, out[-3000:]
     got = burst_of(client)

@@ -325,3 +325,107 @@ def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path
         a['problems']
     for effect in a['push_effects']:
         assert effect['applied_impulse'] == pytest.approx(effect['force'] * 0.025, rel=1e-9), (effect, a['problems'])
+
+
+def test_a_recorder_that_lags_at_the_stop_still_gets_everything(ros_domain, tmp_path):
+    """The failure CI met on a loaded machine, made certain: the graph unpaced, the recorder frozen (SIGSTOP,
+    its DDS threads too) while the graph runs on for at least 0.5 sim s and a push is accepted, then thawed
+    and the launcher stopped at once. The other nodes wait for their subscribers' acknowledgements (Fast DDS
+    re-sends what the frozen reader missed after a heartbeat: config/fastdds.xml), the recorder drains its
+    queues fairly before it finishes: every period of every stream and the push event are in the bag.
+    Negative control: the same analysis flags a bag cut short (the stamps of /clock beyond /sim/state)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
+    from biped_sim.graph import names as gn
+    from biped_sim.graph.push_client import call_apply_push
+    from biped_sim.graph.bag_summary import analyze_bag
+    from biped_sim.recording.bag_reader import find_mcap
+
+    proc, bag, ready = _launch(tmp_path, dict(os.environ), '--steps', '0', '--sim-param', 'max_time:=600.0',
+                               '--sim-param', 'real_time_factor:=0.0')
+    pids: set[int] = set()
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('lag_probe', context=ctx)
+    latest = {'t': -1.0}
+    node.create_subscription(Clock, gn.CLOCK, lambda m: latest.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
+                             gn.QOS_CLOCK)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+
+    def wait_clock(t: float, timeout: float = 300.0) -> None:
+        t0 = time.monotonic()
+        while latest['t'] < t:
+            assert proc.poll() is None, proc.communicate()[0][-3000:]
+            assert time.monotonic() - t0 < timeout, f'/clock did not reach {t} s (at {latest["t"]})'
+            ex.spin_once(timeout_sec=0.05)
+
+    recorder = None
+    try:
+        _wait_ready(proc, ready)
+        pids |= _descendants(proc.pid)
+        out = subprocess.run(['pgrep', '-f', f'output_dir:={bag}'], capture_output=True, text=True).stdout.split()
+        assert len(out) == 1, out
+        recorder = int(out[0])
+        wait_clock(0.5)
+        os.kill(recorder, signal.SIGSTOP)
+        frozen_at = latest['t']
+        r = call_apply_push(80.0, 0.025, delay=0.3, timeout=60, context=ctx)
+        assert r.accepted, r.message
+        wait_clock(max(frozen_at + 0.5, r.scheduled_end + 0.05))
+        os.kill(recorder, signal.SIGCONT)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=180)
+        assert proc.returncode == 128 + signal.SIGINT, out[-3000:]
+    finally:
+        if recorder is not None:
+            try:
+                os.kill(recorder, signal.SIGCONT)
+            except OSError:
+                pass
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        _kill_tree(proc, pids | _descendants(proc.pid))
+    planned = [dict(start=r.scheduled_start, duration=0.025, force=80.0, id=r.push_id)]
+    a = analyze_bag(bag, planned)
+    # SIGINT stops the controller without an answer to the last state: its torque and status of that period
+    # may be missing (the only problems allowed)
+    last_period = [p for p in a['problems'] if p.startswith(('/controller/torque: 1 missing, 0 duplicated, 0 unexp',
+                                                              '/controller/status: '))]
+    assert not [p for p in a['problems'] if p not in last_period], (a['problems'], out[-3000:])
+    assert a['push_events'] == 1 and a['applied_impulse_outside_windows'] == 0, a['problems']
+
+    # negative control: the same bag without the last 100 messages of /sim/state and without /push_events, as
+    # the CI run's recorder lost them, is flagged
+    cut = tmp_path / 'cut.mcap'
+    _copy_mcap(find_mcap(bag), cut, lambda topic, k, n: topic == gn.PUSH_EVENTS or (topic == gn.SIM_STATE and k >= n - 100))
+    b = analyze_bag(cut, planned)
+    assert b['push_events'] == 0 and any('unexpected stamps' in p for p in b['problems']), b['problems']
+
+
+def _copy_mcap(src: Path, dst: Path, drop) -> None:
+    """Copy an MCAP without the messages for which ``drop(topic, k, n)`` is true (the k-th of the topic's n
+    messages in the file's order)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    with open(src, 'rb') as fh:
+        msgs = list(make_reader(fh).iter_messages(log_time_order=False))
+    n = {}
+    for _, channel, _ in msgs:
+        n[channel.topic] = n.get(channel.topic, 0) + 1
+    k = dict.fromkeys(n, 0)
+    with open(dst, 'wb') as out:
+        w = Writer(out)
+        w.start(profile='ros2', library='test')
+        schemas, channels = {}, {}
+        for schema, channel, m in msgs:
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                          schemas[schema.id], channel.metadata)
+            if not drop(channel.topic, k[channel.topic], n[channel.topic]):
+                w.add_message(channels[channel.id], m.log_time, m.data, m.publish_time, m.sequence)
+            k[channel.topic] += 1
+        w.finish()

@@ -270,8 +270,9 @@ def test_fall_checks_each_fire(monkeypatch):
 
 # ------------------------------------------------------------------------------------------ rigid unchanged
 # status fields added after these digests were taken (issue 26: the whole-body stage's status, constant
-# outside modes wbc / hybrid); every other field of every record is hashed
-_NEWER_FIELDS = ("wbc_status", "wbc_active", "wbc_deviation")
+# outside modes wbc / hybrid; issue 21: the torso parameter's, 0 outside modes lambda / all); every other field of
+# every record is hashed
+_NEWER_FIELDS = ("wbc_status", "wbc_active", "wbc_deviation", "lam", "lam_dot", "lam_ddot", "lam_ddot_star")
 
 
 def _h(h, o):

@@ -18,7 +18,8 @@ from biped_controller.studies import experiment, runner
 
 # (mode, signed force [N], duration [s], onset phase): survivals and falls, QP-heavy pushes, both directions
 CASES = [("both", -300.0, 0.1, 0.5), ("both", 700.0, 0.025, 0.35), ("tau", 400.0, 0.025, 0.75),
-         ("p", 300.0, 0.2, 0.95), ("none", 40.0, 0.025, 0.3), ("hybrid", 300.0, 0.025, 0.5)]
+         ("p", 300.0, 0.2, 0.95), ("none", 40.0, 0.025, 0.3), ("hybrid", 300.0, 0.025, 0.5),
+         ("all", 700.0, 0.025, 0.35), ("lambda", -300.0, 0.1, 0.5)]
 
 
 def _feed(h, v) -> None:

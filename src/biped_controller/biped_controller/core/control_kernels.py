@@ -16,7 +16,9 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
 * model terms, eq. (1): A, H, B, h_b on the controller's locked-root chain
   (``biped_sim.robot.planar_kernels.fixed_root_terms``' maths) and the torso point's Jacobian x row;
 * disturbance observer: F = j6 . r / j6 . j6, r = A_prev ((q'_now - q'_prev) / dt - w_prev);
-  h_b,c = h_b + B A^-1 j6 F - Jb F;
+  h_b,c = h_b + B A^-1 j6 F - Jb F; or, with the momentum observer (issue 22, GAINS.momentum), the
+  compiled sensing pipeline's (``estimation_kernels``) h_b,c = h_b + (dR, 0), F = F_x, and the five
+  contact rows stated with the estimate widened by its spread (RES.sens_*, written before the period);
 * rows, eq. (21): G x <= h (37 rows: the 17 constraints with and without the estimate, p range,
   tau' >= tau_dot_min), the early-out decision "x* feasible" evaluated on the adapted columns
   exactly as ``qp_fast.early_out`` does (same expression, bit for bit);
@@ -262,7 +264,13 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
     hbc = np.empty(3)
     hbc[:] = hb
     F = 0.0
-    if gains[G_.observer] != 0.0:
+    if gains[G_.momentum] != 0.0:
+        # issue 22: the momentum observer's shift of (R_x, R_y), from the compiled sensing pipeline
+        # (estimation_kernels; written into res before the period)
+        F = res[R_.sens_force]
+        hbc[0] = hb[0] + res[R_.sens_dR]
+        hbc[1] = hb[1] + res[R_.sens_dR + 1]
+    elif gains[G_.observer] != 0.0:
         mode = res[R_.obs_mode]
         if mode == OBS_KEEP:
             F = mem[M_.force]
@@ -312,6 +320,8 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
         for k in range(6):
             Aq[r, k] = _contact(cons, C_.qp_rows, r, B[0, k], B[1, k], A[0, k])
         bq[r] = _contact(cons, C_.qp_rows, r, hbc[0], hbc[1], H[0]) + cons[C_.margin + r]
+        if gains[G_.momentum] != 0.0:
+            bq[r] += res[R_.sens_margin + r]     # issue 22: the estimate's spread, its rows only
         b0[r] = _contact(cons, C_.qp_rows, r, hb[0], hb[1], H[0]) + cons[C_.margin + r]
     for i in range(6):
         for k in range(6):

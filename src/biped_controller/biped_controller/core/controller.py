@@ -35,6 +35,13 @@ whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = 
 adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
 Whenever w holds every row the whole-body stage changes nothing (bit for bit). The stage runs in Python
 after the compiled period (or the Python steps) and overwrites the period's w in ``memory``.
+
+Modes ``lambda`` and ``all`` (issue 21; docs/torso_parameter.md) add a third parameter, the torso offset
+lambda [rad] of ``gait_family.with_torso``: q_d(p, tau, lambda) = q_d(p, tau) + lambda phi(tau/T) e. Then
+D = [dq/dp, dq/dtau, dq/dlambda], x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
+lambda, four more rows (lambda and lambda' after one period within +-lambda_max, +-lambda_dot_max), held
+hard on a least-violation answer; lambda, lambda' advance exactly like p, p' and carry over an impact.
+``lambda`` adapts lambda alone (p'', tau'' = x*), ``all`` the three. Python steps only (no compiled period).
 """
 from __future__ import annotations
 
@@ -49,21 +56,28 @@ from biped_sim.robot.description import RobotDescription, load_description
 from biped_sim.robot.loop import ENGINES, load_loop_settings
 from biped_sim.robot.settings import SettingsError, default_config_dir, read_settings
 
-from biped_sim.robot.gait_family import GaitFamily, eq11
+from biped_sim.robot.gait_family import GaitFamily, eq11, eq11_torso
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
 from biped_sim.robot import numba_cache
 from biped_sim.robot.layout import SnapshotUnsupported
 from biped_controller.core.period_layout import (
     CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WORK, M_, R_, W_)
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
-from biped_controller.core.qp_types import UNCONSTRAINED
+from biped_controller.core.qp_types import ACTIVE, UNCONSTRAINED
 from biped_controller.core.wbc import WholeBodyStage, weight_matrix
 
-MODES = ("none", "tau", "p", "both", "wbc", "hybrid")
+MODES = ("none", "tau", "p", "both", "wbc", "hybrid", "lambda", "all")
 #: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
 PAPER_MODES = ("none", "tau", "p", "both")
-#: the parameters each mode's p/tau QP adapts (0: p'', 1: tau''); wbc keeps the reference fixed like none
-ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1)}
+#: the parameters each mode's p/tau QP adapts (0: p'', 1: tau'', 2: lambda'', the torso offset of issue 21);
+#: wbc keeps the reference fixed like none
+ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1), "lambda": (2,),
+           "all": (0, 1, 2)}
+#: the modes whose reference has the torso parameter lambda (issue 21; Python steps only, no compiled period)
+TORSO_MODES = ("lambda", "all")
+#: rows the torso parameter adds to the QP: lambda and lambda' after one period within [-lambda_max, lambda_max]
+#: and [-lambda_dot_max, lambda_dot_max]
+TORSO_ROWS = 4
 NO_ADAPTATION = 4
 NO_ADAPTATION_STATUS = NO_ADAPTATION
 MSG_NO_ADAPTATION = "mode none: classical computed torque"
@@ -93,7 +107,7 @@ class ControllerConfig:
     """Controller settings. The values and their reasons live in ``config/controller.yaml`` only (the
     control period in ``config/simulator.yaml``): build one with :func:`load_controller_config`."""
 
-    mode: str                     # none | tau | p | both: which parameters the QP adapts
+    mode: str                     # none | tau | p | both | wbc | hybrid | lambda | all: which parameters the QP adapts
     Kp: float                     # [1/s^2] joint PD stiffness of eq. (16)
     Kv: float                     # [1/s] joint PD damping of eq. (16)
     kp: float                     # [1/s^2] second task eq. (20), p -> p_d
@@ -112,6 +126,12 @@ class ControllerConfig:
     wbc_weight_torso: float       # torso-pitch task weight of M (s . w = torso pitch acceleration)
     engine: str                   # "fast": compiled model terms (biped_sim.robot.fast_engine); "reference": Pinocchio
     period: float                 # [s] control period (config/simulator.yaml control_period)
+    # issue 21 (the torso parameter lambda, modes lambda and all): second task and range of lambda
+    kp_lambda: float              # [1/s^2] lambda -> 0 (lambda''* = -kv_lambda lambda' - kp_lambda lambda)
+    kv_lambda: float              # [1/s] lambda' -> 0
+    weight_lambda: float          # QP weight on (lambda'' - lambda''*)^2
+    lambda_max: float             # [rad] QP keeps |lambda| (after one period) <= this: the torso's range
+    lambda_dot_max: float         # [rad/s] QP keeps |lambda'| (after one period) <= this
     # issue 22 (real sensing): core/sensing.py; with all of them off the controller is the one above
     momentum_observer: bool       # the observer is the generalized-momentum one (else acceleration residual)
     momentum_observer_gain: float   # [1/s] its bandwidth K
@@ -136,7 +156,8 @@ class ControllerConfig:
             raise ControllerConfigError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")
         if self.mode not in MODES:
             raise ControllerConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
-        for name in ("Kp", "Kv", "kp", "kv", "weight_p", "weight_tau", "period", "tau_dot_min"):
+        for name in ("Kp", "Kv", "kp", "kv", "weight_p", "weight_tau", "period", "tau_dot_min", "kp_lambda",
+                     "kv_lambda", "weight_lambda", "lambda_max", "lambda_dot_max"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ControllerConfigError(f"{name} must be a finite number > 0, got {v!r}")
@@ -257,9 +278,14 @@ class ControllerStatusData:
     wbc_status: int = NO_ADAPTATION_STATUS   # whole-body stage (modes wbc, hybrid): qp_types status, or 4 = not run
     wbc_active: int = 0                      # bit i: row CONSTRAINT_NAMES[i] active in the whole-body QP's answer
     wbc_deviation: float = 0.0               # [rad/s^2] |w - w*| of the whole-body stage (0 when w* held)
+    lam: float = 0.0                         # [rad] torso offset lambda of the period (modes lambda, all; else 0)
+    lam_dot: float = 0.0                     # [rad/s] lambda'
+    lam_ddot: float = 0.0                    # [rad/s^2] lambda'' chosen
+    lam_ddot_star: float = 0.0               # [rad/s^2] lambda''* of the second task
 
 
 _NEW = object.__new__
+_SENS_RES = slice(RES.at.sens_dR, RES.at.sens_margin + RES.sizes["sens_margin"])
 _MG = RES.slice("margins")
 _RR = RES.slice("reaction")
 
@@ -306,9 +332,9 @@ def joint_law(q_d: np.ndarray, qd_d: np.ndarray, qdd_d: np.ndarray, q: np.ndarra
 class _Reference:
     """The reference terms of one period: w = D x + v (eq. 17), x* (eq. 20), tracking error q_d - q."""
 
-    D: np.ndarray          # (6, 2) [dq_d/dp, dq_d/dtau]
+    D: np.ndarray          # (6, 2) [dq_d/dp, dq_d/dtau] (modes lambda, all: (6, 3), and dq_d/dlambda)
     v: np.ndarray          # (6,) rad/s^2
-    x_star: np.ndarray     # (2,) (p''*, tau''*)
+    x_star: np.ndarray     # (2,) (p''*, tau''*) (modes lambda, all: (3,), and lambda''*)
     error: np.ndarray      # (6,) rad
 
 
@@ -330,6 +356,12 @@ def _mem_scalar(name: str, kind=float):
 class AdaptiveController:
     """Owns its FixedFootModel (own Pinocchio Data) and its PIQP solver object.
 
+    Real sensing (issue 22, ``ControllerConfig.real_sensing``): on the fast engine the estimator, the
+    momentum observer and the Smith predictor run as compiled kernels (``estimation_compiled.CompiledSensing``)
+    before the compiled period; on the reference engine, or with
+    ``python_sensing`` True (the tests' oracle) the Python pipeline (``sensing.SensingPipeline``) and the
+    Python steps.
+
     Its state between periods is the array ``memory`` (``period_layout.MEMORY``: parameters, the held
     decision, the last decision's time and stance, F, the observer's memory); ``state``, ``stance``,
     ``step_index`` and ``force_estimate`` are views of it. The compiled period (``control_kernels``) and the
@@ -339,7 +371,7 @@ class AdaptiveController:
     force_estimate = _mem_scalar("force")      # estimated horizontal force on the torso [N]
 
     def __init__(self, config: ControllerConfig | None = None, family: GaitFamily | None = None,
-                 desc: RobotDescription | None = None, keep_qp: bool = False):
+                 desc: RobotDescription | None = None, keep_qp: bool = False, python_sensing: bool = False):
         self.cfg = (config if config is not None else load_controller_config()).validate()
         self.desc = desc if desc is not None else load_description()
         self.family = family if family is not None else GaitFamily.load()
@@ -358,23 +390,35 @@ class AdaptiveController:
         self._mu_ratio = c.margin_friction
         self.adapted = ADAPTED[c.mode]
         self.whole_body = WholeBodyStage.for_controller(c, self.model) if c.mode in ("wbc", "hybrid") else None
+        self.torso = c.mode in TORSO_MODES     # the reference has the torso parameter lambda (issue 21)
+        nx = 3 if self.torso else 2
         self._adapted_idx = list(self.adapted)
-        self._fixed_idx = [i for i in (0, 1) if i not in self.adapted]
+        self._fixed_idx = [i for i in range(nx) if i not in self.adapted]
         n = len(self.adapted)
-        self.qp = AdaptationQP(n, QP_ROWS, np.array([c.weight_p, c.weight_tau])[list(self.adapted)],
-                               solver=c.qp_solver) if n else None
+        weights = np.array([c.weight_p, c.weight_tau, c.weight_lambda])[list(self.adapted)]
+        self.qp = AdaptationQP(n, QP_ROWS + (TORSO_ROWS if self.torso else 0), weights,
+                               solver="piqp" if self.torso and n > 2 else c.qp_solver) if n else None
         self.gains = self._gains()
         self.cons = self._cons()
         self.memory = MEMORY.new()
         self._sensing = None
         self._extra_margin = np.zeros(N_CONSTRAINTS)
-        self.wrench = None             # the momentum observer's last estimate (momentum_observer.Wrench)
+        self._compiled_sensing = False
         if self.cfg.real_sensing:
-            from biped_controller.core.sensing import SensingPipeline
-            self._sensing = SensingPipeline(self.cfg, self.desc)
+            if self._fast is not None and not python_sensing and not self.torso:
+                # issue 22: the estimator and the momentum observer as compiled kernels (estimation_kernels)
+                from biped_controller.core.estimation_compiled import CompiledSensing
+                m = self.model
+                qp_C, _ = contact_rows(c.margin_friction * m.mu, m.l_min + c.margin_zmp, m.l_max - c.margin_zmp)
+                self._sensing = CompiledSensing(self.cfg, self.desc, self._fast.ti, self._fast.tf, qp_C,
+                                                m.torque_min, m.torque_max)
+                self._compiled_sensing = True
+            else:
+                from biped_controller.core.sensing import SensingPipeline
+                self._sensing = SensingPipeline(self.cfg, self.desc)
         self.reset(None)
-        if self._fast is not None and self._sensing is None:
-            self._kernel = _FastPeriod(self)   # the compiled period (fast engine; not with real sensing yet)
+        if self._fast is not None and (self._sensing is None or self._compiled_sensing) and not self.torso:
+            self._kernel = _FastPeriod(self)   # the compiled period (fast engine; not with lambda yet)
 
     def _gains(self) -> np.ndarray:
         """The ``GAINS`` array (eqs. 16, 20, the p range, the observer, the adapted parameters)."""
@@ -382,7 +426,8 @@ class AdaptiveController:
         for name, value in (("Kp", c.Kp), ("Kv", c.Kv), ("kp", c.kp), ("kv", c.kv), ("p_d", fam.p_d), ("dt", c.period),
                             ("p_min", fam.p_min), ("p_max", fam.p_max), ("tau_dot_min", c.tau_dot_min),
                             ("observer", float(c.disturbance_observer)), ("observer_height", c.observer_height),
-                            ("adapt_p", float(0 in self.adapted)), ("adapt_tau", float(1 in self.adapted))):
+                            ("adapt_p", float(0 in self.adapted)), ("adapt_tau", float(1 in self.adapted)),
+                            ("momentum", float(c.disturbance_observer and c.momentum_observer))):
             g[getattr(GAINS.at, name)] = value
         return g
 
@@ -398,6 +443,16 @@ class AdaptiveController:
                             ("true_rows", np.column_stack([true_C, true_e]).ravel())):
             cons[CONS.slice(name)] = value
         return cons
+
+    @property
+    def wrench(self):
+        """The momentum observer's last estimate (``momentum_observer.Wrench``; None: none)."""
+        return self._sensing.wrench if self._sensing is not None else None
+
+    @wrench.setter
+    def wrench(self, value) -> None:
+        """Set the Python pipeline's estimate (tests of the QP rows; the compiled pipeline's is its state)."""
+        self._sensing.wrench = value
 
     @property
     def compiled_period(self) -> "_FastPeriod | None":
@@ -416,13 +471,13 @@ class AdaptiveController:
         return None if s < 0 else int(s)
 
     def reset(self, stance: int | None = None) -> None:
-        """Back to the start: p = p_d, p' = 0, tau = 0, tau' = 1, no decision (p'' = tau'' = 0), no observer
+        """Back to the start: p = p_d, p' = 0, tau = 0, tau' = 1, lambda = lambda' = lambda'' = 0, no decision
+        (p'' = tau'' = 0), no observer
         memory, F = 0, period index 0; ``stance`` the stance the first period is expected in (None: any)."""
         mem = self.memory
         mem[:] = 0.0
         mem[M_.p], mem[M_.tau_dot] = self.family.p_d, 1.0
         mem[M_.stance] = -1.0 if stance is None else stance
-        self.wrench = None
         if self._sensing is not None:
             self._sensing.reset()
 
@@ -440,7 +495,6 @@ class AdaptiveController:
     def restore(self, memory: np.ndarray) -> None:
         """Back to the state of :meth:`snapshot` (copied into ``memory``; the same object goes on)."""
         self.memory[:] = memory
-        self.wrench = None
         self._extra_margin = np.zeros(N_CONSTRAINTS)
 
     # --------------------------------------------------------------- the steps of one period
@@ -455,17 +509,37 @@ class AdaptiveController:
         self.ck.begin(self.memory, float(t), int(stance), res)
         return res
 
+    def _torso_begin(self, res: np.ndarray) -> tuple[float, float]:
+        """(lambda [rad], lambda' [rad/s]) of the period: the memory's advanced with the held lambda'' over the
+        time elapsed since the last decision (``res``'s obs_dt, 0 before the first decision; exact
+        integration, as p). An impact carries lambda and lambda' over (phi(0) = 0: no jump)."""
+        mem = self.memory
+        lam, lam_dot, lam_dd = float(mem[M_.lam]), float(mem[M_.lam_dot]), float(mem[M_.lam_ddot])
+        h = float(res[R_.obs_dt])
+        return lam + (lam_dot * h + 0.5 * lam_dd * h * h), lam_dot + lam_dd * h
+
     def _params(self, res: np.ndarray | None) -> tuple[float, float, float, float]:
         """(p, p', tau, tau') of the period (``res``, a RES row from :meth:`_begin`), or the memory's when None."""
         a, o = (self.memory, M_.p) if res is None else (res, R_.p)
         return float(a[o]), float(a[o + 1]), float(a[o + 2]), float(a[o + 3])
 
-    def _reference(self, q: np.ndarray, qd: np.ndarray, res: np.ndarray | None = None) -> _Reference:
+    def _reference(self, q: np.ndarray, qd: np.ndarray, res: np.ndarray | None = None,
+                   lam: tuple[float, float] | None = None) -> _Reference:
         """Eqs. (11), (16), (17), (20): w = D x + v with D = [dq/dp, dq/dtau], x = (p'', tau''), and the
         second task's x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau')), at the period's parameters (``res``;
-        None: the memory's)."""
+        None: the memory's). With the torso parameter (``lam`` = (lambda, lambda'), modes lambda and all):
+        D = [dq/dp, dq/dtau, dq/dlambda], x = (p'', tau'', lambda''), v with the lambda terms of
+        ``eq11_torso`` and lambda''* = -kv_lambda lambda' - kp_lambda lambda."""
         c, fam = self.cfg, self.family
         p, p_dot, tau, tau_dot = self._params(res)
+        if lam is not None:
+            gt = fam.evaluate_torso(p, tau, lam[0])
+            q_d, qd_d, qdd_drift = eq11_torso(gt, p_dot, tau_dot, lam[1])
+            v = joint_law(q_d, qd_d, qdd_drift, q, qd, c.Kp, c.Kv)
+            D = np.column_stack([gt.dq_dp, gt.dq_dtau, gt.dq_dlam])
+            x_star = np.array([-c.kv * p_dot + c.kp * (fam.p_d - p), c.kv * (1.0 - tau_dot),
+                               -c.kv_lambda * lam[1] - c.kp_lambda * lam[0]])
+            return _Reference(D=D, v=v, x_star=x_star, error=q_d - q)
         g = fam.evaluate(p, tau)
         q_d, qd_d, qdd_drift = eq11(g, p_dot, tau_dot)
         v = joint_law(q_d, qd_d, qdd_drift, q, qd, c.Kp, c.Kv)
@@ -528,8 +602,8 @@ class AdaptiveController:
         self._extra_margin[:5] = c.estimate_confidence * np.sqrt(np.maximum(var, 0.0))
         return replace(dyn, h_b=hb), float(w.W[0])
 
-    def _qp_rows(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
+    def _qp_rows(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None,
+                 lam: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Eq. (21): G x <= h over x = (p'', tau'') (both columns; the caller keeps the adapted ones).
 
         The 17 rows of eq. (18) with the controller's margins (tighter mu, l range, R_y >= margin, ...),
@@ -537,7 +611,11 @@ class AdaptiveController:
         (``dyn``), since the push may stop during the coming period (identical rows when F = 0). The
         estimate only shifts h_b, so the matrix rows are the same and only the five contact offsets differ
         by C (h_b,c - h_b). Then three parameter-range rows: p + p' dt + p'' dt^2/2 within [p_min, p_max],
-        tau' + tau'' dt >= tau_dot_min (at the period's parameters ``res``; None: the memory's)."""
+        tau' + tau'' dt >= tau_dot_min (at the period's parameters ``res``; None: the memory's). With the torso
+        parameter (``lam`` = (lambda, lambda')): a third column (lambda'') and four more rows, the torso's range
+        lambda + lambda' dt + lambda'' dt^2/2 within [-lambda_max, lambda_max] and its rate lambda' + lambda'' dt
+        within [-lambda_dot_max, lambda_dot_max] (the offset moves only the two hips, which have no joint limits
+        in config/biped.yaml; their torques are among the 17 rows)."""
         c, fam, m = self.cfg, self.family, self.model
         p, p_dot, _, tau_dot = self._params(res)
         mu = c.margin_friction * m.mu
@@ -554,20 +632,30 @@ class AdaptiveController:
         AD = A @ ref.D
         Av = A @ ref.v
         dt = c.period
+        if lam is not None:
+            hh = 0.5 * dt * dt
+            G = np.vstack([AD, AD, [[hh, 0.0, 0.0], [-hh, 0.0, 0.0], [0.0, -dt, 0.0], [0.0, 0.0, hh], [0.0, 0.0, -hh],
+                                    [0.0, 0.0, dt], [0.0, 0.0, -dt]]])
+            h = np.concatenate([-(Av + b), -(Av + b0),
+                                [fam.p_max - p - p_dot * dt, p + p_dot * dt - fam.p_min, tau_dot - c.tau_dot_min,
+                                 c.lambda_max - lam[0] - lam[1] * dt, lam[0] + lam[1] * dt + c.lambda_max,
+                                 c.lambda_dot_max - lam[1], lam[1] + c.lambda_dot_max]])
+            return G, h
         G = np.vstack([AD, AD, [[0.5 * dt * dt, 0.0], [-0.5 * dt * dt, 0.0], [0.0, -dt]]])
         h = np.concatenate([-(Av + b), -(Av + b0),
                             [fam.p_max - p - p_dot * dt, p + p_dot * dt - fam.p_min, tau_dot - c.tau_dot_min]])
         return G, h
 
-    def _decide(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None):
+    def _decide(self, ref: _Reference, dyn: Dynamics, dyn_c: Dynamics, res: np.ndarray | None = None,
+                lam: tuple[float, float] | None = None):
         """Eqs. (19)-(21): x = x* when it satisfies the rows, else the QP's answer over the adapted
-        parameters (the others stay at x*). Returns (x (2,), status, message, G, h, x*) with the reduced
-        instance (None in mode none)."""
+        parameters (the others stay at x*). Returns (x (2,) or (3,) with lambda, status, message, G, h, x*)
+        with the reduced instance (None in mode none)."""
         x = ref.x_star.copy()
         if not self.adapted:
             return x, NO_ADAPTATION, MSG_FIXED_REFERENCE[self.cfg.mode], None, None, None
         try:
-            Gall, hall = self._qp_rows(ref, dyn, dyn_c, res)
+            Gall, hall = self._qp_rows(ref, dyn, dyn_c, res, lam)
             idx, fixed = self._adapted_idx, self._fixed_idx
             h = hall - Gall[:, fixed] @ x[fixed] if fixed else hall
             G, xs = Gall[:, idx], x[idx]
@@ -575,19 +663,41 @@ class AdaptiveController:
             x[idx] = qres.x
             if not np.all(np.isfinite(x)):
                 raise FloatingPointError("non-finite QP answer")
-            return x, qres.status, qres.message, G, h, xs
+            msg = qres.message
+            if lam is not None and qres.status not in (UNCONSTRAINED, ACTIVE):
+                x[2], clipped = self._torso_box(x[2], lam)
+                if clipped:
+                    msg += "; lambda'' held to the torso's range"
+            return x, qres.status, msg, G, h, xs
         except (FloatingPointError, np.linalg.LinAlgError) as exc:
             # numerical failure only (programming errors such as QPShapeError propagate): desired values
             return ref.x_star.copy(), SOLVER_ERROR, f"{type(exc).__name__}: {exc}", None, None, None
 
+    def _torso_box(self, lam_ddot: float, lam: tuple[float, float]) -> tuple[float, bool]:
+        """The torso's range is hard: lambda'' held to the interval of its four range rows (lambda within
+        +-lambda_max and lambda' within +-lambda_dot_max after one period; the range of lambda alone when the
+        two intervals do not meet). The least-violation answer of an infeasible QP weighs a violation of
+        these rows [rad, rad/s] against violations in N and N m, so it would let lambda run away. Returns
+        (lambda'' [rad/s^2], whether it changed)."""
+        c, dt = self.cfg, self.cfg.period
+        k = 2.0 / (dt * dt)
+        lo, hi = (-c.lambda_max - lam[0] - lam[1] * dt) * k, (c.lambda_max - lam[0] - lam[1] * dt) * k
+        vlo, vhi = (-c.lambda_dot_max - lam[1]) / dt, (c.lambda_dot_max - lam[1]) / dt
+        if max(lo, vlo) <= min(hi, vhi):
+            lo, hi = max(lo, vlo), min(hi, vhi)
+        out = min(max(lam_ddot, lo), hi)
+        return out, out != lam_ddot
+
     def _output(self, res: np.ndarray, torque: np.ndarray, t: float, stance: int, status: int, msg: str,
-                G, h, xs, wb=None) -> ControlOutput:
+                G, h, xs, wb=None, torso: tuple[float, float, float, float] | None = None) -> ControlOutput:
         """The period's ``ControlOutput`` from its ``RES`` row (the one status builder); the period index
         is the memory's, already advanced by the commit."""
         rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
                              self.cfg.mode, int(stance), int(status), msg)[0]
         if self.whole_body is not None:
             rec.__dict__.update(WholeBodyStage.status_fields(wb))
+        if torso is not None:
+            rec.__dict__.update(lam=torso[0], lam_dot=torso[1], lam_ddot=torso[2], lam_ddot_star=torso[3])
         keep = self.keep_qp
         return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
                              x_star=xs if keep else None)
@@ -607,18 +717,21 @@ class AdaptiveController:
         qd = np.asarray(qd, dtype=float)
         told = stance
         if self._sensing is not None:
-            view = self._sensing.process(t, q, qd, stance, pitch)
-            q, qd, stance = view.q, view.qd, view.stance
-            self.wrench = view.wrench
+            q, qd, stance = self._sensing.sense(t, q, qd, stance, pitch)
         if self._kernel is not None:
             out = self._kernel.compute(t, q, qd, stance)
             if out is not None:
+                if self._sensing is not None:
+                    if stance != told:      # a touchdown predicted before it is sensed: sent in the told order
+                        out = replace(out, torque=relabel(out.torque))
+                    self._sensing.record(t, out.torque, told)
                 return out
         res = self._begin(t, stance)
-        ref = self._reference(q, qd, res)
+        lam = self._torso_begin(res) if self.torso else None     # (lambda, lambda') of the period (issue 21)
+        ref = self._reference(q, qd, res, lam)
         dyn, jp = self._model_terms(q, qd)                     # eq. (1): A, H and the reaction rows
         dyn_c, F = self._observe(res, qd, dyn, jp)
-        x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c, res)
+        x, status, msg, G, h, xs = self._decide(ref, dyn, dyn_c, res, lam)
         w = ref.D @ x + ref.v                                    # eq. (17)
         wb = None
         if self.whole_body is not None:                          # modes wbc, hybrid (wbc.py)
@@ -629,8 +742,8 @@ class AdaptiveController:
         cm = self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
         R = dyn_c.B[:2] @ w + dyn_c.h_b[:2]
-        res[R_.x:R_.x + 2] = x
-        res[R_.x_star:R_.x_star + 2] = ref.x_star
+        res[R_.x:R_.x + 2] = x[:2]
+        res[R_.x_star:R_.x_star + 2] = ref.x_star[:2]
         res[R_.force] = F
         res[R_.max_error] = np.max(np.abs(ref.error))
         res[R_.zmp] = torque[0] / R[1] if R[1] != 0 else math.nan
@@ -646,7 +759,11 @@ class AdaptiveController:
             if stance != told:
                 torque = relabel(torque)        # sent in the order of the stance the plant told us
             self._sensing.record(t, torque, told)
-        return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
+        torso = None
+        if lam is not None:                     # the torso parameter's state: lambda, lambda' and the decision
+            self.memory[M_.lam], self.memory[M_.lam_dot], self.memory[M_.lam_ddot] = lam[0], lam[1], x[2]
+            torso = (lam[0], lam[1], float(x[2]), float(ref.x_star[2]))
+        return self._output(res, torque, t, stance, status, msg, G, h, xs, wb, torso)
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
         """Computed torque at time s_time [s] into the current period, with (p, tau) propagated from the
@@ -654,7 +771,13 @@ class AdaptiveController:
         integration rate" (eqs. 11, 16, 15). Before any decision: the initial parameters, p'' = tau'' = 0."""
         p0, pd0, tau0, taud0, p_dd, t_dd = (float(v) for v in self.memory[M_.p:M_.p + 6])
         p, pdot, tau, taud = self.ck.advance(p0, pd0, tau0, taud0, p_dd, t_dd, float(s_time))   # the one advance
-        qr, qdr, qddr = eq11(self.family.evaluate(p, tau), pdot, taud, p_dd, t_dd)
+        if self.torso:
+            l0, ld0, l_dd = (float(self.memory[o]) for o in (M_.lam, M_.lam_dot, M_.lam_ddot))
+            h = float(s_time)
+            qr, qdr, qddr = self.family.reference_torso(p, pdot, tau, taud, l0 + (ld0 * h + 0.5 * l_dd * h * h),
+                                                        ld0 + l_dd * h, p_dd, t_dd, l_dd)
+        else:
+            qr, qdr, qddr = eq11(self.family.evaluate(p, tau), pdot, taud, p_dd, t_dd)
         w = joint_law(qr, qdr, qddr, q, qd, self.cfg.Kp, self.cfg.Kv)
         dyn, _ = self._model_terms(q, qd)
         return computed_torque(dyn.A, dyn.H, w)
@@ -681,6 +804,8 @@ class _FastPeriod:
             qd = np.ascontiguousarray(qd, dtype=float)
         work = np.empty((WORK.size, 6))
         res = np.empty(RES.size)
+        if ctrl._compiled_sensing:              # issue 22: the momentum observer's inputs to the period
+            ctrl._sensing.into_res(res[_SENS_RES])
         G, h = self.G, self.h
         t, stance = float(t), int(stance)
         code = ck.step(self.coef, self.inner, self.centers, self.ti, self.tf, q, qd, t, stance, ctrl.gains,

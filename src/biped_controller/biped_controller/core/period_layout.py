@@ -8,7 +8,8 @@ read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time con
 
 * ``GAINS`` (fixed per controller): K_p, K_v of eq. (16) [1/s^2, 1/s], k_p, k_v of eq. (20) [1/s^2, 1/s],
   p_d [m], the control period dt [s], the family's p range [m], tau_dot_min [-], the observer switch
-  and height [m], which parameters are adapted (0/1).
+  and height [m], which parameters are adapted (0/1), the momentum observer switch (issue 22: its
+  estimate comes from the compiled sensing pipeline, ``estimation_kernels``, through RES.sens_*).
 * ``CONS`` (fixed per controller): the QP's margins of the 17 rows, the rows' scales, the torque limits
   [N m], the 5 contact rows of the QP (controller's mu and foot range) and the robot's own 5, each row
   (C_x, C_y, e) of ``fixed_foot.contact_rows``: C (R_x, R_y) + e Gamma_1 < 0.
@@ -16,10 +17,15 @@ read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time con
   tau' [-]) at the last decision (the start of the period being applied), the decision (p'' [m/s^2],
   tau'' [1/s]) held over it, whether a decision was taken since the reset, its time t_last [s], the
   stance of the last decision (or of the reset; -1 none), the force estimate F [N], the period index,
-  and the observer's memory of the last period: q'_prev [rad/s], w_prev [rad/s^2], A_prev (6 x 6).
+  and the observer's memory of the last period: q'_prev [rad/s], w_prev [rad/s^2], A_prev (6 x 6); then
+  (issue 21, modes lambda and all, Python steps only; 0 otherwise) the torso offset lambda [rad], lambda'
+  [rad/s] at the last decision and its decision lambda'' [rad/s^2].
 * ``RES`` (one period's answer; also the status row of the compiled loop): the period's parameters,
   x = (p'', tau''), x*, F, max |q_d - q|, the ZMP l [m], the tightest row, R = (R_x, R_y) [N], h_b and
-  h_b,c, the 17 margins (positive = satisfied), and the observer mode and elapsed time of the period.
+  h_b,c, the 17 margins (positive = satisfied), and the observer mode and elapsed time of the period;
+  with the momentum observer (issue 22) the sensing pipeline's inputs to the period, written before it:
+  the shift dR [N] of the predicted (R_x, R_y), the force estimate F_x [N] and the widening [N] of the
+  five contact rows stated with the estimate.
 * ``WORK`` (rows of 6): torque Gamma [N m], w [rad/s^2], v, e = q_d - q, dq_d/dp, dq_d/dtau, A (6 rows),
   H, B (3 rows).
 """
@@ -35,7 +41,8 @@ QP_ROWS = 2 * N_CONSTRAINTS + 3
 
 GAINS = Layout("gains", [
     ("Kp", 1), ("Kv", 1), ("kp", 1), ("kv", 1), ("p_d", 1), ("dt", 1), ("p_min", 1), ("p_max", 1),
-    ("tau_dot_min", 1), ("observer", 1), ("observer_height", 1), ("adapt_p", 1), ("adapt_tau", 1)])
+    ("tau_dot_min", 1), ("observer", 1), ("observer_height", 1), ("adapt_p", 1), ("adapt_tau", 1),
+    ("momentum", 1)])
 
 CONTACT_ROWS = 5
 CONS = Layout("cons", [
@@ -45,12 +52,14 @@ CONS = Layout("cons", [
 MEMORY = Layout("memory", [
     ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("p_ddot", 1), ("tau_ddot", 1),
     ("decided", 1), ("t_last", 1), ("stance", 1), ("force", 1), ("step", 1),
-    ("prev_qd", N_JOINTS), ("prev_w", N_JOINTS), ("prev_A", N_JOINTS * N_JOINTS)])
+    ("prev_qd", N_JOINTS), ("prev_w", N_JOINTS), ("prev_A", N_JOINTS * N_JOINTS),
+    ("lam", 1), ("lam_dot", 1), ("lam_ddot", 1)])
 
 RES = Layout("res", [
     ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("x", 2), ("x_star", 2), ("force", 1), ("max_error", 1),
     ("zmp", 1), ("tightest", 1), ("reaction", 2), ("h_b", 3), ("h_b_c", 3), ("margins", N_CONSTRAINTS),
-    ("obs_mode", 1), ("obs_dt", 1)])
+    ("obs_mode", 1), ("obs_dt", 1),
+    ("sens_dR", 2), ("sens_force", 1), ("sens_margin", 5)])
 
 WORK = Layout("work", [
     ("torque", 1), ("w", 1), ("v", 1), ("e", 1), ("dq_dp", 1), ("dq_dtau", 1), ("A", N_JOINTS), ("H", 1), ("B", 3)])

@@ -139,6 +139,11 @@ class SensingPipeline:
             qc, qdc, sc = qs, qds, stance
         return View(q=qc, qd=qdc, stance=sc, wrench=self.wrench, P=P)
 
+    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
+        """:meth:`process`'s (q, q', stance) (the controller's one call, as ``CompiledSensing.sense``)."""
+        v = self.process(t, q, qd, stance, pitch)
+        return v.q, v.qd, v.stance
+
     def record(self, t: float, torque_sent: np.ndarray, told: int) -> None:
         """The decision of this period: the torque sent, in the paper order of the told stance."""
         self.log.append((float(t), np.array(torque_sent, dtype=float), int(told)))

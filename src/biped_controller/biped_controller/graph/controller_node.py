@@ -3,7 +3,7 @@
 Owns an :class:`biped_controller.core.controller.AdaptiveController`; its configuration comes from the
 parameters, which have the keys of ``config/controller.yaml`` (defaults from that file) plus
 ``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
-``mode`` is validated against none | tau | p | both | wbc | hybrid (``controller.MODES``).
+``mode`` is validated against none | tau | p | both | wbc | hybrid | lambda | all (``controller.MODES``).
 
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
@@ -99,6 +99,10 @@ def status_message(s, stamp) -> ControllerStatus:
     m.wbc_status = int(s.wbc_status)
     m.wbc_active = int(s.wbc_active)
     m.wbc_deviation = float(s.wbc_deviation)
+    m.lam = float(s.lam)
+    m.lam_dot = float(s.lam_dot)
+    m.lam_ddot = float(s.lam_ddot)
+    m.lam_ddot_star = float(s.lam_ddot_star)
     return m
 
 

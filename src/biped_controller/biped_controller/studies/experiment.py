@@ -60,7 +60,7 @@ from biped_sim.plant.push import Push
 from biped_sim.plant.protocol import make_plant
 
 from biped_controller.studies import runner
-from biped_controller.core.controller import (MODES, NO_ADAPTATION, AdaptiveController, ControllerConfig, ControllerConfigError,
+from biped_controller.core.controller import (MODES, NO_ADAPTATION, TORSO_MODES, AdaptiveController, ControllerConfig, ControllerConfigError,
                          load_controller_config)
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
 from biped_controller.core.qp import STATUS_NAMES
@@ -276,9 +276,10 @@ def _run(steps: int, mode: str, pushes: tuple[Push, ...] = (), *, integration_ra
 
 # ------------------------------------------------------------------------------------------ summaries
 def joint_errors(result: RunResult, family: GaitFamily | None = None) -> np.ndarray:
-    """(N, 6) tracking errors q_d(p, tau) - q at every control instant [rad] (paper joint order)."""
+    """(N, 6) tracking errors q_d(p, tau, lambda) - q at every control instant [rad] (paper joint order;
+    lambda = 0 outside modes lambda and all)."""
     fam = family if family is not None else context().family
-    return np.array([fam.evaluate(s.p, s.tau).q - r.q for s, r in zip(result.statuses, result.records)])
+    return np.array([fam.evaluate_torso(s.p, s.tau, s.lam).q - r.q for s, r in zip(result.statuses, result.records)])
 
 
 def summarize(result: RunResult, family: GaitFamily | None = None, push_end: float | None = None) -> dict:
@@ -312,10 +313,16 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
         "max_p_excursion": float(np.max(np.abs(p - fam.p_d))),
         "tau_max": float(tau.max()),
         "tau_dot_min": float(taud.min()), "tau_dot_max": float(taud.max()),
+        # the observer's |force estimate| over the run [N] (issue 22: without a push it is noise and model error)
+        "force_estimate_abs_p50": float(np.percentile(np.abs([s.force_estimate for s in st]), 50)) if st else 0.0,
+        "force_estimate_abs_p95": float(np.percentile(np.abs([s.force_estimate for s in st]), 95)) if st else 0.0,
+        "force_estimate_abs_max": float(np.max(np.abs([s.force_estimate for s in st]))) if st else 0.0,
         "max_tau_dot_excursion": float(np.max(np.abs(taud - 1.0))),
         "max_abs_l": float(np.max(np.abs(cop[ok]))) if np.any(ok) else math.nan,
         "l_at_fall": float(rec[-1].cop) if result.fallen else None,
         "final_p": float(p[-1]), "final_tau_dot": float(taud[-1]),
+        "max_abs_lambda": float(np.max(np.abs([s.lam for s in st]))) if st else 0.0,
+        "final_lambda": float(st[-1].lam) if st else 0.0,
         "impact_times": impacts,
         "step_durations": [float(b - a) for a, b in zip([0.0] + impacts[:-1], impacts)],
         "qp_status_counts": qp_counts,
@@ -360,6 +367,9 @@ def print_walk(r: dict) -> None:
         if r[key] is None:
             continue
         print(f"impact times ({label}): " + ", ".join(f"{x:.6f}" for x in r[key]["impact_times"]))
+        s = r[key]
+        print(f"force estimate |F| ({label}): p50 {s['force_estimate_abs_p50']:.1f} N, p95 "
+              f"{s['force_estimate_abs_p95']:.1f} N, max {s['force_estimate_abs_max']:.1f} N")
     print(r["explanation"])
 
 
@@ -430,6 +440,8 @@ def print_push(r: dict) -> None:
     print(f"  p in [{r['p_min']:.5f}, {r['p_max']:.5f}] m, max |p - p_d| = {r['max_p_excursion']:.5f} m, final p = {r['final_p']:.6f}")
     print(f"  tau' in [{r['tau_dot_min']:.5f}, {r['tau_dot_max']:.5f}], max |tau' - 1| = {r['max_tau_dot_excursion']:.5f}, "
           f"final tau' = {r['final_tau_dot']:.6f}")
+    if r["mode"] in TORSO_MODES:
+        print(f"  max |lambda| = {r['max_abs_lambda']:.5f} rad, final lambda = {r['final_lambda']:.6f} rad")
     print(f"  max tracking error {r['max_tracking_error']:.4e} rad; QP statuses {r['qp_status_counts']}")
     for f in r.get("figures", []):
         print(f"  figure: {f}")
@@ -499,6 +511,19 @@ def push_figures(result: RunResult, outdir: Path, start: float, duration: float,
     a2.set_ylabel("tau' [-]")
     decorate(a2)
     save(fig, "fig5_tau.png")
+
+    if result.statuses and result.statuses[0].mode in TORSO_MODES:      # the torso parameter (issue 21)
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+        a1.plot(t, [s.lam for s in st], lw=1.0)
+        a1.axhline(0.0, color="k", ls="--", lw=0.8)
+        a1.set_ylabel("lambda [rad]")
+        a1.set_title(f"torso offset lambda(t) (+ leans back) and lambda'(t). {title}", fontsize=9)
+        decorate(a1)
+        a1.set_xlabel("")
+        a2.plot(t, [s.lam_dot for s in st], lw=1.0)
+        a2.set_ylabel("lambda' [rad/s]")
+        decorate(a2)
+        save(fig, "fig5b_lambda.png")
 
     fig, ax = plt.subplots(figsize=(7, 3.2))
     ax.plot(t, E[:, j], lw=1.0)

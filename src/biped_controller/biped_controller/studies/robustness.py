@@ -65,6 +65,9 @@ SEARCHES: dict[str, cmap.Search] = {
     # issue 26 (5 N table at the paper's cell, observer on): wbc 112.5 N, hybrid 771.9 N
     "wbc": cmap.Search(coarse=20.0, fmax=400.0, resolution=10.0),
     "hybrid": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
+    # issue 21 (the torso parameter; docs/torso_parameter.md has the 5 N table): searched like tau and hybrid
+    "lambda": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
+    "all": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
 }
 ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
 
@@ -352,7 +355,7 @@ def figure(levels, modes, observers, pushes: dict, out: Path) -> Path:
 
     series = [(m, obs) for m, obs in combos(modes, observers) if any((lv.name, m, obs) in pushes for lv in levels)]
     colors = {"none": "0.45", "tau": "tab:blue", "p": "tab:orange", "both": "tab:green", "wbc": "tab:purple",
-              "hybrid": "tab:red"}
+              "hybrid": "tab:red", "lambda": "tab:brown", "all": "tab:cyan"}
     fig, ax = plt.subplots(figsize=(8.5, 0.42 * len(levels) + 1.6))
     y = np.arange(len(levels))
     hgt = 0.8 / max(len(series), 1)

@@ -19,7 +19,7 @@ from biped_sim.plant.rigid import Simulator
 
 from biped_controller.core.controller import (
     CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_NO_ADAPTATION, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
-    AdaptiveController, ControllerStatusData, status_records)
+    TORSO_MODES, AdaptiveController, ControllerStatusData, status_records)
 from biped_controller.core.period_layout import QP_ROWS, RES, WORK
 from biped_controller.core.qp_types import UNCONSTRAINED
 
@@ -69,9 +69,11 @@ class Segment:
     @staticmethod
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
         # mode wbc checks its rows every period in Python (wbc.py); hybrid only after a p/tau QP, which the
-        # compiled loop hands to the objects anyway
+        # compiled loop hands to the objects anyway; modes lambda and all (the torso parameter, issue 21)
+        # have no compiled period yet (their controller has none either); real sensing (issue 22): the compiled
+        # loop has no sensing pipeline (the controller's compiled step has)
         return bool(sim.compiled and getattr(ctrl, "compiled_period", None) is not None and sim.sensor.identity
-                    and ctrl.cfg.mode != "wbc")
+                    and ctrl.cfg.mode not in ("wbc",) + TORSO_MODES and not ctrl.cfg.real_sensing)
 
     def run(self, t_stop: float, max_periods: int = 1 << 40, decision: tuple | None = None, build: bool = True
             ) -> tuple[list[StepRecord], list[ControllerStatusData]]:

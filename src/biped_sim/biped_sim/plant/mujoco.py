@@ -226,11 +226,12 @@ class MujocoPlant(ScheduledPushes):
 
     def observe(self) -> Observation:
         q, qd = self.measured(self.x, self.v, self.stance)
+        pitch = float(self.x[2])          # the IMU (issue 22): the torso's pitch in the world, = q1 + q2 + q3 here
         if self.sensor.identity:
-            return Observation(self.step_index, self.t, self.stance, q, qd)
-        self.sensor.sample(self.step_index, self.stance, q, qd)
+            return Observation(self.step_index, self.t, self.stance, q, qd, pitch)
+        self.sensor.sample(self.step_index, self.stance, q, qd, pitch)
         stance, qs, qds = self.sensor.reading(self.step_index)
-        return Observation(self.step_index, self.t, stance, qs, qds)
+        return Observation(self.step_index, self.t, stance, qs, qds, self.sensor.pitch_reading(self.step_index))
 
     # ------------------------------------------------------------ contacts
     def _contacts(self) -> tuple[np.ndarray, int]:

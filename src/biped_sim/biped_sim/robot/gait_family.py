@@ -1,4 +1,5 @@
-"""The family of reference trajectories q_d(p, tau) (paper eqs. 12-14) and its partial derivatives.
+"""The family of reference trajectories q_d(p, tau) (paper eqs. 12-14) and its partial derivatives,
+and its extension by a third parameter, the torso offset lambda (issue 21: ``with_torso``, ``eq11_torso``).
 
 Pure Python (NumPy), no ROS. An asset of the robot that both sides use: the simulator takes its initial
 state from it, the controller its reference (hence it lives in ``biped_sim``, which the controller
@@ -66,6 +67,63 @@ def eq11(g: GaitSample, p_dot: float, tau_dot: float, p_ddot: float = 0.0, tau_d
     qd = g.dq_dp * p_dot + g.dq_dtau * tau_dot
     qdd = (g.dq_dp * p_ddot + g.dq_dtau * tau_ddot + g.d2q_dp2 * p_dot**2 + g.d2q_dtau2 * tau_dot**2
            + 2.0 * g.d2q_dp_dtau * p_dot * tau_dot)
+    return g.q, qd, qdd
+
+
+# ---------------------------------------------------------------------- the torso parameter lambda (issue 21)
+#: dq/dlambda per unit profile: the torso's absolute pitch q1 + q2 + q3 changes by lambda phi, the stance
+#: thigh's (q1 + q2) and the swing thigh's (q1 + q2 + q3 + q4) absolute angles do not: q3 += lambda phi
+#: (torso w.r.t. stance thigh), q4 -= lambda phi (swing thigh w.r.t. torso). Paper order q1..q6.
+TORSO_DIRECTION = np.array([0.0, 0.0, 1.0, -1.0, 0.0, 0.0])
+
+
+def torso_profile(s: float) -> tuple[float, float, float]:
+    """(phi, dphi/ds, d2phi/ds2) of the torso offset's profile over the step, s = tau / T [-]:
+    phi(s) = 16 s^2 (1 - s)^2 on [0, 1] (phi(1/2) = 1; phi = phi' = 0 at s = 0 and s = 1), and 0 outside
+    [0, 1] (a step that lasts longer than T, or tau < 0: no offset). phi is C1 everywhere; phi'' jumps
+    at s = 0 and 1 (from 32 to 0), so q_d and q_d' are continuous in tau, q_d'' is not there."""
+    if s <= 0.0 or s >= 1.0:
+        return 0.0, 0.0, 0.0
+    u = 1.0 - s
+    return 16.0 * s * s * u * u, 32.0 * s * u * (u - s), 32.0 * (u * u - 4.0 * s * u + s * s)
+
+
+@dataclass(frozen=True)
+class TorsoGaitSample:
+    """q_d(p, tau, lambda) = q_d(p, tau) + lambda phi(tau / T) e (e = ``TORSO_DIRECTION``) and its partial
+    derivatives; arrays (6,). The lambda terms change q, dq/dtau and d2q/dtau2; the new ones are
+    dq/dlambda = phi e [rad/rad] and d2q/dtau dlambda = phi'(s) / T e [1/s]; d2q/dlambda2 = d2q/dp dlambda
+    = 0 (q_d is affine in lambda and lambda does not touch the p-dependence)."""
+
+    q: np.ndarray
+    dq_dp: np.ndarray
+    dq_dtau: np.ndarray
+    dq_dlam: np.ndarray
+    d2q_dp2: np.ndarray
+    d2q_dtau2: np.ndarray
+    d2q_dp_dtau: np.ndarray
+    d2q_dtau_dlam: np.ndarray
+
+
+def with_torso(g: GaitSample, tau: float, lam: float, T: float) -> TorsoGaitSample:
+    """The sample ``g`` of q_d(p, tau) extended by the torso offset lambda [rad] at phase tau [s] of a
+    step of duration T [s] (see :class:`TorsoGaitSample`)."""
+    phi, dphi, d2phi = torso_profile(float(tau) / T)
+    e = TORSO_DIRECTION
+    return TorsoGaitSample(q=g.q + (lam * phi) * e, dq_dp=g.dq_dp, dq_dtau=g.dq_dtau + (lam * dphi / T) * e,
+                           dq_dlam=phi * e, d2q_dp2=g.d2q_dp2, d2q_dtau2=g.d2q_dtau2 + (lam * d2phi / (T * T)) * e,
+                           d2q_dp_dtau=g.d2q_dp_dtau, d2q_dtau_dlam=(dphi / T) * e)
+
+
+def eq11_torso(g: TorsoGaitSample, p_dot: float, tau_dot: float, lam_dot: float, p_ddot: float = 0.0,
+               tau_ddot: float = 0.0, lam_ddot: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. (11) with the third parameter: (q_d, q_d', q_d'') along (p, tau, lambda)(t),
+    q_d' = dq/dp p' + dq/dtau tau' + dq/dlambda lambda',
+    q_d'' = dq/dp p'' + dq/dtau tau'' + dq/dlambda lambda'' + d2q/dp2 p'^2 + d2q/dtau2 tau'^2
+            + 2 d2q/dpdtau p' tau' + 2 d2q/dtaudlambda tau' lambda'   (d2q/dlambda2 = d2q/dpdlambda = 0)."""
+    qd = g.dq_dp * p_dot + g.dq_dtau * tau_dot + g.dq_dlam * lam_dot
+    qdd = (g.dq_dp * p_ddot + g.dq_dtau * tau_ddot + g.dq_dlam * lam_ddot + g.d2q_dp2 * p_dot**2
+           + g.d2q_dtau2 * tau_dot**2 + 2.0 * g.d2q_dp_dtau * p_dot * tau_dot + 2.0 * g.d2q_dtau_dlam * tau_dot * lam_dot)
     return g.q, qd, qdd
 
 
@@ -191,6 +249,16 @@ class GaitFamily:
                   p_ddot: float = 0.0, tau_ddot: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q_d, q_d', q_d'') of eq. (11) at (p, tau)."""
         return eq11(self.evaluate(p, tau), p_dot, tau_dot, p_ddot, tau_ddot)
+
+    def evaluate_torso(self, p: float, tau: float, lam: float) -> TorsoGaitSample:
+        """q_d(p, tau, lambda) and its partial derivatives (lambda [rad]: the torso offset's amplitude)."""
+        return with_torso(self.evaluate(p, tau), tau, float(lam), self.T)
+
+    def reference_torso(self, p: float, p_dot: float, tau: float, tau_dot: float, lam: float, lam_dot: float,
+                        p_ddot: float = 0.0, tau_ddot: float = 0.0, lam_ddot: float = 0.0
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q_d, q_d', q_d'') of eq. (11) with the torso parameter (:func:`eq11_torso`)."""
+        return eq11_torso(self.evaluate_torso(p, tau, lam), p_dot, tau_dot, lam_dot, p_ddot, tau_ddot, lam_ddot)
 
     def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Start of the preferred step, where every run starts: (q_d(p_d, 0), dq_d/dtau(p_d, 0)) [rad,

@@ -12,7 +12,7 @@ from biped_controller.studies.capmap.spec import Cell
 
 _DIR_STYLE = {"forward": "-", "backward": "--"}
 _MODE_COLOR = {"none": "0.4", "tau": "tab:blue", "p": "tab:orange", "both": "tab:green", "wbc": "tab:purple",
-               "hybrid": "tab:red"}
+               "hybrid": "tab:red", "lambda": "tab:brown", "all": "tab:cyan"}
 
 
 def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:

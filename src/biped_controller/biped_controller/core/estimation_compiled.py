@@ -1,0 +1,206 @@
+"""The sensing pipeline on compiled kernels (issue 22): the estimator, the momentum observer and the Smith
+predictor of ``sensing.SensingPipeline``, for the controller's compiled period.
+
+Pure Python + NumPy around ``estimation_kernels`` (numba), no ROS. One :class:`CompiledSensing` per
+controller keeps its state in one array (``estimation_layout.SENS``) that the kernels update in place; the
+Python cores stay the oracle (tests: the same seeded noisy run period by period, to round-off). A sensed
+touchdown (once a step) takes the model's flat-foot impact map in Python (``predictor.flat_foot_impact``,
+the same function as the Python pipeline's); everything else is one compiled call a period. With a known
+delay of d > 0 periods (``delay_compensation``) the bookkeeping of the delayed samples is the Python
+pipeline's (which period's sample, the interval since the previous one and the torque applied over it, from
+the log of the controller's decisions), the estimator and the observer run on the sample, and the predictor
+(``estimation_kernels.predict``: RK4 on the fixed-foot chain, the touchdown and its flat-foot impact map
+compiled) takes it to the present through the last d decisions.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from biped_sim.robot import numba_cache
+from biped_sim.robot.description import RobotDescription
+from biped_sim.robot.floating import FloatingModel
+
+from collections import deque
+
+from biped_sim.robot.fixed_foot import relabel
+
+from biped_controller.core.estimation import RELABEL, Estimate, EstimatorConfig
+from biped_controller.core.estimation_layout import SCONF, SENS, SC_, S_
+from biped_controller.core.momentum_observer import Wrench
+from biped_controller.core.predictor import flat_foot_impact
+
+ESTIMATION_KERNELS = "biped_controller.core.estimation_kernels"
+ESTIMATION_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
+                              "biped_sim.robot.layout", "biped_controller.core.estimation_layout")
+
+
+def load_estimation_kernels():
+    """``estimation_kernels`` through ``numba_cache.load`` (cache kept with its dependencies)."""
+    return numba_cache.load(ESTIMATION_KERNELS, sources=ESTIMATION_KERNELS_SOURCES)
+
+
+class SensingSingular(FloatingPointError):
+    """A model matrix of the compiled pipeline was not positive definite (a non-finite state)."""
+
+
+class CompiledSensing:
+    """``SensingPipeline`` for delay 0 on ``estimation_kernels``. ``cfg``: the ControllerConfig; ``ti``, ``tf``:
+    the fixed-foot tree's arrays (``FastFixedFootModel``); ``qp_rows`` (5, 2): the QP's contact rows' (C_x,
+    C_y); ``torque_min``, ``torque_max``: the limits [N m]."""
+
+    def __init__(self, cfg, desc: RobotDescription, ti: np.ndarray, tf: np.ndarray, qp_rows: np.ndarray,
+                 torque_min: np.ndarray, torque_max: np.ndarray):
+        self.d = int(cfg.delay_compensation)
+        self.ek = load_estimation_kernels()
+        self.cfg = cfg
+        self.ti, self.tf = ti, tf
+        est = EstimatorConfig(sigma_q=cfg.sensor_noise_q, encoder_bits=int(cfg.sensor_encoder_bits),
+                              sigma_qd=cfg.sensor_noise_qd, sigma_pitch=cfg.sensor_noise_pitch,
+                              sigma_acc=cfg.estimator_accel_std, sigma_impact=cfg.estimator_impact_std)
+        self.est_cfg = est
+        self.estimator = bool(cfg.state_estimator)
+        self.observer = bool(cfg.disturbance_observer and cfg.momentum_observer)
+        if self.estimator:
+            est.validate()
+        c = SCONF.new()
+        c[SC_.estimator] = float(self.estimator)
+        c[SC_.observer] = float(self.observer)
+        c[SC_.K] = cfg.momentum_observer_gain
+        c[SC_.height] = cfg.observer_height
+        c[SC_.sigma_acc] = cfg.estimator_accel_std
+        c[SC_.var_q] = est.var_q
+        c[SC_.var_qd] = est.sigma_qd ** 2 if math.isfinite(est.sigma_qd) else -1.0
+        c[SC_.var_pitch] = est.sigma_pitch ** 2 if math.isfinite(est.sigma_pitch) else -1.0
+        c[SC_.sigma_impact] = cfg.estimator_impact_std
+        c[SC_.noise_qd] = cfg.sensor_noise_qd
+        c[SC_.confidence] = cfg.estimate_confidence
+        c[SCONF.slice("qp_rows")] = np.asarray(qp_rows, dtype=float).ravel()
+        c[SCONF.slice("torque_min")] = torque_min
+        c[SCONF.slice("torque_max")] = torque_max
+        c[SC_.period] = cfg.period
+        c[SC_.pred_substeps] = cfg.predictor_substeps
+        c[SC_.pred_td_height] = cfg.predictor_touchdown_height
+        c[SC_.pred_clearance] = cfg.predictor_clearance
+        c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
+        self.conf = c
+        self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
+        self.state = SENS.new()
+        self.fm = FloatingModel(desc)
+        self._q = np.empty(6)
+        self._qd = np.empty(6)
+        self._qp = np.empty(6)
+        self._qdp = np.empty(6)
+        self._pout = np.empty(2)
+        self._hist = np.zeros((max(self.d, 1), 8))
+        self.reset()
+
+    def reset(self) -> None:
+        s = self.state
+        s[:] = 0.0
+        s[SENS.slice("P")] = np.eye(12).ravel()   # as JointStateEstimator.__init__ (overwritten at the first sample)
+        s[S_.pred_sample_stance] = -1.0
+        self.k = 0                                # periods decided since the reset
+        self.log: deque = deque(maxlen=self.d + 2)   # (t, torque sent, told stance) of the last decisions
+        self._j = None                            # the period of the last sample used (delay > 0)
+
+    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
+        """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object
+        reuses: copy to keep)."""
+        if self.d > 0:
+            return self._sense_delayed(float(t), q, qd, int(stance), float(pitch))
+        ek, s = self.ek, self.state
+        code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), self._q, self._qd)
+        if code == ek.NEEDS_IMPACT:
+            self._impact()
+            code = ek.sense_finish(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch),
+                                   self._q, self._qd)
+        if code != ek.DONE:
+            raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
+        return self._q, self._qd, int(stance)
+
+    def _decision(self, j: int):
+        return self.log[j - (self.k - len(self.log))]
+
+    def _sense_delayed(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float):
+        """Delay d > 0 (``SensingPipeline.process``): the sample is that of period j = max(k - d, 0), taken at
+        the instant of the controller's decision j; a new one goes through the estimator and the observer
+        (the interval since the previous sample and the torque applied over it from the log), then the
+        predictor takes the sample's state to t through the last d decisions."""
+        ek, s = self.ek, self.state
+        j = max(self.k - self.d, 0)
+        new = self._j is None or j > self._j
+        if new:
+            t_s = t
+            if self._j is not None:
+                t_prev, tau_prev, told_prev = self._decision(self._j)
+                t_s = t if j == self.k else self._decision(j)[0]
+                s[S_.t_prev] = t_prev
+                s[S_.torque_prev:S_.torque_prev + 6] = tau_prev
+                s[S_.told_prev] = told_prev
+                s[S_.decided] = 1.0
+            code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+            if code == ek.NEEDS_IMPACT:
+                self._impact()
+                code = ek.sense_finish(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+            if code != ek.DONE:
+                raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
+            self._j = j
+        elif self.estimator:
+            self._q[:], self._qd[:] = s[S_.x:S_.x + 6], s[S_.x + 6:S_.x + 12]
+        else:
+            self._q[:], self._qd[:] = q, qd
+        n = min(self.d, len(self.log))
+        for i in range(n):
+            tt, tau, told = self.log[len(self.log) - n + i]
+            self._hist[i, 0], self._hist[i, 1], self._hist[i, 2:] = tt, told, tau
+        code = ek.predict(self.ti, self.tf, self.conf, s, self._hist, n, t, self._q, self._qd, stance,
+                          self._qp, self._qdp, self._pout)
+        if code != ek.DONE:
+            raise SensingSingular("the compiled predictor met a singular model matrix")
+        return self._qp, self._qdp, int(self._pout[0])
+
+    def _impact(self) -> None:
+        """The sensed touchdown on the time-updated estimate (``estimation.JointStateEstimator.relabel_impact``
+        after ``predictor.flat_foot_impact``, as ``SensingPipeline.process``)."""
+        s = self.state
+        x = s[SENS.slice("x")]
+        P = s[SENS.slice("P")].reshape(12, 12)
+        qn, qdn = flat_foot_impact(self.fm, x[:6].copy(), x[6:].copy(), int(s[S_.stance]))
+        x[:6], x[6:] = qn, qdn
+        Pn = RELABEL @ P @ RELABEL.T
+        Pn[6:, 6:] += self.cfg.estimator_impact_std ** 2 * np.eye(6)
+        P[:, :] = Pn
+
+    def into_res(self, out: np.ndarray) -> None:
+        """out (8,) <- [dR (2) [N], F_x [N], the five contact rows' widening [N]] (the controller's RES.sens_*)."""
+        self.ek.into_res(self.state, self.conf, out)
+
+    def record(self, t: float, torque_sent: np.ndarray, told: int) -> None:
+        """The decision of this period: the torque sent, in the paper order of the told stance."""
+        if self.d > 0:
+            self.log.append((float(t), np.array(torque_sent, dtype=float), int(told)))
+            self.k += 1
+            return
+        s = self.state
+        s[S_.t_prev] = t
+        s[S_.torque_prev:S_.torque_prev + 6] = torque_sent
+        s[S_.told_prev] = told
+        s[S_.decided] = 1.0
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """The estimate's covariance (12 x 12; None without the estimator)."""
+        return self.state[SENS.slice("P")].reshape(12, 12).copy() if self.estimator else None
+
+    @property
+    def wrench(self) -> Wrench | None:
+        """The momentum observer's last estimate as the Python observer's ``Wrench`` (None: observer off or
+        no sample yet)."""
+        s = self.state
+        if not self.observer or s[S_.mo_started] == 0.0:
+            return None
+        g = lambda name: s[SENS.slice(name)].copy()   # noqa: E731
+        return Wrench(r=g("r"), W=g("W"), cov_W=g("cov_W").reshape(3, 3), dR=g("dR"),
+                      cov_dR=g("cov_dR").reshape(2, 2), S=g("S").reshape(2, 3))
