@@ -594,8 +594,9 @@ def markdown(R: dict) -> str:
              f"{TARGETS['inprocess_realtime_factor']:.0f}x real time): fast / reference = "
              f"{_f(ip.get('fast_over_reference'), 2)}")
     L.append("")
-    L.append("Variants: `fast` = compiled loop (loop_kernels: many periods per call; the objects take the "
-             "periods with a QP, an impact or a fall), every record kept (runner.run's default); "
+    L.append("Variants: `fast` = compiled loop (loop_kernels: many periods per call, the QP periods decided "
+             "between two calls; the objects take the impacts, the falls and hybrid's QP periods), every record "
+             "kept (runner.run's default); "
              "`fast_outcome_only` = the same with keep_records=False (what survival sweeps run); `fast_objects` = "
              "compiled kernels, the Python objects every period (compiled_loop=False); `reference` = Pinocchio; "
              "`mujoco` = the MuJoCo plant (`plant: mujoco`, issue 24; target >= 20x in mode both) with the controller's "

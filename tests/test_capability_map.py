@@ -663,3 +663,33 @@ def test_fast_map_gives_the_full_maps_answers_on_a_small_real_map():
         assert cause(fast, f) == cause(full, b), c
     assert fast.simulated < full.simulated
     assert any(r.get("decided_at_step") for rs in fast.records.values() for r in rs.values())
+
+
+def test_coarse_edge_is_known_before_the_cell_ends_and_equals_its_final_edge(monkeypatch):
+    """The driver starts a cell's neighbour from this cell's coarse edge as soon as the bracket (or the
+    coarse scan) holds (search.coarse_edge), before its islands and bisection end: that index equals
+    edge_index of the finished boundary in every cell; without the bisection's records it is already known,
+    without one of the bracket's two forces it is not (None)."""
+    from biped_controller.studies.capmap.search import coarse_edge, edge_index
+    fake = SteepSurvives()
+    monkeypatch.setattr(experiment, "survives", fake)
+    spec = cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": True, "island_window": 2})
+    run = cm.run_map(spec)
+    ph = sorted(spec.phases)
+    checked = unknown = 0
+    for c, b in run.boundaries.items():
+        search = spec.search.for_duration(c.duration)
+        left = cm.Cell(c.mode, c.direction, ph[ph.index(c.phase) - 1], c.duration) if c.phase != ph[0] else None
+        hint = None if left is None else edge_index(run.boundaries[left], search.coarse)
+        surv = {f: r["survived"] for f, r in run.records[c].items()}
+        want = edge_index(b, search.coarse)
+        assert coarse_edge(search, surv, hint, 2) == want, c
+        coarse_only = {f: s for f, s in surv.items() if abs(f / search.coarse - round(f / search.coarse)) < 1e-9}
+        assert coarse_edge(search, coarse_only, hint, 2) == want, c        # the bisection does not move it
+        checked += 1
+        if b.hi is not None and hint is not None:
+            k = int(want)
+            dropped = {f: s for f, s in coarse_only.items() if f != k * search.coarse}
+            assert coarse_edge(search, dropped, hint, 2) is None, c       # the bracket's upper force missing
+            unknown += 1
+    assert checked == len(spec.cells()) and unknown > 0

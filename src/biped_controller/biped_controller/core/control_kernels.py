@@ -399,6 +399,11 @@ def step(coef, inner, centers, ti, tf, q, qd, t, stance, gains, cons, mem, G, h,
     return code
 
 
+#: the outputs of a period for the decision x = res[x] (w, torque, margins, reaction, l, tightest row), the
+#: memory untouched: the compiled loop's QP periods, committed with the period (issue 19)
+period_outputs = _finish
+
+
 @numba.njit(numba.types.int64(_V, _V, _M, _V, _V, _F, _I), cache=True)
 def finish(cons, mem, work, res, qd, t, stance):
     """After a QP: w, torque, margins, reaction, l and the tightest row for x = res[x]; the memory is

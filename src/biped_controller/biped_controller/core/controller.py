@@ -62,6 +62,7 @@ from biped_sim.robot.settings import SettingsError, default_config_dir, read_set
 from biped_sim.robot.gait_family import GaitFamily, eq11, eq11_torso
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
 from biped_sim.robot import numba_cache
+from biped_sim.robot.layout import SnapshotUnsupported
 from biped_controller.core.period_layout import (
     CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WBC, WORK, M_, R_, W_, WB_)
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
@@ -503,6 +504,22 @@ class AdaptiveController:
         if self._sensing is not None:
             self._sensing.reset()
 
+    def snapshot(self) -> np.ndarray:
+        """The state between two periods (issue 19): a copy of ``memory``. The held solvers (PIQP, the
+        whole-body QP) keep no answer from one call to the next that changes the next answer (every solve
+        starts afresh from the instance: tested by reusing a controller across trials), so the memory is all
+        there is. Raises :class:`SnapshotUnsupported` with real sensing (its filters hold state of their
+        own)."""
+        if self._sensing is not None:
+            raise SnapshotUnsupported("AdaptiveController.snapshot: real sensing (estimator, observer, predictor) "
+                                      "carries state outside memory")
+        return self.memory.copy()
+
+    def restore(self, memory: np.ndarray) -> None:
+        """Back to the state of :meth:`snapshot` (copied into ``memory``; the same object goes on)."""
+        self.memory[:] = memory
+        self._extra_margin = np.zeros(N_CONSTRAINTS)
+
     # --------------------------------------------------------------- the steps of one period
     def _begin(self, t: float, stance: int) -> np.ndarray:
         """The period's start (``control_kernels.begin``, the one home of the equation, shared with the
@@ -826,25 +843,19 @@ class _FastPeriod:
                        ctrl.cons, ctrl.memory, G, h, work, res)
         if code == ck.NONFINITE:
             return None
-        xs_full = res[R_.x_star:R_.x_star + 2]
         Gr = hr = xs = None
         if not ctrl.adapted:
             status, msg = NO_ADAPTATION, MSG_FIXED_REFERENCE[ctrl.cfg.mode]
+        elif code == ck.FEASIBLE:
+            Gr, hr, xs = self.reduced(G, h, res)
+            status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
         else:
-            idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
-            Gr, xs = G[:, idx], xs_full[idx]
-            hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
-            if code == ck.FEASIBLE:
-                status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
-            else:
-                qres = ctrl.qp.solve(Gr, hr, xs)
-                x = xs_full.copy()
-                x[idx] = qres.x
-                if not np.all(np.isfinite(x)):
-                    return None
-                status, msg = qres.status, qres.message
-                res[R_.x:R_.x + 2] = x
-                ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
+            answer = self.solve_qp(G, h, res)
+            if answer is None:
+                return None
+            x, status, msg, Gr, hr, xs = answer
+            res[R_.x:R_.x + 2] = x
+            ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
         torque, wb = work[W_.torque].copy(), None
         if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage
             if self.python_stage:
@@ -874,6 +885,29 @@ class _FastPeriod:
         elif code == wk.NONFINITE:      # non-finite rows: w* is kept (the Python stage's SOLVER_ERROR)
             res[R_.wbc_status] = SOLVER_ERROR
         return work[W_.torque].copy(), False
+
+    def reduced(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
+        """The QP over the adapted parameters of the rows G x <= h (x = (p'', tau'')) and x* of ``res``: a
+        parameter that is not adapted stays at x* and moves to the right-hand side. Returns (G_r, h_r, x*_r)."""
+        ctrl = self.ctrl
+        xs_full = res[R_.x_star:R_.x_star + 2]
+        idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
+        Gr, xs = G[:, idx], xs_full[idx]
+        hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
+        return Gr, hr, xs
+
+    def solve_qp(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
+        """The period's decision when x* is not feasible (``control_kernels.step`` returned NEEDS_QP with G,
+        h and ``res``): the controller's QP on the adapted parameters. Returns (x (2,), status, message, G_r,
+        h_r, x*_r), or None when the answer is not finite (the caller takes the reference path). Also the
+        compiled loop's QP periods (``segment``): one home of the decision."""
+        Gr, hr, xs = self.reduced(G, h, res)
+        qres = self.ctrl.qp.solve(Gr, hr, xs)
+        x = res[R_.x_star:R_.x_star + 2].copy()
+        x[self.ctrl._adapted_idx] = qres.x
+        if not np.all(np.isfinite(x)):
+            return None
+        return x, qres.status, qres.message, Gr, hr, xs
 
     def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):
         """The whole-body stage after the compiled period (which has committed its w to ``memory``): when it

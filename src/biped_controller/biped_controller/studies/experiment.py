@@ -263,7 +263,7 @@ DEFAULT_SETTINGS = RunSettings()
 
 def _run(steps: int, mode: str, pushes: tuple[Push, ...] = (), *, integration_rate: bool = False,
          observer: bool | None = None, keep_qp: bool = False, settings: RunSettings = DEFAULT_SETTINGS,
-         keep_records: bool = True, on_impact=None) -> RunResult:
+         keep_records: bool = True, on_impact=None, pool: runner.LoopPool | None = None) -> RunResult:
     ctx = context()
     if observer is not None:
         settings = RunSettings(tuple(sorted({**dict(settings.controller), "disturbance_observer": observer}.items())),
@@ -271,7 +271,7 @@ def _run(steps: int, mode: str, pushes: tuple[Push, ...] = (), *, integration_ra
     ccfg = settings.ctrl_config(mode)
     return runner.run(steps=steps, mode=mode, pushes=pushes, sim_config=settings.sim_config(), ctrl_config=ccfg,
                       family=ctx.family, desc=ctx.desc, integration_rate=integration_rate, keep_qp=keep_qp,
-                      perturbation=settings.perturbation, keep_records=keep_records, on_impact=on_impact)
+                      perturbation=settings.perturbation, keep_records=keep_records, on_impact=on_impact, pool=pool)
 
 
 # ------------------------------------------------------------------------------------------ summaries
@@ -381,13 +381,15 @@ def push_step_index(start: float, duration: float, T: float) -> int:
 
 def push_run(force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, mode: str = "both",
              height: float | None = None, steps_after: int = SURVIVAL_STEPS, keep_qp: bool = False,
-             settings: RunSettings = DEFAULT_SETTINGS, keep_records: bool = True, on_impact=None) -> RunResult:
+             settings: RunSettings = DEFAULT_SETTINGS, keep_records: bool = True, on_impact=None,
+             pool: runner.LoopPool | None = None) -> RunResult:
     """One push (+ forward, i.e. on the back), then ``steps_after`` more steps. ``keep_records`` False: the
-    outcome only (``runner.run``), as a survival trial needs; ``on_impact``: ``runner.run``'s early stop."""
+    outcome only (``runner.run``), as a survival trial needs; ``on_impact``: ``runner.run``'s early stop;
+    ``pool``: ``runner.run``'s reuse of the loop and of the walk up to the push."""
     T = context().family.T
     steps = push_step_index(start, duration, T) + 1 + steps_after
     return _run(steps, mode, (Push(start, duration, float(force), height),), keep_qp=keep_qp, settings=settings,
-                keep_records=keep_records, on_impact=on_impact)
+                keep_records=keep_records, on_impact=on_impact, pool=pool)
 
 
 def noisy_sensing(settings: RunSettings) -> bool:
@@ -617,14 +619,28 @@ def early_stop() -> EarlyStop:
     return _early_stop(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
 
 
+@functools.lru_cache(maxsize=1)
+def loop_pool() -> runner.LoopPool:
+    """This process's :class:`runner.LoopPool` (the survival trials' plants, controllers and walks to the
+    push onsets, reused: bit-identical outcomes, tested)."""
+    return runner.LoopPool()
+
+
 def survives(force: float, mode: str, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
-             height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS) -> dict:
+             height: float | None = None, settings: RunSettings = DEFAULT_SETTINGS,
+             pool: runner.LoopPool | None | bool = True) -> dict:
     """One survival trial (JSON-ready): force, survived, reason, and a few numbers. With the early stop
     (``config/studies.yaml``, unless ``settings.full_trials`` or a perturbed plant) the trial ends at the
     first impact where its outcome is decided (:class:`EarlyStop`): survived, ``decided_at_step`` = the
     impacts walked by then; otherwise ``decided_at_step`` is None (the trial ran in full). Under sensor noise
-    survival uses the noise band (``survival(noisy=True)``)."""
+    survival uses the noise band (``survival(noisy=True)``). ``pool`` True: this process's
+    :func:`loop_pool` (the loop and the walk up to the push reused, the outcome bit-identical); a
+    ``runner.LoopPool``; None or False: a new plant and controller, walked from t = 0."""
     end = start + duration
+    if pool is True:
+        pool = loop_pool()
+    elif pool is False:
+        pool = None
     on_impact = None
     fired: list[int] = []
     es = None if settings.full_trials else early_stop()
@@ -637,7 +653,8 @@ def survives(force: float, mode: str, duration: float = DEFAULT_DURATION, start:
                 return True
             return False
         on_impact = stop_if_decided
-    res = push_run(force, duration, start, mode, height, settings=settings, keep_records=False, on_impact=on_impact)
+    res = push_run(force, duration, start, mode, height, settings=settings, keep_records=False, on_impact=on_impact,
+                   pool=pool)
     decided = bool(fired) and not res.fallen
     if decided:
         ok, why = True, "survived"

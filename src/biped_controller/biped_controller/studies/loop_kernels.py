@@ -7,8 +7,9 @@ with the same kernels --
 
   1. the sensors: paper (q, q') of the stance from the floating state (``paper_from_urdf``);
   2. the controller: ``control_kernels.period_start`` (the parameter advance and the observer's mode, the one
-     home of both) and ``control_kernels.period_step`` (x* must be feasible: a period that needs the QP ends
-     the segment before it);
+     home of both) and ``control_kernels.period_step``; a period that needs the QP ends the segment before it
+     (its rows handed back), and the next call takes it with the caller's decision (issue 19:
+     ``control_kernels.period_outputs``, the controller's ``finish`` without the commit of step 5);
   3. the torque: clipped to the limits, mapped to the URDF joints of the stance;
   4. the simulator: the period's intervals (RK4 substeps, split at push starts and ends, as
      ``Simulator.step``) and ``planar_kernels.period`` (an event -- touchdown candidate, failed wrench
@@ -41,7 +42,7 @@ from biped_sim.robot.layout import Layout
 from biped_sim.plant.rigid_layout import L_, S_
 from biped_controller.core import control_kernels as ck
 from biped_controller.core import wbc_kernels as wk
-from biped_controller.core.period_layout import QP_ROWS, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.period_layout import QP_ROWS, R_, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -95,19 +96,21 @@ def _knots(t_start, dt_nom, substeps, pushes, knots):
     _C4, _V, _V, _VI, _V, _V, _V, _V,                           # controller: family, tree, gains, cons, mem
     _VI, _V, _V, _V, _M, _C3,                                   # simulator: tree, sst, slim, pushes, perm
     _F, _I, _B, _M, _M, _V,                                     # t_stop, max_periods, ring, rec, sta, out
-    _V), cache=True)                                            # wbc: the whole-body stage's constants
+    _V,                                                         # wbc: the whole-body stage's constants
+    _M, _V, _V, _M, _V, _B), cache=True)                        # QP: G, h, res, work, x, x given for the 1st period
 def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                 sti, stf, sst, slim, pushes, perm,
-                t_stop, max_periods, ring, rec, sta, out, wbc):
+                t_stop, max_periods, ring, rec, sta, out, wbc,
+                G, h, res, work, qp_x, qp_given):
     """Run periods while nothing needs Python (module docstring). Returns the number of periods done;
-    out[0] = why the segment ended (END_*)."""
+    out[0] = why the segment ended (END_*). A period that needs the QP ends the segment with its rows in
+    ``G`` (QP_ROWS, 2), ``h``, its ``res`` row (x*, the parameters) and ``work`` (WORK rows); the caller
+    solves it and calls again, those arrays untouched, with the decision in ``qp_x`` and ``qp_given`` True:
+    the first period (the same one: the state has not moved) then takes x = qp_x
+    (``control_kernels.period_outputs``, as the controller's ``finish`` does) and the segment goes on."""
     cap = rec.shape[0]
     q = np.empty(6)
     qd = np.empty(6)
-    G = np.empty((QP_ROWS, 2))
-    h = np.empty(QP_ROWS)
-    work = np.empty((WORK_ROWS, 6))
-    res = np.empty(RES_SIZE)
     applied = np.empty(6)
     tj = np.empty(6)
     knots = np.empty(64)
@@ -141,11 +144,18 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
             q[i] = sq
             qd[i] = sv
         # 2. controller: the period's start (advance, observer mode; the memory is committed with the period)
-        ck.period_start(mem, t, stance, res)
-        code = ck.period_step(coef, inner, centers, cti, ctf, q, qd, gains, cons, mem, G, h, work, res)
-        if code == ck.NEEDS_QP:
-            out[0] = END_QP
-            return n_done
+        if qp_given and n_done == 0:
+            # the QP period handed back by the last call, its res and work as they were left: the decision
+            res[R_.x] = qp_x[0]
+            res[R_.x + 1] = qp_x[1]
+            ck.period_outputs(cons, work, res)
+            code = ck.FEASIBLE
+        else:
+            ck.period_start(mem, t, stance, res)
+            code = ck.period_step(coef, inner, centers, cti, ctf, q, qd, gains, cons, mem, G, h, work, res)
+            if code == ck.NEEDS_QP:
+                out[0] = END_QP
+                return n_done
         if code != ck.FEASIBLE:
             out[0] = END_NONFINITE
             return n_done

@@ -48,7 +48,8 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,
         extra_time_after_steps: float = 0.0, perturbation: PlantPerturbation | None = None,
         compiled_loop: bool = True, keep_records: bool = True,
-        on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None) -> RunResult:
+        on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None,
+        pool: "LoopPool | None" = None) -> RunResult:
     """Walk ``steps`` steps (impacts) or until a fall. ``integration_rate``: the controller's torque law is
     evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` (issue 14) goes to the
     simulator only: the plant and the sensors differ, the controller keeps ``desc``.
@@ -57,75 +58,277 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     needs Python run in the compiled loop (``segment.Segment``), with records identical to the objects'
     period by period (tested); the objects take every period with a QP, an impact or a fall.
     ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
-    objects ran and the last period of each compiled segment -- the run's outcome (fall, impacts, the last
-    status) is the same, the time series is not there.
+    objects ran and the run's last period -- the run's outcome (fall, impacts, the last status) is the
+    same, the time series is not there. The compiled loop also takes the periods that need the QP: the
+    controller decides them between two calls (``Segment.decide``, issue 19), the objects take the impacts,
+    the falls and the modes whose whole-body stage follows a QP.
 
-    ``on_impact(sim, ctrl)`` (the sweeps' early stop, issue 19) is called once per impact, once at least
-    one control period after it has completed without a fall (the controller's own post-impact torque
-    has acted and passed the plant's checks; ``sim.impact_log[-1]`` the impact, ``sim.t`` a control
-    instant after it); True ends the run there (``steps_walked`` then counts the impacts so far)."""
+    ``on_impact(sim, ctrl)`` (the sweeps' early stop, issue 19) is called once per impact, one control
+    period after it, once that period has completed without a fall (the controller's own post-impact torque
+    has acted and passed the plant's checks; ``sim.impact_log[-1]`` the impact, ``sim.t`` the control
+    instant one period after it; the compiled loop hands that period back on its own), and, with the
+    compiled loop, once more at the end of the compiled segment that follows (the next QP or the next
+    touchdown; the only check before issue 19's second part, so no trial is decided later than then);
+    True ends the run there (``steps_walked`` then counts the impacts so far).
+
+    ``pool`` (the sweeps, issue 19): the plant and the controller come from the pool, reused from an earlier
+    run with the same settings (reset, bit-identical to new ones: tested), and when the run's first push is
+    the same as other runs' (same onset), the walk up to it is simulated once and restored
+    (:meth:`LoopPool.snapshot_at`; records before the push are then not in ``records``, the outcome is the
+    same: tested hash for hash). Without a pool (default) every run builds its own."""
     desc = desc if desc is not None else load_description()
     family = family if family is not None else GaitFamily.load()
     scfg = sim_config if sim_config is not None else load_sim_config()
     ccfg = ctrl_config if ctrl_config is not None else load_controller_config(mode=mode, period=scfg.control_period)
     if ccfg.period != scfg.control_period:
         ccfg = ControllerConfig(**{**ccfg.__dict__, "period": scfg.control_period})
-    sim = make_plant(scfg.plant, desc, scfg, perturbation)
-    ctrl = AdaptiveController(ccfg, family, desc, keep_qp=keep_qp)
-    q0, qd0 = family.initial_state()
-    sim.reset(q0, qd0, LEFT)
-    ctrl.reset(LEFT)
-    for p in pushes:
-        sim.schedule_push(p.start, p.duration, p.force, p.height)
     limit = max_time if max_time is not None else (steps + 3) * family.T * 3
-    records, statuses, qps = [], [], []
-    seg = None
-    seen, pending = 0, False      # on_impact: impacts seen, one waiting for its first full period
-    if compiled_loop and scfg.plant == "rigid" and not integration_rate and not keep_qp and Segment.eligible(sim, ctrl):
-        seg = Segment(sim, ctrl, keep_records=keep_records)
-    while True:
-        if seg is not None:
-            t_stop = limit
-            if sim.impact_count >= steps and extra_time_after_steps > 0:
-                t_stop = min(limit, sim.impact_log[steps - 1].t + extra_time_after_steps)
-            recs, stats = seg.run(t_stop)
-            records += recs
-            statuses += stats
-            if recs and sim.t >= t_stop:
-                break
-            if recs and pending and sim.impact_count == seen and sim.fall is None:
-                pending = False
-                if on_impact(sim, ctrl):
-                    break
-        obs = sim.observe()
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
-        statuses.append(out.status)
-        if keep_qp and out.G is not None:
-            qps.append((out.G, out.h, out.x_star, out.status.qp_status))
-        if integration_rate:
-            rec = sim.step(lambda s, q, qd, st: ctrl.torque_within_period(s, q, qd, st))
+    if pool is None:
+        loop = ClosedLoop(scfg, ccfg, family, desc, perturbation, keep_qp=keep_qp)
+        loop.reset()
+        snap = None
+    else:
+        loop = pool.loop(scfg, ccfg, family, desc, perturbation, keep_qp=keep_qp)
+        snap = pool.snapshot_at(loop, pushes[0].start) if pushes and not integration_rate else None
+        if snap is not None and (snap.impact_count >= steps or snap.t >= limit):
+            snap = None      # the run would have ended before the push: nothing to share
+        if snap is None:
+            loop.reset()
         else:
+            loop.restore(snap)
+    return loop.run(steps, pushes, limit=limit, integration_rate=integration_rate,
+                    extra_time_after_steps=extra_time_after_steps, compiled_loop=compiled_loop,
+                    keep_records=keep_records, on_impact=on_impact,
+                    seen=snap.impact_count if snap is not None else 0,
+                    pending=snap.pending if snap is not None else False)
+
+
+def grid_end(t: float, dt: float) -> float:
+    """The end [s] of the control period that starts at ``t`` (``Simulator.step``'s grid: the next
+    k * dt, k integer, after ``t``; a period cut short by an impact starts off the grid)."""
+    return (math.floor(t / dt + 1e-6) + 1) * dt
+
+
+def last_grid_before(t: float, dt: float) -> float:
+    """The largest grid instant k * dt <= ``t`` (k integer >= 0), computed as the simulator computes its grid."""
+    k = max(0, math.floor(t / dt + 1e-6))
+    while k > 0 and k * dt > t:
+        k -= 1
+    return k * dt
+
+
+@dataclass(frozen=True, eq=False)
+class LoopSnapshot:
+    """A closed loop between two periods: the plant's and the controller's snapshots and the early-stop
+    bookkeeping of the loop (impacts seen, one still waiting for its first full period)."""
+
+    plant: object
+    controller: np.ndarray
+    t: float
+    impact_count: int
+    pending: bool
+
+
+class ClosedLoop:
+    """One plant and one controller in lockstep (``run``'s loop), built once and reusable: :meth:`reset` to
+    the family's initial state, :meth:`snapshot` / :meth:`restore` between periods (the rigid plant and a
+    controller without real sensing; :attr:`snapshots` False otherwise), :meth:`walk_to` the last control
+    instant before a push, :meth:`run` the loop."""
+
+    def __init__(self, sim_config: SimConfig, ctrl_config: ControllerConfig, family: GaitFamily,
+                 desc: RobotDescription, perturbation: PlantPerturbation | None = None, keep_qp: bool = False):
+        self.scfg, self.ccfg, self.family, self.desc = sim_config, ctrl_config, family, desc
+        self.sim = make_plant(sim_config.plant, desc, sim_config, perturbation)
+        self.ctrl = AdaptiveController(ctrl_config, family, desc, keep_qp=keep_qp)
+        self.keep_qp = keep_qp
+        self._segs: dict[bool, Segment] = {}
+        self.snapshots = (hasattr(self.sim, "snapshot") and getattr(self.sim, "sensor", None) is not None
+                          and self.sim.sensor.identity and not self.ctrl.cfg.real_sensing)
+
+    def reset(self) -> None:
+        q0, qd0 = self.family.initial_state()
+        self.sim.reset(q0, qd0, LEFT)
+        self.ctrl.reset(LEFT)
+
+    def snapshot(self, pending: bool = False) -> LoopSnapshot:
+        """The loop's state now (raises ``SnapshotUnsupported`` where an object cannot give it)."""
+        return LoopSnapshot(self.sim.snapshot(), self.ctrl.snapshot(), self.sim.t, self.sim.impact_count, pending)
+
+    def restore(self, snap: LoopSnapshot) -> None:
+        self.sim.restore(snap.plant)
+        self.ctrl.restore(snap.controller)
+
+    def _segment(self, compiled_loop: bool, keep_records: bool, integration_rate: bool) -> Segment | None:
+        """The compiled loop over this plant and controller (kept: its record buffers are reused), or None
+        where it does not apply (module docstring of ``run``)."""
+        sim, ctrl = self.sim, self.ctrl
+        if not (compiled_loop and self.scfg.plant == "rigid" and not integration_rate and not self.keep_qp
+                and Segment.eligible(sim, ctrl)):
+            return None
+        seg = self._segs.get(keep_records)
+        if seg is None:
+            seg = self._segs[keep_records] = Segment(sim, ctrl, keep_records=keep_records)
+        return seg
+
+    def walk_to(self, t_push: float, compiled_loop: bool = True) -> LoopSnapshot:
+        """From the current state, walk with no push while the coming period ends at or before ``t_push``
+        [s] (a period that a push starting at ``t_push`` changes -- it acts in it, or splits its integration
+        intervals -- is not run), and return the snapshot there: the state every run whose first push
+        starts at ``t_push`` reaches, bit for bit. The early-stop bookkeeping is that of :meth:`run`."""
+        sim, ctrl = self.sim, self.ctrl
+        if sim.pushes:
+            raise ValueError("walk_to: pushes are already scheduled")
+        dt = self.scfg.control_period
+        g = last_grid_before(t_push, dt)
+        seg = self._segment(compiled_loop, False, False)
+        seen, pending = sim.impact_count, False
+        while grid_end(sim.t, dt) <= t_push and sim.fall is None:
+            if seg is not None:
+                recs, _ = seg.run(g)
+                if recs and pending and sim.impact_count == seen:
+                    pending = False
+                if grid_end(sim.t, dt) > t_push:
+                    break
+            obs = sim.observe()
+            out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
             rec = sim.step(out.torque)
-        records.append(rec)
-        if rec.fallen or sim.fall is not None:
-            break
-        if on_impact is not None:
+            if rec.fallen or sim.fall is not None:
+                break
             if pending and sim.impact_count == seen:
                 pending = False
-                if on_impact(sim, ctrl):
+            if sim.impact_count > seen:
+                seen, pending = sim.impact_count, True
+        if sim.fall is not None:
+            raise RuntimeError(f"walk_to({t_push}): the undisturbed walk fell at t = {sim.fall.t} s ({sim.fall.cause})")
+        return self.snapshot(pending)
+
+    def run(self, steps: int, pushes: tuple[Push, ...] = (), *, limit: float, integration_rate: bool = False,
+            extra_time_after_steps: float = 0.0, compiled_loop: bool = True, keep_records: bool = True,
+            on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None, seen: int = 0,
+            pending: bool = False) -> RunResult:
+        """``run``'s loop from the current state (after :meth:`reset` or :meth:`restore`): schedules
+        ``pushes`` and walks until ``steps`` impacts, a fall, ``limit`` [s] or ``on_impact`` says stop.
+        ``seen``, ``pending``: the early-stop bookkeeping at the current state (a snapshot's)."""
+        sim, ctrl = self.sim, self.ctrl
+        for p in pushes:
+            sim.schedule_push(p.start, p.duration, p.force, p.height)
+        records, statuses, qps = [], [], []
+        keep_qp = self.keep_qp
+        seg = self._segment(compiled_loop, keep_records, integration_rate)
+        again = False
+        decision = None
+        last_in_seg = False       # the last period run so far was the compiled loop's
+        while True:
+            if seg is not None:
+                t_stop = limit
+                if sim.impact_count >= steps and extra_time_after_steps > 0:
+                    t_stop = min(limit, sim.impact_log[steps - 1].t + extra_time_after_steps)
+                # an impact waiting for its check: one period, then the check; if the outcome is not decided
+                # there, once more at the end of the next segment (where the compiled loop hands back anyway)
+                recs, stats = seg.run(t_stop, 1 if (pending and on_impact is not None) else 1 << 40, decision,
+                                      build=keep_records)
+                records += recs
+                statuses += stats
+                ran = seg.n > 0
+                last_in_seg = ran or last_in_seg
+                if ran and sim.t >= t_stop:
+                    break
+                if ran and again and sim.impact_count == seen and sim.fall is None:
+                    again = False
+                    if on_impact(sim, ctrl):
+                        break
+                if ran and pending and sim.impact_count == seen and sim.fall is None:
+                    pending = False
+                    if on_impact is not None:
+                        again = True
+                        if on_impact(sim, ctrl):
+                            break
+                # a period that needs the QP: decided here, taken by the next call (issue 19); the objects
+                # take it where the compiled loop cannot (and whenever that call hands it back unrun)
+                decision = seg.decide() if not (decision is not None and not ran) else None
+                if decision is not None:
+                    continue
+            last_in_seg = False
+            obs = sim.observe()
+            out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
+            statuses.append(out.status)
+            if keep_qp and out.G is not None:
+                qps.append((out.G, out.h, out.x_star, out.status.qp_status))
+            if integration_rate:
+                rec = sim.step(lambda s, q, qd, st: ctrl.torque_within_period(s, q, qd, st))
+            else:
+                rec = sim.step(out.torque)
+            records.append(rec)
+            if rec.fallen or sim.fall is not None:
+                break
+            if pending and sim.impact_count == seen:
+                pending = False
+                if on_impact is not None and on_impact(sim, ctrl):
                     break
             if sim.impact_count > seen:
                 seen, pending = sim.impact_count, True
-        if sim.impact_count >= steps:
-            if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1].t + extra_time_after_steps:
+            if sim.impact_count >= steps:
+                if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1].t + extra_time_after_steps:
+                    break
+            if sim.t >= limit:
                 break
-        if sim.t >= limit:
-            break
-    fall = sim.fall
-    return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
-                     fallen=fall is not None, fall_cause=fall.cause if fall else "",
-                     fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
-                     impacts=list(sim.impact_log), qp_instances=qps)
+        if seg is not None and last_in_seg:       # outcome only: the run's last period, when the compiled loop ran it
+            recs, stats = seg.last()
+            records += recs
+            statuses += stats
+        fall = sim.fall
+        return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
+                         fallen=fall is not None, fall_cause=fall.cause if fall else "",
+                         fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
+                         impacts=list(sim.impact_log), qp_instances=qps)
+
+
+class LoopPool:
+    """Closed loops kept for reuse within one process (the sweeps' worker processes, issue 19): one
+    :class:`ClosedLoop` per settings (plant and controller configuration, perturbation, robot, family), and
+    per loop the snapshots at the push onsets asked for (:meth:`snapshot_at`), at most ``max_snapshots``
+    (the oldest dropped first; each holds two small arrays). At most ``max_loops`` loops are kept (the least
+    recently used dropped with its snapshots: a loop's compiled-loop buffers hold a few MB, and the
+    robustness table asks for one loop per plant perturbation and mode)."""
+
+    def __init__(self, max_snapshots: int = 512, max_loops: int = 8):
+        if not (isinstance(max_loops, int) and max_loops >= 1 and isinstance(max_snapshots, int) and max_snapshots >= 1):
+            raise ValueError(f"LoopPool: max_loops and max_snapshots must be integers >= 1, got {max_loops!r}, "
+                             f"{max_snapshots!r}")
+        self.max_snapshots = max_snapshots
+        self.max_loops = max_loops
+        self._loops: dict = {}
+        self._snaps: dict = {}
+        self.walks = 0          # walks to an onset simulated (the others were restored)
+
+    def loop(self, sim_config: SimConfig, ctrl_config: ControllerConfig, family: GaitFamily, desc: RobotDescription,
+             perturbation: PlantPerturbation | None = None, keep_qp: bool = False) -> ClosedLoop:
+        key = (sim_config, ctrl_config, id(family), id(desc), perturbation, keep_qp)
+        lp = self._loops.pop(key, None)
+        if lp is None or lp.family is not family or lp.desc is not desc:
+            lp = ClosedLoop(sim_config, ctrl_config, family, desc, perturbation, keep_qp)
+            while len(self._loops) >= self.max_loops:          # the least recently used goes, with its snapshots
+                old = self._loops.pop(next(iter(self._loops)))
+                self._snaps = {k: v for k, v in self._snaps.items() if k[0] is not old}
+        self._loops[key] = lp      # most recently used last
+        return lp
+
+    def snapshot_at(self, loop: ClosedLoop, t_push: float) -> LoopSnapshot | None:
+        """The loop's state at the last control instant before a push starting at ``t_push`` [s] (walked
+        once from the initial state, then kept), or None where the loop takes no snapshot (MuJoCo, a sensor
+        model, real sensing: the caller runs from the start)."""
+        if not loop.snapshots:
+            return None
+        key = (loop, float(t_push))
+        snap = self._snaps.get(key)
+        if snap is None:
+            loop.reset()
+            snap = loop.walk_to(t_push)
+            self.walks += 1
+            if len(self._snaps) >= self.max_snapshots:
+                self._snaps.pop(next(iter(self._snaps)))
+            self._snaps[key] = snap
+        return snap
 
 
 def tracking_error(result: RunResult) -> float:

@@ -20,7 +20,7 @@ from biped_sim.plant.rigid import Simulator
 from biped_controller.core.controller import (
     CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
     TORSO_MODES, WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
-from biped_controller.core.period_layout import RES
+from biped_controller.core.period_layout import QP_ROWS, RES, WORK
 from biped_controller.core.qp_types import UNCONSTRAINED
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
@@ -53,6 +53,19 @@ class Segment:
         self.sta = np.empty((capacity, RES.size))
         self.out = np.zeros(1)
         self.ended = ""
+        self.n = 0
+        self._last = None
+        # the QP period handed back (END_QP): its rows and RES row; the decision given with the next call
+        self.G = np.zeros((QP_ROWS, 2))
+        self.h = np.zeros(QP_ROWS)
+        self.res = np.zeros(RES.size)
+        self.work = np.zeros((WORK.size, 6))
+        self.qp_x = np.zeros(2)
+        self._pushes_key: tuple = ()
+        self._pushes = np.zeros((0, 4))
+        # the compiled loop takes the QP periods too, with the controller's decision (not in modes whose
+        # whole-body stage follows a QP: hybrid)
+        self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
 
     @staticmethod
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
@@ -66,24 +79,62 @@ class Segment:
                     and not ctrl.cfg.real_sensing
                     and ctrl.cfg.mode not in TORSO_MODES)
 
-    def run(self, t_stop: float, max_periods: int = 1 << 40) -> tuple[list[StepRecord], list[ControllerStatusData]]:
+    def run(self, t_stop: float, max_periods: int = 1 << 40, decision: tuple | None = None, build: bool = True
+            ) -> tuple[list[StepRecord], list[ControllerStatusData]]:
         """Periods until one needs Python, ``t_stop`` [s] is reached (the period reaching it included) or
-        ``max_periods``; returns their records and statuses (all, or the last one, see ``keep_records``)."""
+        ``max_periods``; returns their records and statuses (all, or the last one, see ``keep_records``;
+        ``self.n`` the periods done). ``decision``: :meth:`decide`'s answer for the QP period the last call
+        handed back, which this call then takes first. ``build`` False (``keep_records`` False only): nothing
+        is built, :meth:`last` builds the last period's record when it is wanted (a run's last period)."""
         sim, ctrl, fp, lk = self.sim, self.ctrl, self.fp, self.lk
-        ps = sim.book.pushes
-        pushes = np.array([[p.start, p.end, p.force, p.height] for p in ps], dtype=float).reshape(len(ps), 4)
+        ps = tuple(sim.book.pushes)
+        if ps != self._pushes_key:      # (start, end, force, height) of each push, built when the schedule changes
+            self._pushes = np.array([[p.start, p.end, p.force, p.height] for p in ps], dtype=float).reshape(len(ps), 4)
+            self._pushes_key = ps
+        pushes = self._pushes
         step0, cstep0, stance = sim.step_index, ctrl.step_index, sim.stance
-        n = lk.run_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
+        if decision is not None:
+            self.qp_x[:] = decision[0]
+        self.n = n = lk.run_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
                            sim.fm.ti, sim.fm.tf, sim.sim_state, sim.limits, pushes, _PERM,
-                           float(t_stop), int(max_periods), not self.keep, self.rec, self.sta, self.out, ctrl.wbc)
+                           float(t_stop), int(max_periods), not self.keep, self.rec, self.sta, self.out, ctrl.wbc,
+                           self.G, self.h, self.res, self.work, self.qp_x, decision is not None)
         self.ended = lk.END_NAMES[int(self.out[0])]
         if n == 0:
             return [], []
+        first = decision[1:3] if decision is not None else None
+        if not self.keep and not build:
+            self._last = (n - 1, step0, cstep0, stance, first)
+            return [], []
+        self._last = None
         cap = self.rec.shape[0]
         idx = range(n) if self.keep else [n - 1]
-        return self._records(idx, cap, step0, cstep0, stance)
+        return self._records(idx, cap, step0, cstep0, stance, first)
 
-    def _records(self, idx, cap: int, step0: int, cstep0: int, stance: int):
+    def last(self) -> tuple[list[StepRecord], list[ControllerStatusData]]:
+        """The record and status of the last period of the last call made with ``build`` False (``keep_records``
+        False), built now; ([], []) when that call built them or ran no period."""
+        if self._last is None:
+            return [], []
+        k, step0, cstep0, stance, first = self._last
+        self._last = None
+        return self._records([k], self.rec.shape[0], step0, cstep0, stance, first)
+
+    @property
+    def needs_qp(self) -> bool:
+        """The last call ended at a period that needs the QP (its rows in ``G``, ``h``, ``res``)."""
+        return int(self.out[0]) == self.lk.END_QP
+
+    def decide(self) -> tuple | None:
+        """The controller's decision for the QP period the last call handed back (``_FastPeriod.solve_qp``:
+        the controller's own solver, as its compiled period decides): (x, status, message, ...), or None
+        where the compiled loop does not take it (hybrid's whole-body stage, a non-finite answer): the objects
+        take that period."""
+        if not (self.takes_qp and self.needs_qp):
+            return None
+        return self.fp.solve_qp(self.G, self.h, self.res)
+
+    def _records(self, idx, cap: int, step0: int, cstep0: int, stance: int, first: tuple | None = None):
         """The rows as ``StepRecord`` / ``ControllerStatusData``, field for field what the objects build.
         Built column-wise, then each record's ``__dict__`` filled at once (the frozen dataclasses'
         ``__init__`` costs ~4 us per object, as much as a compiled period); every field is set here, and
@@ -113,4 +164,7 @@ class Segment:
             records.append(r)
         statuses = status_records(self.sta[sel], [cstep0 + k for k in idx], T, self.ctrl.cfg.mode, stance,
                                   status, msg)
+        if first is not None and idx[0] == 0:       # the first period took the QP's decision: its status
+            statuses[0] = status_records(self.sta[sel[:1]], [cstep0], T[:1], self.ctrl.cfg.mode, stance,
+                                         int(first[0]), first[1])[0]
         return records, statuses

@@ -8,7 +8,7 @@
 
 ``python -m biped_controller.studies.sweep_check margins STORE [--sample N] [--seed S] [--workers W]``
     the early stop's argument measured: N early-stopped trials of a map's store (seeded sample) run
-    again in full, recording at every impact the plant's distance to the gait's fixed point and the
+    again in full, recording at every check after an impact the plant's distance to the gait's fixed point and the
     controller's p, p', tau', force estimate; per trial the impact where ``EarlyStop.decided`` first
     holds, whether the full trial survives, and the largest distances at the later impacts and at the
     end, relative to the early-stop tolerances and to the survival criterion's P_TOL and TAU_DOT_TOL.
@@ -77,7 +77,8 @@ def _impact_log(rec: dict, settings: experiment.RunSettings) -> dict:
         q, qd = sim.fm.paper_from_state(sim.x, sim.v, sim.stance)
         g = fam.evaluate(fam.p_d, sim.t - imp.t)
         s = ctrl.state
-        rows.append({"t": float(sim.t), "t_impact": float(imp.t), "after_push": bool(imp.t >= end),
+        rows.append({"impact": int(sim.impact_count), "t": float(sim.t), "t_impact": float(imp.t),
+                     "after_push": bool(imp.t >= end),
                      "decided": es.decided(sim, ctrl, end, fam),
                      "q": float(np.max(np.abs(q - g.q))), "qd": float(np.max(np.abs(qd - g.dq_dtau))),
                      "p": abs(s.p - fam.p_d), "p_dot": abs(s.p_dot), "tau_dot": abs(s.tau_dot - 1.0),
@@ -108,8 +109,9 @@ def margins(records: list[dict], sample: int, seed: int, workers: int) -> dict:
     all_later_inside = True
     decided_where_stopped = 0
     for lg, r in zip(logs, pick):
+        # on_impact runs once or twice per impact (one period after it, and at the next compiled segment's end)
         k = next(i for i, row in enumerate(lg["impacts"]) if row["decided"])
-        decided_where_stopped += (k + 1) == r["decided_at_step"]
+        decided_where_stopped += lg["impacts"][k]["impact"] == r["decided_at_step"]
         for row in lg["impacts"][k + 1:]:
             for name in tol:
                 worst[name] = max(worst[name], row[name] / tol[name])

@@ -29,6 +29,7 @@ friction, sensor noise and delay) act here only, never in the controller.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -36,7 +37,8 @@ import numpy as np
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
 from biped_sim.robot.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
-from biped_sim.plant.push import ScheduledPushes
+from biped_sim.robot.layout import SnapshotUnsupported
+from biped_sim.plant.push import Push, ScheduledPushes
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
@@ -57,6 +59,20 @@ def _state_field(name: str, kind):
     def set_(self, value):
         self.sim_state[sl] = value
     return property(lambda self: self.sim_state[sl], set_, doc=f"SIM_STATE.{name} (a view of the state array)")
+
+
+@dataclass(frozen=True, eq=False)
+class SimSnapshot:
+    """Everything :class:`Simulator` carries from one period to the next (issue 19): a copy of its
+    ``sim_state`` array (t, period index, stance, clearance, anchor, x, v), the impacts so far, the fall
+    (None while walking) and the push schedule. Impact records are immutable and shared, not copied."""
+
+    sim_state: np.ndarray
+    impact_count: int
+    impact_log: tuple[ImpactRecord, ...]
+    fall: FallInfo | None
+    pushes: tuple[Push, ...]
+    next_push_id: int
 
 
 class Simulator(ScheduledPushes):
@@ -130,6 +146,29 @@ class Simulator(ScheduledPushes):
         self.impact_log = []
         self.book = self._new_book()
         self.sensor.reset()
+
+    def snapshot(self) -> SimSnapshot:
+        """The state between two periods (:class:`SimSnapshot`); :meth:`restore` brings it back, after which
+        every period is bit-identical to the one that followed the snapshot. Raises
+        :class:`SnapshotUnsupported` with a sensor model (its noise generator and delay line are not part
+        of the state arrays)."""
+        if not self.sensor.identity:
+            raise SnapshotUnsupported("Simulator.snapshot: a sensor model (noise, quantisation, delay) carries "
+                                      "state outside sim_state")
+        return SimSnapshot(self.sim_state.copy(), self.impact_count, tuple(self.impact_log),
+                           None if self.fall is None else FallInfo(**self.fall.__dict__),
+                           tuple(self.book.pushes), self.book.next_id)
+
+    def restore(self, snap: SimSnapshot) -> None:
+        """Back to the state of :meth:`snapshot` (the arrays copied in; the same object goes on)."""
+        self.sim_state[:] = snap.sim_state
+        self.impact_count = snap.impact_count
+        self.impact_log = list(snap.impact_log)
+        self.fall = None if snap.fall is None else FallInfo(**snap.fall.__dict__)
+        self.book = self._new_book()
+        self.book.pushes.extend(snap.pushes)
+        self.book.next_id = snap.next_push_id
+        self._tau_const = None
 
     # ------------------------------------------------------------ queries
     def observe(self) -> Observation:

@@ -22,6 +22,11 @@ class LayoutError(ValueError):
     """A layout declaration is inconsistent (message names the field)."""
 
 
+class SnapshotUnsupported(RuntimeError):
+    """An object's state cannot be captured by its ``snapshot()`` (the message says what it holds besides its
+    layout arrays, e.g. a sensor model's random state): the caller runs from the start instead."""
+
+
 class Layout:
     """Fields of a flat float64 array: ``fields`` is a sequence of ``(name, size)`` with size >= 1.
 

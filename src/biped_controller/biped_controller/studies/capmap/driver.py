@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 from biped_controller.studies import experiment
-from biped_controller.studies.capmap.search import Boundary, edge_index, plan_cell, remaining_estimate
+from biped_controller.studies.capmap.search import Boundary, coarse_edge, edge_index, plan_cell, remaining_estimate
 from biped_controller.studies.capmap.spec import Cell, MapError, MapSpec, SimSpec
 from biped_controller.studies.capmap.store import RecordStore, fingerprint
 from biped_controller.studies.capmap.task import record_key, simulate_batch
@@ -37,7 +37,8 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
     are run on ``executor`` (default: in this process) in batches of ``batch``, each record appended to
     the store as soon as its batch completes. Cells are served in order, bisection steps as soon as they
     are known, at most two batches per executor slot in flight. With ``spec.neighbours`` a cell's search
-    starts once its lower-phase neighbour's is done, bracketed from that neighbour's edge
+    starts once its lower-phase neighbour's coarse edge is known (its islands and bisection may go on),
+    bracketed from that edge
     (``search.plan_cell``); the first phase of each (mode, direction, duration) row is searched in full.
     ``simulate=False``: nothing is run, the boundaries are those the store completes (the other cells are
     listed in ``MapRun.missing``). One map of :func:`run_maps`."""
@@ -92,15 +93,18 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
     simulated = [0] * len(specs)
     max_inflight = 2 * max(1, ex.slots)
 
+    edges: dict[tuple, float] = {}      # a cell's coarse edge index, known before its search ends
+
     def plan(ic):
-        """(hint, window) of a cell's search, or None while its neighbour is unfinished."""
+        """(hint, window) of a cell's search, or None while its neighbour's coarse edge is unknown (the
+        neighbour's islands and bisection need not be finished: they do not move its coarse edge)."""
         spec = specs[ic[0]]
         if ic not in left:
             return (None, 0)
-        b = bounds.get(left[ic])
-        if b is None:
+        e = edges.get(left[ic])
+        if e is None:
             return None
-        return (edge_index(b, spec.search.coarse), spec.island_window)
+        return (e, spec.island_window)
 
     try:
         while True:
@@ -111,12 +115,17 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                 hw = plan(ic)
                 if hw is None:
                     continue
-                forces, b = plan_cell(specs[ic[0]].search.for_duration(ic[1].duration), survived[ic], *hw)
+                search = specs[ic[0]].search.for_duration(ic[1].duration)
+                forces, b = plan_cell(search, survived[ic], *hw)
+                if ic not in edges:
+                    e = edge_index(b, search.coarse) if b is not None else coarse_edge(search, survived[ic], *hw)
+                    if e is not None:
+                        edges[ic] = e
+                        if ic in right:
+                            dirty.add(right[ic])
                 if b is not None:
                     bounds[ic] = b
                     needs.pop(ic, None)
-                    if ic in right:
-                        dirty.add(right[ic])
                 else:
                     needs[ic] = forces
             queue = ((ic, SimSpec(ic[1], f)) for ic in sorted(needs, key=index.__getitem__) for f in needs[ic]

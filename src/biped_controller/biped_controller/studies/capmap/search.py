@@ -99,6 +99,34 @@ def _bracket_state(search: Search, survived: Mapping[float, bool], hint: float, 
     return _bisect(search, survived, lo, hi, islands, False)
 
 
+def coarse_edge(search: Search, survived: Mapping[float, bool], hint: float | None = None,
+                window: int = 0) -> float | None:
+    """The coarse step index of the cell's lowest failing coarse force (inf: censored) as soon as its search
+    knows it -- the value :func:`edge_index` gives for the finished boundary (bisection keeps the edge
+    inside its coarse interval) -- or None while the coarse scan or the bracket is unfinished. A neighbour
+    bracketed from this cell can start from it while this cell's islands and bisection go on."""
+    c = search.coarse
+    if hint is None:
+        coarse = search.coarse_forces()
+        if any(f not in survived for f in coarse):
+            return None
+        _, hi, _ = experiment.analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
+        return math.inf if hi is None else float(math.ceil(hi / c - 1e-9))
+    n = len(search.coarse_forces())
+    k = int(min(max(hint, 1), n))
+    while True:                      # the bracket of _bracket_state, step 1
+        if any(f > 0 and f not in survived for f in ((k - 1) * c, k * c)):
+            return None
+        if k > 1 and not survived[(k - 1) * c]:
+            k -= 1
+        elif survived[k * c]:
+            if k == n:
+                return coarse_edge(search, survived, None, window)
+            k += 1
+        else:
+            return float(k)
+
+
 def plan_cell(search: Search, survived: Mapping[float, bool], hint: float | None = None,
               window: int = 0) -> tuple[list[float], Boundary | None]:
     """The search of one cell as a pure function of its trials so far (force [N] -> survived): either the
