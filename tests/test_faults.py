@@ -252,6 +252,57 @@ LEAD = 1.0    # sim s from the /clock reading to the planned onset (the push eve
               # before its onset: unpaced, 1 sim s is ~0.7 s wall; the soak's --min-lead is 0.5 s at real time)
 
 
+class _UnpacedGraph:
+    """The launcher with the graph unpaced (as fast as it can: the busiest it gets) and a probe node of this
+    process reading /clock (``latest``; ``wait_clock(t)`` spins it until the graph's sim time reaches t).
+    ``close()`` shuts the probe down and kills what is left of the launcher's tree."""
+
+    def __init__(self, tmp_path: Path, probe: str):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rosgraph_msgs.msg import Clock
+        from biped_sim.graph import names as gn
+        self.proc, self.bag, self.ready = _launch(tmp_path, dict(os.environ), '--steps', '0', '--sim-param',
+                                                  'max_time:=600.0', '--sim-param', 'real_time_factor:=0.0')
+        self.pids: set[int] = set()
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node(probe, context=self.ctx)
+        self.latest = -1.0
+        self.node.create_subscription(Clock, gn.CLOCK, self._on_clock, gn.QOS_CLOCK)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+
+    def _on_clock(self, m) -> None:
+        self.latest = m.clock.sec + 1e-9 * m.clock.nanosec
+
+    def up(self) -> None:
+        _wait_ready(self.proc, self.ready)
+        self.pids |= _descendants(self.proc.pid)
+
+    def wait_clock(self, t: float, timeout: float = 300.0) -> float:
+        t0 = time.monotonic()
+        while self.latest < t:
+            assert self.proc.poll() is None, self.proc.communicate()[0][-3000:]
+            assert time.monotonic() - t0 < timeout, f'/clock did not reach {t} s (at {self.latest})'
+            self.ex.spin_once(timeout_sec=0.05)
+        return self.latest
+
+    def interrupt(self) -> str:
+        """SIGINT to the launcher (exit 130 expected); its output."""
+        self.pids |= _descendants(self.proc.pid)
+        self.proc.send_signal(signal.SIGINT)
+        out, _ = self.proc.communicate(timeout=180)
+        assert self.proc.returncode == 128 + signal.SIGINT, out[-3000:]
+        return out
+
+    def close(self) -> None:
+        import rclpy
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+        _kill_tree(self.proc, self.pids | _descendants(self.proc.pid))
+
+
 def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path):
     """The graph unpaced (as fast as it can: the busiest it gets); this process reads /clock, then lets the
     graph run on STALE sim s past the onset it planned from that reading before it requests the push, as a
@@ -259,63 +310,34 @@ def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path
     time and the push acts at the onset the service answered (the bag's /push_events and /sim/push); the
     absolute form of a start the service's clock has passed is rejected "in the past" (the failure of the
     soak under load; the service's time is known exactly from its answer: scheduled_start - delay)."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rosgraph_msgs.msg import Clock
-    from biped_sim.graph import names as gn
     from biped_sim.graph.push_client import call_apply_push
     from biped_sim.graph.soak import push_delay
     from biped_sim.graph.bag_summary import analyze_bag
 
-    proc, bag, ready = _launch(tmp_path, dict(os.environ), '--steps', '0', '--sim-param', 'max_time:=600.0',
-                               '--sim-param', 'real_time_factor:=0.0')
-    pids: set[int] = set()
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('busy_probe', context=ctx)
-    latest = {'t': -1.0}
-    node.create_subscription(Clock, gn.CLOCK, lambda m: latest.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
-                             gn.QOS_CLOCK)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-
-    def wait_clock(t: float, timeout: float = 300.0) -> float:
-        t0 = time.monotonic()
-        while latest['t'] < t:
-            assert proc.poll() is None, proc.communicate()[0][-3000:]
-            assert time.monotonic() - t0 < timeout, f'/clock did not reach {t} s (at {latest["t"]})'
-            ex.spin_once(timeout_sec=0.05)
-        return latest['t']
-
+    g = _UnpacedGraph(tmp_path, 'busy_probe')
     answers = []
     try:
-        _wait_ready(proc, ready)
-        pids |= _descendants(proc.pid)
-        wait_clock(0.5)
+        g.up()
+        g.wait_clock(0.5)
         for k in range(3):
-            seen = latest['t']
+            seen = g.latest
             planned = seen + LEAD
-            wait_clock(planned + STALE)            # the graph has passed the planned onset
+            g.wait_clock(planned + STALE)            # the graph has passed the planned onset
             delay = push_delay(planned, seen, min_lead=LEAD)
-            r = call_apply_push(60.0 * (-1) ** k, 0.025, delay=delay, timeout=60, context=ctx)
+            r = call_apply_push(60.0 * (-1) ** k, 0.025, delay=delay, timeout=60, context=g.ctx)
             answers.append((delay, r))
             assert r.accepted, r.message
             service_now = r.scheduled_start - delay
             assert service_now >= seen - 1e-9
-            late = call_apply_push(60.0, 0.025, start=service_now - 1e-3, timeout=60, context=ctx)
+            late = call_apply_push(60.0, 0.025, start=service_now - 1e-3, timeout=60, context=g.ctx)
             assert not late.accepted and 'start must not be in the past' in late.message, late.message
-        wait_clock(max(r.scheduled_end for _, r in answers) + 0.2)
-        pids |= _descendants(proc.pid)
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=120)
-        assert proc.returncode == 128 + signal.SIGINT, out[-3000:]
+        g.wait_clock(max(r.scheduled_end for _, r in answers) + 0.2)
+        g.interrupt()
     finally:
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-        _kill_tree(proc, pids | _descendants(proc.pid))
+        g.close()
     planned = [dict(start=r.scheduled_start, duration=0.025, force=60.0 * (-1) ** k, id=r.push_id)
                for k, (_, r) in enumerate(answers)]
-    a = analyze_bag(bag, planned)
+    a = analyze_bag(g.bag, planned)
     assert a['push_events'] == 3 and a['applied_impulse_outside_windows'] == 0, a['problems']
     # each push as the service scheduled it (/push_events) and applied over exactly its window (/sim/push:
     # F x d, nothing outside); the run was stopped by SIGINT, so the per-period counts of its last period
@@ -334,61 +356,35 @@ def test_a_recorder_that_lags_at_the_stop_still_gets_everything(ros_domain, tmp_
     re-sends what the frozen reader missed after a heartbeat: config/fastdds.xml), the recorder drains its
     queues fairly before it finishes: every period of every stream and the push event are in the bag.
     Negative control: the same analysis flags a bag cut short (the stamps of /clock beyond /sim/state)."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rosgraph_msgs.msg import Clock
     from biped_sim.graph import names as gn
     from biped_sim.graph.push_client import call_apply_push
     from biped_sim.graph.bag_summary import analyze_bag
     from biped_sim.recording.bag_reader import find_mcap
 
-    proc, bag, ready = _launch(tmp_path, dict(os.environ), '--steps', '0', '--sim-param', 'max_time:=600.0',
-                               '--sim-param', 'real_time_factor:=0.0')
-    pids: set[int] = set()
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('lag_probe', context=ctx)
-    latest = {'t': -1.0}
-    node.create_subscription(Clock, gn.CLOCK, lambda m: latest.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
-                             gn.QOS_CLOCK)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-
-    def wait_clock(t: float, timeout: float = 300.0) -> None:
-        t0 = time.monotonic()
-        while latest['t'] < t:
-            assert proc.poll() is None, proc.communicate()[0][-3000:]
-            assert time.monotonic() - t0 < timeout, f'/clock did not reach {t} s (at {latest["t"]})'
-            ex.spin_once(timeout_sec=0.05)
-
+    g = _UnpacedGraph(tmp_path, 'lag_probe')
     recorder = None
     try:
-        _wait_ready(proc, ready)
-        pids |= _descendants(proc.pid)
-        out = subprocess.run(['pgrep', '-f', f'output_dir:={bag}'], capture_output=True, text=True).stdout.split()
+        g.up()
+        out = subprocess.run(['pgrep', '-f', f'output_dir:={g.bag}'], capture_output=True, text=True).stdout.split()
         assert len(out) == 1, out
         recorder = int(out[0])
-        wait_clock(0.5)
+        g.wait_clock(0.5)
         os.kill(recorder, signal.SIGSTOP)
-        frozen_at = latest['t']
-        r = call_apply_push(80.0, 0.025, delay=0.3, timeout=60, context=ctx)
+        frozen_at = g.latest
+        r = call_apply_push(80.0, 0.025, delay=0.3, timeout=60, context=g.ctx)
         assert r.accepted, r.message
-        wait_clock(max(frozen_at + 0.5, r.scheduled_end + 0.05))
+        g.wait_clock(max(frozen_at + 0.5, r.scheduled_end + 0.05))
         os.kill(recorder, signal.SIGCONT)
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=180)
-        assert proc.returncode == 128 + signal.SIGINT, out[-3000:]
+        out = g.interrupt()
     finally:
         if recorder is not None:
             try:
                 os.kill(recorder, signal.SIGCONT)
             except OSError:
                 pass
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-        _kill_tree(proc, pids | _descendants(proc.pid))
+        g.close()
     planned = [dict(start=r.scheduled_start, duration=0.025, force=80.0, id=r.push_id)]
-    a = analyze_bag(bag, planned)
+    a = analyze_bag(g.bag, planned)
     # SIGINT stops the controller without an answer to the last state: its torque and status of that period
     # may be missing (the only problems allowed)
     last_period = [p for p in a['problems'] if p.startswith(('/controller/torque: 1 missing, 0 duplicated, 0 unexp',
@@ -399,7 +395,7 @@ def test_a_recorder_that_lags_at_the_stop_still_gets_everything(ros_domain, tmp_
     # negative control: the same bag without the last 100 messages of /sim/state and without /push_events, as
     # the CI run's recorder lost them, is flagged
     cut = tmp_path / 'cut.mcap'
-    _copy_mcap(find_mcap(bag), cut, lambda topic, k, n: topic == gn.PUSH_EVENTS or (topic == gn.SIM_STATE and k >= n - 100))
+    _copy_mcap(find_mcap(g.bag), cut, lambda topic, k, n: topic == gn.PUSH_EVENTS or (topic == gn.SIM_STATE and k >= n - 100))
     b = analyze_bag(cut, planned)
     assert b['push_events'] == 0 and any('unexpected stamps' in p for p in b['problems']), b['problems']
 

@@ -15,6 +15,7 @@ from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 
 from biped_controller.studies import experiment, runner
+from biped_controller.studies.fingerprint import feed
 
 # (mode, signed force [N], duration [s], onset phase): survivals and falls, QP-heavy pushes, both directions
 CASES = [("both", -300.0, 0.1, 0.5), ("both", 700.0, 0.025, 0.35), ("tau", 400.0, 0.025, 0.75),
@@ -22,22 +23,13 @@ CASES = [("both", -300.0, 0.1, 0.5), ("both", 700.0, 0.025, 0.35), ("tau", 400.0
          ("all", 700.0, 0.025, 0.35), ("lambda", -300.0, 0.1, 0.5)]
 
 
-def _feed(h, v) -> None:
-    if isinstance(v, np.ndarray):
-        h.update(np.ascontiguousarray(v, dtype=np.float64).tobytes())
-    elif isinstance(v, float):
-        h.update(np.float64(v).tobytes())
-    else:
-        h.update(repr(v).encode())
-
-
 def digest(records, statuses, impacts, res: runner.RunResult) -> str:
     h = hashlib.sha256()
     for group in (records, impacts, statuses):
         for r in group:
             for f in dataclasses.fields(r):
-                _feed(h, getattr(r, f.name))
-    _feed(h, (res.steps_walked, res.fallen, res.fall_cause, res.fall_detail, float(res.fall_time)))
+                feed(h, getattr(r, f.name))
+    feed(h, (res.steps_walked, res.fallen, res.fall_cause, res.fall_detail, float(res.fall_time)))
     return h.hexdigest()
 
 

@@ -36,7 +36,8 @@ RUNS = (
 )
 
 
-def _feed(h, value) -> None:
+def feed(h, value) -> None:
+    """Every bit of ``value`` into the hash ``h`` (arrays and floats as float64 bytes, anything else by repr)."""
     if isinstance(value, np.ndarray):
         h.update(np.ascontiguousarray(value, dtype=np.float64).tobytes())
     elif isinstance(value, float):
@@ -49,15 +50,15 @@ def _digest(result, skip: tuple[str, ...]) -> str:
     h = hashlib.sha256()
     for rec in result.records:
         for f in dataclasses.fields(rec):
-            _feed(h, getattr(rec, f.name))
+            feed(h, getattr(rec, f.name))
     for imp in result.impacts:
         for f in dataclasses.fields(imp):
-            _feed(h, getattr(imp, f.name))
+            feed(h, getattr(imp, f.name))
     for st in result.statuses:
         for f in dataclasses.fields(st):
             if not f.name.startswith(skip):
-                _feed(h, getattr(st, f.name))
-    _feed(h, (result.steps_walked, result.fallen, result.fall_cause, result.fall_detail, float(result.fall_time)))
+                feed(h, getattr(st, f.name))
+    feed(h, (result.steps_walked, result.fallen, result.fall_cause, result.fall_detail, float(result.fall_time)))
     return h.hexdigest()
 
 
