@@ -129,6 +129,17 @@ def test_delay_resolves_start(d):
     assert p.start == 5.0 + d
 
 
+def test_a_duration_below_the_resolution_of_start_is_rejected():
+    """Hypothesis's find: start 1.0 s, duration 1.4e-147 s: start + duration == start, an empty window that the
+    overlap check let through beside a push starting at the same instant; now refused, naming duration."""
+    book = PushBook(LIMITS)
+    book.add(book.check(0.0, 1.0, 1.0, math.nan, NOW))
+    with pytest.raises(Rejected) as ei:
+        book.check(0.0, 1.3663849898482728e-147, 1.0, math.nan, NOW)
+    assert ei.value.field == 'duration' and len(book.pushes) == 1
+    assert book.check(0.0, 0.5, 2.0, math.nan, NOW).start == 2.0     # control: a real window right after is fine
+
+
 @SETTINGS
 @given(reqs=st.lists(st.tuples(st.one_of(good_force, non_finite, st.floats(-1e5, 1e5)),
                                st.one_of(good_duration, st.floats(-1, 5)), st.floats(0.0, 10.0),

@@ -46,7 +46,9 @@ def feed(h, value) -> None:
         h.update(repr(value).encode())
 
 
-def _digest(result, skip: tuple[str, ...]) -> str:
+def digest(result, skip: tuple[str, ...]) -> str:
+    """sha256 (hex) of every field of a ``RunResult``'s records, impacts and statuses (status fields starting
+    with one of ``skip`` left out) and its outcome."""
     h = hashlib.sha256()
     for rec in result.records:
         for f in dataclasses.fields(rec):
@@ -73,7 +75,7 @@ def main(argv=None) -> int:
         digests = {}
         for compiled in (True, False):
             r = run(steps, mode, pushes, compiled_loop=compiled)
-            digests[compiled] = _digest(r, skip)
+            digests[compiled] = digest(r, skip)
             print(f"{name:12s} compiled={compiled!s:5s} steps={r.steps_walked} fallen={r.fallen} "
                   f"{digests[compiled][:16]}", flush=True)
         if digests[True] != digests[False]:

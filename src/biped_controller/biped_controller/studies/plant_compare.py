@@ -237,7 +237,7 @@ def run_digest(run_spec: tuple, scfg=None) -> tuple[str, "runner.RunResult"]:
 
     from biped_sim.plant import mujoco as pm
     from biped_sim.plant.perturbation import PlantPerturbation
-    from biped_controller.studies.fingerprint import _digest, _feed
+    from biped_controller.studies.fingerprint import digest, feed
 
     name, steps, mode, pushes, pert, kw = run_spec
     scfg = scfg if scfg is not None else load_sim_config(plant="mujoco")
@@ -253,10 +253,10 @@ def run_digest(run_spec: tuple, scfg=None) -> tuple[str, "runner.RunResult"]:
                        perturbation=PlantPerturbation(**pert) if pert else None, **kw)
     finally:
         pm.MujocoPlant.reset = orig
-    h = hashlib.sha256(_digest(r, ()).encode())
+    h = hashlib.sha256(digest(r, ()).encode())
     dg = plants[-1].diagnostics
     for f in dataclasses.fields(dg):
-        _feed(h, np.asarray(getattr(dg, f.name), dtype=float) if f.name == "touchdown_forces" else getattr(dg, f.name))
+        feed(h, np.asarray(getattr(dg, f.name), dtype=float) if f.name == "touchdown_forces" else getattr(dg, f.name))
     return h.hexdigest(), r
 
 

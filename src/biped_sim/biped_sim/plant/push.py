@@ -18,6 +18,8 @@ allowed range. Checks, in this order (the first failure is reported):
 - ``start`` <= ``horizon`` (a push that cannot start before the run ends is refused: the field named is
   ``delay`` when the start came from a delay, else ``start``);
 - ``height``: NaN (= the default height) or within [0, torso_length] m (on the torso);
+- ``start + duration > start`` in floating point (a duration below start's resolution is refused, naming
+  ``duration``: the window would be empty);
 - no overlap of [start, start + duration) with any scheduled push (``start`` is named).
 
 Nothing is changed by a validation: :class:`PushBook` adds a push only through :meth:`PushBook.add`
@@ -117,6 +119,9 @@ def validate_push(force: float, duration: float, start: float, height: float, *,
         raise Rejected('height', f'height must be NaN (default {limits.default_height} m) or within '
                                  f'[0, {limits.torso_length}] m (the torso), got {height}')
     end = start + duration
+    if not end > start:   # a duration below start's float resolution: the window [start, start) is empty
+        raise Rejected('duration', f'duration {duration} s is below the resolution of start {start} s '
+                                   f'(start + duration == start): the push would act for no time')
     for p in scheduled:
         if start < p.end and p.start < end:
             raise Rejected('start', f'[start, start + duration) = [{start}, {end}) s overlaps push {p.id} '
