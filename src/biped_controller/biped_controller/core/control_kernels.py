@@ -22,13 +22,20 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
 * rows, eq. (21): G x <= h (37 rows: the 17 constraints with and without the estimate, p range,
   tau' >= tau_dot_min), the early-out decision "x* feasible" evaluated on the adapted columns
   exactly as ``qp_fast.early_out`` does (same expression, bit for bit);
+* modes lambda and all (issue 21, GAINS.torso): the torso offset of ``gait_family.with_torso`` in the
+  reference (q_d += lambda phi(tau/T) e, its lambda terms in dq/dtau, d2q/dtau2 and eq. (11)), a third
+  column dq/dlambda (WORK.dq_dlam) and x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
+  lambda, four more rows (lambda, lambda' after one period within +-lambda_max, +-lambda_dot_max; G is then
+  (TORSO_QP_ROWS, 3)); lambda, lambda' advance and commit with p, p' (``period_start``, ``period_commit``),
+  0 in the other modes, whose arithmetic is unchanged bit for bit;
 * when x* is feasible (or in mode none): w, the torque Gamma = A w + H (eq. 15), the margins of the
   17 true constraints, the predicted reaction R = B w + h_b,c and the ZMP l = Gamma_1 / R_y;
 * the period's end (:func:`commit`, also called by the Python steps): the memory takes the period's
   parameters, its decision, t, the stance, F, q', w and A.
 
 When x* is not feasible the caller solves the QP (PIQP or the exact solver) on G, h and calls
-:func:`finish` with the answer. Any non-finite value sends the caller back to the reference path
+:func:`finish` with the answer (modes lambda and all: lambda'' held to the torso's range first when the
+answer does not hold the rows, ``controller._FastPeriod.solve_qp``). Any non-finite value sends the caller back to the reference path
 (memory unchanged).
 
 Arrays (float64, C order; fields and offsets declared once in ``period_layout``): ``gains`` (GAINS),
