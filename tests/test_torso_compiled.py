@@ -153,3 +153,34 @@ def test_negative_control_the_loop_comparison_sees_a_different_push():
     with pytest.raises(AssertionError):
         assert_same_run(a, b)
 
+
+
+def test_begin_advances_lambda_exactly_and_commit_keeps_it():
+    """period_start: lambda(h) = lambda + lambda' h + lambda'' h^2 / 2, lambda'(h) = lambda' + lambda'' h over the
+    elapsed integer nanoseconds, against exact rational arithmetic, carried over an impact (tau restarts,
+    lambda does not); lambda'' and lambda''* of the new period start at 0; period_commit stores lambda, lambda'
+    and the period's lambda''. Negative control: before any decision nothing advances."""
+    from fractions import Fraction
+    from biped_controller.core.period_layout import M_, MEMORY, R_, RES, WORK
+    ck = C.load_control_kernels()
+    mem = MEMORY.new()
+    mem[M_.p:M_.p + 6] = (0.4, 0.0, 0.2, 1.0, 0.0, 0.0)
+    mem[M_.lam], mem[M_.lam_dot], mem[M_.lam_ddot] = 0.0123, -0.456, 7.89
+    mem[M_.decided], mem[M_.t_last], mem[M_.stance] = 1.0, 1.0, 0
+    t = 1.0 + 987654e-9
+    for stance in (0, 1):
+        res = np.full(RES.size, np.nan)
+        ck.begin(mem, t, stance, res)
+        h = Fraction(round(t * 1e9) - round(1.0 * 1e9), 10**9)
+        lam, ld, ldd = (Fraction(float(v)) for v in (mem[M_.lam], mem[M_.lam_dot], mem[M_.lam_ddot]))
+        for got, want in ((res[R_.lam], lam + ld * h + ldd * h * h / 2), (res[R_.lam + 1], ld + ldd * h)):
+            assert abs(Fraction(float(got)) - want) <= Fraction(1, 10**15) * max(1, abs(want))
+        assert res[R_.x + 2] == 0.0 and res[R_.x_star + 2] == 0.0
+        assert (res[R_.tau] == 0.0) == (stance == 1)
+    res[R_.x + 2] = -3.5
+    mem2 = mem.copy()
+    ck.commit(mem2, res, np.zeros((WORK.size, 6)), np.zeros(6), t, 1)
+    assert (mem2[M_.lam], mem2[M_.lam_dot], mem2[M_.lam_ddot]) == (res[R_.lam], res[R_.lam + 1], -3.5)
+    mem[M_.decided] = 0.0
+    ck.begin(mem, t, 0, res)
+    assert (res[R_.lam], res[R_.lam + 1]) == (mem[M_.lam], mem[M_.lam_dot])
