@@ -52,3 +52,24 @@ def test_cli_reads_a_summary_and_names_a_bad_one(tmp_path, capsys):
     with pytest.raises(SystemExit):
         torso.main(["compare", str(bad)])
     assert "boundaries" in capsys.readouterr().err
+
+
+def test_early_stop_sees_the_torso_offset(monkeypatch):
+    """Mode lambda, 71.875 N forward for 25 ms at phase 0.9: one period after the first impact after the push
+    p, tau' and the plant's (q, q') are on the gait (phi vanishes at the impact, p and tau' never leave x* in
+    mode lambda) but lambda is not back at 0, and the full trial falls at the next touchdown. The early stop
+    gives the full trial's outcome; negative control: with the lambda tolerances unbounded it would report
+    the trial survived."""
+    import math
+    from biped_controller.studies import experiment
+    T = experiment.context().family.T
+    args = (71.875, "lambda", 0.025, 0.9 * T)
+    full = experiment.survives(*args, settings=experiment.RunSettings(full_trials=True), pool=False)
+    stopped = experiment.survives(*args, pool=False)
+    assert not full["survived"] and full["fall_cause"] == "tip_heel"
+    assert (stopped["survived"], stopped["reason"], stopped["fall_time"]) == \
+           (full["survived"], full["reason"], full["fall_time"])
+    es = experiment.early_stop()
+    loose = experiment.EarlyStop(es.enabled, es.q, es.qd, es.p, es.p_dot, es.tau_dot, es.force, math.inf, math.inf)
+    monkeypatch.setattr(experiment, "early_stop", lambda: loose)
+    assert experiment.survives(*args, pool=False)["survived"]
