@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import assert_same_run
+from helpers import assert_same_fields, assert_same_run
 from biped_controller.core import controller as C
 from biped_controller.core.controller import AdaptiveController, load_controller_config
 from biped_controller.core.period_layout import G_, TORSO_QP_ROWS
@@ -144,6 +144,12 @@ def test_compiled_loop_takes_the_torso_modes_bit_for_bit(monkeypatch, mode, case
         assert sum(decided) > 0, "QP periods decided for the compiled loop"
         assert max(abs(s.lam) for s in loop.statuses) > 1e-3
     assert_same_run(objects, loop)          # tol 0: bit for bit
+    lean = runner.run(keep_records=False, **kw)     # outcome only (the sweeps' setting): same end, same last status
+    assert len(lean.records) < len(loop.records)
+    assert (lean.fallen, lean.fall_cause, lean.fall_time, lean.steps_walked) == \
+        (objects.fallen, objects.fall_cause, objects.fall_time, objects.steps_walked)
+    assert_same_fields(lean.statuses[-1], objects.statuses[-1], "last status")
+    assert_same_fields(lean.records[-1], objects.records[-1], "last record")
 
 
 def test_negative_control_the_loop_comparison_sees_a_different_push():
