@@ -64,6 +64,7 @@ from biped_controller.core.controller import (MODES, NO_ADAPTATION, TORSO_MODES,
                          load_controller_config)
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
 from biped_controller.core.qp import STATUS_NAMES
+from biped_controller.core.period_layout import M_
 from biped_controller.studies.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.runner import RunResult
 
@@ -567,7 +568,9 @@ class EarlyStop:
     gait's orbit at the same time into the step, q_d(p_d, t - t_impact) and dq_d/dtau(p_d, t - t_impact)
     (``GaitFamily.evaluate``; the same in either stance), and the controller's parameters as last decided
     within ``p`` [m] of p_d, ``p_dot`` [m/s] of 0, ``tau_dot`` of 1, its observer's force estimate within
-    ``force`` [N] of 0. The rest of the trial would be the undisturbed walk from such a state, which walks
+    ``force`` [N] of 0, and its torso offset (issue 21, modes lambda and all; 0 in the others) within ``lam``
+    [rad] and ``lam_dot`` [rad/s] of 0: the offset's profile phi vanishes at the impact, so q and q' do not
+    show lambda there, and in mode lambda p and tau' never leave the gait's. The rest of the trial would be the undisturbed walk from such a state, which walks
     on and ends with p, tau' inside :data:`P_TOL`, :data:`TAU_DOT_TOL` (measured: docs/capability_map.md,
     "Early stop"). Applied to the nominal plant with ideal sensors only (the measurement's plant): a
     perturbed plant's trial runs in full."""
@@ -579,9 +582,11 @@ class EarlyStop:
     p_dot: float
     tau_dot: float
     force: float
+    lam: float
+    lam_dot: float
 
     KEYS = ("early_stop", "early_stop_q", "early_stop_qd", "early_stop_p", "early_stop_p_dot",
-            "early_stop_tau_dot", "early_stop_force")
+            "early_stop_tau_dot", "early_stop_force", "early_stop_lambda", "early_stop_lambda_dot")
 
     @classmethod
     def load(cls, path: str | os.PathLike | None = None) -> "EarlyStop":
@@ -603,6 +608,9 @@ class EarlyStop:
         s = ctrl.state
         if not (abs(s.p - family.p_d) <= self.p and abs(s.p_dot) <= self.p_dot and abs(s.tau_dot - 1.0) <= self.tau_dot
                 and abs(ctrl.force_estimate) <= self.force):
+            return False
+        mem = ctrl.memory       # the torso offset lambda, lambda' at the last decision (issue 21; 0 outside its modes)
+        if not (abs(mem[M_.lam]) <= self.lam and abs(mem[M_.lam_dot]) <= self.lam_dot):
             return False
         q, qd = sim.fm.paper_from_state(sim.x, sim.v, sim.stance)
         g = family.evaluate(family.p_d, sim.t - imp.t)
