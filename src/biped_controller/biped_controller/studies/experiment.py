@@ -804,7 +804,8 @@ def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float 
         results[m] = _result_for(m, tr, lo, hi, bt, isl, fmax, resolution, coarse)
         results[m]["direction"] = "forward" if sign > 0 else "backward"
         results[m].update(duration=duration, start=start, height=height, settings=described,
-                          noisy_sensing=noisy_sensing(settings))
+                          noisy_sensing=noisy_sensing(settings),
+                          p_reference=_p_ref(m, start, duration, settings))
     return results
 
 
@@ -837,7 +838,10 @@ def print_max_push(results: dict[str, dict]) -> None:
     h = r0["settings"]["simulator"]["push_height"] if r0["height"] is None else r0["height"]
     print(f"(push {r0['direction']} for {r0['duration']:g} s from t = {r0['start']:g} s at {h:g} m above the hip; "
           f"coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, edge bisected to {r0['resolution']:g} N; "
-          f"survival = no fall for {SURVIVAL_STEPS} steps after the push, |p - p_d| <= {P_TOL} m and "
+          f"survival = no fall for {SURVIVAL_STEPS} steps after the push, "
+          + (f"|p - p_d| <= {P_TOL} m" if r0.get("p_reference") is None
+             else f"|p - p_ref| <= {P_TOL} m (p_ref = {r0['p_reference']:.5f} m: the unpushed walk's, model error)")
+          + " and "
           f"|tau' - 1| <= {TAU_DOT_TOL_NOISE if r0.get('noisy_sensing') else TAU_DOT_TOL} at the end"
           + (", the band for noisy sensors)" if r0.get("noisy_sensing") else ")"))
 
