@@ -162,6 +162,10 @@ class ControllerConfig:
     predictor_touchdown_height: float   # [m] a swing sole this low at a period's end has touched down
     predictor_clearance: float      # [m] the swing foot must have risen this high before
     predictor_time_tolerance: float     # [s] a touchdown inside a substep located to this
+    model_error_estimator: bool       # identify the legs' mass and inertia error from the observer (model_error.py)
+    model_mass_uncertainty: float     # [-] prior std of each leg link's mass error, relative to its mass
+    model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
+    model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -190,7 +194,7 @@ class ControllerConfig:
             raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
-        for name in ("momentum_observer", "state_estimator"):
+        for name in ("momentum_observer", "state_estimator", "model_error_estimator"):
             if not isinstance(getattr(self, name), bool):
                 raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         ints = {}
@@ -207,6 +211,14 @@ class ControllerConfig:
                 raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
         if self.momentum_observer and self.disturbance_observer and self.momentum_observer_gain <= 0:
             raise ControllerConfigError("momentum_observer_gain must be > 0 with the momentum observer on")
+        if self.model_error_estimator:
+            for name in ("model_mass_uncertainty", "model_inertia_uncertainty", "model_error_residual_std"):
+                v = getattr(self, name)
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                    raise ControllerConfigError(f"{name} must be a finite number > 0 with model_error_estimator "
+                                                f"on, got {v!r}")
+            if not (self.disturbance_observer and self.momentum_observer):
+                raise ControllerConfigError("model_error_estimator needs disturbance_observer and momentum_observer on")
         if self.state_estimator and (self.estimator_accel_std <= 0 or
                                      (self.sensor_noise_q <= 0 and ints["sensor_encoder_bits"] == 0)):
             raise ControllerConfigError("estimator_accel_std must be > 0, and sensor_noise_q > 0 or "

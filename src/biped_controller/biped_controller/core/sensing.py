@@ -33,6 +33,7 @@ from biped_sim.robot.fixed_foot import FixedFootModel, relabel
 from biped_sim.robot.floating import FloatingModel
 
 from biped_controller.core.estimation import EstimatorConfig, JointStateEstimator
+from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import MomentumObserver, Wrench
 from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
 
@@ -66,6 +67,9 @@ class SensingPipeline:
         self.est = JointStateEstimator(self.est_cfg) if cfg.state_estimator else None
         self.mo = (MomentumObserver(desc, cfg.momentum_observer_gain, cfg.observer_height)
                    if cfg.disturbance_observer and cfg.momentum_observer else None)
+        self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
+                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+                   if self.mo is not None and cfg.model_error_estimator else None)
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
                                     cfg.predictor_time_tolerance) if self.d > 0 else None)
@@ -82,6 +86,8 @@ class SensingPipeline:
             self.est.__init__(self.est_cfg)
         if self.mo is not None:
             self.mo.reset()
+        if self.me is not None:
+            self.me.reset()
         if self.pred is not None:
             self.pred.reset()
 
@@ -127,6 +133,10 @@ class SensingPipeline:
             cov = P[6:, 6:] if P is not None else self.cfg.sensor_noise_qd ** 2 * np.eye(6)
             torque = applied if (applied is not None and stance == self._stance) else None
             self.wrench = self.mo.update(qs, qds, stance, torque, dt, cov)
+            if self.me is not None:     # the legs' model error (model_error.py): the torso wrench and dR
+                mo = self.mo
+                self.wrench = self.me.update(qs, qds, torque, mo._since == 0.0, dt, self.wrench, mo._W_restart,
+                                             mo._since, mo.terms.wrench_jacobian(qs, mo.height)[:, 3:], cov)
             self._r = self.wrench.r
         if new:
             self._j = j
