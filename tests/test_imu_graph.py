@@ -124,13 +124,23 @@ def test_imu_over_dds_with_real_sensing_equals_the_in_process_loop(ros_domain, t
     imu_pitch = np.array([imu_reading(m)[0] for m in imus[:len(recs)]])
     assert 0.5e-3 < np.std(imu_pitch - true_pitch) < 2e-3
 
+    moved = sum(imu_reading(m)[0] != o.pitch for m, o in zip(imus, obs))
+
+    def gap(records) -> tuple[float, float]:
+        """largest |difference| of the bag's base pose and base velocity from ``records``'"""
+        n = min(len(records), len(recs))
+        return (max(float(np.max(np.abs(np.array(states[k].base) - records[k].x[:3]))) for k in range(n)),
+                max(float(np.max(np.abs(np.array(states[k].base_dot) - records[k].v[:3]))) for k in range(n)))
+
     # to TOL: runner.run, the pitch as the plant gives it
     ref = runner.run(steps=STEPS, mode='both', ctrl_config=ccfg, perturbation=pert)
     assert len(ref.records) == len(recs)
-    gap_ref = max(float(np.max(np.abs(np.array(states[k].base) - r.x[:3]))) for k, r in enumerate(ref.records))
-    assert gap_ref <= TOL, gap_ref
+    gap_ref = gap(ref.records)
+    assert max(gap_ref) <= TOL, gap_ref
     # negative control: without the IMU the estimator gives another run, far outside TOL
     recs_nan, _, _, _ = _in_process(ccfg, pert, through_imu=False)
-    n = min(len(recs_nan), len(recs))
-    gap_nan = max(float(np.max(np.abs(np.array(states[k].base) - recs_nan[k].x[:3]))) for k in range(n))
-    assert gap_nan > 1e3 * TOL, gap_nan
+    gap_nan = gap(recs_nan)
+    assert min(gap_nan) > 1e3 * TOL, gap_nan
+    print(f'\n{len(recs)} periods; IMU pitch 1 ulp off the plant\'s in {moved}; the bag against runner.run: '
+          f'base {gap_ref[0]:.3g}, base rate {gap_ref[1]:.3g}; against the run without IMU: base {gap_nan[0]:.3g}, '
+          f'base rate {gap_nan[1]:.3g}')
