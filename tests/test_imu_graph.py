@@ -10,12 +10,16 @@ and passes the pitch to its estimator. From the MCAP bag read back by ``bag_read
 - the run equals, bit for bit, the in-process loop that passes the pitch through the same ``Imu`` message
   (theta = 2 atan2(-y, w): the quaternion round trip can move the pitch by one unit in the last place);
 - it equals ``runner.run`` (the pitch as the plant gives it) to ``TOL`` (see below);
+- Foxglove's own MCAP reader (``tests/js/read_bag.mjs``, ``@mcap/core``) finds the same ``/imu`` messages:
+  one per ``/sim/state``, the same stamps and quaternions;
 - negative control: the in-process loop without the IMU (pitch NaN, the estimator runs on the joints alone)
   is another run, far outside ``TOL``, so the comparisons above can fail.
 """
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -24,6 +28,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+JS_DIR = ROOT / 'tests' / 'js'
 PY = ROOT / '.venv' / 'bin' / 'python'
 STEPS = 1
 PERT = dict(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch=1e-3, noise_pitch_rate=2e-2, seed=7)
@@ -123,6 +128,21 @@ def test_imu_over_dds_with_real_sensing_equals_the_in_process_loop(ros_domain, t
     true_pitch = np.array([rec.x[2] for rec in recs])
     imu_pitch = np.array([imu_reading(m)[0] for m in imus[:len(recs)]])
     assert 0.5e-3 < np.std(imu_pitch - true_pitch) < 2e-3
+
+    # the independent reader (Foxglove's npm libraries): the same /imu, one per state
+    if shutil.which('node') is None or not (JS_DIR / 'node_modules' / '@mcap' / 'core').is_dir():
+        pytest.fail('the Node.js reader (tests/js, scripts/setup) is needed for this test')
+    from biped_sim.recording.bag_reader import find_mcap
+    js = subprocess.run(['node', str(JS_DIR / 'read_bag.mjs'), str(find_mcap(bag))], capture_output=True,
+                        text=True, timeout=300, cwd=JS_DIR)
+    assert js.returncode == 0, js.stderr[-2000:]
+    doc = json.loads(js.stdout)
+    assert doc['counts']['/imu'] == doc['counts']['/sim/state'] == len(states)
+    js_imu = [m['msg'] for m in doc['messages'] if m['topic'] == '/imu']
+    assert [(int(m['header']['stamp']['sec']), int(m['header']['stamp']['nanosec']), m['header']['frame_id'],
+             m['orientation']['y'], m['orientation']['w'], m['angular_velocity']['y']) for m in js_imu] == \
+        [(m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id, m.orientation.y, m.orientation.w,
+          m.angular_velocity.y) for m in imus]
 
     moved = sum(imu_reading(m)[0] != o.pitch for m, o in zip(imus, obs))
 
