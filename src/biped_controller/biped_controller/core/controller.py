@@ -161,6 +161,7 @@ class ControllerConfig:
     predictor_touchdown_height: float   # [m] a swing sole this low at a period's end has touched down
     predictor_clearance: float      # [m] the swing foot must have risen this high before
     predictor_time_tolerance: float     # [s] a touchdown inside a substep located to this
+    predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -189,7 +190,7 @@ class ControllerConfig:
             raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
-        for name in ("momentum_observer", "state_estimator"):
+        for name in ("momentum_observer", "state_estimator", "predictor_touchdown_at_once"):
             if not isinstance(getattr(self, name), bool):
                 raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         ints = {}

@@ -53,6 +53,7 @@ class CompiledSensing:
     def __init__(self, cfg, desc: RobotDescription, ti: np.ndarray, tf: np.ndarray, qp_rows: np.ndarray,
                  torque_min: np.ndarray, torque_max: np.ndarray):
         self.d = int(cfg.delay_compensation)
+        self.at_once = bool(cfg.predictor_touchdown_at_once)
         self.ek = load_estimation_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
@@ -104,6 +105,8 @@ class CompiledSensing:
         self.k = 0                                # periods decided since the reset
         self.log: deque = deque(maxlen=self.d + 2)   # (t, torque sent, told stance) of the last decisions
         self._j = None                            # the period of the last sample used (delay > 0)
+        self._stance = None                       # its stance
+        self._seg = 0                             # the period whose sample first showed the current stance
 
     def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
         """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object
@@ -127,9 +130,13 @@ class CompiledSensing:
         """Delay d > 0 (``SensingPipeline.process``): the sample is that of period j = max(k - d, 0), taken at
         the instant of the controller's decision j; a new one goes through the estimator and the observer
         (the interval since the previous sample and the torque applied over it from the log), then the
-        predictor takes the sample's state to t through the last d decisions."""
+        predictor takes the sample's state to t through the last k - j decisions. With
+        ``predictor_touchdown_at_once`` a sample whose stance differs from the last one used is of this
+        period, j = max(k - d, that period) after it (``SensingPipeline.sample_period``)."""
         ek, s = self.ek, self.state
-        j = max(self.k - self.d, 0)
+        if self.at_once and self._stance is not None and stance != self._stance:
+            self._seg = self.k
+        j = max(self.k - self.d, self._seg if self.at_once else 0)
         new = self._j is None or j > self._j
         if new:
             t_s = t
@@ -147,11 +154,12 @@ class CompiledSensing:
             if code != ek.DONE:
                 raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
             self._j = j
+            self._stance = stance
         elif self.estimator:
             self._q[:], self._qd[:] = s[S_.x:S_.x + 6], s[S_.x + 6:S_.x + 12]
         else:
             self._q[:], self._qd[:] = q, qd
-        n = min(self.d, len(self.log))
+        n = self.k - j                            # the sample's age: the decisions since it (<= d)
         for i in range(n):
             tt, tau, told = self.log[len(self.log) - n + i]
             self._hist[i, 0], self._hist[i, 1], self._hist[i, 2:] = tt, told, tau

@@ -21,9 +21,13 @@ the sample over those intervals to the present:
   are relabelled (q -> -q[::-1]).
 
 The prediction is redone every period from the newest sample, so it is reconciled with the sensed stance
-as soon as the delayed touchdown arrives (the sample then starts in the new stance). Assumes every
-sample is d periods old (the plant's ``touchdown_delayed`` True; with False the first samples of a new
-stance are younger: not handled).
+as soon as the touchdown's sample arrives (the sample then starts in the new stance). A sample is d periods
+old (the first ones younger: k < d), except with a touchdown reported at once (the plant's
+``touchdown_delayed`` False, the controller's ``predictor_touchdown_at_once``): the first sample of a new
+stance is of the period it arrives in, then held while it ages to d periods. :meth:`DelayPredictor.predict`
+takes the sample's age in periods (``periods``: the prediction runs through the last ``periods`` decisions
+only; 0: the sample is the present state, the pending prediction of the old stance is dropped), which
+``sensing.SensingPipeline`` (and ``estimation_compiled.CompiledSensing``) derive from the stance changes.
 """
 from __future__ import annotations
 
@@ -116,9 +120,12 @@ class DelayPredictor:
         return flat_foot_impact(self.fm, q, qd, stance)
 
     # ---------------------------------------------------------------- prediction
-    def predict(self, t_now: float, q: np.ndarray, qd: np.ndarray, stance: int) -> Prediction:
-        """The present state from the sample (q, q', stance) taken at the first recorded decision instant
-        (the instants and torques of :meth:`record`), integrated to ``t_now``."""
+    def predict(self, t_now: float, q: np.ndarray, qd: np.ndarray, stance: int,
+                periods: int | None = None) -> Prediction:
+        """The present state from the sample (q, q', stance) taken at the instant of the decision ``periods``
+        periods ago (None: the first recorded decision; the instants and torques of :meth:`record`),
+        integrated through the decisions since to ``t_now``. ``periods`` is the sample's age, 0 to the
+        number of decisions recorded (at most d); 0 returns the sample."""
         q = np.array(q, dtype=float)
         qd = np.array(qd, dtype=float)
         if stance != self._sample_stance:
@@ -130,6 +137,11 @@ class DelayPredictor:
         s = int(stance)
         n_td = 0
         items = list(self.history)
+        if periods is not None:
+            if isinstance(periods, bool) or not 0 <= int(periods) <= len(items):
+                raise PredictorError(f"periods must be an integer in [0, {len(items)}] (the decisions recorded), "
+                                     f"got {periods!r}")
+            items = items[len(items) - int(periods):]
         for i, (t0, tau_sent, told) in enumerate(items):
             t1 = items[i + 1][0] if i + 1 < len(items) else float(t_now)
             dt = t1 - t0
