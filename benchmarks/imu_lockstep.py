@@ -13,6 +13,7 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -43,7 +44,7 @@ def main(argv=None) -> int:
            "sim_seconds": args.seconds, "pairs": args.pairs, "steps_per_s": runs, "median_steps_per_s": med,
            "ratio_with_to_without": med["use_imu_true"] / med["use_imu_false"],
            "load_average_1min": [round(x, 2) for x in load],
-           "command": ".venv/bin/python -m benchmarks.imu_lockstep " + " ".join(argv or [])}
+           "command": " ".join([".venv/bin/python -m benchmarks.imu_lockstep"] + list(sys.argv[1:] if argv is None else argv))}
     args.json.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     print(f"median with /imu paired {med['use_imu_true']:.1f}, without {med['use_imu_false']:.1f} steps/s "
           f"(ratio {doc['ratio_with_to_without']:.2f}); written to {args.json}")
