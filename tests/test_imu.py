@@ -133,3 +133,37 @@ def test_rigid_plant_reports_the_torso_rate():
             sim.step(ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch).torque)
             assert sim.fall is None
         assert abs(rates[-1] - rates[0]) > 1e-3            # control: the torso's rate changes, read each period
+
+
+def test_controller_status_table_covers_every_message_field():
+    """``controller_node.STATUS_FIELDS`` (the table-driven ``status_message``) names every field of
+    ControllerStatus.msg but the stamp, each a field of ``ControllerStatusData``; the message it builds
+    carries the values. Negative control: a field left out of the table is caught by the same comparison."""
+    import dataclasses
+    from biped_msgs_py.msg import ControllerStatus
+    from biped_controller.core.controller import ControllerStatusData
+    from biped_controller.graph.controller_node import STATUS_FIELDS, status_message
+    names = [n for n, _ in STATUS_FIELDS]
+    msg_fields = set(ControllerStatus.get_fields_and_field_types()) - {'stamp'}
+    assert len(names) == len(set(names)) and set(names) == msg_fields
+    assert set(names[1:]) != msg_fields                                     # control: one missing is seen
+    data_fields = {f.name for f in dataclasses.fields(ControllerStatusData)}
+    assert set(names) <= data_fields
+    values = {}
+    for i, f in enumerate(dataclasses.fields(ControllerStatusData)):
+        if f.name in ('margins',):
+            values[f.name] = np.arange(17, dtype=float) + 0.5
+        elif f.name == 'predicted_reaction':
+            values[f.name] = np.array([1.5, 2.5])
+        elif f.name in ('mode', 'qp_message'):
+            values[f.name] = f'text{i}'
+        elif f.name in ('step', 'qp_status', 'tightest', 'stance', 'wbc_status', 'wbc_active'):
+            values[f.name] = i % 2
+        else:
+            values[f.name] = i + 0.25
+    s = ControllerStatusData(**values)
+    m = status_message(s, Time(sec=3, nanosec=4))
+    assert (m.stamp.sec, m.stamp.nanosec) == (3, 4)
+    for name in names:
+        got, want = getattr(m, name), values[name]
+        assert np.array_equal(np.asarray(got), np.asarray(want)), name
