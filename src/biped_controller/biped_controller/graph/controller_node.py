@@ -177,7 +177,7 @@ class ControllerNode(Node):
             self.get_logger().info(f'{gn.SIM_STATE} is back')
             self.silent_reported = False
         if self.last_sequence is not None and msg.sequence == self.last_sequence:
-            if self.last_reply is not None:
+            if self.last_reply is not None and self.pending is None:   # (a pending state has no reply yet)
                 self.pub_torque.publish(self.last_reply)
             return
         self.last_sequence = msg.sequence
