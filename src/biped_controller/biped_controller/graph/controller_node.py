@@ -59,19 +59,22 @@ from biped_controller.core.controller import MODES, QP_SOLVERS, AdaptiveControll
 from biped_sim.robot.gait_family import GaitFamily
 
 
+#: the controller's settings that take one of a few names, with those names
+CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS}
+
+
 def read_controller_config(node: Node) -> ControllerConfig:
+    """ControllerConfig from the parameters (one per field, defaults config/controller.yaml; ``control_period``
+    from config/simulator.yaml): a name from ``CHOICES``, a bool, or a number; a bad one raises ParameterError
+    naming it."""
     base = load_controller_config()
     kw = {}
     for name in ControllerConfig.__dataclass_fields__:
         if name == 'period':
             continue
         default = getattr(base, name)
-        if name == 'mode':
-            kw[name] = get_str(node, name, default, choices=MODES)
-        elif name == 'engine':
-            kw[name] = get_str(node, name, default, choices=ENGINES)
-        elif name == 'qp_solver':
-            kw[name] = get_str(node, name, default, choices=QP_SOLVERS)
+        if name in CHOICES:
+            kw[name] = get_str(node, name, default, choices=CHOICES[name])
         elif isinstance(default, bool):
             kw[name] = get_bool(node, name, default)
         else:
