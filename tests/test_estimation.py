@@ -268,8 +268,8 @@ def test_predictor_reconciles_a_touchdown_sensed_at_once(undelayed, engine):
     the decisions since it only (0, then 1, 2 as the held sample ages), so the run is the undelayed one to
     1e-9 through two touchdowns, on both paths: the compiled pipeline (fast engine) and the Python cores
     (reference engine, against its own undelayed run). Negative controls: the same plant with the old
-    assumption (every sample 2 periods old) falls at the first touchdown; the setting on a plant whose
-    touchdown is delayed (a mismatch) is not exact."""
+    assumption (every sample 2 periods old) falls at the first touchdown; so does the setting on a plant whose
+    touchdown is delayed (a mismatch: no touchdown is predicted, none is reported for 2 periods)."""
     from biped_controller.core.controller import AdaptiveController
     from biped_controller.core.estimation_compiled import CompiledSensing
     from biped_controller.core.sensing import SensingPipeline
@@ -289,7 +289,38 @@ def test_predictor_reconciles_a_touchdown_sensed_at_once(undelayed, engine):
     assert old.fallen and old.steps_walked == 1 and old.fall_time - old.impacts[0].t < 0.005
     if engine == "fast":
         mismatch = runner.run(steps=2, mode="both", ctrl_config=cfg, perturbation=PlantPerturbation(delay=2))
-        assert _max_diff(mismatch, ref) > 1e-3
+        assert mismatch.fallen and mismatch.steps_walked == 1 and mismatch.fall_time - mismatch.impacts[0].t < 0.005
+
+
+REAL_PROFILE = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
+                    sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)
+
+
+@pytest.mark.parametrize("engine", ["fast", "reference"])
+def test_no_touchdown_is_predicted_when_it_is_reported_at_once(engine):
+    """Real-sensor profile (5e-4 rad, 5e-2 rad/s, 14 bits, IMU 1e-3 rad; seed 0), delay of 1 period, the
+    touchdown reported at once: with ``predictor_touchdown_at_once`` the predictor integrates in the sensed
+    stance only (a touchdown before t_k is in the sample of period k), and the controller acts in the true
+    stance in every period through three touchdowns, on both paths. Negative control (Python cores): the
+    same pipeline with the predictor's touchdown detection on takes the noisy estimate's sole for landed
+    before the impact, acts in the new stance too early and falls (take_off at the first touchdown)."""
+    from biped_sim.plant.config import load_sim_config
+    from biped_sim.robot.gait_family import GaitFamily
+    from biped_controller.studies import runner
+    plant = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch=1e-3, delay=1,
+                              touchdown_delayed=False)
+    cfg = load_controller_config(mode="both", engine=engine, delay_compensation=1, predictor_touchdown_at_once=True,
+                                 **REAL_PROFILE)
+    r = runner.run(steps=3, mode="both", ctrl_config=cfg, perturbation=plant)
+    assert not r.fallen and r.steps_walked == 3
+    assert all(s.stance == rec.stance for s, rec in zip(r.statuses, r.records))
+    if engine == "reference":
+        loop = runner.ClosedLoop(load_sim_config(), cfg, GaitFamily.load(), load_description(), plant)
+        loop.reset()
+        loop.ctrl._sensing.pred.touchdowns = True           # the predictor of before: it predicts touchdowns
+        bad = loop.run(3, limit=2.0)
+        assert bad.fallen and bad.fall_cause == "take_off" and bad.steps_walked == 0
+        assert any(s.stance != rec.stance for s, rec in zip(bad.statuses, bad.records))
 
 
 def test_predictor_sample_age_checked():

@@ -83,7 +83,9 @@ class CompiledSensing:
         c[SC_.period] = cfg.period
         c[SC_.pred_substeps] = cfg.predictor_substeps
         c[SC_.pred_td_height] = cfg.predictor_touchdown_height
-        c[SC_.pred_clearance] = cfg.predictor_clearance
+        # a touchdown reported at once is never predicted (DelayPredictor(touchdowns=False)): the kernel counts
+        # a touchdown only once the swing sole has cleared this height, so an infinite one switches it off
+        c[SC_.pred_clearance] = math.inf if self.at_once else cfg.predictor_clearance
         c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
         self.conf = c
         self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)

@@ -28,6 +28,10 @@ stance is of the period it arrives in, then held while it ages to d periods. :me
 takes the sample's age in periods (``periods``: the prediction runs through the last ``periods`` decisions
 only; 0: the sample is the present state, the pending prediction of the old stance is dropped), which
 ``sensing.SensingPipeline`` (and ``estimation_compiled.CompiledSensing``) derive from the stance changes.
+With the touchdown reported at once the present stance is always the sensed one (a touchdown before t_k is in
+the sample of period k), so the pipeline builds the predictor with ``touchdowns`` False: it integrates in
+the sample's stance and never predicts a touchdown, which could only be a false one (under sensor noise the
+estimated swing sole reaches the ground early: docs/robustness.md).
 """
 from __future__ import annotations
 
@@ -71,7 +75,7 @@ class DelayPredictor:
     """The predictor of the module docstring for ``delay`` = d >= 1 periods."""
 
     def __init__(self, desc: RobotDescription, delay: int, substeps: int, period: float,
-                 touchdown_height: float, clearance: float, time_tolerance: float):
+                 touchdown_height: float, clearance: float, time_tolerance: float, touchdowns: bool = True):
         for name, v in (("delay_compensation", delay), ("predictor_substeps", substeps)):
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise PredictorError(f"{name} must be an integer >= 1, got {v!r}")
@@ -81,6 +85,7 @@ class DelayPredictor:
                 raise PredictorError(f"{name} must be a finite number > 0, got {v!r}")
         self.d, self.substeps, self.period = delay, substeps, float(period)
         self.td_height, self.clearance, self.t_tol = float(touchdown_height), float(clearance), float(time_tolerance)
+        self.touchdowns = bool(touchdowns)     # False: never predict a touchdown (it is reported at once)
         self.model = FixedFootModel(desc)
         self.fm = FloatingModel(desc)
         lo, hi = desc.torque_limits()
@@ -133,7 +138,7 @@ class DelayPredictor:
             self._sample_stance = stance
         if self.lowest_sole(q) > self.clearance:
             self._cleared = True
-        cleared = self._cleared
+        cleared = self._cleared and self.touchdowns
         s = int(stance)
         n_td = 0
         items = list(self.history)
@@ -172,7 +177,7 @@ class DelayPredictor:
                         q, qd = self._rk4(q, qd, tau, rest)
                     continue
                 q, qd = qn, qdn
-                if z > self.clearance:
+                if z > self.clearance and self.touchdowns:
                     cleared = True
                 if cleared and j == n - 1 and z <= self.td_height:
                     # the interval ends on the ground: the plant's period ended at this touchdown

@@ -73,7 +73,8 @@ class SensingPipeline:
                    if cfg.disturbance_observer and cfg.momentum_observer else None)
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
-                                    cfg.predictor_time_tolerance) if self.d > 0 else None)
+                                    cfg.predictor_time_tolerance, touchdowns=not self.at_once)
+                     if self.d > 0 else None)
         self.reset()
 
     def reset(self) -> None:
