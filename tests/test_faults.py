@@ -56,6 +56,8 @@ CASES = [
     ('biped_controller', 'controller', 'gait_family_path:={tmp}/broken.json', 'gait_family_path'),
     ('biped_controller', 'controller', 'description_path:=/nonexistent.yaml', 'description_path'),
     ('biped_controller', 'controller', 'mode:=fast', 'mode'),
+    ('biped_controller', 'controller', 'use_imu:=maybe', 'use_imu'),
+    ('biped_sim', 'simulator', 'perturbation.noise_pitch_rate:=-0.1', 'perturbation.noise_pitch_rate'),
     ('biped_sim', 'disturbance', 'max_force:=-5.0', 'max_force'),
     ('biped_sim', 'disturbance', 'description_path:=/nonexistent.yaml', 'description_path'),
 ]

@@ -166,6 +166,7 @@ class ControllerConfig:
     model_mass_uncertainty: float     # [-] prior std of each leg link's mass error, relative to its mass
     model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
     model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
+    predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -194,7 +195,7 @@ class ControllerConfig:
             raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
-        for name in ("momentum_observer", "state_estimator", "model_error_estimator"):
+        for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once"):
             if not isinstance(getattr(self, name), bool):
                 raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         ints = {}

@@ -54,6 +54,7 @@ class CompiledSensing:
     def __init__(self, cfg, desc: RobotDescription, ti: np.ndarray, tf: np.ndarray, qp_rows: np.ndarray,
                  torque_min: np.ndarray, torque_max: np.ndarray):
         self.d = int(cfg.delay_compensation)
+        self.at_once = bool(cfg.predictor_touchdown_at_once)
         self.ek = load_estimation_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
@@ -83,7 +84,9 @@ class CompiledSensing:
         c[SC_.period] = cfg.period
         c[SC_.pred_substeps] = cfg.predictor_substeps
         c[SC_.pred_td_height] = cfg.predictor_touchdown_height
-        c[SC_.pred_clearance] = cfg.predictor_clearance
+        # a touchdown reported at once is never predicted (DelayPredictor(touchdowns=False)): the kernel counts
+        # a touchdown only once the swing sole has cleared this height, so an infinite one switches it off
+        c[SC_.pred_clearance] = math.inf if self.at_once else cfg.predictor_clearance
         c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
         self.conf = c
         self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
@@ -112,6 +115,8 @@ class CompiledSensing:
         self.k = 0                                # periods decided since the reset
         self.log: deque = deque(maxlen=self.d + 2)   # (t, torque sent, told stance) of the last decisions
         self._j = None                            # the period of the last sample used (delay > 0)
+        self._stance = None                       # its stance
+        self._seg = 0                             # the period whose sample first showed the current stance
         if self.me is not None:
             self.me.reset()
             self._me_wrench = None
@@ -171,9 +176,13 @@ class CompiledSensing:
         """Delay d > 0 (``SensingPipeline.process``): the sample is that of period j = max(k - d, 0), taken at
         the instant of the controller's decision j; a new one goes through the estimator and the observer
         (the interval since the previous sample and the torque applied over it from the log), then the
-        predictor takes the sample's state to t through the last d decisions."""
+        predictor takes the sample's state to t through the last k - j decisions. With
+        ``predictor_touchdown_at_once`` a sample whose stance differs from the last one used is of this
+        period, j = max(k - d, that period) after it (``SensingPipeline.sample_period``)."""
         ek, s = self.ek, self.state
-        j = max(self.k - self.d, 0)
+        if self.at_once and self._stance is not None and stance != self._stance:
+            self._seg = self.k
+        j = max(self.k - self.d, self._seg if self.at_once else 0)
         new = self._j is None or j > self._j
         if new:
             t_s = t
@@ -194,11 +203,12 @@ class CompiledSensing:
             if pre is not None:
                 self._model_error(t_s, stance, pre)
             self._j = j
+            self._stance = stance
         elif self.estimator:
             self._q[:], self._qd[:] = s[S_.x:S_.x + 6], s[S_.x + 6:S_.x + 12]
         else:
             self._q[:], self._qd[:] = q, qd
-        n = min(self.d, len(self.log))
+        n = self.k - j                            # the sample's age: the decisions since it (<= d)
         for i in range(n):
             tt, tau, told = self.log[len(self.log) - n + i]
             self._hist[i, 0], self._hist[i, 1], self._hist[i, 2:] = tt, told, tau

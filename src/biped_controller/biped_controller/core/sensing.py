@@ -3,9 +3,13 @@ predictor in one per-period pipeline. Pure NumPy + Pinocchio, no ROS.
 
 Per control period k the controller receives a sample (stance, q, q' [, IMU pitch]); with a known delay
 of d periods (``delay_compensation``) it is the sample of period k - d, taken at the instant t_{k-d} of
-the controller's own decision of that period (the first sample while k < d). The pipeline:
+the controller's own decision of that period (the first sample while k < d). With a touchdown reported at
+once (``predictor_touchdown_at_once``, the plant's ``touchdown_delayed`` False) the sample is that of period
+j = max(k - d, s), s the period whose sample first showed the current stance (a sample whose stance differs
+from the last one used is of the period it arrives in): the sensor model's rule, so a touchdown sensed while
+the predictor still runs from an old-stance sample replaces that prediction at once. The pipeline:
 
- 1. a new sample (period j = max(k - d, 0) > the last one used): the estimator's time update over
+ 1. a new sample (period j = max(k - d, 0), or as above, > the last one used): the estimator's time update over
     [t_{j-1}, t_j) with the model's acceleration under the torque applied then, a = A^-1 (Gamma - H + r)
     (r: the momentum observer's disturbance; Gamma clipped to the limits and relabelled if it was sent
     for the other stance); if the sample's stance differs from the estimate's, the model's flat-foot
@@ -14,7 +18,7 @@ the controller's own decision of that period (the first sample while k < d). The
  2. the momentum observer on that state (``momentum_observer.MomentumObserver``), its velocity covariance
     from the estimator (or the sensor's rate noise without one).
  3. with d > 0 the Smith predictor from the sample's state to t_k (``predictor.DelayPredictor``), through
-    the torques sent since; a predicted touchdown changes the stance the controller acts in.
+    the k - j torques sent since; a predicted touchdown changes the stance the controller acts in.
 
 The controller then decides in the predicted stance and sends its torque in the paper order of the stance
 it was told (relabelled when the two differ: the plant maps it to the motors with the told stance), and
@@ -57,6 +61,7 @@ class SensingPipeline:
     def __init__(self, cfg, desc: RobotDescription):
         self.cfg = cfg
         self.d = int(cfg.delay_compensation)
+        self.at_once = bool(cfg.predictor_touchdown_at_once)
         self.model = FixedFootModel(desc)
         self.fm = FloatingModel(desc)
         lo, hi = desc.torque_limits()
@@ -72,7 +77,8 @@ class SensingPipeline:
                    if self.mo is not None and cfg.model_error_estimator else None)
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
-                                    cfg.predictor_time_tolerance) if self.d > 0 else None)
+                                    cfg.predictor_time_tolerance, touchdowns=not self.at_once)
+                     if self.d > 0 else None)
         self.reset()
 
     def reset(self) -> None:
@@ -80,6 +86,7 @@ class SensingPipeline:
         self.log: deque[tuple[float, np.ndarray, int]] = deque(maxlen=self.d + 2)
         self._j: int | None = None            # the period of the last sample used
         self._stance: int | None = None       # the stance of the state at the last sample
+        self._seg = 0                         # the period whose sample first showed the current stance
         self._r = np.zeros(6)
         self.wrench: Wrench | None = None
         if self.est is not None:
@@ -99,8 +106,14 @@ class SensingPipeline:
         g = np.clip(torque, self.lo, self.hi)
         return g if told == stance else relabel(g)
 
+    def sample_period(self, stance: int) -> int:
+        """The period j whose sample arrives now, with ``stance`` (module docstring)."""
+        if self.at_once and self._stance is not None and stance != self._stance:
+            self._seg = self.k            # a touchdown reported at once: a fresh sample
+        return max(self.k - self.d, self._seg if self.at_once else 0)
+
     def process(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan) -> View:
-        j = max(self.k - self.d, 0)
+        j = self.sample_period(stance)
         new = self._j is None or j > self._j
         P = None
         if new and self._j is not None:
@@ -143,7 +156,7 @@ class SensingPipeline:
             self._stance = stance
         # 3. the predictor
         if self.pred is not None:
-            pr = self.pred.predict(t, qs, qds, stance)
+            pr = self.pred.predict(t, qs, qds, stance, self.k - j)
             qc, qdc, sc = pr.q, pr.qd, pr.stance
         else:
             qc, qdc, sc = qs, qds, stance
