@@ -194,6 +194,20 @@ def test_records_of_another_fingerprint_are_ignored(fake, tmp_path):
     assert len(cm.load_records(store.path, run.fingerprint)) == run.simulated
 
 
+def test_the_early_stop_settings_are_in_the_store_fingerprint(monkeypatch):
+    """A store made under other early-stop tolerances is not resumed: they decide outcomes (a mode-lambda map
+    without early_stop_lambda was wrong in 64 of 120 cells, docs/torso_parameter.md)."""
+    import dataclasses
+    spec = cm.MapSpec(modes=("lambda",), directions=("forward",), phases=(0.5,), durations=(0.025,),
+                      search=cm.Search(coarse=100.0, fmax=400.0, resolution=25.0))
+    base = cm.fingerprint(spec)
+    es = experiment.early_stop()
+    monkeypatch.setattr(experiment, "early_stop", lambda: dataclasses.replace(es))
+    assert cm.fingerprint(spec) == base                       # the same tolerances: the same store
+    monkeypatch.setattr(experiment, "early_stop", lambda: dataclasses.replace(es, lam=2 * es.lam))
+    assert cm.fingerprint(spec) != base
+
+
 def test_store_rejects_a_malformed_middle_line(tmp_path):
     p = tmp_path / "r.jsonl"
     p.write_text('{"a": 1}\nnot json\n{"b": 2}\n')

@@ -25,7 +25,7 @@ class StoreError(MapError):
 def fingerprint(spec: MapSpec) -> str:
     """sha256 (16 hex digits) of everything a record depends on besides its own key and the code: the
     effective controller and simulator settings, the robot description, the gait family file, the
-    survival criterion and the push height. The code is not in it (the tree is edited by many hands, and
+    survival criterion, the early stop's settings (``config/studies.yaml``) and the push height. The code is not in it (the tree is edited by many hands, and
     a comment must not void a map): after a change of the controller or the simulator that changes
     results, use a new store; every summary records the git commit and the modified files."""
     ctx = experiment.context()
@@ -35,7 +35,10 @@ def fingerprint(spec: MapSpec) -> str:
         "settings": experiment.check_settings(spec.settings),
         "description": {k: v for k, v in asdict(ctx.desc).items() if k != "source"},
         "survival": {"steps": experiment.SURVIVAL_STEPS, "p_tol": experiment.P_TOL,
-                     "tau_dot_tol": experiment.TAU_DOT_TOL},
+                     "tau_dot_tol": experiment.TAU_DOT_TOL, "tau_dot_tol_noise": experiment.TAU_DOT_TOL_NOISE},
+        # the early stop decides outcomes too (a trial it ends is counted survived): a store made under other
+        # tolerances (e.g. before early_stop_lambda existed, when mode lambda's cells were wrong) is not resumed
+        "early_stop": asdict(experiment.early_stop()),
         "height": spec.height,
     }
     h.update(json.dumps(inputs, sort_keys=True, default=str).encode())
