@@ -53,9 +53,12 @@ if str(ROOT) not in sys.path:  # `python benchmarks/bridge_bench.py`
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.lockstep import _LINE  # noqa: E402  the simulator's "run over: ..." line
+from benchmarks.proc_cpu import TreeCpu  # noqa: E402
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
 LAYOUT_TOPICS = ('/sim/state', '/joint_states', '/tf')
+PROBES: list = []        # the DDS probe of each run, newest last (benchmarks.bridge_profile starts py-spy on its first state)
+CLIENT_CPU = {'s': 0.0}   # CPU s of the last client's thread (asyncio + websockets), connect to close
 START_DELAY = 2.0   # s between "graph connected" and the first state: the client subscribes meanwhile
 
 
@@ -76,6 +79,17 @@ class Domain:
         self._cm.__exit__(*exc)
 
 
+def node_name(words: list[str]) -> str | None:
+    """Process name for the CPU table: the node's executable (``.venv/lib/<pkg>/<exe>``), or the launcher."""
+    for w in words:
+        parts = w.split('/')
+        if len(parts) >= 3 and parts[-3] == 'lib' and parts[-2] in ('biped_sim', 'biped_controller'):
+            return parts[-1]
+    if 'biped_sim.graph.launch' in words:
+        return 'launcher'
+    return None
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
@@ -94,6 +108,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
             raise RuntimeError('the graph did not come up')
         await asyncio.sleep(0.05)
     ws = await websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None, open_timeout=30)
+    cpu0 = time.thread_time_ns()
     topics, frames = {}, []
     try:
         while time.monotonic() < deadline:
@@ -115,6 +130,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                 frames.append((t, frame))
     finally:
         await ws.close()
+        CLIENT_CPU['s'] = (time.thread_time_ns() - cpu0) * 1e-9
     return topics, frames
 
 
@@ -132,6 +148,7 @@ class DdsProbe:
         self.node = rclpy.create_node('bridge_bench_probe', context=self.ctx)
         spec = gn.TOPICS[gn.SIM_STATE]
         self.rows: list[tuple[int, int, bytes]] = []
+        self.first = threading.Event()   # set at the first /sim/state: the lockstep has started
         self.node.create_subscription(spec.msg_class(), spec.name, self._on_msg, recording_qos(spec.qos_profile),
                                       raw=True)
         self.executor = SingleThreadedExecutor(context=self.ctx)
@@ -142,6 +159,7 @@ class DdsProbe:
 
     def _on_msg(self, msg: bytes, info) -> None:
         self.rows.append((time.time_ns(), int(info['source_timestamp']), msg))
+        self.first.set()
 
     def _spin(self) -> None:
         while not self._stop.is_set():
@@ -164,14 +182,26 @@ def _stats(values) -> dict:
             'max': float(a.max())}
 
 
-def bridge_params(tmp: Path, drain_batch: int | None) -> Path | None:
-    """config/graph.yaml with the bridge's drain_batch replaced (None: the file as committed)."""
-    if drain_batch is None:
+# The graph's settings before issue 20 part 3 (the bridge, the disturbance node and the recorder on rclpy's Python
+# SingleThreadedExecutor; the bridge taking up to 64 waiting messages per callback, as part 2 left it; the recorder
+# without batch_wait). "after" = config/graph.yaml as committed.
+BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64},
+          'disturbance': {'executor': 'single_threaded'},
+          'recorder': {'batch_wait': 0.0}}
+
+
+def settings_params(tmp: Path, setting: str) -> Path | None:
+    """config/graph.yaml with the ``before`` overrides (``BEFORE``) written to a file; None for ``after`` (the file
+    as committed)."""
+    if setting == 'after':
         return None
+    if setting != 'before':
+        raise ValueError(f'setting must be before or after, got {setting!r}')
     import yaml
     tree = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
-    tree['bridge']['ros__parameters']['drain_batch'] = int(drain_batch)
-    path = tmp / f'graph_drain_{drain_batch}.yaml'
+    for node, values in BEFORE.items():
+        tree[node]['ros__parameters'].update(values)
+    path = tmp / 'graph_before.yaml'
     path.write_text(yaml.safe_dump(tree))
     return path
 
@@ -192,6 +222,9 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     with open(log, 'w') as fh:
         proc = subprocess.Popen(cmd, cwd=ROOT, env=dom.env, stdout=fh, stderr=subprocess.STDOUT)
     probe = DdsProbe(dom.id)
+    cpu = TreeCpu(proc.pid, node_name, mark_when=probe.first.is_set, period=0.05)
+    PROBES.append(probe)
+    CLIENT_CPU['s'] = 0.0
     dds_rows = []
     try:
         topics, frames = {}, []
@@ -203,12 +236,19 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
             proc.kill()
             proc.wait()
         dds_rows = probe.close()
+        cpu_table = cpu.stop()
     text = log.read_text(errors='replace')
     m = _LINE.search(text)
     out = {'live': live, 'real_time_factor': rtf, 'exit_code': proc.returncode,
            'client_topics': 'all' if only is None else list(only),
            'steps': int(m['steps']) if m else None, 'wall_s': float(m['wall']) if m else None,
            'steps_per_s': int(m['steps']) / float(m['wall']) if m and float(m['wall']) > 0 else None}
+    if live:
+        cpu_table['client'] = {'cpu_s': round(CLIENT_CPU['s'], 4)}
+    out['cpu_s'] = cpu_table
+    if m:
+        out['cpu_ms_per_step'] = {k: round(v['cpu_s'] / int(m['steps']) * 1e3, 4) for k, v in cpu_table.items()
+                                  if int(m['steps'])}
     if proc.returncode != 0 or m is None:
         out['log_tail'] = text[-1500:]
         return out
@@ -274,13 +314,13 @@ def main(argv=None) -> int:
                 runs.append(r)
                 print(json.dumps(r), flush=True)
         # real time: a client on every channel (15 topics x 1 kHz through one Python client), then one
-        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf); before (drain_batch 0)
-        # and after (config/graph.yaml), alternated
+        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf); before (BEFORE) and after
+        # (config/graph.yaml), alternated
         for k in range(a.latency_pairs):
-            for setting, drain in (('before', 0), ('after', None)):
+            for setting in ('before', 'after'):
                 for i, only in enumerate((None, LAYOUT_TOPICS)):
                     r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
-                                  steps=a.live_steps, only=only, params=bridge_params(Path(tmp), drain))
+                                  steps=a.live_steps, only=only, params=settings_params(Path(tmp), setting))
                     r['kind'] = 'latency' if only is None else 'latency_layout'
                     r['bridge'] = setting
                     runs.append(r)

@@ -60,6 +60,7 @@ import time
 from typing import List, Optional
 
 from rclpy._rclpy_pybind11 import RMWError
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
 
@@ -73,7 +74,15 @@ from biped_sim.live.bridge_core import (
     service_definition,
 )
 from biped_sim.recording.mcap_recorder import RecorderError, build_message_definition
-from biped_sim.graph.params import ParameterError, get_bool, get_float, get_int, get_str, run_node
+from biped_sim.graph.params import (
+    ParameterError,
+    declare_executor,
+    get_bool,
+    get_float,
+    get_int,
+    get_str,
+    run_node,
+)
 from biped_sim.graph.recorder_node import RecorderNode, recording_qos
 
 NODE_NAME = gn.BRIDGE_NODE
@@ -151,6 +160,8 @@ class BridgeNode(Node):
         # stream subscribed on demand starts after DDS discovery, some 0.1-0.3 s of messages later)
         self.lazy_streams = get_bool(self, 'lazy_streams')
         self.drain_batch = get_int(self, 'drain_batch', lo=0, hi=100_000)
+        self.executor_kind = declare_executor(self)
+        self.reconcile_period = get_float(self, 'reconcile_period', lo=0.001, hi=10.0)
 
         self.sim_time_ns = 0
         self.clock_errors = 0
@@ -205,10 +216,13 @@ class BridgeNode(Node):
         self._handlers: dict = {}
         self._wanted: dict[str, int] = {}         # topic -> clients subscribed (SDK threads, under _lock)
         self._lock = threading.Lock()
+        self._dirty = False                       # a client (un)subscribed to a stream since the last reconcile
         for spec in specs:
             if spec.name not in self._streams:
                 self._subscribe(spec.name)
-        self._reconcile_guard = self.create_guard_condition(self._reconcile)
+        if self._streams:   # the EventsExecutor takes no guard condition: a steady timer looks for changes
+            self._reconcile_timer = self.create_timer(
+                self.reconcile_period, self._reconcile, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
             f'serving {len(specs)} topics and {gn.APPLY_PUSH} on ws://{self.host}:{self.port} '
             f'(Foxglove: Open connection > Foxglove WebSocket)')
@@ -258,13 +272,18 @@ class BridgeNode(Node):
     def _subscribe(self, topic: str) -> None:
         spec = self._specs[topic]
         self._handlers[topic] = self._handler(topic)
-        callback = functools.partial(self._on_ready, topic)
+        # drain_batch 0: the handler itself (one message per executor callback, the EventsExecutor's way)
+        callback = functools.partial(self._on_ready, topic) if self.drain_batch else self._handlers[topic]
         self._ros_subs[topic] = self.create_subscription(spec.msg_class(), topic, callback,
                                                          recording_qos(spec.qos_profile), raw=True)
 
     def _reconcile(self) -> None:
-        """(executor thread) Subscribe to the streams some client watches, drop the others."""
+        """(executor thread, every ``reconcile_period``) Subscribe to the streams some client watches, drop the
+        others."""
         with self._lock:
+            if not self._dirty:
+                return
+            self._dirty = False
             wanted = {t for t, n in self._wanted.items() if n > 0}
         for topic in sorted(self._streams):
             if topic in wanted and topic not in self._ros_subs:
@@ -282,8 +301,7 @@ class BridgeNode(Node):
         self.get_logger().info(f'client {client_id} subscribed to {topic}')
         with self._lock:
             self._wanted[topic] = self._wanted.get(topic, 0) + 1
-        if topic in self._streams:
-            self._reconcile_guard.trigger()
+            self._dirty = True
         last = self._latched.get(topic)
         if last is not None:
             self._channels[topic].log(last, log_time=self.sim_time_ns)
@@ -293,8 +311,7 @@ class BridgeNode(Node):
         self.get_logger().info(f'client {client_id} unsubscribed from {topic}')
         with self._lock:
             self._wanted[topic] = max(0, self._wanted.get(topic, 0) - 1)
-        if topic in self._streams:
-            self._reconcile_guard.trigger()
+            self._dirty = True
 
     # ------------------------------------------------------------------ /apply_push
     def _on_service_call(self, request) -> bytes:
