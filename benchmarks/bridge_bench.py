@@ -295,14 +295,58 @@ def latencies(bag: Path, topics: dict, frames: list) -> dict:
     return out
 
 
+def cpu_figures(r: dict) -> dict:
+    """CPU figures of one live run: the bridge's CPU (all its threads: Python, Fast DDS, the SDK's tokio) per
+    message it took (every message of the bag: it subscribes to every topic) and per frame it sent to the client,
+    and the graph's (every node, not the benchmark's client) and the client's CPU per control step."""
+    cpu = r.get('cpu_s', {})
+    steps = r.get('steps') or 0
+    messages = sum(r.get('bag_counts', {}).values())
+    frames = sum(r.get('frames_per_topic', {}).values())
+    bridge = cpu.get('bridge', {}).get('cpu_s', 0.0)
+    graph = sum(v['cpu_s'] for k, v in cpu.items() if k not in ('client', 'launcher'))
+    return {'bridge_us_per_message': bridge / messages * 1e6 if messages else float('nan'),
+            'bridge_us_per_frame': bridge / frames * 1e6 if frames else float('nan'),
+            'graph_cpu_ms_per_step': graph / steps * 1e3 if steps else float('nan'),
+            'client_cpu_ms_per_step': cpu.get('client', {}).get('cpu_s', 0.0) / steps * 1e3 if steps else float('nan')}
+
+
+def before_after(runs: list) -> dict:
+    """Per client kind: medians over the runs of each setting, and after/before ratios of those medians."""
+    out: dict = {}
+    for kind in ('latency', 'latency_layout'):
+        rows: dict = {}
+        for setting in ('before', 'after'):
+            sel = [r for r in runs if r['kind'] == kind and r.get('bridge') == setting and r.get('steps_per_s')]
+            if not sel:
+                continue
+            figs = [cpu_figures(r) for r in sel]
+            rows[setting] = {
+                'runs': len(sel),
+                'p50_ms': float(np.median([r['latency_ms /sim/state']['p50'] for r in sel])),
+                'p99_ms': float(np.median([r['latency_ms /sim/state']['p99'] for r in sel])),
+                'steps_per_s': float(np.median([r['steps_per_s'] for r in sel])),
+                'load_average_1min': [round(r.get('load_average_1min_at_start', float('nan')), 2) for r in sel],
+                'every_frame_delivered': all(r.get('every_frame_delivered') for r in sel),
+                **{k: float(np.median([f[k] for f in figs])) for k in figs[0]}}
+        if 'before' in rows and 'after' in rows:
+            rows['ratio_after_over_before'] = {
+                k: rows['after'][k] / rows['before'][k] for k in
+                ('p50_ms', 'p99_ms', 'steps_per_s', 'bridge_us_per_message', 'graph_cpu_ms_per_step')
+                if rows['before'][k]}
+        out[kind] = rows
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='bridge_bench', description=__doc__.split('\n\n')[0])
-    ap.add_argument('--pairs', type=int, default=3, help='off/on pairs of as-fast-as-possible runs')
+    ap.add_argument('--pairs', type=int, default=0, help='off/on pairs of as-fast-as-possible runs')
     ap.add_argument('--steps', type=int, default=2, help='walking steps per rate run')
-    ap.add_argument('--live-steps', type=int, default=1, help='walking steps of the real-time latency run')
-    ap.add_argument('--latency-pairs', type=int, default=1,
-                    help='before (drain_batch 0) / after (config/graph.yaml) pairs of real-time latency runs')
-    ap.add_argument('--json', type=Path, default=None)
+    ap.add_argument('--live-steps', type=int, default=4, help='walking steps of each real-time latency run')
+    ap.add_argument('--latency-pairs', type=int, default=3,
+                    help='before (BEFORE) / after (config/graph.yaml) pairs of real-time latency runs, alternated')
+    ap.add_argument('--json', type=Path, default=ROOT / 'benchmarks' / 'bridge_results.json',
+                    help='results file (default benchmarks/bridge_results.json)')
     a = ap.parse_args(argv)
     t0 = time.monotonic()
     runs = []
@@ -319,8 +363,10 @@ def main(argv=None) -> int:
         for k in range(a.latency_pairs):
             for setting in ('before', 'after'):
                 for i, only in enumerate((None, LAYOUT_TOPICS)):
+                    load = os.getloadavg()[0]
                     r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
                                   steps=a.live_steps, only=only, params=settings_params(Path(tmp), setting))
+                    r['load_average_1min_at_start'] = load
                     r['kind'] = 'latency' if only is None else 'latency_layout'
                     r['bridge'] = setting
                     runs.append(r)
@@ -347,6 +393,17 @@ def main(argv=None) -> int:
                           f"n {s['n']}, p50 {s['p50']:.2f} ms, p99 {s['p99']:.2f} ms, max {s['max']:.2f} ms"
                           + (f", every frame: {r.get('every_frame_delivered')}, {r['steps_per_s']:.0f} steps/s"
                              if key == '/sim/state' else ''))
+    summary['before_after'] = before_after(runs)
+    for kind, rows in summary['before_after'].items():
+        for setting, m in rows.items():
+            if isinstance(m, dict):
+                print(f"{kind:14s} {setting:6s} (medians of {m['runs']} runs): /sim/state p50 {m['p50_ms']:.2f} ms, "
+                      f"p99 {m['p99_ms']:.2f} ms; {m['steps_per_s']:.0f} steps/s; bridge CPU {m['bridge_us_per_message']:.1f} us "
+                      f"per message it takes, {m['bridge_us_per_frame']:.1f} us per frame sent; graph CPU "
+                      f"{m['graph_cpu_ms_per_step']:.3f} ms per control step (client {m['client_cpu_ms_per_step']:.3f}); "
+                      f"every frame in every run: {m['every_frame_delivered']}")
+        if 'ratio_after_over_before' in rows:
+            print(f"{kind:14s} after/before: " + ', '.join(f'{k} {v:.2f}' for k, v in rows['ratio_after_over_before'].items()))
     print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")
     if a.json:
         a.json.write_text(json.dumps(summary, indent=2) + '\n')

@@ -58,6 +58,7 @@ CASES = [
     ('biped_controller', 'controller', 'mode:=fast', 'mode'),
     ('biped_sim', 'disturbance', 'max_force:=-5.0', 'max_force'),
     ('biped_sim', 'disturbance', 'description_path:=/nonexistent.yaml', 'description_path'),
+    ('biped_sim', 'disturbance', 'executor:=multi', 'executor'),
 ]
 
 

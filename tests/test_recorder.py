@@ -639,7 +639,8 @@ def _run_recorder(tmp_path, params: list[str], env: dict | None = None) -> subpr
 
 
 @pytest.mark.parametrize("param, value", [("compression", "gzip"), ("chunk_size", "12"),
-                                          ("output_dir", "''")])
+                                          ("output_dir", "''"), ("batch_wait", "-0.001"), ("batch_wait", "0.5"),
+                                          ("batch_wait", "'x'")])
 def test_node_rejects_bad_parameter(tmp_path, param, value):
     _need_rclpy()
     params = {"output_dir": str(tmp_path / "bag"), "compression": "zstd", "chunk_size": "65536"}

@@ -2,8 +2,8 @@
 
 Topics. Every topic of :data:`biped_sim.graph.names.TOPICS` is served and subscribed from the start; with
 ``lazy_streams`` a per-step stream (``graph_names.STREAM_QOS``) only while at least one client is
-subscribed to its channel (subscribed and dropped on the executor's thread; ``/clock``, the latched and the
-event topics always). Subscriptions are ``raw=True`` (the CDR
+subscribed to its channel (subscribed and dropped on the executor's thread, by a timer every
+``reconcile_period``; ``/clock``, the latched and the event topics always). Subscriptions are ``raw=True`` (the CDR
 bytes are passed through, never deserialized) and the recorder's QoS (the topic's reliability and
 durability, a keep-last history of at least ``recorder_node.RECORDING_DEPTH``: a lagging bridge loses
 nothing, latched and event topics reach it). Each is served on a Foxglove channel with the schema
@@ -39,14 +39,21 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``message_backlog`` (int 16..1000000, default 20000): messages queued per client before the
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
-- ``drain_batch`` (int 0..100000; 0 = one message per executor round): after the message the executor handed over, at most this
-  many more are taken directly, in the same callback, from *every* subscription (passes over them until
-  one takes nothing; each topic's messages in their order; ``/clock`` first in each pass, so the log time
-  is the newest sim time), as the recorder does. The executor's round per message (rclpy's
-  ``SingleThreadedExecutor`` in Python: wait set over every subscription, task, callback) costs far more
-  than passing the message on, and at 15 topics x 1 kHz the bridge fell behind the graph (issue 20:
-  ``/sim/state`` 25-28 ms late at p50); 0 = one message per round, the behaviour before.
-  ``config/graph.yaml`` sets it.
+- ``executor`` (``events`` | ``single_threaded``; ``config/graph.yaml``: ``events``): rclpy's C++
+  ``EventsExecutor`` or its Python ``SingleThreadedExecutor``. Issue 20 part 3 (``benchmarks/bridge_profile``,
+  py-spy at real time): on the ``SingleThreadedExecutor`` 86-90 % of the bridge's Python thread went to the
+  executor's rounds (wait set rebuilt over every subscription, timer and service entity, task, callback), 9-19 %
+  to ``Channel.log`` and 1-2 % to the bridge's own code; the bridge cost 0.9-1.7 ms of CPU per control step,
+  as much as the simulator. The ``EventsExecutor`` takes each message in C++ and calls the handler directly
+  (its raw, message-only subscriptions work; it takes no guard condition, hence ``reconcile_period``).
+- ``drain_batch`` (int 0..100000; ``config/graph.yaml``: 0): with ``single_threaded``, after the message the
+  executor handed over, at most this many more are taken directly, in the same callback, from *every*
+  subscription (passes over them until one takes nothing; each topic's messages in their order; ``/clock``
+  first in each pass, so the log time is the newest sim time), as the recorder does (issue 20 part 2: 64);
+  0 = the handler is the subscription's callback (one message per callback: the ``EventsExecutor``'s way,
+  where a drain would only add empty takes).
+- ``reconcile_period`` (s, 0.001..10; ``config/graph.yaml``): with ``lazy_streams``, how often a steady timer
+  looks at which streams the clients watch (the SDK's threads only mark a change).
 
 Exit status: 0 on SIGINT/SIGTERM, 2 for a bad parameter or a server that cannot start (port in use).
 """
