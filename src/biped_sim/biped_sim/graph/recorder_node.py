@@ -45,6 +45,7 @@ from typing import Dict, List, Optional
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
@@ -147,7 +148,9 @@ class RecorderNode(Node):
         self.declare_parameter("chunk_size", DEFAULT_CHUNK_SIZE)
         self.declare_parameter("chunk_time", float(graph_default(graph_names.RECORDER_NODE, "chunk_time")))
         self.declare_parameter("sync", bool(graph_default(graph_names.RECORDER_NODE, "sync")))
-        self.declare_parameter("batch_wait", float(graph_default(graph_names.RECORDER_NODE, "batch_wait")))
+        # dynamic typing: a value of the wrong type is named by _read_parameters (exit 2), not refused by rclpy
+        self.declare_parameter("batch_wait", float(graph_default(graph_names.RECORDER_NODE, "batch_wait")),
+                               ParameterDescriptor(name="batch_wait", dynamic_typing=True))
         output_dir, compression, chunk_size, chunk_time, sync, self.batch_wait = self._read_parameters()
 
         self.failure: Optional[RecorderError] = None
