@@ -190,18 +190,23 @@ BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64},
           'recorder': {'batch_wait': 0.0}}
 
 
+# "lazy": config/graph.yaml with the bridge's lazy_streams on (it reads a per-step stream only while a client
+# watches it): what the layout's client costs when the bridge does not take the streams nobody shows.
+SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams': True}}}
+
+
 def settings_params(tmp: Path, setting: str) -> Path | None:
-    """config/graph.yaml with the ``before`` overrides (``BEFORE``) written to a file; None for ``after`` (the file
+    """config/graph.yaml with a setting's overrides (``SETTINGS``) written to a file; None for ``after`` (the file
     as committed)."""
-    if setting == 'after':
+    if setting not in SETTINGS:
+        raise ValueError(f'setting must be one of {", ".join(SETTINGS)}, got {setting!r}')
+    if SETTINGS[setting] is None:
         return None
-    if setting != 'before':
-        raise ValueError(f'setting must be before or after, got {setting!r}')
     import yaml
     tree = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
-    for node, values in BEFORE.items():
+    for node, values in SETTINGS[setting].items():
         tree[node]['ros__parameters'].update(values)
-    path = tmp / 'graph_before.yaml'
+    path = tmp / f'graph_{setting}.yaml'
     path.write_text(yaml.safe_dump(tree))
     return path
 
@@ -394,9 +399,12 @@ def main(argv=None) -> int:
                           + (f", every frame: {r.get('every_frame_delivered')}, {r['steps_per_s']:.0f} steps/s"
                              if key == '/sim/state' else ''))
     summary['before_after'] = before_after(runs)
+    if a.json:
+        a.json.write_text(json.dumps(summary, indent=2) + '\n')
     for kind, rows in summary['before_after'].items():
-        for setting, m in rows.items():
-            if isinstance(m, dict):
+        for setting in ('before', 'after'):
+            m = rows.get(setting)
+            if m:
                 print(f"{kind:14s} {setting:6s} (medians of {m['runs']} runs): /sim/state p50 {m['p50_ms']:.2f} ms, "
                       f"p99 {m['p99_ms']:.2f} ms; {m['steps_per_s']:.0f} steps/s; bridge CPU {m['bridge_us_per_message']:.1f} us "
                       f"per message it takes, {m['bridge_us_per_frame']:.1f} us per frame sent; graph CPU "
@@ -405,8 +413,6 @@ def main(argv=None) -> int:
         if 'ratio_after_over_before' in rows:
             print(f"{kind:14s} after/before: " + ', '.join(f'{k} {v:.2f}' for k, v in rows['ratio_after_over_before'].items()))
     print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")
-    if a.json:
-        a.json.write_text(json.dumps(summary, indent=2) + '\n')
     return 0 if all(r['exit_code'] == 0 for r in runs) else 1
 
 

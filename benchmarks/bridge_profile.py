@@ -120,12 +120,31 @@ class PySpy:
         return summarise(self.out) if self.out.exists() else {'samples': 0, 'error': 'py-spy wrote nothing'}
 
 
+def _one(dom, tmp: Path, name: str, setting: str, kind: str, live: bool, only, a, spy) -> dict:
+    d = tmp / name
+    profs = {}
+    if spy:
+        d.mkdir(parents=True, exist_ok=True)
+        for node in ('bridge', 'simulator', 'controller', 'recorder', 'disturbance') if live else (
+                'simulator', 'controller', 'recorder', 'disturbance'):
+            if node in a.spy_nodes:
+                profs[node] = PySpy(spy, node, d / f'{node}.collapsed', len(bb.PROBES))
+    load = os.getloadavg()[0]
+    r = bb.run_graph(dom, d, live=live, rtf=a.rtf, steps=a.steps, only=only, params=bb.settings_params(tmp, setting))
+    r.update(kind=kind, setting=setting, load_average_1min_at_start=load)
+    if profs:
+        r['profiles'] = {node: p.result() for node, p in profs.items()}
+    print(json.dumps({x: y for x, y in r.items() if x not in ('bag_counts',)}), flush=True)
+    return r
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='bridge_profile', description=__doc__.split('\n\n')[0])
     ap.add_argument('--steps', type=int, default=4, help='walking steps per run (~0.46 s of sim time each)')
     ap.add_argument('--pairs', type=int, default=1, help='rounds of off / layout / all')
     ap.add_argument('--settings', default='after',
-                    help='comma-separated, alternated: before (bridge_bench.BEFORE), after (config/graph.yaml)')
+                    help='comma-separated, alternated: before (bridge_bench.BEFORE), after (config/graph.yaml), lazy '
+                         '(after with the bridge\'s lazy_streams)')
     ap.add_argument('--py-spy', dest='py_spy', default=None, help='path of py-spy (profile the bridge)')
     ap.add_argument('--spy-nodes', dest='spy_nodes', default='bridge',
                     help='comma-separated nodes to sample with py-spy (bridge,simulator,controller,recorder,disturbance)')
@@ -143,26 +162,11 @@ def main(argv=None) -> int:
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory() as tmp, bb.Domain() as dom:
         for k in range(a.pairs):
-          for setting in a.settings:
-            for kind, live, only in (('off', False, None), ('layout', True, bb.LAYOUT_TOPICS), ('all', True, None)):
-                if kind not in a.kinds:
-                    continue
-                d = Path(tmp) / f'{setting}_{kind}_{k}'
-                profs = {}
-                if spy:
-                    d.mkdir(parents=True, exist_ok=True)
-                    for node in ('bridge', 'simulator', 'controller', 'recorder', 'disturbance') if live else (
-                            'simulator', 'controller', 'recorder', 'disturbance'):
-                        if node in a.spy_nodes:
-                            profs[node] = PySpy(spy, node, d / f'{node}.collapsed', len(bb.PROBES))
-                r = bb.run_graph(dom, d, live=live, rtf=a.rtf, steps=a.steps, only=only,
-                                 params=bb.settings_params(Path(tmp), setting))
-                r['kind'] = kind
-                r['setting'] = setting
-                if profs:
-                    r['profiles'] = {node: p.result() for node, p in profs.items()}
-                runs.append(r)
-                print(json.dumps({x: y for x, y in r.items() if x not in ('bag_counts',)}), flush=True)
+            for setting in a.settings:
+                for kind, live, only in (('off', False, None), ('layout', True, bb.LAYOUT_TOPICS), ('all', True, None)):
+                    if kind not in a.kinds:
+                        continue
+                    runs.append(_one(dom, Path(tmp), f'{setting}_{kind}_{k}', setting, kind, live, only, a, spy))
     out = {'date': time.strftime('%Y-%m-%d %H:%M:%S'), 'cpus': os.cpu_count(),
            'load_average_at_end': os.getloadavg(), 'wall_s': time.monotonic() - t0, 'runs': runs}
     print('==== CPU per control step (ms), real time ====')

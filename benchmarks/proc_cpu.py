@@ -26,7 +26,11 @@ def _read(path: str) -> str | None:
 def children(pid: int) -> list[int]:
     """Direct children of ``pid`` (``/proc/<pid>/task/*/children``)."""
     out: list[int] = []
-    for tid in os.listdir(f'/proc/{pid}/task') if os.path.isdir(f'/proc/{pid}/task') else ():
+    try:
+        tids = os.listdir(f'/proc/{pid}/task')
+    except OSError:      # the process is gone
+        return out
+    for tid in tids:
         text = _read(f'/proc/{pid}/task/{tid}/children')
         if text:
             out += [int(x) for x in text.split()]
@@ -111,10 +115,13 @@ class TreeCpu:
 
     def _run(self) -> None:
         while not self._stop.wait(self.period):
-            if not self._marked and self.mark_when is not None and self.mark_when():
-                self.mark()
-            else:
-                self.poll()
+            try:
+                if not self._marked and self.mark_when is not None and self.mark_when():
+                    self.mark()
+                else:
+                    self.poll()
+            except (OSError, ValueError, IndexError):   # a process or thread vanished mid-read: next poll
+                continue
 
     def stop(self) -> dict:
         """Stop polling; {process name: {'cpu_s': total, 'threads': {thread name: cpu_s}}} since the mark."""
