@@ -333,7 +333,10 @@ def before_after(runs: list) -> dict:
                 'steps_per_s': float(np.median([r['steps_per_s'] for r in sel])),
                 'load_average_1min': [round(r.get('load_average_1min_at_start', float('nan')), 2) for r in sel],
                 'every_frame_delivered': all(r.get('every_frame_delivered') for r in sel),
-                **{k: float(np.median([f[k] for f in figs])) for k in figs[0]}}
+                **{k: float(np.median([f[k] for f in figs])) for k in figs[0]},
+                'cpu_ms_per_step_median': {
+                    node: float(np.median([r['cpu_ms_per_step'].get(node, float('nan')) for r in sel]))
+                    for node in sorted({n for r in sel for n in r.get('cpu_ms_per_step', {})})}}
         if 'before' in rows and 'after' in rows:
             rows['ratio_after_over_before'] = {
                 k: rows['after'][k] / rows['before'][k] for k in
@@ -409,7 +412,8 @@ def main(argv=None) -> int:
                       f"p99 {m['p99_ms']:.2f} ms; {m['steps_per_s']:.0f} steps/s; bridge CPU {m['bridge_us_per_message']:.1f} us "
                       f"per message it takes, {m['bridge_us_per_frame']:.1f} us per frame sent; graph CPU "
                       f"{m['graph_cpu_ms_per_step']:.3f} ms per control step (client {m['client_cpu_ms_per_step']:.3f}); "
-                      f"every frame in every run: {m['every_frame_delivered']}")
+                      f"every frame in every run: {m['every_frame_delivered']}; per node (ms per step): "
+                      + ', '.join(f'{n} {v:.3f}' for n, v in m['cpu_ms_per_step_median'].items()))
         if 'ratio_after_over_before' in rows:
             print(f"{kind:14s} after/before: " + ', '.join(f'{k} {v:.2f}' for k, v in rows['ratio_after_over_before'].items()))
     print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")
