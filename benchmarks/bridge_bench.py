@@ -1,6 +1,7 @@
 """Foxglove bridge: publish-to-WebSocket-frame latency and the lockstep rate with the bridge on and off.
 
-    .venv/bin/python -m benchmarks.bridge_bench [--pairs 3] [--steps 2] [--live-steps 1] [--json FILE]
+    .venv/bin/python -m benchmarks.bridge_bench     # = --pairs 0 --latency-pairs 3 --live-steps 4 --json benchmarks/bridge_results.json
+    .venv/bin/python -m benchmarks.bridge_bench [--pairs N] [--steps 2] [--latency-pairs 3] [--live-steps 4] [--json FILE]
 
 Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included) in its own ROS domain
 (``domain_coordinator``), on 127.0.0.1 only:
@@ -23,10 +24,17 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   rate-off runs too, so both sides of the rate comparison carry the same subscriber). The rate-on runs
   give the same figures under the as-fast-as-possible burst (queueing).
 
-- **latency before/after** (issue 20; ``--latency-pairs`` pairs, alternated): the real-time runs above
-  are made once per bridge setting, ``drain_batch`` 0 (one message per executor round: the bridge before
-  issue 20) and the value of ``config/graph.yaml`` (the rest of the file as committed), each with a
-  client on every channel and one on the layout's topics; every frame is counted against the bag.
+- **latency before/after** (issue 20 part 3; ``--latency-pairs`` pairs, alternated): the real-time runs above
+  are made once per setting, ``before`` (:data:`BEFORE`: the bridge and the disturbance node on rclpy's
+  Python ``SingleThreadedExecutor``, the bridge's ``drain_batch`` 64, the recorder's ``batch_wait`` 0: main
+  before part 3) and ``after`` (``config/graph.yaml`` as committed), each with a client on every channel and
+  one on the layout's topics; every frame is counted against the bag. Each run also records the 1-minute load
+  average at its start and the CPU time of every process and thread (:mod:`benchmarks.proc_cpu`, the
+  scheduler's own accounting) from the first ``/sim/state`` (the DDS probe) to the process's exit; the summary
+  gives, per setting, medians of: latency p50/p99, steps/s, the bridge's CPU per message it takes and per frame
+  it sends (all its threads: Python, Fast DDS, the SDK's tokio), the graph's CPU per control step (every node)
+  and each node's, and the after/before ratios (``before_after``). CPU per message or per step is far less
+  load-sensitive than latency on a shared machine.
 
 Percentiles: numpy ``percentile`` (linear). Nothing is asserted; figures are printed (and --json).
 """
