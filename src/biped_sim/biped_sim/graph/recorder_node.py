@@ -5,8 +5,10 @@ Node ``recorder``. Every topic of :data:`biped_sim.graph.names.TOPICS` is subscr
 For each message:
 
 - ``log_time``  = the sim time of the latest ``/clock`` the recorder has recorded before this message (so
-  log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); before
-  the first one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
+  log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); what one
+  callback takes from every subscription is recorded in publication order (DDS source timestamp), so that is the
+  ``/clock`` published before the message (a ``/sim/state``'s log time is its own stamp); before the first
+  one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
 - ``publish_time`` = the source timestamp DDS hands over in the message info.
 
 Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad one makes
