@@ -7,7 +7,9 @@ For each message:
 - ``log_time``  = the sim time of the latest ``/clock`` the recorder has recorded before this message (so
   log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); what one
   callback takes from every subscription is recorded in publication order (DDS source timestamp), so that is the
-  ``/clock`` published before the message (a ``/sim/state``'s log time is its own stamp); before the first
+  ``/clock`` published before the message (a ``/sim/state``'s log time is its own stamp) unless DDS delivered the
+  message after a later ``/clock`` was taken (each topic keeps its order, topics among themselves need not: 0-10 of
+  928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``); before the first
   one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
 - ``publish_time`` = the source timestamp DDS hands over in the message info.
 
@@ -266,7 +268,7 @@ class RecorderNode(Node):
         a pass takes nothing or ``budget`` messages are taken; then record them (with ``first``, a message the
         executor already took) sorted by their DDS source timestamp, so that each message's log time is the
         latest ``/clock`` published before it whichever topic was read first (with ``batch_wait`` a batch
-        holds a step or more: read topic by topic, 76 % of a real-time run's ``/sim/state`` got the next
+        holds a step or more: read topic by topic, 707 of 928 ``/sim/state`` of a real-time run got the next
         step's ``/clock`` as log time). Returns how many were taken (``first`` not counted)."""
         batch = [] if first is None else [first]
         taken_total = 0
