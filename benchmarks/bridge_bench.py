@@ -26,8 +26,8 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
 
 - **latency before/after** (issue 20 part 3; ``--latency-pairs`` pairs, alternated): the real-time runs above
   are made once per setting, ``before`` (:data:`BEFORE`: the bridge and the disturbance node on rclpy's
-  Python ``SingleThreadedExecutor``, the bridge's ``drain_batch`` 64, the recorder's ``batch_wait`` 0: main
-  before part 3) and ``after`` (``config/graph.yaml`` as committed), each with a client on every channel and
+  Python ``SingleThreadedExecutor``, the bridge's ``drain_batch`` 64, the recorder's ``batch_wait`` 0: main's
+  settings; the code is this one in both, e.g. ``run_node``'s spin slices) and ``after`` (``config/graph.yaml`` as committed), each with a client on every channel and
   one on the layout's topics; every frame is counted against the bag. Each run also records the 1-minute load
   average at its start and the CPU time of every process and thread (:mod:`benchmarks.proc_cpu`, the
   scheduler's own accounting) from the first ``/sim/state`` (the DDS probe) to the process's exit; the summary
@@ -192,7 +192,7 @@ def _stats(values) -> dict:
 
 # The graph's settings before issue 20 part 3 (the bridge, the disturbance node and the recorder on rclpy's Python
 # SingleThreadedExecutor; the bridge taking up to 64 waiting messages per callback, as part 2 left it; the recorder
-# without batch_wait). "after" = config/graph.yaml as committed.
+# without batch_wait): settings only, the code is the same in both. "after" = config/graph.yaml as committed.
 BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64},
           'disturbance': {'executor': 'single_threaded'},
           'recorder': {'batch_wait': 0.0}}
