@@ -18,10 +18,12 @@ _LINE = re.compile(r"run over: (?P<reason>[^;]*); (?P<steps>\d+) control steps, 
                    r"(?P<imp>\d+) impacts, wall (?P<wall>[0-9.]+) s")
 
 
-def measure(sim_seconds: float, domain_cls, timeout: float = 180.0) -> dict:
+def measure(sim_seconds: float, domain_cls, timeout: float = 180.0, ctrl_params: tuple[str, ...] = ()) -> dict:
+    """The lockstep rate; ``ctrl_params``: more ``NAME:=VALUE`` parameters of the controller node."""
+    extra = [a for p in ctrl_params for a in ("-p", p)]
     with domain_cls() as dom:
         ctrl = subprocess.Popen([sys.executable, "-m", "biped_controller.graph.controller_node", "--ros-args",
-                                 "-p", "use_sim_time:=true", "-p", "wait_for_recorder:=false"],
+                                 "-p", "use_sim_time:=true", "-p", "wait_for_recorder:=false", *extra],
                                 cwd=ROOT, env=dom.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             sim = subprocess.run([sys.executable, "-m", "biped_sim.graph.simulator_node", "--ros-args",

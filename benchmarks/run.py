@@ -337,7 +337,7 @@ def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
 # 3. DDS: bare ping-pong and the node lockstep
 # ------------------------------------------------------------------------------------------------
 
-class _Domain:
+class Domain:
     """A free ROS_DOMAIN_ID from domain_coordinator (port lock) for the duration of the block."""
 
     def __enter__(self):
@@ -362,7 +362,7 @@ class _Domain:
 
 
 def bench_pingpong(count: int) -> dict:
-    with _Domain() as dom:
+    with Domain() as dom:
         pong = subprocess.Popen([sys.executable, "-m", "benchmarks.pingpong", "pong", "--timeout", "10"],
                                 cwd=ROOT, env=dom.env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         try:
@@ -391,14 +391,14 @@ def bench_lockstep(seconds: float, pingpong: dict | None) -> dict:
         return {"available": False, "reason": f"not available: {', '.join(missing)} not written yet"}
     from benchmarks.lockstep import measure
     try:
-        res = measure(seconds, _Domain)
+        res = measure(seconds, Domain)
     except Exception as exc:  # noqa: BLE001
         return {"available": False, "reason": f"not available: {type(exc).__name__}: {exc}"}
     if res.get("available") and pingpong and pingpong.get("available"):
         res["fraction_of_pingpong"] = res["steps_per_s"] / pingpong["rate_hz"]
     from benchmarks.lockstep import measure_with_recorder
     try:
-        res["with_recorder"] = measure_with_recorder(seconds, _Domain)
+        res["with_recorder"] = measure_with_recorder(seconds, Domain)
     except Exception as exc:  # noqa: BLE001
         res["with_recorder"] = {"available": False, "reason": f"not available: {type(exc).__name__}: {exc}"}
     return res

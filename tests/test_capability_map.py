@@ -19,6 +19,7 @@ from helpers import assert_close, central_diff
 
 from biped_controller.studies import capability_map as cm
 from biped_controller.studies import experiment
+from biped_controller.core.period_layout import M_, MEMORY
 from biped_sim.robot.description import load_description
 from biped_sim.robot.floating import FloatingModel
 
@@ -600,7 +601,7 @@ def test_loose_early_stop_tolerances_would_change_an_outcome(monkeypatch):
     full = experiment.survives(*args, settings=experiment.RunSettings(full_trials=True))
     assert not full["survived"] and full["fall_cause"] and full["steps_walked"] >= 1
     inf = math.inf
-    monkeypatch.setattr(experiment, "early_stop", lambda: experiment.EarlyStop(True, inf, inf, inf, inf, inf, inf))
+    monkeypatch.setattr(experiment, "early_stop", lambda: experiment.EarlyStop(True, inf, inf, inf, inf, inf, inf, inf, inf))
     loose = experiment.survives(*args)
     assert loose["survived"] and loose["decided_at_step"] == full["steps_walked"]
 
@@ -614,21 +615,26 @@ def test_early_stop_criterion_checks_every_tolerance_and_the_push_end():
     es = experiment.early_stop()
     g = fam.evaluate(fam.p_d, 0.0007)
 
-    def state(dq=0.0, dqd=0.0, dp=0.0, dpd=0.0, dtd=0.0, F=0.0, t_imp=1.0):
+    def state(dq=0.0, dqd=0.0, dp=0.0, dpd=0.0, dtd=0.0, F=0.0, t_imp=1.0, lam=0.0, lam_dot=0.0):
         dqv, dqdv = np.zeros(6), np.zeros(6)
         dqv[2], dqdv[4] = dq, dqd
         x = np.concatenate([np.zeros(3), urdf_from_paper(g.q + dqv, LEFT)])
         v = np.concatenate([np.zeros(3), urdf_from_paper(g.dq_dtau + dqdv, LEFT)])
         sim = SimpleNamespace(impact_log=[SimpleNamespace(t=t_imp)], t=t_imp + 0.0007, x=x, v=v, stance=LEFT,
                               fm=FloatingModel)
-        ctrl = SimpleNamespace(state=SimpleNamespace(p=fam.p_d + dp, p_dot=dpd, tau_dot=1.0 + dtd), force_estimate=F)
+        mem = MEMORY.new()
+        mem[M_.lam], mem[M_.lam_dot] = lam, lam_dot
+        ctrl = SimpleNamespace(state=SimpleNamespace(p=fam.p_d + dp, p_dot=dpd, tau_dot=1.0 + dtd), force_estimate=F,
+                               memory=mem)
         return sim, ctrl
 
     assert es.decided(*state(), 0.5, fam)
     assert es.decided(*state(dq=0.9 * es.q, dqd=-0.9 * es.qd, dp=0.9 * es.p, dpd=-0.9 * es.p_dot,
-                             dtd=0.9 * es.tau_dot, F=-0.9 * es.force), 0.5, fam)
+                             dtd=0.9 * es.tau_dot, F=-0.9 * es.force, lam=0.9 * es.lam, lam_dot=-0.9 * es.lam_dot),
+                      0.5, fam)
     for kw in (dict(dq=1.1 * es.q), dict(dqd=-1.1 * es.qd), dict(dp=1.1 * es.p), dict(dpd=1.1 * es.p_dot),
-               dict(dtd=-1.1 * es.tau_dot), dict(F=1.1 * es.force), dict(t_imp=0.4)):
+               dict(dtd=-1.1 * es.tau_dot), dict(F=1.1 * es.force), dict(t_imp=0.4), dict(lam=-1.1 * es.lam),
+               dict(lam_dot=1.1 * es.lam_dot)):
         assert not es.decided(*state(**kw), 0.5, fam), kw
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -259,10 +260,89 @@ def test_predictor_negative_controls(undelayed):
     assert none.fallen and none.steps_walked == 1 and none.fall_time - none.impacts[0].t < 0.005
 
 
+@pytest.mark.parametrize("engine", ["fast", "reference"])
+def test_predictor_reconciles_a_touchdown_sensed_at_once(undelayed, engine):
+    """Delay of 2 periods with the touchdown reported at once (plant ``touchdown_delayed`` False): the first
+    sample of the new stance is fresh while the predictor still runs from an old-stance sample of 2 periods
+    ago; with ``predictor_touchdown_at_once`` the pipeline takes it as of its own period and predicts through
+    the decisions since it only (0, then 1, 2 as the held sample ages), so the run is the undelayed one to
+    1e-9 through two touchdowns, on both paths: the compiled pipeline (fast engine) and the Python cores
+    (reference engine, against its own undelayed run). Negative controls: the same plant with the old
+    assumption (every sample 2 periods old) falls at the first touchdown; so does the setting on a plant whose
+    touchdown is delayed (a mismatch: no touchdown is predicted, none is reported for 2 periods)."""
+    from biped_controller.core.controller import AdaptiveController
+    from biped_controller.core.estimation_compiled import CompiledSensing
+    from biped_controller.core.sensing import SensingPipeline
+    from biped_controller.studies import runner
+    at_once = PlantPerturbation(delay=2, touchdown_delayed=False)
+    cfg = load_controller_config(mode="both", engine=engine, delay_compensation=2, predictor_touchdown_at_once=True)
+    kind = CompiledSensing if engine == "fast" else SensingPipeline
+    assert isinstance(AdaptiveController(cfg)._sensing, kind)          # the path under test
+    ref = undelayed if engine == "fast" else runner.run(
+        steps=2, mode="both", ctrl_config=load_controller_config(mode="both", engine=engine))
+    r = runner.run(steps=2, mode="both", ctrl_config=cfg, perturbation=at_once)
+    assert not r.fallen and r.steps_walked == 2 and len(r.records) == len(ref.records)
+    assert _max_diff(r, ref) < 1e-9
+    assert all(s.stance == rec.stance for s, rec in zip(r.statuses, r.records))
+    old = runner.run(steps=2, mode="both", ctrl_config=replace(cfg, predictor_touchdown_at_once=False),
+                     perturbation=at_once)
+    assert old.fallen and old.steps_walked == 1 and old.fall_time - old.impacts[0].t < 0.005
+    if engine == "fast":
+        mismatch = runner.run(steps=2, mode="both", ctrl_config=cfg, perturbation=PlantPerturbation(delay=2))
+        assert mismatch.fallen and mismatch.steps_walked == 1 and mismatch.fall_time - mismatch.impacts[0].t < 0.005
+
+
+REAL_PROFILE = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
+                    sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)
+
+
+@pytest.mark.parametrize("engine", ["fast", "reference"])
+def test_no_touchdown_is_predicted_when_it_is_reported_at_once(engine):
+    """Real-sensor profile (5e-4 rad, 5e-2 rad/s, 14 bits, IMU 1e-3 rad; seed 0), delay of 1 period, the
+    touchdown reported at once: with ``predictor_touchdown_at_once`` the predictor integrates in the sensed
+    stance only (a touchdown before t_k is in the sample of period k), and the controller acts in the true
+    stance in every period through three touchdowns, on both paths. Negative control (Python cores): the
+    same pipeline with the predictor's touchdown detection on takes the noisy estimate's sole for landed
+    before the impact, acts in the new stance too early and falls (take_off at the first touchdown)."""
+    from biped_sim.plant.config import load_sim_config
+    from biped_sim.robot.gait_family import GaitFamily
+    from biped_controller.studies import runner
+    plant = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch=1e-3, delay=1,
+                              touchdown_delayed=False)
+    cfg = load_controller_config(mode="both", engine=engine, delay_compensation=1, predictor_touchdown_at_once=True,
+                                 **REAL_PROFILE)
+    r = runner.run(steps=3, mode="both", ctrl_config=cfg, perturbation=plant)
+    assert not r.fallen and r.steps_walked == 3
+    assert all(s.stance == rec.stance for s, rec in zip(r.statuses, r.records))
+    if engine == "reference":
+        loop = runner.ClosedLoop(load_sim_config(), cfg, GaitFamily.load(), load_description(), plant)
+        loop.reset()
+        loop.ctrl._sensing.pred.touchdowns = True           # the predictor of before: it predicts touchdowns
+        bad = loop.run(3, limit=2.0)
+        assert bad.fallen and bad.fall_cause == "take_off" and bad.steps_walked == 0
+        assert any(s.stance != rec.stance for s, rec in zip(bad.statuses, bad.records))
+
+
+def test_predictor_sample_age_checked():
+    """``DelayPredictor.predict``'s ``periods`` (the sample's age): 0 returns the sample; an age beyond the
+    decisions recorded is refused naming it."""
+    from biped_controller.core.predictor import DelayPredictor, PredictorError
+    from biped_sim.robot.description import load_description
+    dp = DelayPredictor(load_description(), 2, 2, 1e-3, 1e-8, 1e-4, 1e-9)
+    q, qd = np.array([0.15, 0.3, -0.4, -0.2, 0.6, -0.3]), np.array([0.5, -0.2, 0.1, 0.3, -0.4, 0.2])
+    dp.record(0.0, np.zeros(6), 0)
+    p0 = dp.predict(0.001, q, qd, 0, periods=0)
+    assert np.array_equal(p0.q, q) and np.array_equal(p0.qd, qd) and p0.stance == 0
+    assert not np.array_equal(dp.predict(0.001, q, qd, 0, periods=1).q, q)   # control: one period integrated
+    with pytest.raises(PredictorError, match="periods"):
+        dp.predict(0.001, q, qd, 0, periods=2)
+
+
 # ------------------------------------------------------------------------------ settings and command lines
 def test_controller_settings_rejected_by_name():
     for key, val in (("momentum_observer_gain", -1.0), ("delay_compensation", 1.5), ("sensor_encoder_bits", -2),
-                     ("state_estimator", "yes"), ("estimate_confidence", math.nan)):
+                     ("state_estimator", "yes"), ("estimate_confidence", math.nan),
+                     ("predictor_touchdown_at_once", 1)):
         with pytest.raises(ControllerConfigError, match=key):
             load_controller_config(**{key: val})
     with pytest.raises(ControllerConfigError, match="estimator_accel_std"):

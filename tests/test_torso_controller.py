@@ -21,7 +21,6 @@ from biped_controller.core.controller import (ADAPTED, MODES, TORSO_MODES, TORSO
 from biped_controller.core.period_layout import M_, QP_ROWS
 from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, kkt_residuals
 from biped_controller.studies.runner import run
-from biped_controller.studies.segment import Segment
 
 FAM = GaitFamily.load()
 
@@ -176,18 +175,6 @@ def test_mode_lambda_walks_without_a_push_with_lambda_zero():
     assert np.max(np.abs(res.series("lam"))) < 1e-6
 
 
-def test_torso_modes_take_the_python_steps():
-    for mode in TORSO_MODES:
-        ctrl = AdaptiveController(load_controller_config(mode=mode))
-        assert ctrl.compiled_period is None and ctrl.torso
-    ctrl = AdaptiveController(load_controller_config(mode="both"))
-    assert not ctrl.torso
-    from biped_sim.plant.protocol import make_plant
-    from biped_sim.plant.config import load_sim_config
-    sim = make_plant("rigid", ctrl.desc, load_sim_config())
-    assert not Segment.eligible(sim, AdaptiveController(load_controller_config(mode="all")))
-
-
 def test_reset_clears_lambda():
     ctrl = AdaptiveController(load_controller_config(mode="all"))
     ctrl.memory[M_.lam] = 0.1
@@ -244,30 +231,6 @@ def test_node_message_carries_lambda():
     m = status_message(s, Time())
     assert (m.lam, m.lam_dot, m.lam_ddot, m.lam_ddot_star) == (s.lam, s.lam_dot, s.lam_ddot, s.lam_ddot_star)
     assert m.mode == "all"
-
-
-def test_runner_falls_back_to_the_objects_in_the_torso_modes():
-    """compiled_loop=True with mode all runs the objects (the compiled loop has no lambda): the same
-    records and statuses as compiled_loop=False, field for field."""
-    import dataclasses
-    a = run(1, "all", (Push(0.2315, 0.025, 300.0),), compiled_loop=True)
-    b = run(1, "all", (Push(0.2315, 0.025, 300.0),), compiled_loop=False)
-    assert len(a.records) == len(b.records) > 0
-
-    def same(x, y):
-        for f in dataclasses.fields(x):
-            u, v = getattr(x, f.name), getattr(y, f.name)
-            if isinstance(u, np.ndarray):
-                assert np.array_equal(u, v, equal_nan=True), f.name
-            elif isinstance(u, float) and np.isnan(u):
-                assert np.isnan(v), f.name
-            else:
-                assert u == v, f.name
-    for x, y in zip(a.records, b.records):
-        same(x, y)
-    for x, y in zip(a.statuses, b.statuses):
-        same(x, y)
-    assert max(abs(s.lam) for s in a.statuses) > 0
 
 
 def test_studies_accept_the_torso_modes():

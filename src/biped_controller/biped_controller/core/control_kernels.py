@@ -22,13 +22,20 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
 * rows, eq. (21): G x <= h (37 rows: the 17 constraints with and without the estimate, p range,
   tau' >= tau_dot_min), the early-out decision "x* feasible" evaluated on the adapted columns
   exactly as ``qp_fast.early_out`` does (same expression, bit for bit);
+* modes lambda and all (issue 21, GAINS.torso): the torso offset of ``gait_family.with_torso`` in the
+  reference (q_d += lambda phi(tau/T) e, its lambda terms in dq/dtau, d2q/dtau2 and eq. (11)), a third
+  column dq/dlambda (WORK.dq_dlam) and x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
+  lambda, four more rows (lambda, lambda' after one period within +-lambda_max, +-lambda_dot_max; G is then
+  (TORSO_QP_ROWS, 3)); lambda, lambda' advance and commit with p, p' (``period_start``, ``period_commit``),
+  0 in the other modes, whose arithmetic is unchanged bit for bit;
 * when x* is feasible (or in mode none): w, the torque Gamma = A w + H (eq. 15), the margins of the
   17 true constraints, the predicted reaction R = B w + h_b,c and the ZMP l = Gamma_1 / R_y;
 * the period's end (:func:`commit`, also called by the Python steps): the memory takes the period's
   parameters, its decision, t, the stance, F, q', w and A.
 
 When x* is not feasible the caller solves the QP (PIQP or the exact solver) on G, h and calls
-:func:`finish` with the answer. Any non-finite value sends the caller back to the reference path
+:func:`finish` with the answer (modes lambda and all: lambda'' held to the torso's range first when the
+answer does not hold the rows, ``controller._FastPeriod.solve_qp``). Any non-finite value sends the caller back to the reference path
 (memory unchanged).
 
 Arrays (float64, C order; fields and offsets declared once in ``period_layout``): ``gains`` (GAINS),
@@ -43,8 +50,9 @@ import numpy as np
 
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_kernels as pk
+from biped_sim.robot.gait_family import TORSO_DIRECTION
 from biped_controller.core.period_layout import (
-    C_, G_, M_, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, QP_ROWS, R_, W_, CONS, RES, WORK, N_JOINTS)
+    C_, G_, M_, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, QP_ROWS, R_, TORSO_ROWS, W_, CONS, RES, WORK, N_JOINTS)
 from biped_controller.core.qp_fast import rows_and_decision
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
@@ -81,9 +89,10 @@ def advance(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
 
 @numba.njit(cache=True)
 def period_start(mem, t, stance, res):
-    """The period's parameters into res (p, p', tau, tau'), advanced from the memory over the elapsed
-    integer nanoseconds with the held decision; tau = 0 when the stance changed; the observer's mode
-    and elapsed time (RES.obs_mode, obs_dt). The memory is not changed."""
+    """The period's parameters into res (p, p', tau, tau', and lambda, lambda' of issue 21), advanced from the
+    memory over the elapsed integer nanoseconds with the held decision; tau = 0 when the stance changed; the
+    observer's mode and elapsed time (RES.obs_mode, obs_dt); lambda'' = lambda''* = 0 (res x[2], x_star[2]) until
+    a torso mode decides them. The memory is not changed."""
     p, p_dot, tau, tau_dot = mem[M_.p], mem[M_.p_dot], mem[M_.tau], mem[M_.tau_dot]
     decided = mem[M_.decided] != 0.0
     dt_ns = 0.0
@@ -97,6 +106,16 @@ def period_start(mem, t, stance, res):
     res[R_.p_dot] = p_dot
     res[R_.tau] = tau
     res[R_.tau_dot] = tau_dot
+    # issue 21: lambda, lambda' advanced likewise with the held lambda'' (carried over an impact: phi(0) = 0);
+    # 0 outside modes lambda and all. The period's lambda'' and lambda''* start at 0 (the torso modes decide them).
+    lam, lam_dot = mem[M_.lam], mem[M_.lam_dot]
+    if decided:
+        lam_ddot = mem[M_.lam_ddot]
+        lam, lam_dot = lam + (lam_dot * dt_ns + 0.5 * lam_ddot * dt_ns * dt_ns), lam_dot + lam_ddot * dt_ns
+    res[R_.lam] = lam
+    res[R_.lam + 1] = lam_dot
+    res[R_.x + 2] = 0.0
+    res[R_.x_star + 2] = 0.0
     if not decided:
         res[R_.obs_mode] = OBS_NONE
     elif int(last) != stance:
@@ -108,13 +127,17 @@ def period_start(mem, t, stance, res):
 
 @numba.njit(cache=True)
 def period_commit(mem, res, work, qd, t, stance):
-    """The period is applied: the memory takes its parameters, decision, time, stance, F, q', w, A."""
+    """The period is applied: the memory takes its parameters, decision, time, stance, F, q', w, A (and lambda,
+    lambda', lambda'': 0 outside the torso modes)."""
     mem[M_.p] = res[R_.p]
     mem[M_.p_dot] = res[R_.p_dot]
     mem[M_.tau] = res[R_.tau]
     mem[M_.tau_dot] = res[R_.tau_dot]
     mem[M_.p_ddot] = res[R_.x]
     mem[M_.tau_ddot] = res[R_.x + 1]
+    mem[M_.lam] = res[R_.lam]
+    mem[M_.lam_dot] = res[R_.lam + 1]
+    mem[M_.lam_ddot] = res[R_.x + 2]
     mem[M_.decided] = 1.0
     mem[M_.t_last] = t
     mem[M_.stance] = stance
@@ -179,6 +202,21 @@ def _family(coef, inner, centers, p, tau, out):
 
 
 @numba.njit(cache=True)
+def torso_profile(s):
+    """(phi, dphi/ds, d2phi/ds2) of the torso offset's profile, s = tau / T: phi(s) = 16 s^2 (1 - s)^2 on (0, 1),
+    0 outside (the compiled twin of ``gait_family.torso_profile``, tested against it)."""
+    if s <= 0.0 or s >= 1.0:
+        return 0.0, 0.0, 0.0
+    u = 1.0 - s
+    return 16.0 * s * s * u * u, 32.0 * s * u * (u - s), 32.0 * (u * u - 4.0 * s * u + s * s)
+
+
+#: the offset's direction e (``gait_family.TORSO_DIRECTION``: q3 += lambda phi, q4 -= lambda phi; a compile-time
+#: constant)
+_TORSO_E = TORSO_DIRECTION.copy()
+
+
+@numba.njit(cache=True)
 def _contact(cons, off, r, rx, ry, g1):
     """Contact row r of the block at ``off`` of ``cons``: C_r (R_x, R_y) + e_r Gamma_1 (``fixed_foot.contact_rows``)."""
     k = off + 3 * r
@@ -187,12 +225,16 @@ def _contact(cons, off, r, rx, ry, g1):
 
 @numba.njit(cache=True)
 def _finish(cons, work, res):
-    """From x = res[x]: w = D x + v (eq. 17), Gamma = A w + H (eq. 15), the 17 margins (positive =
+    """From x = res[x]: w = D x + v (eq. 17; D = [dq/dp, dq/dtau, dq/dlambda], x = (p'', tau'', lambda'')), Gamma = A w + H (eq. 15), the 17 margins (positive =
     satisfied, the robot's own mu and foot, no controller margin), R = B w + h_b,c, l, the tightest row."""
     x0 = res[R_.x]
     x1 = res[R_.x + 1]
     for i in range(6):
         work[W_.w, i] = work[W_.dq_dp, i] * x0 + work[W_.dq_dtau, i] * x1 + work[W_.v, i]
+    x2 = res[R_.x + 2]
+    if x2 != 0.0:       # issue 21: + dq/dlambda lambda'' (x2 is 0 outside the torso modes: w as before, bit for bit)
+        for i in range(6):
+            work[W_.w, i] += work[W_.dq_dlam, i] * x2
     _outputs(cons, work, res)
 
 
@@ -239,17 +281,44 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
     p_dot = res[R_.p_dot]
     tau_dot = res[R_.tau_dot]
     kp_, kv_ = gains[G_.Kp], gains[G_.Kv]
+    torso = gains[G_.torso] != 0.0
     maxerr = 0.0
-    for i in range(6):
-        qd_d = fam[1, i] * p_dot + fam[2, i] * tau_dot
-        drift = fam[3, i] * p_dot ** 2 + fam[4, i] * tau_dot ** 2 + 2.0 * fam[5, i] * p_dot * tau_dot
-        e = fam[0, i] - q[i]
-        work[W_.e, i] = e
-        work[W_.v, i] = drift + kv_ * (qd_d - qd[i]) + kp_ * e
-        work[W_.dq_dp, i] = fam[1, i]
-        work[W_.dq_dtau, i] = fam[2, i]
-        if abs(e) > maxerr or e != e:
-            maxerr = abs(e)
+    if torso:
+        # issue 21 (gait_family.with_torso, eq11_torso): q_d += lambda phi e, dq/dtau += lambda phi'/T e,
+        # d2q/dtau2 += lambda phi''/T^2 e, dq/dlambda = phi e, d2q/dtau dlambda = phi'/T e; eq. (11) gains
+        # dq/dlambda lambda' in q_d' and 2 d2q/dtau dlambda tau' lambda' in the drift
+        T = gains[G_.T]
+        lam, lam_dot = res[R_.lam], res[R_.lam + 1]
+        phi, dphi, d2phi = torso_profile(res[R_.tau] / T)
+        for i in range(6):
+            ei = _TORSO_E[i]
+            dq_dtau = fam[2, i] + (lam * dphi / T) * ei
+            dq_dlam = phi * ei
+            qd_d = fam[1, i] * p_dot + dq_dtau * tau_dot + dq_dlam * lam_dot
+            drift = (fam[3, i] * p_dot ** 2 + (fam[4, i] + (lam * d2phi / (T * T)) * ei) * tau_dot ** 2
+                     + 2.0 * fam[5, i] * p_dot * tau_dot + 2.0 * ((dphi / T) * ei) * tau_dot * lam_dot)
+            e = (fam[0, i] + (lam * phi) * ei) - q[i]
+            work[W_.e, i] = e
+            work[W_.v, i] = drift + kv_ * (qd_d - qd[i]) + kp_ * e
+            work[W_.dq_dp, i] = fam[1, i]
+            work[W_.dq_dtau, i] = dq_dtau
+            work[W_.dq_dlam, i] = dq_dlam
+            if abs(e) > maxerr or e != e:
+                maxerr = abs(e)
+        xs2 = -gains[G_.kv_lam] * lam_dot - gains[G_.kp_lam] * lam
+        res[R_.x_star + 2] = xs2
+        res[R_.x + 2] = xs2
+    else:
+        for i in range(6):
+            qd_d = fam[1, i] * p_dot + fam[2, i] * tau_dot
+            drift = fam[3, i] * p_dot ** 2 + fam[4, i] * tau_dot ** 2 + 2.0 * fam[5, i] * p_dot * tau_dot
+            e = fam[0, i] - q[i]
+            work[W_.e, i] = e
+            work[W_.v, i] = drift + kv_ * (qd_d - qd[i]) + kp_ * e
+            work[W_.dq_dp, i] = fam[1, i]
+            work[W_.dq_dtau, i] = fam[2, i]
+            if abs(e) > maxerr or e != e:
+                maxerr = abs(e)
     res[R_.max_error] = maxerr
     xs0 = -gains[G_.kv] * p_dot + gains[G_.kp] * (gains[G_.p_d] - res[R_.p])
     xs1 = gains[G_.kv] * (1.0 - tau_dot)
@@ -311,12 +380,17 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
         if not (math.isfinite(work[W_.v, i]) and math.isfinite(work[W_.dq_dp, i])
                 and math.isfinite(work[W_.dq_dtau, i])):
             return NONFINITE
+        if torso and not math.isfinite(work[W_.dq_dlam, i]):
+            return NONFINITE
+    if torso and not math.isfinite(res[R_.x_star + 2]):
+        return NONFINITE
     for r in range(3):
         if not math.isfinite(hbc[r]):
             return NONFINITE
     ap = gains[G_.adapt_p] != 0.0
     at = gains[G_.adapt_tau] != 0.0
-    if not (ap or at):
+    al = gains[G_.adapt_lam] != 0.0
+    if not (ap or at or al):
         _finish(cons, work, res)
         return FEASIBLE
     # eq. (21): the 17 rows with the controller's margins, with (rows 0-16) and without (17-33) the estimate
@@ -348,6 +422,12 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
         G[r, 1] = ad1
         G[N_ROWS + r, 0] = ad0
         G[N_ROWS + r, 1] = ad1
+        if torso:               # the third column: A_q dq/dlambda
+            ad2 = 0.0
+            for k in range(6):
+                ad2 += Aq[r, k] * work[W_.dq_dlam, k]
+            G[r, 2] = ad2
+            G[N_ROWS + r, 2] = ad2
         h[r] = -(av + bq[r])
         h[N_ROWS + r] = -(av + (b0[r] if r < 5 else bq[r]))
     dt = gains[G_.dt]
@@ -361,6 +441,8 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
     h[2 * N_ROWS] = gains[G_.p_max] - p - p_dot_ * dt
     h[2 * N_ROWS + 1] = p + p_dot_ * dt - gains[G_.p_min]
     h[2 * N_ROWS + 2] = tau_dot - gains[G_.tau_dot_min]
+    if torso:
+        return _torso_rows_and_decision(gains, cons, work, res, G, h, ap, at, al)
     for r in range(QP_ROWS):
         if not (math.isfinite(G[r, 0]) and math.isfinite(G[r, 1]) and math.isfinite(h[r])):
             return NONFINITE
@@ -386,12 +468,79 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
     return FEASIBLE
 
 
+@numba.njit(cache=True)
+def _torso_rows_and_decision(gains, cons, work, res, G, h, ap, at, al):
+    """Modes lambda and all (issue 21), after the 37 rows of :func:`period_step` (their third column written):
+    the third column of the three range rows (0) and the four torso rows, lambda + lambda' dt + lambda'' dt^2/2
+    within +-lambda_max and lambda' + lambda'' dt within +-lambda_dot_max (``controller._qp_rows``' order), then
+    the early-out on the adapted columns (a fixed parameter stays at x* and moves to the right-hand side,
+    h - (G_0 x*_0 + G_1 x*_1) in mode lambda). G (TORSO_QP_ROWS, 3). Returns FEASIBLE (outputs done), NEEDS_QP
+    or NONFINITE."""
+    dt = gains[G_.dt]
+    hh = 0.5 * dt * dt
+    lam, lam_dot = res[R_.lam], res[R_.lam + 1]
+    b = 2 * N_ROWS
+    for r in range(3):
+        G[b + r, 2] = 0.0
+    for r in range(3, 3 + TORSO_ROWS):
+        G[b + r, 0] = 0.0
+        G[b + r, 1] = 0.0
+    G[b + 3, 2] = hh
+    G[b + 4, 2] = -hh
+    G[b + 5, 2] = dt
+    G[b + 6, 2] = -dt
+    h[b + 3] = gains[G_.lam_max] - lam - lam_dot * dt
+    h[b + 4] = lam + lam_dot * dt + gains[G_.lam_max]
+    h[b + 5] = gains[G_.lam_dot_max] - lam_dot
+    h[b + 6] = lam_dot + gains[G_.lam_dot_max]
+    m = G.shape[0]
+    for r in range(m):
+        if not (math.isfinite(G[r, 0]) and math.isfinite(G[r, 1]) and math.isfinite(G[r, 2])
+                and math.isfinite(h[r])):
+            return NONFINITE
+    v = np.empty(m)
+    xs = res[R_.x_star:R_.x_star + 3]
+    if ap and at and al:
+        feasible = rows_and_decision(G, h, xs, v)
+    else:
+        na = int(ap) + int(at) + int(al)
+        cols = np.empty(na, dtype=np.int64)
+        fixed = np.empty(3 - na, dtype=np.int64)
+        ia = 0
+        jf = 0
+        for c in range(3):
+            if (ap, at, al)[c]:
+                cols[ia] = c
+                ia += 1
+            else:
+                fixed[jf] = c
+                jf += 1
+        Gr = np.empty((m, na))
+        hr = np.empty(m)
+        xr = np.empty(na)
+        for j in range(na):
+            xr[j] = xs[cols[j]]
+        for r in range(m):
+            for j in range(na):
+                Gr[r, j] = G[r, cols[j]]
+            s = G[r, fixed[0]] * xs[fixed[0]]
+            for j in range(1, 3 - na):
+                s += G[r, fixed[j]] * xs[fixed[j]]
+            hr[r] = h[r] - s
+        feasible = rows_and_decision(Gr, hr, xr, v)
+    if not feasible:
+        return NEEDS_QP
+    _finish(cons, work, res)
+    return FEASIBLE
+
+
 @numba.njit(numba.types.int64(_C4, _V, _V, _VI, _V, _V, _V, _F, _I, _V, _V, _V, _M, _V, _M, _V), cache=True)
 def step(coef, inner, centers, ti, tf, q, qd, t, stance, gains, cons, mem, G, h, work, res):
     """One control period at time t [s] in ``stance`` up to the QP decision (module docstring). Returns
     FEASIBLE (x = x*, every output computed, the memory committed), NEEDS_QP (G, h filled; solve, put x
     in res, call :func:`finish`) or NONFINITE (use the reference path; the memory is unchanged).
-    G (QP_ROWS, 2), h (QP_ROWS,) are filled whenever a parameter is adapted."""
+    G (QP_ROWS, 2), h (QP_ROWS,) are filled whenever a parameter is adapted; in modes lambda and all (issue 21)
+    G (TORSO_QP_ROWS, 3), h (TORSO_QP_ROWS,): x = (p'', tau'', lambda'')."""
     period_start(mem, t, stance, res)
     code = period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, work, res)
     if code == FEASIBLE:

@@ -44,7 +44,8 @@ lambda [rad] of ``gait_family.with_torso``: q_d(p, tau, lambda) = q_d(p, tau) + 
 D = [dq/dp, dq/dtau, dq/dlambda], x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
 lambda, four more rows (lambda and lambda' after one period within +-lambda_max, +-lambda_dot_max), held
 hard on a least-violation answer; lambda, lambda' advance exactly like p, p' and carry over an impact.
-``lambda`` adapts lambda alone (p'', tau'' = x*), ``all`` the three. Python steps only (no compiled period).
+``lambda`` adapts lambda alone (p'', tau'' = x*), ``all`` the three. The compiled period covers them (the PIQP
+fallback and the torso's hold through Python, as for the other modes' QP); the Python steps are its oracle.
 """
 from __future__ import annotations
 
@@ -64,7 +65,8 @@ from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, 
 from biped_sim.robot import numba_cache
 from biped_sim.robot.layout import SnapshotUnsupported
 from biped_controller.core.period_layout import (
-    CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, WBC, WORK, M_, R_, W_, WB_)
+    CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, TORSO_QP_ROWS, TORSO_ROWS, WBC, WORK, M_, R_, W_,
+    WB_)
 from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
 from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.core.wbc import NOT_RUN, WBC_MODES, WholeBodyStage, weight_matrix
@@ -76,11 +78,9 @@ PAPER_MODES = ("none", "tau", "p", "both")
 #: wbc keeps the reference fixed like none
 ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1), "lambda": (2,),
            "all": (0, 1, 2)}
-#: the modes whose reference has the torso parameter lambda (issue 21; Python steps only, no compiled period)
+#: the modes whose reference has the torso parameter lambda (issue 21); TORSO_ROWS (period_layout): the rows it adds
+#: to the QP, lambda and lambda' after one period within [-lambda_max, lambda_max] and [-lambda_dot_max, lambda_dot_max]
 TORSO_MODES = ("lambda", "all")
-#: rows the torso parameter adds to the QP: lambda and lambda' after one period within [-lambda_max, lambda_max]
-#: and [-lambda_dot_max, lambda_dot_max]
-TORSO_ROWS = 4
 NO_ADAPTATION = 4
 NO_ADAPTATION_STATUS = NO_ADAPTATION
 MSG_NO_ADAPTATION = "mode none: classical computed torque"
@@ -90,6 +90,7 @@ MSG_X_STAR_FEASIBLE = "x* feasible"
 CONTROL_KERNELS = "biped_controller.core.control_kernels"
 # what the compiled period is compiled against besides its own source (kernels it calls, offsets it reads)
 CONTROL_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
+                           "biped_sim.robot.gait_family",
                            "biped_controller.core.period_layout", "biped_controller.core.qp_types",
                            "biped_controller.core.qp_fast")
 
@@ -161,6 +162,11 @@ class ControllerConfig:
     predictor_touchdown_height: float   # [m] a swing sole this low at a period's end has touched down
     predictor_clearance: float      # [m] the swing foot must have risen this high before
     predictor_time_tolerance: float     # [s] a touchdown inside a substep located to this
+    model_error_estimator: bool       # identify the legs' mass and inertia error from the observer (model_error.py)
+    model_mass_uncertainty: float     # [-] prior std of each leg link's mass error, relative to its mass
+    model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
+    model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
+    predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -189,7 +195,7 @@ class ControllerConfig:
             raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
-        for name in ("momentum_observer", "state_estimator"):
+        for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once"):
             if not isinstance(getattr(self, name), bool):
                 raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         ints = {}
@@ -206,6 +212,14 @@ class ControllerConfig:
                 raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
         if self.momentum_observer and self.disturbance_observer and self.momentum_observer_gain <= 0:
             raise ControllerConfigError("momentum_observer_gain must be > 0 with the momentum observer on")
+        if self.model_error_estimator:
+            for name in ("model_mass_uncertainty", "model_inertia_uncertainty", "model_error_residual_std"):
+                v = getattr(self, name)
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                    raise ControllerConfigError(f"{name} must be a finite number > 0 with model_error_estimator "
+                                                f"on, got {v!r}")
+            if not (self.disturbance_observer and self.momentum_observer):
+                raise ControllerConfigError("model_error_estimator needs disturbance_observer and momentum_observer on")
         if self.state_estimator and (self.estimator_accel_std <= 0 or
                                      (self.sensor_noise_q <= 0 and ints["sensor_encoder_bits"] == 0)):
             raise ControllerConfigError("estimator_accel_std must be > 0, and sensor_noise_q > 0 or "
@@ -319,6 +333,9 @@ def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float
     wbc = mode in WBC_MODES       # the whole-body stage's fields (RES wbc_*); the class defaults otherwise
     if wbc:
         WS, WA, WD = ([int(v) for v in c[R_.wbc_status]], [int(v) for v in c[R_.wbc_active]], c[R_.wbc_deviation])
+    torso = mode in TORSO_MODES   # issue 21: lambda, lambda', lambda'', lambda''* (RES lam, x[2], x_star[2])
+    if torso:
+        LA, LD, X2, XS2 = c[R_.lam], c[R_.lam + 1], c[R_.x + 2], c[R_.x_star + 2]
     out = []
     for j in range(len(P)):
         s = _NEW(ControllerStatusData)
@@ -329,6 +346,8 @@ def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float
             predicted_reaction=RR[j], force_estimate=F[j])
         if wbc:
             s.__dict__.update(wbc_status=WS[j], wbc_active=WA[j], wbc_deviation=WD[j])
+        if torso:
+            s.__dict__.update(lam=LA[j], lam_dot=LD[j], lam_ddot=X2[j], lam_ddot_star=XS2[j])
         out.append(s)
     return out
 
@@ -440,8 +459,8 @@ class AdaptiveController:
                 from biped_controller.core.sensing import SensingPipeline
                 self._sensing = SensingPipeline(self.cfg, self.desc)
         self.reset(None)
-        if self._fast is not None and (self._sensing is None or self._compiled_sensing) and not self.torso:
-            self._kernel = _FastPeriod(self)   # the compiled period (fast engine; not with lambda yet)
+        if self._fast is not None and (self._sensing is None or self._compiled_sensing):
+            self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
 
     def _gains(self) -> np.ndarray:
         """The ``GAINS`` array (eqs. 16, 20, the p range, the observer, the adapted parameters)."""
@@ -450,7 +469,10 @@ class AdaptiveController:
                             ("p_min", fam.p_min), ("p_max", fam.p_max), ("tau_dot_min", c.tau_dot_min),
                             ("observer", float(c.disturbance_observer)), ("observer_height", c.observer_height),
                             ("adapt_p", float(0 in self.adapted)), ("adapt_tau", float(1 in self.adapted)),
-                            ("momentum", float(c.disturbance_observer and c.momentum_observer))):
+                            ("momentum", float(c.disturbance_observer and c.momentum_observer)),
+                            ("torso", float(self.torso)), ("adapt_lam", float(2 in self.adapted)), ("T", fam.T),
+                            ("kp_lam", c.kp_lambda), ("kv_lam", c.kv_lambda), ("lam_max", c.lambda_max),
+                            ("lam_dot_max", c.lambda_dot_max)):
             g[getattr(GAINS.at, name)] = value
         return g
 
@@ -533,13 +555,10 @@ class AdaptiveController:
         return res
 
     def _torso_begin(self, res: np.ndarray) -> tuple[float, float]:
-        """(lambda [rad], lambda' [rad/s]) of the period: the memory's advanced with the held lambda'' over the
-        time elapsed since the last decision (``res``'s obs_dt, 0 before the first decision; exact
-        integration, as p). An impact carries lambda and lambda' over (phi(0) = 0: no jump)."""
-        mem = self.memory
-        lam, lam_dot, lam_dd = float(mem[M_.lam]), float(mem[M_.lam_dot]), float(mem[M_.lam_ddot])
-        h = float(res[R_.obs_dt])
-        return lam + (lam_dot * h + 0.5 * lam_dd * h * h), lam_dot + lam_dd * h
+        """(lambda [rad], lambda' [rad/s]) of the period (``res``'s lam, written by :meth:`_begin`, the one home of
+        the advance): the memory's advanced with the held lambda'' over the time elapsed since the last decision
+        (exact integration, as p). An impact carries lambda and lambda' over (phi(0) = 0: no jump)."""
+        return float(res[R_.lam]), float(res[R_.lam + 1])
 
     def _params(self, res: np.ndarray | None) -> tuple[float, float, float, float]:
         """(p, p', tau, tau') of the period (``res``, a RES row from :meth:`_begin`), or the memory's when None."""
@@ -712,7 +731,7 @@ class AdaptiveController:
         return out, out != lam_ddot
 
     def _output(self, res: np.ndarray, torque: np.ndarray, t: float, stance: int, status: int, msg: str,
-                G, h, xs, wb=None, torso: tuple[float, float, float, float] | None = None) -> ControlOutput:
+                G, h, xs, wb=None) -> ControlOutput:
         """The period's ``ControlOutput`` from its ``RES`` row (the one status builder); the period index
         is the memory's, already advanced by the commit."""
         if wb is not False and self.whole_body is not None:   # the Python stage's (False: the compiled one wrote res)
@@ -720,8 +739,6 @@ class AdaptiveController:
                 res[getattr(R_, k)] = v
         rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
                              self.cfg.mode, int(stance), int(status), msg)[0]
-        if torso is not None:
-            rec.__dict__.update(lam=torso[0], lam_dot=torso[1], lam_ddot=torso[2], lam_ddot_star=torso[3])
         keep = self.keep_qp
         return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
                              x_star=xs if keep else None)
@@ -766,8 +783,8 @@ class AdaptiveController:
         cm = self.model.constraints(q, qd, dyn_c)
         margins = -(cm.A_q @ w + cm.b_q)
         R = dyn_c.B[:2] @ w + dyn_c.h_b[:2]
-        res[R_.x:R_.x + 2] = x[:2]
-        res[R_.x_star:R_.x_star + 2] = ref.x_star[:2]
+        res[R_.x:R_.x + x.size] = x                 # (modes lambda, all: and lambda'', committed to the memory)
+        res[R_.x_star:R_.x_star + x.size] = ref.x_star
         res[R_.force] = F
         res[R_.max_error] = np.max(np.abs(ref.error))
         res[R_.zmp] = torque[0] / R[1] if R[1] != 0 else math.nan
@@ -783,11 +800,7 @@ class AdaptiveController:
             if stance != told:
                 torque = relabel(torque)        # sent in the order of the stance the plant told us
             self._sensing.record(t, torque, told)
-        torso = None
-        if lam is not None:                     # the torso parameter's state: lambda, lambda' and the decision
-            self.memory[M_.lam], self.memory[M_.lam_dot], self.memory[M_.lam_ddot] = lam[0], lam[1], x[2]
-            torso = (lam[0], lam[1], float(x[2]), float(ref.x_star[2]))
-        return self._output(res, torque, t, stance, status, msg, G, h, xs, wb, torso)
+        return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
         """Computed torque at time s_time [s] into the current period, with (p, tau) propagated from the
@@ -817,8 +830,10 @@ class _FastPeriod:
         self.ctrl = ctrl
         self.coef, self.inner, self.centers = ctrl.family.piece_arrays()
         self.ti, self.tf = ctrl._fast.ti, ctrl._fast.tf
-        self.G = np.zeros((QP_ROWS, 2))
-        self.h = np.zeros(QP_ROWS)
+        # the rows G x <= h of the period (modes lambda, all: the four torso rows and the column of lambda'')
+        self.nx = 3 if ctrl.torso else 2
+        self.G = np.zeros((TORSO_QP_ROWS, 3) if ctrl.torso else (QP_ROWS, 2))
+        self.h = np.zeros(self.G.shape[0])
         # modes wbc, hybrid: the compiled whole-body stage (wbc_kernels) with PIQP when it does not settle;
         # ``python_stage`` True runs the Python stage (wbc.WholeBodyStage, the tests' oracle) instead
         self.wk = load_wbc_kernels() if ctrl.whole_body is not None else None
@@ -854,7 +869,7 @@ class _FastPeriod:
             if answer is None:
                 return None
             x, status, msg, Gr, hr, xs = answer
-            res[R_.x:R_.x + 2] = x
+            res[R_.x:R_.x + x.size] = x
             ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
         torque, wb = work[W_.torque].copy(), None
         if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage
@@ -887,10 +902,11 @@ class _FastPeriod:
         return work[W_.torque].copy(), False
 
     def reduced(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
-        """The QP over the adapted parameters of the rows G x <= h (x = (p'', tau'')) and x* of ``res``: a
-        parameter that is not adapted stays at x* and moves to the right-hand side. Returns (G_r, h_r, x*_r)."""
+        """The QP over the adapted parameters of the rows G x <= h (x = (p'', tau''), modes lambda and all
+        (p'', tau'', lambda'')) and x* of ``res``: a parameter that is not adapted stays at x* and moves to the
+        right-hand side. Returns (G_r, h_r, x*_r)."""
         ctrl = self.ctrl
-        xs_full = res[R_.x_star:R_.x_star + 2]
+        xs_full = res[R_.x_star:R_.x_star + self.nx]
         idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
         Gr, xs = G[:, idx], xs_full[idx]
         hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
@@ -900,14 +916,20 @@ class _FastPeriod:
         """The period's decision when x* is not feasible (``control_kernels.step`` returned NEEDS_QP with G,
         h and ``res``): the controller's QP on the adapted parameters. Returns (x (2,), status, message, G_r,
         h_r, x*_r), or None when the answer is not finite (the caller takes the reference path). Also the
-        compiled loop's QP periods (``segment``): one home of the decision."""
+        compiled loop's QP periods (``segment``): one home of the decision. Modes lambda and all: x (3,), and
+        lambda'' held to the torso's range after an answer that does not hold the rows (as the Python steps)."""
         Gr, hr, xs = self.reduced(G, h, res)
         qres = self.ctrl.qp.solve(Gr, hr, xs)
-        x = res[R_.x_star:R_.x_star + 2].copy()
+        x = res[R_.x_star:R_.x_star + self.nx].copy()
         x[self.ctrl._adapted_idx] = qres.x
         if not np.all(np.isfinite(x)):
             return None
-        return x, qres.status, qres.message, Gr, hr, xs
+        msg = qres.message
+        if self.nx == 3 and qres.status not in (UNCONSTRAINED, ACTIVE):
+            x[2], clipped = self.ctrl._torso_box(x[2], (float(res[R_.lam]), float(res[R_.lam + 1])))
+            if clipped:
+                msg += "; lambda'' held to the torso's range"
+        return x, qres.status, msg, Gr, hr, xs
 
     def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):
         """The whole-body stage after the compiled period (which has committed its w to ``memory``): when it

@@ -28,6 +28,7 @@ from biped_sim.robot.fixed_foot import relabel
 
 from biped_controller.core.estimation import RELABEL, Estimate, EstimatorConfig
 from biped_controller.core.estimation_layout import SCONF, SENS, SC_, S_
+from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import Wrench
 from biped_controller.core.predictor import flat_foot_impact
 
@@ -53,6 +54,7 @@ class CompiledSensing:
     def __init__(self, cfg, desc: RobotDescription, ti: np.ndarray, tf: np.ndarray, qp_rows: np.ndarray,
                  torque_min: np.ndarray, torque_max: np.ndarray):
         self.d = int(cfg.delay_compensation)
+        self.at_once = bool(cfg.predictor_touchdown_at_once)
         self.ek = load_estimation_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
@@ -82,7 +84,9 @@ class CompiledSensing:
         c[SC_.period] = cfg.period
         c[SC_.pred_substeps] = cfg.predictor_substeps
         c[SC_.pred_td_height] = cfg.predictor_touchdown_height
-        c[SC_.pred_clearance] = cfg.predictor_clearance
+        # a touchdown reported at once is never predicted (DelayPredictor(touchdowns=False)): the kernel counts
+        # a touchdown only once the swing sole has cleared this height, so an infinite one switches it off
+        c[SC_.pred_clearance] = math.inf if self.at_once else cfg.predictor_clearance
         c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
         self.conf = c
         self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
@@ -94,6 +98,13 @@ class CompiledSensing:
         self._qdp = np.empty(6)
         self._pout = np.empty(2)
         self._hist = np.zeros((max(self.d, 1), 8))
+        # the legs' model error (model_error.py; Python, after the compiled observer): its combined estimate
+        # replaces the observer's dR, F_x and the rows' widening in what the compiled period reads
+        self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
+                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+                   if self.observer and cfg.model_error_estimator else None)
+        self._me_wrench: Wrench | None = None
+        self._qp_rows = np.asarray(qp_rows, dtype=float).reshape(5, 2)
         self.reset()
 
     def reset(self) -> None:
@@ -104,6 +115,11 @@ class CompiledSensing:
         self.k = 0                                # periods decided since the reset
         self.log: deque = deque(maxlen=self.d + 2)   # (t, torque sent, told stance) of the last decisions
         self._j = None                            # the period of the last sample used (delay > 0)
+        self._stance = None                       # its stance
+        self._seg = 0                             # the period whose sample first showed the current stance
+        if self.me is not None:
+            self.me.reset()
+            self._me_wrench = None
 
     def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
         """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object
@@ -111,6 +127,7 @@ class CompiledSensing:
         if self.d > 0:
             return self._sense_delayed(float(t), q, qd, int(stance), float(pitch))
         ek, s = self.ek, self.state
+        pre = self._before() if self.me is not None else None
         code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), self._q, self._qd)
         if code == ek.NEEDS_IMPACT:
             self._impact()
@@ -118,7 +135,39 @@ class CompiledSensing:
                                    self._q, self._qd)
         if code != ek.DONE:
             raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
+        if pre is not None:
+            self._model_error(float(t), int(stance), pre)
         return self._q, self._qd, int(stance)
+
+    def _before(self) -> tuple:
+        """What the model-error estimator needs of the state before the kernel's sample: (first sample,
+        a decision was recorded, its time, torque sent, told stance, the state's stance at the last sample)."""
+        s = self.state
+        return (s[S_.started] == 0.0, s[S_.decided] != 0.0, float(s[S_.t_prev]),
+                s[S_.torque_prev:S_.torque_prev + 6].copy(), int(s[S_.told_prev]), int(s[S_.stance]))
+
+    def _model_error(self, t_s: float, stance: int, pre: tuple) -> None:
+        """The legs' model error on the sample the compiled observer has just taken (``model_error``, the
+        Python pipeline's call with the same inputs: the interval and the torque applied over it as
+        ``estimation_kernels._elapsed_applied``, the restart as the kernel's)."""
+        s = self.state
+        first, decided, t_prev, torque_prev, told_prev, stance_prev = pre
+        restarted = bool(s[S_.since] == 0.0)
+        applied, dt = None, 0.0
+        if not restarted and not first and decided:
+            dt = (round(t_s * 1e9) - round(t_prev * 1e9)) * 1e-9
+            g = np.clip(torque_prev, self.lo, self.hi)
+            applied = g if told_prev == stance_prev else relabel(g)
+        obs = self._observer_wrench()
+        q = self._q.copy()
+        J = self.me.model.torso_point_jacobian(q, self.cfg.observer_height)
+        Jj = np.vstack([J[:, 3:], np.ones((1, 6)) * np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])])
+        if self.estimator:
+            cov = s[SENS.slice("P")].reshape(12, 12)[6:, 6:].copy()
+        else:
+            cov = self.cfg.sensor_noise_qd ** 2 * np.eye(6)
+        self._me_wrench = self.me.update(q, self._qd.copy(), applied, restarted, dt, obs,
+                                         s[SENS.slice("W_restart")].copy(), float(s[S_.since]), Jj, cov)
 
     def _decision(self, j: int):
         return self.log[j - (self.k - len(self.log))]
@@ -127,9 +176,13 @@ class CompiledSensing:
         """Delay d > 0 (``SensingPipeline.process``): the sample is that of period j = max(k - d, 0), taken at
         the instant of the controller's decision j; a new one goes through the estimator and the observer
         (the interval since the previous sample and the torque applied over it from the log), then the
-        predictor takes the sample's state to t through the last d decisions."""
+        predictor takes the sample's state to t through the last k - j decisions. With
+        ``predictor_touchdown_at_once`` a sample whose stance differs from the last one used is of this
+        period, j = max(k - d, that period) after it (``SensingPipeline.sample_period``)."""
         ek, s = self.ek, self.state
-        j = max(self.k - self.d, 0)
+        if self.at_once and self._stance is not None and stance != self._stance:
+            self._seg = self.k
+        j = max(self.k - self.d, self._seg if self.at_once else 0)
         new = self._j is None or j > self._j
         if new:
             t_s = t
@@ -140,18 +193,22 @@ class CompiledSensing:
                 s[S_.torque_prev:S_.torque_prev + 6] = tau_prev
                 s[S_.told_prev] = told_prev
                 s[S_.decided] = 1.0
+            pre = self._before() if self.me is not None else None
             code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
             if code == ek.NEEDS_IMPACT:
                 self._impact()
                 code = ek.sense_finish(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
             if code != ek.DONE:
                 raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
+            if pre is not None:
+                self._model_error(t_s, stance, pre)
             self._j = j
+            self._stance = stance
         elif self.estimator:
             self._q[:], self._qd[:] = s[S_.x:S_.x + 6], s[S_.x + 6:S_.x + 12]
         else:
             self._q[:], self._qd[:] = q, qd
-        n = min(self.d, len(self.log))
+        n = self.k - j                            # the sample's age: the decisions since it (<= d)
         for i in range(n):
             tt, tau, told = self.log[len(self.log) - n + i]
             self._hist[i, 0], self._hist[i, 1], self._hist[i, 2:] = tt, told, tau
@@ -176,6 +233,12 @@ class CompiledSensing:
     def into_res(self, out: np.ndarray) -> None:
         """out (8,) <- [dR (2) [N], F_x [N], the five contact rows' widening [N]] (the controller's RES.sens_*)."""
         self.ek.into_res(self.state, self.conf, out)
+        w = self._me_wrench
+        if w is not None:           # the legs' model error: the combined estimate (controller._observe_momentum)
+            C = self._qp_rows
+            out[0], out[1], out[2] = w.dR[0], w.dR[1], w.W[0]
+            var = np.einsum("ij,jk,ik->i", C, w.cov_dR, C)
+            out[3:8] = self.cfg.estimate_confidence * np.sqrt(np.maximum(var, 0.0))
 
     def record(self, t: float, torque_sent: np.ndarray, told: int) -> None:
         """The decision of this period: the torque sent, in the paper order of the told stance."""
@@ -197,7 +260,13 @@ class CompiledSensing:
     @property
     def wrench(self) -> Wrench | None:
         """The momentum observer's last estimate as the Python observer's ``Wrench`` (None: observer off or
-        no sample yet)."""
+        no sample yet); with the model-error estimator, the combined one (``model_error``)."""
+        if self._me_wrench is not None:
+            return self._me_wrench
+        return self._observer_wrench()
+
+    def _observer_wrench(self) -> Wrench | None:
+        """The compiled observer's own estimate (its state array) as a ``Wrench``."""
         s = self.state
         if not self.observer or s[S_.mo_started] == 0.0:
             return None

@@ -9,7 +9,8 @@ read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time con
 * ``GAINS`` (fixed per controller): K_p, K_v of eq. (16) [1/s^2, 1/s], k_p, k_v of eq. (20) [1/s^2, 1/s],
   p_d [m], the control period dt [s], the family's p range [m], tau_dot_min [-], the observer switch
   and height [m], which parameters are adapted (0/1), the momentum observer switch (issue 22: its
-  estimate comes from the compiled sensing pipeline, ``estimation_kernels``, through RES.sens_*).
+  estimate comes from the compiled sensing pipeline, ``estimation_kernels``, through RES.sens_*); issue 21's
+  torso parameter: its switches, the step duration T [s] and lambda's gains and range.
 * ``CONS`` (fixed per controller): the QP's margins of the 17 rows, the rows' scales, the torque limits
   [N m], the 5 contact rows of the QP (controller's mu and foot range) and the robot's own 5, each row
   (C_x, C_y, e) of ``fixed_foot.contact_rows``: C (R_x, R_y) + e Gamma_1 < 0.
@@ -18,16 +19,16 @@ read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time con
   tau'' [1/s]) held over it, whether a decision was taken since the reset, its time t_last [s], the
   stance of the last decision (or of the reset; -1 none), the force estimate F [N], the period index,
   and the observer's memory of the last period: q'_prev [rad/s], w_prev [rad/s^2], A_prev (6 x 6); then
-  (issue 21, modes lambda and all, Python steps only; 0 otherwise) the torso offset lambda [rad], lambda'
-  [rad/s] at the last decision and its decision lambda'' [rad/s^2].
+  (issue 21, modes lambda and all; 0 otherwise) the torso offset lambda [rad], lambda' [rad/s] at the last
+  decision and its decision lambda'' [rad/s^2].
 * ``RES`` (one period's answer; also the status row of the compiled loop): the period's parameters,
-  x = (p'', tau''), x*, F, max |q_d - q|, the ZMP l [m], the tightest row, R = (R_x, R_y) [N], h_b and
+  x = (p'', tau'', lambda'') (lambda'' = 0 outside modes lambda, all), x*, F, max |q_d - q|, the ZMP l [m], the tightest row, R = (R_x, R_y) [N], h_b and
   h_b,c, the 17 margins (positive = satisfied), and the observer mode and elapsed time of the period;
   with the momentum observer (issue 22) the sensing pipeline's inputs to the period, written before it:
   the shift dR [N] of the predicted (R_x, R_y), the force estimate F_x [N] and the widening [N] of the
-  five contact rows stated with the estimate.
+  five contact rows stated with the estimate; (issue 21) the period's lambda [rad], lambda' [rad/s].
 * ``WORK`` (rows of 6): torque Gamma [N m], w [rad/s^2], v, e = q_d - q, dq_d/dp, dq_d/dtau, A (6 rows),
-  H, B (3 rows).
+  H, B (3 rows), dq_d/dlambda (issue 21; written in modes lambda and all only).
 """
 from __future__ import annotations
 
@@ -38,11 +39,19 @@ N_JOINTS = 6
 # rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,
 # and 3 parameter-range rows (p within the family's range, tau' >= tau_dot_min)
 QP_ROWS = 2 * N_CONSTRAINTS + 3
+# issue 21 (modes lambda, all): four more rows, lambda and lambda' after one period within +-lambda_max,
+# +-lambda_dot_max, and a third column (lambda'')
+TORSO_ROWS = 4
+TORSO_QP_ROWS = QP_ROWS + TORSO_ROWS
 
 GAINS = Layout("gains", [
     ("Kp", 1), ("Kv", 1), ("kp", 1), ("kv", 1), ("p_d", 1), ("dt", 1), ("p_min", 1), ("p_max", 1),
     ("tau_dot_min", 1), ("observer", 1), ("observer_height", 1), ("adapt_p", 1), ("adapt_tau", 1),
-    ("momentum", 1)])
+    ("momentum", 1),
+    # issue 21, the torso parameter lambda (modes lambda, all; 0 otherwise): whether the reference has it, whether
+    # the QP adapts it, the family's step duration T [s] (phi(tau / T)), kp_lambda [1/s^2], kv_lambda [1/s],
+    # lambda_max [rad], lambda_dot_max [rad/s]
+    ("torso", 1), ("adapt_lam", 1), ("T", 1), ("kp_lam", 1), ("kv_lam", 1), ("lam_max", 1), ("lam_dot_max", 1)])
 
 CONTACT_ROWS = 5
 CONS = Layout("cons", [
@@ -56,16 +65,19 @@ MEMORY = Layout("memory", [
     ("lam", 1), ("lam_dot", 1), ("lam_ddot", 1)])
 
 RES = Layout("res", [
-    ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("x", 2), ("x_star", 2), ("force", 1), ("max_error", 1),
+    ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("x", 3), ("x_star", 3), ("force", 1), ("max_error", 1),
     ("zmp", 1), ("tightest", 1), ("reaction", 2), ("h_b", 3), ("h_b_c", 3), ("margins", N_CONSTRAINTS),
     ("obs_mode", 1), ("obs_dt", 1),
     ("sens_dR", 2), ("sens_force", 1), ("sens_margin", 5),
     # issue 26, the whole-body stage (core/wbc_kernels.py): its qp_types status (4: not run), the active rows
     # as a bit mask over the 17 (folded over both blocks), |w - w*| [rad/s^2]
-    ("wbc_status", 1), ("wbc_active", 1), ("wbc_deviation", 1)])
+    ("wbc_status", 1), ("wbc_active", 1), ("wbc_deviation", 1),
+    # issue 21: the period's torso offset lambda [rad] and lambda' [rad/s] (0 outside modes lambda, all)
+    ("lam", 2)])
 
 WORK = Layout("work", [
-    ("torque", 1), ("w", 1), ("v", 1), ("e", 1), ("dq_dp", 1), ("dq_dtau", 1), ("A", N_JOINTS), ("H", 1), ("B", 3)])
+    ("torque", 1), ("w", 1), ("v", 1), ("e", 1), ("dq_dp", 1), ("dq_dtau", 1), ("A", N_JOINTS), ("H", 1), ("B", 3),
+    ("dq_dlam", 1)])
 
 # the offsets, as numba reads them (module globals: compile-time constants)
 G_ = GAINS.at

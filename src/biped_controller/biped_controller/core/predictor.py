@@ -21,9 +21,17 @@ the sample over those intervals to the present:
   are relabelled (q -> -q[::-1]).
 
 The prediction is redone every period from the newest sample, so it is reconciled with the sensed stance
-as soon as the delayed touchdown arrives (the sample then starts in the new stance). Assumes every
-sample is d periods old (the plant's ``touchdown_delayed`` True; with False the first samples of a new
-stance are younger: not handled).
+as soon as the touchdown's sample arrives (the sample then starts in the new stance). A sample is d periods
+old (the first ones younger: k < d), except with a touchdown reported at once (the plant's
+``touchdown_delayed`` False, the controller's ``predictor_touchdown_at_once``): the first sample of a new
+stance is of the period it arrives in, then held while it ages to d periods. :meth:`DelayPredictor.predict`
+takes the sample's age in periods (``periods``: the prediction runs through the last ``periods`` decisions
+only; 0: the sample is the present state, the pending prediction of the old stance is dropped), which
+``sensing.SensingPipeline`` (and ``estimation_compiled.CompiledSensing``) derive from the stance changes.
+With the touchdown reported at once the present stance is always the sensed one (a touchdown before t_k is in
+the sample of period k), so the pipeline builds the predictor with ``touchdowns`` False: it integrates in
+the sample's stance and never predicts a touchdown, which could only be a false one (under sensor noise the
+estimated swing sole reaches the ground early: docs/robustness.md).
 """
 from __future__ import annotations
 
@@ -67,7 +75,7 @@ class DelayPredictor:
     """The predictor of the module docstring for ``delay`` = d >= 1 periods."""
 
     def __init__(self, desc: RobotDescription, delay: int, substeps: int, period: float,
-                 touchdown_height: float, clearance: float, time_tolerance: float):
+                 touchdown_height: float, clearance: float, time_tolerance: float, touchdowns: bool = True):
         for name, v in (("delay_compensation", delay), ("predictor_substeps", substeps)):
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise PredictorError(f"{name} must be an integer >= 1, got {v!r}")
@@ -77,6 +85,7 @@ class DelayPredictor:
                 raise PredictorError(f"{name} must be a finite number > 0, got {v!r}")
         self.d, self.substeps, self.period = delay, substeps, float(period)
         self.td_height, self.clearance, self.t_tol = float(touchdown_height), float(clearance), float(time_tolerance)
+        self.touchdowns = bool(touchdowns)     # False: never predict a touchdown (it is reported at once)
         self.model = FixedFootModel(desc)
         self.fm = FloatingModel(desc)
         lo, hi = desc.torque_limits()
@@ -116,9 +125,12 @@ class DelayPredictor:
         return flat_foot_impact(self.fm, q, qd, stance)
 
     # ---------------------------------------------------------------- prediction
-    def predict(self, t_now: float, q: np.ndarray, qd: np.ndarray, stance: int) -> Prediction:
-        """The present state from the sample (q, q', stance) taken at the first recorded decision instant
-        (the instants and torques of :meth:`record`), integrated to ``t_now``."""
+    def predict(self, t_now: float, q: np.ndarray, qd: np.ndarray, stance: int,
+                periods: int | None = None) -> Prediction:
+        """The present state from the sample (q, q', stance) taken at the instant of the decision ``periods``
+        periods ago (None: the first recorded decision; the instants and torques of :meth:`record`),
+        integrated through the decisions since to ``t_now``. ``periods`` is the sample's age, 0 to the
+        number of decisions recorded (at most d); 0 returns the sample."""
         q = np.array(q, dtype=float)
         qd = np.array(qd, dtype=float)
         if stance != self._sample_stance:
@@ -126,10 +138,15 @@ class DelayPredictor:
             self._sample_stance = stance
         if self.lowest_sole(q) > self.clearance:
             self._cleared = True
-        cleared = self._cleared
+        cleared = self._cleared and self.touchdowns
         s = int(stance)
         n_td = 0
         items = list(self.history)
+        if periods is not None:
+            if isinstance(periods, bool) or not 0 <= int(periods) <= len(items):
+                raise PredictorError(f"periods must be an integer in [0, {len(items)}] (the decisions recorded), "
+                                     f"got {periods!r}")
+            items = items[len(items) - int(periods):]
         for i, (t0, tau_sent, told) in enumerate(items):
             t1 = items[i + 1][0] if i + 1 < len(items) else float(t_now)
             dt = t1 - t0
@@ -160,7 +177,7 @@ class DelayPredictor:
                         q, qd = self._rk4(q, qd, tau, rest)
                     continue
                 q, qd = qn, qdn
-                if z > self.clearance:
+                if z > self.clearance and self.touchdowns:
                     cleared = True
                 if cleared and j == n - 1 and z <= self.td_height:
                     # the interval ends on the ground: the plant's period ended at this touchdown

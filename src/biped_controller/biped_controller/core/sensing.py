@@ -3,9 +3,13 @@ predictor in one per-period pipeline. Pure NumPy + Pinocchio, no ROS.
 
 Per control period k the controller receives a sample (stance, q, q' [, IMU pitch]); with a known delay
 of d periods (``delay_compensation``) it is the sample of period k - d, taken at the instant t_{k-d} of
-the controller's own decision of that period (the first sample while k < d). The pipeline:
+the controller's own decision of that period (the first sample while k < d). With a touchdown reported at
+once (``predictor_touchdown_at_once``, the plant's ``touchdown_delayed`` False) the sample is that of period
+j = max(k - d, s), s the period whose sample first showed the current stance (a sample whose stance differs
+from the last one used is of the period it arrives in): the sensor model's rule, so a touchdown sensed while
+the predictor still runs from an old-stance sample replaces that prediction at once. The pipeline:
 
- 1. a new sample (period j = max(k - d, 0) > the last one used): the estimator's time update over
+ 1. a new sample (period j = max(k - d, 0), or as above, > the last one used): the estimator's time update over
     [t_{j-1}, t_j) with the model's acceleration under the torque applied then, a = A^-1 (Gamma - H + r)
     (r: the momentum observer's disturbance; Gamma clipped to the limits and relabelled if it was sent
     for the other stance); if the sample's stance differs from the estimate's, the model's flat-foot
@@ -14,7 +18,7 @@ the controller's own decision of that period (the first sample while k < d). The
  2. the momentum observer on that state (``momentum_observer.MomentumObserver``), its velocity covariance
     from the estimator (or the sensor's rate noise without one).
  3. with d > 0 the Smith predictor from the sample's state to t_k (``predictor.DelayPredictor``), through
-    the torques sent since; a predicted touchdown changes the stance the controller acts in.
+    the k - j torques sent since; a predicted touchdown changes the stance the controller acts in.
 
 The controller then decides in the predicted stance and sends its torque in the paper order of the stance
 it was told (relabelled when the two differ: the plant maps it to the motors with the told stance), and
@@ -33,6 +37,7 @@ from biped_sim.robot.fixed_foot import FixedFootModel, relabel
 from biped_sim.robot.floating import FloatingModel
 
 from biped_controller.core.estimation import EstimatorConfig, JointStateEstimator
+from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import MomentumObserver, Wrench
 from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
 
@@ -56,6 +61,7 @@ class SensingPipeline:
     def __init__(self, cfg, desc: RobotDescription):
         self.cfg = cfg
         self.d = int(cfg.delay_compensation)
+        self.at_once = bool(cfg.predictor_touchdown_at_once)
         self.model = FixedFootModel(desc)
         self.fm = FloatingModel(desc)
         lo, hi = desc.torque_limits()
@@ -66,9 +72,13 @@ class SensingPipeline:
         self.est = JointStateEstimator(self.est_cfg) if cfg.state_estimator else None
         self.mo = (MomentumObserver(desc, cfg.momentum_observer_gain, cfg.observer_height)
                    if cfg.disturbance_observer and cfg.momentum_observer else None)
+        self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
+                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+                   if self.mo is not None and cfg.model_error_estimator else None)
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
-                                    cfg.predictor_time_tolerance) if self.d > 0 else None)
+                                    cfg.predictor_time_tolerance, touchdowns=not self.at_once)
+                     if self.d > 0 else None)
         self.reset()
 
     def reset(self) -> None:
@@ -76,12 +86,15 @@ class SensingPipeline:
         self.log: deque[tuple[float, np.ndarray, int]] = deque(maxlen=self.d + 2)
         self._j: int | None = None            # the period of the last sample used
         self._stance: int | None = None       # the stance of the state at the last sample
+        self._seg = 0                         # the period whose sample first showed the current stance
         self._r = np.zeros(6)
         self.wrench: Wrench | None = None
         if self.est is not None:
             self.est.__init__(self.est_cfg)
         if self.mo is not None:
             self.mo.reset()
+        if self.me is not None:
+            self.me.reset()
         if self.pred is not None:
             self.pred.reset()
 
@@ -93,8 +106,14 @@ class SensingPipeline:
         g = np.clip(torque, self.lo, self.hi)
         return g if told == stance else relabel(g)
 
+    def sample_period(self, stance: int) -> int:
+        """The period j whose sample arrives now, with ``stance`` (module docstring)."""
+        if self.at_once and self._stance is not None and stance != self._stance:
+            self._seg = self.k            # a touchdown reported at once: a fresh sample
+        return max(self.k - self.d, self._seg if self.at_once else 0)
+
     def process(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan) -> View:
-        j = max(self.k - self.d, 0)
+        j = self.sample_period(stance)
         new = self._j is None or j > self._j
         P = None
         if new and self._j is not None:
@@ -127,13 +146,17 @@ class SensingPipeline:
             cov = P[6:, 6:] if P is not None else self.cfg.sensor_noise_qd ** 2 * np.eye(6)
             torque = applied if (applied is not None and stance == self._stance) else None
             self.wrench = self.mo.update(qs, qds, stance, torque, dt, cov)
+            if self.me is not None:     # the legs' model error (model_error.py): the torso wrench and dR
+                mo = self.mo
+                self.wrench = self.me.update(qs, qds, torque, mo._since == 0.0, dt, self.wrench, mo._W_restart,
+                                             mo._since, mo.terms.wrench_jacobian(qs, mo.height)[:, 3:], cov)
             self._r = self.wrench.r
         if new:
             self._j = j
             self._stance = stance
         # 3. the predictor
         if self.pred is not None:
-            pr = self.pred.predict(t, qs, qds, stance)
+            pr = self.pred.predict(t, qs, qds, stance, self.k - j)
             qc, qdc, sc = pr.q, pr.qd, pr.stance
         else:
             qc, qdc, sc = qs, qds, stance

@@ -5,6 +5,15 @@ parameters, which have the keys of ``config/controller.yaml`` (defaults from tha
 ``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
 ``mode`` is validated against none | tau | p | both | wbc | hybrid | lambda | all (``controller.MODES``).
 
+IMU (issue 22): with ``use_imu`` (default ``config/graph.yaml``) the node also subscribes to ``/imu``
+(``sensor_msgs/msg/Imu``, ``biped_sim.graph.imu``; its reader is created before the ``/sim/state`` reader,
+which the simulator's start relies on) and answers a state only once it holds the IMU message of the same
+stamp, whichever of the two arrives first (exact-stamp pairing: the lockstep stays deterministic, nothing
+waits on the wall clock); the IMU's pitch theta = 2 atan2(-y, w) goes to ``AdaptiveController.compute`` as
+the in-process loop passes ``Observation.pitch`` (the state estimator fuses it; without the estimator it is
+not used). Without ``use_imu`` the pitch is NaN (no IMU). An IMU message that is not the planar torso IMU is
+logged naming the field and dropped (the simulator then reports the missing torque).
+
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
   ``effort`` = paper torques q1..q6 [N m], ``header.stamp`` = the state's stamp;
@@ -29,10 +38,11 @@ from typing import Optional
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 
 from biped_msgs_py.msg import ControllerStatus, SimState
 from biped_sim.graph import names as gn
+from biped_sim.graph.imu import ImuMessageError, imu_reading
 from biped_sim.robot.description import PAPER_JOINTS, load_description
 from biped_sim.graph.params import (
     ParameterError,
@@ -49,19 +59,22 @@ from biped_controller.core.controller import MODES, QP_SOLVERS, AdaptiveControll
 from biped_sim.robot.gait_family import GaitFamily
 
 
+#: the controller's settings that take one of a few names, with those names
+CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS}
+
+
 def read_controller_config(node: Node) -> ControllerConfig:
+    """ControllerConfig from the parameters (one per field, defaults config/controller.yaml; ``control_period``
+    from config/simulator.yaml): a name from ``CHOICES``, a bool, or a number; a bad one raises ParameterError
+    naming it."""
     base = load_controller_config()
     kw = {}
     for name in ControllerConfig.__dataclass_fields__:
         if name == 'period':
             continue
         default = getattr(base, name)
-        if name == 'mode':
-            kw[name] = get_str(node, name, default, choices=MODES)
-        elif name == 'engine':
-            kw[name] = get_str(node, name, default, choices=ENGINES)
-        elif name == 'qp_solver':
-            kw[name] = get_str(node, name, default, choices=QP_SOLVERS)
+        if name in CHOICES:
+            kw[name] = get_str(node, name, default, choices=CHOICES[name])
         elif isinstance(default, bool):
             kw[name] = get_bool(node, name, default)
         else:
@@ -74,35 +87,26 @@ def read_controller_config(node: Node) -> ControllerConfig:
         raise ParameterError('control_period' if name == 'period' else name, str(exc)) from exc
 
 
+def _float_list(v) -> list:
+    return np.asarray(v, dtype=float).tolist()
+
+
+#: every field of ControllerStatus but ``stamp``, with the conversion from ``ControllerStatusData``'s value
+STATUS_FIELDS: tuple[tuple[str, object], ...] = (
+    ('step', int), ('mode', str), ('p', float), ('p_dot', float), ('tau', float), ('tau_dot', float),
+    ('p_ddot', float), ('tau_ddot', float), ('p_ddot_star', float), ('tau_ddot_star', float),
+    ('qp_status', int), ('qp_message', str), ('margins', _float_list), ('tightest', int), ('zmp', float),
+    ('stance', int), ('max_tracking_error', float), ('predicted_reaction', _float_list),
+    ('force_estimate', float), ('wbc_status', int), ('wbc_active', int), ('wbc_deviation', float),
+    ('lam', float), ('lam_dot', float), ('lam_ddot', float), ('lam_ddot_star', float))
+
+
 def status_message(s, stamp) -> ControllerStatus:
+    """The ``/controller/status`` message of one period's ``ControllerStatusData`` ``s``, stamped ``stamp``."""
     m = ControllerStatus()
     m.stamp = stamp
-    m.step = int(s.step)
-    m.mode = s.mode
-    m.p = float(s.p)
-    m.p_dot = float(s.p_dot)
-    m.tau = float(s.tau)
-    m.tau_dot = float(s.tau_dot)
-    m.p_ddot = float(s.p_ddot)
-    m.tau_ddot = float(s.tau_ddot)
-    m.p_ddot_star = float(s.p_ddot_star)
-    m.tau_ddot_star = float(s.tau_ddot_star)
-    m.qp_status = int(s.qp_status)
-    m.qp_message = str(s.qp_message)
-    m.margins = np.asarray(s.margins, dtype=float).tolist()
-    m.tightest = int(s.tightest)
-    m.zmp = float(s.zmp)
-    m.stance = int(s.stance)
-    m.max_tracking_error = float(s.max_tracking_error)
-    m.predicted_reaction = np.asarray(s.predicted_reaction, dtype=float).tolist()
-    m.force_estimate = float(s.force_estimate)
-    m.wbc_status = int(s.wbc_status)
-    m.wbc_active = int(s.wbc_active)
-    m.wbc_deviation = float(s.wbc_deviation)
-    m.lam = float(s.lam)
-    m.lam_dot = float(s.lam_dot)
-    m.lam_ddot = float(s.lam_ddot)
-    m.lam_ddot_star = float(s.lam_ddot_star)
+    for name, conv in STATUS_FIELDS:
+        setattr(m, name, conv(getattr(s, name)))
     return m
 
 
@@ -114,12 +118,16 @@ class ControllerNode(Node):
         declare_executor(self)
         self.state_timeout = get_float(self, 'state_timeout', lo=0.0, lo_open=True)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder')
+        self.use_imu = get_bool(self, 'use_imu')
         desc, family = load_robot_files(self)
         self.ctrl = AdaptiveController(self.cfg, family, desc)
         self.ctrl.reset()
         self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
         self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
         self.state_sub = None
+        self.imu_sub = None
+        self.imu_pitch: dict[int, float] = {}        # stamp [ns] -> IMU pitch [rad], not yet used
+        self.pending: Optional[SimState] = None      # a state waiting for its IMU message
         if not self.wait_for_recorder:
             self._subscribe()
         self.last_sequence: Optional[int] = None
@@ -133,7 +141,27 @@ class ControllerNode(Node):
         self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s')
 
     def _subscribe(self):
+        # /imu first: the simulator starts once the controller's /sim/state reader and every /imu reader it
+        # has seen are matched; discovery announces this node's readers in the order they are created
+        if self.use_imu:
+            self.imu_sub = self.create_subscription(Imu, gn.IMU, self._on_imu, gn.QOS_LOCKSTEP)
         self.state_sub = self.create_subscription(SimState, gn.SIM_STATE, self._on_state, gn.QOS_LOCKSTEP)
+
+    @staticmethod
+    def _stamp_ns(stamp) -> int:
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+    def _on_imu(self, msg: Imu):
+        try:
+            pitch, _rate = imu_reading(msg)
+        except ImuMessageError as exc:
+            self.get_logger().error(f'{gn.IMU}: {exc}: dropped')
+            return
+        key = self._stamp_ns(msg.header.stamp)
+        self.imu_pitch[key] = pitch
+        if self.pending is not None and self._stamp_ns(self.pending.stamp) == key:
+            state, self.pending = self.pending, None
+            self._answer(state)
 
     def _recorder_matched(self) -> bool:
         """The recorder is subscribed to both of our topics and every known subscription is matched
@@ -152,16 +180,28 @@ class ControllerNode(Node):
             self.get_logger().info(f'{gn.SIM_STATE} is back')
             self.silent_reported = False
         if self.last_sequence is not None and msg.sequence == self.last_sequence:
-            if self.last_reply is not None:
+            if self.last_reply is not None and self.pending is None:   # (a pending state has no reply yet)
                 self.pub_torque.publish(self.last_reply)
             return
         self.last_sequence = msg.sequence
         if msg.fallen:
             self.get_logger().info(f'simulator reports a fall ({msg.fall_cause}) at step {msg.step}')
             return
+        if self.use_imu and self._stamp_ns(msg.stamp) not in self.imu_pitch:
+            self.pending = msg            # answered by _on_imu when the IMU of this stamp arrives
+            return
+        self._answer(msg)
+
+    def _answer(self, msg: SimState):
+        """Compute and publish the torque of state ``msg`` (with the IMU pitch of its stamp, when used)."""
+        pitch = math.nan
+        if self.use_imu:
+            key = self._stamp_ns(msg.stamp)
+            pitch = self.imu_pitch[key]
+            self.imu_pitch = {k: v for k, v in self.imu_pitch.items() if k > key}
         t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
         out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
-                                int(msg.stance))
+                                int(msg.stance), pitch)
         js = JointState()
         js.header.stamp = msg.stamp
         js.name = list(PAPER_JOINTS)

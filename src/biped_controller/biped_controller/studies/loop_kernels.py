@@ -104,7 +104,7 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                 G, h, res, work, qp_x, qp_given):
     """Run periods while nothing needs Python (module docstring). Returns the number of periods done;
     out[0] = why the segment ended (END_*). A period that needs the QP ends the segment with its rows in
-    ``G`` (QP_ROWS, 2), ``h``, its ``res`` row (x*, the parameters) and ``work`` (WORK rows); the caller
+    ``G`` (QP_ROWS, 2; modes lambda and all: TORSO_QP_ROWS, 3), ``h``, its ``res`` row (x*, the parameters) and ``work`` (WORK rows); the caller
     solves it and calls again, those arrays untouched, with the decision in ``qp_x`` and ``qp_given`` True:
     the first period (the same one: the state has not moved) then takes x = qp_x
     (``control_kernels.period_outputs``, as the controller's ``finish`` does) and the segment goes on."""
@@ -146,8 +146,8 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         # 2. controller: the period's start (advance, observer mode; the memory is committed with the period)
         if qp_given and n_done == 0:
             # the QP period handed back by the last call, its res and work as they were left: the decision
-            res[R_.x] = qp_x[0]
-            res[R_.x + 1] = qp_x[1]
+            for k in range(qp_x.shape[0]):      # (p'', tau''; modes lambda and all: and lambda'')
+                res[R_.x + k] = qp_x[k]
             ck.period_outputs(cons, work, res)
             code = ck.FEASIBLE
         else:

@@ -19,8 +19,8 @@ from biped_sim.plant.rigid import Simulator
 
 from biped_controller.core.controller import (
     CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
-    TORSO_MODES, WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
-from biped_controller.core.period_layout import QP_ROWS, RES, WORK
+    WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
+from biped_controller.core.period_layout import RES, WORK
 from biped_controller.core.qp_types import UNCONSTRAINED
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
@@ -56,11 +56,12 @@ class Segment:
         self.n = 0
         self._last = None
         # the QP period handed back (END_QP): its rows and RES row; the decision given with the next call
-        self.G = np.zeros((QP_ROWS, 2))
-        self.h = np.zeros(QP_ROWS)
+        # (modes lambda and all, issue 21: the torso rows and the column of lambda'', as the compiled period's)
+        self.G = np.zeros_like(self.fp.G)
+        self.h = np.zeros_like(self.fp.h)
         self.res = np.zeros(RES.size)
         self.work = np.zeros((WORK.size, 6))
-        self.qp_x = np.zeros(2)
+        self.qp_x = np.zeros(self.fp.nx)
         self._pushes_key: tuple = ()
         self._pushes = np.zeros((0, 4))
         # the compiled loop takes the QP periods too, with the controller's decision (not in modes whose
@@ -73,11 +74,10 @@ class Segment:
         # needs PIQP, or where hybrid's p/tau QP runs, goes to the objects; the Python stage (the tests'
         # oracle, ``python_stage``) never runs in the loop
         # (real sensing, issue 22: the compiled loop has no sensing pipeline; the controller's compiled step has;
-        # modes lambda and all, issue 21: no compiled period yet)
+        # modes lambda and all, issue 21: the compiled period takes lambda, the QP periods are decided as the others')
         fp = getattr(ctrl, "compiled_period", None)
         return bool(sim.compiled and fp is not None and sim.sensor.identity and not fp.python_stage
-                    and not ctrl.cfg.real_sensing
-                    and ctrl.cfg.mode not in TORSO_MODES)
+                    and not ctrl.cfg.real_sensing)
 
     def run(self, t_stop: float, max_periods: int = 1 << 40, decision: tuple | None = None, build: bool = True
             ) -> tuple[list[StepRecord], list[ControllerStatusData]]:

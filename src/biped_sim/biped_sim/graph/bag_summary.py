@@ -97,7 +97,7 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
     path = find_mcap(bag)
     decode_topics = {gn.SIM_STATE, gn.GROUND_REACTION, gn.PUSH_EVENTS, gn.PUSH_REQUESTS, gn.FALL,
                      gn.CONTROLLER_STATUS, gn.SIM_PUSH}
-    stamp_topics = {gn.CLOCK: 4, gn.CONTROLLER_TORQUE: 4, gn.JOINT_STATES: 4, gn.GROUND_REACTION_COP: 4,
+    stamp_topics = {gn.CLOCK: 4, gn.IMU: 4, gn.CONTROLLER_TORQUE: 4, gn.JOINT_STATES: 4, gn.GROUND_REACTION_COP: 4,
                     gn.TF: 8}
     counts: dict[str, int] = {}
     stamps: dict[str, list[int]] = {t: [] for t in stamp_topics}
@@ -166,7 +166,7 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
     state_set = set(st_stamp_a.tolist())
     period_set = set(st_stamp_a[:-1].tolist())
     topic_report = {}
-    expected = {gn.CLOCK: state_set, gn.CONTROLLER_TORQUE: state_set, gn.TF: state_set,
+    expected = {gn.CLOCK: state_set, gn.IMU: state_set, gn.CONTROLLER_TORQUE: state_set, gn.TF: state_set,
                 gn.JOINT_STATES: period_set, gn.GROUND_REACTION_COP: period_set}
     for topic, exp in expected.items():
         got = stamps[topic]

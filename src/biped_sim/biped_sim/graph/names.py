@@ -10,6 +10,7 @@ name                       type                                    QoS key
 =========================  ======================================  ==============
 /clock                     rosgraph_msgs/msg/Clock                 clock
 /sim/state                 biped_msgs_py/msg/SimState              lockstep
+/imu                       sensor_msgs/msg/Imu                     lockstep
 /joint_states              sensor_msgs/msg/JointState              sensor
 /ground_reaction           geometry_msgs/msg/WrenchStamped         sensor
 /ground_reaction/cop       geometry_msgs/msg/PointStamped          sensor
@@ -61,6 +62,8 @@ from rclpy.qos import (
 # --------------------------------------------------------------------------- names
 CLOCK = '/clock'
 SIM_STATE = '/sim/state'
+IMU = '/imu'
+IMU_FRAME = 'torso'                 # the IMU is on the torso link (URDF root)
 JOINT_STATES = '/joint_states'
 GROUND_REACTION = '/ground_reaction'
 GROUND_REACTION_COP = '/ground_reaction/cop'
@@ -179,6 +182,9 @@ TOPICS: dict[str, TopicSpec] = {t.name: t for t in [
               'simulation time, published by the simulator every step'),
     TopicSpec(SIM_STATE, 'biped_msgs_py/msg/SimState', 'lockstep',
               'lockstep state, simulator -> controller'),
+    TopicSpec(IMU, 'sensor_msgs/msg/Imu', 'lockstep',
+              "the torso IMU's pitch (orientation about -y) and pitch rate as the controller receives them with "
+              '/sim/state (same stamp; noise and delay of the sensor model); frame torso; simulator -> controller'),
     TopicSpec(JOINT_STATES, 'sensor_msgs/msg/JointState', 'sensor',
               'URDF joint positions/velocities (rad, rad/s)'),
     TopicSpec(GROUND_REACTION, 'geometry_msgs/msg/WrenchStamped', 'sensor',

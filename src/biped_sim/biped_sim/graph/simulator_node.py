@@ -11,7 +11,7 @@ the preferred gait (``GaitFamily.initial_state()``), LEFT stance, as the in-proc
 Lockstep, per control step k (event-driven: the next state is published from inside the torque
 callback, no polling):
 
-1. publish the state at t_k = k * control_period: ``/clock``, ``/sim/state`` (sequence k + 1),
+1. publish the state at t_k = k * control_period: ``/clock``, ``/imu``, ``/sim/state`` (sequence k + 1),
    ``/tf``, ``/stance``;
 2. wait for ``/controller/torque`` whose ``header.stamp`` equals the state's stamp (others are
    ignored with a warning); effort = paper torques q1..q6, names ``description.PAPER_JOINTS``;
@@ -35,8 +35,15 @@ on a fall), then the node lingers ``linger`` seconds (default 0.5) so that the r
 the last messages, and exits 0 (steps, time, fall) or 1 (controller timeout). SIGINT/SIGTERM end it
 cleanly (status 0).
 
+IMU (issue 22, ``biped_sim.graph.imu``): ``/imu`` (``sensor_msgs/msg/Imu``, frame ``torso``) carries the
+torso pitch and pitch rate of the same sensor sample as ``/sim/state``'s q (its noise ``perturbation.noise_pitch``
+and ``perturbation.noise_pitch_rate``, its delay), stamped with the state's stamp, published just before it;
+not sent again with a fallen state at the instant already published (as ``/clock``). The controller pairs
+the two by stamp.
+
 Start: the first state is published once ``/sim/state`` has a subscriber and ``/controller/torque``
-a publisher, plus optionally (``wait_for_recorder``) the node ``recorder`` subscribed to every topic
+a publisher, every subscriber of ``/imu`` seen so far is matched (the controller creates its ``/imu``
+reader before its ``/sim/state`` reader, and discovery announces a participant's readers in order), plus optionally (``wait_for_recorder``) the node ``recorder`` subscribed to every topic
 the simulator publishes, and (``wait_for_pushes``) that many PushEvents received; then
 ``start_delay`` wall seconds. If that takes longer than ``start_timeout``: error naming what is
 missing, exit 1.
@@ -71,7 +78,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PointStamped, TransformStamped, WrenchStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String, UInt8
 from tf2_msgs.msg import TFMessage
 
@@ -92,6 +99,7 @@ from biped_sim.graph.params import (
     run_node,
 )
 from biped_sim.graph.checks import RobotFilesError, check_urdf_joints
+from biped_sim.graph.imu import ImuBuilder
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation, plant_yaml
 from biped_sim.plant.push import Rejected
 from biped_sim.robot.loop import ENGINES
@@ -243,9 +251,11 @@ class SimulatorNode(Node):
         q0, qd0 = family.initial_state()
         self.sim.reset(q0, qd0, LEFT)
         self.tfb = TransformBuilder(self.urdf)
+        self.imub = ImuBuilder(self.perturbation.noise_pitch, self.perturbation.noise_pitch_rate)
 
         self.pub_clock = self.create_publisher(Clock, gn.CLOCK, gn.QOS_CLOCK)
         self.pub_state = self.create_publisher(SimState, gn.SIM_STATE, gn.QOS_LOCKSTEP)
+        self.pub_imu = self.create_publisher(Imu, gn.IMU, gn.QOS_LOCKSTEP)
         self.pub_joints = self.create_publisher(JointState, gn.JOINT_STATES, gn.QOS_SENSOR)
         self.pub_wrench = self.create_publisher(WrenchStamped, gn.GROUND_REACTION, gn.QOS_SENSOR)
         self.pub_cop = self.create_publisher(PointStamped, gn.GROUND_REACTION_COP, gn.QOS_SENSOR)
@@ -256,7 +266,7 @@ class SimulatorNode(Node):
         self.pub_impacts = self.create_publisher(Impact, gn.SIM_IMPACTS, gn.QOS_EVENTS)
         self.pub_push = self.create_publisher(AppliedPush, gn.SIM_PUSH, gn.QOS_SENSOR)
         self.pub_plant = self.create_publisher(String, gn.SIM_PLANT, gn.QOS_LATCHED)
-        self.published_topics = [gn.CLOCK, gn.SIM_STATE, gn.JOINT_STATES, gn.GROUND_REACTION,
+        self.published_topics = [gn.CLOCK, gn.SIM_STATE, gn.IMU, gn.JOINT_STATES, gn.GROUND_REACTION,
                                  gn.GROUND_REACTION_COP, gn.STANCE, gn.TF, gn.ROBOT_DESCRIPTION,
                                  gn.SIM_IMPACTS, gn.SIM_PUSH, gn.SIM_PLANT]
         self.sub_torque = self.create_subscription(JointState, gn.CONTROLLER_TORQUE, self._on_torque,
@@ -320,8 +330,11 @@ class SimulatorNode(Node):
             missing.append(f'the controller subscribed to {gn.SIM_STATE} (matched)')
         if self.count_publishers(gn.CONTROLLER_TORQUE) < 1 or self.sub_torque.get_publisher_count() < 1:
             missing.append(f'a publisher on {gn.CONTROLLER_TORQUE} (controller, matched)')
+        # the controller's /imu reader (when it has one) must be matched too: its first IMU is volatile
+        if self.pub_imu.get_subscription_count() < len(self.get_subscriptions_info_by_topic(gn.IMU)):
+            missing.append(f'every subscriber of {gn.IMU} matched')
         if self.wait_for_recorder:
-            pubs = {p.topic_name: p for p in (self.pub_clock, self.pub_state, self.pub_joints, self.pub_wrench,
+            pubs = {p.topic_name: p for p in (self.pub_clock, self.pub_state, self.pub_imu, self.pub_joints, self.pub_wrench,
                                                self.pub_cop, self.pub_stance, self.pub_tf, self.pub_desc,
                                                self.pub_impacts, self.pub_push, self.pub_plant)}
             for topic in self.published_topics:
@@ -408,6 +421,7 @@ class SimulatorNode(Node):
         # visualisation topics go out while the controller computes (publish_visuals).
         if clock:
             self.pub_clock.publish(Clock(clock=stamp))
+            self.pub_imu.publish(self.imub.message(stamp, obs.pitch, obs.pitch_rate))
         self.pub_state.publish(m)
         self.last_state_wall = time.monotonic()
         self._visual_stamp = stamp

@@ -280,13 +280,15 @@ class MujocoPlant(ScheduledPushes):
     def observe(self) -> Observation:
         q, qd = self.measured(self.x, self.v, self.stance)
         pitch = float(self.x[2])          # the IMU (issue 22): the torso's pitch in the world, = q1 + q2 + q3 here
+        rate = float(self.v[2])           # and its gyro's pitch rate
         if self.sensor.identity:
             obs = object.__new__(Observation)     # the fields at once (as StepRecord's)
-            obs.__dict__.update(step=self.step_index, t=self.t, stance=self.stance, q=q, qd=qd, pitch=pitch)
+            obs.__dict__.update(step=self.step_index, t=self.t, stance=self.stance, q=q, qd=qd, pitch=pitch,
+                                pitch_rate=rate)
             return obs
-        self.sensor.sample(self.step_index, self.stance, q, qd, pitch)
+        self.sensor.sample(self.step_index, self.stance, q, qd, pitch, rate)
         stance, qs, qds = self.sensor.reading(self.step_index)
-        return Observation(self.step_index, self.t, stance, qs, qds, self.sensor.pitch_reading(self.step_index))
+        return Observation(self.step_index, self.t, stance, qs, qds, *self.sensor.imu_reading(self.step_index))
 
     # ------------------------------------------------------------ contacts
     def _contacts(self) -> tuple[np.ndarray, int]:

@@ -74,6 +74,20 @@ _V = numba.types.Array(numba.float64, 1, "C")
 _IV = numba.types.Array(numba.int64, 1, "C")
 
 
+@numba.njit(numba.void(_M2, _V, _V, _V, _V), cache=True, nogil=True)
+def joints_in_paper_order(p, x, v, q, qd):  # pragma: no cover (compiled)
+    """The six joints in paper order from a floating state: ``q = P x[3:9]``, ``qd = P v[3:9]`` with the stance's
+    permutation ``P`` (entries 0, +-1), each entry summed from +0.0 in column order as NumPy's matmul does it."""
+    for i in range(6):
+        s = 0.0
+        sd = 0.0
+        for j in range(6):
+            s += p[i, j] * x[3 + j]
+            sd += p[i, j] * v[3 + j]
+        q[i] = s
+        qd[i] = sd
+
+
 @numba.njit(numba.void(_V, _V, _V, _M2, _M2, numba.boolean, _V, _V, _V, _V, _V), cache=True, nogil=True)
 def begin_period(torque, lo, hi, p_told, p_true, remap, qpos, qvel, ctrl, acc, row):  # pragma: no cover (compiled)
     """A period's start: the paper-order torque ``torque`` clipped to [lo, hi] (NaN stays NaN, as np.clip), to
@@ -100,14 +114,7 @@ def begin_period(torque, lo, hi, p_told, p_true, remap, qpos, qvel, ctrl, acc, r
             for j in range(6):
                 s += p_true[i, j] * ctrl[j]
             row[R_TORQUE + i] = s
-    for i in range(6):
-        s = 0.0
-        sd = 0.0
-        for j in range(6):
-            s += p_true[i, j] * qpos[3 + j]
-            sd += p_true[i, j] * qvel[3 + j]
-        row[R_Q + i] = s
-        row[R_QD + i] = sd
+    joints_in_paper_order(p_true, qpos, qvel, row[R_Q:R_Q + 6], row[R_QD:R_QD + 6])
     for i in range(9):
         row[R_X + i] = qpos[i]
         row[R_V + i] = qvel[i]
@@ -123,14 +130,7 @@ def measure(x, v, p, j0, out):  # pragma: no cover (compiled)
     """(q, q') as the robot measures them (``MujocoPlant.measured``) in ``out[:6]``, ``out[6:]``: the encoders in
     paper order (P x[3:], P v[3:], P the stance's permutation, summed as ``begin_period`` does), then q1 (q1')
     plus the stance foot's pitch (rate) x[2] + (x[j0] + x[j0 + 1] + x[j0 + 2]), j0 its leg's first joint."""
-    for i in range(6):
-        s = 0.0
-        sd = 0.0
-        for j in range(6):
-            s += p[i, j] * x[3 + j]
-            sd += p[i, j] * v[3 + j]
-        out[i] = s
-        out[6 + i] = sd
+    joints_in_paper_order(p, x, v, out[:6], out[6:])
     out[0] = out[0] + (x[2] + (x[j0] + x[j0 + 1] + x[j0 + 2]))
     out[6] = out[6] + (v[2] + (v[j0] + v[j0 + 1] + v[j0 + 2]))
 

@@ -25,8 +25,8 @@ Three kinds, all in one frozen :class:`PlantPerturbation` (every field defaults 
   ``|F_x| <= mu F_z`` uses it, the controller's friction rows keep the nominal mu;
 * sensing: Gaussian noise of standard deviation ``noise_q`` [rad] on each paper joint angle q1..q6 and
   ``noise_qd`` [rad/s] on each joint rate, encoder quantisation of the angles (``encoder_bits``, 0 = none),
-  a torso pitch sensor (IMU) with Gaussian noise ``noise_pitch`` [rad], and a delay of ``delay`` control
-  periods; ``seed`` seeds the noise (``numpy.random.default_rng(seed)``).
+  a torso pitch sensor (IMU) with Gaussian noise ``noise_pitch`` [rad] on its pitch and ``noise_pitch_rate``
+  [rad/s] on its pitch rate (gyro), and a delay of ``delay`` control periods; ``seed`` seeds the noise (``numpy.random.default_rng(seed)``).
 
 Sensor model (:class:`SensorModel`): at the start of every control period k the sensors take a sample
 of the true (stance, q, q') and add noise, q_s = q + noise_q z_q, q'_s = q' + noise_qd z_qd, with
@@ -38,7 +38,10 @@ rate sensor's (noise only). The IMU reports the torso's pitch in the world, thet
 q3 (counter-clockwise positive, as the paper's angles; the rigid plant's stance foot is flat, so
 theta = q1 + q2 + q3 there), plus noise_pitch z_p, z_p drawn from a second generator
 ``default_rng([seed, 1])`` (so the joint noise sequence of a seed is the same with or without an IMU).
-The pitch is part of the delayed sample. The controller
+The IMU's gyro reports the torso's pitch rate theta' (the true q1' + q2' + q3' on a flat stance foot) plus
+noise_pitch_rate z_r, z_r drawn from a third generator ``default_rng([seed, 2])`` (so neither sequence above
+changes with it); the controller does not use the rate today (the estimator takes the pitch), the ROS graph
+publishes it on ``/imu``. Pitch and rate are part of the delayed sample. The controller
 at period k receives the sample of period k - delay (the first sample while k < delay: the sensors
 report the initial state until the pipeline is full). The stance flag is part of the delayed sample (a
 touchdown reaches the controller ``delay`` periods late); the time and the period index are not: the
@@ -103,6 +106,7 @@ class PlantPerturbation:
     noise_qd: float = 0.0             # [rad/s] std of the noise on each measured joint rate
     encoder_bits: int = 0             # [bits per turn] quantisation of each measured angle; 0: none
     noise_pitch: float = 0.0          # [rad] std of the noise on the IMU's torso pitch
+    noise_pitch_rate: float = 0.0     # [rad/s] std of the noise on the IMU's torso pitch rate (gyro)
     delay: int = 0                    # [control periods] between a sample and the controller
     touchdown_delayed: bool = True    # False: a touchdown restarts the delay line (reported at once)
     seed: int = 0                     # seed of the noise generator
@@ -149,7 +153,7 @@ class PlantPerturbation:
     def sensing_is_perfect(self) -> bool:
         """No noise and no delay: the controller sees the true state."""
         return (self.noise_q == 0.0 and self.noise_qd == 0.0 and self.delay == 0 and self.encoder_bits == 0
-                and self.noise_pitch == 0.0)
+                and self.noise_pitch == 0.0 and self.noise_pitch_rate == 0.0)
 
     @property
     def encoder_step(self) -> float:
@@ -167,7 +171,7 @@ class PlantPerturbation:
         out = {f.name: getattr(self, f.name) for f in fields(self)
                if f.name != "seed" and getattr(self, f.name) != getattr(zero, f.name)
                and not (f.name == "touchdown_delayed" and self.delay == 0)}
-        if self.noise_q or self.noise_qd or self.noise_pitch:
+        if self.noise_q or self.noise_qd or self.noise_pitch or self.noise_pitch_rate:
             out["seed"] = self.seed
         return out
 
@@ -242,14 +246,15 @@ def plant_parameters(nominal: RobotDescription, perturbation: PlantPerturbation)
         "sensing": {"noise_q_std_rad": perturbation.noise_q, "noise_qd_std_rad_per_s": perturbation.noise_qd,
                     "encoder_bits": perturbation.encoder_bits, "encoder_step_rad": perturbation.encoder_step,
                     "noise_pitch_std_rad": perturbation.noise_pitch,
+                    "noise_pitch_rate_std_rad_per_s": perturbation.noise_pitch_rate,
                     "delay_periods": perturbation.delay, "touchdown_delayed": perturbation.touchdown_delayed,
                     "seed": perturbation.seed,
                     "model": "Gaussian noise added to each paper joint angle and rate when sampled at a period "
-                             "start, angles then quantised (encoder_bits), an IMU torso pitch with its own noise; "
+                             "start, angles then quantised (encoder_bits), an IMU torso pitch and pitch rate with their own noise; "
                              "the controller receives the sample taken delay periods earlier "
                              "(stance included; time and period index are the current ones)"},
         "units": {"mass": "kg", "com": "m", "inertia": "kg m^2", "noise_q": "rad", "noise_qd": "rad/s",
-                  "delay": "control periods"},
+                  "noise_pitch": "rad", "noise_pitch_rate": "rad/s", "delay": "control periods"},
     }
 
 
@@ -276,17 +281,19 @@ class SensorModel:
     def reset(self) -> None:
         self._rng = np.random.default_rng(self.perturbation.seed)
         self._rng_imu = np.random.default_rng([self.perturbation.seed, 1])
+        self._rng_gyro = np.random.default_rng([self.perturbation.seed, 2])
         self._samples: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
-        self._pitch: dict[int, float] = {}
+        self._pitch: dict[int, tuple[float, float]] = {}     # period -> (pitch [rad], pitch rate [rad/s])
         self._first: int | None = None
         self._last: int | None = None
         self._segment: int | None = None          # first sampled period of the current stance
         self._stance: int | None = None
 
-    def sample(self, step: int, stance: int, q: np.ndarray, qd: np.ndarray, pitch: float | None = None
-               ) -> tuple[int, np.ndarray, np.ndarray]:
+    def sample(self, step: int, stance: int, q: np.ndarray, qd: np.ndarray, pitch: float | None = None,
+               pitch_rate: float | None = None) -> tuple[int, np.ndarray, np.ndarray]:
         """The sensors' sample of period ``step`` (the true stance, q [rad], q' [rad/s] plus noise, angles
-        quantised; ``pitch`` the true torso pitch [rad], None: q1 + q2 + q3, a flat stance foot); a
+        quantised; ``pitch`` the true torso pitch [rad], None: q1 + q2 + q3, a flat stance foot; ``pitch_rate``
+        its true rate [rad/s], None: q1' + q2' + q3'); a
         repeated call for the same period returns the stored sample. Raises ``ValueError`` for a period
         older than the last one sampled (the sensors cannot go back in time)."""
         if step in self._samples:
@@ -309,7 +316,11 @@ class SensorModel:
         zp = float(self._rng_imu.standard_normal())
         if p.noise_pitch > 0.0:
             th += p.noise_pitch * zp
-        self._pitch[step] = th
+        rate = float(qd[0] + qd[1] + qd[2]) if pitch_rate is None else float(pitch_rate)
+        zr = float(self._rng_gyro.standard_normal())
+        if p.noise_pitch_rate > 0.0:
+            rate += p.noise_pitch_rate * zr
+        self._pitch[step] = (th, rate)
         s = (int(stance), qs, qds)
         self._samples[step] = s
         if self._stance is None or int(stance) != self._stance:
@@ -339,6 +350,11 @@ class SensorModel:
     def pitch_reading(self, step: int) -> float:
         """The IMU's torso pitch [rad] the controller receives at period ``step`` (the sample that
         :meth:`reading` returns the joints of)."""
+        return self.imu_reading(step)[0]
+
+    def imu_reading(self, step: int) -> tuple[float, float]:
+        """The IMU's (torso pitch [rad], pitch rate [rad/s]) received at period ``step``: the sample that
+        :meth:`reading` returns the joints of."""
         if step not in self._samples:
             raise ValueError(f"no sensor sample for period {step}: sample() it first")
         k = max(step - self.perturbation.delay, self._first)

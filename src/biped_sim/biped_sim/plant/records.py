@@ -13,7 +13,8 @@ import numpy as np
 @dataclass(frozen=True)
 class Observation:
     """What the controller may measure at the start of a control period (paper coordinates); ``pitch``
-    the IMU's torso pitch in the world [rad], counter-clockwise positive (NaN: no IMU reading given)."""
+    the IMU's torso pitch in the world [rad], counter-clockwise positive, ``pitch_rate`` its gyro's rate
+    [rad/s] (NaN: no IMU reading given)."""
 
     step: int
     t: float
@@ -21,6 +22,7 @@ class Observation:
     q: np.ndarray
     qd: np.ndarray
     pitch: float = float("nan")
+    pitch_rate: float = float("nan")
 
 
 @dataclass(frozen=True, eq=False)

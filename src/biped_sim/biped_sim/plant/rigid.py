@@ -177,11 +177,12 @@ class Simulator(ScheduledPushes):
         period index are the current ones)."""
         q, qd = self.fm.paper_from_state(self.x, self.v, self.stance)
         pitch = float(self.x[2])          # the torso (the floating base) pitch in the world
+        rate = float(self.v[2])           # and its rate (the IMU's gyro)
         if self.sensor.identity:
-            return Observation(self.step_index, self.t, self.stance, q, qd, pitch)
-        self.sensor.sample(self.step_index, self.stance, q, qd, pitch)
+            return Observation(self.step_index, self.t, self.stance, q, qd, pitch, rate)
+        self.sensor.sample(self.step_index, self.stance, q, qd, pitch, rate)
         stance, qs, qds = self.sensor.reading(self.step_index)
-        return Observation(self.step_index, self.t, stance, qs, qds, self.sensor.pitch_reading(self.step_index))
+        return Observation(self.step_index, self.t, stance, qs, qds, *self.sensor.imu_reading(self.step_index))
 
     def push_force_at(self, t: float) -> list[tuple[float, float]]:
         """(force [N], height [m]) of every push acting at instant ``t`` (on over [start, end))."""

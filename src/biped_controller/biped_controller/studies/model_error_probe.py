@@ -1,0 +1,97 @@
+"""The momentum observer under model error, period by period (issue 22's diagnosis, docs/robustness.md "Model
+error"): one pushed run with the Python sensing pipeline, printing per period the ground force the QP
+needed (the plant's actual minus the controller's prediction without the estimate), the estimate it used
+(dR), the reading of the observer's whole r through the joint accelerations alone (B A^-1 r), and the
+observer's r against the true generalized force of the error, tau_d = A_m q'' + H_m - Gamma with q'' the
+plant's own acceleration (its model from ``PlantPerturbation.apply``, rigid stance foot). Forces [N],
+torques [N m], l [m].
+
+    .venv/bin/python -m biped_controller.studies.model_error_probe --force 200 --from 0.40 --to 0.46 \\
+        --set momentum_observer=true --perturb torso_inertia_scale=1.3 ...
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+import numpy as np
+
+from biped_sim.robot.description import LEFT
+from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_sim.plant.protocol import make_plant
+
+from biped_controller.core.controller import AdaptiveController
+from biped_controller.studies import experiment as ex
+
+
+def probe_rows(force: float, settings: ex.RunSettings, start: float = ex.DEFAULT_START,
+               duration: float = ex.DEFAULT_DURATION, steps: int = 2) -> tuple[list[dict], str]:
+    """The rows of the module docstring for every period until ``steps`` impacts or a fall, and the outcome."""
+    ctx = ex.context()
+    scfg, ccfg = settings.sim_config(), settings.ctrl_config("both")
+    P = settings.perturbation
+    sim = make_plant(scfg.plant, ctx.desc, scfg, P)
+    ctrl = AdaptiveController(ccfg, ctx.family, ctx.desc, python_sensing=True)
+    mo = ctrl._sensing.mo if ctrl._sensing is not None else None
+    if mo is None:
+        raise ex.OverrideError("the probe needs --set momentum_observer=true")
+    plant = FixedFootModel(P.apply(ctx.desc) if P is not None else ctx.desc)
+    model = FixedFootModel(ctx.desc)
+    q0, qd0 = ctx.family.initial_state()
+    sim.reset(q0, qd0, LEFT)
+    ctrl.reset(LEFT)
+    if force:
+        sim.schedule_push(start, duration, float(force), None)
+    rows = []
+    while True:
+        obs = sim.observe()
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
+        rec = sim.step(out.torque)
+        w = ctrl.wrench
+        dp, dm = plant.dynamics(rec.q, rec.qd), model.dynamics(rec.q, rec.qd)
+        qdd = np.linalg.solve(dp.A, rec.torque - dp.H)
+        s = out.status
+        dyn = model.dynamics(obs.q, obs.qd)
+        full = dyn.B @ np.linalg.solve(dyn.A, w.r) if w is not None else np.zeros(3)
+        dR = w.dR if w is not None else np.zeros(2)
+        rows.append(dict(t=rec.t, impacts=rec.impacts, push=rec.push_force, qp_status=int(s.qp_status),
+                         l_pred=s.zmp, l_act=rec.cop,
+                         needed=np.asarray(rec.wrench[:2]) - np.asarray(s.predicted_reaction) + dR, dR=dR,
+                         full=full[:2], r=w.r if w is not None else np.zeros(6),
+                         tau_d=dm.A @ qdd + dm.H - rec.torque))
+        if rec.fallen or sim.fall is not None or sim.impact_count >= steps:
+            break
+    f = sim.fall
+    return rows, (f"fell: {f.cause} at t = {f.t:.4f} s ({f.detail})" if f else f"{sim.impact_count} impacts, no fall")
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    a.add_argument("--force", type=float, default=0.0)
+    a.add_argument("--from", dest="t0", type=float, default=0.0)
+    a.add_argument("--to", dest="t1", type=float, default=1.0)
+    a.add_argument("--every", type=int, default=3, help="print every n-th period (and every period after an impact)")
+    a.add_argument("--steps", type=int, default=2)
+    a.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    a.add_argument("--perturb", action="append", default=[], metavar="FIELD=VALUE")
+    args = a.parse_args(argv)
+    settings = dataclasses.replace(ex.parse_overrides(args.overrides), perturbation=ex.parse_perturbation(args.perturb))
+    rows, outcome = probe_rows(args.force, settings, steps=args.steps)
+    f = lambda v: f"({v[0]:7.1f},{v[1]:7.1f})"   # noqa: E731
+    print("t [s]   imp push qp  l_pred   l_act   needed dR (x,y)   used dR (x,y)   B A^-1 r (x,y)   r | true tau_d")
+    last_imp = 0
+    for k, r in enumerate(rows):
+        if not args.t0 <= r["t"] <= args.t1:
+            continue
+        if k % args.every and r["impacts"] == last_imp:
+            continue
+        print(f"{r['t']:.4f} {r['impacts']:3d} {r['push']:4.0f} {r['qp_status']:2d} {r['l_pred']:+.4f} {r['l_act']:+.4f} "
+              f"{f(r['needed'])} {f(r['dR'])} {f(r['full'])}  {np.round(r['r'], 1)} | {np.round(r['tau_d'], 1)}")
+        last_imp = r["impacts"]
+    print(outcome)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

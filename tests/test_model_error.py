@@ -1,0 +1,222 @@
+"""Issue 22, model error: the momentum observer against the true generalized force of an inertia error, and the
+legs' model-error estimator (``core/model_error.py``): its regressor against the plant's own dynamics, its
+identification in noise-free closed loops, its compiled-pipeline twin, its settings."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from biped_sim.robot.description import load_description
+from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_sim.plant.perturbation import PlantPerturbation
+
+from biped_controller.core.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.model_error import (LEG_PARAMETERS, LegModelError, LegRegressor, ModelErrorConfigError,
+                                                prior_std)
+
+from estimation_loop import closed_loop
+
+DESC = load_description()
+K = 200.0
+INERTIAS = PlantPerturbation(torso_inertia_scale=1.3, thigh_inertia_scale=1.3, shin_inertia_scale=1.3,
+                             foot_inertia_scale=1.3)
+LEGS = PlantPerturbation(thigh_inertia_scale=1.3, shin_inertia_scale=0.8, thigh_mass_scale=1.1, foot_mass_scale=0.9)
+
+
+def _theta_true(p: PlantPerturbation) -> np.ndarray:
+    """theta (plant minus model) of a perturbation that only scales leg masses and inertias."""
+    plant = p.apply(DESC)
+    return np.array([getattr(getattr(plant, link), name) - getattr(getattr(DESC, link), name)
+                     for link, name in LEG_PARAMETERS])
+
+
+def _states(n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        yield (rng.uniform(-0.6, 0.6, 6) + np.array([0.0, 0.3, 0.0, 0.0, 0.3, 0.0]), rng.normal(0, 1.5, 6),
+               rng.normal(0, 20.0, 6))
+
+
+# ------------------------------------------------------------------------------ the regressor
+def test_regressor_against_the_plants_own_dynamics():
+    """Y(q, q', q'') theta = RNEA of the plant's model - RNEA of the controller's, on all 9 rows (root and
+    joints), at seeded states; a torso mass error leaves the swing leg's rows at 0."""
+    reg, nom = LegRegressor(DESC), FixedFootModel(DESC)
+    plant = FixedFootModel(LEGS.apply(DESC))
+    torso = FixedFootModel(PlantPerturbation(torso_mass_scale=0.8).apply(DESC))
+    theta = _theta_true(LEGS)
+    assert np.count_nonzero(theta) == 4
+    worst, wrong, swing_torso = 0.0, np.inf, 0.0
+    for q, qd, a in _states(20, 1):
+        Y = reg(q, qd, a)
+        t0, r0 = nom.inverse_dynamics(q, qd, a)
+        t1, r1 = plant.inverse_dynamics(q, qd, a)
+        e = np.concatenate([r1 - r0, t1 - t0])
+        worst = max(worst, np.abs(Y @ theta - e).max() / np.abs(e).max())
+        t2, r2 = torso.inverse_dynamics(q, qd, a)
+        e2 = np.concatenate([r2 - r0, t2 - t0])
+        wrong = min(wrong, np.abs(Y @ (1.1 * theta) - e).max() / np.abs(e).max())
+        swing_torso = max(swing_torso, np.abs(e2[6:]).max() / np.abs(e2).max())
+    assert worst < 1e-9, worst
+    assert wrong > 1e-2, wrong                 # negative control: 10 % more of the same error misses
+    # what the estimator rests on: a torso error (like a push on the torso) does not reach the swing leg's rows
+    assert swing_torso < 1e-12, swing_torso
+
+
+def test_translational_root_rows_are_blind_to_inertias():
+    """The identity the estimator rests on: an inertia (about the centre of mass) enters the locked-root
+    chain's translational root rows not at all (total force = sum m_b a_b), a mass does."""
+    reg = LegRegressor(DESC)
+    for q, qd, a in _states(10, 2):
+        Y = reg(q, qd, a)
+        inertia_cols = [j for j, (_, name) in enumerate(LEG_PARAMETERS) if name == "inertia"]
+        mass_cols = [j for j, (_, name) in enumerate(LEG_PARAMETERS) if name == "mass"]
+        assert np.abs(Y[:2, inertia_cols]).max() < 1e-9
+        assert np.abs(Y[:2, mass_cols]).max() > 1.0
+
+
+# ------------------------------------------------------------------------------ the observer under an inertia error
+def _inertia_error_run(perturbation: PlantPerturbation, **extra):
+    tr = closed_loop(0.40, perturbation, momentum_observer=True, momentum_observer_gain=K, **extra)
+    nom, plant = FixedFootModel(DESC), FixedFootModel(perturbation.apply(DESC))
+    taud = []
+    for q, qd, g in zip(tr.q, tr.qd, tr.torque):
+        dn, dp = nom.dynamics(q, qd), plant.dynamics(q, qd)
+        a = np.linalg.solve(dp.A, g - dp.H)                   # the plant's true joint acceleration
+        taud.append(dn.A @ a + dn.H - g)                      # = -(M_p q'' + h_p - (M_m q'' + h_m)), joint rows
+    return tr, np.array(taud)
+
+
+def _lag_bound(tau: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """max |tau_d'| (1/K + dt) per joint: the first-order observer's tracking bound (as test_estimation's)."""
+    slope = np.abs(np.diff(tau, axis=0) / np.diff(t)[:, None])
+    return slope.max(axis=0) * (1.0 / K + 1e-3) + 1e-9
+
+
+def test_momentum_observer_recovers_an_inertia_error():
+    """Noise-free, inertias 30 % larger, no push, no touchdown in 0.4 s: once settled (t > 10 / K) the
+    observer's r follows the true generalized force of the error (computed from the plant's own model) within
+    the first-order lag bound max |tau_d'| (1/K + dt) on every joint; the error of 15 % larger inertias misses
+    that bound on the same run (negative control)."""
+    tr, taud = _inertia_error_run(INERTIAS)
+    assert tr.fall is None and not any(rec.impacts for rec in tr.records)
+    t, r = np.array(tr.t), np.array(tr.r)
+    assert np.abs(taud[:, :5]).max(axis=0).min() > 1.0     # every joint but the swing ankle: an error worth seeing
+    m = t[1:] > 10.0 / K
+    err = np.abs(r[1:] - taud[:-1])[m]                       # r_k saw the torque of period k - 1
+    bound = _lag_bound(taud, t)
+    assert np.all(err.max(axis=0) <= bound), (err.max(axis=0), bound)
+    # the error of 15 % larger inertias, at the same states and torques: not what the observer saw
+    half = PlantPerturbation(torso_inertia_scale=1.15, thigh_inertia_scale=1.15, shin_inertia_scale=1.15,
+                             foot_inertia_scale=1.15)
+    nom, plant = FixedFootModel(DESC), FixedFootModel(half.apply(DESC))
+    other = []
+    for q, qd, g in zip(tr.q, tr.qd, tr.torque):
+        dn, dp = nom.dynamics(q, qd), plant.dynamics(q, qd)
+        other.append(dn.A @ np.linalg.solve(dp.A, g - dp.H) + dn.H - g)
+    other = np.array(other)
+    assert not np.all(np.abs(r[1:] - other[:-1])[m].max(axis=0) <= bound)
+
+
+# ------------------------------------------------------------------------------ identification
+def _identify(perturbation, pushes=(), steps=2, python_sensing=True, **extra):
+    tr = closed_loop(1.2, perturbation, pushes=pushes, steps=steps, python_sensing=python_sensing,
+                     momentum_observer=True, momentum_observer_gain=K, model_error_estimator=True, **extra)
+    return tr, tr.ctrl._sensing.me
+
+
+CHI2_6_999 = 22.458     # chi-square quantile, 6 degrees of freedom, 0.999
+
+
+def _mahalanobis(x: np.ndarray, P: np.ndarray) -> float:
+    return float(x @ np.linalg.solve(P, x))
+
+
+def test_leg_error_identified_in_a_noise_free_walk():
+    """Two steps, noise-free, the legs' masses and inertias off (LEGS): the estimate is consistent with the
+    truth by its own covariance ((theta - truth)' P^-1 (theta - truth) under the 0.999 chi-square quantile, 6
+    degrees of freedom), the thigh's and shin's uncertainties shrank below the prior, and the estimate is not
+    consistent with "no error" (negative control); on the nominal plant it is consistent with 0."""
+    tr, me = _identify(LEGS)
+    assert tr.fall is None and me.updates > 500
+    truth = _theta_true(LEGS)
+    cfg = load_controller_config(mode="both")
+    sd = np.sqrt(np.diag(me.P))
+    assert np.all(sd[:4] < prior_std(DESC, cfg.model_mass_uncertainty, cfg.model_inertia_uncertainty)[:4])
+    assert _mahalanobis(me.theta - truth, me.P) < CHI2_6_999, (me.theta, truth, sd)
+    assert _mahalanobis(me.theta, me.P) > CHI2_6_999, (me.theta, sd)
+    assert np.sign(me.theta[1]) == np.sign(truth[1]) and np.sign(me.theta[3]) == np.sign(truth[3])
+    tr0, me0 = _identify(None)
+    assert tr0.fall is None
+    assert _mahalanobis(me0.theta, me0.P) < CHI2_6_999, me0.theta
+
+
+def test_a_push_on_the_torso_does_not_leak_into_the_legs():
+    """Nominal plant, a 200 N push on the torso for 50 ms in the first step: the swing leg's rows do not
+    see it, so theta stays consistent with 0 by its own covariance, and the torso wrench carries the push
+    (F_x within 5 % of it once the observer has settled)."""
+    tr, me = _identify(None, pushes=[(0.20, 0.05, 200.0)], steps=2)
+    assert tr.fall is None
+    assert _mahalanobis(me.theta, me.P) < CHI2_6_999, me.theta
+    t = np.array(tr.t)
+    Fx = np.array([w.W[0] for w in tr.wrench])
+    inside = (t > 0.20 + 10.0 / K) & (t < 0.25)
+    assert np.all(np.abs(Fx[inside] - 200.0) < 10.0), Fx[inside]
+
+
+def test_compiled_pipeline_with_the_estimator_equals_the_python_one():
+    """The same closed loop (inertias 30 % larger, one touchdown) with the compiled pipeline and with the
+    Python cores: the same theta and torques to round-off; the compiled run without the estimator differs
+    (negative control)."""
+    py, me_py = _identify(INERTIAS, steps=2, python_sensing=True)
+    fast, me_fast = _identify(INERTIAS, steps=2, python_sensing=False)
+    assert len(set(py.stance)) == 2                 # a touchdown inside
+    n = min(len(py.sent), len(fast.sent))
+    assert n > 400
+    d = max(np.abs(a - b).max() for a, b in zip(py.sent[:n], fast.sent[:n]))
+    assert d < 1e-6, d
+    assert np.abs(me_py.theta - me_fast.theta).max() < 1e-8 * max(1.0, np.abs(me_py.theta).max())
+    off = closed_loop(1.2, INERTIAS, steps=2, python_sensing=False, momentum_observer=True, momentum_observer_gain=K)
+    m = min(n, len(off.sent))
+    assert max(np.abs(a - b).max() for a, b in zip(fast.sent[:m], off.sent[:m])) > 1e-3
+
+
+# ------------------------------------------------------------------------------ settings
+def test_settings_rejected_by_name():
+    with pytest.raises(ControllerConfigError, match="model_error_estimator needs"):
+        load_controller_config(mode="both", model_error_estimator=True, momentum_observer=False)
+    for name in ("model_mass_uncertainty", "model_inertia_uncertainty", "model_error_residual_std"):
+        with pytest.raises(ControllerConfigError, match=name):
+            load_controller_config(mode="both", model_error_estimator=True, momentum_observer=True, **{name: 0.0})
+        with pytest.raises(ModelErrorConfigError, match=name):
+            LegModelError(DESC, K, **{"mass_uncertainty": 0.2, "inertia_uncertainty": 0.2, "residual_std": 0.5,
+                                      {"model_mass_uncertainty": "mass_uncertainty",
+                                       "model_inertia_uncertainty": "inertia_uncertainty",
+                                       "model_error_residual_std": "residual_std"}[name]: float("nan")})
+    # off (the default): the value of these settings does not matter and is not checked
+    cfg = load_controller_config(mode="both", model_mass_uncertainty=0.0)
+    assert cfg.model_error_estimator is False
+
+
+# ------------------------------------------------------------------------------ survival under model error
+def test_survival_under_model_error_compares_p_with_the_unpushed_walk():
+    """The criterion (experiment module docstring): with ``p_ref`` the unpushed walk's p, a run 1.3 mm short
+    of p_d is back when the unpushed walk is 1.2 mm short (and not when it is at p_d: negative control); the
+    reference applies under model error only (not friction or noise)."""
+    from types import SimpleNamespace
+    from biped_controller.studies import experiment as ex
+    from biped_controller.studies.runner import RunResult
+    p_d = ex.context().family.p_d
+    res = RunResult(records=[], statuses=[SimpleNamespace(p=p_d - 1.3e-3, tau_dot=1.0)], steps_walked=11,
+                    fallen=False, fall_cause="", fall_detail="", fall_time=float("nan"),
+                    impacts=[SimpleNamespace(t=0.3 + 0.46 * k) for k in range(11)])
+    assert not ex.survival(res, 0.2565)[0]
+    assert ex.survival(res, 0.2565, p_ref=p_d - 1.2e-3) == (True, "survived")
+    assert not ex.survival(res, 0.2565, p_ref=p_d)[0]
+    settings = ex.RunSettings()
+    assert not ex.model_error(settings)
+    assert ex.model_error(dataclasses.replace(settings, perturbation=INERTIAS))
+    assert not ex.model_error(dataclasses.replace(settings, perturbation=PlantPerturbation(mu=0.5, noise_q=1e-4)))
+    assert ex._p_ref("both", ex.DEFAULT_START, ex.DEFAULT_DURATION, settings) is None
