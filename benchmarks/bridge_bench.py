@@ -1,6 +1,7 @@
 """Foxglove bridge: publish-to-WebSocket-frame latency and the lockstep rate with the bridge on and off.
 
-    .venv/bin/python -m benchmarks.bridge_bench [--pairs 3] [--steps 2] [--live-steps 1] [--json FILE]
+    .venv/bin/python -m benchmarks.bridge_bench     # = --pairs 0 --latency-pairs 3 --live-steps 4 --json benchmarks/bridge_results.json
+    .venv/bin/python -m benchmarks.bridge_bench [--pairs N] [--steps 2] [--latency-pairs 3] [--live-steps 4] [--json FILE]
 
 Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included) in its own ROS domain
 (``domain_coordinator``), on 127.0.0.1 only:
@@ -23,10 +24,17 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   rate-off runs too, so both sides of the rate comparison carry the same subscriber). The rate-on runs
   give the same figures under the as-fast-as-possible burst (queueing).
 
-- **latency before/after** (issue 20; ``--latency-pairs`` pairs, alternated): the real-time runs above
-  are made once per bridge setting, ``drain_batch`` 0 (one message per executor round: the bridge before
-  issue 20) and the value of ``config/graph.yaml`` (the rest of the file as committed), each with a
-  client on every channel and one on the layout's topics; every frame is counted against the bag.
+- **latency before/after** (issue 20 part 3; ``--latency-pairs`` pairs, alternated): the real-time runs above
+  are made once per setting, ``before`` (:data:`BEFORE`: the bridge and the disturbance node on rclpy's
+  Python ``SingleThreadedExecutor``, the bridge's ``drain_batch`` 64, the recorder's ``batch_wait`` 0: main's
+  settings; the code is this one in both, e.g. ``run_node``'s spin slices) and ``after`` (``config/graph.yaml`` as committed), each with a client on every channel and
+  one on the layout's topics; every frame is counted against the bag. Each run also records the 1-minute load
+  average at its start and the CPU time of every process and thread (:mod:`benchmarks.proc_cpu`, the
+  scheduler's own accounting) from the first ``/sim/state`` (the DDS probe) to the process's exit; the summary
+  gives, per setting, medians of: latency p50/p99, steps/s, the bridge's CPU per message it takes and per frame
+  it sends (all its threads: Python, Fast DDS, the SDK's tokio), the graph's CPU per control step (every node)
+  and each node's, and the after/before ratios (``before_after``). CPU per message or per step is far less
+  load-sensitive than latency on a shared machine.
 
 Percentiles: numpy ``percentile`` (linear). Nothing is asserted; figures are printed (and --json).
 """
@@ -53,9 +61,12 @@ if str(ROOT) not in sys.path:  # `python benchmarks/bridge_bench.py`
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.lockstep import _LINE  # noqa: E402  the simulator's "run over: ..." line
+from benchmarks.proc_cpu import TreeCpu  # noqa: E402
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
 LAYOUT_TOPICS = ('/sim/state', '/joint_states', '/tf')
+PROBES: list = []        # the DDS probe of each run, newest last (benchmarks.bridge_profile starts py-spy on its first state)
+CLIENT_CPU = {'s': 0.0}   # CPU s of the last client's thread (asyncio + websockets), connect to close
 START_DELAY = 2.0   # s between "graph connected" and the first state: the client subscribes meanwhile
 
 
@@ -76,6 +87,17 @@ class Domain:
         self._cm.__exit__(*exc)
 
 
+def node_name(words: list[str]) -> str | None:
+    """Process name for the CPU table: the node's executable (``.venv/lib/<pkg>/<exe>``), or the launcher."""
+    for w in words:
+        parts = w.split('/')
+        if len(parts) >= 3 and parts[-3] == 'lib' and parts[-2] in ('biped_sim', 'biped_controller'):
+            return parts[-1]
+    if 'biped_sim.graph.launch' in words:
+        return 'launcher'
+    return None
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
@@ -94,6 +116,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
             raise RuntimeError('the graph did not come up')
         await asyncio.sleep(0.05)
     ws = await websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None, open_timeout=30)
+    cpu0 = time.thread_time_ns()
     topics, frames = {}, []
     try:
         while time.monotonic() < deadline:
@@ -115,6 +138,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                 frames.append((t, frame))
     finally:
         await ws.close()
+        CLIENT_CPU['s'] = (time.thread_time_ns() - cpu0) * 1e-9
     return topics, frames
 
 
@@ -132,6 +156,7 @@ class DdsProbe:
         self.node = rclpy.create_node('bridge_bench_probe', context=self.ctx)
         spec = gn.TOPICS[gn.SIM_STATE]
         self.rows: list[tuple[int, int, bytes]] = []
+        self.first = threading.Event()   # set at the first /sim/state: the lockstep has started
         self.node.create_subscription(spec.msg_class(), spec.name, self._on_msg, recording_qos(spec.qos_profile),
                                       raw=True)
         self.executor = SingleThreadedExecutor(context=self.ctx)
@@ -142,6 +167,7 @@ class DdsProbe:
 
     def _on_msg(self, msg: bytes, info) -> None:
         self.rows.append((time.time_ns(), int(info['source_timestamp']), msg))
+        self.first.set()
 
     def _spin(self) -> None:
         while not self._stop.is_set():
@@ -164,14 +190,31 @@ def _stats(values) -> dict:
             'max': float(a.max())}
 
 
-def bridge_params(tmp: Path, drain_batch: int | None) -> Path | None:
-    """config/graph.yaml with the bridge's drain_batch replaced (None: the file as committed)."""
-    if drain_batch is None:
+# The graph's settings before issue 20 part 3 (the bridge, the disturbance node and the recorder on rclpy's Python
+# SingleThreadedExecutor; the bridge taking up to 64 waiting messages per callback, as part 2 left it; the recorder
+# without batch_wait): settings only, the code is the same in both. "after" = config/graph.yaml as committed.
+BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64},
+          'disturbance': {'executor': 'single_threaded'},
+          'recorder': {'batch_wait': 0.0}}
+
+
+# "lazy": config/graph.yaml with the bridge's lazy_streams on (it reads a per-step stream only while a client
+# watches it): what the layout's client costs when the bridge does not take the streams nobody shows.
+SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams': True}}}
+
+
+def settings_params(tmp: Path, setting: str) -> Path | None:
+    """config/graph.yaml with a setting's overrides (``SETTINGS``) written to a file; None for ``after`` (the file
+    as committed)."""
+    if setting not in SETTINGS:
+        raise ValueError(f'setting must be one of {", ".join(SETTINGS)}, got {setting!r}')
+    if SETTINGS[setting] is None:
         return None
     import yaml
     tree = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
-    tree['bridge']['ros__parameters']['drain_batch'] = int(drain_batch)
-    path = tmp / f'graph_drain_{drain_batch}.yaml'
+    for node, values in SETTINGS[setting].items():
+        tree[node]['ros__parameters'].update(values)
+    path = tmp / f'graph_{setting}.yaml'
     path.write_text(yaml.safe_dump(tree))
     return path
 
@@ -192,6 +235,9 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     with open(log, 'w') as fh:
         proc = subprocess.Popen(cmd, cwd=ROOT, env=dom.env, stdout=fh, stderr=subprocess.STDOUT)
     probe = DdsProbe(dom.id)
+    cpu = TreeCpu(proc.pid, node_name, mark_when=probe.first.is_set, period=0.05)
+    PROBES.append(probe)
+    CLIENT_CPU['s'] = 0.0
     dds_rows = []
     try:
         topics, frames = {}, []
@@ -203,12 +249,19 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
             proc.kill()
             proc.wait()
         dds_rows = probe.close()
+        cpu_table = cpu.stop()
     text = log.read_text(errors='replace')
     m = _LINE.search(text)
     out = {'live': live, 'real_time_factor': rtf, 'exit_code': proc.returncode,
            'client_topics': 'all' if only is None else list(only),
            'steps': int(m['steps']) if m else None, 'wall_s': float(m['wall']) if m else None,
            'steps_per_s': int(m['steps']) / float(m['wall']) if m and float(m['wall']) > 0 else None}
+    if live:
+        cpu_table['client'] = {'cpu_s': round(CLIENT_CPU['s'], 4)}
+    out['cpu_s'] = cpu_table
+    if m:
+        out['cpu_ms_per_step'] = {k: round(v['cpu_s'] / int(m['steps']) * 1e3, 4) for k, v in cpu_table.items()
+                                  if int(m['steps'])}
     if proc.returncode != 0 or m is None:
         out['log_tail'] = text[-1500:]
         return out
@@ -255,14 +308,61 @@ def latencies(bag: Path, topics: dict, frames: list) -> dict:
     return out
 
 
+def cpu_figures(r: dict) -> dict:
+    """CPU figures of one live run: the bridge's CPU (all its threads: Python, Fast DDS, the SDK's tokio) per
+    message it took (every message of the bag: it subscribes to every topic) and per frame it sent to the client,
+    and the graph's (every node, not the benchmark's client) and the client's CPU per control step."""
+    cpu = r.get('cpu_s', {})
+    steps = r.get('steps') or 0
+    messages = sum(r.get('bag_counts', {}).values())
+    frames = sum(r.get('frames_per_topic', {}).values())
+    bridge = cpu.get('bridge', {}).get('cpu_s', 0.0)
+    graph = sum(v['cpu_s'] for k, v in cpu.items() if k not in ('client', 'launcher'))
+    return {'bridge_us_per_message': bridge / messages * 1e6 if messages else float('nan'),
+            'bridge_us_per_frame': bridge / frames * 1e6 if frames else float('nan'),
+            'graph_cpu_ms_per_step': graph / steps * 1e3 if steps else float('nan'),
+            'client_cpu_ms_per_step': cpu.get('client', {}).get('cpu_s', 0.0) / steps * 1e3 if steps else float('nan')}
+
+
+def before_after(runs: list) -> dict:
+    """Per client kind: medians over the runs of each setting, and after/before ratios of those medians."""
+    out: dict = {}
+    for kind in ('latency', 'latency_layout'):
+        rows: dict = {}
+        for setting in ('before', 'after'):
+            sel = [r for r in runs if r['kind'] == kind and r.get('bridge') == setting and r.get('steps_per_s')]
+            if not sel:
+                continue
+            figs = [cpu_figures(r) for r in sel]
+            rows[setting] = {
+                'runs': len(sel),
+                'p50_ms': float(np.median([r['latency_ms /sim/state']['p50'] for r in sel])),
+                'p99_ms': float(np.median([r['latency_ms /sim/state']['p99'] for r in sel])),
+                'steps_per_s': float(np.median([r['steps_per_s'] for r in sel])),
+                'load_average_1min': [round(r.get('load_average_1min_at_start', float('nan')), 2) for r in sel],
+                'every_frame_delivered': all(r.get('every_frame_delivered') for r in sel),
+                **{k: float(np.median([f[k] for f in figs])) for k in figs[0]},
+                'cpu_ms_per_step_median': {
+                    node: float(np.median([r['cpu_ms_per_step'].get(node, float('nan')) for r in sel]))
+                    for node in sorted({n for r in sel for n in r.get('cpu_ms_per_step', {})})}}
+        if 'before' in rows and 'after' in rows:
+            rows['ratio_after_over_before'] = {
+                k: rows['after'][k] / rows['before'][k] for k in
+                ('p50_ms', 'p99_ms', 'steps_per_s', 'bridge_us_per_message', 'graph_cpu_ms_per_step')
+                if rows['before'][k]}
+        out[kind] = rows
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='bridge_bench', description=__doc__.split('\n\n')[0])
-    ap.add_argument('--pairs', type=int, default=3, help='off/on pairs of as-fast-as-possible runs')
+    ap.add_argument('--pairs', type=int, default=0, help='off/on pairs of as-fast-as-possible runs')
     ap.add_argument('--steps', type=int, default=2, help='walking steps per rate run')
-    ap.add_argument('--live-steps', type=int, default=1, help='walking steps of the real-time latency run')
-    ap.add_argument('--latency-pairs', type=int, default=1,
-                    help='before (drain_batch 0) / after (config/graph.yaml) pairs of real-time latency runs')
-    ap.add_argument('--json', type=Path, default=None)
+    ap.add_argument('--live-steps', type=int, default=4, help='walking steps of each real-time latency run')
+    ap.add_argument('--latency-pairs', type=int, default=3,
+                    help='before (BEFORE) / after (config/graph.yaml) pairs of real-time latency runs, alternated')
+    ap.add_argument('--json', type=Path, default=ROOT / 'benchmarks' / 'bridge_results.json',
+                    help='results file (default benchmarks/bridge_results.json)')
     a = ap.parse_args(argv)
     t0 = time.monotonic()
     runs = []
@@ -274,13 +374,15 @@ def main(argv=None) -> int:
                 runs.append(r)
                 print(json.dumps(r), flush=True)
         # real time: a client on every channel (15 topics x 1 kHz through one Python client), then one
-        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf); before (drain_batch 0)
-        # and after (config/graph.yaml), alternated
+        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf); before (BEFORE) and after
+        # (config/graph.yaml), alternated
         for k in range(a.latency_pairs):
-            for setting, drain in (('before', 0), ('after', None)):
+            for setting in ('before', 'after'):
                 for i, only in enumerate((None, LAYOUT_TOPICS)):
+                    load = os.getloadavg()[0]
                     r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
-                                  steps=a.live_steps, only=only, params=bridge_params(Path(tmp), drain))
+                                  steps=a.live_steps, only=only, params=settings_params(Path(tmp), setting))
+                    r['load_average_1min_at_start'] = load
                     r['kind'] = 'latency' if only is None else 'latency_layout'
                     r['bridge'] = setting
                     runs.append(r)
@@ -307,9 +409,22 @@ def main(argv=None) -> int:
                           f"n {s['n']}, p50 {s['p50']:.2f} ms, p99 {s['p99']:.2f} ms, max {s['max']:.2f} ms"
                           + (f", every frame: {r.get('every_frame_delivered')}, {r['steps_per_s']:.0f} steps/s"
                              if key == '/sim/state' else ''))
-    print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")
+    summary['before_after'] = before_after(runs)
     if a.json:
         a.json.write_text(json.dumps(summary, indent=2) + '\n')
+    for kind, rows in summary['before_after'].items():
+        for setting in ('before', 'after'):
+            m = rows.get(setting)
+            if m:
+                print(f"{kind:14s} {setting:6s} (medians of {m['runs']} runs): /sim/state p50 {m['p50_ms']:.2f} ms, "
+                      f"p99 {m['p99_ms']:.2f} ms; {m['steps_per_s']:.0f} steps/s; bridge CPU {m['bridge_us_per_message']:.1f} us "
+                      f"per message it takes, {m['bridge_us_per_frame']:.1f} us per frame sent; graph CPU "
+                      f"{m['graph_cpu_ms_per_step']:.3f} ms per control step (client {m['client_cpu_ms_per_step']:.3f}); "
+                      f"every frame in every run: {m['every_frame_delivered']}; per node (ms per step): "
+                      + ', '.join(f'{n} {v:.3f}' for n, v in m['cpu_ms_per_step_median'].items()))
+        if 'ratio_after_over_before' in rows:
+            print(f"{kind:14s} after/before: " + ', '.join(f'{k} {v:.2f}' for k, v in rows['ratio_after_over_before'].items()))
+    print(f"load average {summary['load_average_at_end']}, {summary['wall_s']:.0f} s")
     return 0 if all(r['exit_code'] == 0 for r in runs) else 1
 
 

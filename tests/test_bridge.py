@@ -357,7 +357,8 @@ async def _wait_ready(proc, ready: Path, timeout=120.0) -> None:
 @pytest.mark.parametrize('param,named', [('port:=70000', 'port'), ("host:=''", 'host'),
                                          ('service_timeout:=0.0', 'service_timeout'),
                                          ('message_backlog:=1', 'message_backlog'),
-                                         ('drain_batch:=-1', 'drain_batch')])
+                                         ('drain_batch:=-1', 'drain_batch'), ('executor:=asyncio', 'executor'),
+                                         ('reconcile_period:=0.0', 'reconcile_period')])
 def test_bad_parameter_exits_2_naming_it(ros_domain, param, named):
     r = subprocess.run([_bridge_exe(), '--ros-args', '-p', param], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
@@ -508,16 +509,18 @@ def test_bridge_subscribes_to_a_stream_only_while_a_client_watches_it(rclpy_cont
     assert after, 'dropped after the last unsubscribe'
 
 
-@pytest.mark.parametrize('drain_batch', [0, 64])
-def test_bridge_passes_a_burst_on_in_order(rclpy_context, drain_batch):
-    """A burst of 3000 /joint_states published at once (the bridge's queue fills): with messages taken
-    drain_batch at a time after the executor's one (64, config/graph.yaml) as with one per executor round
+@pytest.mark.parametrize('executor,drain_batch', [('events', 0), ('single_threaded', 0), ('single_threaded', 64)])
+def test_bridge_passes_a_burst_on_in_order(rclpy_context, executor, drain_batch):
+    """A burst of 3000 /joint_states published at once (the bridge's queue fills): on rclpy's EventsExecutor
+    (config/graph.yaml: one message per callback, taken in C++), and on the SingleThreadedExecutor with messages
+    taken drain_batch at a time after the executor's one (64, before issue 20 part 3) or one per executor round
     (0), the client gets every one, once, in publication order."""
     import rclpy
     from sensor_msgs.msg import JointState
     from biped_sim.graph import names as gn
     port = _free_port()
-    proc = subprocess.Popen([_bridge_exe(), '--ros-args', '-p', f'port:={port}', '-p', f'drain_batch:={drain_batch}'],
+    proc = subprocess.Popen([_bridge_exe(), '--ros-args', '-p', f'port:={port}', '-p', f'drain_batch:={drain_batch}',
+                             '-p', f'executor:={executor}'],
                             env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     node = rclpy.create_node('burst_pub', context=rclpy_context)
     pub = node.create_publisher(JointState, gn.JOINT_STATES, gn.TOPICS[gn.JOINT_STATES].qos_profile)

@@ -60,6 +60,7 @@ CASES = [
     ('biped_sim', 'simulator', 'perturbation.noise_pitch_rate:=-0.1', 'perturbation.noise_pitch_rate'),
     ('biped_sim', 'disturbance', 'max_force:=-5.0', 'max_force'),
     ('biped_sim', 'disturbance', 'description_path:=/nonexistent.yaml', 'description_path'),
+    ('biped_sim', 'disturbance', 'executor:=multi', 'executor'),
 ]
 
 

@@ -22,8 +22,10 @@ published at start.
 
 Parameters: ``max_force`` (N, default 2000), ``max_duration`` (s, default 1.0), ``horizon`` (s of sim
 time, default 3600: the latest start accepted; the launcher sets it to the simulator's ``max_time`` when
-one is given), ``push_height`` (m, default config/simulator.yaml), the schedule arrays;
-``use_sim_time`` is forced true.
+one is given), ``push_height`` (m, default config/simulator.yaml), the schedule arrays, ``executor``
+(``events`` | ``single_threaded``, default config/graph.yaml: ``events``; the node's only per-step work is
+the 1 kHz ``/clock`` of ``use_sim_time``, which under rclpy's Python ``SingleThreadedExecutor`` cost a wait-set
+round each, 0.3-0.5 ms of CPU per control step, issue 20); ``use_sim_time`` is forced true.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from biped_sim.robot.description import DescriptionError, load_description
 from biped_sim.plant.push import PushBook, PushLimits, Rejected
 from biped_sim.graph.params import (
     ParameterError,
+    declare_executor,
     get_float,
     get_float_list,
     get_str,
@@ -67,6 +70,7 @@ class DisturbanceNode(Node):
         default_height = get_float(self, 'push_height', load_sim_config().push_height, lo=0.0,
                                    hi=desc.torso.length)
         horizon = get_float(self, 'horizon', lo=0.0, lo_open=True)
+        declare_executor(self)
         self.book = PushBook(PushLimits(max_force, max_duration, desc.torso.length, default_height, horizon))
         forces = get_float_list(self, 'schedule_forces')
         starts = get_float_list(self, 'schedule_starts')

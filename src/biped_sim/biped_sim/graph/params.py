@@ -28,6 +28,7 @@ from rclpy.node import Node
 
 EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
+SPIN_SLICE = 0.1    # s between two looks of run_node at its stop conditions (signal, node.done, context)
 ACK_TIMEOUT = 5.0   # s a stopping node waits for its reliable subscribers' acknowledgements: longer than Fast DDS's
                     # heartbeat period (3 s), the wait of a sample lost on the way (re-sent after the next heartbeat)
                     # (the launcher gives 10 s from SIGINT to SIGTERM)
@@ -206,6 +207,21 @@ def declare_executor(node: Node) -> str:
     return v
 
 
+def _spinner(executor) -> Callable[[], None]:
+    """One slice of spinning for ``run_node``'s loop. rclpy's SingleThreadedExecutor: ``spin_once`` (one callback,
+    at most SPIN_SLICE s of waiting). The EventsExecutor: every event for SPIN_SLICE s, through its
+    ``spin_until_future_complete`` on a future that never completes (this rclpy's ``spin`` takes no timeout):
+    its ``spin_once`` returns after each callback, and the loop's own checks around it (``rclpy.ok``: the
+    context's lock) took 15-20 % of the bridge's thread at 10 messages per millisecond (issue 20 part 3,
+    py-spy). A signal or ``node.done`` is then seen within SPIN_SLICE s."""
+    from rclpy.executors import SingleThreadedExecutor
+    if isinstance(executor, SingleThreadedExecutor):
+        return lambda: executor.spin_once(timeout_sec=SPIN_SLICE)
+    from rclpy.task import Future
+    never = Future()
+    return lambda: executor.spin_until_future_complete(never, timeout_sec=SPIN_SLICE)
+
+
 def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_errors: tuple = ()) -> int:
     """The ``main()`` of every node: init rclpy without its signal handlers, build the node (a
     ``ParameterError`` or one of ``startup_errors`` -> a message on stderr and exit code
@@ -230,9 +246,10 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
         previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
         executor = make_executor(node)
         executor.add_node(node)
+        spin = _spinner(executor)
         try:
             while stop['signal'] is None and not getattr(node, 'done', False) and rclpy.ok(context=node.context):
-                executor.spin_once(timeout_sec=0.1)
+                spin()
         except (ExternalShutdownException, KeyboardInterrupt):
             pass
         finally:

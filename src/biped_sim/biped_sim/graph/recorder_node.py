@@ -5,8 +5,12 @@ Node ``recorder``. Every topic of :data:`biped_sim.graph.names.TOPICS` is subscr
 For each message:
 
 - ``log_time``  = the sim time of the latest ``/clock`` the recorder has recorded before this message (so
-  log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); before
-  the first one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
+  log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); what one
+  callback takes from every subscription is recorded in publication order (DDS source timestamp), so that is the
+  ``/clock`` published before the message (a ``/sim/state``'s log time is its own stamp) unless DDS delivered the
+  message after a later ``/clock`` was taken (each topic keeps its order, topics among themselves need not: 0-10 of
+  928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``); before the first
+  one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
 - ``publish_time`` = the source timestamp DDS hands over in the message info.
 
 Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad one makes
@@ -22,6 +26,12 @@ Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad o
   held for the recorder). ``config/graph.yaml`` sets it.
 - ``sync``        (bool; default: ``config/graph.yaml``): ``fdatasync`` each chunk (a power cut then loses at most the chunk
   being built; without it, what the kernel had not written back yet too).
+- ``batch_wait``  (float s, 0 .. 0.1; default: ``config/graph.yaml``): after each executor callback (the message
+  and what waited on every subscription) the recorder's thread sleeps this long, so a real-time graph's
+  messages are taken in batches of a step or more instead of one rclpy wait-set round (Python: every
+  subscription, task, callback; ~0.1-0.3 ms of CPU) for every few messages (issue 20: the recorder spent 97 %
+  of its thread in those rounds at real time). It adds at most ``batch_wait`` to a message's time in the
+  recorder's DDS queue (deep enough: ``STREAM_DEPTH``) and to what a SIGKILL loses. 0 = no wait.
 
 The bag is finished cleanly on SIGINT and SIGTERM (own handlers stop the spin loop, then
 ``finish()`` runs) and when the ROS context is shut down by anything else.
@@ -39,6 +49,7 @@ from typing import Dict, List, Optional
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
@@ -61,6 +72,7 @@ MIN_CHUNK_SIZE = 4096
 MAX_CHUNK_SIZE = 1 << 30
 MIN_CHUNK_TIME = 0.001   # s: below, a chunk per message or two (the index would outweigh the data)
 MAX_CHUNK_TIME = 3600.0
+MAX_BATCH_WAIT = 0.1     # s: above, the wait would rival chunk_time in what a SIGKILL loses
 
 
 def _policy_name(value, table: Dict[object, str]) -> str:
@@ -140,7 +152,10 @@ class RecorderNode(Node):
         self.declare_parameter("chunk_size", DEFAULT_CHUNK_SIZE)
         self.declare_parameter("chunk_time", float(graph_default(graph_names.RECORDER_NODE, "chunk_time")))
         self.declare_parameter("sync", bool(graph_default(graph_names.RECORDER_NODE, "sync")))
-        output_dir, compression, chunk_size, chunk_time, sync = self._read_parameters()
+        # dynamic typing: a value of the wrong type is named by _read_parameters (exit 2), not refused by rclpy
+        self.declare_parameter("batch_wait", float(graph_default(graph_names.RECORDER_NODE, "batch_wait")),
+                               ParameterDescriptor(name="batch_wait", dynamic_typing=True))
+        output_dir, compression, chunk_size, chunk_time, sync, self.batch_wait = self._read_parameters()
 
         self.failure: Optional[RecorderError] = None
         self._sim_ns: Optional[int] = None   # sim time [ns] of the latest /clock recorded (the log time)
@@ -193,7 +208,13 @@ class RecorderNode(Node):
             raise ParameterError(
                 "chunk_time", f"must be 0 (by size only) or in [{MIN_CHUNK_TIME}, {MAX_CHUNK_TIME}] s; got {chunk_time}")
         sync = value("sync", Parameter.Type.BOOL)
-        return output_dir, compression, chunk_size, chunk_time, sync
+        raw = self.get_parameter("batch_wait")
+        if raw.type_ not in (Parameter.Type.DOUBLE, Parameter.Type.INTEGER):
+            raise ParameterError("batch_wait", f"expected a number of seconds, got {raw.type_.name.lower()}")
+        batch_wait = float(raw.value)
+        if not 0.0 <= batch_wait <= MAX_BATCH_WAIT:
+            raise ParameterError("batch_wait", f"must be in [0, {MAX_BATCH_WAIT}] s; got {batch_wait}")
+        return output_dir, compression, chunk_size, chunk_time, sync, batch_wait
 
     @staticmethod
     def _prefixes_list() -> List[Path]:
@@ -228,20 +249,28 @@ class RecorderNode(Node):
 
     def _on_message(self, spec, msg: bytes, info) -> None:
         """One message from the executor, then what is already waiting on *every* subscription, taken
-        directly (:meth:`_take_waiting`, at most DRAIN_BATCH). The executor's round per message (Python wait
-        set over every subscription, task, callback) costs more than writing the message: at 1 kHz x 15
-        topics, taking only the subscription that fired left the recorder ~0.3-0.5 s behind a real-time
-        graph on a loaded 2-core machine (issue 20), and what DDS still holds for the recorder dies with it
-        on SIGKILL."""
-        self._record(spec, msg, info)
-        self._take_waiting(DRAIN_BATCH)
+        directly (:meth:`_take_waiting`, at most DRAIN_BATCH), all recorded in the order they were published.
+        The executor's round per message (Python wait set over every subscription, task, callback) costs more
+        than writing the message: at 1 kHz x 15 topics, taking only the subscription that fired left the
+        recorder ~0.3-0.5 s behind a real-time graph on a loaded 2-core machine (issue 20), and what DDS still
+        holds for the recorder dies with it on SIGKILL. Then the thread sleeps ``batch_wait`` s, so that the
+        next round finds a control step's messages (and more) waiting instead of waking for each (module
+        docstring)."""
+        self._take_waiting(DRAIN_BATCH, first=(spec, msg, info))
+        if self.batch_wait > 0.0:
+            time.sleep(self.batch_wait)
 
-    def _take_waiting(self, budget: int) -> int:
+    def _take_waiting(self, budget: int, first=None) -> int:
         """Take what waits in the subscriptions' DDS queues, in passes over every subscription with at most
         DRAIN_PER_TOPIC from each per pass (each topic's messages in their order; a lagging recorder's
         backlog on the first topics never starves the later ones: a pass that took everything of /clock
         before looking at /push_events left the later topics' tail unrecorded when the drain ended), until
-        a pass takes nothing or ``budget`` messages are taken. Returns how many were taken."""
+        a pass takes nothing or ``budget`` messages are taken; then record them (with ``first``, a message the
+        executor already took) sorted by their DDS source timestamp, so that each message's log time is the
+        latest ``/clock`` published before it whichever topic was read first (with ``batch_wait`` a batch
+        holds a step or more: read topic by topic, 707 of 928 ``/sim/state`` of a real-time run got the next
+        step's ``/clock`` as log time). Returns how many were taken (``first`` not counted)."""
+        batch = [] if first is None else [first]
         taken_total = 0
         while taken_total < budget:
             taken_pass = 0
@@ -250,17 +279,21 @@ class RecorderNode(Node):
                 taken_topic = 0
                 while sub is not None and taken_topic < DRAIN_PER_TOPIC and taken_total < budget:
                     if self.failure is not None or self._writer.finished:
-                        return taken_total
+                        break
                     with sub.handle:
                         taken = sub.handle.take_message(sub.msg_type, True)
                     if taken is None:
                         break
-                    self._record(other, taken[0], taken[1])
+                    batch.append((other, taken[0], taken[1]))
                     taken_topic += 1
                     taken_total += 1
                 taken_pass += taken_topic
             if taken_pass == 0:
                 break
+        # stable sort: equal timestamps (or none) keep the order they were taken in
+        batch.sort(key=lambda item: int(item[2]["source_timestamp"]) if item[2] else 0)
+        for spec, msg, info in batch:
+            self._record(spec, msg, info)
         return taken_total
 
     def _publishers_left(self) -> int:

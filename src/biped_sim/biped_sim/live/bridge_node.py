@@ -2,8 +2,8 @@
 
 Topics. Every topic of :data:`biped_sim.graph.names.TOPICS` is served and subscribed from the start; with
 ``lazy_streams`` a per-step stream (``graph_names.STREAM_QOS``) only while at least one client is
-subscribed to its channel (subscribed and dropped on the executor's thread; ``/clock``, the latched and the
-event topics always). Subscriptions are ``raw=True`` (the CDR
+subscribed to its channel (subscribed and dropped on the executor's thread, by a timer every
+``reconcile_period``; ``/clock``, the latched and the event topics always). Subscriptions are ``raw=True`` (the CDR
 bytes are passed through, never deserialized) and the recorder's QoS (the topic's reliability and
 durability, a keep-last history of at least ``recorder_node.RECORDING_DEPTH``: a lagging bridge loses
 nothing, latched and event topics reach it). Each is served on a Foxglove channel with the schema
@@ -39,14 +39,21 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``message_backlog`` (int 16..1000000, default 20000): messages queued per client before the
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
-- ``drain_batch`` (int 0..100000; 0 = one message per executor round): after the message the executor handed over, at most this
-  many more are taken directly, in the same callback, from *every* subscription (passes over them until
-  one takes nothing; each topic's messages in their order; ``/clock`` first in each pass, so the log time
-  is the newest sim time), as the recorder does. The executor's round per message (rclpy's
-  ``SingleThreadedExecutor`` in Python: wait set over every subscription, task, callback) costs far more
-  than passing the message on, and at 15 topics x 1 kHz the bridge fell behind the graph (issue 20:
-  ``/sim/state`` 25-28 ms late at p50); 0 = one message per round, the behaviour before.
-  ``config/graph.yaml`` sets it.
+- ``executor`` (``events`` | ``single_threaded``; ``config/graph.yaml``: ``events``): rclpy's C++
+  ``EventsExecutor`` or its Python ``SingleThreadedExecutor``. Issue 20 part 3 (``benchmarks/bridge_profile``,
+  py-spy at real time): on the ``SingleThreadedExecutor`` 86-90 % of the bridge's Python thread went to the
+  executor's rounds (wait set rebuilt over every subscription, timer and service entity, task, callback), 9-19 %
+  to ``Channel.log`` and 1-2 % to the bridge's own code; the bridge cost 0.9-1.7 ms of CPU per control step,
+  as much as the simulator. The ``EventsExecutor`` takes each message in C++ and calls the handler directly
+  (its raw, message-only subscriptions work; it takes no guard condition, hence ``reconcile_period``).
+- ``drain_batch`` (int 0..100000; ``config/graph.yaml``: 0): with ``single_threaded``, after the message the
+  executor handed over, at most this many more are taken directly, in the same callback, from *every*
+  subscription (passes over them until one takes nothing; each topic's messages in their order; ``/clock``
+  first in each pass, so the log time is the newest sim time), as the recorder does (issue 20 part 2: 64);
+  0 = the handler is the subscription's callback (one message per callback: the ``EventsExecutor``'s way,
+  where a drain would only add empty takes).
+- ``reconcile_period`` (s, 0.001..10; ``config/graph.yaml``): with ``lazy_streams``, how often a steady timer
+  looks at which streams the clients watch (the SDK's threads only mark a change).
 
 Exit status: 0 on SIGINT/SIGTERM, 2 for a bad parameter or a server that cannot start (port in use).
 """
@@ -60,6 +67,7 @@ import time
 from typing import List, Optional
 
 from rclpy._rclpy_pybind11 import RMWError
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
 
@@ -73,7 +81,15 @@ from biped_sim.live.bridge_core import (
     service_definition,
 )
 from biped_sim.recording.mcap_recorder import RecorderError, build_message_definition
-from biped_sim.graph.params import ParameterError, get_bool, get_float, get_int, get_str, run_node
+from biped_sim.graph.params import (
+    ParameterError,
+    declare_executor,
+    get_bool,
+    get_float,
+    get_int,
+    get_str,
+    run_node,
+)
 from biped_sim.graph.recorder_node import RecorderNode, recording_qos
 
 NODE_NAME = gn.BRIDGE_NODE
@@ -151,6 +167,8 @@ class BridgeNode(Node):
         # stream subscribed on demand starts after DDS discovery, some 0.1-0.3 s of messages later)
         self.lazy_streams = get_bool(self, 'lazy_streams')
         self.drain_batch = get_int(self, 'drain_batch', lo=0, hi=100_000)
+        self.executor_kind = declare_executor(self)
+        self.reconcile_period = get_float(self, 'reconcile_period', lo=0.001, hi=10.0)
 
         self.sim_time_ns = 0
         self.clock_errors = 0
@@ -205,10 +223,13 @@ class BridgeNode(Node):
         self._handlers: dict = {}
         self._wanted: dict[str, int] = {}         # topic -> clients subscribed (SDK threads, under _lock)
         self._lock = threading.Lock()
+        self._dirty = False                       # a client (un)subscribed to a stream since the last reconcile
         for spec in specs:
             if spec.name not in self._streams:
                 self._subscribe(spec.name)
-        self._reconcile_guard = self.create_guard_condition(self._reconcile)
+        if self._streams:   # the EventsExecutor takes no guard condition: a steady timer looks for changes
+            self._reconcile_timer = self.create_timer(
+                self.reconcile_period, self._reconcile, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
             f'serving {len(specs)} topics and {gn.APPLY_PUSH} on ws://{self.host}:{self.port} '
             f'(Foxglove: Open connection > Foxglove WebSocket)')
@@ -258,13 +279,18 @@ class BridgeNode(Node):
     def _subscribe(self, topic: str) -> None:
         spec = self._specs[topic]
         self._handlers[topic] = self._handler(topic)
-        callback = functools.partial(self._on_ready, topic)
+        # drain_batch 0: the handler itself (one message per executor callback, the EventsExecutor's way)
+        callback = functools.partial(self._on_ready, topic) if self.drain_batch else self._handlers[topic]
         self._ros_subs[topic] = self.create_subscription(spec.msg_class(), topic, callback,
                                                          recording_qos(spec.qos_profile), raw=True)
 
     def _reconcile(self) -> None:
-        """(executor thread) Subscribe to the streams some client watches, drop the others."""
+        """(executor thread, every ``reconcile_period``) Subscribe to the streams some client watches, drop the
+        others."""
         with self._lock:
+            if not self._dirty:
+                return
+            self._dirty = False
             wanted = {t for t, n in self._wanted.items() if n > 0}
         for topic in sorted(self._streams):
             if topic in wanted and topic not in self._ros_subs:
@@ -282,8 +308,7 @@ class BridgeNode(Node):
         self.get_logger().info(f'client {client_id} subscribed to {topic}')
         with self._lock:
             self._wanted[topic] = self._wanted.get(topic, 0) + 1
-        if topic in self._streams:
-            self._reconcile_guard.trigger()
+            self._dirty = True
         last = self._latched.get(topic)
         if last is not None:
             self._channels[topic].log(last, log_time=self.sim_time_ns)
@@ -293,8 +318,7 @@ class BridgeNode(Node):
         self.get_logger().info(f'client {client_id} unsubscribed from {topic}')
         with self._lock:
             self._wanted[topic] = max(0, self._wanted.get(topic, 0) - 1)
-        if topic in self._streams:
-            self._reconcile_guard.trigger()
+            self._dirty = True
 
     # ------------------------------------------------------------------ /apply_push
     def _on_service_call(self, request) -> bytes:
