@@ -49,6 +49,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
 from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
@@ -78,9 +79,75 @@ def _bumped(desc: RobotDescription, link: str, name: str) -> RobotDescription:
     return dataclasses.replace(desc, **{link: dataclasses.replace(part, **{name: getattr(part, name) + 1.0})})
 
 
+#: which joint of ``build_fixed_foot_model`` carries which link's body (the stance foot rides on the locked
+#: root pitch joint; every joint carries exactly one body, appended at the joint's origin)
+LINK_JOINTS: dict[str, tuple[str, str]] = {"thigh": ("q2_stance_knee", "q4_swing_hip"),
+                                           "shin": ("q1_stance_ankle", "q5_swing_knee"),
+                                           "foot": ("root_pitch", "q6_swing_ankle")}
+_VECH = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))   # Pinocchio's order of I in the dynamic parameters
+
+
+def parameter_bumps(model: pin.Model) -> tuple[np.ndarray, np.ndarray]:
+    """The combination of the joint torque regressor's columns that gives Y: (joints (k,), D (k, 10, 6)).
+
+    Pinocchio's dynamic parameters of the body on joint i (``Inertia.toDynamicParameters``, the columns
+    10 (i - 1) .. 10 i - 1 of ``computeJointTorqueRegressor``) are pi_i = [m, m c_x, m c_y, m c_z, I_xx,
+    I_xy, I_yy, I_xz, I_yz, I_zz], c the centre of mass and I the rotational inertia about the joint frame's
+    origin, in the joint frame: I = I_c + m (|c|^2 1 - c c^T). With c and I_c fixed, d pi / d m =
+    [1, c, vech(|c|^2 1 - c c^T)] (the parallel-axis term: for a centre of mass on the link's axis z,
+    c = (0, 0, c_z), it adds c_z^2 to I_xx and I_yy); the description's scalar inertia is the model's
+    I_c = I 1 (``fixed_foot._inertia``), so d pi / d I = [0, 0, 0, 0, 1, 0, 1, 0, 0, 1] (only I_yy, about the
+    plane's normal, reaches the planar rows). Both legs' bodies of a link (``LINK_JOINTS``) carry the
+    parameter, so its column of Y is the sum over them: Y = sum_k R[:, cols(joint_k)] D_k."""
+    joints, blocks = [], []
+    for j, (link, name) in enumerate(LEG_PARAMETERS):
+        for jname in LINK_JOINTS[link]:
+            jid = model.getJointId(jname)
+            if jid >= model.njoints:
+                raise ValueError(f"the fixed-foot model has no joint {jname!r}")
+            c = np.array(model.inertias[jid].lever)
+            d = np.zeros(10)
+            if name == "mass":
+                S = (c @ c) * np.eye(3) - np.outer(c, c)
+                d[0], d[1:4] = 1.0, c
+                d[4:] = [S[r, s] for r, s in _VECH]
+            else:
+                d[4:] = [1.0 if r == s else 0.0 for r, s in _VECH]
+            if jid not in joints:
+                joints.append(jid)
+                blocks.append(np.zeros((10, len(LEG_PARAMETERS))))
+            blocks[joints.index(jid)][:, j] += d
+    return np.array(joints), np.array(blocks)
+
+
 class LegRegressor:
-    """Y(q, q', q'') (9, 6) of the module docstring: RNEA of the locked-root chain with one leg parameter
-    raised by one unit, minus RNEA of the model (own Pinocchio models and data)."""
+    """Y(q, q', q'') (9, 6) of the module docstring from Pinocchio's joint torque regressor R (9, 10 n) of the
+    locked-root chain (``pin.computeJointTorqueRegressor``: tau = R pi, pi the stacked dynamic parameters,
+    its own ``Data``), combined into the six leg parameters by ``parameter_bumps``: one Pinocchio pass and
+    one (9, 90) x (90, 6) product a call. Rows: root x [N], z [N], pitch [N m], then q1..q6 [N m]."""
+
+    def __init__(self, desc: RobotDescription):
+        self.base = FixedFootModel(desc)
+        self._model = self.base.model
+        self._data = self._model.createData()
+        joints, D = parameter_bumps(self._model)
+        self._D = np.zeros((10 * (self._model.njoints - 1), len(LEG_PARAMETERS)))   # zero off the legs' joints
+        for i, Di in zip(joints, D):
+            self._D[10 * (i - 1):10 * i] = Di
+        self._q = np.zeros(self._model.nq)
+        self._v = np.zeros(self._model.nv)
+        self._a = np.zeros(self._model.nv)
+
+    def __call__(self, q: np.ndarray, qd: np.ndarray, a: np.ndarray) -> np.ndarray:
+        self._q[3:], self._v[3:], self._a[3:] = q, qd, a
+        R = pin.computeJointTorqueRegressor(self._model, self._data, self._q, self._v, self._a)
+        return R @ self._D
+
+
+class RneaLegRegressor:
+    """The reference oracle of ``LegRegressor`` (its first implementation, kept for the tests and the
+    benchmark): column j = RNEA of the locked-root chain with parameter j raised by one unit minus RNEA of the
+    model (exact: RNEA is linear in the inertial parameters); 7 models, 7 RNEA calls a call."""
 
     def __init__(self, desc: RobotDescription):
         self.base = FixedFootModel(desc)
@@ -120,6 +187,8 @@ class LegModelError:
         self.model = self.reg.base
         self.P0 = np.diag(prior_std(desc, mass_uncertainty, inertia_uncertainty) ** 2)
         self.var_res = float(residual_std) ** 2
+        self._Rres = self.var_res * np.eye(3)
+        self._I = np.eye(len(LEG_PARAMETERS))
         self.reset()
 
     def reset(self) -> None:
@@ -169,26 +238,29 @@ class LegModelError:
             self._Yf = f * self._Yf + (1.0 - f) * Ymid
             # RLS on the swing rows: r_s = H theta + noise, H = -(Y_f)_s
             H = -self._Yf[SWING]
-            Rm = self.var_res * np.eye(3)
+            Rm = self._Rres
             if cov_qd is not None:
-                Rm = Rm + (K * K) * (dyn.A @ cov_qd @ dyn.A)[SWING, SWING]
+                As = dyn.A[SWING]
+                Rm = Rm + (K * K) * (As @ cov_qd @ As.T)      # = (A Sigma A)_s, A symmetric
             PHt = self.P @ H.T
             Sm = H @ PHt + Rm
             gain = np.linalg.solve(Sm, PHt.T).T
             self.theta = self.theta + gain @ (obs.r[SWING] - H @ self.theta)
-            IKH = np.eye(len(self.theta)) - gain @ H
+            IKH = self._I - gain @ H
             self.P = IKH @ self.P @ IKH.T + gain @ Rm @ gain.T      # Joseph form
             self.updates += 1
-        self._Yprev = Yj.copy()
+        self._Yprev = Yj
         # the torso wrench from what the legs' error does not explain
         decay = math.exp(-K * since)
         r_t = obs.r + self._Yf @ self.theta - Jj.T @ ((W_obs_restart - self._W_t_restart) * decay)
-        pinv = np.linalg.pinv(Jj.T)
+        # J_j^{T+} = (J_j J_j^T)^-1 J_j: J_j (3, 6) has full row rank (the torso point's x, z and the sum
+        # of the stance joints' rates, independent for any q), so the pseudo-inverse is the normal equations'
+        pinv = np.linalg.solve(Jj @ Jj.T, Jj)
         W_t = pinv @ r_t
         self._W_t = W_t.copy()
-        cov_W = (obs.cov_W - np.diag((W_obs_restart * decay) ** 2)
-                 + np.diag((self._W_t_restart * decay) ** 2))
-        G = (-dyn.B @ np.linalg.solve(dyn.A, Yj) + Y[:3])[:2]
+        cov_W = obs.cov_W + np.diag((self._W_t_restart * decay) ** 2 - (W_obs_restart * decay) ** 2)
+        # G = (-B A^-1 Y_j + Y_r)[:2], A^-1 Y_j with the A^-1 of the acceleration's system
+        G = Y[:2] - dyn.B[:2] @ np.linalg.solve(dyn.A, Yj)
         Gt = G + obs.S @ pinv @ self._Yf
         dR = obs.S @ W_t + G @ self.theta
         cov_dR = obs.S @ cov_W @ obs.S.T + Gt @ self.P @ Gt.T
