@@ -23,7 +23,9 @@ them (centre of mass fixed, inertia about it): the error's generalized force on 
     e(q, q', q'') = M_p [0; q''] + h_p - (M_m [0; q''] + h_m) = Y(q, q', q'') theta   (9 rows: root x, z,
     pitch, then the six joints),
 with column j of Y = RNEA of the model with parameter j raised by one unit minus RNEA of the model (exact:
-RNEA is linear in the inertial parameters). The observer's r is tau_d = -e_j through its first-order filter
+RNEA is linear in the inertial parameters), computed as Pinocchio's joint torque regressor (9 x 10 per joint
+body) times the parameter's change of the bodies' dynamic parameters (``parameter_bumps``, ``LegRegressor``;
+the RNEA differences are kept as ``RneaLegRegressor``, the tests' oracle). The observer's r is tau_d = -e_j through its first-order filter
 (r' = K (tau_d - r)), so its swing-leg rows obey r_s = -(Y_f theta)_s, Y_f the joint rows of Y through the
 same filter (discrete: Y_f <- e^{-K dt} Y_f + (1 - e^{-K dt}) (Y_{k-1} + Y_k) / 2, restarted at 0 with the
 observer, whose restart leaves the swing rows at 0). theta is estimated by recursive least squares (a
@@ -220,12 +222,13 @@ class LegModelError:
         qd = np.asarray(qd, dtype=float)
         dyn = self.model.dynamics(q, qd)
         K = self.K
+        Ainv = np.linalg.inv(dyn.A)          # once: the acceleration and G (A symmetric positive definite)
         if restarted or applied is None:
             tq = relabel(self._last_torque) if self._last_torque is not None else np.zeros(6)
-            acc = np.linalg.solve(dyn.A, tq - dyn.H)
+            acc = Ainv @ (tq - dyn.H)
         else:
             tq = np.asarray(applied, dtype=float)
-            acc = np.linalg.solve(dyn.A, tq - dyn.H + obs.r)
+            acc = Ainv @ (tq - dyn.H + obs.r)
             self._last_torque = tq.copy()
         Y = self.reg(q, qd, acc)
         Yj = Y[3:]
@@ -259,8 +262,7 @@ class LegModelError:
         W_t = pinv @ r_t
         self._W_t = W_t.copy()
         cov_W = obs.cov_W + np.diag((self._W_t_restart * decay) ** 2 - (W_obs_restart * decay) ** 2)
-        # G = (-B A^-1 Y_j + Y_r)[:2], A^-1 Y_j with the A^-1 of the acceleration's system
-        G = Y[:2] - dyn.B[:2] @ np.linalg.solve(dyn.A, Yj)
+        G = Y[:2] - (dyn.B[:2] @ Ainv) @ Yj          # (-B A^-1 Y_j + Y_r)[:2]
         Gt = G + obs.S @ pinv @ self._Yf
         dR = obs.S @ W_t + G @ self.theta
         cov_dR = obs.S @ cov_W @ obs.S.T + Gt @ self.P @ Gt.T
