@@ -14,8 +14,8 @@ from biped_sim.plant.perturbation import PlantPerturbation
 
 from biped_controller.core.controller import ControllerConfigError, load_controller_config
 from biped_controller.core.model_error import (LEG_PARAMETERS, LINK_JOINTS, LegModelError, LegRegressor,
-                                                ModelErrorConfigError, RneaLegRegressor, _bumped, parameter_bumps,
-                                                prior_std)
+                                                ModelErrorConfigError, RneaLegRegressor, _bumped,
+                                                load_model_error_kernels, parameter_bumps, prior_std)
 from biped_sim.robot.fixed_foot import relabel
 
 from estimation_loop import closed_loop
@@ -118,6 +118,48 @@ def test_parameter_bumps_are_pinocchios_dynamic_parameter_differences():
             mine = D[list(joints).index(i), :, j] if i in joints else np.zeros(10)
             assert np.abs(mine - diff).max() < 1e-12, (link, name, base.names[i])
     assert sorted(base.names[int(i)] for i in joints) == sorted(n for js in LINK_JOINTS.values() for n in js)
+
+
+def _combine_case(rng, restarted: bool, has_prev: bool, use_cov: bool):
+    """Seeded inputs of ``combine_*`` at a real model state (A, B, Y from the model and the regressor)."""
+    q, qd, a = next(_states(1, int(rng.integers(1 << 30))))
+    dyn = FixedFootModel(DESC).dynamics(q, qd)
+    Y = LegRegressor(DESC)(q, qd, a)
+    L = rng.normal(size=(6, 6))
+    Jj = np.vstack([rng.normal(size=(2, 6)), [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]])
+    M = rng.normal(size=(3, 3))
+    inputs = [Y, dyn.A, dyn.B, np.linalg.inv(dyn.A), rng.normal(0, 5, 6), rng.normal(size=(2, 3)), M @ M.T,
+              rng.normal(0, 20, 3), Jj, 1e-4 * L @ L.T, use_cov, K, 1e-3, 0.01 * rng.uniform(), restarted, has_prev,
+              0.25 * np.eye(3)]
+    P = rng.normal(size=(6, 6))
+    state = [rng.normal(0, 0.05, 6), 1e-3 * P @ P.T + 1e-4 * np.eye(6), rng.normal(size=(6, 6)),
+             rng.normal(size=(6, 6)), rng.normal(0, 20, 3)]
+    return inputs, state
+
+
+def test_compiled_combination_equals_the_numpy_one():
+    """``combine_kernel`` (Numba) = ``combine`` run by NumPy on every output and the updated state,
+    to 1e-10 relative, at seeded inputs on every branch (restart or not, a previous Y or not, rate covariance
+    or not); negative control: the same inputs with dt doubled differ."""
+    kern = load_model_error_kernels()
+    combine_numpy, combine_kernel = kern.combine, kern.combine_kernel
+    rng = np.random.default_rng(4)
+    for restarted in (False, True):
+        for has_prev in (False, True):
+            for use_cov in (False, True):
+                inputs, state = _combine_case(rng, restarted, has_prev, use_cov)
+                res = []
+                for fn, dt in ((combine_numpy, 1e-3), (combine_kernel, 1e-3), (combine_kernel, 2e-3)):
+                    st = [x.copy() for x in state]
+                    out = [np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))]
+                    args = [x.copy() if isinstance(x, np.ndarray) else x for x in inputs]
+                    args[12] = dt
+                    fn(*args, *st, *out)
+                    res.append(np.concatenate([x.ravel() for x in st + out]))
+                scale = np.abs(res[0]).max()
+                assert np.abs(res[1] - res[0]).max() <= 1e-10 * scale, (restarted, has_prev, use_cov)
+                if not restarted:          # dt enters only the filter of a non-restart sample
+                    assert np.abs(res[2] - res[0]).max() > 1e-6 * scale, (has_prev, use_cov)
 
 
 def test_translational_root_rows_are_blind_to_inertias():

@@ -1,5 +1,5 @@
-"""The legs' model error, identified from the momentum observer's swing-leg rows (issue 22). Pure NumPy +
-Pinocchio, no ROS.
+"""The legs' model error, identified from the momentum observer's swing-leg rows (issue 22). NumPy +
+Pinocchio + one Numba kernel (``model_error_kernels``), no ROS.
 
 Why. The momentum observer (``momentum_observer``) estimates tau_d, everything the model does not contain,
 in the six joint rows, and reads it as a wrench W on the torso, whose translational part goes to the
@@ -53,6 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from biped_sim.robot import numba_cache
 from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
 
@@ -62,6 +63,20 @@ from biped_controller.core.momentum_observer import Wrench
 LEG_PARAMETERS: tuple[tuple[str, str], ...] = (("thigh", "mass"), ("thigh", "inertia"), ("shin", "mass"),
                                                ("shin", "inertia"), ("foot", "mass"), ("foot", "inertia"))
 SWING = slice(3, 6)     # the swing leg's rows among the six joint rows (paper order q4..q6)
+MODEL_ERROR_KERNELS = "biped_controller.core.model_error_kernels"
+
+
+def load_model_error_kernels(warm: bool = False):
+    """``model_error_kernels`` through ``numba_cache.load`` (its cache in build/numba-cache); ``warm``: call the
+    kernel once on zeros so that it is compiled (or loaded from the cache) now, not at the first sample."""
+    mod = numba_cache.load(MODEL_ERROR_KERNELS)
+    if warm:
+        z3, z6 = np.zeros((3, 3)), np.zeros((6, 6))
+        mod.combine_kernel(np.zeros((9, 6)), np.eye(6), np.zeros((3, 6)), np.eye(6), np.zeros(6), np.zeros((2, 3)),
+                           z3.copy(), np.zeros(3), np.hstack([np.eye(3), np.zeros((3, 3))]), z6.copy(), False, 1.0,
+                           1e-3, 0.0, True, False, np.eye(3), np.zeros(6), np.eye(6), z6.copy(), z6.copy(),
+                           np.zeros(3), np.zeros(3), z3.copy(), np.zeros(2), np.zeros((2, 2)))
+    return mod
 
 
 class ModelErrorConfigError(ValueError):
@@ -174,10 +189,12 @@ def prior_std(desc: RobotDescription, mass_uncertainty: float, inertia_uncertain
 
 
 class LegModelError:
-    """The estimator and the combination of the module docstring, fed once per observer sample."""
+    """The estimator and the combination of the module docstring, fed once per observer sample. The algebra
+    after the regressor runs in ``model_error_kernels.combine_kernel`` (Numba; ``compiled=False``: the same
+    function run by NumPy, ``combine``, the tests' oracle)."""
 
     def __init__(self, desc: RobotDescription, K: float, mass_uncertainty: float, inertia_uncertainty: float,
-                 residual_std: float):
+                 residual_std: float, compiled: bool = True):
         for name, v in (("model_mass_uncertainty", mass_uncertainty),
                         ("model_inertia_uncertainty", inertia_uncertainty), ("model_error_residual_std", residual_std)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -190,7 +207,9 @@ class LegModelError:
         self.P0 = np.diag(prior_std(desc, mass_uncertainty, inertia_uncertainty) ** 2)
         self.var_res = float(residual_std) ** 2
         self._Rres = self.var_res * np.eye(3)
-        self._I = np.eye(len(LEG_PARAMETERS))
+        self._zero6 = np.zeros((6, 6))
+        kern = load_model_error_kernels(warm=compiled)      # compiled now, not at the first sample
+        self._combine = kern.combine_kernel if compiled else kern.combine
         self.reset()
 
     def reset(self) -> None:
@@ -198,7 +217,8 @@ class LegModelError:
         self.theta = np.zeros(n)
         self.P = self.P0.copy()
         self._Yf = np.zeros((6, n))
-        self._Yprev: np.ndarray | None = None
+        self._Yprev = np.zeros((6, n))     # Y_j of the last sample (valid once _has_prev)
+        self._has_prev = False
         self._W_t = np.zeros(3)            # the last torso wrench (carried at a restart)
         self._W_t_restart = np.zeros(3)
         self._last_torque: np.ndarray | None = None
@@ -231,39 +251,18 @@ class LegModelError:
             acc = Ainv @ (tq - dyn.H + obs.r)
             self._last_torque = tq.copy()
         Y = self.reg(q, qd, acc)
-        Yj = Y[3:]
         if restarted:
-            self._Yf[:] = 0.0
             self._W_t_restart = self._W_t.copy()
         else:
-            Ymid = Yj if self._Yprev is None else 0.5 * (self._Yprev + Yj)
-            f = math.exp(-K * dt)
-            self._Yf = f * self._Yf + (1.0 - f) * Ymid
-            # RLS on the swing rows: r_s = H theta + noise, H = -(Y_f)_s
-            H = -self._Yf[SWING]
-            Rm = self._Rres
-            if cov_qd is not None:
-                As = dyn.A[SWING]
-                Rm = Rm + (K * K) * (As @ cov_qd @ As.T)      # = (A Sigma A)_s, A symmetric
-            PHt = self.P @ H.T
-            Sm = H @ PHt + Rm
-            gain = np.linalg.solve(Sm, PHt.T).T
-            self.theta = self.theta + gain @ (obs.r[SWING] - H @ self.theta)
-            IKH = self._I - gain @ H
-            self.P = IKH @ self.P @ IKH.T + gain @ Rm @ gain.T      # Joseph form
             self.updates += 1
-        self._Yprev = Yj
-        # the torso wrench from what the legs' error does not explain
-        decay = math.exp(-K * since)
-        r_t = obs.r + self._Yf @ self.theta - Jj.T @ ((W_obs_restart - self._W_t_restart) * decay)
-        # J_j^{T+} = (J_j J_j^T)^-1 J_j: J_j (3, 6) has full row rank (the torso point's x, z and the sum
-        # of the stance joints' rates, independent for any q), so the pseudo-inverse is the normal equations'
-        pinv = np.linalg.solve(Jj @ Jj.T, Jj)
-        W_t = pinv @ r_t
+        cov = self._zero6 if cov_qd is None else np.ascontiguousarray(cov_qd, dtype=float)
+        W_t, cov_W, dR, cov_dR = np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))
+        self._combine(Y, dyn.A, dyn.B, Ainv, np.ascontiguousarray(obs.r, dtype=float),
+                      np.ascontiguousarray(obs.S, dtype=float), np.ascontiguousarray(obs.cov_W, dtype=float),
+                      np.ascontiguousarray(W_obs_restart, dtype=float), np.ascontiguousarray(Jj, dtype=float),
+                      cov, cov_qd is not None, K, float(dt), float(since), bool(restarted), self._has_prev,
+                      self._Rres, self.theta, self.P, self._Yf, self._Yprev, self._W_t_restart,
+                      W_t, cov_W, dR, cov_dR)
+        self._has_prev = True
         self._W_t = W_t.copy()
-        cov_W = obs.cov_W + np.diag((self._W_t_restart * decay) ** 2 - (W_obs_restart * decay) ** 2)
-        G = Y[:2] - (dyn.B[:2] @ Ainv) @ Yj          # (-B A^-1 Y_j + Y_r)[:2]
-        Gt = G + obs.S @ pinv @ self._Yf
-        dR = obs.S @ W_t + G @ self.theta
-        cov_dR = obs.S @ cov_W @ obs.S.T + Gt @ self.P @ Gt.T
         return Wrench(r=obs.r.copy(), W=W_t, cov_W=cov_W, dR=dR, cov_dR=cov_dR, S=obs.S.copy())
