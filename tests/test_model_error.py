@@ -4,6 +4,7 @@ identification in noise-free closed loops, its compiled-pipeline twin, its setti
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -120,13 +121,15 @@ def test_parameter_bumps_are_pinocchios_dynamic_parameter_differences():
     assert sorted(base.names[int(i)] for i in joints) == sorted(n for js in LINK_JOINTS.values() for n in js)
 
 
-def _combine_case(rng, restarted: bool, has_prev: bool, use_cov: bool):
+def _combine_case(rng, restarted: bool, has_prev: bool, use_cov: bool, singular: bool = False):
     """Seeded inputs of ``combine_*`` at a real model state (A, B, Y from the model and the regressor)."""
     q, qd, a = next(_states(1, int(rng.integers(1 << 30))))
     dyn = FixedFootModel(DESC).dynamics(q, qd)
     Y = LegRegressor(DESC)(q, qd, a)
     L = rng.normal(size=(6, 6))
     Jj = np.vstack([rng.normal(size=(2, 6)), [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]])
+    if singular:                   # rank 2: the first row a multiple of the third (a straight stance knee's kind)
+        Jj[0] = 0.7 * Jj[2]
     M = rng.normal(size=(3, 3))
     inputs = [Y, dyn.A, dyn.B, np.linalg.inv(dyn.A), rng.normal(0, 5, 6), rng.normal(size=(2, 3)), M @ M.T,
               rng.normal(0, 20, 3), Jj, 1e-4 * L @ L.T, use_cov, K, 1e-3, 0.01 * rng.uniform(), restarted, has_prev,
@@ -140,26 +143,30 @@ def _combine_case(rng, restarted: bool, has_prev: bool, use_cov: bool):
 def test_compiled_combination_equals_the_numpy_one():
     """``combine_kernel`` (Numba) = ``combine`` run by NumPy on every output and the updated state,
     to 1e-10 relative, at seeded inputs on every branch (restart or not, a previous Y or not, rate covariance
-    or not); negative control: the same inputs with dt doubled differ."""
+    or not, J_j of full rank or of rank 2); the torso wrench equals NumPy's SVD pseudo-inverse of J_j^T times
+    r_t on both of J_j's cases; negative control: the same inputs with dt doubled differ."""
     kern = load_model_error_kernels()
     combine_numpy, combine_kernel = kern.combine, kern.combine_kernel
     rng = np.random.default_rng(4)
-    for restarted in (False, True):
-        for has_prev in (False, True):
-            for use_cov in (False, True):
-                inputs, state = _combine_case(rng, restarted, has_prev, use_cov)
-                res = []
-                for fn, dt in ((combine_numpy, 1e-3), (combine_kernel, 1e-3), (combine_kernel, 2e-3)):
-                    st = [x.copy() for x in state]
-                    out = [np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))]
-                    args = [x.copy() if isinstance(x, np.ndarray) else x for x in inputs]
-                    args[12] = dt
-                    fn(*args, *st, *out)
-                    res.append(np.concatenate([x.ravel() for x in st + out]))
-                scale = np.abs(res[0]).max()
-                assert np.abs(res[1] - res[0]).max() <= 1e-10 * scale, (restarted, has_prev, use_cov)
-                if not restarted:          # dt enters only the filter of a non-restart sample
-                    assert np.abs(res[2] - res[0]).max() > 1e-6 * scale, (has_prev, use_cov)
+    for restarted, has_prev, use_cov, singular in itertools.product((False, True), repeat=4):
+        inputs, state = _combine_case(rng, restarted, has_prev, use_cov, singular)
+        res = []
+        for fn, dt in ((combine_numpy, 1e-3), (combine_kernel, 1e-3), (combine_kernel, 2e-3)):
+            st = [x.copy() for x in state]
+            out = [np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))]
+            args = [x.copy() if isinstance(x, np.ndarray) else x for x in inputs]
+            args[12] = dt
+            fn(*args, *st, *out)
+            res.append(np.concatenate([x.ravel() for x in st + out]))
+            # W_t = J_j^{T+} r_t against NumPy's SVD pseudo-inverse (the normal equations or the SVD inside)
+            theta, _, Yf, _, Wr = st
+            r_t = inputs[4] + Yf @ theta - inputs[8].T @ ((inputs[7] - Wr) * np.exp(-K * inputs[13]))
+            ref = np.linalg.pinv(inputs[8].T) @ r_t
+            assert np.abs(out[0] - ref).max() <= 1e-9 * np.abs(ref).max(), (singular, fn)
+        scale = np.abs(res[0]).max()
+        assert np.abs(res[1] - res[0]).max() <= 1e-10 * scale, (restarted, has_prev, use_cov)
+        if not restarted:          # dt enters only the filter of a non-restart sample
+            assert np.abs(res[2] - res[0]).max() > 1e-6 * scale, (has_prev, use_cov)
 
 
 def test_translational_root_rows_are_blind_to_inertias():

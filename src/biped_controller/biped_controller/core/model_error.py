@@ -25,11 +25,11 @@ them (centre of mass fixed, inertia about it): the error's generalized force on 
 with column j of Y = RNEA of the model with parameter j raised by one unit minus RNEA of the model (exact:
 RNEA is linear in the inertial parameters), computed as Pinocchio's joint torque regressor (9 x 10 per joint
 body) times the parameter's change of the bodies' dynamic parameters (``parameter_bumps``, ``LegRegressor``;
-the RNEA differences are kept as ``RneaLegRegressor``, the tests' oracle). The observer's r is tau_d = -e_j through its first-order filter
-(r' = K (tau_d - r)), so its swing-leg rows obey r_s = -(Y_f theta)_s, Y_f the joint rows of Y through the
-same filter (discrete: Y_f <- e^{-K dt} Y_f + (1 - e^{-K dt}) (Y_{k-1} + Y_k) / 2, restarted at 0 with the
-observer, whose restart leaves the swing rows at 0). theta is estimated by recursive least squares (a
-Kalman filter on a constant) on the swing rows: prior theta ~ N(0, diag((s_m m)^2, (s_I I)^2)) from the
+the RNEA differences are kept as ``RneaLegRegressor``, the tests' oracle). The observer's r is tau_d = -e_j
+through its first-order filter (r' = K (tau_d - r)), so its swing-leg rows obey r_s = -(Y_f theta)_s, Y_f the
+joint rows of Y through the same filter (discrete: Y_f <- e^{-K dt} Y_f + (1 - e^{-K dt}) (Y_{k-1} + Y_k) / 2,
+restarted at 0 with the observer, whose restart leaves the swing rows at 0). theta is estimated by recursive
+least squares (a Kalman filter on a constant) on the swing rows: prior theta ~ N(0, diag((s_m m)^2, (s_I I)^2)) from the
 stated uncertainty of the masses and inertias, measurement noise s_res^2 I + K^2 (A Sigma_qd A)_s (the
 observer's rate noise, as ``momentum_observer``); no update in the period of a restart.
 

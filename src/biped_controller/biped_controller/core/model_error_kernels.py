@@ -16,9 +16,9 @@ require_configured(__name__)
 
 def combine(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, K, dt, since, restarted,
             has_prev, Rres, theta, P, Yf, Yprev, W_t_restart, W_t, cov_W, dR, cov_dR):
-    """The estimator's period after the regressor (``model_error``'s module docstring), in place. In: Y (9, 6) at this sample,
-    A (6, 6), B (3, 6) the model's inertia and reaction rows, Ainv = A^-1, the observer's r (6,) [N m], S
-    (2, 3), cov_W_obs (3, 3), the wrench it carried at its restart W_obs_restart (3,) and the time since
+    """The estimator's period after the regressor (``model_error``'s module docstring), in place. In: Y (9, 6)
+    at this sample, A (6, 6), B (3, 6) the model's inertia and reaction rows, Ainv = A^-1, the observer's r
+    (6,) [N m], S (2, 3), cov_W_obs (3, 3), the wrench it carried at its restart W_obs_restart (3,) and the time since
     ``since`` [s], Jj (3, 6), the rate covariance cov_qd (6, 6) (used if ``use_cov``), K [1/s], dt [s],
     ``restarted``, ``has_prev`` (a Y_j of the last sample is in Yprev), Rres = s_res^2 1 (3, 3). State,
     updated: theta (6,), P (6, 6), Y_f (6, 6), Yprev (6, 6) <- Y_j, W_t_restart (3,) (set by the caller at
@@ -46,8 +46,20 @@ def combine(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, 
     # the torso wrench from what the legs' error does not explain
     decay = math.exp(-K * since)
     r_t = r + Yf @ theta - Jj.T @ ((W_obs_restart - W_t_restart) * decay)
-    # J_j^{T+} = (J_j J_j^T)^-1 J_j (J_j (3, 6) of full row rank: the pseudo-inverse is the normal equations')
-    pinv = np.linalg.solve(Jj @ Jj.T, Jj)
+    # J_j^{T+}: the normal equations (J_j J_j^T)^-1 J_j where J_j (3, 6) is well inside full row rank, the SVD
+    # pseudo-inverse where it is not (the stance knee near straight: the ankle-knee-hip chain then cannot move
+    # the torso point and pitch independently). Test: det(J J^T) > 1e-6 (tr J J^T / 3)^3, i.e. the
+    # eigenvalues' product not below 1e-6 of their mean cubed (condition of J J^T below about 1e6, so the
+    # normal equations lose no more than ~1e-10 relative to the SVD).
+    JJ = Jj @ Jj.T
+    det = (JJ[0, 0] * (JJ[1, 1] * JJ[2, 2] - JJ[1, 2] * JJ[2, 1])
+           - JJ[0, 1] * (JJ[1, 0] * JJ[2, 2] - JJ[1, 2] * JJ[2, 0])
+           + JJ[0, 2] * (JJ[1, 0] * JJ[2, 1] - JJ[1, 1] * JJ[2, 0]))
+    tr = (JJ[0, 0] + JJ[1, 1] + JJ[2, 2]) / 3.0
+    if det > 1e-6 * tr * tr * tr:
+        pinv = np.linalg.solve(JJ, Jj)
+    else:
+        pinv = np.linalg.pinv(np.ascontiguousarray(Jj.T))
     W_t[:] = pinv @ r_t
     cov_W[:] = cov_W_obs + np.diag((W_t_restart * decay) ** 2 - (W_obs_restart * decay) ** 2)
     G = Y[:2] - (B[:2] @ Ainv) @ Yj                        # (-B A^-1 Y_j + Y_r)[:2]
