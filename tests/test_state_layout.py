@@ -252,15 +252,18 @@ def test_kernel_modules_import_without_side_effects(tmp_path):
     code = ("import os, sys, numba\n"
             "import biped_sim.robot.fast_engine, biped_sim.plant.rigid, biped_controller.core.controller\n"
             "import biped_controller.core.qp, biped_controller.studies.segment, biped_controller.studies.runner\n"
+            "import biped_controller.core.model_error\n"
             "kern = [m for m in ('biped_sim.robot.planar_kernels', 'biped_controller.core.qp_fast',\n"
             "        'biped_controller.core.control_kernels', 'biped_controller.core.wbc_kernels',\n"
-            "        'biped_controller.studies.loop_kernels') if m in sys.modules]\n"
+            "        'biped_controller.studies.loop_kernels', 'biped_controller.core.model_error_kernels')\n"
+            "        if m in sys.modules]\n"
             "print(kern, 'NUMBA_CACHE_DIR' in os.environ, repr(numba.config.CACHE_DIR))\n")
     out = _python(code, env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[] False ''" and out.stderr == ""
-    direct = _python("import biped_sim.robot.planar_kernels", env)
-    assert direct.returncode != 0 and "CacheNotConfigured" in direct.stderr and "numba_cache.load" in direct.stderr
+    for mod in ("biped_sim.robot.planar_kernels", "biped_controller.core.model_error_kernels"):
+        direct = _python(f"import {mod}", env)
+        assert direct.returncode != 0 and "CacheNotConfigured" in direct.stderr and "numba_cache.load" in direct.stderr
     # through load: the repository's cache, nothing printed when it is warm (setup compiled it)
     loaded = _python("from biped_sim.robot.fast_engine import planar_kernels; import numba; planar_kernels(); "
                      "print(numba.config.CACHE_DIR)", env)

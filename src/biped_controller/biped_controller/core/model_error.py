@@ -1,5 +1,5 @@
-"""The legs' model error, identified from the momentum observer's swing-leg rows (issue 22). Pure NumPy +
-Pinocchio, no ROS.
+"""The legs' model error, identified from the momentum observer's swing-leg rows (issue 22). NumPy +
+Pinocchio + one Numba kernel (``model_error_kernels``), no ROS.
 
 Why. The momentum observer (``momentum_observer``) estimates tau_d, everything the model does not contain,
 in the six joint rows, and reads it as a wrench W on the torso, whose translational part goes to the
@@ -23,11 +23,13 @@ them (centre of mass fixed, inertia about it): the error's generalized force on 
     e(q, q', q'') = M_p [0; q''] + h_p - (M_m [0; q''] + h_m) = Y(q, q', q'') theta   (9 rows: root x, z,
     pitch, then the six joints),
 with column j of Y = RNEA of the model with parameter j raised by one unit minus RNEA of the model (exact:
-RNEA is linear in the inertial parameters). The observer's r is tau_d = -e_j through its first-order filter
-(r' = K (tau_d - r)), so its swing-leg rows obey r_s = -(Y_f theta)_s, Y_f the joint rows of Y through the
-same filter (discrete: Y_f <- e^{-K dt} Y_f + (1 - e^{-K dt}) (Y_{k-1} + Y_k) / 2, restarted at 0 with the
-observer, whose restart leaves the swing rows at 0). theta is estimated by recursive least squares (a
-Kalman filter on a constant) on the swing rows: prior theta ~ N(0, diag((s_m m)^2, (s_I I)^2)) from the
+RNEA is linear in the inertial parameters), computed as Pinocchio's joint torque regressor (9 x 10 per joint
+body) times the parameter's change of the bodies' dynamic parameters (``parameter_bumps``, ``LegRegressor``;
+the RNEA differences are kept as ``RneaLegRegressor``, the tests' oracle). The observer's r is tau_d = -e_j
+through its first-order filter (r' = K (tau_d - r)), so its swing-leg rows obey r_s = -(Y_f theta)_s, Y_f the
+joint rows of Y through the same filter (discrete: Y_f <- e^{-K dt} Y_f + (1 - e^{-K dt}) (Y_{k-1} + Y_k) / 2,
+restarted at 0 with the observer, whose restart leaves the swing rows at 0). theta is estimated by recursive
+least squares (a Kalman filter on a constant) on the swing rows: prior theta ~ N(0, diag((s_m m)^2, (s_I I)^2)) from the
 stated uncertainty of the masses and inertias, measurement noise s_res^2 I + K^2 (A Sigma_qd A)_s (the
 observer's rate noise, as ``momentum_observer``); no update in the period of a restart.
 
@@ -49,7 +51,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
+from biped_sim.robot import numba_cache
 from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
 
@@ -59,6 +63,20 @@ from biped_controller.core.momentum_observer import Wrench
 LEG_PARAMETERS: tuple[tuple[str, str], ...] = (("thigh", "mass"), ("thigh", "inertia"), ("shin", "mass"),
                                                ("shin", "inertia"), ("foot", "mass"), ("foot", "inertia"))
 SWING = slice(3, 6)     # the swing leg's rows among the six joint rows (paper order q4..q6)
+MODEL_ERROR_KERNELS = "biped_controller.core.model_error_kernels"
+
+
+def load_model_error_kernels(warm: bool = False):
+    """``model_error_kernels`` through ``numba_cache.load`` (its cache in build/numba-cache); ``warm``: call the
+    kernel once on zeros so that it is compiled (or loaded from the cache) now, not at the first sample."""
+    mod = numba_cache.load(MODEL_ERROR_KERNELS)
+    if warm:
+        z3, z6 = np.zeros((3, 3)), np.zeros((6, 6))
+        mod.combine_kernel(np.zeros((9, 6)), np.eye(6), np.zeros((3, 6)), np.eye(6), np.zeros(6), np.zeros((2, 3)),
+                           z3.copy(), np.zeros(3), np.hstack([np.eye(3), np.zeros((3, 3))]), z6.copy(), False, 1.0,
+                           1e-3, 0.0, True, False, np.eye(3), np.zeros(6), np.eye(6), z6.copy(), z6.copy(),
+                           np.zeros(3), np.zeros(3), z3.copy(), np.zeros(2), np.zeros((2, 2)))
+    return mod
 
 
 class ModelErrorConfigError(ValueError):
@@ -78,9 +96,75 @@ def _bumped(desc: RobotDescription, link: str, name: str) -> RobotDescription:
     return dataclasses.replace(desc, **{link: dataclasses.replace(part, **{name: getattr(part, name) + 1.0})})
 
 
+#: which joint of ``build_fixed_foot_model`` carries which link's body (the stance foot rides on the locked
+#: root pitch joint; every joint carries exactly one body, appended at the joint's origin)
+LINK_JOINTS: dict[str, tuple[str, str]] = {"thigh": ("q2_stance_knee", "q4_swing_hip"),
+                                           "shin": ("q1_stance_ankle", "q5_swing_knee"),
+                                           "foot": ("root_pitch", "q6_swing_ankle")}
+_VECH = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))   # Pinocchio's order of I in the dynamic parameters
+
+
+def parameter_bumps(model: pin.Model) -> tuple[np.ndarray, np.ndarray]:
+    """The combination of the joint torque regressor's columns that gives Y: (joints (k,), D (k, 10, 6)).
+
+    Pinocchio's dynamic parameters of the body on joint i (``Inertia.toDynamicParameters``, the columns
+    10 (i - 1) .. 10 i - 1 of ``computeJointTorqueRegressor``) are pi_i = [m, m c_x, m c_y, m c_z, I_xx,
+    I_xy, I_yy, I_xz, I_yz, I_zz], c the centre of mass and I the rotational inertia about the joint frame's
+    origin, in the joint frame: I = I_c + m (|c|^2 1 - c c^T). With c and I_c fixed, d pi / d m =
+    [1, c, vech(|c|^2 1 - c c^T)] (the parallel-axis term: for a centre of mass on the link's axis z,
+    c = (0, 0, c_z), it adds c_z^2 to I_xx and I_yy); the description's scalar inertia is the model's
+    I_c = I 1 (``fixed_foot._inertia``), so d pi / d I = [0, 0, 0, 0, 1, 0, 1, 0, 0, 1] (only I_yy, about the
+    plane's normal, reaches the planar rows). Both legs' bodies of a link (``LINK_JOINTS``) carry the
+    parameter, so its column of Y is the sum over them: Y = sum_k R[:, cols(joint_k)] D_k."""
+    joints, blocks = [], []
+    for j, (link, name) in enumerate(LEG_PARAMETERS):
+        for jname in LINK_JOINTS[link]:
+            jid = model.getJointId(jname)
+            if jid >= model.njoints:
+                raise ValueError(f"the fixed-foot model has no joint {jname!r}")
+            c = np.array(model.inertias[jid].lever)
+            d = np.zeros(10)
+            if name == "mass":
+                S = (c @ c) * np.eye(3) - np.outer(c, c)
+                d[0], d[1:4] = 1.0, c
+                d[4:] = [S[r, s] for r, s in _VECH]
+            else:
+                d[4:] = [1.0 if r == s else 0.0 for r, s in _VECH]
+            if jid not in joints:
+                joints.append(jid)
+                blocks.append(np.zeros((10, len(LEG_PARAMETERS))))
+            blocks[joints.index(jid)][:, j] += d
+    return np.array(joints), np.array(blocks)
+
+
 class LegRegressor:
-    """Y(q, q', q'') (9, 6) of the module docstring: RNEA of the locked-root chain with one leg parameter
-    raised by one unit, minus RNEA of the model (own Pinocchio models and data)."""
+    """Y(q, q', q'') (9, 6) of the module docstring from Pinocchio's joint torque regressor R (9, 10 n) of the
+    locked-root chain (``pin.computeJointTorqueRegressor``: tau = R pi, pi the stacked dynamic parameters,
+    its own ``Data``), combined into the six leg parameters by ``parameter_bumps``: one Pinocchio pass and
+    one (9, 90) x (90, 6) product a call. Rows: root x [N], z [N], pitch [N m], then q1..q6 [N m]."""
+
+    def __init__(self, desc: RobotDescription):
+        self.base = FixedFootModel(desc)
+        self._model = self.base.model
+        self._data = self._model.createData()
+        joints, D = parameter_bumps(self._model)
+        self._D = np.zeros((10 * (self._model.njoints - 1), len(LEG_PARAMETERS)))   # zero off the legs' joints
+        for i, Di in zip(joints, D):
+            self._D[10 * (i - 1):10 * i] = Di
+        self._q = np.zeros(self._model.nq)
+        self._v = np.zeros(self._model.nv)
+        self._a = np.zeros(self._model.nv)
+
+    def __call__(self, q: np.ndarray, qd: np.ndarray, a: np.ndarray) -> np.ndarray:
+        self._q[3:], self._v[3:], self._a[3:] = q, qd, a
+        R = pin.computeJointTorqueRegressor(self._model, self._data, self._q, self._v, self._a)
+        return R @ self._D
+
+
+class RneaLegRegressor:
+    """The reference oracle of ``LegRegressor`` (its first implementation, kept for the tests and the
+    benchmark): column j = RNEA of the locked-root chain with parameter j raised by one unit minus RNEA of the
+    model (exact: RNEA is linear in the inertial parameters); 7 models, 7 RNEA calls a call."""
 
     def __init__(self, desc: RobotDescription):
         self.base = FixedFootModel(desc)
@@ -105,10 +189,12 @@ def prior_std(desc: RobotDescription, mass_uncertainty: float, inertia_uncertain
 
 
 class LegModelError:
-    """The estimator and the combination of the module docstring, fed once per observer sample."""
+    """The estimator and the combination of the module docstring, fed once per observer sample. The algebra
+    after the regressor runs in ``model_error_kernels.combine_kernel`` (Numba; ``compiled=False``: the same
+    function run by NumPy, ``combine``, the tests' oracle)."""
 
     def __init__(self, desc: RobotDescription, K: float, mass_uncertainty: float, inertia_uncertainty: float,
-                 residual_std: float):
+                 residual_std: float, compiled: bool = True):
         for name, v in (("model_mass_uncertainty", mass_uncertainty),
                         ("model_inertia_uncertainty", inertia_uncertainty), ("model_error_residual_std", residual_std)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -120,6 +206,10 @@ class LegModelError:
         self.model = self.reg.base
         self.P0 = np.diag(prior_std(desc, mass_uncertainty, inertia_uncertainty) ** 2)
         self.var_res = float(residual_std) ** 2
+        self._Rres = self.var_res * np.eye(3)
+        self._zero6 = np.zeros((6, 6))
+        kern = load_model_error_kernels(warm=compiled)      # compiled now, not at the first sample
+        self._combine = kern.combine_kernel if compiled else kern.combine
         self.reset()
 
     def reset(self) -> None:
@@ -127,7 +217,8 @@ class LegModelError:
         self.theta = np.zeros(n)
         self.P = self.P0.copy()
         self._Yf = np.zeros((6, n))
-        self._Yprev: np.ndarray | None = None
+        self._Yprev = np.zeros((6, n))     # Y_j of the last sample (valid once _has_prev)
+        self._has_prev = False
         self._W_t = np.zeros(3)            # the last torso wrench (carried at a restart)
         self._W_t_restart = np.zeros(3)
         self._last_torque: np.ndarray | None = None
@@ -151,45 +242,27 @@ class LegModelError:
         qd = np.asarray(qd, dtype=float)
         dyn = self.model.dynamics(q, qd)
         K = self.K
+        Ainv = np.linalg.inv(dyn.A)          # once: the acceleration and G (A symmetric positive definite)
         if restarted or applied is None:
             tq = relabel(self._last_torque) if self._last_torque is not None else np.zeros(6)
-            acc = np.linalg.solve(dyn.A, tq - dyn.H)
+            acc = Ainv @ (tq - dyn.H)
         else:
             tq = np.asarray(applied, dtype=float)
-            acc = np.linalg.solve(dyn.A, tq - dyn.H + obs.r)
+            acc = Ainv @ (tq - dyn.H + obs.r)
             self._last_torque = tq.copy()
         Y = self.reg(q, qd, acc)
-        Yj = Y[3:]
         if restarted:
-            self._Yf[:] = 0.0
             self._W_t_restart = self._W_t.copy()
         else:
-            Ymid = Yj if self._Yprev is None else 0.5 * (self._Yprev + Yj)
-            f = math.exp(-K * dt)
-            self._Yf = f * self._Yf + (1.0 - f) * Ymid
-            # RLS on the swing rows: r_s = H theta + noise, H = -(Y_f)_s
-            H = -self._Yf[SWING]
-            Rm = self.var_res * np.eye(3)
-            if cov_qd is not None:
-                Rm = Rm + (K * K) * (dyn.A @ cov_qd @ dyn.A)[SWING, SWING]
-            PHt = self.P @ H.T
-            Sm = H @ PHt + Rm
-            gain = np.linalg.solve(Sm, PHt.T).T
-            self.theta = self.theta + gain @ (obs.r[SWING] - H @ self.theta)
-            IKH = np.eye(len(self.theta)) - gain @ H
-            self.P = IKH @ self.P @ IKH.T + gain @ Rm @ gain.T      # Joseph form
             self.updates += 1
-        self._Yprev = Yj.copy()
-        # the torso wrench from what the legs' error does not explain
-        decay = math.exp(-K * since)
-        r_t = obs.r + self._Yf @ self.theta - Jj.T @ ((W_obs_restart - self._W_t_restart) * decay)
-        pinv = np.linalg.pinv(Jj.T)
-        W_t = pinv @ r_t
+        cov = self._zero6 if cov_qd is None else np.ascontiguousarray(cov_qd, dtype=float)
+        W_t, cov_W, dR, cov_dR = np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))
+        self._combine(Y, dyn.A, dyn.B, Ainv, np.ascontiguousarray(obs.r, dtype=float),
+                      np.ascontiguousarray(obs.S, dtype=float), np.ascontiguousarray(obs.cov_W, dtype=float),
+                      np.ascontiguousarray(W_obs_restart, dtype=float), np.ascontiguousarray(Jj, dtype=float),
+                      cov, cov_qd is not None, K, float(dt), float(since), bool(restarted), self._has_prev,
+                      self._Rres, self.theta, self.P, self._Yf, self._Yprev, self._W_t_restart,
+                      W_t, cov_W, dR, cov_dR)
+        self._has_prev = True
         self._W_t = W_t.copy()
-        cov_W = (obs.cov_W - np.diag((W_obs_restart * decay) ** 2)
-                 + np.diag((self._W_t_restart * decay) ** 2))
-        G = (-dyn.B @ np.linalg.solve(dyn.A, Yj) + Y[:3])[:2]
-        Gt = G + obs.S @ pinv @ self._Yf
-        dR = obs.S @ W_t + G @ self.theta
-        cov_dR = obs.S @ cov_W @ obs.S.T + Gt @ self.P @ Gt.T
         return Wrench(r=obs.r.copy(), W=W_t, cov_W=cov_W, dR=dR, cov_dR=cov_dR, S=obs.S.copy())

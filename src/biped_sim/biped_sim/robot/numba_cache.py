@@ -3,7 +3,7 @@
 Pure Python, no ROS. The kernel modules (``biped_sim.robot.planar_kernels``,
 ``biped_sim.plant.mujoco_kernels``, ``biped_controller.core.qp_fast``, ``biped_controller.core.control_kernels``,
 ``biped_controller.core.wbc_kernels``, ``biped_controller.core.estimation_kernels``,
-``biped_controller.studies.loop_kernels``) only define kernels; they are imported through :func:`load`,
+``biped_controller.core.model_error_kernels``, ``biped_controller.studies.loop_kernels``) only define kernels; they are imported through :func:`load`,
 which
 
 1. points numba's on-disk cache at ``<repo>/build/numba-cache`` (``NUMBA_CACHE_DIR`` when set), before the
