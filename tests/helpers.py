@@ -183,3 +183,19 @@ def assert_same_run(a, b, tol: float = 0.0, skip_status: tuple[str, ...] = (), r
     for ia, ib in zip(a.impacts, b.impacts):
         assert_same_fields(ia, ib, f"impact {ia.index}", tol, relative)
     assert (a.fallen, a.fall_cause, a.steps_walked) == (b.fallen, b.fall_cause, b.steps_walked)
+
+
+def count_compiled_periods(patch) -> list:
+    """Wrap the controller's compiled period (``controller._FastPeriod.compute``) through ``patch`` (a pytest
+    ``monkeypatch`` or one of its contexts) so that every call appends whether the compiled period served
+    it (True) or handed it back to the Python steps (False); returns that list."""
+    from biped_controller.core import controller as C
+    used: list = []
+    orig = C._FastPeriod.compute
+
+    def counting(self, *a):
+        out = orig(self, *a)
+        used.append(out is not None)
+        return out
+    patch.setattr(C._FastPeriod, "compute", counting)
+    return used

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from helpers import assert_same_fields, assert_same_run
+from helpers import assert_same_fields, assert_same_run, count_compiled_periods
 from biped_controller.studies import runner
 from biped_controller.core.controller import load_controller_config
 from biped_sim.plant.push import Push
@@ -58,14 +58,7 @@ def test_compiled_controller_period_matches_its_python_steps(monkeypatch, mode):
     Python steps on the same compiled model terms: same run to 1e-9, QP decisions included."""
     from biped_controller.core import controller as C
     push = (Push(0.2003217, 0.025, 400.0),)
-    used = []
-    orig = C._FastPeriod.compute
-
-    def counting(self, *a):
-        out = orig(self, *a)
-        used.append(out is not None)
-        return out
-    monkeypatch.setattr(C._FastPeriod, "compute", counting)
+    used = count_compiled_periods(monkeypatch)
     fast = runner.run(steps=2, mode=mode, pushes=push, compiled_loop=False)
     assert used and all(used), "the compiled period must serve every period of a finite run"
     _without(monkeypatch, C._FastPeriod, "compute")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import assert_same_fields, assert_same_run
+from helpers import assert_same_fields, assert_same_run, count_compiled_periods
 from biped_controller.core import controller as C
 from biped_controller.core.controller import AdaptiveController, load_controller_config
 from biped_controller.core.period_layout import G_, TORSO_QP_ROWS
@@ -29,15 +29,8 @@ def _python_steps(monkeypatch, **kw):
 
 def _compiled(monkeypatch, **kw):
     """The run on the compiled period (objects loop); asserts the compiled period served every period."""
-    used = []
-    orig = C._FastPeriod.compute
-
-    def counting(self, *a):
-        out = orig(self, *a)
-        used.append(out is not None)
-        return out
     with monkeypatch.context() as m:
-        m.setattr(C._FastPeriod, "compute", counting)
+        used = count_compiled_periods(m)
         res = runner.run(compiled_loop=False, **kw)
     assert used and all(used), "the compiled period must serve every period of a finite run"
     return res
