@@ -671,8 +671,13 @@ def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal
         node = Node("fake_sim", context=context)
         clock_pub = node.create_publisher(Clock, graph_names.CLOCK,
                                           graph_names.TOPICS[graph_names.CLOCK].qos_profile)
-        fall_pub = node.create_publisher(String, graph_names.FALL,
-                                         graph_names.TOPICS[graph_names.FALL].qos_profile)
+        # /fall's own profile keeps 1 sample (latched: the product publishes it once); this test publishes 45
+        # to check the order, so its writer keeps them all: with depth 1 a writer starved for 20 ms on a loaded
+        # machine replaces a sample it has not sent yet, and the recorder cannot record what never left.
+        from rclpy.qos import QoSProfile
+        fall_qos = graph_names.TOPICS[graph_names.FALL].qos_profile
+        fall_pub = node.create_publisher(String, graph_names.FALL, QoSProfile(
+            history=fall_qos.history, depth=100, reliability=fall_qos.reliability, durability=fall_qos.durability))
         deadline = time.monotonic() + 60
         while (clock_pub.get_subscription_count() < 2 or fall_pub.get_subscription_count() < 1):
             assert proc.poll() is None, proc.communicate()[1]
