@@ -41,6 +41,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 
 from biped_msgs_py.msg import ControllerStatus, SimState
+from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.graph.imu import ImuMessageError, imu_reading
 from biped_sim.robot.description import PAPER_JOINTS, load_description
@@ -110,6 +111,17 @@ def status_message(s, stamp) -> ControllerStatus:
     return m
 
 
+def status_cdr(enc: cdr.ControllerStatus, s, sec: int, nanosec: int) -> bytes:
+    """The CDR bytes (``biped_sim.graph.cdr``) of :func:`status_message`: the same conversions of the same fields."""
+    v = {name: conv(getattr(s, name)) for name, conv in STATUS_FIELDS}
+    return enc.encode(sec, nanosec, v['step'], v['mode'],
+                      (v['p'], v['p_dot'], v['tau'], v['tau_dot'], v['p_ddot'], v['tau_ddot'], v['p_ddot_star'],
+                       v['tau_ddot_star']), v['qp_status'], v['qp_message'], v['margins'], v['tightest'], v['zmp'],
+                      v['stance'], v['max_tracking_error'], v['predicted_reaction'], v['force_estimate'],
+                      v['wbc_status'], v['wbc_active'],
+                      (v['wbc_deviation'], v['lam'], v['lam_dot'], v['lam_ddot'], v['lam_ddot_star']))
+
+
 class ControllerNode(Node):
 
     def __init__(self, **kwargs):
@@ -119,6 +131,9 @@ class ControllerNode(Node):
         self.state_timeout = get_float(self, 'state_timeout', lo=0.0, lo_open=True)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder')
         self.use_imu = get_bool(self, 'use_imu')
+        # /controller/torque and /controller/status as CDR bytes (biped_sim.graph.cdr): issue 20 part 3
+        self.publish_cdr = get_bool(self, 'publish_cdr')
+        self._cdr_torque, self._cdr_status = cdr.JointState(), cdr.ControllerStatus()
         desc, family = load_robot_files(self)
         self.ctrl = AdaptiveController(self.cfg, family, desc)
         self.ctrl.reset()
@@ -131,7 +146,7 @@ class ControllerNode(Node):
         if not self.wait_for_recorder:
             self._subscribe()
         self.last_sequence: Optional[int] = None
-        self.last_reply: Optional[JointState] = None
+        self.last_reply: Optional[JointState | bytes] = None
         self.last_state_wall: Optional[float] = None
         self.silent_reported = False
         self.steps = 0
@@ -202,13 +217,20 @@ class ControllerNode(Node):
         t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
         out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
                                 int(msg.stance), pitch)
-        js = JointState()
-        js.header.stamp = msg.stamp
-        js.name = list(PAPER_JOINTS)
-        js.effort = np.asarray(out.torque, dtype=float).tolist()
+        if self.publish_cdr:
+            sec, nsec = msg.stamp.sec, msg.stamp.nanosec
+            js = self._cdr_torque.encode(sec, nsec, '', PAPER_JOINTS, (), (),
+                                         np.asarray(out.torque, dtype=float).tolist())
+            status = status_cdr(self._cdr_status, out.status, sec, nsec)
+        else:
+            js = JointState()
+            js.header.stamp = msg.stamp
+            js.name = list(PAPER_JOINTS)
+            js.effort = np.asarray(out.torque, dtype=float).tolist()
+            status = status_message(out.status, msg.stamp)
         self.pub_torque.publish(js)
         self.last_reply = js
-        self.pub_status.publish(status_message(out.status, msg.stamp))
+        self.pub_status.publish(status)
         self.steps += 1
 
     def _on_timer(self):
