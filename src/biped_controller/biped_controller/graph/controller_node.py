@@ -153,7 +153,8 @@ class ControllerNode(Node):
         # wall-clock timer: with use_sim_time a ROS-time timer would stop with /clock, i.e. exactly when
         # the simulator is gone or not started yet
         self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s')
+        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s, publishing '
+                               f'{"CDR bytes" if self.publish_cdr else "message objects"}')
 
     def _subscribe(self):
         # /imu first: the simulator starts once the controller's /sim/state reader and every /imu reader it

@@ -305,7 +305,8 @@ class SimulatorNode(Node):
         self.create_timer(0.02, self._on_timer)
         self.get_logger().info(
             f'simulator ready: plant {self.cfg.plant}, control_period {self.cfg.control_period} s, substeps {self.cfg.substeps}, '
-            f'max_steps {self.max_steps}, max_time {self.max_time} s; waiting for the controller')
+            f'max_steps {self.max_steps}, max_time {self.max_time} s, publishing '
+            f'{"CDR bytes" if self.publish_cdr else "message objects"}; waiting for the controller')
 
     # ------------------------------------------------------------------ parameters
     def _read_parameters(self):
