@@ -19,6 +19,9 @@ For every ``/sim/state`` (SimState) it computes the torque and publishes
   ``effort`` = paper torques q1..q6 [N m], ``header.stamp`` = the state's stamp;
 - ``/controller/status`` (ControllerStatus): every field of ``ControllerStatusData``.
 
+With ``publish_cdr`` (default ``config/graph.yaml``: true) both go out as CDR bytes encoded by
+``biped_sim.graph.cdr`` (the same bytes as the message objects, which ``publish_cdr`` false publishes).
+
 A state repeating the last sequence number is answered with the same torque (no second
 computation, the parameter state advances once per step). A state with ``fallen`` set is not
 answered. If no state arrives for ``state_timeout`` seconds (wall) after the first one, the node

@@ -60,6 +60,12 @@ topics are true), and ``/sim/plant`` (latched ``std_msgs/String``, YAML of
 ``perturbation.plant_parameters``) the plant's actual parameters, so a recording can be checked against
 the true plant.
 
+Publishing (``publish_cdr``, default ``config/graph.yaml``: true): the per-step topics (``/clock``, ``/imu``,
+``/sim/state``, ``/tf``, ``/stance``, ``/joint_states``, ``/ground_reaction``, ``/ground_reaction/cop``,
+``/sim/push``) go out as CDR bytes encoded by ``biped_sim.graph.cdr`` (``Publisher.publish(bytes)``), the same
+bytes as the message objects (false) produce: rclpy then skips building, converting and serialising a Python
+message (issue 20 part 3). The latched and event topics are always message objects.
+
 Parameters are validated at start; a bad one is logged naming it and the node exits 2 before
 anything is published.
 """
