@@ -1,7 +1,7 @@
 """CPU per ``Publisher.publish`` of each per-step message: the message object built as the nodes build it vs.
 pre-serialised bytes from ``biped_sim.graph.cdr`` (issue 20 part 3).
 
-    .venv/bin/python -m benchmarks.publish_cost [--n 2000] [--pairs 3] [--json benchmarks/publish_cost_results.json]
+    .venv/bin/python -m benchmarks.publish_cost [--n 2000] [--pairs 3] [--lockstep-pairs 0] [--json benchmarks/publish_cost_results.json]
 
 For each message type the simulator and the controller publish every control step (/clock, /imu, /sim/state,
 /tf, /stance, /joint_states, /ground_reaction, /ground_reaction/cop, /sim/push; /controller/torque,
@@ -19,7 +19,11 @@ the publishing process's (``time.process_time``: every thread of it, so Fast DDS
 within each of ``--pairs`` rounds (object first in even rounds, bytes first in odd ones). The message
 contents are seeded (``random.Random(SEED)``), the same for both variants. Printed: per type and condition
 the median over the rounds of each variant, the ratio object / bytes, the load average before and after.
-Nothing is asserted.
+
+``--lockstep-pairs N`` (default 0): then N alternated pairs of the simulator and controller nodes alone in lockstep
+as fast as possible (``benchmarks.lockstep.measure``, 2 s of sim time, no recorder), ``publish_cdr`` false then
+true in both nodes (true first in odd pairs): control steps per wall second from the simulator's own line, with
+the 1-minute load average at each run's start. Nothing is asserted.
 """
 from __future__ import annotations
 
@@ -201,12 +205,40 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--n', type=int, default=2000)
     ap.add_argument('--pairs', type=int, default=3)
+    ap.add_argument('--lockstep-pairs', type=int, default=0)
+    ap.add_argument('--lockstep-only', action='store_true', help='skip the per-type publish figures')
     ap.add_argument('--json', default=str(ROOT / 'benchmarks' / 'publish_cost_results.json'), help="'' = no file")
     a = ap.parse_args(argv)
+    summary: dict = {'n': a.n, 'pairs': a.pairs}
+    if not a.lockstep_only:
+        _per_type(a, summary)
+    if a.lockstep_pairs:
+        from benchmarks.run import Domain
+        from benchmarks.lockstep import measure
+        runs = []
+        for k in range(a.lockstep_pairs):
+            for flag in (('false', 'true') if k % 2 == 0 else ('true', 'false')):
+                load = os.getloadavg()[0]
+                p = (f'publish_cdr:={flag}',)
+                r = measure(2.0, Domain, ctrl_params=p, sim_params=p)
+                r.update(publish_cdr=flag == 'true', load_average_1min_at_start=load)
+                runs.append(r)
+                print(f"lockstep publish_cdr {flag:5s}: {r.get('steps_per_s', float('nan')):.0f} steps/s "
+                      f"(load {load:.1f})", flush=True)
+        summary['lockstep'] = runs
+        for flag in (False, True):
+            rates = [r['steps_per_s'] for r in runs if r['publish_cdr'] is flag and r.get('available')]
+            if rates:
+                print(f'lockstep publish_cdr {str(flag).lower():5s}: median {statistics.median(rates):.0f} steps/s '
+                      f'of {len(rates)} runs')
+    if a.json:
+        Path(a.json).write_text(json.dumps(summary, indent=2) + '\n')
+    return 0
+
+
+def _per_type(a, summary: dict) -> None:
     import rclpy
     from biped_sim.graph import names as gn
-    from biped_sim.graph.simulator_node import WORLD_FRAME  # noqa: F401  (the node module imports)
-
     rclpy.init()
     node = rclpy.create_node('publish_cost')
     types = _types()
@@ -239,8 +271,7 @@ def main(argv=None) -> int:
                 sub.stdin.close()
                 sub.wait(timeout=30)
     load1 = os.getloadavg()
-    summary = {'n': a.n, 'pairs': a.pairs, 'load_average_start': load0, 'load_average_end': load1,
-               'cpu_us_per_publish': {}}
+    summary.update({'load_average_start': load0, 'load_average_end': load1, 'cpu_us_per_publish': {}})
     print(f'load average start {load0}, end {load1}; n {a.n}, pairs {a.pairs}; CPU us per publish (median)')
     print(f'{"topic":26s} {"condition":14s} {"object":>8s} {"bytes":>8s} {"ratio":>6s}')
     for cond, res in rows.items():
@@ -254,11 +285,8 @@ def main(argv=None) -> int:
         summary['cpu_us_per_publish'][cond]['all 11 (one control step)'] = {'object': tot_o, 'bytes': tot_b,
                                                                            'ratio': tot_o / tot_b}
         print(f'{"all 11 (one control step)":26s} {cond:14s} {tot_o:8.1f} {tot_b:8.1f} {tot_o / tot_b:6.2f}')
-    if a.json:
-        Path(a.json).write_text(json.dumps(summary, indent=2) + '\n')
     node.destroy_node()
     rclpy.shutdown()
-    return 0
 
 
 if __name__ == '__main__':
