@@ -1,7 +1,7 @@
 """Foxglove bridge: publish-to-WebSocket-frame latency and the lockstep rate with the bridge on and off.
 
     .venv/bin/python -m benchmarks.bridge_bench     # = --pairs 0 --latency-pairs 3 --live-steps 4 --json benchmarks/bridge_results.json
-    .venv/bin/python -m benchmarks.bridge_bench [--pairs N] [--steps 2] [--latency-pairs 3] [--live-steps 4] [--json FILE]
+    .venv/bin/python -m benchmarks.bridge_bench [--pairs N] [--steps 2] [--latency-pairs 3] [--live-steps 4] [--before SETTING] [--json FILE]
 
 Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included) in its own ROS domain
 (``domain_coordinator``), on 127.0.0.1 only:
@@ -200,7 +200,10 @@ BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64},
 
 # "lazy": config/graph.yaml with the bridge's lazy_streams on (it reads a per-step stream only while a client
 # watches it): what the layout's client costs when the bridge does not take the streams nobody shows.
-SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams': True}}}
+# "objects": config/graph.yaml with the simulator and the controller publishing message objects instead of CDR
+# bytes (publish_cdr false): the before of raw publishing (--before objects).
+SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams': True}},
+            'objects': {'simulator': {'publish_cdr': False}, 'controller': {'publish_cdr': False}}}
 
 
 def settings_params(tmp: Path, setting: str) -> Path | None:
@@ -361,6 +364,8 @@ def main(argv=None) -> int:
     ap.add_argument('--live-steps', type=int, default=4, help='walking steps of each real-time latency run')
     ap.add_argument('--latency-pairs', type=int, default=3,
                     help='before (BEFORE) / after (config/graph.yaml) pairs of real-time latency runs, alternated')
+    ap.add_argument('--before', default='before', choices=sorted(SETTINGS),
+                    help="the setting of the 'before' runs (default BEFORE; objects: publish_cdr false)")
     ap.add_argument('--json', type=Path, default=ROOT / 'benchmarks' / 'bridge_results.json',
                     help='results file (default benchmarks/bridge_results.json)')
     a = ap.parse_args(argv)
@@ -381,7 +386,8 @@ def main(argv=None) -> int:
                 for i, only in enumerate((None, LAYOUT_TOPICS)):
                     load = os.getloadavg()[0]
                     r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
-                                  steps=a.live_steps, only=only, params=settings_params(Path(tmp), setting))
+                                  steps=a.live_steps, only=only,
+                                  params=settings_params(Path(tmp), a.before if setting == 'before' else 'after'))
                     r['load_average_1min_at_start'] = load
                     r['kind'] = 'latency' if only is None else 'latency_layout'
                     r['bridge'] = setting
@@ -390,7 +396,7 @@ def main(argv=None) -> int:
     off = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and not r['live'] and r['steps_per_s']]
     on = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and r['live'] and r['steps_per_s']]
     summary = {'date': time.strftime('%Y-%m-%d %H:%M:%S'), 'cpus': os.cpu_count(), 'machine': platform.machine(),
-               'load_average_at_end': os.getloadavg(), 'wall_s': time.monotonic() - t0,
+               'load_average_at_end': os.getloadavg(), 'wall_s': time.monotonic() - t0, 'before_setting': a.before,
                'rate_off_steps_per_s': off, 'rate_on_steps_per_s': on,
                'rate_on_over_off': (float(np.mean(on)) / float(np.mean(off))) if on and off else None,
                'runs': runs}

@@ -18,9 +18,12 @@ _LINE = re.compile(r"run over: (?P<reason>[^;]*); (?P<steps>\d+) control steps, 
                    r"(?P<imp>\d+) impacts, wall (?P<wall>[0-9.]+) s")
 
 
-def measure(sim_seconds: float, domain_cls, timeout: float = 180.0, ctrl_params: tuple[str, ...] = ()) -> dict:
-    """The lockstep rate; ``ctrl_params``: more ``NAME:=VALUE`` parameters of the controller node."""
+def measure(sim_seconds: float, domain_cls, timeout: float = 180.0, ctrl_params: tuple[str, ...] = (),
+            sim_params: tuple[str, ...] = ()) -> dict:
+    """The lockstep rate; ``ctrl_params`` / ``sim_params``: more ``NAME:=VALUE`` parameters of the controller /
+    simulator node."""
     extra = [a for p in ctrl_params for a in ("-p", p)]
+    sim_extra = [a for p in sim_params for a in ("-p", p)]
     with domain_cls() as dom:
         ctrl = subprocess.Popen([sys.executable, "-m", "biped_controller.graph.controller_node", "--ros-args",
                                  "-p", "use_sim_time:=true", "-p", "wait_for_recorder:=false", *extra],
@@ -29,7 +32,7 @@ def measure(sim_seconds: float, domain_cls, timeout: float = 180.0, ctrl_params:
             sim = subprocess.run([sys.executable, "-m", "biped_sim.graph.simulator_node", "--ros-args",
                                   "-p", "wait_for_recorder:=false", "-p", "max_steps:=0",
                                   "-p", f"max_time:={sim_seconds}", "-p", "linger:=0.0",
-                                  "-p", "start_delay:=0.5"],
+                                  "-p", "start_delay:=0.5", *sim_extra],
                                  cwd=ROOT, env=dom.env, capture_output=True, text=True, timeout=timeout)
         finally:
             ctrl.terminate()

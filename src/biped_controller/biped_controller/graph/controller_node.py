@@ -19,6 +19,9 @@ For every ``/sim/state`` (SimState) it computes the torque and publishes
   ``effort`` = paper torques q1..q6 [N m], ``header.stamp`` = the state's stamp;
 - ``/controller/status`` (ControllerStatus): every field of ``ControllerStatusData``.
 
+With ``publish_cdr`` (default ``config/graph.yaml``: true) both go out as CDR bytes encoded by
+``biped_sim.graph.cdr`` (the same bytes as the message objects, which ``publish_cdr`` false publishes).
+
 A state repeating the last sequence number is answered with the same torque (no second
 computation, the parameter state advances once per step). A state with ``fallen`` set is not
 answered. If no state arrives for ``state_timeout`` seconds (wall) after the first one, the node
@@ -41,6 +44,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 
 from biped_msgs_py.msg import ControllerStatus, SimState
+from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.graph.imu import ImuMessageError, imu_reading
 from biped_sim.robot.description import PAPER_JOINTS, load_description
@@ -110,6 +114,17 @@ def status_message(s, stamp) -> ControllerStatus:
     return m
 
 
+def status_cdr(enc: cdr.ControllerStatus, s, sec: int, nanosec: int) -> bytes:
+    """The CDR bytes (``biped_sim.graph.cdr``) of :func:`status_message`: the same conversions of the same fields."""
+    v = {name: conv(getattr(s, name)) for name, conv in STATUS_FIELDS}
+    return enc.encode(sec, nanosec, v['step'], v['mode'],
+                      (v['p'], v['p_dot'], v['tau'], v['tau_dot'], v['p_ddot'], v['tau_ddot'], v['p_ddot_star'],
+                       v['tau_ddot_star']), v['qp_status'], v['qp_message'], v['margins'], v['tightest'], v['zmp'],
+                      v['stance'], v['max_tracking_error'], v['predicted_reaction'], v['force_estimate'],
+                      v['wbc_status'], v['wbc_active'],
+                      (v['wbc_deviation'], v['lam'], v['lam_dot'], v['lam_ddot'], v['lam_ddot_star']))
+
+
 class ControllerNode(Node):
 
     def __init__(self, **kwargs):
@@ -119,6 +134,9 @@ class ControllerNode(Node):
         self.state_timeout = get_float(self, 'state_timeout', lo=0.0, lo_open=True)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder')
         self.use_imu = get_bool(self, 'use_imu')
+        # /controller/torque and /controller/status as CDR bytes (biped_sim.graph.cdr): issue 20 part 3
+        self.publish_cdr = get_bool(self, 'publish_cdr')
+        self._cdr_torque, self._cdr_status = cdr.JointState(), cdr.ControllerStatus()
         desc, family = load_robot_files(self)
         self.ctrl = AdaptiveController(self.cfg, family, desc)
         self.ctrl.reset()
@@ -131,14 +149,15 @@ class ControllerNode(Node):
         if not self.wait_for_recorder:
             self._subscribe()
         self.last_sequence: Optional[int] = None
-        self.last_reply: Optional[JointState] = None
+        self.last_reply: Optional[JointState | bytes] = None
         self.last_state_wall: Optional[float] = None
         self.silent_reported = False
         self.steps = 0
         # wall-clock timer: with use_sim_time a ROS-time timer would stop with /clock, i.e. exactly when
         # the simulator is gone or not started yet
         self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s')
+        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s, publishing '
+                               f'{"CDR bytes" if self.publish_cdr else "message objects"}')
 
     def _subscribe(self):
         # /imu first: the simulator starts once the controller's /sim/state reader and every /imu reader it
@@ -202,13 +221,20 @@ class ControllerNode(Node):
         t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
         out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
                                 int(msg.stance), pitch)
-        js = JointState()
-        js.header.stamp = msg.stamp
-        js.name = list(PAPER_JOINTS)
-        js.effort = np.asarray(out.torque, dtype=float).tolist()
+        if self.publish_cdr:
+            sec, nsec = msg.stamp.sec, msg.stamp.nanosec
+            js = self._cdr_torque.encode(sec, nsec, '', PAPER_JOINTS, (), (),
+                                         np.asarray(out.torque, dtype=float).tolist())
+            status = status_cdr(self._cdr_status, out.status, sec, nsec)
+        else:
+            js = JointState()
+            js.header.stamp = msg.stamp
+            js.name = list(PAPER_JOINTS)
+            js.effort = np.asarray(out.torque, dtype=float).tolist()
+            status = status_message(out.status, msg.stamp)
         self.pub_torque.publish(js)
         self.last_reply = js
-        self.pub_status.publish(status_message(out.status, msg.stamp))
+        self.pub_status.publish(status)
         self.steps += 1
 
     def _on_timer(self):

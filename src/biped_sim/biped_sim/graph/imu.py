@@ -28,6 +28,7 @@ import math
 
 from sensor_msgs.msg import Imu
 
+from biped_sim.graph import cdr
 from biped_sim.graph.names import IMU_FRAME
 
 #: the largest out-of-plane quaternion component or unit-norm error a reader accepts (round-off is ~1e-16)
@@ -51,6 +52,8 @@ class ImuBuilder:
         m.angular_velocity_covariance[4] = float(noise_pitch_rate) ** 2
         m.linear_acceleration_covariance[0] = -1.0
         self._msg = m
+        self._cdr = cdr.Imu(IMU_FRAME)
+        self._covariances = (float(noise_pitch) ** 2, float(noise_pitch_rate) ** 2)
 
     def message(self, stamp, pitch: float, pitch_rate: float) -> Imu:
         """The IMU message at ``stamp`` for the torso pitch [rad] and pitch rate [rad/s] (counter-clockwise
@@ -61,6 +64,19 @@ class ImuBuilder:
         o.x, o.y, o.z, o.w = 0.0, -math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch)
         m.angular_velocity.y = -float(pitch_rate)
         return m
+
+    def encode(self, sec: int, nanosec: int, pitch: float, pitch_rate: float) -> bytes:
+        """The CDR bytes (``biped_sim.graph.cdr``) of :meth:`message` at stamp ``(sec, nanosec)``: the same
+        numbers in the message's order (orientation, its covariance, angular velocity, its covariance, linear
+        acceleration, its covariance)."""
+        var_pitch, var_rate = self._covariances
+        return self._cdr.encode(sec, nanosec, (
+            0.0, -math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch),
+            0.0, 0.0, 0.0, 0.0, var_pitch, 0.0, 0.0, 0.0, 0.0,
+            0.0, -float(pitch_rate), 0.0,
+            0.0, 0.0, 0.0, 0.0, var_rate, 0.0, 0.0, 0.0, 0.0,
+            0.0, 0.0, 0.0,
+            -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
 
 
 def imu_reading(msg: Imu) -> tuple[float, float]:

@@ -60,6 +60,12 @@ topics are true), and ``/sim/plant`` (latched ``std_msgs/String``, YAML of
 ``perturbation.plant_parameters``) the plant's actual parameters, so a recording can be checked against
 the true plant.
 
+Publishing (``publish_cdr``, default ``config/graph.yaml``: true): the per-step topics (``/clock``, ``/imu``,
+``/sim/state``, ``/tf``, ``/stance``, ``/joint_states``, ``/ground_reaction``, ``/ground_reaction/cop``,
+``/sim/push``) go out as CDR bytes encoded by ``biped_sim.graph.cdr`` (``Publisher.publish(bytes)``), the same
+bytes as the message objects (false) produce: rclpy then skips building, converting and serialising a Python
+message (issue 20 part 3). The latched and event topics are always message objects.
+
 Parameters are validated at start; a bad one is logged naming it and the node exits 2 before
 anything is published.
 """
@@ -83,6 +89,7 @@ from std_msgs.msg import String, UInt8
 from tf2_msgs.msg import TFMessage
 
 from biped_msgs_py.msg import AppliedPush, Impact, PushEvent, SimState
+from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.robot.description import LEFT, PAPER_JOINTS, URDF_JOINTS, load_description, make_urdf
 from biped_sim.robot.floating import urdf_from_paper
@@ -144,6 +151,7 @@ class TransformBuilder:
         if missing:
             raise ValueError(f'URDF lacks joints {missing}')
         self._msg: TFMessage | None = None
+        self._cdr = cdr.TfMessage([(WORLD_FRAME, 'torso')] + [self.joints[n][:2] for n in URDF_JOINTS])
 
     @staticmethod
     def _tf(stamp, parent, child, xyz, angle) -> TransformStamped:
@@ -175,6 +183,13 @@ class TransformBuilder:
             r = m.transform.rotation
             r.x, r.y, r.z, r.w = quat_about_minus_y(float(x[2 + k]))
         return self._msg
+
+    def encode(self, sec: int, nanosec: int, x: np.ndarray) -> bytes:
+        """The CDR bytes of :meth:`message` (``biped_sim.graph.cdr``): the same transforms, frames and numbers."""
+        poses = [(float(x[0]), 0.0, float(x[1]), *quat_about_minus_y(float(x[2])))]
+        for i, name in enumerate(URDF_JOINTS):
+            poses.append((*self.joints[name][2], *quat_about_minus_y(float(x[3 + i]))))
+        return self._cdr.encode(sec, nanosec, poses)
 
 
 def read_sim_config(node: Node) -> SimConfig:
@@ -252,6 +267,8 @@ class SimulatorNode(Node):
         self.sim.reset(q0, qd0, LEFT)
         self.tfb = TransformBuilder(self.urdf)
         self.imub = ImuBuilder(self.perturbation.noise_pitch, self.perturbation.noise_pitch_rate)
+        self._cdr_state, self._cdr_joints = cdr.SimState(), cdr.JointState()
+        self._cdr_wrench, self._cdr_point = cdr.Stamped('WrenchStamped', 6), cdr.Stamped('PointStamped', 3)
 
         self.pub_clock = self.create_publisher(Clock, gn.CLOCK, gn.QOS_CLOCK)
         self.pub_state = self.create_publisher(SimState, gn.SIM_STATE, gn.QOS_LOCKSTEP)
@@ -294,7 +311,8 @@ class SimulatorNode(Node):
         self.create_timer(0.02, self._on_timer)
         self.get_logger().info(
             f'simulator ready: plant {self.cfg.plant}, control_period {self.cfg.control_period} s, substeps {self.cfg.substeps}, '
-            f'max_steps {self.max_steps}, max_time {self.max_time} s; waiting for the controller')
+            f'max_steps {self.max_steps}, max_time {self.max_time} s, publishing '
+            f'{"CDR bytes" if self.publish_cdr else "message objects"}; waiting for the controller')
 
     # ------------------------------------------------------------------ parameters
     def _read_parameters(self):
@@ -320,6 +338,9 @@ class SimulatorNode(Node):
         # pacing: 1.0 = sim time follows the wall clock (a live viewer sees real time), 0 = as fast as
         # the lockstep allows (experiments), r = r x real time
         self.real_time_factor = get_float(self, 'real_time_factor', lo=0.0, hi=1000.0)
+        # the per-step topics as CDR bytes encoded here (biped_sim.graph.cdr) instead of message objects:
+        # the same bytes on the wire, a fraction of rclpy's publish cost (issue 20 part 3)
+        self.publish_cdr = get_bool(self, 'publish_cdr')
 
     # ------------------------------------------------------------------ start
     def _missing_for_start(self) -> list[str]:
@@ -402,10 +423,24 @@ class SimulatorNode(Node):
     def _publish_state(self, fallen: bool = False, cause: str = '', clock: bool = True):
         sim = self.sim
         obs = sim.observe()
-        stamp = stamp_of(obs.t)
         self.sequence += 1
-        self.current_stamp_ns = stamp_ns(stamp)
         self.anchor_x = float(sim.anchor[0])
+        if self.publish_cdr:
+            sec, nsec = cdr.stamp_parts(obs.t)
+            self.current_stamp_ns = sec * 1_000_000_000 + nsec
+            state = self._cdr_state.encode(sec, nsec, obs.step, obs.stance, obs.q.tolist(), obs.qd.tolist(),
+                                           sim.x[:3].tolist(), sim.v[:3].tolist(), fallen, cause, self.sequence)
+            if clock:
+                self.pub_clock.publish(cdr.clock(sec, nsec))
+                self.pub_imu.publish(self.imub.encode(sec, nsec, obs.pitch, obs.pitch_rate))
+            self.pub_state.publish(state)
+            self.last_state_wall = time.monotonic()
+            self._visual_stamp = (sec, nsec)
+            self._visual_stance = obs.stance
+            self._visual_x = sim.x.copy()
+            return
+        stamp = stamp_of(obs.t)
+        self.current_stamp_ns = stamp_ns(stamp)
         m = SimState()
         m.stamp = stamp
         m.step = obs.step
@@ -431,10 +466,26 @@ class SimulatorNode(Node):
     def _publish_visuals(self):
         """/tf and /stance of the state just published (after /sim/state, so they overlap with the
         controller's computation)."""
+        if self.publish_cdr:
+            sec, nsec = self._visual_stamp
+            self.pub_tf.publish(self.tfb.encode(sec, nsec, self._visual_x))
+            self.pub_stance.publish(cdr.uint8(self._visual_stance))
+            return
         self.pub_tf.publish(self.tfb.message(self._visual_stamp, self._visual_x))
         self.pub_stance.publish(UInt8(data=self._visual_stance))
 
     def _publish_record(self, rec, anchor_x: float):
+        if self.publish_cdr:
+            sec, nsec = cdr.stamp_parts(rec.t)
+            self.pub_joints.publish(self._cdr_joints.encode(
+                sec, nsec, '', URDF_JOINTS, urdf_from_paper(rec.q, rec.stance).tolist(),
+                urdf_from_paper(rec.qd, rec.stance).tolist(), urdf_from_paper(rec.torque, rec.stance).tolist()))
+            fx, fz, mom = (float(v) for v in rec.wrench)
+            self.pub_wrench.publish(self._cdr_wrench.encode(sec, nsec, f'{SIDES[rec.stance]}_foot',
+                                                            (fx, 0.0, fz, 0.0, -mom, 0.0)))
+            cop_x = anchor_x + (float(rec.cop) if math.isfinite(rec.cop) else 0.0)
+            self.pub_cop.publish(self._cdr_point.encode(sec, nsec, WORLD_FRAME, (cop_x, 0.0, 0.0)))
+            return
         stamp = stamp_of(rec.t)
         js = JointState()
         js.header.stamp = stamp
@@ -465,6 +516,15 @@ class SimulatorNode(Node):
                 time.sleep(ahead)
 
     def _publish_applied_push(self, rec):
+        if self.publish_cdr:
+            period = float(rec.t_end - rec.t)
+            force, impulse = float(rec.push_force), float(rec.push_impulse)
+            mean_force = float(impulse / period) if period > 0 else force
+            acting = self.sim.interval_pushes(rec.t, rec.t_end) if period > 0 else ()
+            height = float(acting[0][1]) if acting else math.nan
+            self.pub_push.publish(cdr.applied_push(*cdr.stamp_parts(rec.t), period, force, impulse, mean_force,
+                                                   height))
+            return
         m = AppliedPush()
         m.stamp = stamp_of(rec.t)
         m.period = float(rec.t_end - rec.t)
