@@ -1,16 +1,29 @@
 """Cost of the legs' model-error estimator (issue 22, ``core/model_error.py``): ``AdaptiveController.compute``
-per call in a closed loop on the rigid plant (1 s, perfect sensors, the compiled step with the compiled
-momentum observer, K = 200), p50/p99 after the first 50 periods, side by side in one run (interleaved rounds,
-so every case sees the same load): the observer alone; the observer + the estimator with its first regressor
-(``RneaLegRegressor``: 7 Pinocchio RNEA calls on 7 models a period); the observer + the estimator as shipped
-(``LegRegressor``: one ``pin.computeJointTorqueRegressor`` and one product). Also the two regressors' calls
-alone (p50 over the loop's states). Written to ``benchmarks/model_error_results.json``, never asserted.
+per call in a closed loop on the rigid plant (1 s a case, the compiled step with the compiled sensing
+pipeline), p50/p99 after the first 50 periods, side by side in one run (interleaved rounds, so every case
+sees the same load):
 
-    .venv/bin/python -m benchmarks.model_error_bench [--seconds 1.0] [--rounds 3] [--out PATH]
+* perfect sensors, momentum observer K = 200: the observer alone (``observer``); + the estimator in Python
+  after the compiled call (``estimator_python``: ``LegModelError`` with Pinocchio's joint torque regressor,
+  the code before the estimator went into the kernel, run now through ``use_model_error_kernel(False)``);
+  + the estimator inside the compiled call (``estimator``, key ``controller.step_p50_us_model_error``);
+* the real-sensor profile (estimator + observer K = 50, noise 5e-4 rad, 5e-2 rad/s, 14 bits, IMU 1e-3 rad,
+  ``estimation_bench``'s ``controller.step_p50_us_estimation``) without (``real``) and with the model-error
+  estimator in the kernel (``real_model_error``, key ``controller.step_p50_us_estimation_model_error``: the
+  profile that meets every MuJoCo row); the ratio with / without.
+
+Also the three regressors' calls alone (p50 over the loop's states, a seeded acceleration): the RNEA
+differences (``RneaLegRegressor``), Pinocchio's joint torque regressor (``LegRegressor``), the closed form
+(``CompiledLegRegressor``, from Python: the call's dispatch included). Written to
+``benchmarks/model_error_results.json`` and the keys merged into ``--results`` (``keys``, section
+``model_error_step``); targets printed, never asserted.
+
+    .venv/bin/python -m benchmarks.model_error_bench [--seconds 1.0] [--rounds 3] [--out PATH] [--results PATH]
 """
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import platform
@@ -21,35 +34,51 @@ import numpy as np
 
 from biped_sim.robot.description import LEFT, load_description
 from biped_sim.robot.gait_family import GaitFamily
+from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
 from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.model_error import LegRegressor, RneaLegRegressor
+from biped_controller.core.model_error import CompiledLegRegressor, LegRegressor, RneaLegRegressor
 
 OUT = Path(__file__).with_name("model_error_results.json")
-CASES = (("observer", "momentum observer (compiled)"),
-         ("estimator_rnea", "+ estimator, RNEA regressor (old)"),
-         ("estimator", "+ estimator, joint torque regressor"))
+RESULTS = Path(__file__).with_name("results.json")
+PERFECT = dict(momentum_observer=True)
+REAL = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
+            sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)
+NOISY = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14)
+# name: (label, controller settings, plant perturbation, estimator on, estimator in the kernel)
+CASES = {
+    "observer": ("momentum observer (compiled), perfect sensors", PERFECT, None, False, True),
+    "estimator_python": ("+ estimator in Python after the kernel (before)", PERFECT, None, True, False),
+    "estimator": ("+ estimator inside the kernel (now)", PERFECT, None, True, True),
+    "real": ("real-sensor profile (estimator + observer)", REAL, NOISY, False, True),
+    "real_model_error": ("real-sensor profile + model-error estimator", REAL, NOISY, True, True),
+}
+KEYS = {"controller.step_p50_us_model_error": "estimator",
+        "controller.step_p50_us_model_error_python": "estimator_python",
+        "controller.step_p50_us_estimation_model_error": "real_model_error",
+        "controller.step_p50_us_estimation_same_run": "real"}
 
 
 def _case(fam, desc, seconds: float, case: str) -> tuple[np.ndarray, list]:
-    sim = Simulator(desc)
-    ctrl = AdaptiveController(load_controller_config(mode="both", momentum_observer=True,
-                                                     model_error_estimator=case != "observer"), fam, desc)
-    if case == "estimator_rnea":
-        ctrl._sensing.me.reg = RneaLegRegressor(desc)
+    _, over, pert, on, kernel = CASES[case]
+    sim = Simulator(desc, perturbation=pert)
+    ctrl = AdaptiveController(load_controller_config(mode="both", model_error_estimator=on, **over), fam, desc)
+    if on:
+        ctrl._sensing.use_model_error_kernel(kernel)
     q0, qd0 = fam.initial_state()
     sim.reset(q0, qd0, LEFT)
     ctrl.reset(LEFT)
+    gc.collect()
     ts, states = [], []
-    while sim.t < seconds:
+    while sim.t < seconds and sim.fall is None:
         o = sim.observe()
-        t0 = time.perf_counter()
+        t0 = time.perf_counter_ns()
         out = ctrl.compute(o.t, o.q, o.qd, o.stance, o.pitch)
-        ts.append(time.perf_counter() - t0)
+        ts.append(time.perf_counter_ns() - t0)
         states.append((o.q.copy(), o.qd.copy()))
         sim.step(out.torque)
-    return np.array(ts[50:]) * 1e6, states
+    return np.array(ts[50:]) * 1e-3, states
 
 
 def _regressor_calls(desc, states) -> dict[str, float]:
@@ -57,13 +86,14 @@ def _regressor_calls(desc, states) -> dict[str, float]:
     rng = np.random.default_rng(0)
     acc = rng.normal(0.0, 20.0, (len(states), 6))
     out = {}
-    for name, reg in (("rnea", RneaLegRegressor(desc)), ("joint_torque_regressor", LegRegressor(desc))):
+    for name, reg in (("rnea", RneaLegRegressor(desc)), ("joint_torque_regressor", LegRegressor(desc)),
+                      ("closed_form_compiled", CompiledLegRegressor(desc))):
         ts = []
         for (q, qd), a in zip(states, acc):
-            t0 = time.perf_counter()
+            t0 = time.perf_counter_ns()
             reg(q, qd, a)
-            ts.append(time.perf_counter() - t0)
-        out[name] = round(float(np.percentile(ts, 50)) * 1e6, 2)
+            ts.append(time.perf_counter_ns() - t0)
+        out[name] = round(float(np.percentile(ts, 50)) * 1e-3, 2)
     return out
 
 
@@ -72,32 +102,52 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--seconds", type=float, default=1.0)
     a.add_argument("--rounds", type=int, default=3)
     a.add_argument("--out", type=Path, default=OUT)
+    a.add_argument("--results", type=Path, default=RESULTS, help="merge the keys here (skipped if missing)")
     args = a.parse_args(argv)
     fam, desc = GaitFamily.load(), load_description()
+    for c in CASES:                               # warm: kernels compiled or loaded before any timing
+        _case(fam, desc, 0.06, c)
     load0 = os.getloadavg()[0]
-    out: dict[str, list[np.ndarray]] = {c: [] for c, _ in CASES}
+    out: dict[str, list[np.ndarray]] = {c: [] for c in CASES}
     states: list = []
     for _ in range(args.rounds):                  # interleaved rounds: every case sees the same load
-        for c, _ in CASES:
+        for c in CASES:
             ts, st = _case(fam, desc, args.seconds, c)
             out[c].append(ts)
-            states = st
+            if c == "estimator":
+                states = st
     calls = _regressor_calls(desc, states)
     load1 = os.getloadavg()[0]
     print(f"load average {load0:.1f} -> {load1:.1f}")
     res = {"meta": {"date": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()), "cpus": os.cpu_count(),
                     "load_avg_1min": load0, "load_avg_1min_end": load1, "python": platform.python_version(),
                     "seconds": args.seconds, "rounds": args.rounds},
-           "step": {}, "regressor_call_p50_us": calls}
-    for c, name in CASES:
+           "step": {}, "round_p50_us": {}, "regressor_call_p50_us": calls}
+    for c, (name, *_rest) in CASES.items():
         ts = np.concatenate(out[c])
         p50, p99 = float(np.percentile(ts, 50)), float(np.percentile(ts, 99))
-        res["step"][c] = {"p50_us": round(p50, 2), "p99_us": round(p99, 2), "calls": len(ts)}
-        print(f"{name:38s} p50 {p50:8.1f} us   p99 {p99:8.1f} us   ({len(ts)} calls)")
-    print(f"regressor call alone p50: RNEA {calls['rnea']:.1f} us, joint torque regressor "
-          f"{calls['joint_torque_regressor']:.1f} us")
+        res["step"][c] = {"label": name, "p50_us": round(p50, 2), "p99_us": round(p99, 2), "calls": len(ts)}
+        res["round_p50_us"][c] = [round(float(np.percentile(u, 50)), 2) for u in out[c]]
+        print(f"{name:50s} p50 {p50:8.1f} us   p99 {p99:8.1f} us   ({len(ts)} calls)")
+    S = res["step"]
+    res["ratios"] = {"estimator_over_observer": round(S["estimator"]["p50_us"] / S["observer"]["p50_us"], 3),
+                     "estimator_python_over_estimator": round(S["estimator_python"]["p50_us"]
+                                                              / S["estimator"]["p50_us"], 3),
+                     "real_model_error_over_real": round(S["real_model_error"]["p50_us"] / S["real"]["p50_us"], 3)}
+    res["keys"] = {k: S[c]["p50_us"] for k, c in KEYS.items()}
+    res["target"] = {k: {"value": res["keys"][k], "target": "<= 30", "met": res["keys"][k] <= 30}
+                     for k in ("controller.step_p50_us_model_error", "controller.step_p50_us_estimation_model_error")}
+    print(f"ratios (p50): {res['ratios']}")
+    print(f"regressor call alone p50 [us]: {calls}")
+    print(f"targets (issue 22, <= 30 us p50): {json.dumps(res['target'])}")
     args.out.write_text(json.dumps(res, indent=1) + "\n")
     print(f"written {args.out}")
+    if args.results is not None and args.results.exists():
+        merged = json.loads(args.results.read_text())
+        merged["model_error_step"] = res
+        merged.setdefault("keys", {}).update(res["keys"])
+        args.results.write_text(json.dumps(merged, indent=1, default=float) + "\n", encoding="utf-8")
+        print(f"keys merged into {args.results}")
     return 0
 
 

@@ -10,7 +10,11 @@ delay of d > 0 periods (``delay_compensation``) the bookkeeping of the delayed s
 pipeline's (which period's sample, the interval since the previous one and the torque applied over it, from
 the log of the controller's decisions), the estimator and the observer run on the sample, and the predictor
 (``estimation_kernels.predict``: RK4 on the fixed-foot chain, the touchdown and its flat-foot impact map
-compiled) takes it to the present through the last d decisions.
+compiled) takes it to the present through the last d decisions. The legs' model-error estimator
+(``model_error``) runs inside the same compiled call, after the observer (``estimation_kernels.sense_finish``
+-> ``model_error_kernels.update``: its regressor in closed form, its state in ``SENS``'s ``me_*`` fields);
+``use_model_error_kernel(False)`` runs ``model_error.LegModelError`` (Pinocchio) after the compiled call
+instead, with the same inputs (the tests' oracle and the benchmark's "before").
 """
 from __future__ import annotations
 
@@ -20,6 +24,7 @@ import numpy as np
 
 from biped_sim.robot import numba_cache
 from biped_sim.robot.description import RobotDescription
+from biped_sim.robot.fast_engine import fixed_foot_tree
 from biped_sim.robot.floating import FloatingModel
 
 from collections import deque
@@ -27,23 +32,52 @@ from collections import deque
 from biped_sim.robot.fixed_foot import relabel
 
 from biped_controller.core.estimation import RELABEL, Estimate, EstimatorConfig
-from biped_controller.core.estimation_layout import SCONF, SENS, SC_, S_
-from biped_controller.core.model_error import LegModelError
+from biped_controller.core.estimation_layout import N_LEG_PARAMETERS, N_TREE_BODIES, SCONF, SENS, SC_, S_
+from biped_controller.core.model_error import (LEG_PARAMETERS, LegErrorEstimate, LegModelError, body_combination,
+                                                load_model_error_kernels)
 from biped_controller.core.momentum_observer import Wrench
 from biped_controller.core.predictor import flat_foot_impact
 
 ESTIMATION_KERNELS = "biped_controller.core.estimation_kernels"
 ESTIMATION_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
-                              "biped_sim.robot.layout", "biped_controller.core.estimation_layout")
+                              "biped_sim.robot.layout", "biped_controller.core.estimation_layout",
+                              "biped_controller.core.model_error_kernels")
 
 
 def load_estimation_kernels():
-    """``estimation_kernels`` through ``numba_cache.load`` (cache kept with its dependencies)."""
+    """``estimation_kernels`` through ``numba_cache.load`` (cache kept with its dependencies; the model-error
+    kernels it calls loaded first through their own loader)."""
+    load_model_error_kernels()
     return numba_cache.load(ESTIMATION_KERNELS, sources=ESTIMATION_KERNELS_SOURCES)
 
 
 class SensingSingular(FloatingPointError):
     """A model matrix of the compiled pipeline was not positive definite (a non-finite state)."""
+
+
+class KernelLegError:
+    """The compiled pipeline's legs' model-error estimate, read from its state array (``SENS``'s ``me_*``
+    fields): the attributes of ``model_error.LegModelError`` that callers read (theta, P, updates,
+    estimate; copies)."""
+
+    def __init__(self, state: np.ndarray):
+        self._s = state
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self._s[SENS.slice("me_theta")].copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._s[SENS.slice("me_P")].reshape(N_LEG_PARAMETERS, N_LEG_PARAMETERS).copy()
+
+    @property
+    def updates(self) -> int:
+        return int(self._s[S_.me_flags + 2])
+
+    @property
+    def estimate(self) -> LegErrorEstimate:
+        return LegErrorEstimate(theta=self.theta, P=self.P)
 
 
 class CompiledSensing:
@@ -88,6 +122,17 @@ class CompiledSensing:
         # a touchdown only once the swing sole has cleared this height, so an infinite one switches it off
         c[SC_.pred_clearance] = math.inf if self.at_once else cfg.predictor_clearance
         c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
+        self.me_on = bool(self.observer and cfg.model_error_estimator)
+        if self.me_on:        # the legs' model-error estimator (model_error.py), run inside the kernel
+            if len(LEG_PARAMETERS) != N_LEG_PARAMETERS or int(ti[1]) != N_TREE_BODIES:
+                raise ValueError(f"estimation_layout declares {N_LEG_PARAMETERS} leg parameters and {N_TREE_BODIES} "
+                                 f"tree bodies; the model has {len(LEG_PARAMETERS)} and {int(ti[1])}")
+            # the settings' checks and the prior: LegModelError's own (also the oracle path's estimator)
+            self._me_py = LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
+                                        cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+            c[SC_.me_var_res] = self._me_py.var_res
+            c[SCONF.slice("me_P0")] = self._me_py.P0.ravel()
+            c[SCONF.slice("me_D")] = body_combination(fixed_foot_tree(desc).bodies).ravel()
         self.conf = c
         self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
         self.state = SENS.new()
@@ -98,13 +143,21 @@ class CompiledSensing:
         self._qdp = np.empty(6)
         self._pout = np.empty(2)
         self._hist = np.zeros((max(self.d, 1), 8))
-        # the legs' model error (model_error.py; Python, after the compiled observer): its combined estimate
-        # replaces the observer's dR, F_x and the rows' widening in what the compiled period reads
-        self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
-                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
-                   if self.observer and cfg.model_error_estimator else None)
+        # the legs' model error (model_error.py): its combined estimate replaces the observer's dR, F_x and the
+        # rows' widening in what the compiled period reads; in the kernel (default), or in Python after it
+        self.me = None
         self._me_wrench: Wrench | None = None
         self._qp_rows = np.asarray(qp_rows, dtype=float).reshape(5, 2)
+        self.use_model_error_kernel(True)
+
+    def use_model_error_kernel(self, kernel: bool) -> None:
+        """Where the legs' model-error estimator runs (when it is on): ``kernel`` True inside the compiled call
+        (``SCONF.me`` 1; ``me`` reads its state), False as ``model_error.LegModelError`` (Pinocchio's regressor)
+        after it, with the same inputs (the oracle of the tests, the benchmark's "before"). Resets the
+        pipeline."""
+        if self.me_on:
+            self.conf[SC_.me] = 1.0 if kernel else 0.0
+            self.me = KernelLegError(self.state) if kernel else self._me_py
         self.reset()
 
     def reset(self) -> None:
@@ -117,9 +170,15 @@ class CompiledSensing:
         self._j = None                            # the period of the last sample used (delay > 0)
         self._stance = None                       # its stance
         self._seg = 0                             # the period whose sample first showed the current stance
-        if self.me is not None:
-            self.me.reset()
+        if self.me_on:
+            self._me_py.reset()
             self._me_wrench = None
+            s[SENS.slice("me_P")] = self.conf[SCONF.slice("me_P0")]
+
+    @property
+    def _me_python(self) -> bool:
+        """The legs' model-error estimator runs in Python after the compiled call."""
+        return self.me_on and self.conf[SC_.me] == 0.0
 
     def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
         """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object
@@ -127,7 +186,7 @@ class CompiledSensing:
         if self.d > 0:
             return self._sense_delayed(float(t), q, qd, int(stance), float(pitch))
         ek, s = self.ek, self.state
-        pre = self._before() if self.me is not None else None
+        pre = self._before() if self._me_python else None
         code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), self._q, self._qd)
         if code == ek.NEEDS_IMPACT:
             self._impact()
@@ -147,9 +206,10 @@ class CompiledSensing:
                 s[S_.torque_prev:S_.torque_prev + 6].copy(), int(s[S_.told_prev]), int(s[S_.stance]))
 
     def _model_error(self, t_s: float, stance: int, pre: tuple) -> None:
-        """The legs' model error on the sample the compiled observer has just taken (``model_error``, the
-        Python pipeline's call with the same inputs: the interval and the torque applied over it as
-        ``estimation_kernels._elapsed_applied``, the restart as the kernel's)."""
+        """The legs' model error in Python (``use_model_error_kernel(False)``) on the sample the compiled
+        observer has just taken (``model_error``, the Python pipeline's call with the same inputs: the interval
+        and the torque applied over it as ``estimation_kernels._elapsed_applied``, the restart as the
+        kernel's). The kernel's ``_model_error`` takes the same inputs."""
         s = self.state
         first, decided, t_prev, torque_prev, told_prev, stance_prev = pre
         restarted = bool(s[S_.since] == 0.0)
@@ -193,7 +253,7 @@ class CompiledSensing:
                 s[S_.torque_prev:S_.torque_prev + 6] = tau_prev
                 s[S_.told_prev] = told_prev
                 s[S_.decided] = 1.0
-            pre = self._before() if self.me is not None else None
+            pre = self._before() if self._me_python else None
             code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
             if code == ek.NEEDS_IMPACT:
                 self._impact()
@@ -233,7 +293,7 @@ class CompiledSensing:
     def into_res(self, out: np.ndarray) -> None:
         """out (8,) <- [dR (2) [N], F_x [N], the five contact rows' widening [N]] (the controller's RES.sens_*)."""
         self.ek.into_res(self.state, self.conf, out)
-        w = self._me_wrench
+        w = self._me_wrench if self._me_python else None
         if w is not None:           # the legs' model error: the combined estimate (controller._observe_momentum)
             C = self._qp_rows
             out[0], out[1], out[2] = w.dR[0], w.dR[1], w.W[0]
@@ -261,8 +321,13 @@ class CompiledSensing:
     def wrench(self) -> Wrench | None:
         """The momentum observer's last estimate as the Python observer's ``Wrench`` (None: observer off or
         no sample yet); with the model-error estimator, the combined one (``model_error``)."""
-        if self._me_wrench is not None:
+        if self._me_python and self._me_wrench is not None:
             return self._me_wrench
+        s = self.state
+        if self.me_on and not self._me_python and s[S_.mo_started] != 0.0 and s[S_.me_flags] != 0.0:
+            g = lambda name: s[SENS.slice(name)].copy()   # noqa: E731
+            return Wrench(r=g("r"), W=g("me_W"), cov_W=g("me_cov_W").reshape(3, 3), dR=g("me_dR"),
+                          cov_dR=g("me_cov_dR").reshape(2, 2), S=g("S").reshape(2, 3))
         return self._observer_wrench()
 
     def _observer_wrench(self) -> Wrench | None:

@@ -29,7 +29,14 @@ oracle of the tests (``sensing.SensingPipeline`` on ``estimation.JointStateEstim
 * the torso wrench W = (J_j J_j^T)^-1 J_j r (the least-squares solution of J_j^T W = r, J_j (3 x 6) of
   full row rank: Pinocchio's pseudo-inverse in the oracle), cov_W = J^+ (K^2 A cov_q' A) J^+T +
   diag((W_restart e^{-K (t - t_restart)})^2), S = (B A^-1 J_j^T - J_r^T)[:2], dR = S W, cov_dR = S cov_W S^T,
-  and the QP's contact rows widened by k sqrt(C_r cov_dR C_r^T) (``controller._observe_momentum``).
+  and the QP's contact rows widened by k sqrt(C_r cov_dR C_r^T) (``controller._observe_momentum``);
+* with the legs' model-error estimator on (``SCONF.me``), right after the observer on the same sample and
+  the observer's A, B, H and J_j: ``model_error_kernels.update`` (``model_error.LegModelError.update``'s
+  maths, its regressor in closed form), with the inputs ``estimation_compiled`` gave the Python estimator:
+  restarted = (the time since the observer's restart is 0), the torque applied and the interval only when
+  not restarted, not the first sample and a decision recorded (else none and 0); its torso wrench, dR,
+  cov_dR and the rows' widening k sqrt(C_r cov_dR C_r^T) replace the observer's in what the QP reads
+  (``into_res``) once it has taken a sample.
 
 Arrays (float64, C order): ``conf`` (``estimation_layout.SCONF``), ``s`` (``SENS``), ``ti``/``tf`` the
 fixed-foot tree (``fast_engine.fixed_foot_tree``).
@@ -43,7 +50,8 @@ import numpy as np
 
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_kernels as pk
-from biped_controller.core.estimation_layout import S_, SC_
+from biped_controller.core import model_error_kernels as mek
+from biped_controller.core.estimation_layout import N_LEG_PARAMETERS, N_TREE_BODIES, S_, SC_
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -212,14 +220,12 @@ def _est_update(conf, s, q, qd, pitch):
 
 # ------------------------------------------------------------------------------------------ the observer
 @numba.njit(cache=True)
-def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd):
+def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd, A, B, J):
     """One sample of the momentum observer (module docstring); outputs into s (W, cov_W, dR, cov_dR, S,
-    extra). False on a singular model."""
+    extra), and the model terms it used into A (6, 6), B (3, 6), J (3, 9) (``momentum_terms``; H into
+    s's H_est). False on a singular model."""
     Kg = conf[SC_.K]
-    A = np.empty((N, N))
-    B = np.empty((3, N))
     beta = np.empty(N)
-    J = np.empty((3, 9))
     H = s[S_.H_est:S_.H_est + N]
     momentum_terms(ti, tf, q, qd, conf[SC_.height], A, B, beta, J, H)
     for i in range(N):
@@ -355,6 +361,40 @@ def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd):
     return True
 
 
+# ------------------------------------------------------------------------------------------ the legs' error
+@numba.njit(cache=True)
+def _model_error(ti, tf, conf, s, q, qd, A, B, J, cov_qd, has_applied, applied, dt):
+    """The legs' model-error estimator on the observer's sample (module docstring): its state and outputs
+    are s's ``me_*`` fields."""
+    npar = N_LEG_PARAMETERS
+    Jj = np.empty((3, N))
+    for a in range(3):
+        for k in range(N):
+            Jj[a, k] = J[a, 3 + k]
+    Rres = np.zeros((3, 3))
+    for a in range(3):
+        Rres[a, a] = conf[SC_.me_var_res]
+    D = conf[SC_.me_D:SC_.me_D + 2 * N_TREE_BODIES * npar].reshape((2 * N_TREE_BODIES, npar))
+    mek.update(ti, tf, D, q, qd, A, B, s[S_.H_est:S_.H_est + N], Jj, s[S_.r:S_.r + N],
+               s[S_.S:S_.S + 6].reshape((2, 3)), s[S_.cov_W:S_.cov_W + 9].reshape((3, 3)),
+               s[S_.W_restart:S_.W_restart + 3], s[S_.since], cov_qd, conf[SC_.K], dt, s[S_.since] == 0.0,
+               has_applied, applied, Rres, s[S_.me_theta:S_.me_theta + npar],
+               s[S_.me_P:S_.me_P + npar * npar].reshape((npar, npar)),
+               s[S_.me_Yf:S_.me_Yf + npar * npar].reshape((npar, npar)),
+               s[S_.me_Yprev:S_.me_Yprev + npar * npar].reshape((npar, npar)),
+               s[S_.me_W_restart:S_.me_W_restart + 3], s[S_.me_last_torque:S_.me_last_torque + N],
+               s[S_.me_flags:S_.me_flags + 3], s[S_.me_W:S_.me_W + 3],
+               s[S_.me_cov_W:S_.me_cov_W + 9].reshape((3, 3)), s[S_.me_dR:S_.me_dR + 2],
+               s[S_.me_cov_dR:S_.me_cov_dR + 4].reshape((2, 2)))
+    c00, c01 = s[S_.me_cov_dR], s[S_.me_cov_dR + 1]
+    c10, c11 = s[S_.me_cov_dR + 2], s[S_.me_cov_dR + 3]
+    for row in range(5):
+        cx = conf[SC_.qp_rows + 2 * row]
+        cy = conf[SC_.qp_rows + 2 * row + 1]
+        var = cx * (c00 * cx + c01 * cy) + cy * (c10 * cx + c11 * cy)
+        s[S_.me_extra + row] = conf[SC_.confidence] * math.sqrt(max(var, 0.0))
+
+
 # ------------------------------------------------------------------------------------------ one period
 @numba.njit(cache=True)
 def _elapsed_applied(conf, s, t, stance, applied):
@@ -404,8 +444,15 @@ def sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
             dt = _elapsed_applied(conf, s, t, stance, applied)
         if restart:
             dt = 0.0
-        if not _observer(ti, tf, conf, s, q_out, qd_out, stance, restart, applied, dt, cov):
+        A = np.empty((N, N))
+        B = np.empty((3, N))
+        J = np.empty((3, 9))
+        if not _observer(ti, tf, conf, s, q_out, qd_out, stance, restart, applied, dt, cov, A, B, J):
             return SINGULAR
+        if conf[SC_.me] != 0.0:
+            has_applied = s[S_.since] != 0.0 and not first and s[S_.decided] != 0.0
+            _model_error(ti, tf, conf, s, q_out, qd_out, A, B, J, cov, has_applied, applied,
+                         dt if has_applied else 0.0)
     s[S_.started] = 1.0
     s[S_.stance] = stance
     return DONE
@@ -447,8 +494,16 @@ def sense(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
 
 @numba.njit(_I(_V, _V, _V), cache=True)
 def into_res(s, conf, out):
-    """out (8,) <- [dR (2) [N], F_x = W[0] [N], the five rows' widening [N]] (the controller's RES fields)."""
+    """out (8,) <- [dR (2) [N], F_x = W[0] [N], the five rows' widening [N]] (the controller's RES fields):
+    the observer's, or with the legs' model-error estimator once it has taken a sample its combined ones."""
     observer = conf[SC_.observer] != 0.0
+    if observer and conf[SC_.me] != 0.0 and s[S_.me_flags] != 0.0:
+        out[0] = s[S_.me_dR]
+        out[1] = s[S_.me_dR + 1]
+        out[2] = s[S_.me_W]
+        for r in range(5):
+            out[3 + r] = s[S_.me_extra + r]
+        return 0
     out[0] = s[S_.dR] if observer else 0.0
     out[1] = s[S_.dR + 1] if observer else 0.0
     out[2] = s[S_.W] if observer else 0.0

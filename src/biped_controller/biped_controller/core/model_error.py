@@ -1,5 +1,5 @@
 """The legs' model error, identified from the momentum observer's swing-leg rows (issue 22). NumPy +
-Pinocchio + one Numba kernel (``model_error_kernels``), no ROS.
+Pinocchio + Numba kernels (``model_error_kernels``), no ROS.
 
 Why. The momentum observer (``momentum_observer``) estimates tau_d, everything the model does not contain,
 in the six joint rows, and reads it as a wrench W on the torso, whose translational part goes to the
@@ -25,7 +25,12 @@ them (centre of mass fixed, inertia about it): the error's generalized force on 
 with column j of Y = RNEA of the model with parameter j raised by one unit minus RNEA of the model (exact:
 RNEA is linear in the inertial parameters), computed as Pinocchio's joint torque regressor (9 x 10 per joint
 body) times the parameter's change of the bodies' dynamic parameters (``parameter_bumps``, ``LegRegressor``;
-the RNEA differences are kept as ``RneaLegRegressor``, the tests' oracle). The observer's r is tau_d = -e_j
+the RNEA differences are kept as ``RneaLegRegressor``, the tests' oracle), or in closed form on the planar
+tree (``model_error_kernels.regressor_into``: each column the generalized force of a unit mass at a link's
+centre of mass or of a unit inertia, summed over both legs' bodies by ``body_combination``;
+``CompiledLegRegressor``), which the compiled pipeline runs with the whole sample below inside its kernel
+(``model_error_kernels.update``, called by ``estimation_kernels.sense_finish``; this class stays the
+Python pipeline's estimator and the oracle). The observer's r is tau_d = -e_j
 through its first-order filter (r' = K (tau_d - r)), so its swing-leg rows obey r_s = -(Y_f theta)_s, Y_f the
 joint rows of Y through the same filter (discrete: Y_f <- e^{-K dt} Y_f + (1 - e^{-K dt}) (Y_{k-1} + Y_k) / 2,
 restarted at 0 with the observer, whose restart leaves the swing rows at 0). theta is estimated by recursive
@@ -55,6 +60,7 @@ import pinocchio as pin
 
 from biped_sim.robot import numba_cache
 from biped_sim.robot.description import RobotDescription
+from biped_sim.robot.fast_engine import fixed_foot_tree
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
 
 from biped_controller.core.momentum_observer import Wrench
@@ -64,12 +70,14 @@ LEG_PARAMETERS: tuple[tuple[str, str], ...] = (("thigh", "mass"), ("thigh", "ine
                                                ("shin", "inertia"), ("foot", "mass"), ("foot", "inertia"))
 SWING = slice(3, 6)     # the swing leg's rows among the six joint rows (paper order q4..q6)
 MODEL_ERROR_KERNELS = "biped_controller.core.model_error_kernels"
+MODEL_ERROR_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels")
 
 
 def load_model_error_kernels(warm: bool = False):
-    """``model_error_kernels`` through ``numba_cache.load`` (its cache in build/numba-cache); ``warm``: call the
-    kernel once on zeros so that it is compiled (or loaded from the cache) now, not at the first sample."""
-    mod = numba_cache.load(MODEL_ERROR_KERNELS)
+    """``model_error_kernels`` through ``numba_cache.load`` (its cache in build/numba-cache, kept with the
+    planar kernels it calls); ``warm``: call ``combine_kernel`` once on zeros so that it is compiled (or loaded
+    from the cache) now, not at the first sample (``leg_regressor`` has explicit types: compiled at import)."""
+    mod = numba_cache.load(MODEL_ERROR_KERNELS, sources=MODEL_ERROR_KERNELS_SOURCES)
     if warm:
         z3, z6 = np.zeros((3, 3)), np.zeros((6, 6))
         mod.combine_kernel(np.zeros((9, 6)), np.eye(6), np.zeros((3, 6)), np.eye(6), np.zeros(6), np.zeros((2, 3)),
@@ -159,6 +167,46 @@ class LegRegressor:
         self._q[3:], self._v[3:], self._a[3:] = q, qd, a
         R = pin.computeJointTorqueRegressor(self._model, self._data, self._q, self._v, self._a)
         return R @ self._D
+
+
+def body_combination(bodies) -> np.ndarray:
+    """D (2 nb, 6): the combination Y = F D of ``model_error_kernels.regressor_into``'s per-body columns F
+    (column b: a unit mass at body b's centre of mass; column nb + b: a unit inertia of body b) into the six
+    parameters of ``LEG_PARAMETERS``. ``bodies``: the fixed-foot tree's (``fast_engine.fixed_foot_tree``);
+    the description's legs are alike, so a link's parameter is carried by both legs' bodies of that link,
+    ``stance_<link>`` and ``swing_<link>`` (as ``LINK_JOINTS`` on Pinocchio's model): D[b, j] = 1 for a mass
+    parameter, D[nb + b, j] = 1 for an inertia. Raises ``ValueError`` naming the link unless exactly those
+    two bodies exist."""
+    nb = len(bodies)
+    names = [b.name for b in bodies]
+    D = np.zeros((2 * nb, len(LEG_PARAMETERS)))
+    for j, (link, name) in enumerate(LEG_PARAMETERS):
+        for side in ("stance", "swing"):
+            body = f"{side}_{link}"
+            if names.count(body) != 1:
+                raise ValueError(f"the fixed-foot tree must have one body {body!r} for the parameter {link}.{name}")
+            b = names.index(body)
+            D[b if name == "mass" else nb + b, j] = 1.0
+    return D
+
+
+class CompiledLegRegressor:
+    """``LegRegressor``'s Y(q, q', q'') (9, 6) in closed form on the planar fixed-foot tree
+    (``model_error_kernels.leg_regressor``, Numba; ``body_combination``): the same call, rows and units;
+    no Pinocchio. What the compiled pipeline runs inside its kernel; this class is its entry for the tests
+    and the benchmark."""
+
+    def __init__(self, desc: RobotDescription):
+        tree = fixed_foot_tree(desc)
+        self.ti, self.tf = tree.arrays()
+        self.D = body_combination(tree.bodies)
+        self._kern = load_model_error_kernels()
+
+    def __call__(self, q: np.ndarray, qd: np.ndarray, a: np.ndarray) -> np.ndarray:
+        Y = np.empty((9, len(LEG_PARAMETERS)))
+        self._kern.leg_regressor(self.ti, self.tf, self.D, np.ascontiguousarray(q, dtype=float),
+                                 np.ascontiguousarray(qd, dtype=float), np.ascontiguousarray(a, dtype=float), Y)
+        return Y
 
 
 class RneaLegRegressor:

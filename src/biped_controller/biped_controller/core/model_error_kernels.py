@@ -1,7 +1,11 @@
-"""The legs' model-error estimator's algebra after its regressor (``model_error``, issue 22), as one function
-run either by NumPy (``combine``, the oracle) or compiled by Numba (``combine_kernel``). A kernel module:
-import it with ``model_error.load_model_error_kernels`` (``biped_sim.robot.numba_cache.load``), never
-directly. The maths, units and conventions: ``model_error``'s module docstring and ``combine``'s."""
+"""The legs' model-error estimator's kernels (``model_error``, issue 22): its algebra after the regressor, as
+one function run either by NumPy (``combine``, the oracle) or compiled by Numba (``combine_kernel``); the
+six-column leg regressor Y(q, q', q'') in closed form on the planar fixed-foot tree (``leg_regressor``,
+Pinocchio's joint torque regressor its oracle); and the estimator's whole sample compiled (``update``: the
+maths of ``LegModelError.update`` after the model terms, run by the compiled sensing pipeline inside
+``estimation_kernels.sense_finish``). A kernel module: import it with ``model_error.load_model_error_kernels``
+(``biped_sim.robot.numba_cache.load``), never directly. The maths, units and conventions: ``model_error``'s
+module docstring, ``combine``'s, ``leg_regressor``'s and ``update``'s."""
 from __future__ import annotations
 
 import math
@@ -12,6 +16,102 @@ import numpy as np
 from biped_sim.robot.numba_cache import require_configured
 
 require_configured(__name__)
+
+from biped_sim.robot import planar_kernels as pk   # noqa: E402  (a kernel module: after the check)
+
+_V = numba.types.Array(numba.types.float64, 1, "C")
+_VI = numba.types.Array(numba.types.int64, 1, "C")
+_M = numba.types.Array(numba.types.float64, 2, "C")
+
+
+# ------------------------------------------------------------------------------------------ the regressor
+@numba.njit(cache=True)
+def regressor_into(ti, tf, D, q, qd, a, Y):
+    """Y (nj, np) <- the generalized force on every coordinate of the locked-root chain (joints 0-2 of the
+    planar tree ``ti``/``tf``, ``planar_kernels``' layout, at rest at zero: root x [N], z [N], pitch [N m];
+    then the actuated joints 3..nj-1 at (q, q', q'' = a) [rad, rad/s, rad/s^2], [N m]) of a unit change of
+    each parameter, Y = F D with D (2 nb, np) the combination of the bodies' columns and F (nj, 2 nb):
+
+    * column b (unit mass of body b, its centre of mass P_b and its inertia about it fixed: a point mass at
+      P_b): F[k, b] = J_b,k . (a_b + g e_z), J_b,k the (x, z) column of P_b's Jacobian for coordinate k
+      (``planar_kernels._column``: perp(P_b - p_k) for a hinge, the prism's axis), a_b = P_b'' the centre of
+      mass's acceleration, g e_z gravity's (z up); 0 where k is not an ancestor of b's joint;
+    * column nb + b (unit rotational inertia of body b about its centre of mass and the plane's normal):
+      F[k, nb + b] = w_b,k alpha_b, w_b,k = 1 for a hinge ancestor (0 for a prism), alpha_b the body's
+      angular acceleration.
+
+    Both are the Newton-Euler equations of that unit body (the inertial + weight wrench m (a + g e_z),
+    I alpha mapped to the coordinates by the transposed Jacobian), so Y is exact: the inverse dynamics are
+    linear in the inertial parameters. Accelerations by one forward recursion over the frames: origin
+    acceleration = the drift of ``planar_kernels._kinematics`` (the part at q'' = 0) + the part linear in
+    q'': l_k = l_par + alpha_par perp(r_k) (+ e_k q''_k for a prism), alpha_k = alpha_par (+ q''_k for a
+    hinge), r_k the origin's offset from its parent's, perp(x, z) = (-z, x); a point r from the origin of
+    frame j: a_j + alpha_j perp(r) - omega_j^2 r. Signs as ``planar_kernels``: angles counter-clockwise in
+    the sagittal view (about -y), moments counter-clockwise."""
+    n = ti[0]
+    nb = ti[1]
+    npar = D.shape[1]
+    g = tf[0]
+    K = np.empty((10, n))
+    qf = np.zeros(n)
+    vf = np.zeros(n)
+    af = np.zeros(n)
+    m = n - q.shape[0]
+    for i in range(q.shape[0]):
+        qf[m + i] = q[i]
+        vf[m + i] = qd[i]
+        af[m + i] = a[i]
+    pk._kinematics(ti, tf, qf, vf, K)
+    al = np.empty(n)
+    lx = np.empty(n)
+    lz = np.empty(n)
+    for k in range(n):
+        p = pk._parent(ti, k)
+        if p < 0:
+            alp, lxp, lzp, rx, rz = 0.0, 0.0, 0.0, 0.0, 0.0
+        else:
+            alp, lxp, lzp = al[p], lx[p], lz[p]
+            rx = K[pk._PX, k] - K[pk._PX, p]
+            rz = K[pk._PZ, k] - K[pk._PZ, p]
+        lxk = lxp - alp * rz
+        lzk = lzp + alp * rx
+        typ = pk._jtype(ti, k)
+        if typ == pk.REV:
+            al[k] = alp + af[k]
+        else:
+            al[k] = alp
+            if typ == pk.PX:
+                lxk += K[pk._C, k] * af[k]
+                lzk += K[pk._S, k] * af[k]
+            else:
+                lxk -= K[pk._S, k] * af[k]
+                lzk += K[pk._C, k] * af[k]
+        lx[k] = lxk
+        lz[k] = lzk
+    Y[:, :] = 0.0
+    ob = pk.HEADER_F + 2 * n
+    for b in range(nb):
+        j = ti[pk.HEADER_I + 2 * n + b]
+        Px, Pz, rx, rz = pk._point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
+        om2 = K[pk._OM, j] * K[pk._OM, j]
+        alpha = al[j]
+        ax = K[pk._AX, j] + lx[j] - alpha * rz - om2 * rx
+        az = K[pk._AZ, j] + lz[j] + alpha * rx - om2 * rz + g
+        k = j
+        while k >= 0:
+            jx, jz, jw = pk._column(ti, K, k, Px, Pz)
+            fm = jx * ax + jz * az
+            fi = jw * alpha
+            for c in range(npar):
+                Y[k, c] += fm * D[b, c] + fi * D[nb + b, c]
+            k = pk._parent(ti, k)
+
+
+@numba.njit(numba.int64(_VI, _V, _M, _V, _V, _V, _M), cache=True)
+def leg_regressor(ti, tf, D, q, qd, a, Y):
+    """:func:`regressor_into` for a caller outside numba (explicit types: compiled once). Returns 0."""
+    regressor_into(ti, tf, D, q, qd, a, Y)
+    return 0
 
 
 def combine(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, K, dt, since, restarted,
@@ -69,3 +169,50 @@ def combine(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, 
 
 
 combine_kernel = numba.njit(cache=True)(combine)
+
+
+# ------------------------------------------------------------------------------------------ one sample
+@numba.njit(cache=True)
+def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since, cov_qd, K, dt, restarted,
+           has_applied, applied, Rres, theta, P, Yf, Yprev, W_t_restart, last_torque, flags, W_t, cov_W, dR, cov_dR):
+    """One observer sample of the estimator: ``LegModelError.update``'s maths after its model terms, in place
+    (the compiled pipeline's; ``LegModelError`` stays the oracle). In: the state the observer saw (q, q')
+    [rad, rad/s], the model's A (6, 6), B (3, 6) (root rows), H (6,) there (the observer's
+    ``estimation_kernels.momentum_terms``), J_j (3, 6) the torso wrench Jacobian's joint columns, the
+    observer's r (6,) [N m], S (2, 3), cov_W_obs (3, 3), the wrench it carried at its last restart
+    W_obs_restart (3,) and the time since [s], the rate covariance cov_qd (6, 6), K [1/s], dt [s],
+    ``restarted`` (the observer restarted at this sample), ``has_applied`` and ``applied`` (6,) [N m] the
+    torque over the interval that led here in this stance's paper order, Rres = s_res^2 1 (3, 3). State,
+    updated: theta (6,), P (6, 6), Y_f (6, 6), Yprev (6, 6), W_t_restart (3,), last_torque (6,), flags (3,)
+    = [a Y_j of the last sample is in Yprev (0/1), last_torque holds a torque (0/1), RLS updates made].
+    W_t (3,): in, the last sample's torso wrench; out, this sample's. Out: cov_W (3, 3), dR (2,) [N],
+    cov_dR (2, 2).
+
+    As ``LegModelError.update``: the acceleration a = A^-1 (Gamma - H + r) under the torque applied, or at a
+    restart (or without a torque) a = A^-1 (relabel(the last torque) - H) (0 torque before any), relabel
+    = -x[::-1]; Y = :func:`regressor_into` at (q, q', a); at a restart W_t_restart <- the last torso wrench,
+    otherwise one more update counted; then :func:`combine` (compiled)."""
+    Ainv = np.linalg.inv(A)
+    nj = A.shape[0]
+    tq = np.zeros(nj)
+    if restarted or not has_applied:
+        if flags[1] != 0.0:
+            for i in range(nj):
+                tq[i] = -last_torque[nj - 1 - i]
+        acc = Ainv @ (tq - H)
+    else:
+        for i in range(nj):
+            tq[i] = applied[i]
+        acc = Ainv @ (tq - H + r)
+        for i in range(nj):
+            last_torque[i] = tq[i]
+        flags[1] = 1.0
+    Y = np.empty((nj + 3, theta.shape[0]))
+    regressor_into(ti, tf, D, q, qd, acc, Y)
+    if restarted:
+        W_t_restart[:] = W_t
+    else:
+        flags[2] += 1.0
+    combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, True, K, dt, since, restarted,
+                   flags[0] != 0.0, Rres, theta, P, Yf, Yprev, W_t_restart, W_t, cov_W, dR, cov_dR)
+    flags[0] = 1.0
