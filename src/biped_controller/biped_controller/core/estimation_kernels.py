@@ -365,7 +365,7 @@ def _observer(ti, tf, conf, s, q, qd, stance, restart, applied, dt, cov_qd, A, B
 @numba.njit(cache=True)
 def _model_error(ti, tf, conf, s, q, qd, A, B, J, cov_qd, has_applied, applied, dt):
     """The legs' model-error estimator on the observer's sample (module docstring): its state and outputs
-    are s's ``me_*`` fields."""
+    are s's ``me_*`` fields. False if A is not positive definite."""
     npar = N_LEG_PARAMETERS
     Jj = np.empty((3, N))
     for a in range(3):
@@ -375,17 +375,19 @@ def _model_error(ti, tf, conf, s, q, qd, A, B, J, cov_qd, has_applied, applied, 
     for a in range(3):
         Rres[a, a] = conf[SC_.me_var_res]
     D = conf[SC_.me_D:SC_.me_D + 2 * N_TREE_BODIES * npar].reshape((2 * N_TREE_BODIES, npar))
-    mek.update(ti, tf, D, q, qd, A, B, s[S_.H_est:S_.H_est + N], Jj, s[S_.r:S_.r + N],
-               s[S_.S:S_.S + 6].reshape((2, 3)), s[S_.cov_W:S_.cov_W + 9].reshape((3, 3)),
-               s[S_.W_restart:S_.W_restart + 3], s[S_.since], cov_qd, conf[SC_.K], dt, s[S_.since] == 0.0,
-               has_applied, applied, Rres, s[S_.me_theta:S_.me_theta + npar],
-               s[S_.me_P:S_.me_P + npar * npar].reshape((npar, npar)),
-               s[S_.me_Yf:S_.me_Yf + npar * npar].reshape((npar, npar)),
-               s[S_.me_Yprev:S_.me_Yprev + npar * npar].reshape((npar, npar)),
-               s[S_.me_W_restart:S_.me_W_restart + 3], s[S_.me_last_torque:S_.me_last_torque + N],
-               s[S_.me_flags:S_.me_flags + 3], s[S_.me_W:S_.me_W + 3],
-               s[S_.me_cov_W:S_.me_cov_W + 9].reshape((3, 3)), s[S_.me_dR:S_.me_dR + 2],
-               s[S_.me_cov_dR:S_.me_cov_dR + 4].reshape((2, 2)))
+    ok = mek.update(ti, tf, D, q, qd, A, B, s[S_.H_est:S_.H_est + N], Jj, s[S_.r:S_.r + N],
+                    s[S_.S:S_.S + 6].reshape((2, 3)), s[S_.cov_W:S_.cov_W + 9].reshape((3, 3)),
+                    s[S_.W_restart:S_.W_restart + 3], s[S_.since], cov_qd, conf[SC_.K], dt, s[S_.since] == 0.0,
+                    has_applied, applied, Rres, s[S_.me_theta:S_.me_theta + npar],
+                    s[S_.me_P:S_.me_P + npar * npar].reshape((npar, npar)),
+                    s[S_.me_Yf:S_.me_Yf + npar * npar].reshape((npar, npar)),
+                    s[S_.me_Yprev:S_.me_Yprev + npar * npar].reshape((npar, npar)),
+                    s[S_.me_W_restart:S_.me_W_restart + 3], s[S_.me_last_torque:S_.me_last_torque + N],
+                    s[S_.me_flags:S_.me_flags + 3], s[S_.me_W:S_.me_W + 3],
+                    s[S_.me_cov_W:S_.me_cov_W + 9].reshape((3, 3)), s[S_.me_dR:S_.me_dR + 2],
+                    s[S_.me_cov_dR:S_.me_cov_dR + 4].reshape((2, 2)))
+    if not ok:
+        return False
     c00, c01 = s[S_.me_cov_dR], s[S_.me_cov_dR + 1]
     c10, c11 = s[S_.me_cov_dR + 2], s[S_.me_cov_dR + 3]
     for row in range(5):
@@ -393,6 +395,7 @@ def _model_error(ti, tf, conf, s, q, qd, A, B, J, cov_qd, has_applied, applied, 
         cy = conf[SC_.qp_rows + 2 * row + 1]
         var = cx * (c00 * cx + c01 * cy) + cy * (c10 * cx + c11 * cy)
         s[S_.me_extra + row] = conf[SC_.confidence] * math.sqrt(max(var, 0.0))
+    return True
 
 
 # ------------------------------------------------------------------------------------------ one period
@@ -451,8 +454,9 @@ def sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
             return SINGULAR
         if conf[SC_.me] != 0.0:
             has_applied = s[S_.since] != 0.0 and not first and s[S_.decided] != 0.0
-            _model_error(ti, tf, conf, s, q_out, qd_out, A, B, J, cov, has_applied, applied,
-                         dt if has_applied else 0.0)
+            if not _model_error(ti, tf, conf, s, q_out, qd_out, A, B, J, cov, has_applied, applied,
+                                dt if has_applied else 0.0):
+                return SINGULAR
     s[S_.started] = 1.0
     s[S_.stance] = stance
     return DONE

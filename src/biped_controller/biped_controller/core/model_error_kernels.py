@@ -22,6 +22,7 @@ from biped_sim.robot import planar_kernels as pk   # noqa: E402  (a kernel modul
 _V = numba.types.Array(numba.types.float64, 1, "C")
 _VI = numba.types.Array(numba.types.int64, 1, "C")
 _M = numba.types.Array(numba.types.float64, 2, "C")
+_FAST = {"reassoc", "contract"}
 
 
 # ------------------------------------------------------------------------------------------ the regressor
@@ -168,11 +169,199 @@ def combine(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, 
     cov_dR[:] = S @ cov_W @ S.T + Gt @ P @ Gt.T
 
 
-combine_kernel = numba.njit(cache=True)(combine)
+combine_numba = numba.njit(cache=True)(combine)   # the NumPy function compiled as it is (kept for comparison)
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def _matmul(X, Yb, out):
+    """out (a, c) <- X (a, b) Yb (b, c) (plain loops: for these 2 to 9 row matrices a loop beats a BLAS call)."""
+    for i in range(X.shape[0]):
+        for k in range(Yb.shape[1]):
+            v = 0.0
+            for j in range(X.shape[1]):
+                v += X[i, j] * Yb[j, k]
+            out[i, k] = v
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def _matmul_bt(X, Yb, out):
+    """out (a, c) <- X (a, b) Yb^T, Yb (c, b)."""
+    for i in range(X.shape[0]):
+        for k in range(Yb.shape[0]):
+            v = 0.0
+            for j in range(X.shape[1]):
+                v += X[i, j] * Yb[k, j]
+            out[i, k] = v
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, K, dt, since, restarted,
+                   has_prev, Rres, theta, P, Yf, Yprev, W_t_restart, W_t, cov_W, dR, cov_dR):
+    """:func:`combine` compiled, its products written as loops and its two solves by Cholesky (S_m = H P H^T
+    + R_m and J_j J_j^T, both symmetric positive definite; ``planar_kernels.cholesky``): the same arguments,
+    maths and results to round-off (tested against :func:`combine` run by NumPy on every branch). The SVD
+    pseudo-inverse of the rank-deficient J_j stays NumPy's, as :func:`combine`'s."""
+    npar = theta.shape[0]
+    nj = Yf.shape[0]
+    nr = 3                                   # the swing rows, joints 3..5 of the six
+    if restarted:
+        Yf[:, :] = 0.0
+    else:
+        f = math.exp(-K * dt)
+        for i in range(nj):
+            for c in range(npar):
+                ymid = 0.5 * (Yprev[i, c] + Y[3 + i, c]) if has_prev else Y[3 + i, c]
+                Yf[i, c] = f * Yf[i, c] + (1.0 - f) * ymid
+        # RLS on the swing rows: r_s = H theta + noise, H = -(Y_f)_s
+        H = np.empty((nr, npar))
+        for i in range(nr):
+            for c in range(npar):
+                H[i, c] = -Yf[3 + i, c]
+        Rm = np.empty((nr, nr))
+        for i in range(nr):
+            for k in range(nr):
+                Rm[i, k] = Rres[i, k]
+        if use_cov:
+            T = np.empty((nr, nj))                   # A_s cov
+            for i in range(nr):
+                for k in range(nj):
+                    v = 0.0
+                    for j in range(nj):
+                        v += A[3 + i, j] * cov_qd[j, k]
+                    T[i, k] = v
+            k2 = K * K
+            for i in range(nr):
+                for k in range(nr):
+                    v = 0.0
+                    for j in range(nj):
+                        v += T[i, j] * A[3 + k, j]
+                    Rm[i, k] += k2 * v
+        PHt = np.empty((npar, nr))
+        _matmul_bt(P, H, PHt)
+        Sm = np.empty((nr, nr))
+        _matmul(H, PHt, Sm)
+        for i in range(nr):
+            for k in range(nr):
+                Sm[i, k] += Rm[i, k]
+        Ls = np.empty((nr, nr))
+        gain = PHt.copy()                            # rows: (S_m^-1 PH^T row)^T = gain's rows (S_m symmetric)
+        if pk.cholesky(Sm, Ls):
+            pk.chol_solve_rows(Ls, gain)
+        else:                                        # not positive definite (a non-finite input): as NumPy would
+            gain[:, :] = np.linalg.solve(Sm, np.ascontiguousarray(PHt.T)).T
+        inn = np.empty(nr)
+        for i in range(nr):
+            v = r[3 + i]
+            for c in range(npar):
+                v -= H[i, c] * theta[c]
+            inn[i] = v
+        for c in range(npar):
+            v = 0.0
+            for i in range(nr):
+                v += gain[c, i] * inn[i]
+            theta[c] += v
+        IKH = np.empty((npar, npar))
+        _matmul(gain, H, IKH)
+        for i in range(npar):
+            for k in range(npar):
+                IKH[i, k] = (1.0 if i == k else 0.0) - IKH[i, k]
+        T1 = np.empty((npar, npar))
+        _matmul(IKH, P, T1)
+        GR = np.empty((npar, nr))
+        _matmul(gain, Rm, GR)
+        for i in range(npar):
+            for k in range(npar):
+                v = 0.0
+                for j in range(npar):
+                    v += T1[i, j] * IKH[k, j]
+                w = 0.0
+                for j in range(nr):
+                    w += GR[i, j] * gain[k, j]
+                P[i, k] = v + w                      # Joseph form
+    for i in range(nj):
+        for c in range(npar):
+            Yprev[i, c] = Y[3 + i, c]
+    # the torso wrench from what the legs' error does not explain
+    decay = math.exp(-K * since)
+    dW = np.empty(3)
+    for a in range(3):
+        dW[a] = (W_obs_restart[a] - W_t_restart[a]) * decay
+    r_t = np.empty(nj)
+    for i in range(nj):
+        v = r[i]
+        for c in range(npar):
+            v += Yf[i, c] * theta[c]
+        for a in range(3):
+            v -= Jj[a, i] * dW[a]
+        r_t[i] = v
+    # J_j^{T+}: as combine (the normal equations where J_j J_j^T is well conditioned, else the SVD)
+    JJ = np.empty((3, 3))
+    _matmul_bt(Jj, Jj, JJ)
+    det = (JJ[0, 0] * (JJ[1, 1] * JJ[2, 2] - JJ[1, 2] * JJ[2, 1])
+           - JJ[0, 1] * (JJ[1, 0] * JJ[2, 2] - JJ[1, 2] * JJ[2, 0])
+           + JJ[0, 2] * (JJ[1, 0] * JJ[2, 1] - JJ[1, 1] * JJ[2, 0]))
+    tr = (JJ[0, 0] + JJ[1, 1] + JJ[2, 2]) / 3.0
+    pinv = np.empty((3, nj))
+    Lj = np.empty((3, 3))
+    if det > 1e-6 * tr * tr * tr and pk.cholesky(JJ, Lj):
+        pinvT = np.ascontiguousarray(Jj.T)       # rows: columns of J_j, solved
+        pk.chol_solve_rows(Lj, pinvT)
+        for a in range(3):
+            for k in range(nj):
+                pinv[a, k] = pinvT[k, a]
+    else:
+        pinv[:, :] = np.linalg.pinv(np.ascontiguousarray(Jj.T))
+    for a in range(3):
+        v = 0.0
+        for k in range(nj):
+            v += pinv[a, k] * r_t[k]
+        W_t[a] = v
+    for a in range(3):
+        for c in range(3):
+            cov_W[a, c] = cov_W_obs[a, c]
+        wr = W_t_restart[a] * decay
+        wo = W_obs_restart[a] * decay
+        cov_W[a, a] += wr * wr - wo * wo
+    # G = (-B A^-1 Y_j + Y_r)[:2], G_t = G + S J_j^{T+} Y_f
+    BA = np.empty((2, nj))
+    _matmul(B[:2], Ainv, BA)
+    G = np.empty((2, npar))
+    for a in range(2):
+        for c in range(npar):
+            v = 0.0
+            for k in range(nj):
+                v += BA[a, k] * Y[3 + k, c]
+            G[a, c] = Y[a, c] - v
+    SP = np.empty((2, nj))
+    _matmul(S, pinv, SP)
+    Gt = np.empty((2, npar))
+    _matmul(SP, Yf, Gt)
+    for a in range(2):
+        for c in range(npar):
+            Gt[a, c] += G[a, c]
+    for a in range(2):
+        v = 0.0
+        for c in range(3):
+            v += S[a, c] * W_t[c]
+        for c in range(npar):
+            v += G[a, c] * theta[c]
+        dR[a] = v
+    SC = np.empty((2, 3))
+    _matmul(S, cov_W, SC)
+    GP = np.empty((2, npar))
+    _matmul(Gt, P, GP)
+    for a in range(2):
+        for b in range(2):
+            v = 0.0
+            for c in range(3):
+                v += SC[a, c] * S[b, c]
+            for c in range(npar):
+                v += GP[a, c] * Gt[b, c]
+            cov_dR[a, b] = v
 
 
 # ------------------------------------------------------------------------------------------ one sample
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=_FAST)
 def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since, cov_qd, K, dt, restarted,
            has_applied, applied, Rres, theta, P, Yf, Yprev, W_t_restart, last_torque, flags, W_t, cov_W, dR, cov_dR):
     """One observer sample of the estimator: ``LegModelError.update``'s maths after its model terms, in place
@@ -191,22 +380,35 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
     As ``LegModelError.update``: the acceleration a = A^-1 (Gamma - H + r) under the torque applied, or at a
     restart (or without a torque) a = A^-1 (relabel(the last torque) - H) (0 torque before any), relabel
     = -x[::-1]; Y = :func:`regressor_into` at (q, q', a); at a restart W_t_restart <- the last torso wrench,
-    otherwise one more update counted; then :func:`combine` (compiled)."""
-    Ainv = np.linalg.inv(A)
+    otherwise one more update counted; then :func:`combine_kernel`. A^-1 by Cholesky (``LegModelError``:
+    NumPy's LU inverse; the same to round-off). Returns False (nothing changed) if A is not positive
+    definite."""
     nj = A.shape[0]
+    L = np.empty((nj, nj))
+    if not pk.cholesky(A, L):
+        return False
+    Ainv = np.eye(nj)                     # rows of 1 solved: A^-1 (symmetric)
+    pk.chol_solve_rows(L, Ainv)
     tq = np.zeros(nj)
+    b = np.empty(nj)
     if restarted or not has_applied:
         if flags[1] != 0.0:
             for i in range(nj):
                 tq[i] = -last_torque[nj - 1 - i]
-        acc = Ainv @ (tq - H)
+        for i in range(nj):
+            b[i] = tq[i] - H[i]
     else:
         for i in range(nj):
             tq[i] = applied[i]
-        acc = Ainv @ (tq - H + r)
-        for i in range(nj):
+            b[i] = tq[i] - H[i] + r[i]
             last_torque[i] = tq[i]
         flags[1] = 1.0
+    acc = np.empty(nj)
+    for i in range(nj):
+        v = 0.0
+        for k in range(nj):
+            v += Ainv[i, k] * b[k]
+        acc[i] = v
     Y = np.empty((nj + 3, theta.shape[0]))
     regressor_into(ti, tf, D, q, qd, acc, Y)
     if restarted:
@@ -216,3 +418,4 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
     combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, True, K, dt, since, restarted,
                    flags[0] != 0.0, Rres, theta, P, Yf, Yprev, W_t_restart, W_t, cov_W, dR, cov_dR)
     flags[0] = 1.0
+    return True
