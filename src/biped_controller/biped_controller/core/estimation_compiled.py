@@ -146,6 +146,7 @@ class CompiledSensing:
         # the legs' model error (model_error.py): its combined estimate replaces the observer's dR, F_x and the
         # rows' widening in what the compiled period reads; in the kernel (default), or in Python after it
         self.me = None
+        self._me_python = False
         self._me_wrench: Wrench | None = None
         self._qp_rows = np.asarray(qp_rows, dtype=float).reshape(5, 2)
         self.use_model_error_kernel(True)
@@ -158,6 +159,7 @@ class CompiledSensing:
         if self.me_on:
             self.conf[SC_.me] = 1.0 if kernel else 0.0
             self.me = KernelLegError(self.state) if kernel else self._me_py
+        self._me_python = self.me_on and not kernel       # the estimator runs in Python after the compiled call
         self.reset()
 
     def reset(self) -> None:
@@ -174,11 +176,6 @@ class CompiledSensing:
             self._me_py.reset()
             self._me_wrench = None
             s[SENS.slice("me_P")] = self.conf[SCONF.slice("me_P0")]
-
-    @property
-    def _me_python(self) -> bool:
-        """The legs' model-error estimator runs in Python after the compiled call."""
-        return self.me_on and self.conf[SC_.me] == 0.0
 
     def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
         """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object

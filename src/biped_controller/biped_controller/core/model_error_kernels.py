@@ -53,58 +53,60 @@ def regressor_into(ti, tf, D, q, qd, a, Y):
     nb = ti[1]
     npar = D.shape[1]
     g = tf[0]
-    K = np.empty((10, n))
-    qf = np.zeros(n)
-    vf = np.zeros(n)
-    af = np.zeros(n)
+    K = np.empty((16, n))      # one scratch: rows 0-9 the kinematics (planar_kernels' K), 10-15 q, v, q'', alpha, l
+    qf = K[10]
+    vf = K[11]
     m = n - q.shape[0]
-    for i in range(q.shape[0]):
-        qf[m + i] = q[i]
-        vf[m + i] = qd[i]
-        af[m + i] = a[i]
+    for i in range(n):
+        qf[i] = q[i - m] if i >= m else 0.0
+        vf[i] = qd[i - m] if i >= m else 0.0
+        K[12, i] = a[i - m] if i >= m else 0.0
     pk._kinematics(ti, tf, qf, vf, K)
-    al = np.empty(n)
-    lx = np.empty(n)
-    lz = np.empty(n)
     for k in range(n):
         p = pk._parent(ti, k)
         if p < 0:
             alp, lxp, lzp, rx, rz = 0.0, 0.0, 0.0, 0.0, 0.0
         else:
-            alp, lxp, lzp = al[p], lx[p], lz[p]
+            alp, lxp, lzp = K[13, p], K[14, p], K[15, p]
             rx = K[pk._PX, k] - K[pk._PX, p]
             rz = K[pk._PZ, k] - K[pk._PZ, p]
         lxk = lxp - alp * rz
         lzk = lzp + alp * rx
         typ = pk._jtype(ti, k)
+        ak = K[12, k]
         if typ == pk.REV:
-            al[k] = alp + af[k]
+            K[13, k] = alp + ak
         else:
-            al[k] = alp
+            K[13, k] = alp
             if typ == pk.PX:
-                lxk += K[pk._C, k] * af[k]
-                lzk += K[pk._S, k] * af[k]
+                lxk += K[pk._C, k] * ak
+                lzk += K[pk._S, k] * ak
             else:
-                lxk -= K[pk._S, k] * af[k]
-                lzk += K[pk._C, k] * af[k]
-        lx[k] = lxk
-        lz[k] = lzk
+                lxk -= K[pk._S, k] * ak
+                lzk += K[pk._C, k] * ak
+        K[14, k] = lxk
+        K[15, k] = lzk
     Y[:, :] = 0.0
     ob = pk.HEADER_F + 2 * n
     for b in range(nb):
         j = ti[pk.HEADER_I + 2 * n + b]
         Px, Pz, rx, rz = pk._point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
         om2 = K[pk._OM, j] * K[pk._OM, j]
-        alpha = al[j]
-        ax = K[pk._AX, j] + lx[j] - alpha * rz - om2 * rx
-        az = K[pk._AZ, j] + lz[j] + alpha * rx - om2 * rz + g
+        alpha = K[13, j]
+        ax = K[pk._AX, j] + K[14, j] - alpha * rz - om2 * rx
+        az = K[pk._AZ, j] + K[15, j] + alpha * rx - om2 * rz + g
         k = j
         while k >= 0:
             jx, jz, jw = pk._column(ti, K, k, Px, Pz)
             fm = jx * ax + jz * az
             fi = jw * alpha
             for c in range(npar):
-                Y[k, c] += fm * D[b, c] + fi * D[nb + b, c]
+                dm = D[b, c]
+                di = D[nb + b, c]
+                if dm != 0.0:
+                    Y[k, c] += fm * dm
+                if di != 0.0:
+                    Y[k, c] += fi * di
             k = pk._parent(ti, k)
 
 
@@ -172,38 +174,67 @@ def combine(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, 
 combine_numba = numba.njit(cache=True)(combine)   # the NumPy function compiled as it is (kept for comparison)
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _matmul(X, Yb, out):
-    """out (a, c) <- X (a, b) Yb (b, c) (plain loops: for these 2 to 9 row matrices a loop beats a BLAS call)."""
-    for i in range(X.shape[0]):
-        for k in range(Yb.shape[1]):
-            v = 0.0
-            for j in range(X.shape[1]):
-                v += X[i, j] * Yb[j, k]
-            out[i, k] = v
+# rows of combine_kernel's one scratch array (npar columns): what each holds
+_AC = 0      # 3 rows: A_s cov_q'
+_PH = 3      # 3 rows: (P H^T)^T, then the gain's transpose (solved in place)
+_IKH = 6     # 6 rows: I - gain H
+_T1 = 12     # 6 rows: (I - gain H) P
+_GR = 18     # 3 rows: (gain R_m)^T
+_RT = 21     # 1 row: r_t
+_PINV = 22   # 3 rows: J_j^{T+}
+_BA = 25     # 2 rows: B[:2] A^-1
+_G = 27      # 2 rows: G
+_SP = 29     # 2 rows: S J_j^{T+}
+_GT = 31     # 2 rows: G_t
+_GP = 33     # 2 rows: G_t P
+_ROWS = 35
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _matmul_bt(X, Yb, out):
-    """out (a, c) <- X (a, b) Yb^T, Yb (c, b)."""
-    for i in range(X.shape[0]):
-        for k in range(Yb.shape[0]):
-            v = 0.0
-            for j in range(X.shape[1]):
-                v += X[i, j] * Yb[k, j]
-            out[i, k] = v
+@numba.njit(cache=True)
+def _chol3(a00, a10, a20, a11, a21, a22):
+    """The lower Cholesky factor of the symmetric 3 x 3 matrix of lower triangle a: (ok, l00, l10, l20, l11,
+    l21, l22); ok False if it is not positive definite (also a NaN)."""
+    if not a00 > 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    l00 = math.sqrt(a00)
+    l10 = a10 / l00
+    l20 = a20 / l00
+    d1 = a11 - l10 * l10
+    if not d1 > 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    l11 = math.sqrt(d1)
+    l21 = (a21 - l20 * l10) / l11
+    d2 = a22 - l20 * l20 - l21 * l21
+    if not d2 > 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return True, l00, l10, l20, l11, l21, math.sqrt(d2)
+
+
+@numba.njit(cache=True)
+def _solve3(l00, l10, l20, l11, l21, l22, b0, b1, b2):
+    """x = (L L^T)^-1 b for the factor of :func:`_chol3`."""
+    y0 = b0 / l00
+    y1 = (b1 - l10 * y0) / l11
+    y2 = (b2 - l20 * y0 - l21 * y1) / l22
+    x2 = y2 / l22
+    x1 = (y1 - l21 * x2) / l11
+    x0 = (y0 - l10 * x1 - l20 * x2) / l00
+    return x0, x1, x2
 
 
 @numba.njit(cache=True, fastmath=_FAST)
 def combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, K, dt, since, restarted,
                    has_prev, Rres, theta, P, Yf, Yprev, W_t_restart, W_t, cov_W, dR, cov_dR):
-    """:func:`combine` compiled, its products written as loops and its two solves by Cholesky (S_m = H P H^T
-    + R_m and J_j J_j^T, both symmetric positive definite; ``planar_kernels.cholesky``): the same arguments,
-    maths and results to round-off (tested against :func:`combine` run by NumPy on every branch). The SVD
-    pseudo-inverse of the rank-deficient J_j stays NumPy's, as :func:`combine`'s."""
+    """:func:`combine` compiled for speed: the same arguments, maths and results to round-off (tested against
+    :func:`combine` run by NumPy on every branch), its products written as loops into one scratch array (rows
+    ``_AC`` ... ``_GP``; no other allocation: a small array costs about as much as these products), its two
+    3 x 3 solves (S_m = H P H^T + R_m and J_j J_j^T, symmetric positive definite) by Cholesky
+    (:func:`_chol3`), NumPy's solve and SVD pseudo-inverse where a factor fails, as :func:`combine`'s test.
+    Needs npar = 6 joint rows = 6 parameters (the scratch's width)."""
     npar = theta.shape[0]
     nj = Yf.shape[0]
-    nr = 3                                   # the swing rows, joints 3..5 of the six
+    w = np.empty((_ROWS, npar))
+    w3 = np.empty((8, 3))                            # rows 0-2: R_m, 3-5: S_m, 6-7: S cov_W
     if restarted:
         Yf[:, :] = 0.0
     else:
@@ -213,108 +244,122 @@ def combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, us
                 ymid = 0.5 * (Yprev[i, c] + Y[3 + i, c]) if has_prev else Y[3 + i, c]
                 Yf[i, c] = f * Yf[i, c] + (1.0 - f) * ymid
         # RLS on the swing rows: r_s = H theta + noise, H = -(Y_f)_s
-        H = np.empty((nr, npar))
-        for i in range(nr):
-            for c in range(npar):
-                H[i, c] = -Yf[3 + i, c]
-        Rm = np.empty((nr, nr))
-        for i in range(nr):
-            for k in range(nr):
-                Rm[i, k] = Rres[i, k]
-        if use_cov:
-            T = np.empty((nr, nj))                   # A_s cov
-            for i in range(nr):
+        for i in range(3):
+            for k in range(3):
+                w3[i, k] = Rres[i, k]
+        if use_cov:                                  # R_m += K^2 (A cov A)_s
+            for i in range(3):
                 for k in range(nj):
                     v = 0.0
                     for j in range(nj):
                         v += A[3 + i, j] * cov_qd[j, k]
-                    T[i, k] = v
+                    w[_AC + i, k] = v
             k2 = K * K
-            for i in range(nr):
-                for k in range(nr):
+            for i in range(3):
+                for k in range(3):
                     v = 0.0
                     for j in range(nj):
-                        v += T[i, j] * A[3 + k, j]
-                    Rm[i, k] += k2 * v
-        PHt = np.empty((npar, nr))
-        _matmul_bt(P, H, PHt)
-        Sm = np.empty((nr, nr))
-        _matmul(H, PHt, Sm)
-        for i in range(nr):
-            for k in range(nr):
-                Sm[i, k] += Rm[i, k]
-        Ls = np.empty((nr, nr))
-        gain = PHt.copy()                            # rows: (S_m^-1 PH^T row)^T = gain's rows (S_m symmetric)
-        if pk.cholesky(Sm, Ls):
-            pk.chol_solve_rows(Ls, gain)
-        else:                                        # not positive definite (a non-finite input): as NumPy would
-            gain[:, :] = np.linalg.solve(Sm, np.ascontiguousarray(PHt.T)).T
-        inn = np.empty(nr)
-        for i in range(nr):
-            v = r[3 + i]
-            for c in range(npar):
-                v -= H[i, c] * theta[c]
-            inn[i] = v
+                        v += w[_AC + i, j] * A[3 + k, j]
+                    w3[i, k] += k2 * v
+        for k in range(3):                           # w[_PH + k, i] = (P H^T)[i, k]
+            for i in range(npar):
+                v = 0.0
+                for j in range(npar):
+                    v -= P[i, j] * Yf[3 + k, j]
+                w[_PH + k, i] = v
+        for i in range(3):                           # S_m = H (P H^T) + R_m
+            for k in range(3):
+                v = 0.0
+                for j in range(npar):
+                    v -= Yf[3 + i, j] * w[_PH + k, j]
+                w3[3 + i, k] = v + w3[i, k]
+        ok, l00, l10, l20, l11, l21, l22 = _chol3(w3[3, 0], w3[4, 0], w3[5, 0], w3[4, 1], w3[5, 1], w3[5, 2])
+        if ok:                                       # gain^T = S_m^-1 (P H^T)^T, column by column
+            for i in range(npar):
+                x0, x1, x2 = _solve3(l00, l10, l20, l11, l21, l22, w[_PH, i], w[_PH + 1, i], w[_PH + 2, i])
+                w[_PH, i] = x0
+                w[_PH + 1, i] = x1
+                w[_PH + 2, i] = x2
+        else:                                        # not positive definite (a non-finite input): NumPy's
+            w[_PH:_PH + 3] = np.linalg.solve(np.ascontiguousarray(w3[3:6]), np.ascontiguousarray(w[_PH:_PH + 3]))
+        h0 = 0.0
+        h1 = 0.0
+        h2 = 0.0
+        for c in range(npar):                        # H theta
+            h0 -= Yf[3, c] * theta[c]
+            h1 -= Yf[4, c] * theta[c]
+            h2 -= Yf[5, c] * theta[c]
+        e0 = r[3] - h0                               # the innovation r_s - H theta
+        e1 = r[4] - h1
+        e2 = r[5] - h2
         for c in range(npar):
-            v = 0.0
-            for i in range(nr):
-                v += gain[c, i] * inn[i]
-            theta[c] += v
-        IKH = np.empty((npar, npar))
-        _matmul(gain, H, IKH)
+            theta[c] += w[_PH, c] * e0 + w[_PH + 1, c] * e1 + w[_PH + 2, c] * e2
+        for i in range(npar):                        # I - gain H = I + gain (Y_f)_s
+            for j in range(npar):
+                v = 0.0
+                for k in range(3):
+                    v += w[_PH + k, i] * Yf[3 + k, j]
+                w[_IKH + i, j] = (1.0 if i == j else 0.0) + v
         for i in range(npar):
-            for k in range(npar):
-                IKH[i, k] = (1.0 if i == k else 0.0) - IKH[i, k]
-        T1 = np.empty((npar, npar))
-        _matmul(IKH, P, T1)
-        GR = np.empty((npar, nr))
-        _matmul(gain, Rm, GR)
-        for i in range(npar):
+            for j in range(npar):
+                v = 0.0
+                for k in range(npar):
+                    v += w[_IKH + i, k] * P[k, j]
+                w[_T1 + i, j] = v
+        for j in range(3):                           # (gain R_m)^T
+            for i in range(npar):
+                v = 0.0
+                for k in range(3):
+                    v += w[_PH + k, i] * w3[k, j]
+                w[_GR + j, i] = v
+        for i in range(npar):                        # Joseph form
             for k in range(npar):
                 v = 0.0
                 for j in range(npar):
-                    v += T1[i, j] * IKH[k, j]
-                w = 0.0
-                for j in range(nr):
-                    w += GR[i, j] * gain[k, j]
-                P[i, k] = v + w                      # Joseph form
+                    v += w[_T1 + i, j] * w[_IKH + k, j]
+                u = 0.0
+                for j in range(3):
+                    u += w[_GR + j, i] * w[_PH + j, k]
+                P[i, k] = v + u
     for i in range(nj):
         for c in range(npar):
             Yprev[i, c] = Y[3 + i, c]
     # the torso wrench from what the legs' error does not explain
     decay = math.exp(-K * since)
-    dW = np.empty(3)
-    for a in range(3):
-        dW[a] = (W_obs_restart[a] - W_t_restart[a]) * decay
-    r_t = np.empty(nj)
+    d0 = (W_obs_restart[0] - W_t_restart[0]) * decay
+    d1 = (W_obs_restart[1] - W_t_restart[1]) * decay
+    d2 = (W_obs_restart[2] - W_t_restart[2]) * decay
     for i in range(nj):
-        v = r[i]
+        v = 0.0
         for c in range(npar):
             v += Yf[i, c] * theta[c]
-        for a in range(3):
-            v -= Jj[a, i] * dW[a]
-        r_t[i] = v
+        w[_RT, i] = r[i] + v - (Jj[0, i] * d0 + Jj[1, i] * d1 + Jj[2, i] * d2)
     # J_j^{T+}: as combine (the normal equations where J_j J_j^T is well conditioned, else the SVD)
-    JJ = np.empty((3, 3))
-    _matmul_bt(Jj, Jj, JJ)
-    det = (JJ[0, 0] * (JJ[1, 1] * JJ[2, 2] - JJ[1, 2] * JJ[2, 1])
-           - JJ[0, 1] * (JJ[1, 0] * JJ[2, 2] - JJ[1, 2] * JJ[2, 0])
-           + JJ[0, 2] * (JJ[1, 0] * JJ[2, 1] - JJ[1, 1] * JJ[2, 0]))
-    tr = (JJ[0, 0] + JJ[1, 1] + JJ[2, 2]) / 3.0
-    pinv = np.empty((3, nj))
-    Lj = np.empty((3, 3))
-    if det > 1e-6 * tr * tr * tr and pk.cholesky(JJ, Lj):
-        pinvT = np.ascontiguousarray(Jj.T)       # rows: columns of J_j, solved
-        pk.chol_solve_rows(Lj, pinvT)
-        for a in range(3):
-            for k in range(nj):
-                pinv[a, k] = pinvT[k, a]
+    j00 = j01 = j02 = j11 = j12 = j22 = 0.0
+    for k in range(nj):
+        j00 += Jj[0, k] * Jj[0, k]
+        j01 += Jj[0, k] * Jj[1, k]
+        j02 += Jj[0, k] * Jj[2, k]
+        j11 += Jj[1, k] * Jj[1, k]
+        j12 += Jj[1, k] * Jj[2, k]
+        j22 += Jj[2, k] * Jj[2, k]
+    det = j00 * (j11 * j22 - j12 * j12) - j01 * (j01 * j22 - j12 * j02) + j02 * (j01 * j12 - j11 * j02)
+    tr = (j00 + j11 + j22) / 3.0
+    ok = False
+    if det > 1e-6 * tr * tr * tr:
+        ok, l00, l10, l20, l11, l21, l22 = _chol3(j00, j01, j02, j11, j12, j22)
+    if ok:
+        for k in range(nj):
+            x0, x1, x2 = _solve3(l00, l10, l20, l11, l21, l22, Jj[0, k], Jj[1, k], Jj[2, k])
+            w[_PINV, k] = x0
+            w[_PINV + 1, k] = x1
+            w[_PINV + 2, k] = x2
     else:
-        pinv[:, :] = np.linalg.pinv(np.ascontiguousarray(Jj.T))
+        w[_PINV:_PINV + 3] = np.linalg.pinv(np.ascontiguousarray(Jj.T))
     for a in range(3):
         v = 0.0
         for k in range(nj):
-            v += pinv[a, k] * r_t[k]
+            v += w[_PINV + a, k] * w[_RT, k]
         W_t[a] = v
     for a in range(3):
         for c in range(3):
@@ -323,41 +368,43 @@ def combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, us
         wo = W_obs_restart[a] * decay
         cov_W[a, a] += wr * wr - wo * wo
     # G = (-B A^-1 Y_j + Y_r)[:2], G_t = G + S J_j^{T+} Y_f
-    BA = np.empty((2, nj))
-    _matmul(B[:2], Ainv, BA)
-    G = np.empty((2, npar))
     for a in range(2):
+        for k in range(nj):
+            v = 0.0
+            for j in range(nj):
+                v += B[a, j] * Ainv[j, k]
+            w[_BA + a, k] = v
         for c in range(npar):
             v = 0.0
             for k in range(nj):
-                v += BA[a, k] * Y[3 + k, c]
-            G[a, c] = Y[a, c] - v
-    SP = np.empty((2, nj))
-    _matmul(S, pinv, SP)
-    Gt = np.empty((2, npar))
-    _matmul(SP, Yf, Gt)
-    for a in range(2):
+                v += w[_BA + a, k] * Y[3 + k, c]
+            w[_G + a, c] = Y[a, c] - v
+        for k in range(nj):
+            w[_SP + a, k] = S[a, 0] * w[_PINV, k] + S[a, 1] * w[_PINV + 1, k] + S[a, 2] * w[_PINV + 2, k]
         for c in range(npar):
-            Gt[a, c] += G[a, c]
-    for a in range(2):
-        v = 0.0
+            v = 0.0
+            for k in range(nj):
+                v += w[_SP + a, k] * Yf[k, c]
+            w[_GT + a, c] = w[_G + a, c] + v
+        v = S[a, 0] * W_t[0] + S[a, 1] * W_t[1] + S[a, 2] * W_t[2]
+        u = 0.0
+        for c in range(npar):
+            u += w[_G + a, c] * theta[c]
+        dR[a] = v + u
         for c in range(3):
-            v += S[a, c] * W_t[c]
+            w3[6 + a, c] = S[a, 0] * cov_W[0, c] + S[a, 1] * cov_W[1, c] + S[a, 2] * cov_W[2, c]
         for c in range(npar):
-            v += G[a, c] * theta[c]
-        dR[a] = v
-    SC = np.empty((2, 3))
-    _matmul(S, cov_W, SC)
-    GP = np.empty((2, npar))
-    _matmul(Gt, P, GP)
+            v = 0.0
+            for j in range(npar):
+                v += w[_GT + a, j] * P[j, c]
+            w[_GP + a, c] = v
     for a in range(2):
         for b in range(2):
-            v = 0.0
-            for c in range(3):
-                v += SC[a, c] * S[b, c]
+            v = w3[6 + a, 0] * S[b, 0] + w3[6 + a, 1] * S[b, 1] + w3[6 + a, 2] * S[b, 2]
+            u = 0.0
             for c in range(npar):
-                v += GP[a, c] * Gt[b, c]
-            cov_dR[a, b] = v
+                u += w[_GP + a, c] * w[_GT + b, c]
+            cov_dR[a, b] = v + u
 
 
 # ------------------------------------------------------------------------------------------ one sample
@@ -384,33 +431,32 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
     NumPy's LU inverse; the same to round-off). Returns False (nothing changed) if A is not positive
     definite."""
     nj = A.shape[0]
-    L = np.empty((nj, nj))
+    u = np.empty((3 * nj + 5, nj))        # one scratch: rows Y (nj + 3), L (nj), A^-1 (nj), b, a
+    Y = u[:nj + 3]
+    L = u[nj + 3:2 * nj + 3]
+    Ainv = u[2 * nj + 3:3 * nj + 3]
     if not pk.cholesky(A, L):
         return False
-    Ainv = np.eye(nj)                     # rows of 1 solved: A^-1 (symmetric)
+    for i in range(nj):                   # rows of 1 solved: A^-1 (symmetric)
+        for k in range(nj):
+            Ainv[i, k] = 1.0 if i == k else 0.0
     pk.chol_solve_rows(L, Ainv)
-    tq = np.zeros(nj)
-    b = np.empty(nj)
+    ib, ia = 3 * nj + 3, 3 * nj + 4
     if restarted or not has_applied:
-        if flags[1] != 0.0:
-            for i in range(nj):
-                tq[i] = -last_torque[nj - 1 - i]
         for i in range(nj):
-            b[i] = tq[i] - H[i]
+            tq = -last_torque[nj - 1 - i] if flags[1] != 0.0 else 0.0
+            u[ib, i] = tq - H[i]
     else:
         for i in range(nj):
-            tq[i] = applied[i]
-            b[i] = tq[i] - H[i] + r[i]
-            last_torque[i] = tq[i]
+            u[ib, i] = applied[i] - H[i] + r[i]
+            last_torque[i] = applied[i]
         flags[1] = 1.0
-    acc = np.empty(nj)
     for i in range(nj):
         v = 0.0
         for k in range(nj):
-            v += Ainv[i, k] * b[k]
-        acc[i] = v
-    Y = np.empty((nj + 3, theta.shape[0]))
-    regressor_into(ti, tf, D, q, qd, acc, Y)
+            v += Ainv[i, k] * u[ib, k]
+        u[ia, i] = v
+    regressor_into(ti, tf, D, q, qd, u[ia], Y)
     if restarted:
         W_t_restart[:] = W_t
     else:
