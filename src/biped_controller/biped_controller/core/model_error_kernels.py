@@ -188,6 +188,8 @@ _SP = 29     # 2 rows: S J_j^{T+}
 _GT = 31     # 2 rows: G_t
 _GP = 33     # 2 rows: G_t P
 _ROWS = 35
+_NPAR = 6    # combine_kernel's sizes as compile-time constants (loops of known length: unrolled, vectorised)
+_NJ = 6
 
 
 @numba.njit(cache=True)
@@ -230,9 +232,11 @@ def combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, us
     ``_AC`` ... ``_GP``; no other allocation: a small array costs about as much as these products), its two
     3 x 3 solves (S_m = H P H^T + R_m and J_j J_j^T, symmetric positive definite) by Cholesky
     (:func:`_chol3`), NumPy's solve and SVD pseudo-inverse where a factor fails, as :func:`combine`'s test.
-    Needs npar = 6 joint rows = 6 parameters (the scratch's width)."""
-    npar = theta.shape[0]
-    nj = Yf.shape[0]
+    Sizes fixed at compile time: 6 parameters, 6 joint rows (``_NPAR``, ``_NJ``; ValueError otherwise)."""
+    if theta.shape[0] != _NPAR or Yf.shape[0] != _NJ or Y.shape[0] != _NJ + 3:
+        raise ValueError("combine_kernel: 6 parameters and 9 rows of Y expected")
+    npar = _NPAR
+    nj = _NJ
     w = np.empty((_ROWS, npar))
     w3 = np.empty((8, 3))                            # rows 0-2: R_m, 3-5: S_m, 6-7: S cov_W
     if restarted:
@@ -430,7 +434,9 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
     otherwise one more update counted; then :func:`combine_kernel`. A^-1 by Cholesky (``LegModelError``:
     NumPy's LU inverse; the same to round-off). Returns False (nothing changed) if A is not positive
     definite."""
-    nj = A.shape[0]
+    if A.shape[0] != _NJ or theta.shape[0] != _NPAR:
+        raise ValueError("update: 6 joints and 6 parameters expected")
+    nj = _NJ
     u = np.empty((3 * nj + 5, nj))        # one scratch: rows Y (nj + 3), L (nj), A^-1 (nj), b, a
     Y = u[:nj + 3]
     L = u[nj + 3:2 * nj + 3]
