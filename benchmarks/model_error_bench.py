@@ -1,7 +1,11 @@
 """Cost of the legs' model-error estimator (issue 22, ``core/model_error.py``): ``AdaptiveController.compute``
-per call in a closed loop on the rigid plant (1 s a case, the compiled step with the compiled sensing
-pipeline), p50/p99 after the first 50 periods, side by side in one run (interleaved rounds, so every case
-sees the same load):
+per call, the compiled step with the compiled sensing pipeline, p50/p99 after the first 50 periods, side by
+side in one run. Each case's observations come from its own closed loop on the rigid plant (1 s); they are
+then replayed through a fresh controller of every case, the cases in turn by blocks of ``BLOCK`` periods
+(case 1's periods k..k+99, case 2's, ...: every case sees the same load within milliseconds, the shared
+2-core machine's load moves by 2x within seconds; blocks, not single periods, so that a case does not start
+each period on the caches the previous case left, the Python one's 150 us of Pinocchio and NumPy added
+about 5 us to the next case's p50 when measured period by period), in several rounds:
 
 * perfect sensors, momentum observer K = 200: the observer alone (``observer``); + the estimator in Python
   after the compiled call (``estimator_python``: ``LegModelError`` with Pinocchio's joint torque regressor,
@@ -55,31 +59,51 @@ CASES = {
     "real": ("real-sensor profile (estimator + observer)", REAL, NOISY, False, True),
     "real_model_error": ("real-sensor profile + model-error estimator", REAL, NOISY, True, True),
 }
+BLOCK = 100     # periods of one case replayed in a row
 KEYS = {"controller.step_p50_us_model_error": "estimator",
         "controller.step_p50_us_model_error_python": "estimator_python",
         "controller.step_p50_us_estimation_model_error": "real_model_error",
         "controller.step_p50_us_estimation_same_run": "real"}
 
 
-def _case(fam, desc, seconds: float, case: str) -> tuple[np.ndarray, list]:
-    _, over, pert, on, kernel = CASES[case]
-    sim = Simulator(desc, perturbation=pert)
+def _controller(fam, desc, case: str) -> AdaptiveController:
+    _, over, _, on, kernel = CASES[case]
     ctrl = AdaptiveController(load_controller_config(mode="both", model_error_estimator=on, **over), fam, desc)
     if on:
         ctrl._sensing.use_model_error_kernel(kernel)
+    ctrl.reset(LEFT)
+    return ctrl
+
+
+def _observations(fam, desc, seconds: float, case: str) -> list:
+    """The case's closed loop on the rigid plant: its observations (t, q, q', stance, pitch) per period."""
+    sim = Simulator(desc, perturbation=CASES[case][2])
+    ctrl = _controller(fam, desc, case)
     q0, qd0 = fam.initial_state()
     sim.reset(q0, qd0, LEFT)
-    ctrl.reset(LEFT)
-    gc.collect()
-    ts, states = [], []
+    obs = []
     while sim.t < seconds and sim.fall is None:
         o = sim.observe()
-        t0 = time.perf_counter_ns()
-        out = ctrl.compute(o.t, o.q, o.qd, o.stance, o.pitch)
-        ts.append(time.perf_counter_ns() - t0)
-        states.append((o.q.copy(), o.qd.copy()))
-        sim.step(out.torque)
-    return np.array(ts[50:]) * 1e-3, states
+        obs.append((o.t, o.q.copy(), o.qd.copy(), o.stance, o.pitch))
+        sim.step(ctrl.compute(o.t, o.q, o.qd, o.stance, o.pitch).torque)
+    return obs
+
+
+def _replay(fam, desc, obs: dict) -> dict[str, np.ndarray]:
+    """One round: a fresh controller per case, fed its observations in order, the cases in turn by blocks of
+    ``BLOCK`` periods; per-call times [us] after the first 50 periods."""
+    ctrls = {c: _controller(fam, desc, c) for c in CASES}
+    ts = {c: [] for c in CASES}
+    n = min(len(v) for v in obs.values())
+    gc.collect()
+    for k0 in range(0, n, BLOCK):
+        for c, ctrl in ctrls.items():
+            for k in range(k0, min(k0 + BLOCK, n)):
+                t, q, qd, st, pitch = obs[c][k]
+                t0 = time.perf_counter_ns()
+                ctrl.compute(t, q, qd, st, pitch)
+                ts[c].append(time.perf_counter_ns() - t0)
+    return {c: np.array(v[50:]) * 1e-3 for c, v in ts.items()}
 
 
 def _regressor_calls(desc, states) -> dict[str, float]:
@@ -106,18 +130,13 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--results", type=Path, default=RESULTS, help="merge the keys here (skipped if missing)")
     args = a.parse_args(argv)
     fam, desc = GaitFamily.load(), load_description()
-    for c in CASES:                               # warm: kernels compiled or loaded before any timing
-        _case(fam, desc, 0.06, c)
+    obs = {c: _observations(fam, desc, args.seconds, c) for c in CASES}    # also compiles / loads the kernels
     load0 = os.getloadavg()[0]
     out: dict[str, list[np.ndarray]] = {c: [] for c in CASES}
-    states: list = []
-    for _ in range(args.rounds):                  # interleaved rounds: every case sees the same load
-        for c in CASES:
-            ts, st = _case(fam, desc, args.seconds, c)
+    for _ in range(args.rounds):
+        for c, ts in _replay(fam, desc, obs).items():
             out[c].append(ts)
-            if c == "estimator":
-                states = st
-    calls = _regressor_calls(desc, states)
+    calls = _regressor_calls(desc, [(q, qd) for _, q, qd, _, _ in obs["estimator"]])
     load1 = os.getloadavg()[0]
     print(f"load average {load0:.1f} -> {load1:.1f}")
     res = {"meta": {"date": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()), "cpus": os.cpu_count(),
