@@ -1,11 +1,11 @@
-"""The legs' model-error estimator's kernels (``model_error``, issue 22): its algebra after the regressor, as
-one function run either by NumPy (``combine``, the oracle) or compiled by Numba (``combine_kernel``); the
+"""The legs' model-error estimator's kernels (``model_error``, issue 22): its algebra after the regressor, in
+NumPy (``combine``, the oracle) and compiled by Numba as loops (``combine_kernel``, checked against it); the
 six-column leg regressor Y(q, q', q'') in closed form on the planar fixed-foot tree (``leg_regressor``,
 Pinocchio's joint torque regressor its oracle); and the estimator's whole sample compiled (``update``: the
 maths of ``LegModelError.update`` after the model terms, run by the compiled sensing pipeline inside
 ``estimation_kernels.sense_finish``). A kernel module: import it with ``model_error.load_model_error_kernels``
 (``biped_sim.robot.numba_cache.load``), never directly. The maths, units and conventions: ``model_error``'s
-module docstring, ``combine``'s, ``leg_regressor``'s and ``update``'s."""
+module docstring, ``combine``'s, ``regressor_into``'s and ``update``'s."""
 from __future__ import annotations
 
 import math
@@ -169,9 +169,6 @@ def combine(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, use_cov, 
     Gt = G + S @ pinv @ Yf
     dR[:] = S @ W_t + G @ theta
     cov_dR[:] = S @ cov_W @ S.T + Gt @ P @ Gt.T
-
-
-combine_numba = numba.njit(cache=True)(combine)   # the NumPy function compiled as it is (kept for comparison)
 
 
 # rows of combine_kernel's one scratch array (npar columns): what each holds
