@@ -167,6 +167,7 @@ class ControllerConfig:
     model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
     model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
     predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
+    touchdown_band_sigmas: float      # k of the predicted touchdown's band |z| <= k sigma_z (touchdown_band.py); 0: none
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -206,7 +207,8 @@ class ControllerConfig:
             ints[name] = int(v)     # (a ROS parameter arrives as a float)
         for name in ("momentum_observer_gain", "estimate_confidence", "sensor_noise_q", "sensor_noise_qd",
                      "sensor_noise_pitch", "estimator_accel_std", "estimator_impact_std",
-                     "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance"):
+                     "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance",
+                     "touchdown_band_sigmas"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
@@ -458,6 +460,13 @@ class AdaptiveController:
             else:
                 from biped_controller.core.sensing import SensingPipeline
                 self._sensing = SensingPipeline(self.cfg, self.desc)
+            if self.cfg.delay_compensation > 0:
+                from biped_controller.core.touchdown_band import BothStancesTorque
+                m = self.model
+                self._both = BothStancesTorque(m, self.margin, c.margin_friction * m.mu, m.l_min + c.margin_zmp,
+                                               m.l_max - c.margin_zmp)
+        self.band_periods = 0           # periods inside a predicted touchdown's band (touchdown_band.py)
+        self.band_changed = 0           # of which the torque was replaced by the one admissible in both stances
         self.reset(None)
         if self._fast is not None and (self._sensing is None or self._compiled_sensing):
             self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
@@ -765,6 +774,7 @@ class AdaptiveController:
                 if self._sensing is not None:
                     if stance != told:      # a touchdown predicted before it is sensed: sent in the told order
                         out = replace(out, torque=relabel(out.torque))
+                    out = self._band_torque(out, told)
                     self._sensing.record(t, out.torque, told)
                 return out
         res = self._begin(t, stance)
@@ -799,8 +809,26 @@ class AdaptiveController:
         if self._sensing is not None:
             if stance != told:
                 torque = relabel(torque)        # sent in the order of the stance the plant told us
+            if self._sensing.band is not None:
+                return self._band_torque(self._output(res, torque, t, stance, status, msg, G, h, xs, wb), told,
+                                         record=t)
             self._sensing.record(t, torque, told)
         return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
+
+    def _band_torque(self, out: ControlOutput, told: int, record: float | None = None) -> ControlOutput:
+        """A period inside the predicted touchdown's band (``touchdown_band``): the torque (told stance's
+        order) replaced by the one admissible in both stances when it is not; ``record``: the period's t, to
+        record the torque sent in the sensing pipeline here."""
+        band = self._sensing.band
+        if band is not None:
+            self.band_periods += 1
+            torque, changed = self._both.torque(band, out.torque, told)
+            if changed:
+                self.band_changed += 1
+                out = replace(out, torque=torque)
+        if record is not None:
+            self._sensing.record(record, out.torque, told)
+        return out
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
         """Computed torque at time s_time [s] into the current period, with (p, tau) propagated from the

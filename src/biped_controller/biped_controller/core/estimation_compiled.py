@@ -31,6 +31,9 @@ from biped_controller.core.estimation_layout import SCONF, SENS, SC_, S_
 from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import Wrench
 from biped_controller.core.predictor import flat_foot_impact
+from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
+                                                  sole_rate,
+                                                  sole_height_std)
 
 ESTIMATION_KERNELS = "biped_controller.core.estimation_kernels"
 ESTIMATION_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
@@ -89,6 +92,10 @@ class CompiledSensing:
         c[SC_.pred_clearance] = math.inf if self.at_once else cfg.predictor_clearance
         c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
         self.conf = c
+        self.band_k = float(cfg.touchdown_band_sigmas)
+        self._conf_notd = c.copy()                # the predictor without touchdowns (the band's old hypothesis)
+        self._conf_notd[SC_.pred_clearance] = math.inf
+        self.band: TouchdownBand | None = None
         self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
         self.state = SENS.new()
         self.fm = FloatingModel(desc)
@@ -216,7 +223,41 @@ class CompiledSensing:
                           self._qp, self._qdp, self._pout)
         if code != ek.DONE:
             raise SensingSingular("the compiled predictor met a singular model matrix")
+        self.band = None
+        if self.estimator and not self.at_once and self.band_k > 0 and s[S_.pred_cleared] != 0.0:
+            self.band = self._band(t, j, n, stance)
         return self._qp, self._qdp, int(self._pout[0])
+
+    def _band(self, t: float, j: int, n: int, stance: int) -> TouchdownBand | None:
+        """``SensingPipeline._band`` on the compiled predictor: the prediction without a touchdown (the
+        cleared flag cleared for the call and the clearance infinite), its sole height and spread."""
+        ek, s = self.ek, self.state
+        cleared = s[S_.pred_cleared]
+        s[S_.pred_cleared] = 0.0
+        q0, qd0, out0 = np.empty(6), np.empty(6), np.empty(2)
+        try:
+            code = ek.predict(self.ti, self.tf, self._conf_notd, s, self._hist, n, t, self._q, self._qd, stance,
+                              q0, qd0, out0)
+        finally:
+            s[S_.pred_cleared] = cleared
+        if code != ek.DONE:
+            raise SensingSingular("the compiled predictor met a singular model matrix")
+        t_j = t if j == self.k else self._decision(j)[0]
+        Pqq = propagated_position_cov(s[SENS.slice("P")].reshape(12, 12), t - t_j, self.cfg.estimator_accel_std)
+        sole = lambda qq: float(ek.lowest_sole(self.ti, self.tf, np.ascontiguousarray(qq)))   # noqa: E731
+        z = sole(q0)
+        sz = sole_height_std(sole, q0, Pqq)
+        if not in_band(z, sz, self.band_k) or sole_rate(sole, q0, qd0) >= 0.0:
+            return None
+        if int(self._pout[1]) > 0:
+            qn, qdn, sn = self._qp.copy(), self._qdp.copy(), int(self._pout[0])
+        else:
+            qn, qdn = np.empty(6), np.empty(6)
+            if not ek.flat_foot_impact(self.ti, self.tf, q0, qd0, qn, qdn):
+                raise SensingSingular("the compiled impact map met a singular model matrix")
+            sn = 1 - stance
+        return TouchdownBand(z=z, sigma_z=sz, q_old=q0, qd_old=qd0, stance_old=int(stance), q_new=qn, qd_new=qdn,
+                             stance_new=int(sn))
 
     def _impact(self) -> None:
         """The sensed touchdown on the time-updated estimate (``estimation.JointStateEstimator.relabel_impact``

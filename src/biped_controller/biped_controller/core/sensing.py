@@ -40,6 +40,9 @@ from biped_controller.core.estimation import EstimatorConfig, JointStateEstimato
 from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import MomentumObserver, Wrench
 from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
+from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
+                                                  sole_rate,
+                                                  sole_height_std)
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,7 @@ class SensingPipeline:
         self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
                                  cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
                    if self.mo is not None and cfg.model_error_estimator else None)
+        self.band_k = float(cfg.touchdown_band_sigmas)
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
                                     cfg.predictor_time_tolerance, touchdowns=not self.at_once)
@@ -89,6 +93,7 @@ class SensingPipeline:
         self._seg = 0                         # the period whose sample first showed the current stance
         self._r = np.zeros(6)
         self.wrench: Wrench | None = None
+        self.band: TouchdownBand | None = None     # the period's touchdown band (touchdown_band.py), or None
         if self.est is not None:
             self.est.__init__(self.est_cfg)
         if self.mo is not None:
@@ -155,12 +160,38 @@ class SensingPipeline:
             self._j = j
             self._stance = stance
         # 3. the predictor
+        self.band = None
         if self.pred is not None:
             pr = self.pred.predict(t, qs, qds, stance, self.k - j)
             qc, qdc, sc = pr.q, pr.qd, pr.stance
+            if P is not None and self.pred.touchdowns and self.pred._cleared and self.band_k > 0:
+                self.band = self._band(t, j, qs, qds, stance, P, pr)
         else:
             qc, qdc, sc = qs, qds, stance
         return View(q=qc, qd=qdc, stance=sc, wrench=self.wrench, P=P)
+
+    def _band(self, t: float, j: int, qs, qds, stance: int, P: np.ndarray, pr) -> TouchdownBand | None:
+        """The touchdown band of ``touchdown_band`` at t_k for the sample (qs, qds, stance) of period j and its
+        covariance P, beside the predictor's answer ``pr``: None outside the band."""
+        pred = self.pred
+        pred.touchdowns = False                    # the old stance's hypothesis: no touchdown predicted
+        try:
+            p0 = pred.predict(t, qs, qds, stance, self.k - j)
+        finally:
+            pred.touchdowns = True
+        t_j = t if j == self.k else self._decision(j)[0]
+        Pqq = propagated_position_cov(P, t - t_j, self.est_cfg.sigma_acc)
+        z = pred.lowest_sole(p0.q)
+        sz = sole_height_std(pred.lowest_sole, p0.q, Pqq)
+        if not in_band(z, sz, self.band_k) or sole_rate(pred.lowest_sole, p0.q, p0.qd) >= 0.0:
+            return None
+        if pr.touchdowns > 0:
+            qn, qdn, sn = pr.q, pr.qd, pr.stance
+        else:
+            qn, qdn = pred.impact(p0.q, p0.qd, stance)
+            sn = 1 - stance
+        return TouchdownBand(z=z, sigma_z=sz, q_old=p0.q, qd_old=p0.qd, stance_old=int(stance),
+                             q_new=np.asarray(qn), qd_new=np.asarray(qdn), stance_new=int(sn))
 
     def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
         """:meth:`process`'s (q, q', stance) (the controller's one call, as ``CompiledSensing.sense``)."""
