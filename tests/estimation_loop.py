@@ -56,8 +56,8 @@ def closed_loop(t_end: float, perturbation: PlantPerturbation | None = None, pus
         tr.qd.append(qd)
         obs = sim.observe()
         tr.told.append(obs.stance)
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
-        tr.obs.append((obs.t, np.array(obs.q), np.array(obs.qd), obs.stance, obs.pitch))
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
+        tr.obs.append((obs.t, np.array(obs.q), np.array(obs.qd), obs.stance, obs.pitch, obs.pitch_rate))
         tr.sent.append(np.array(out.torque))
         tr.wrench.append(ctrl.wrench)
         sp = ctrl._sensing

@@ -155,6 +155,8 @@ class ControllerConfig:
     sensor_encoder_bits: int          # [bits per turn] encoder resolution it assumes (0: none)
     sensor_noise_qd: float          # [rad/s] rate sensor noise std it assumes
     sensor_noise_pitch: float       # [rad] IMU pitch noise std it assumes
+    estimator_gyro: bool            # the estimator fuses the IMU gyro's pitch rate
+    sensor_noise_pitch_rate: float  # [rad/s] IMU gyro pitch-rate noise std it assumes
     estimator_accel_std: float      # [rad/s^2] the filter's process noise
     estimator_impact_std: float     # [rad/s] added to each rate's std at a touchdown
     delay_compensation: int           # [periods] known delay the Smith predictor compensates (0: none)
@@ -196,7 +198,8 @@ class ControllerConfig:
             raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
-        for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once"):
+        for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once",
+                     "estimator_gyro"):
             if not isinstance(getattr(self, name), bool):
                 raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         ints = {}
@@ -206,7 +209,7 @@ class ControllerConfig:
                 raise ControllerConfigError(f"{name} must be an integer >= 0, got {v!r}")
             ints[name] = int(v)     # (a ROS parameter arrives as a float)
         for name in ("momentum_observer_gain", "estimate_confidence", "sensor_noise_q", "sensor_noise_qd",
-                     "sensor_noise_pitch", "estimator_accel_std", "estimator_impact_std",
+                     "sensor_noise_pitch", "sensor_noise_pitch_rate", "estimator_accel_std", "estimator_impact_std",
                      "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance",
                      "touchdown_band_sigmas"):
             v = getattr(self, name)
@@ -752,7 +755,8 @@ class AdaptiveController:
         return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
                              x_star=xs if keep else None)
 
-    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan) -> ControlOutput:
+    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+                pitch_rate: float = math.nan) -> ControlOutput:
         """One control period: advance the parameters, observe, reference, rows, decide, torque, commit.
 
         With the fast engine the steps are one compiled call (``control_kernels.step``, the same
@@ -760,14 +764,14 @@ class AdaptiveController:
         falls back to the Python steps below (the memory is then unchanged by the compiled call).
 
         With real sensing (``ControllerConfig.real_sensing``, issue 22) the measurement (stance, q, q' and
-        the IMU's torso ``pitch`` [rad], NaN: none) goes through ``sensing.SensingPipeline`` first: the
+        the IMU's torso ``pitch`` [rad] and its gyro's ``pitch_rate`` [rad/s], NaN: none) goes through ``sensing.SensingPipeline`` first: the
         Python steps run on its estimate, in the stance it predicts, and the torque returned is in the paper
         order of the stance given here (relabelled when a touchdown is predicted before it is sensed)."""
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         told = stance
         if self._sensing is not None:
-            q, qd, stance = self._sensing.sense(t, q, qd, stance, pitch)
+            q, qd, stance = self._sensing.sense(t, q, qd, stance, pitch, pitch_rate)
         if self._kernel is not None:
             out = self._kernel.compute(t, q, qd, stance)
             if out is not None:

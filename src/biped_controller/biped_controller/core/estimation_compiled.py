@@ -26,7 +26,8 @@ from collections import deque
 
 from biped_sim.robot.fixed_foot import relabel
 
-from biped_controller.core.estimation import RELABEL, Estimate, EstimatorConfig
+from biped_controller.core.estimation import RELABEL
+from biped_controller.core.sensing import estimator_config
 from biped_controller.core.estimation_layout import SCONF, SENS, SC_, S_
 from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import Wrench
@@ -61,9 +62,7 @@ class CompiledSensing:
         self.ek = load_estimation_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
-        est = EstimatorConfig(sigma_q=cfg.sensor_noise_q, encoder_bits=int(cfg.sensor_encoder_bits),
-                              sigma_qd=cfg.sensor_noise_qd, sigma_pitch=cfg.sensor_noise_pitch,
-                              sigma_acc=cfg.estimator_accel_std, sigma_impact=cfg.estimator_impact_std)
+        est = estimator_config(cfg)
         self.est_cfg = est
         self.estimator = bool(cfg.state_estimator)
         self.observer = bool(cfg.disturbance_observer and cfg.momentum_observer)
@@ -78,6 +77,7 @@ class CompiledSensing:
         c[SC_.var_q] = est.var_q
         c[SC_.var_qd] = est.sigma_qd ** 2 if math.isfinite(est.sigma_qd) else -1.0
         c[SC_.var_pitch] = est.sigma_pitch ** 2 if math.isfinite(est.sigma_pitch) else -1.0
+        c[SC_.var_pitch_rate] = est.sigma_pitch_rate ** 2 if math.isfinite(est.sigma_pitch_rate) else -1.0
         c[SC_.sigma_impact] = cfg.estimator_impact_std
         c[SC_.noise_qd] = cfg.sensor_noise_qd
         c[SC_.confidence] = cfg.estimate_confidence
@@ -128,18 +128,21 @@ class CompiledSensing:
             self.me.reset()
             self._me_wrench = None
 
-    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
-        """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object
-        reuses: copy to keep)."""
+    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+              pitch_rate: float = math.nan):
+        """The period's sample (the IMU's ``pitch`` [rad] and gyro ``pitch_rate`` [rad/s]: NaN when absent) ->
+        (q, q', stance) the controller acts on (views of arrays this object reuses: copy to keep)."""
+        pitch_rate = float(pitch_rate)
         if self.d > 0:
-            return self._sense_delayed(float(t), q, qd, int(stance), float(pitch))
+            return self._sense_delayed(float(t), q, qd, int(stance), float(pitch), pitch_rate)
         ek, s = self.ek, self.state
         pre = self._before() if self.me is not None else None
-        code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), self._q, self._qd)
+        code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), pitch_rate,
+                        self._q, self._qd)
         if code == ek.NEEDS_IMPACT:
             self._impact()
             code = ek.sense_finish(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch),
-                                   self._q, self._qd)
+                                   pitch_rate, self._q, self._qd)
         if code != ek.DONE:
             raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
         if pre is not None:
@@ -179,7 +182,8 @@ class CompiledSensing:
     def _decision(self, j: int):
         return self.log[j - (self.k - len(self.log))]
 
-    def _sense_delayed(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float):
+    def _sense_delayed(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float,
+                       pitch_rate: float = math.nan):
         """Delay d > 0 (``SensingPipeline.process``): the sample is that of period j = max(k - d, 0), taken at
         the instant of the controller's decision j; a new one goes through the estimator and the observer
         (the interval since the previous sample and the torque applied over it from the log), then the
@@ -201,10 +205,11 @@ class CompiledSensing:
                 s[S_.told_prev] = told_prev
                 s[S_.decided] = 1.0
             pre = self._before() if self.me is not None else None
-            code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+            code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, pitch_rate, self._q, self._qd)
             if code == ek.NEEDS_IMPACT:
                 self._impact()
-                code = ek.sense_finish(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+                code = ek.sense_finish(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, pitch_rate,
+                                       self._q, self._qd)
             if code != ek.DONE:
                 raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
             if pre is not None:

@@ -7,7 +7,8 @@ sides cannot disagree on where a field lives (the same pattern as ``period_layou
 * ``SCONF`` (fixed per controller): which parts run (estimator, momentum observer: 0/1), the observer's gain
   K [1/s] and wrench height [m] above the hip, the estimator's process noise sigma_a [rad/s^2], the
   measurement variances it assumes (encoder var_q [rad^2] including the quantisation Delta^2 / 12, rate
-  sensor var_qd [rad^2/s^2], IMU pitch var_pitch [rad^2]; -1: the sensor is not used), the rate std added
+  sensor var_qd [rad^2/s^2], IMU pitch var_pitch [rad^2], IMU gyro pitch rate var_pitch_rate [rad^2/s^2];
+  -1: the sensor is not used), the rate std added
   at a touchdown [rad/s], the rate noise std the observer assumes without an estimator [rad/s], the QP's
   confidence k [-] and its five contact rows' (C_x, C_y) (``fixed_foot.contact_rows`` with the controller's
   margins), the torque limits [N m] (the applied torque is the sent one clipped), and the Smith
@@ -31,7 +32,7 @@ N_STATE = 12
 
 SCONF = Layout("sensing_conf", [
     ("estimator", 1), ("observer", 1), ("K", 1), ("height", 1), ("sigma_acc", 1), ("var_q", 1), ("var_qd", 1),
-    ("var_pitch", 1), ("sigma_impact", 1), ("noise_qd", 1), ("confidence", 1), ("qp_rows", 10),
+    ("var_pitch", 1), ("var_pitch_rate", 1), ("sigma_impact", 1), ("noise_qd", 1), ("confidence", 1), ("qp_rows", 10),
     ("torque_min", 6), ("torque_max", 6),
     ("period", 1), ("pred_substeps", 1), ("pred_td_height", 1), ("pred_clearance", 1), ("pred_t_tol", 1)])
 

@@ -45,6 +45,15 @@ from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propag
                                                   sole_height_std)
 
 
+def estimator_config(cfg) -> EstimatorConfig:
+    """The estimator's sensors and noise from the controller's settings ``cfg`` (a ControllerConfig): the gyro
+    (``sensor_noise_pitch_rate``) only with ``estimator_gyro`` on (off: sigma = inf, not fused)."""
+    return EstimatorConfig(sigma_q=cfg.sensor_noise_q, encoder_bits=int(cfg.sensor_encoder_bits),
+                           sigma_qd=cfg.sensor_noise_qd, sigma_pitch=cfg.sensor_noise_pitch,
+                           sigma_acc=cfg.estimator_accel_std, sigma_impact=cfg.estimator_impact_std,
+                           sigma_pitch_rate=cfg.sensor_noise_pitch_rate if cfg.estimator_gyro else math.inf)
+
+
 @dataclass(frozen=True)
 class View:
     """What the controller acts on this period: paper (q, q') of ``stance`` at t_k, the wrench estimate
@@ -69,9 +78,7 @@ class SensingPipeline:
         self.fm = FloatingModel(desc)
         lo, hi = desc.torque_limits()
         self.lo, self.hi = np.array(lo, dtype=float), np.array(hi, dtype=float)
-        self.est_cfg = EstimatorConfig(sigma_q=cfg.sensor_noise_q, encoder_bits=int(cfg.sensor_encoder_bits),
-                                       sigma_qd=cfg.sensor_noise_qd, sigma_pitch=cfg.sensor_noise_pitch,
-                                       sigma_acc=cfg.estimator_accel_std, sigma_impact=cfg.estimator_impact_std)
+        self.est_cfg = estimator_config(cfg)
         self.est = JointStateEstimator(self.est_cfg) if cfg.state_estimator else None
         self.mo = (MomentumObserver(desc, cfg.momentum_observer_gain, cfg.observer_height)
                    if cfg.disturbance_observer and cfg.momentum_observer else None)
@@ -117,7 +124,8 @@ class SensingPipeline:
             self._seg = self.k            # a touchdown reported at once: a fresh sample
         return max(self.k - self.d, self._seg if self.at_once else 0)
 
-    def process(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan) -> View:
+    def process(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+                pitch_rate: float = math.nan) -> View:
         j = self.sample_period(stance)
         new = self._j is None or j > self._j
         P = None
@@ -140,7 +148,7 @@ class SensingPipeline:
                 if stance != self._stance:
                     qn, qdn = flat_foot_impact(self.fm, self.est.x[:6], self.est.x[6:], self._stance)
                     self.est.relabel_impact(qn, qdn)
-                e = self.est.update(q, qd, pitch)
+                e = self.est.update(q, qd, pitch, pitch_rate)
             else:
                 e = self.est.estimate()
             qs, qds, P = e.q, e.qd, e.P
@@ -193,9 +201,10 @@ class SensingPipeline:
         return TouchdownBand(z=z, sigma_z=sz, q_old=p0.q, qd_old=p0.qd, stance_old=int(stance),
                              q_new=np.asarray(qn), qd_new=np.asarray(qdn), stance_new=int(sn))
 
-    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
+    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+              pitch_rate: float = math.nan):
         """:meth:`process`'s (q, q', stance) (the controller's one call, as ``CompiledSensing.sense``)."""
-        v = self.process(t, q, qd, stance, pitch)
+        v = self.process(t, q, qd, stance, pitch, pitch_rate)
         return v.q, v.qd, v.stance
 
     def record(self, t: float, torque_sent: np.ndarray, told: int) -> None:
