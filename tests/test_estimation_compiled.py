@@ -87,8 +87,8 @@ def _replay(tr, cfg) -> tuple[float, float, float]:
     cs = CompiledSensing(cfg, DESC, fast.ti, fast.tf, C, m.torque_min, m.torque_max)
     ex = ew = er = 0.0
     res = np.empty(8)
-    for (t, q, qd, st, pitch), sent, est, w in zip(tr.obs, tr.sent, tr.est, tr.wrench):
-        qc, qdc, _ = cs.sense(t, q, qd, st, pitch)
+    for (t, q, qd, st, pitch, rate), sent, est, w in zip(tr.obs, tr.sent, tr.est, tr.wrench):
+        qc, qdc, _ = cs.sense(t, q, qd, st, pitch, rate)
         ex = max(ex, _rel(qc, est[0]), _rel(qdc, est[1]), _rel(cs.P, est[2]))
         wc = cs.wrench
         ew = max(ew, _rel(wc.W, w.W), _rel(wc.r, w.r), _rel(wc.cov_W, w.cov_W))
@@ -124,8 +124,8 @@ def _drive(tr, ctrl) -> tuple[float, float, int]:
     ctrl.reset(tr.obs[0][3])
     dtq = dF = 0.0
     nst = 0
-    for (t, q, qd, st, pitch), sent, s_ref in zip(tr.obs, tr.sent, tr.statuses):
-        out = ctrl.compute(t, q, qd, st, pitch)
+    for (t, q, qd, st, pitch, rate), sent, s_ref in zip(tr.obs, tr.sent, tr.statuses):
+        out = ctrl.compute(t, q, qd, st, pitch, rate)
         dtq = max(dtq, float(np.abs(out.torque - sent).max()))
         dF = max(dF, abs(out.status.force_estimate - s_ref.force_estimate))
         nst += out.status.qp_status != s_ref.qp_status

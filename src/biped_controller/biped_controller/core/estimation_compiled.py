@@ -96,6 +96,7 @@ class CompiledSensing:
         self._conf_notd = c.copy()                # the predictor without touchdowns (the band's old hypothesis)
         self._conf_notd[SC_.pred_clearance] = math.inf
         self.band: TouchdownBand | None = None
+        self.last_height: tuple | None = None     # (t, stance, z, sigma_z) of the last band check
         self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
         self.state = SENS.new()
         self.fm = FloatingModel(desc)
@@ -235,24 +236,31 @@ class CompiledSensing:
 
     def _band(self, t: float, j: int, n: int, stance: int) -> TouchdownBand | None:
         """``SensingPipeline._band`` on the compiled predictor: the prediction without a touchdown (the
-        cleared flag cleared for the call and the clearance infinite), its sole height and spread."""
+        predictor's own when it predicted none; otherwise redone with the cleared flag cleared for the call
+        and the clearance infinite), its sole height, whether it descends, its spread."""
         ek, s = self.ek, self.state
-        cleared = s[S_.pred_cleared]
-        s[S_.pred_cleared] = 0.0
-        q0, qd0, out0 = np.empty(6), np.empty(6), np.empty(2)
-        try:
-            code = ek.predict(self.ti, self.tf, self._conf_notd, s, self._hist, n, t, self._q, self._qd, stance,
-                              q0, qd0, out0)
-        finally:
-            s[S_.pred_cleared] = cleared
-        if code != ek.DONE:
-            raise SensingSingular("the compiled predictor met a singular model matrix")
+        if int(self._pout[1]) == 0:
+            q0, qd0 = self._qp.copy(), self._qdp.copy()
+        else:
+            cleared = s[S_.pred_cleared]
+            s[S_.pred_cleared] = 0.0
+            q0, qd0, out0 = np.empty(6), np.empty(6), np.empty(2)
+            try:
+                code = ek.predict(self.ti, self.tf, self._conf_notd, s, self._hist, n, t, self._q, self._qd,
+                                  stance, q0, qd0, out0)
+            finally:
+                s[S_.pred_cleared] = cleared
+            if code != ek.DONE:
+                raise SensingSingular("the compiled predictor met a singular model matrix")
+        sole = lambda qq: float(ek.lowest_sole(self.ti, self.tf, np.ascontiguousarray(qq)))   # noqa: E731
+        if sole_rate(sole, q0, qd0) >= 0.0:
+            return None
         t_j = t if j == self.k else self._decision(j)[0]
         Pqq = propagated_position_cov(s[SENS.slice("P")].reshape(12, 12), t - t_j, self.cfg.estimator_accel_std)
-        sole = lambda qq: float(ek.lowest_sole(self.ti, self.tf, np.ascontiguousarray(qq)))   # noqa: E731
         z = sole(q0)
         sz = sole_height_std(sole, q0, Pqq)
-        if not in_band(z, sz, self.band_k) or sole_rate(sole, q0, qd0) >= 0.0:
+        self.last_height = (t, int(stance), z, sz)        # the band's inputs this period (diagnostics)
+        if not in_band(z, sz, self.band_k):
             return None
         if int(self._pout[1]) > 0:
             qn, qdn, sn = self._qp.copy(), self._qdp.copy(), int(self._pout[0])

@@ -172,7 +172,7 @@ class SensingPipeline:
         if self.pred is not None:
             pr = self.pred.predict(t, qs, qds, stance, self.k - j)
             qc, qdc, sc = pr.q, pr.qd, pr.stance
-            if P is not None and self.pred.touchdowns and self.pred._cleared and self.band_k > 0:
+            if P is not None and not self.at_once and self.pred._cleared and self.band_k > 0:
                 self.band = self._band(t, j, qs, qds, stance, P, pr)
         else:
             qc, qdc, sc = qs, qds, stance
@@ -182,16 +182,21 @@ class SensingPipeline:
         """The touchdown band of ``touchdown_band`` at t_k for the sample (qs, qds, stance) of period j and its
         covariance P, beside the predictor's answer ``pr``: None outside the band."""
         pred = self.pred
-        pred.touchdowns = False                    # the old stance's hypothesis: no touchdown predicted
-        try:
-            p0 = pred.predict(t, qs, qds, stance, self.k - j)
-        finally:
-            pred.touchdowns = True
+        if pr.touchdowns == 0:
+            p0 = pr
+        else:
+            pred.touchdowns = False                # the old stance's hypothesis: no touchdown predicted
+            try:
+                p0 = pred.predict(t, qs, qds, stance, self.k - j)
+            finally:
+                pred.touchdowns = True
+        if sole_rate(pred.lowest_sole, p0.q, p0.qd) >= 0.0:
+            return None
         t_j = t if j == self.k else self._decision(j)[0]
         Pqq = propagated_position_cov(P, t - t_j, self.est_cfg.sigma_acc)
         z = pred.lowest_sole(p0.q)
         sz = sole_height_std(pred.lowest_sole, p0.q, Pqq)
-        if not in_band(z, sz, self.band_k) or sole_rate(pred.lowest_sole, p0.q, p0.qd) >= 0.0:
+        if not in_band(z, sz, self.band_k):
             return None
         if pr.touchdowns > 0:
             qn, qdn, sn = pr.q, pr.qd, pr.stance
