@@ -169,7 +169,7 @@ class ControllerConfig:
     model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
     model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
     predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
-    touchdown_band_sigmas: float      # k of the predicted touchdown's band |z| <= k sigma_z (touchdown_band.py); 0: none
+    touchdown_band_sigmas: float      # k of the predicted touchdown's band |z| <= k sigma_z (touchdown_band.py)
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -764,9 +764,11 @@ class AdaptiveController:
         falls back to the Python steps below (the memory is then unchanged by the compiled call).
 
         With real sensing (``ControllerConfig.real_sensing``, issue 22) the measurement (stance, q, q' and
-        the IMU's torso ``pitch`` [rad] and its gyro's ``pitch_rate`` [rad/s], NaN: none) goes through ``sensing.SensingPipeline`` first: the
-        Python steps run on its estimate, in the stance it predicts, and the torque returned is in the paper
-        order of the stance given here (relabelled when a touchdown is predicted before it is sensed)."""
+        the IMU's torso ``pitch`` [rad] and its gyro's ``pitch_rate`` [rad/s], NaN: none) goes through
+        ``sensing.SensingPipeline`` first: the Python steps run on its estimate, in the stance it predicts,
+        and the torque returned is in the paper order of the stance given here (relabelled when a touchdown
+        is predicted before it is sensed). Inside a predicted touchdown's band (``touchdown_band``, with the
+        estimator and a delay) that torque is replaced by one holding both stances' rows when it does not."""
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         told = stance

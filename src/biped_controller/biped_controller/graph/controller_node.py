@@ -12,8 +12,8 @@ stamp, whichever of the two arrives first (exact-stamp pairing: the lockstep sta
 waits on the wall clock); the IMU's pitch theta = 2 atan2(-y, w) and its gyro's pitch rate theta' =
 -angular_velocity.y go to ``AdaptiveController.compute`` as the in-process loop passes ``Observation.pitch``
 and ``Observation.pitch_rate`` (the state estimator fuses the pitch, and the rate with ``estimator_gyro``;
-without the estimator neither is used). Without ``use_imu`` both are NaN (no IMU). An IMU message that is not the planar torso IMU is
-logged naming the field and dropped (the simulator then reports the missing torque).
+without the estimator neither is used). Without ``use_imu`` both are NaN (no IMU). An IMU message that is not
+the planar torso IMU is logged naming the field and dropped (the simulator then reports the missing torque).
 
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
