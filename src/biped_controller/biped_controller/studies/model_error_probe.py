@@ -46,7 +46,7 @@ def probe_rows(force: float, settings: ex.RunSettings, start: float = ex.DEFAULT
     rows = []
     while True:
         obs = sim.observe()
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
         rec = sim.step(out.torque)
         w = ctrl.wrench
         dp, dm = plant.dynamics(rec.q, rec.qd), model.dynamics(rec.q, rec.qd)
