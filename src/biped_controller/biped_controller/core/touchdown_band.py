@@ -50,7 +50,7 @@ from typing import Callable
 
 import numpy as np
 
-from biped_sim.robot.fixed_foot import FixedFootModel, relabel
+from biped_sim.robot.fixed_foot import FixedFootModel
 
 from biped_controller.core.qp import least_violation
 
@@ -166,7 +166,3 @@ class BothStancesTorque:
         if not np.all(np.isfinite(x)):
             return t0, False
         return x, True
-
-
-def relabel_if(x: np.ndarray, flag: bool) -> np.ndarray:
-    return relabel(x) if flag else np.asarray(x, dtype=float)
