@@ -4,7 +4,8 @@
 Oracles: the sole height's standard deviation against a seeded Monte Carlo of the swing sole over
 q ~ N(q0, P); the propagated covariance against the estimator's own time update; the lift-off rows'
 heel and toe accelerations against second differences in time of the sole points' heights; the torque's
-rows against inverse dynamics (RNEA, ``FixedFootModel.margins_direct``) in both stances; and the closed
+rows against inverse dynamics (RNEA, ``FixedFootModel.margins_direct``) in both stances; the compiled
+pipeline's band against the Python cores' (the same samples); and the closed
 loop on the rigid plant with the delay row of the issue (real sensors, delay 2, touchdown delayed, seed 0),
 on the compiled pipeline and on the Python cores. Negative controls: a diagonal covariance, the sole
 acceleration without its drift, the controller's torque before the projection, and the loop without the
@@ -192,6 +193,50 @@ def test_delayed_touchdown_walks_with_real_sensors(engine):
         bad = runner.run(steps=1, mode="both", ctrl_config=replace(cfg, touchdown_band_sigmas=0.0),
                          perturbation=DELAY_ROW, max_time=1.0)
         assert bad.fallen and bad.steps_walked == 0 and bad.fall_cause == "take_off"
+
+
+def test_compiled_band_equals_the_python_band():
+    """The delay row through the first touchdown on the Python cores (reference engine): the compiled pipeline
+    fed the same samples and torques gives a band in the same periods, with the same z and sigma_z (1e-9
+    relative) and the same hypotheses' states (1e-9). Negative controls: the replay with k = 1 instead of 5
+    puts a band in fewer periods; with the estimator's process noise 1 % larger sigma_z differs."""
+    from dataclasses import replace
+    from biped_sim.robot.fast_engine import FastFixedFootModel
+    from biped_sim.robot.fixed_foot import contact_rows
+    from biped_controller.core.estimation_compiled import CompiledSensing
+    from estimation_loop import closed_loop
+    tr = closed_loop(0.5, DELAY_ROW, python_sensing=True, engine="reference", delay_compensation=2, **REAL)
+    assert tr.fall is None and tr.records[-1].impacts == 1
+    cfg = load_controller_config(mode="both", delay_compensation=2, **REAL)
+
+    def replay(cfg):
+        fast = FastFixedFootModel(DESC)
+        m = tr.ctrl.model
+        C, _ = contact_rows(cfg.margin_friction * m.mu, m.l_min + cfg.margin_zmp, m.l_max - cfg.margin_zmp)
+        cs = CompiledSensing(cfg, DESC, fast.ti, fast.tf, C, m.torque_min, m.torque_max)
+        out = []
+        for (t, q, qd, st, pitch, rate), sent in zip(tr.obs, tr.sent):
+            cs.sense(t, q, qd, st, pitch, rate)
+            out.append(cs.band)
+            cs.record(t, sent, st)
+        return out
+    bands = replay(cfg)
+    n_py = sum(b is not None for b in tr.band)
+    assert n_py >= 2 and [b is None for b in bands] == [b is None for b in tr.band]
+    worst = 0.0
+    for a, b in zip(bands, tr.band):
+        if b is None:
+            continue
+        assert a.stance_old == b.stance_old and a.stance_new == b.stance_new
+        worst = max(worst, abs(a.z - b.z) / abs(b.sigma_z), abs(a.sigma_z / b.sigma_z - 1.0),
+                    *(float(np.abs(x - y).max()) for x, y in ((a.q_old, b.q_old), (a.qd_old, b.qd_old),
+                                                             (a.q_new, b.q_new), (a.qd_new, b.qd_new))))
+    assert worst < 1e-9, worst
+    narrow = replay(replace(cfg, touchdown_band_sigmas=1.0))
+    assert sum(b is not None for b in narrow) < n_py
+    other = replay(replace(cfg, estimator_accel_std=5.05))     # the estimator's process noise 1 % larger
+    assert max(abs(a.sigma_z / b.sigma_z - 1.0) for a, b in zip(other, tr.band)
+               if a is not None and b is not None) > 1e-6
 
 
 def _sim_cfg():
