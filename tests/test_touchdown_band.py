@@ -78,6 +78,25 @@ def test_sole_height_std_against_monte_carlo(before_impact):
     assert abs(sd / mc - 1.0) > 0.10, (sd, mc)
 
 
+def test_sigma_bound_is_an_upper_bound():
+    """The prefilter's bound R sqrt(6 trace P) (``sigma_bound``, R = ``lever_bound``) is never below sigma_z, and
+    every |dz_s/dq_i| is at most R, over seeded random states and covariances; the bound is not vacuous either
+    (within a factor 100 of sigma_z for an isotropic P)."""
+    from biped_controller.core.touchdown_band import lever_bound, sigma_bound
+    z = _lowest_sole(FixedFootModel(DESC))
+    R = lever_bound(DESC)
+    rng = np.random.default_rng(9)
+    h = 1e-6
+    for _ in range(20):
+        q = rng.uniform(-0.8, 0.8, 6)
+        g = np.array([(z(q + h * e) - z(q - h * e)) / (2 * h) for e in np.eye(6)])
+        assert np.abs(g).max() <= R
+        L = rng.normal(size=(6, 6))
+        P = 1e-8 * (L @ L.T)
+        assert sole_height_std(z, q, P) <= sigma_bound(R, P)
+        assert sigma_bound(R, 1e-8 * np.eye(6)) < 100 * sole_height_std(z, q, 1e-8 * np.eye(6))
+
+
 def test_propagated_covariance_is_the_filters_time_update():
     """P_qq(t + dt) of ``propagated_position_cov`` equals the position block of the estimator's own time
     update over dt (``JointStateEstimator.predict``) to round-off, for a seeded full covariance."""

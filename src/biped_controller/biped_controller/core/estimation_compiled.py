@@ -33,7 +33,7 @@ from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import Wrench
 from biped_controller.core.predictor import flat_foot_impact
 from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
-                                                  sole_rate,
+                                                  lever_bound, sigma_bound, sole_rate,
                                                   sole_height_std)
 
 ESTIMATION_KERNELS = "biped_controller.core.estimation_kernels"
@@ -93,6 +93,7 @@ class CompiledSensing:
         c[SC_.pred_t_tol] = cfg.predictor_time_tolerance
         self.conf = c
         self.band_k = float(cfg.touchdown_band_sigmas)
+        self._lever = lever_bound(desc)
         self._conf_notd = c.copy()                # the predictor without touchdowns (the band's old hypothesis)
         self._conf_notd[SC_.pred_clearance] = math.inf
         self.band: TouchdownBand | None = None
@@ -253,11 +254,11 @@ class CompiledSensing:
             if code != ek.DONE:
                 raise SensingSingular("the compiled predictor met a singular model matrix")
         sole = lambda qq: float(ek.lowest_sole(self.ti, self.tf, np.ascontiguousarray(qq)))   # noqa: E731
-        if sole_rate(sole, q0, qd0) >= 0.0:
-            return None
         t_j = t if j == self.k else self._decision(j)[0]
         Pqq = propagated_position_cov(s[SENS.slice("P")].reshape(12, 12), t - t_j, self.cfg.estimator_accel_std)
         z = sole(q0)
+        if z > self.band_k * sigma_bound(self._lever, Pqq) or sole_rate(sole, q0, qd0) >= 0.0:
+            return None
         sz = sole_height_std(sole, q0, Pqq)
         self.last_height = (t, int(stance), z, sz)        # the band's inputs this period (diagnostics)
         if not in_band(z, sz, self.band_k):

@@ -41,7 +41,7 @@ from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import MomentumObserver, Wrench
 from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
 from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
-                                                  sole_rate,
+                                                  lever_bound, sigma_bound, sole_rate,
                                                   sole_height_std)
 
 
@@ -86,6 +86,7 @@ class SensingPipeline:
                                  cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
                    if self.mo is not None and cfg.model_error_estimator else None)
         self.band_k = float(cfg.touchdown_band_sigmas)
+        self._lever = lever_bound(desc)
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
                                     cfg.predictor_time_tolerance, touchdowns=not self.at_once)
@@ -190,11 +191,11 @@ class SensingPipeline:
                 p0 = pred.predict(t, qs, qds, stance, self.k - j)
             finally:
                 pred.touchdowns = True
-        if sole_rate(pred.lowest_sole, p0.q, p0.qd) >= 0.0:
-            return None
         t_j = t if j == self.k else self._decision(j)[0]
         Pqq = propagated_position_cov(P, t - t_j, self.est_cfg.sigma_acc)
         z = pred.lowest_sole(p0.q)
+        if z > self.band_k * sigma_bound(self._lever, Pqq) or sole_rate(pred.lowest_sole, p0.q, p0.qd) >= 0.0:
+            return None
         sz = sole_height_std(pred.lowest_sole, p0.q, Pqq)
         if not in_band(z, sz, self.band_k):
             return None

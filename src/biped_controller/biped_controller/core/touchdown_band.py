@@ -14,6 +14,8 @@ of the foot really on the ground are not the ones the controller held). The deci
            P_qq(t_k) = the position block of the estimator's covariance at the sample propagated over the
            sample's age Dt = t_k - t_j as one interval of the filter's own time update:
            P_qq + Dt (P_qv + P_vq) + Dt^2 P_vv + sigma_a^2 Dt^4 / 4 I  (``estimation`` module docstring);
+  (a period with z > k R sqrt(6 trace P_qq) is outside the band without computing g: ``sigma_bound``, R the
+  chain's longest lever, ``lever_bound``)
   band     |z| <= k sigma_z (k = ``touchdown_band_sigmas``) while the sole descends, z_s' = g q'^- < 0
            (a foot rising from the last touchdown is not landing): whether the foot is down at t_k is not
            known to the estimate's k-sigma level; outside it the predictor's own decision stands (z < 0:
@@ -99,6 +101,17 @@ def sole_rate(lowest_sole: Callable[[np.ndarray], float], q: np.ndarray, qd: np.
         return 0.0
     h = FD_STEP / n
     return (lowest_sole(q + h * qd) - lowest_sole(q - h * qd)) / (2.0 * h)
+
+
+def lever_bound(desc) -> float:
+    """R [m]: no hinge is farther than this from a swing sole point along the chain (stance ankle, two legs,
+    the swing foot to its heel or toe): 2 (thigh + shin) + max(-l_min, l_max). In the plane |dz_s/dq_i| <= R."""
+    return 2.0 * desc.leg_length + max(-desc.foot.l_min, desc.foot.l_max)
+
+
+def sigma_bound(R: float, Pqq: np.ndarray) -> float:
+    """An upper bound of sigma_z without the gradient: g^T P g <= |g|^2 lambda_max(P) <= 6 R^2 trace(P)."""
+    return float(R * math.sqrt(6.0 * max(float(np.trace(Pqq)), 0.0)))
 
 
 def in_band(z: float, sigma_z: float, k: float) -> bool:
