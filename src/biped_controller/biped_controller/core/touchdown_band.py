@@ -34,10 +34,11 @@ plant ends a walk whose released foot sinks 1 mm, and the old stance's law, whic
 stance, drives its ankle into the ground) (eq. 10, ``FixedFootModel.constraints`` with the controller's
 tightened mu, heel and toe and its margins m) are linear in the torque: w_h = A_h^-1 (L_h Gamma - H_h),
 L_h = I or the relabelling -flip, so A_q,h A_h^-1 L_h Gamma <= -m - b_q,h + A_q,h A_h^-1 H_h. If the
-controller's torque Gamma* (in the told stance's paper order) satisfies the 34 rows it is sent unchanged;
-otherwise the torque sent is the least-violation answer ``qp.least_violation`` of the 34 rows with x* =
-Gamma* and W = diag(1 / Gamma_max^2) (PIQP on the slack form: the W-closest torque to Gamma* that holds
-both hypotheses' rows when they have a common point, else the one of least summed squared violation).
+controller's torque Gamma* (in the told stance's paper order) satisfies the 36 rows (17 + 17 + 2) it is sent
+unchanged; otherwise the torque sent is the least-violation answer ``qp.least_violation`` of the 36 rows with
+x* = Gamma* and W = diag(1 / Gamma_max^2) (PIQP on the slack form: as its regularisation goes to 0, the
+W-closest torque to Gamma* that holds both hypotheses' rows when they have a common point, else the one of
+least summed squared violation; an active row is held to that regularisation, tested to 1e-4 m/s^2).
 Reconciliation: the prediction is redone each period from the newest sample, so when the sensed stance
 arrives the sample starts in it and there is no band (the estimate's impact map, ``sensing``).
 
