@@ -246,7 +246,10 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
         previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
         executor = make_executor(node)
         executor.add_node(node)
-        spin = _spinner(executor)
+        for companion in getattr(node, 'companions', ()):   # nodes hosted in the same process (one executor)
+            executor.add_node(companion)
+        spinner = getattr(node, 'spinner', None)   # a node's own slice of spinning (the recorder's wait set)
+        spin = spinner(executor) if spinner is not None else _spinner(executor)
         try:
             while stop['signal'] is None and not getattr(node, 'done', False) and rclpy.ok(context=node.context):
                 spin()
@@ -264,6 +267,8 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
         return EXIT_OK if code is None else int(code)
     finally:
         if node is not None:
+            for companion in getattr(node, 'companions', ()):
+                companion.destroy_node()
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
