@@ -141,8 +141,10 @@ DRAIN_PER_TOPIC = 16  # messages taken at most from one subscription per pass (n
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request (publishers left)
 DRAIN_MAX = 25.0   # s, upper bound of the drain (below the launcher's recorder stop timeout, 30 s)
 RECORDER_LOOPS = ("wait_set", "single_threaded")   # the ``executor`` parameter (module docstring)
-SERVICE_PERIOD = 0.02   # s between the wait-set loop's executor rounds (timers, services): a chunk timer of
-                        # chunk_time / 2 = 25 ms and a service answer are then late by at most this
+SERVICE_PERIOD = 0.1    # s between the wait-set loop's executor rounds (parameter services; the co-hosted bridge's
+                        # /apply_push answers, late by at most this): each round rebuilds rclpy's wait set over every
+                        # entity (at 0.02 s, 13 % of the co-hosted recorder's thread, py-spy). The chunk age is
+                        # checked by the loop itself after every wait (at most WAIT_SLICE apart)
 WAIT_SLICE = 0.02       # s the wait set waits at most (then run_node looks at its stop conditions)
 
 
@@ -176,6 +178,7 @@ class RecorderNode(Node):
         # observers of every recorded message, called (topic, CDR bytes) right after it is written, in the
         # recorder's thread (the co-hosted live view, biped_sim.live.live_recorder)
         self.taps: List = []
+        self.wakeups = 0   # wait-set wake-ups that found a message (logged at the end: messages per wake-up)
 
         self.failure: Optional[RecorderError] = None
         self._sim_ns: Optional[int] = None   # sim time [ns] of the latest /clock recorded (the log time)
@@ -298,6 +301,7 @@ class RecorderNode(Node):
 
         def spin() -> None:
             self._wait_and_take(wait_set, handles, by_pointer, timeout_ns)
+            self._poll_chunk()
             now = time.monotonic()
             if now >= next_round[0]:
                 next_round[0] = now + SERVICE_PERIOD
@@ -316,6 +320,7 @@ class RecorderNode(Node):
         ready = wait_set.get_ready_entities("subscription")
         if not ready:
             return 0
+        self.wakeups += 1
         taken = self._take_waiting(DRAIN_BATCH, subs=[by_pointer[p] for p in ready if p in by_pointer])
         if self.batch_wait > 0.0:
             time.sleep(self.batch_wait)
@@ -449,6 +454,10 @@ class RecorderNode(Node):
         finally:
             executor.remove_node(self)
             self.get_logger().info(f"drained {drained} messages in {time.monotonic() - t0:.2f} s ({why})")
+            if self.loop == "wait_set":
+                n = sum(self.counts.values())
+                self.get_logger().info(f"wait set: {self.wakeups} wake-ups with messages, "
+                                       f"{n / max(self.wakeups, 1):.2f} messages per wake-up")
             try:
                 self.finish()
             except RecorderError as exc:
