@@ -36,6 +36,22 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   and each node's, and the after/before ratios (``before_after``). CPU per message or per step is far less
   load-sensitive than latency on a shared machine.
 
+- **settings** (``SETTINGS``; ``--before NAME`` / ``--after NAME``): ``main`` = the graph as main had it before issue 20
+  part 3's last round (the recorder on rclpy's ``SingleThreadedExecutor``, the bridge in its own process) *and* the
+  client as it was then (an ``asyncio.wait_for`` per frame); ``own`` = ``config/graph.yaml`` with the bridge in its
+  own process (co-hosting off alone); ``stexec`` = ``config/graph.yaml`` with the recorder on the
+  ``SingleThreadedExecutor`` (its wait set off alone). With the bridge co-hosted (``live_recorder``) its CPU is
+  the recorder process's: the bridge's own per-message figures are NaN, ``recorder_and_bridge_ms_per_step``
+  compares both hostings.
+
+The client is the measurement instrument and runs on the same 2 cores as the graph (a user's Foxglove runs on
+the user's side): it does as little as a real WebSocket client can per frame (one ``await`` of the library's
+receive and a timestamp; frames are parsed after the run).
+
+Issue 20 part 3's before/after (the command the lead re-runs)::
+
+    .venv/bin/python -m benchmarks.bridge_bench --before main --latency-pairs 3 --json benchmarks/bridge_results_part3.json
+
 Percentiles: numpy ``percentile`` (linear). Nothing is asserted; figures are printed (and --json).
 """
 from __future__ import annotations
