@@ -175,8 +175,9 @@ class RecorderNode(Node):
         self.loop = self.get_parameter("executor").value
         if self.loop not in RECORDER_LOOPS:
             raise ParameterError("executor", f"must be one of {', '.join(RECORDER_LOOPS)}; got {self.loop!r}")
-        # observers of every recorded message, called (topic, CDR bytes) right after it is written, in the
-        # recorder's thread (the co-hosted live view, biped_sim.live.live_recorder)
+        # observers of every message the recorder takes, called (topic, CDR bytes) in the recorder's thread in
+        # the order it records them, each batch just before it is written (the co-hosted live view,
+        # biped_sim.live.live_recorder)
         self.taps: List = []
         self.wakeups = 0   # wait-set wake-ups that found a message (logged at the end: messages per wake-up)
 
@@ -360,6 +361,12 @@ class RecorderNode(Node):
                 break
         # stable sort: equal timestamps (or none) keep the order they were taken in
         batch.sort(key=lambda item: int(item[2]["source_timestamp"]) if item[2] else 0)
+        if self.taps and self.failure is None and not self._writer.finished:
+            # the batch to the observers first (the co-hosted live view), then to the bag: a chunk compressed
+            # and written while recording this batch does not delay its frames
+            for spec, msg, _info in batch:
+                for tap in self.taps:
+                    tap(spec.name, msg)
         for spec, msg, info in batch:
             self._record(spec, msg, info)
         return taken_total
@@ -381,8 +388,6 @@ class RecorderNode(Node):
             if not self._writer.has_topic(spec.name):
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
             self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
-            for tap in self.taps:
-                tap(spec.name, msg)
             if spec.name == graph_names.SIM_PLANT:
                 # the plant's true parameters (issue 14) also as the bag's metadata record 'biped_plant'
                 from std_msgs.msg import String

@@ -4,9 +4,10 @@ Executable ``live_recorder``: the node ``recorder`` (:class:`biped_sim.graph.rec
 parameters, bag and exit status unchanged) and, as a companion in the same process and executor, the node
 ``bridge`` (:class:`biped_sim.live.bridge_node.BridgeNode` with ``subscribe=False``: its server, channels,
 sim time and ``/apply_push`` service, its parameters from the ``bridge:`` section). The bridge has no DDS reader
-of its own: every message the recorder writes is handed to it right after (``RecorderNode.taps``, in the
-recorder's thread, in the order the recorder records: publication order within a batch), so one reader per
-topic serves both the MCAP and the WebSocket. ROS 2's composition (several nodes in one process) is the
+of its own: every message the recorder takes is handed to it (``RecorderNode.taps``, in the recorder's thread,
+in the order the recorder records: publication order within a batch; each batch just before it is written, so a
+chunk compressed meanwhile does not delay its frames), so one reader per topic serves both the MCAP and the
+WebSocket. ROS 2's composition (several nodes in one process) is the
 precedent.
 
 Why (issue 20 part 3, docs/live_view.md): with the bridge in its own process, every per-step topic had one more
