@@ -229,7 +229,9 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
     sets ``node.done``; then ``node.after_spin(executor, signum)`` if the node has one (a recorder
     drains and finishes its bag, the simulator reports why it stopped) gives the exit code (default 0);
     then at most ACK_TIMEOUT s for every reliable subscriber to acknowledge what the node published
-    (:func:`wait_all_acked`). Cleans up in every case."""
+    (:func:`wait_all_acked`). Cleans up in every case. A node may bring ``companions`` (nodes of the same
+    process: added to the same executor, destroyed with it) and its own ``spinner(executor)`` (a callable for
+    one slice of spinning; called once, after the stop handlers are installed)."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions

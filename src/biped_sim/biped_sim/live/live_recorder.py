@@ -54,12 +54,18 @@ class LiveRecorderNode(RecorderNode):
                 bridge.server.stop()
                 bridge.destroy_node()
             raise
-        if bridge_error is not None:
-            self.get_logger().error(f'{bridge_error}: recording without the live view')
+        self._bridge_error = bridge_error
         self.bridge = bridge
         self.companions = [] if bridge is None else [bridge]
         if bridge is not None:
             self.taps.append(bridge.tap)
+
+    def spinner(self, executor):
+        """The recorder's loop (``run_node`` calls this once its stop handlers are installed: the log line
+        below also says the node now stops cleanly on SIGINT/SIGTERM)."""
+        if self._bridge_error is not None:
+            self.get_logger().error(f'{self._bridge_error}: recording without the live view')
+        return super().spinner(executor)
 
     def after_spin(self, executor, signum) -> int:
         """The recorder drains and finishes its bag (the bridge serving what it drains), then the server stops."""
