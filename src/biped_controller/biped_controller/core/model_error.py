@@ -43,6 +43,32 @@ evaluated at the sample's (q, q') and the model's acceleration under the torque 
 interval and the observer's r, a = A^-1 (Gamma - H + r) (at a restart: the last torque relabelled, r = 0).
 Its covariance: Sigma_dR = S Sigma_W S^T + G_t P G_t^T, G_t = G + S J_j^{T+} Y_f (W_t depends on theta too),
 Sigma_W the observer's noise covariance with the carried-wrench term taken for W_t,restart.
+
+What the regressor is fed (``model_error_regressor``, ``REGRESSOR_INPUTS``). "measured" (above): Y at the
+sample's (q, q') and a = A^-1 (Gamma - H + r). Under sensor noise that is an errors-in-variables problem with
+correlated errors. The observer's r contains the rate error dq' of the sample, r = K (A q' - ...) gives
+dr = K A dq' (instantaneous; the Kalman estimate's dq' is white-ish over a period and correlated over its
+own time constant), and the same dq' enters the regressor twice: through a, da = A^-1 dr = K dq', into the
+inertial columns (Y is linear in a: dY_j = dM_j K dq', dM_j the inertia matrix's change per unit of
+parameter j), and quadratically through the Coriolis terms. Least squares on r_s = H theta + v with
+H = -(Y_f)_s then converges to theta + (E[H^T H])^-1 E[H^T v], and E[H_j^T v] contains
+-K^2 E[(dM_j dq')_s^T (A dq')_s] (both through the same first-order filter's memory), which is not 0 even
+on the nominal plant (theta = 0): the estimate drifts where there is nothing to find (measured on the rigid
+plant at 5e-4 rad, 5e-2 rad/s, 14 bits: dR_y 28-36 N before any push, docs/robustness.md). Recursive least
+squares cannot remove it (it is a bias of the normal equations, not a variance).
+"reference": the regressor is evaluated on the controller's reference at the sample's instant,
+Y_ref = Y(q_d, q_d', q_d''), (q_d, q_d', q_d'') = eq. (11) at the parameters (p, p', tau, tau') of the last
+decision advanced to the sample's instant with the held (p'', tau'') (``AdaptiveController.reference_at``),
+and this Y_ref replaces the measured one everywhere above (the filter Y_f, the RLS row H, G). It is a
+function of the controller's parameters only, which evolve as p'' = -k_v p' + k_p (p_d - p),
+tau'' = k_v (1 - tau') whenever x* is feasible (no measurement enters) and through the QP's rows otherwise
+(the sample before, weakly), so it is uncorrelated with the sample's noise: E[H_ref^T v] = 0 and the
+nominal estimate stays unbiased (the instrument-variable argument of Soderstrom and Stoica, "Instrumental
+variable methods for system identification", with the instrument used as the regressor itself). Under a
+true error theta the data obey r_s = H_ref theta + (H - H_ref) theta + v: the substitution leaves a term
+proportional to the tracking error (computed torque keeps q - q_d within about 2e-3 rad undisturbed), which
+costs a relative bias of that order in theta, and nothing when theta = 0. Its covariance P stays the
+symmetric RLS one (the same row enters the gain and the update), as the QP's widening needs.
 """
 from __future__ import annotations
 
@@ -63,6 +89,11 @@ from biped_controller.core.momentum_observer import Wrench
 LEG_PARAMETERS: tuple[tuple[str, str], ...] = (("thigh", "mass"), ("thigh", "inertia"), ("shin", "mass"),
                                                ("shin", "inertia"), ("foot", "mass"), ("foot", "inertia"))
 SWING = slice(3, 6)     # the swing leg's rows among the six joint rows (paper order q4..q6)
+#: [N^2 m^2] the swing rows' variance during the settling time after a restart (module docstring): the RLS
+#: gain is then about 1e-200 P H^T, below the round-off of theta and P (the update leaves them unchanged)
+HOLD_VARIANCE = 1e200
+#: what the regressor is evaluated on (module docstring, "What the regressor is fed")
+REGRESSOR_INPUTS = ("measured", "reference")
 MODEL_ERROR_KERNELS = "biped_controller.core.model_error_kernels"
 
 
@@ -194,7 +225,12 @@ class LegModelError:
     function run by NumPy, ``combine``, the tests' oracle)."""
 
     def __init__(self, desc: RobotDescription, K: float, mass_uncertainty: float, inertia_uncertainty: float,
-                 residual_std: float, compiled: bool = True):
+                 residual_std: float, compiled: bool = True, regressor_input: str = "measured",
+                 settle: float = 0.0):
+        if regressor_input not in REGRESSOR_INPUTS:
+            raise ModelErrorConfigError(f"model_error_regressor must be one of {REGRESSOR_INPUTS}, "
+                                        f"got {regressor_input!r}")
+        self.regressor_input = regressor_input
         for name, v in (("model_mass_uncertainty", mass_uncertainty),
                         ("model_inertia_uncertainty", inertia_uncertainty), ("model_error_residual_std", residual_std)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -202,11 +238,15 @@ class LegModelError:
         if isinstance(K, bool) or not isinstance(K, (int, float)) or not math.isfinite(K) or K <= 0:
             raise ModelErrorConfigError(f"momentum_observer_gain must be a finite number > 0, got {K!r}")
         self.K = float(K)
+        if isinstance(settle, bool) or not isinstance(settle, (int, float)) or not math.isfinite(settle) or settle < 0:
+            raise ModelErrorConfigError(f"model_error_settle must be a finite number >= 0, got {settle!r}")
+        self.settle_time = float(settle) / self.K     # [s] no update this long after the observer's (re)start
         self.reg = LegRegressor(desc)
         self.model = self.reg.base
         self.P0 = np.diag(prior_std(desc, mass_uncertainty, inertia_uncertainty) ** 2)
         self.var_res = float(residual_std) ** 2
         self._Rres = self.var_res * np.eye(3)
+        self._Rhold = HOLD_VARIANCE * np.eye(3)     # a held sample: no information (docstring)
         self._zero6 = np.zeros((6, 6))
         kern = load_model_error_kernels(warm=compiled)      # compiled now, not at the first sample
         self._combine = kern.combine_kernel if compiled else kern.combine
@@ -230,14 +270,19 @@ class LegModelError:
 
     def update(self, q: np.ndarray, qd: np.ndarray, applied: np.ndarray | None, restarted: bool, dt: float,
                obs: Wrench, W_obs_restart: np.ndarray, since: float, Jj: np.ndarray,
-               cov_qd: np.ndarray | None) -> Wrench:
+               cov_qd: np.ndarray | None, reference: tuple | None = None) -> Wrench:
         """One observer sample. ``q, qd`` the state the observer saw [rad, rad/s]; ``applied`` the torque over
         the interval that led here in this stance's paper order [N m] (None at a restart: the last one
         relabelled is used for the acceleration); ``restarted``: the observer restarted at this sample;
         ``dt`` [s] the interval; ``obs`` the observer's output; ``W_obs_restart`` the wrench it carried at
         its last restart and ``since`` [s] the time since; ``Jj`` (3, 6) the torso wrench Jacobian's joint
-        columns; ``cov_qd`` the rate covariance (None: 0). Returns the combined ``Wrench`` (r: the
+        columns; ``cov_qd`` the rate covariance (None: 0); ``reference`` (q_d, q_d', q_d'') at the sample's
+        instant in this stance's paper order [rad, rad/s, rad/s^2], required when ``regressor_input`` is
+        "reference" (module docstring; ignored otherwise). Returns the combined ``Wrench`` (r: the
         observer's, unchanged; W, cov_W: the torso wrench; dR, cov_dR: with the legs' error)."""
+        if self.regressor_input == "reference" and reference is None:
+            raise ValueError("LegModelError.update: regressor_input 'reference' needs the reference "
+                             "(q_d, q_d', q_d'') at the sample")
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         dyn = self.model.dynamics(q, qd)
@@ -250,10 +295,14 @@ class LegModelError:
             tq = np.asarray(applied, dtype=float)
             acc = Ainv @ (tq - dyn.H + obs.r)
             self._last_torque = tq.copy()
-        Y = self.reg(q, qd, acc)
+        if self.regressor_input == "reference":
+            Y = self.reg(*(np.asarray(v, dtype=float) for v in reference))
+        else:
+            Y = self.reg(q, qd, acc)
         if restarted:
             self._W_t_restart = self._W_t.copy()
-        else:
+        hold = (not restarted) and since < self.settle_time      # the observer's start transient (docstring)
+        if not restarted and not hold:
             self.updates += 1
         cov = self._zero6 if cov_qd is None else np.ascontiguousarray(cov_qd, dtype=float)
         W_t, cov_W, dR, cov_dR = np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))
@@ -261,7 +310,8 @@ class LegModelError:
                       np.ascontiguousarray(obs.S, dtype=float), np.ascontiguousarray(obs.cov_W, dtype=float),
                       np.ascontiguousarray(W_obs_restart, dtype=float), np.ascontiguousarray(Jj, dtype=float),
                       cov, cov_qd is not None, K, float(dt), float(since), bool(restarted), self._has_prev,
-                      self._Rres, self.theta, self.P, self._Yf, self._Yprev, self._W_t_restart,
+                      self._Rhold if hold else self._Rres, self.theta, self.P, self._Yf, self._Yprev,
+                      self._W_t_restart,
                       W_t, cov_W, dR, cov_dR)
         self._has_prev = True
         self._W_t = W_t.copy()
