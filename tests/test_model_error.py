@@ -439,3 +439,15 @@ def test_regressor_choice_and_settle_rejected_by_name():
         LegModelError(DESC, K, 0.2, 0.2, 0.5, regressor_input="smoothed")
     with pytest.raises(ModelErrorConfigError, match="model_error_settle"):
         LegModelError(DESC, K, 0.2, 0.2, 0.5, settle=-1.0)
+
+
+def test_reference_regressor_identifies_the_legs_error_noise_free():
+    """The reference regressor (the instrument) on the noise-free LEGS walk of
+    ``test_leg_error_identified_in_a_noise_free_walk``: consistent with the truth by its own covariance (0.999
+    chi-square, 6 dof) and not with "no error" (negative control); the tracking error it neglects costs less
+    than the bound."""
+    tr, me = _identify(LEGS, model_error_regressor="reference")
+    assert tr.fall is None and me.regressor_input == "reference" and me.updates > 500
+    truth = _theta_true(LEGS)
+    assert _mahalanobis(me.theta - truth, me.P) < CHI2_6_999, (me.theta, truth)
+    assert _mahalanobis(me.theta, me.P) > CHI2_6_999, me.theta
