@@ -295,7 +295,8 @@ def test_settings_rejected_by_name():
         with pytest.raises(ControllerConfigError, match=name):
             load_controller_config(mode="both", model_error_estimator=True, momentum_observer=True, **{name: 0.0})
         with pytest.raises(ModelErrorConfigError, match=name):
-            LegModelError(DESC, K, **{"mass_uncertainty": 0.2, "inertia_uncertainty": 0.2, "residual_std": 0.5,
+            LegModelError(DESC, K, regressor_input="measured", settle=3.0,
+                          **{"mass_uncertainty": 0.2, "inertia_uncertainty": 0.2, "residual_std": 0.5,
                                       {"model_mass_uncertainty": "mass_uncertainty",
                                        "model_inertia_uncertainty": "inertia_uncertainty",
                                        "model_error_residual_std": "residual_std"}[name]: float("nan")})
@@ -436,9 +437,9 @@ def test_regressor_choice_and_settle_rejected_by_name():
         load_controller_config(mode="lambda", model_error_estimator=True, momentum_observer=True,
                                model_error_regressor="reference")
     with pytest.raises(ModelErrorConfigError, match="model_error_regressor"):
-        LegModelError(DESC, K, 0.2, 0.2, 0.5, regressor_input="smoothed")
+        LegModelError(DESC, K, 0.2, 0.2, 0.5, regressor_input="smoothed", settle=3.0)
     with pytest.raises(ModelErrorConfigError, match="model_error_settle"):
-        LegModelError(DESC, K, 0.2, 0.2, 0.5, settle=-1.0)
+        LegModelError(DESC, K, 0.2, 0.2, 0.5, regressor_input="measured", settle=-1.0)
 
 
 def test_reference_regressor_identifies_the_legs_error_noise_free():

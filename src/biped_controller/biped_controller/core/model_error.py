@@ -232,11 +232,12 @@ def prior_std(desc: RobotDescription, mass_uncertainty: float, inertia_uncertain
 class LegModelError:
     """The estimator and the combination of the module docstring, fed once per observer sample. The algebra
     after the regressor runs in ``model_error_kernels.combine_kernel`` (Numba; ``compiled=False``: the same
-    function run by NumPy, ``combine``, the tests' oracle)."""
+    function run by NumPy, ``combine``, the tests' oracle). ``regressor_input`` (``REGRESSOR_INPUTS``) and
+    ``settle`` [observer time constants 1/K] are ``model_error_regressor`` and ``model_error_settle`` of
+    config/controller.yaml (module docstring, "What the regressor is fed", "When the update happens")."""
 
     def __init__(self, desc: RobotDescription, K: float, mass_uncertainty: float, inertia_uncertainty: float,
-                 residual_std: float, compiled: bool = True, regressor_input: str = "measured",
-                 settle: float = 0.0):
+                 residual_std: float, compiled: bool = True, *, regressor_input: str, settle: float):
         if regressor_input not in REGRESSOR_INPUTS:
             raise ModelErrorConfigError(f"model_error_regressor must be one of {REGRESSOR_INPUTS}, "
                                         f"got {regressor_input!r}")
