@@ -71,7 +71,7 @@ error of the restart sample, larger than later (the estimator starts from the ra
 touchdown widens its rates by ``estimator_impact_std``). That term is one random vector decaying over 1/K,
 a coherent error across ~1/(K dt) samples that the white residual model (s_res^2 + K^2 (A Sigma_qd A)_s per
 sample) overweighs by that factor; adding its marginal variance K^2 e^{-2 K t} (A Sigma_0 A)_s to the
-residual was measured not to be enough (thigh mass 5.6 posterior std off 0 at 0.1 s, seed 0). So no update
+residual was measured not to be enough (thigh mass 5.7 posterior std off 0 at 0.1 s, seed 0). So no update
 while since < n / K (e^{-n} of the term left): the sample then carries no information, which the kernel
 is given as a residual variance of ``HOLD_VARIANCE`` (the gain, ~1e-200 P H^T, so the combination in the
 same call uses theta and P to round-off), and theta and P are put back afterwards, bit for bit. Measured (same
