@@ -50,6 +50,7 @@ fallback and the torso's hold through Python, as for the other modes' QP); the P
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
@@ -72,6 +73,8 @@ from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTR
 from biped_controller.core.wbc import NOT_RUN, WBC_MODES, WholeBodyStage, weight_matrix
 
 MODES = ("none", "tau", "p", "both", "wbc", "hybrid", "lambda", "all")
+#: what the legs' model-error estimator's regressor is evaluated on (``model_error.REGRESSOR_INPUTS``)
+MODEL_ERROR_REGRESSORS = ("measured", "reference")
 #: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
 PAPER_MODES = ("none", "tau", "p", "both")
 #: the parameters each mode's p/tau QP adapts (0: p'', 1: tau'', 2: lambda'', the torso offset of issue 21);
@@ -168,6 +171,8 @@ class ControllerConfig:
     model_mass_uncertainty: float     # [-] prior std of each leg link's mass error, relative to its mass
     model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
     model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
+    model_error_regressor: str        # what its regressor is evaluated on: "measured" | "reference" (model_error.py)
+    model_error_settle: float         # [observer time constants 1/K] no update this long after the observer's start
     predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
     touchdown_band_sigmas: float      # k of the predicted touchdown's band |z| <= k sigma_z (touchdown_band.py)
 
@@ -223,8 +228,18 @@ class ControllerConfig:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                     raise ControllerConfigError(f"{name} must be a finite number > 0 with model_error_estimator "
                                                 f"on, got {v!r}")
+            v = self.model_error_settle
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ControllerConfigError(f"model_error_settle must be a finite number >= 0 with "
+                                            f"model_error_estimator on, got {v!r}")
             if not (self.disturbance_observer and self.momentum_observer):
                 raise ControllerConfigError("model_error_estimator needs disturbance_observer and momentum_observer on")
+            if self.model_error_regressor not in MODEL_ERROR_REGRESSORS:
+                raise ControllerConfigError(f"model_error_regressor must be one of {MODEL_ERROR_REGRESSORS}, "
+                                            f"got {self.model_error_regressor!r}")
+            if self.model_error_regressor == "reference" and self.mode in TORSO_MODES:
+                raise ControllerConfigError("model_error_regressor 'reference' is not done for the torso modes "
+                                            f"{TORSO_MODES} (their reference has lambda), got mode {self.mode!r}")
         if self.state_estimator and (self.estimator_accel_std <= 0 or
                                      (self.sensor_noise_q <= 0 and ints["sensor_encoder_bits"] == 0)):
             raise ControllerConfigError("estimator_accel_std must be > 0, and sensor_noise_q > 0 or "
@@ -470,6 +485,13 @@ class AdaptiveController:
                                                m.l_max - c.margin_zmp)
         self.band_periods = 0           # periods inside a predicted touchdown's band (touchdown_band.py)
         self.band_changed = 0           # of which the torque was replaced by the one admissible in both stances
+        # the legs' model-error estimator on the reference (model_error_regressor "reference"): the decisions'
+        # parameters, so that a sample of any age within the delay gets the reference of its instant
+        self._ref_log: deque | None = None
+        if (self._sensing is not None and c.model_error_estimator and c.model_error_regressor == "reference"
+                and getattr(self._sensing, "me", None) is not None):
+            self._ref_log = deque(maxlen=int(c.delay_compensation) + 3)
+            self._sensing.reference_source = self.reference_at
         self.reset(None)
         if self._fast is not None and (self._sensing is None or self._compiled_sensing):
             self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
@@ -537,6 +559,43 @@ class AdaptiveController:
         mem[M_.stance] = -1.0 if stance is None else stance
         if self._sensing is not None:
             self._sensing.reset()
+        if self._ref_log is not None:
+            self._ref_log.clear()
+
+    def _log_reference(self) -> None:
+        """After a decision: its (t [s], stance, p, p', tau, tau', p'', tau'') from the memory, for
+        :meth:`reference_at`."""
+        if self._ref_log is not None:
+            m = self.memory
+            self._ref_log.append((float(m[M_.t_last]), int(m[M_.stance]))
+                                 + tuple(float(v) for v in m[M_.p:M_.p + 6]))
+
+    def reference_at(self, t: float, stance: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The controller's reference (q_d [rad], q_d' [rad/s], q_d'' [rad/s^2], paper order of ``stance``) at
+        instant ``t`` [s]: eq. (11) at the parameters of the last decision taken at or before ``t``, advanced
+        over the integer nanoseconds since with the (p'', tau'') held then (``control_kernels.advance``, the
+        period's own advance), tau = 0 if ``stance`` differs from that decision's (an impact: the next step
+        starts, as ``period_start``); before any decision the initial parameters (p = p_d, tau = 0, tau' = 1).
+        It depends on the controller's parameters only, not on the sample taken at ``t`` (model_error.py,
+        "What the regressor is fed")."""
+        tn = round(float(t) * 1e9)
+        entry = None
+        if self._ref_log:
+            for e in reversed(self._ref_log):
+                if round(e[0] * 1e9) <= tn:
+                    entry = e
+                    break
+        if entry is None:
+            m = self.memory
+            if m[M_.decided] != 0.0:
+                raise ValueError(f"reference_at: t = {t!r} s is before the oldest decision kept")
+            entry = (float(t), int(m[M_.stance])) + tuple(float(v) for v in m[M_.p:M_.p + 6])   # reset's values
+        t0, s0, p, pd, tau, taud, p_dd, t_dd = entry
+        h = (tn - round(t0 * 1e9)) * 1e-9
+        p, pd, tau, taud = self.ck.advance(p, pd, tau, taud, p_dd, t_dd, h)
+        if s0 >= 0 and int(stance) != s0:
+            tau = 0.0
+        return eq11(self.family.evaluate(p, tau), pd, taud, p_dd, t_dd)
 
     def snapshot(self) -> np.ndarray:
         """The state between two periods (issue 19): a copy of ``memory``. The held solvers (PIQP, the
@@ -781,6 +840,7 @@ class AdaptiveController:
                     if stance != told:      # a touchdown predicted before it is sensed: sent in the told order
                         out = replace(out, torque=relabel(out.torque))
                     out = self._band_torque(out, told)
+                    self._log_reference()
                     self._sensing.record(t, out.torque, told)
                 return out
         res = self._begin(t, stance)
@@ -815,6 +875,7 @@ class AdaptiveController:
         if self._sensing is not None:
             if stance != told:
                 torque = relabel(torque)        # sent in the order of the stance the plant told us
+            self._log_reference()
             if self._sensing.band is not None:
                 return self._band_torque(self._output(res, torque, t, stance, status, msg, G, h, xs, wb), told,
                                          record=t)

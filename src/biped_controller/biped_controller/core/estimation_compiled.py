@@ -110,8 +110,12 @@ class CompiledSensing:
         # the legs' model error (model_error.py; Python, after the compiled observer): its combined estimate
         # replaces the observer's dR, F_x and the rows' widening in what the compiled period reads
         self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
-                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std,
+                                 regressor_input=cfg.model_error_regressor, settle=cfg.model_error_settle)
                    if self.observer and cfg.model_error_estimator else None)
+        #: (t [s], stance) -> the controller's (q_d, q_d', q_d'') at t (``AdaptiveController.reference_at``);
+        #: set by the controller when the model-error estimator's regressor is fed the reference
+        self.reference_source = None
         self._me_wrench: Wrench | None = None
         self._qp_rows = np.asarray(qp_rows, dtype=float).reshape(5, 2)
         self.reset()
@@ -178,8 +182,9 @@ class CompiledSensing:
             cov = s[SENS.slice("P")].reshape(12, 12)[6:, 6:].copy()
         else:
             cov = self.cfg.sensor_noise_qd ** 2 * np.eye(6)
+        ref = self.reference_source(t_s, stance) if self.reference_source is not None else None
         self._me_wrench = self.me.update(q, self._qd.copy(), applied, restarted, dt, obs,
-                                         s[SENS.slice("W_restart")].copy(), float(s[S_.since]), Jj, cov)
+                                         s[SENS.slice("W_restart")].copy(), float(s[S_.since]), Jj, cov, ref)
 
     def _decision(self, j: int):
         return self.log[j - (self.k - len(self.log))]

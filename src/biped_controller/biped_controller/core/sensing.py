@@ -83,10 +83,14 @@ class SensingPipeline:
         self.mo = (MomentumObserver(desc, cfg.momentum_observer_gain, cfg.observer_height)
                    if cfg.disturbance_observer and cfg.momentum_observer else None)
         self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
-                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std,
+                                 regressor_input=cfg.model_error_regressor, settle=cfg.model_error_settle)
                    if self.mo is not None and cfg.model_error_estimator else None)
         self.band_k = float(cfg.touchdown_band_sigmas)
         self._lever = lever_bound(desc)
+        #: (t [s], stance) -> the controller's (q_d, q_d', q_d'') at t (``AdaptiveController.reference_at``);
+        #: set by the controller when the model-error estimator's regressor is fed the reference
+        self.reference_source = None
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
                                     cfg.predictor_time_tolerance, touchdowns=not self.at_once)
@@ -162,8 +166,10 @@ class SensingPipeline:
             self.wrench = self.mo.update(qs, qds, stance, torque, dt, cov)
             if self.me is not None:     # the legs' model error (model_error.py): the torso wrench and dR
                 mo = self.mo
+                t_s = t if (self._j is None or j == self.k) else self._decision(j)[0]    # the sample's instant
+                ref = self.reference_source(t_s, stance) if self.reference_source is not None else None
                 self.wrench = self.me.update(qs, qds, torque, mo._since == 0.0, dt, self.wrench, mo._W_restart,
-                                             mo._since, mo.terms.wrench_jacobian(qs, mo.height)[:, 3:], cov)
+                                             mo._since, mo.terms.wrench_jacobian(qs, mo.height)[:, 3:], cov, ref)
             self._r = self.wrench.r
         if new:
             self._j = j

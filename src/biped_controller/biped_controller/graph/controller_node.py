@@ -60,12 +60,12 @@ from biped_sim.graph.params import (
 )
 from biped_sim.robot.loop import ENGINES, load_loop_settings
 
-from biped_controller.core.controller import MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
+from biped_controller.core.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
 from biped_sim.robot.gait_family import GaitFamily
 
 
 #: the controller's settings that take one of a few names, with those names
-CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS}
+CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS, 'model_error_regressor': MODEL_ERROR_REGRESSORS}
 
 
 def read_controller_config(node: Node) -> ControllerConfig:
