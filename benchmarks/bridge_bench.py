@@ -36,6 +36,22 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   and each node's, and the after/before ratios (``before_after``). CPU per message or per step is far less
   load-sensitive than latency on a shared machine.
 
+- **settings** (``SETTINGS``; ``--before NAME`` / ``--after NAME``): ``main`` = the graph as main had it before issue 20
+  part 3's last round (the recorder on rclpy's ``SingleThreadedExecutor``, the bridge in its own process) *and* the
+  client as it was then (an ``asyncio.wait_for`` per frame); ``own`` = ``config/graph.yaml`` with the bridge in its
+  own process (co-hosting off alone); ``stexec`` = ``config/graph.yaml`` with the recorder on the
+  ``SingleThreadedExecutor`` (its wait set off alone). With the bridge co-hosted (``live_recorder``) its CPU is
+  the recorder process's: the bridge's own per-message figures are NaN, ``recorder_and_bridge_ms_per_step``
+  compares both hostings.
+
+The client is the measurement instrument and runs on the same 2 cores as the graph (a user's Foxglove runs on
+the user's side): it does as little as a real WebSocket client can per frame (one ``await`` of the library's
+receive and a timestamp; frames are parsed after the run).
+
+Issue 20 part 3's before/after (the command the lead re-runs)::
+
+    .venv/bin/python -m benchmarks.bridge_bench --before main --latency-pairs 3 --json benchmarks/bridge_results_part3.json
+
 Percentiles: numpy ``percentile`` (linear). Nothing is asserted; figures are printed (and --json).
 """
 from __future__ import annotations
@@ -105,7 +121,7 @@ def free_port() -> int:
 
 
 async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
-                  only: tuple[str, ...] | None = None) -> tuple[dict, list]:
+                  only: tuple[str, ...] | None = None, per_frame_timeout: bool = False) -> tuple[dict, list]:
     """Connect once the graph is up, subscribe to every advertised channel (or those of ``only``), read every frame until
     the server closes (the launcher stops the bridge after the run). Returns ({sub id: topic},
     [(recv ns, frame)])."""
@@ -118,24 +134,51 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
     ws = await websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None, open_timeout=30)
     cpu0 = time.thread_time_ns()
     topics, frames = {}, []
+    if per_frame_timeout:   # the client as it was before issue 20 part 3 (setting 'main'): a wait_for per frame
+        try:
+            while time.monotonic() < deadline:
+                try:
+                    frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
+                except asyncio.TimeoutError:
+                    continue
+                except websockets.ConnectionClosed:
+                    break
+                t = time.time_ns()
+                if isinstance(frame, str):
+                    msg = json.loads(frame)
+                    if msg['op'] == 'advertise':
+                        subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']
+                                if only is None or c['topic'] in only]
+                        topics.update({c['id']: c['topic'] for c in msg['channels']})
+                        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+                else:
+                    frames.append((t, frame))
+        finally:
+            await ws.close()
+            CLIENT_CPU['s'] = (time.thread_time_ns() - cpu0) * 1e-9
+        return topics, frames
+    append, now_ns = frames.append, time.time_ns
+    # The client is the measurement instrument and shares the 2 cores with the graph, so it does as little as a
+    # real client can per frame: one await of the library's receive and a timestamp, no per-frame timeout (an
+    # asyncio.wait_for per frame, as before issue 20 part 3, wraps each receive in a task and a timer); one deadline
+    # for the whole read instead. Frames are parsed after the run.
     try:
-        while time.monotonic() < deadline:
-            try:
-                frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
-            except asyncio.TimeoutError:
-                continue
-            except websockets.ConnectionClosed:
-                break
-            t = time.time_ns()
-            if isinstance(frame, str):
-                msg = json.loads(frame)
-                if msg['op'] == 'advertise':
-                    subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']
-                            if only is None or c['topic'] in only]
-                    topics.update({c['id']: c['topic'] for c in msg['channels']})
-                    await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
-            else:
-                frames.append((t, frame))
+        async with asyncio.timeout_at(asyncio.get_running_loop().time() + max(0.0, deadline - time.monotonic())):
+            async for frame in ws:
+                t = now_ns()
+                if frame.__class__ is str:
+                    msg = json.loads(frame)
+                    if msg['op'] == 'advertise':
+                        subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']
+                                if only is None or c['topic'] in only]
+                        topics.update({c['id']: c['topic'] for c in msg['channels']})
+                        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+                else:
+                    append((t, frame))
+    except websockets.ConnectionClosed:
+        pass   # closed with an error: what arrived is reported (counted against the bag)
+    except TimeoutError:
+        pass   # the deadline: what arrived is reported (the run's checks count the frames against the bag)
     finally:
         await ws.close()
         CLIENT_CPU['s'] = (time.thread_time_ns() - cpu0) * 1e-9
@@ -193,17 +236,31 @@ def _stats(values) -> dict:
 # The graph's settings before issue 20 part 3 (the bridge, the disturbance node and the recorder on rclpy's Python
 # SingleThreadedExecutor; the bridge taking up to 64 waiting messages per callback, as part 2 left it; the recorder
 # without batch_wait): settings only, the code is the same in both. "after" = config/graph.yaml as committed.
-BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64},
+BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64, 'host_process': 'own'},
           'disturbance': {'executor': 'single_threaded'},
-          'recorder': {'batch_wait': 0.0}}
+          'recorder': {'batch_wait': 0.0, 'executor': 'single_threaded'}}
 
 
 # "lazy": config/graph.yaml with the bridge's lazy_streams on (it reads a per-step stream only while a client
 # watches it): what the layout's client costs when the bridge does not take the streams nobody shows.
 # "objects": config/graph.yaml with the simulator and the controller publishing message objects instead of CDR
 # bytes (publish_cdr false): the before of raw publishing (--before objects).
-SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams': True}},
-            'objects': {'simulator': {'publish_cdr': False}, 'controller': {'publish_cdr': False}}}
+# "main": the graph as main had it before issue 20 part 3's last round (the recorder on rclpy's Python
+# SingleThreadedExecutor, the bridge in its own process) and the benchmark's client as it was then (an asyncio.wait_for
+# per frame; key '_client'): the before of --before main. "own": config/graph.yaml with the bridge in its own
+# process (the co-hosting alone, A/B); "stexec": config/graph.yaml with the recorder on the SingleThreadedExecutor
+# (the wait set alone, A/B).
+MAIN = {'recorder': {'executor': 'single_threaded'}, 'bridge': {'host_process': 'own'}, '_client': 'per_frame_timeout'}
+SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams': True, 'host_process': 'own'}},
+            'objects': {'simulator': {'publish_cdr': False}, 'controller': {'publish_cdr': False}},
+            'main': MAIN, 'own': {'bridge': {'host_process': 'own'}},
+            'stexec': {'recorder': {'executor': 'single_threaded'}}}
+
+
+def legacy_client(setting: str) -> bool:
+    """Whether a setting runs the benchmark's client as it was before issue 20 part 3 (a timeout per frame)."""
+    return (SETTINGS.get(setting) or {}).get('_client') == 'per_frame_timeout'
+
 
 
 def settings_params(tmp: Path, setting: str) -> Path | None:
@@ -216,14 +273,15 @@ def settings_params(tmp: Path, setting: str) -> Path | None:
     import yaml
     tree = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
     for node, values in SETTINGS[setting].items():
-        tree[node]['ros__parameters'].update(values)
+        if not node.startswith('_'):
+            tree[node]['ros__parameters'].update(values)
     path = tmp / f'graph_{setting}.yaml'
     path.write_text(yaml.safe_dump(tree))
     return path
 
 
 def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, timeout: float = 600.0,
-              only: tuple[str, ...] | None = None, params: Path | None = None) -> dict:
+              only: tuple[str, ...] | None = None, params: Path | None = None, per_frame_timeout: bool = False) -> dict:
     """One launch; the simulator's rate, and with ``live`` the client's latencies (ms)."""
     tmp.mkdir(parents=True, exist_ok=True)
     bag, ready, log = tmp / 'bag', tmp / 'ready', tmp / 'launch.log'
@@ -245,7 +303,8 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     try:
         topics, frames = {}, []
         if live:
-            topics, frames = asyncio.run(_client(f'ws://127.0.0.1:{port}', proc, ready, timeout, only))
+            topics, frames = asyncio.run(_client(f'ws://127.0.0.1:{port}', proc, ready, timeout, only,
+                                                   per_frame_timeout))
         proc.wait(timeout)
     finally:
         if proc.poll() is None:
@@ -319,10 +378,13 @@ def cpu_figures(r: dict) -> dict:
     steps = r.get('steps') or 0
     messages = sum(r.get('bag_counts', {}).values())
     frames = sum(r.get('frames_per_topic', {}).values())
+    own = 'bridge' in cpu   # a bridge process of its own; co-hosted (live_recorder) its CPU is the recorder's
     bridge = cpu.get('bridge', {}).get('cpu_s', 0.0)
     graph = sum(v['cpu_s'] for k, v in cpu.items() if k not in ('client', 'launcher'))
-    return {'bridge_us_per_message': bridge / messages * 1e6 if messages else float('nan'),
-            'bridge_us_per_frame': bridge / frames * 1e6 if frames else float('nan'),
+    rec_bridge = sum(cpu.get(k, {}).get('cpu_s', 0.0) for k in ('recorder', 'bridge', 'live_recorder'))
+    return {'bridge_us_per_message': bridge / messages * 1e6 if messages and own else float('nan'),
+            'bridge_us_per_frame': bridge / frames * 1e6 if frames and own else float('nan'),
+            'recorder_and_bridge_ms_per_step': rec_bridge / steps * 1e3 if steps else float('nan'),
             'graph_cpu_ms_per_step': graph / steps * 1e3 if steps else float('nan'),
             'client_cpu_ms_per_step': cpu.get('client', {}).get('cpu_s', 0.0) / steps * 1e3 if steps else float('nan')}
 
@@ -342,6 +404,10 @@ def before_after(runs: list) -> dict:
                 'p50_ms': float(np.median([r['latency_ms /sim/state']['p50'] for r in sel])),
                 'p99_ms': float(np.median([r['latency_ms /sim/state']['p99'] for r in sel])),
                 'steps_per_s': float(np.median([r['steps_per_s'] for r in sel])),
+                'p50_ms_runs': [round(r['latency_ms /sim/state']['p50'], 2) for r in sel],
+                'p99_ms_runs': [round(r['latency_ms /sim/state']['p99'], 2) for r in sel],
+                'dds_p99_ms_runs': [round(r['latency_ms dds /sim/state'].get('p99', float('nan')), 2) for r in sel],
+                'steps_per_s_runs': [round(r['steps_per_s']) for r in sel],
                 'load_average_1min': [round(r.get('load_average_1min_at_start', float('nan')), 2) for r in sel],
                 'every_frame_delivered': all(r.get('every_frame_delivered') for r in sel),
                 **{k: float(np.median([f[k] for f in figs])) for k in figs[0]},
@@ -351,7 +417,8 @@ def before_after(runs: list) -> dict:
         if 'before' in rows and 'after' in rows:
             rows['ratio_after_over_before'] = {
                 k: rows['after'][k] / rows['before'][k] for k in
-                ('p50_ms', 'p99_ms', 'steps_per_s', 'bridge_us_per_message', 'graph_cpu_ms_per_step')
+                ('p50_ms', 'p99_ms', 'steps_per_s', 'bridge_us_per_message', 'graph_cpu_ms_per_step',
+                 'recorder_and_bridge_ms_per_step', 'client_cpu_ms_per_step')
                 if rows['before'][k]}
         out[kind] = rows
     return out
@@ -366,6 +433,10 @@ def main(argv=None) -> int:
                     help='before (BEFORE) / after (config/graph.yaml) pairs of real-time latency runs, alternated')
     ap.add_argument('--before', default='before', choices=sorted(SETTINGS),
                     help="the setting of the 'before' runs (default BEFORE; objects: publish_cdr false)")
+    ap.add_argument('--after', default='after', choices=sorted(SETTINGS),
+                    help="the setting of the 'after' runs (default: config/graph.yaml as committed)")
+    ap.add_argument('--layout-only', action='store_true',
+                    help="real-time runs with the layout's client only (no client on every channel)")
     ap.add_argument('--json', type=Path, default=ROOT / 'benchmarks' / 'bridge_results.json',
                     help='results file (default benchmarks/bridge_results.json)')
     a = ap.parse_args(argv)
@@ -384,19 +455,25 @@ def main(argv=None) -> int:
         for k in range(a.latency_pairs):
             for setting in ('before', 'after'):
                 for i, only in enumerate((None, LAYOUT_TOPICS)):
+                    if a.layout_only and only is None:
+                        continue
                     load = os.getloadavg()[0]
+                    name = a.before if setting == 'before' else a.after
                     r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
                                   steps=a.live_steps, only=only,
-                                  params=settings_params(Path(tmp), a.before if setting == 'before' else 'after'))
+                                  params=settings_params(Path(tmp), name),
+                                  per_frame_timeout=legacy_client(name))
                     r['load_average_1min_at_start'] = load
                     r['kind'] = 'latency' if only is None else 'latency_layout'
                     r['bridge'] = setting
+                    r['setting'] = name
                     runs.append(r)
                     print(json.dumps({k2: v for k2, v in r.items() if k2 != 'bag_counts'}), flush=True)
     off = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and not r['live'] and r['steps_per_s']]
     on = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and r['live'] and r['steps_per_s']]
     summary = {'date': time.strftime('%Y-%m-%d %H:%M:%S'), 'cpus': os.cpu_count(), 'machine': platform.machine(),
                'load_average_at_end': os.getloadavg(), 'wall_s': time.monotonic() - t0, 'before_setting': a.before,
+               'after_setting': a.after, 'argv': sys.argv[1:],
                'rate_off_steps_per_s': off, 'rate_on_steps_per_s': on,
                'rate_on_over_off': (float(np.mean(on)) / float(np.mean(off))) if on and off else None,
                'runs': runs}
@@ -425,7 +502,10 @@ def main(argv=None) -> int:
                 print(f"{kind:14s} {setting:6s} (medians of {m['runs']} runs): /sim/state p50 {m['p50_ms']:.2f} ms, "
                       f"p99 {m['p99_ms']:.2f} ms; {m['steps_per_s']:.0f} steps/s; bridge CPU {m['bridge_us_per_message']:.1f} us "
                       f"per message it takes, {m['bridge_us_per_frame']:.1f} us per frame sent; graph CPU "
-                      f"{m['graph_cpu_ms_per_step']:.3f} ms per control step (client {m['client_cpu_ms_per_step']:.3f}); "
+                      f"{m['graph_cpu_ms_per_step']:.3f} ms per control step (recorder+bridge "
+                      f"{m['recorder_and_bridge_ms_per_step']:.3f}, client {m['client_cpu_ms_per_step']:.3f}); "
+                      f"runs: p50 {m['p50_ms_runs']} ms, p99 {m['p99_ms_runs']} ms, {m['steps_per_s_runs']} steps/s, "
+                      f"load {m['load_average_1min']}; "
                       f"every frame in every run: {m['every_frame_delivered']}; per node (ms per step): "
                       + ', '.join(f'{n} {v:.3f}' for n, v in m['cpu_ms_per_step_median'].items()))
         if 'ratio_after_over_before' in rows:

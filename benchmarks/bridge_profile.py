@@ -43,6 +43,9 @@ PHASES = (   # (phase, substring of a frame) checked from the leaf up: the first
     ('take message (rclpy take_message)', 'take_message'),
     ('executor round (rclpy executors.py)', 'rclpy/executors.py'),
     ('bridge callbacks (bridge_node.py)', 'bridge_node.py'),
+    ('mcap writer (mcap_recorder.py, mcap)', 'mcap'),
+    ('recorder wait set (rcl wait, refill)', '_wait_and_take'),
+    ('recorder take and record (recorder_node.py)', 'recorder_node.py'),
 )
 
 
@@ -125,7 +128,7 @@ def _one(dom, tmp: Path, name: str, setting: str, kind: str, live: bool, only, a
     profs = {}
     if spy:
         d.mkdir(parents=True, exist_ok=True)
-        for node in ('bridge', 'simulator', 'controller', 'recorder', 'disturbance') if live else (
+        for node in ('bridge', 'live_recorder', 'simulator', 'controller', 'recorder', 'disturbance') if live else (
                 'simulator', 'controller', 'recorder', 'disturbance'):
             if node in a.spy_nodes:
                 profs[node] = PySpy(spy, node, d / f'{node}.collapsed', len(bb.PROBES))
@@ -147,7 +150,7 @@ def main(argv=None) -> int:
                          '(after with the bridge\'s lazy_streams)')
     ap.add_argument('--py-spy', dest='py_spy', default=None, help='path of py-spy (profile the bridge)')
     ap.add_argument('--spy-nodes', dest='spy_nodes', default='bridge',
-                    help='comma-separated nodes to sample with py-spy (bridge,simulator,controller,recorder,disturbance)')
+                    help='comma-separated nodes to sample with py-spy (bridge,live_recorder,simulator,controller,recorder,disturbance)')
     ap.add_argument('--kinds', default='off,layout,all', help='runs of each round: off, layout, all')
     ap.add_argument('--rtf', type=float, default=1.0, help="the simulator's real_time_factor (0 = as fast as possible)")
     ap.add_argument('--json', type=Path, default=None)

@@ -2,7 +2,9 @@
 a closed loop on the rigid plant, p50/p99, side by side in one run: the plain compiled step (estimation
 off), the compiled step with the compiled sensing pipeline (``controller.step_p50_us_estimation``: the
 real-sensor profile, estimator + momentum observer, under noise 5e-4 rad, 5e-2 rad/s and 14 bits; and the
-momentum observer alone on perfect sensors; the observer and the predictor for a delay of 2 periods), and
+momentum observer alone on perfect sensors; the observer and the predictor for a delay of 2 periods; the
+real-sensor profile with the gyro fused, ``_estimation_gyro``; and with the predictor for a delay of 2 periods,
+the touchdown delayed, and the touchdown band, ``_estimation_predictor_d2_band``), and
 the Python pipeline with the Python steps (the oracle). Writes ``benchmarks/estimation_results.json``; targets are printed,
 never asserted.
 
@@ -33,10 +35,16 @@ from biped_controller.core.estimation import Estimate
 REAL = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
             sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)
 NOISY = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14)
+GYRO = dict(REAL, estimator_gyro=True, sensor_noise_pitch_rate=5e-3)
+NOISY_GYRO = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch_rate=5e-3)
+# the delay row with real sensors: the predictor d = 2 and the touchdown band (touchdown_band.py)
+DELAY_ROW = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, delay=2, touchdown_delayed=True)
 # key: (controller settings, plant perturbation, Python pipeline and steps)
 CASES = {
     "controller.step_p50_us_compiled_no_estimation": (dict(), PlantPerturbation(), False),
     "controller.step_p50_us_estimation": (REAL, NOISY, False),
+    "controller.step_p50_us_estimation_gyro": (GYRO, NOISY_GYRO, False),
+    "controller.step_p50_us_estimation_predictor_d2_band": (dict(REAL, delay_compensation=2), DELAY_ROW, False),
     "controller.step_p50_us_momentum_observer": (dict(momentum_observer=True), PlantPerturbation(), False),
     "controller.step_p50_us_predictor_d2": (dict(momentum_observer=True, delay_compensation=2),
                                             PlantPerturbation(delay=2), False),
@@ -58,7 +66,7 @@ def time_case(over: dict, pert: PlantPerturbation, seconds: float, python_sensin
     while sim.t < seconds and sim.fall is None:
         obs = sim.observe()
         t0 = time.perf_counter_ns()
-        o = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
+        o = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
         out.append(time.perf_counter_ns() - t0)
         sim.step(o.torque)
     return np.array(out[10:]) * 1e-3

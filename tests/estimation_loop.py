@@ -28,6 +28,7 @@ class Trace:
     obs: list = field(default_factory=list)            # what the controller was given: (t, q, qd, stance, pitch)
     sent: list = field(default_factory=list)           # the torque it returned (paper order of the told stance)
     wrench: list = field(default_factory=list)         # its momentum observer's Wrench or None
+    band: list = field(default_factory=list)           # the period's TouchdownBand (touchdown_band.py) or None
     records: list = field(default_factory=list)
     statuses: list = field(default_factory=list)
     fall: object = None
@@ -56,8 +57,8 @@ def closed_loop(t_end: float, perturbation: PlantPerturbation | None = None, pus
         tr.qd.append(qd)
         obs = sim.observe()
         tr.told.append(obs.stance)
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
-        tr.obs.append((obs.t, np.array(obs.q), np.array(obs.qd), obs.stance, obs.pitch))
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
+        tr.obs.append((obs.t, np.array(obs.q), np.array(obs.qd), obs.stance, obs.pitch, obs.pitch_rate))
         tr.sent.append(np.array(out.torque))
         tr.wrench.append(ctrl.wrench)
         sp = ctrl._sensing
@@ -69,6 +70,7 @@ def closed_loop(t_end: float, perturbation: PlantPerturbation | None = None, pus
             tr.est.append((x[:6], x[6:], P))
         else:
             tr.est.append(None)
+        tr.band.append(getattr(sp, "band", None))
         tr.r.append(None if ctrl.wrench is None else ctrl.wrench.r)
         tr.W.append(None if ctrl.wrench is None else ctrl.wrench.W)
         rec = sim.step(out.torque)

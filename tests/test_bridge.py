@@ -22,6 +22,7 @@ import signal
 import socket
 import struct
 import subprocess
+import threading
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -322,6 +323,16 @@ def _launch(tmp: Path, port: int, *extra: str) -> tuple[subprocess.Popen, Path, 
     return proc, bag, ready
 
 
+def _params_with(tmp: Path, **bridge) -> Path:
+    """config/graph.yaml with the bridge's parameters ``bridge`` changed, written to ``tmp``."""
+    import yaml
+    tree = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
+    tree['bridge']['ros__parameters'].update(bridge)
+    path = tmp / 'graph.yaml'
+    path.write_text(yaml.safe_dump(tree))
+    return path
+
+
 def _interrupt(proc: subprocess.Popen, timeout: float = 30.0) -> str:
     """SIGINT, wait (bounded; then SIGKILL); return the output."""
     proc.send_signal(signal.SIGINT)
@@ -358,7 +369,8 @@ async def _wait_ready(proc, ready: Path, timeout=120.0) -> None:
                                          ('service_timeout:=0.0', 'service_timeout'),
                                          ('message_backlog:=1', 'message_backlog'),
                                          ('drain_batch:=-1', 'drain_batch'), ('executor:=asyncio', 'executor'),
-                                         ('reconcile_period:=0.0', 'reconcile_period')])
+                                         ('reconcile_period:=0.0', 'reconcile_period'),
+                                         ('host_process:=both', 'host_process')])
 def test_bad_parameter_exits_2_naming_it(ros_domain, param, named):
     r = subprocess.run([_bridge_exe(), '--ros-args', '-p', param], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
@@ -375,6 +387,67 @@ def test_port_in_use_exits_2(ros_domain):
                            timeout=120)
     assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
     assert f'cannot serve on 127.0.0.1:{port}' in r.stderr, r.stderr[-2000:]
+
+
+def _live_recorder(*params: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    from biped_sim.graph.launch import find_executable
+    cmd = [str(find_executable('biped_sim', 'live_recorder')), '--ros-args']
+    for p in params:
+        cmd += ['-p', p]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('param,named', [('port:=70000', 'port'), ('lazy_streams:=true', 'lazy_streams'),
+                                         ('chunk_size:=12', 'chunk_size')])
+def test_live_recorder_bad_parameter_exits_2_naming_it_and_creates_no_bag(ros_domain, tmp_path, param, named):
+    """The co-hosted recorder + bridge: a bad bridge (port, lazy_streams: the recorder reads every topic) or recorder
+    (chunk_size) parameter exits 2 naming it, before any file is created."""
+    bag = tmp_path / 'bag'
+    r = _live_recorder(f'output_dir:={bag}', param)
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert f"'{named}'" in r.stderr, r.stderr[-2000:]
+    assert not bag.exists()
+
+
+@pytest.mark.ros
+def test_live_recorder_records_without_the_live_view_when_the_port_is_taken(ros_domain, tmp_path):
+    """Co-hosted, a server that cannot start costs the live view, not the recording: the recorder logs it, records,
+    finishes its bag on SIGINT and exits 0 (negative control: the bridge's own executable exits 2 on the same port,
+    test_port_in_use_exits_2)."""
+    from biped_sim.graph.launch import find_executable
+    from biped_sim.recording.bag_reader import read_bag
+    bag = tmp_path / 'bag'
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        proc = subprocess.Popen([str(find_executable('biped_sim', 'live_recorder')), '--ros-args', '-p',
+                                 f'output_dir:={bag}', '-p', f'port:={port}'],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        lines: list[str] = []
+        up = threading.Event()
+
+        def read() -> None:   # the node's log; its last line of start-up says the live view is off
+            for line in proc.stdout:
+                lines.append(line)
+                if 'recording without the live view' in line:
+                    up.set()
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        try:
+            assert up.wait(120), ''.join(lines)[-3000:]
+            proc.send_signal(signal.SIGINT)
+            proc.wait(60)
+            reader.join(30)
+            out = ''.join(lines)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    assert proc.returncode == 0, out[-3000:]
+    assert f'cannot serve on 127.0.0.1:{port}' in out and 'recording without the live view' in out, out[-3000:]
+    read_bag(bag)   # a finished, readable bag
 
 
 @pytest.mark.ros
@@ -579,9 +652,11 @@ def test_bridge_passes_a_burst_on_in_order(rclpy_context, executor, drain_batch)
 # ------------------------------------------------------------------------------------------ whole graph
 @pytest.mark.ros
 @pytest.mark.slow
-def test_live_graph_through_the_bridge(ros_domain, tmp_path):
+@pytest.mark.parametrize('host_process', ['recorder', 'own'])
+def test_live_graph_through_the_bridge(ros_domain, tmp_path, host_process):
     """launch --live (2 steps, simulator paused until a push): subscribe, push through the bridge
-    (a rejected request first), bad clients before and during the run; compare with the bag."""
+    (a rejected request first), bad clients before and during the run; compare with the bag. Both ways of
+    hosting the bridge: in the recorder's process (fed by its readers) and in its own."""
     import websockets
     from rclpy.serialization import deserialize_message
     from biped_msgs_py.msg import PushEvent, SimState
@@ -590,7 +665,8 @@ def test_live_graph_through_the_bridge(ros_domain, tmp_path):
 
     port = _free_port()
     url = f'ws://127.0.0.1:{port}'
-    proc, bag, ready = _launch(tmp_path, port, '--steps', '2', '--sim-param', 'wait_for_pushes:=1')
+    proc, bag, ready = _launch(tmp_path, port, '--steps', '2', '--sim-param', 'wait_for_pushes:=1',
+                               '--params', str(_params_with(tmp_path, host_process=host_process)))
     topics = [gn.JOINT_STATES, gn.SIM_STATE, gn.PUSH_EVENTS]
 
     async def scenario():
@@ -666,6 +742,9 @@ def test_live_graph_through_the_bridge(ros_domain, tmp_path):
     assert a.times == sorted(set(a.times)) and a.times[-1] == last.sec * 10**9 + last.nanosec
     assert len(a.times) == d['counts'][gn.CLOCK]
     assert 'steps walked' in out and "node 'bridge' died" not in out
+    # where the bridge ran: in the recorder's process (no bridge process, the recorder's log says so) or its own
+    assert ('(the live bridge in its process)' in out) == (host_process == 'recorder'), out[-4000:]
+    assert ('bridge subscribed (Foxglove WebSocket)' in out) == (host_process == 'own'), out[-4000:]
 
 
 @pytest.mark.ros
@@ -673,7 +752,7 @@ def test_live_graph_through_the_bridge(ros_domain, tmp_path):
 def test_bridge_killed_mid_run_does_not_stop_it(ros_domain, tmp_path):
     from biped_sim.graph import names as gn
     port = _free_port()
-    proc, bag, ready = _launch(tmp_path, port, '--steps', '1')
+    proc, bag, ready = _launch(tmp_path, port, '--steps', '1', '--params', str(_params_with(tmp_path, host_process='own')))
 
     async def scenario():
         await _wait_ready(proc, ready)

@@ -3,17 +3,20 @@
 The launcher starts the whole graph (Fast DDS on loopback, isolated domain: ``ros_domain``) with the
 simulator's sensor model on (joint noise 5e-4 rad and 5e-2 rad/s, 14-bit encoders, IMU pitch noise 1e-3 rad
 and gyro noise 2e-2 rad/s, seed 7) and the controller's estimator and momentum observer on (the design
-point of docs/robustness.md). The controller node pairs each ``/sim/state`` with the ``/imu`` of its stamp
-and passes the pitch to its estimator. From the MCAP bag read back by ``bag_reader``:
+point of docs/robustness.md), the estimator fusing the gyro too (``estimator_gyro``, 2e-2 rad/s). The
+controller node pairs each ``/sim/state`` with the ``/imu`` of its stamp and passes the pitch and the pitch
+rate to its estimator. From the MCAP bag read back by ``bag_reader``:
 
 - one ``/imu`` per state, stamped as that state, frame ``torso``, covariances from the sensor model;
-- the run equals, bit for bit, the in-process loop that passes the pitch through the same ``Imu`` message
-  (theta = 2 atan2(-y, w): the quaternion round trip can move the pitch by one unit in the last place);
+- the run equals, bit for bit, the in-process loop that passes the pitch and the rate through the same ``Imu``
+  message (theta = 2 atan2(-y, w): the quaternion round trip can move the pitch by one unit in the last place;
+  the rate = -angular_velocity.y is exact);
 - it equals ``runner.run`` (the pitch as the plant gives it) to ``TOL`` (see below);
 - Foxglove's own MCAP reader (``tests/js/read_bag.mjs``, ``@mcap/core``) finds the same ``/imu`` messages:
   one per ``/sim/state``, the same stamps and quaternions;
-- negative control: the in-process loop without the IMU (pitch NaN, the estimator runs on the joints alone)
-  is another run, far outside ``TOL``, so the comparisons above can fail.
+- negative controls: the in-process loop without the IMU (pitch and rate NaN, the estimator runs on the joints
+  alone), and the one without the gyro's rate alone (the pitch kept), are other runs, far outside ``TOL``, so
+  the comparisons above can fail and see the rate.
 """
 from __future__ import annotations
 
@@ -33,7 +36,8 @@ PY = ROOT / '.venv' / 'bin' / 'python'
 STEPS = 1
 PERT = dict(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch=1e-3, noise_pitch_rate=2e-2, seed=7)
 CTRL = dict(state_estimator=True, sensor_noise_q=5e-4, sensor_noise_qd=5e-2, sensor_encoder_bits=14,
-            sensor_noise_pitch=1e-3, momentum_observer=True, momentum_observer_gain=50.0)
+            sensor_noise_pitch=1e-3, momentum_observer=True, momentum_observer_gain=50.0, estimator_gyro=True,
+            sensor_noise_pitch_rate=2e-2)
 # the graph against runner.run: the IMU's pitch differs from the plant's by at most 1 ulp (~1e-17 rad) in
 # some periods; the closed loop carries that round-off, it does not amplify it to anything near this
 TOL = 1e-9
@@ -45,9 +49,10 @@ def _param(v) -> str:
     return 'true' if v is True else 'false' if v is False else repr(v)
 
 
-def _in_process(ccfg, pert, through_imu: bool | None):
-    """The in-process closed loop of ``runner.run``'s object path, with the pitch as the plant gives it
-    (``None``), through the ``/imu`` message (``True``) or dropped (``False``: NaN)."""
+def _in_process(ccfg, pert, through_imu: bool | str | None):
+    """The in-process closed loop of ``runner.run``'s object path, with the pitch and rate as the plant gives
+    them (``None``), through the ``/imu`` message (``True``), dropped (``False``: NaN), or through the message
+    without the rate (``'no_rate'``)."""
     from builtin_interfaces.msg import Time
     from biped_sim.graph.imu import ImuBuilder, imu_reading
     from biped_sim.plant.config import load_sim_config
@@ -61,12 +66,14 @@ def _in_process(ccfg, pert, through_imu: bool | None):
     recs, obs_list, torques = [], [], []
     while sim.impact_count < STEPS and sim.fall is None:
         obs = sim.observe()
-        pitch = obs.pitch
-        if through_imu is True:
-            pitch = imu_reading(imu.message(Time(), obs.pitch, obs.pitch_rate))[0]
-        elif through_imu is False:
+        pitch, rate = obs.pitch, obs.pitch_rate
+        if through_imu in (True, 'no_rate'):
+            pitch, rate = imu_reading(imu.message(Time(), obs.pitch, obs.pitch_rate))
+        if through_imu is False:
             pitch = float('nan')
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, pitch)
+        if through_imu in (False, 'no_rate'):
+            rate = float('nan')
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, pitch, rate)
         obs_list.append(obs)
         torques.append(np.array(out.torque, dtype=float))
         recs.append(sim.step(out.torque))
@@ -156,6 +163,10 @@ def test_imu_over_dds_with_real_sensing_equals_the_in_process_loop(ros_domain, t
     recs_nan, _, _, _ = _in_process(ccfg, pert, through_imu=False)
     gap_nan = gap(recs_nan)
     assert min(gap_nan) > 1e3 * TOL, gap_nan
+    # negative control: without the gyro's rate (the pitch kept) another run too: the node passed the rate
+    recs_nr, _, _, _ = _in_process(ccfg, pert, through_imu='no_rate')
+    gap_nr = gap(recs_nr)
+    assert min(gap_nr) > 1e3 * TOL, gap_nr
     print(f'\n{len(recs)} periods; IMU pitch 1 ulp off the plant\'s in {moved}; the bag against runner.run: '
           f'base {gap_ref[0]:.3g}, base rate {gap_ref[1]:.3g}; against the run without IMU: base {gap_nan[0]:.3g}, '
-          f'base rate {gap_nan[1]:.3g}')
+          f'base rate {gap_nan[1]:.3g}; without the rate: base {gap_nr[0]:.3g}, base rate {gap_nr[1]:.3g}')

@@ -640,7 +640,7 @@ def _run_recorder(tmp_path, params: list[str], env: dict | None = None) -> subpr
 
 @pytest.mark.parametrize("param, value", [("compression", "gzip"), ("chunk_size", "12"),
                                           ("output_dir", "''"), ("batch_wait", "-0.001"), ("batch_wait", "0.5"),
-                                          ("batch_wait", "'x'")])
+                                          ("batch_wait", "'x'"), ("executor", "events"), ("executor", "1")])
 def test_node_rejects_bad_parameter(tmp_path, param, value):
     _need_rclpy()
     params = {"output_dir": str(tmp_path / "bag"), "compression": "zstd", "chunk_size": "65536"}
@@ -653,8 +653,9 @@ def test_node_rejects_bad_parameter(tmp_path, param, value):
 
 
 @pytest.mark.timeout(120)
-@pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
-def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal, ros_domain):
+@pytest.mark.parametrize("stop_signal, loop", [(signal.SIGINT, "wait_set"), (signal.SIGTERM, "wait_set"),
+                                               (signal.SIGINT, "single_threaded")])
+def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal, loop, ros_domain):
     _need_rclpy()
     import rclpy
     from rclpy.node import Node
@@ -664,7 +665,7 @@ def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal
 
     # a domain of our own (domain_coordinator): a pid-derived id could be another test run's on a shared machine
     env = dict(_ros_env(tmp_path), ROS_DOMAIN_ID=str(ros_domain))
-    proc = _run_recorder(tmp_path, [f"output_dir:={tmp_path / 'rec'}", "chunk_size:=4096"], env)
+    proc = _run_recorder(tmp_path, [f"output_dir:={tmp_path / 'rec'}", "chunk_size:=4096", f"executor:={loop}"], env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
     try:
@@ -838,7 +839,8 @@ def test_killed_recorder_node_bag_recovered(tmp_path, ros_domain):
 
 # ------------------------------------------------------------------------------ log time in publication order
 @pytest.mark.timeout(300)
-def test_node_log_time_is_the_clock_published_before_each_message(tmp_path, ros_domain):
+@pytest.mark.parametrize("loop", ["wait_set", "single_threaded"])
+def test_node_log_time_is_the_clock_published_before_each_message(tmp_path, ros_domain, loop):
     """Steps published as the simulator does (/clock k, then /sim/state stamped k), first while the recorder is
     frozen (SIGSTOP: a backlog of every step, taken in batches with DRAIN_PER_TOPIC per topic per pass), then
     paced: every /sim/state's log time is its own step's /clock, i.e. the latest /clock *published* before it.
@@ -853,7 +855,7 @@ def test_node_log_time_is_the_clock_published_before_each_message(tmp_path, ros_
 
     env = dict(_ros_env(tmp_path), ROS_DOMAIN_ID=str(ros_domain))
     bag_dir = tmp_path / "rec"
-    proc = _run_recorder(tmp_path, [f"output_dir:={bag_dir}"], env)
+    proc = _run_recorder(tmp_path, [f"output_dir:={bag_dir}", f"executor:={loop}"], env)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
     n_burst, n_paced = 200, 100

@@ -22,6 +22,7 @@ setup(
             'disturbance = biped_sim.graph.disturbance_node:main',
             'recorder = biped_sim.graph.recorder_node:main',
             'bridge = biped_sim.live.bridge_node:main',
+            'live_recorder = biped_sim.live.live_recorder:main',
         ],
     },
 )

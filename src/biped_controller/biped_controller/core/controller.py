@@ -50,6 +50,7 @@ fallback and the torso's hold through Python, as for the other modes' QP); the P
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
@@ -72,6 +73,8 @@ from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTR
 from biped_controller.core.wbc import NOT_RUN, WBC_MODES, WholeBodyStage, weight_matrix
 
 MODES = ("none", "tau", "p", "both", "wbc", "hybrid", "lambda", "all")
+#: what the legs' model-error estimator's regressor is evaluated on (``model_error.REGRESSOR_INPUTS``)
+MODEL_ERROR_REGRESSORS = ("measured", "reference")
 #: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
 PAPER_MODES = ("none", "tau", "p", "both")
 #: the parameters each mode's p/tau QP adapts (0: p'', 1: tau'', 2: lambda'', the torso offset of issue 21);
@@ -155,6 +158,8 @@ class ControllerConfig:
     sensor_encoder_bits: int          # [bits per turn] encoder resolution it assumes (0: none)
     sensor_noise_qd: float          # [rad/s] rate sensor noise std it assumes
     sensor_noise_pitch: float       # [rad] IMU pitch noise std it assumes
+    estimator_gyro: bool            # the estimator fuses the IMU gyro's pitch rate
+    sensor_noise_pitch_rate: float  # [rad/s] IMU gyro pitch-rate noise std it assumes
     estimator_accel_std: float      # [rad/s^2] the filter's process noise
     estimator_impact_std: float     # [rad/s] added to each rate's std at a touchdown
     delay_compensation: int           # [periods] known delay the Smith predictor compensates (0: none)
@@ -166,7 +171,10 @@ class ControllerConfig:
     model_mass_uncertainty: float     # [-] prior std of each leg link's mass error, relative to its mass
     model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
     model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
+    model_error_regressor: str        # what its regressor is evaluated on: "measured" | "reference" (model_error.py)
+    model_error_settle: float         # [observer time constants 1/K] no update this long after the observer's start
     predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
+    touchdown_band_sigmas: float      # k of the predicted touchdown's band |z| <= k sigma_z (touchdown_band.py)
 
     def validate(self) -> "ControllerConfig":
         if self.engine not in ENGINES:
@@ -195,7 +203,8 @@ class ControllerConfig:
             raise ControllerConfigError(str(exc)) from exc
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
-        for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once"):
+        for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once",
+                     "estimator_gyro"):
             if not isinstance(getattr(self, name), bool):
                 raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         ints = {}
@@ -205,8 +214,9 @@ class ControllerConfig:
                 raise ControllerConfigError(f"{name} must be an integer >= 0, got {v!r}")
             ints[name] = int(v)     # (a ROS parameter arrives as a float)
         for name in ("momentum_observer_gain", "estimate_confidence", "sensor_noise_q", "sensor_noise_qd",
-                     "sensor_noise_pitch", "estimator_accel_std", "estimator_impact_std",
-                     "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance"):
+                     "sensor_noise_pitch", "sensor_noise_pitch_rate", "estimator_accel_std", "estimator_impact_std",
+                     "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance",
+                     "touchdown_band_sigmas"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
@@ -218,8 +228,18 @@ class ControllerConfig:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                     raise ControllerConfigError(f"{name} must be a finite number > 0 with model_error_estimator "
                                                 f"on, got {v!r}")
+            v = self.model_error_settle
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ControllerConfigError(f"model_error_settle must be a finite number >= 0 with "
+                                            f"model_error_estimator on, got {v!r}")
             if not (self.disturbance_observer and self.momentum_observer):
                 raise ControllerConfigError("model_error_estimator needs disturbance_observer and momentum_observer on")
+            if self.model_error_regressor not in MODEL_ERROR_REGRESSORS:
+                raise ControllerConfigError(f"model_error_regressor must be one of {MODEL_ERROR_REGRESSORS}, "
+                                            f"got {self.model_error_regressor!r}")
+            if self.model_error_regressor == "reference" and self.mode in TORSO_MODES:
+                raise ControllerConfigError("model_error_regressor 'reference' is not done for the torso modes "
+                                            f"{TORSO_MODES} (their reference has lambda), got mode {self.mode!r}")
         if self.state_estimator and (self.estimator_accel_std <= 0 or
                                      (self.sensor_noise_q <= 0 and ints["sensor_encoder_bits"] == 0)):
             raise ControllerConfigError("estimator_accel_std must be > 0, and sensor_noise_q > 0 or "
@@ -458,6 +478,20 @@ class AdaptiveController:
             else:
                 from biped_controller.core.sensing import SensingPipeline
                 self._sensing = SensingPipeline(self.cfg, self.desc)
+            if self.cfg.delay_compensation > 0:
+                from biped_controller.core.touchdown_band import BothStancesTorque
+                m = self.model
+                self._both = BothStancesTorque(m, self.margin, c.margin_friction * m.mu, m.l_min + c.margin_zmp,
+                                               m.l_max - c.margin_zmp)
+        self.band_periods = 0           # periods inside a predicted touchdown's band (touchdown_band.py)
+        self.band_changed = 0           # of which the torque was replaced by the one admissible in both stances
+        # the legs' model-error estimator on the reference (model_error_regressor "reference"): the decisions'
+        # parameters, so that a sample of any age within the delay gets the reference of its instant
+        self._ref_log: deque | None = None
+        if (self._sensing is not None and c.model_error_estimator and c.model_error_regressor == "reference"
+                and getattr(self._sensing, "me", None) is not None):
+            self._ref_log = deque(maxlen=int(c.delay_compensation) + 3)
+            self._sensing.reference_source = self.reference_at
         self.reset(None)
         if self._fast is not None and (self._sensing is None or self._compiled_sensing):
             self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
@@ -525,6 +559,43 @@ class AdaptiveController:
         mem[M_.stance] = -1.0 if stance is None else stance
         if self._sensing is not None:
             self._sensing.reset()
+        if self._ref_log is not None:
+            self._ref_log.clear()
+
+    def _log_reference(self) -> None:
+        """After a decision: its (t [s], stance, p, p', tau, tau', p'', tau'') from the memory, for
+        :meth:`reference_at`."""
+        if self._ref_log is not None:
+            m = self.memory
+            self._ref_log.append((float(m[M_.t_last]), int(m[M_.stance]))
+                                 + tuple(float(v) for v in m[M_.p:M_.p + 6]))
+
+    def reference_at(self, t: float, stance: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The controller's reference (q_d [rad], q_d' [rad/s], q_d'' [rad/s^2], paper order of ``stance``) at
+        instant ``t`` [s]: eq. (11) at the parameters of the last decision taken at or before ``t``, advanced
+        over the integer nanoseconds since with the (p'', tau'') held then (``control_kernels.advance``, the
+        period's own advance), tau = 0 if ``stance`` differs from that decision's (an impact: the next step
+        starts, as ``period_start``); before any decision the initial parameters (p = p_d, tau = 0, tau' = 1).
+        It depends on the controller's parameters only, not on the sample taken at ``t`` (model_error.py,
+        "What the regressor is fed")."""
+        tn = round(float(t) * 1e9)
+        entry = None
+        if self._ref_log:
+            for e in reversed(self._ref_log):
+                if round(e[0] * 1e9) <= tn:
+                    entry = e
+                    break
+        if entry is None:
+            m = self.memory
+            if m[M_.decided] != 0.0:
+                raise ValueError(f"reference_at: t = {t!r} s is before the oldest decision kept")
+            entry = (float(t), int(m[M_.stance])) + tuple(float(v) for v in m[M_.p:M_.p + 6])   # reset's values
+        t0, s0, p, pd, tau, taud, p_dd, t_dd = entry
+        h = (tn - round(t0 * 1e9)) * 1e-9
+        p, pd, tau, taud = self.ck.advance(p, pd, tau, taud, p_dd, t_dd, h)
+        if s0 >= 0 and int(stance) != s0:
+            tau = 0.0
+        return eq11(self.family.evaluate(p, tau), pd, taud, p_dd, t_dd)
 
     def snapshot(self) -> np.ndarray:
         """The state between two periods (issue 19): a copy of ``memory``. The held solvers (PIQP, the
@@ -743,7 +814,8 @@ class AdaptiveController:
         return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
                              x_star=xs if keep else None)
 
-    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan) -> ControlOutput:
+    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+                pitch_rate: float = math.nan) -> ControlOutput:
         """One control period: advance the parameters, observe, reference, rows, decide, torque, commit.
 
         With the fast engine the steps are one compiled call (``control_kernels.step``, the same
@@ -751,20 +823,24 @@ class AdaptiveController:
         falls back to the Python steps below (the memory is then unchanged by the compiled call).
 
         With real sensing (``ControllerConfig.real_sensing``, issue 22) the measurement (stance, q, q' and
-        the IMU's torso ``pitch`` [rad], NaN: none) goes through ``sensing.SensingPipeline`` first: the
-        Python steps run on its estimate, in the stance it predicts, and the torque returned is in the paper
-        order of the stance given here (relabelled when a touchdown is predicted before it is sensed)."""
+        the IMU's torso ``pitch`` [rad] and its gyro's ``pitch_rate`` [rad/s], NaN: none) goes through
+        ``sensing.SensingPipeline`` first: the Python steps run on its estimate, in the stance it predicts,
+        and the torque returned is in the paper order of the stance given here (relabelled when a touchdown
+        is predicted before it is sensed). Inside a predicted touchdown's band (``touchdown_band``, with the
+        estimator and a delay) that torque is replaced by one holding both stances' rows when it does not."""
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         told = stance
         if self._sensing is not None:
-            q, qd, stance = self._sensing.sense(t, q, qd, stance, pitch)
+            q, qd, stance = self._sensing.sense(t, q, qd, stance, pitch, pitch_rate)
         if self._kernel is not None:
             out = self._kernel.compute(t, q, qd, stance)
             if out is not None:
                 if self._sensing is not None:
                     if stance != told:      # a touchdown predicted before it is sensed: sent in the told order
                         out = replace(out, torque=relabel(out.torque))
+                    out = self._band_torque(out, told)
+                    self._log_reference()
                     self._sensing.record(t, out.torque, told)
                 return out
         res = self._begin(t, stance)
@@ -799,8 +875,27 @@ class AdaptiveController:
         if self._sensing is not None:
             if stance != told:
                 torque = relabel(torque)        # sent in the order of the stance the plant told us
+            self._log_reference()
+            if self._sensing.band is not None:
+                return self._band_torque(self._output(res, torque, t, stance, status, msg, G, h, xs, wb), told,
+                                         record=t)
             self._sensing.record(t, torque, told)
         return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
+
+    def _band_torque(self, out: ControlOutput, told: int, record: float | None = None) -> ControlOutput:
+        """A period inside the predicted touchdown's band (``touchdown_band``): the torque (told stance's
+        order) replaced by the one admissible in both stances when it is not; ``record``: the period's t, to
+        record the torque sent in the sensing pipeline here."""
+        band = self._sensing.band
+        if band is not None:
+            self.band_periods += 1
+            torque, changed = self._both.torque(band, out.torque, told)
+            if changed:
+                self.band_changed += 1
+                out = replace(out, torque=torque)
+        if record is not None:
+            self._sensing.record(record, out.torque, told)
+        return out
 
     def torque_within_period(self, s_time: float, q: np.ndarray, qd: np.ndarray, stance: int) -> np.ndarray:
         """Computed torque at time s_time [s] into the current period, with (p, tau) propagated from the

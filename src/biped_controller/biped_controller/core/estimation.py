@@ -11,11 +11,13 @@ update is the controller's model driven by the torque it applied, not a differen
   a = A(q)^-1 (Gamma - H(q, q') + r) is computed by the caller (``sensing.SensingPipeline``) from the
   applied torque Gamma and the momentum observer's disturbance r.
 
-  measurement update with z = (q_enc, q'_rate [, theta_imu]),  H = [[I, 0], [0, I] [, [1 1 1 0 0 0 | 0]]]
-      R = diag(sigma_q^2 + Delta^2 / 12 (6x), sigma_qd^2 (6x) [, sigma_pitch^2])
+  measurement update with z = (q_enc, q'_rate [, theta_imu] [, omega_gyro]),
+      H = [[I, 0], [0, I] [, [1 1 1 0 0 0 | 0]] [, [0 | 1 1 1 0 0 0]]]
+      R = diag(sigma_q^2 + Delta^2 / 12 (6x), sigma_qd^2 (6x) [, sigma_pitch^2] [, sigma_pitch_rate^2])
   where Delta = 2 pi / 2^bits is the encoder step (quantisation as uniform noise of variance Delta^2/12)
   and the IMU measures the torso pitch theta = q1 + q2 + q3 with the stance foot flat (counter-clockwise
-  positive). A non-finite or zero-weight sensor is left out (sigma = inf).
+  positive), its gyro the torso's pitch rate omega = theta' = q1' + q2' + q3' (same frame and sign; the
+  stance foot flat and at rest). A non-finite or zero-weight sensor is left out (sigma = inf).
 
   touchdown (the measured stance changes): the flat-foot impact of the controller's model is applied to
   the estimate (``relabel_impact``): q -> relabel(q with the landing ankle laid flat), q' -> the impact
@@ -51,9 +53,10 @@ class EstimatorConfig:
     sigma_pitch: float      # [rad] IMU torso pitch noise std; inf: no IMU
     sigma_acc: float        # [rad/s^2] white acceleration process noise std
     sigma_impact: float     # [rad/s] std added to each rate at a touchdown (impact map error)
+    sigma_pitch_rate: float = math.inf   # [rad/s] IMU gyro pitch-rate noise std; inf: the gyro is not fused
 
     def validate(self) -> "EstimatorConfig":
-        for name in ("sigma_q", "sigma_qd", "sigma_pitch", "sigma_acc", "sigma_impact"):
+        for name in ("sigma_q", "sigma_qd", "sigma_pitch", "sigma_acc", "sigma_impact", "sigma_pitch_rate"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0:
                 raise EstimatorConfigError(f"{name} must be a number >= 0 (inf: sensor absent), got {v!r}")
@@ -121,6 +124,7 @@ class JointStateEstimator:
         c = self.cfg
         self._use_qd = math.isfinite(c.sigma_qd)
         self._use_pitch = math.isfinite(c.sigma_pitch)
+        self._use_gyro = math.isfinite(c.sigma_pitch_rate)
         self.x = np.zeros(2 * N)
         self.P = np.eye(2 * N)
 
@@ -161,9 +165,10 @@ class JointStateEstimator:
         self.P = F @ self.P @ F.T + Q
         return self.estimate()
 
-    def update(self, q_meas: np.ndarray, qd_meas: np.ndarray | None = None, pitch: float | None = None) -> Estimate:
-        """Measurement update (Joseph form) with the encoders, the rate sensor and the IMU's pitch (each
-        left out when absent from the configuration, None or NaN)."""
+    def update(self, q_meas: np.ndarray, qd_meas: np.ndarray | None = None, pitch: float | None = None,
+               pitch_rate: float | None = None) -> Estimate:
+        """Measurement update (Joseph form) with the encoders, the rate sensor, the IMU's pitch [rad] and its
+        gyro's pitch rate [rad/s] (each left out when absent from the configuration, None or NaN)."""
         c = self.cfg
         rows = [np.hstack([np.eye(N), np.zeros((N, N))])]
         z = [np.asarray(q_meas, dtype=float)]
@@ -178,6 +183,12 @@ class JointStateEstimator:
             rows.append(h)
             z.append(np.array([float(pitch)]))
             r.append(np.array([max(c.sigma_pitch ** 2, 1e-30)]))
+        if self._use_gyro and pitch_rate is not None and math.isfinite(pitch_rate):
+            h = np.zeros((1, 2 * N))
+            h[0, N:N + 3] = 1.0
+            rows.append(h)
+            z.append(np.array([float(pitch_rate)]))
+            r.append(np.array([max(c.sigma_pitch_rate ** 2, 1e-30)]))
         H = np.vstack(rows)
         zz = np.concatenate(z)
         R = np.diag(np.concatenate(r))

@@ -31,12 +31,16 @@ from collections import deque
 
 from biped_sim.robot.fixed_foot import relabel
 
-from biped_controller.core.estimation import RELABEL, Estimate, EstimatorConfig
+from biped_controller.core.estimation import RELABEL
+from biped_controller.core.sensing import estimator_config
 from biped_controller.core.estimation_layout import N_LEG_PARAMETERS, N_TREE_BODIES, SCONF, SENS, SC_, S_
-from biped_controller.core.model_error import (LEG_PARAMETERS, LegErrorEstimate, LegModelError, body_combination,
-                                                load_model_error_kernels)
+from biped_controller.core.model_error import (HOLD_VARIANCE, LEG_PARAMETERS, LegErrorEstimate, LegModelError,
+                                                body_combination, load_model_error_kernels)
 from biped_controller.core.momentum_observer import Wrench
 from biped_controller.core.predictor import flat_foot_impact
+from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
+                                                  lever_bound, sigma_bound, sole_rate,
+                                                  sole_height_std)
 
 ESTIMATION_KERNELS = "biped_controller.core.estimation_kernels"
 ESTIMATION_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
@@ -58,10 +62,11 @@ class SensingSingular(FloatingPointError):
 class KernelLegError:
     """The compiled pipeline's legs' model-error estimate, read from its state array (``SENS``'s ``me_*``
     fields): the attributes of ``model_error.LegModelError`` that callers read (theta, P, updates,
-    estimate; copies)."""
+    estimate; copies; P0 the prior covariance)."""
 
-    def __init__(self, state: np.ndarray):
+    def __init__(self, state: np.ndarray, P0: np.ndarray):
         self._s = state
+        self.P0 = P0
 
     @property
     def theta(self) -> np.ndarray:
@@ -92,9 +97,7 @@ class CompiledSensing:
         self.ek = load_estimation_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
-        est = EstimatorConfig(sigma_q=cfg.sensor_noise_q, encoder_bits=int(cfg.sensor_encoder_bits),
-                              sigma_qd=cfg.sensor_noise_qd, sigma_pitch=cfg.sensor_noise_pitch,
-                              sigma_acc=cfg.estimator_accel_std, sigma_impact=cfg.estimator_impact_std)
+        est = estimator_config(cfg)
         self.est_cfg = est
         self.estimator = bool(cfg.state_estimator)
         self.observer = bool(cfg.disturbance_observer and cfg.momentum_observer)
@@ -109,6 +112,7 @@ class CompiledSensing:
         c[SC_.var_q] = est.var_q
         c[SC_.var_qd] = est.sigma_qd ** 2 if math.isfinite(est.sigma_qd) else -1.0
         c[SC_.var_pitch] = est.sigma_pitch ** 2 if math.isfinite(est.sigma_pitch) else -1.0
+        c[SC_.var_pitch_rate] = est.sigma_pitch_rate ** 2 if math.isfinite(est.sigma_pitch_rate) else -1.0
         c[SC_.sigma_impact] = cfg.estimator_impact_std
         c[SC_.noise_qd] = cfg.sensor_noise_qd
         c[SC_.confidence] = cfg.estimate_confidence
@@ -129,11 +133,20 @@ class CompiledSensing:
                                  f"tree bodies; the model has {len(LEG_PARAMETERS)} and {int(ti[1])}")
             # the settings' checks and the prior: LegModelError's own (also the oracle path's estimator)
             self._me_py = LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
-                                        cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+                                        cfg.model_inertia_uncertainty, cfg.model_error_residual_std,
+                                        regressor_input=cfg.model_error_regressor, settle=cfg.model_error_settle)
             c[SC_.me_var_res] = self._me_py.var_res
+            c[SC_.me_settle] = self._me_py.settle_time
+            c[SC_.me_var_hold] = HOLD_VARIANCE
             c[SCONF.slice("me_P0")] = self._me_py.P0.ravel()
             c[SCONF.slice("me_D")] = body_combination(fixed_foot_tree(desc).bodies).ravel()
         self.conf = c
+        self.band_k = float(cfg.touchdown_band_sigmas)
+        self._lever = lever_bound(desc)
+        self._conf_notd = c.copy()                # the predictor without touchdowns (the band's old hypothesis)
+        self._conf_notd[SC_.pred_clearance] = math.inf
+        self.band: TouchdownBand | None = None
+        self.last_height: tuple | None = None     # (t, stance, z, sigma_z) of the last band check
         self.lo, self.hi = np.asarray(torque_min, dtype=float), np.asarray(torque_max, dtype=float)
         self.state = SENS.new()
         self.fm = FloatingModel(desc)
@@ -144,21 +157,28 @@ class CompiledSensing:
         self._pout = np.empty(2)
         self._hist = np.zeros((max(self.d, 1), 8))
         # the legs' model error (model_error.py): its combined estimate replaces the observer's dR, F_x and the
-        # rows' widening in what the compiled period reads; in the kernel (default), or in Python after it
+        # rows' widening in what the compiled period reads; in the kernel (the measured regressor, default), or in
+        # Python after it (the reference regressor: the controller's reference at the sample, Python)
         self.me = None
         self._me_python = False
+        #: (t [s], stance) -> the controller's (q_d, q_d', q_d'') at t (``AdaptiveController.reference_at``);
+        #: set by the controller when the model-error estimator's regressor is fed the reference
+        self.reference_source = None
         self._me_wrench: Wrench | None = None
         self._qp_rows = np.asarray(qp_rows, dtype=float).reshape(5, 2)
-        self.use_model_error_kernel(True)
+        self.use_model_error_kernel(self.me_on and cfg.model_error_regressor == "measured")
 
     def use_model_error_kernel(self, kernel: bool) -> None:
         """Where the legs' model-error estimator runs (when it is on): ``kernel`` True inside the compiled call
-        (``SCONF.me`` 1; ``me`` reads its state), False as ``model_error.LegModelError`` (Pinocchio's regressor)
-        after it, with the same inputs (the oracle of the tests, the benchmark's "before"). Resets the
-        pipeline."""
+        (``SCONF.me`` 1; ``me`` reads its state; the measured regressor only), False as
+        ``model_error.LegModelError`` (Pinocchio's regressor) after it, with the same inputs (the reference
+        regressor's path, the oracle of the tests, the benchmark's "before"). Resets the pipeline."""
+        if self.me_on and kernel and self.cfg.model_error_regressor != "measured":
+            raise ValueError("the compiled model-error estimator evaluates the measured regressor only "
+                             f"(model_error_regressor {self.cfg.model_error_regressor!r}: use the Python one)")
         if self.me_on:
             self.conf[SC_.me] = 1.0 if kernel else 0.0
-            self.me = KernelLegError(self.state) if kernel else self._me_py
+            self.me = KernelLegError(self.state, self._me_py.P0.copy()) if kernel else self._me_py
         self._me_python = self.me_on and not kernel       # the estimator runs in Python after the compiled call
         self.reset()
 
@@ -177,18 +197,21 @@ class CompiledSensing:
             self._me_wrench = None
             s[SENS.slice("me_P")] = self.conf[SCONF.slice("me_P0")]
 
-    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
-        """The period's sample -> (q, q', stance) the controller acts on (views of arrays this object
-        reuses: copy to keep)."""
+    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+              pitch_rate: float = math.nan):
+        """The period's sample (the IMU's ``pitch`` [rad] and gyro ``pitch_rate`` [rad/s]: NaN when absent) ->
+        (q, q', stance) the controller acts on (views of arrays this object reuses: copy to keep)."""
+        pitch_rate = float(pitch_rate)
         if self.d > 0:
-            return self._sense_delayed(float(t), q, qd, int(stance), float(pitch))
+            return self._sense_delayed(float(t), q, qd, int(stance), float(pitch), pitch_rate)
         ek, s = self.ek, self.state
         pre = self._before() if self._me_python else None
-        code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), self._q, self._qd)
+        code = ek.sense(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch), pitch_rate,
+                        self._q, self._qd)
         if code == ek.NEEDS_IMPACT:
             self._impact()
             code = ek.sense_finish(self.ti, self.tf, self.conf, s, float(t), q, qd, int(stance), float(pitch),
-                                   self._q, self._qd)
+                                   pitch_rate, self._q, self._qd)
         if code != ek.DONE:
             raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
         if pre is not None:
@@ -223,13 +246,15 @@ class CompiledSensing:
             cov = s[SENS.slice("P")].reshape(12, 12)[6:, 6:].copy()
         else:
             cov = self.cfg.sensor_noise_qd ** 2 * np.eye(6)
+        ref = self.reference_source(t_s, stance) if self.reference_source is not None else None
         self._me_wrench = self.me.update(q, self._qd.copy(), applied, restarted, dt, obs,
-                                         s[SENS.slice("W_restart")].copy(), float(s[S_.since]), Jj, cov)
+                                         s[SENS.slice("W_restart")].copy(), float(s[S_.since]), Jj, cov, ref)
 
     def _decision(self, j: int):
         return self.log[j - (self.k - len(self.log))]
 
-    def _sense_delayed(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float):
+    def _sense_delayed(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float,
+                       pitch_rate: float = math.nan):
         """Delay d > 0 (``SensingPipeline.process``): the sample is that of period j = max(k - d, 0), taken at
         the instant of the controller's decision j; a new one goes through the estimator and the observer
         (the interval since the previous sample and the torque applied over it from the log), then the
@@ -251,10 +276,11 @@ class CompiledSensing:
                 s[S_.told_prev] = told_prev
                 s[S_.decided] = 1.0
             pre = self._before() if self._me_python else None
-            code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+            code = ek.sense(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, pitch_rate, self._q, self._qd)
             if code == ek.NEEDS_IMPACT:
                 self._impact()
-                code = ek.sense_finish(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, self._q, self._qd)
+                code = ek.sense_finish(self.ti, self.tf, self.conf, s, t_s, q, qd, stance, pitch, pitch_rate,
+                                       self._q, self._qd)
             if code != ek.DONE:
                 raise SensingSingular("the compiled sensing pipeline met a singular model matrix")
             if pre is not None:
@@ -273,7 +299,48 @@ class CompiledSensing:
                           self._qp, self._qdp, self._pout)
         if code != ek.DONE:
             raise SensingSingular("the compiled predictor met a singular model matrix")
+        self.band = None
+        if self.estimator and not self.at_once and self.band_k > 0 and s[S_.pred_cleared] != 0.0:
+            self.band = self._band(t, j, n, stance)
         return self._qp, self._qdp, int(self._pout[0])
+
+    def _band(self, t: float, j: int, n: int, stance: int) -> TouchdownBand | None:
+        """``SensingPipeline._band`` on the compiled predictor: the prediction without a touchdown (the
+        predictor's own when it predicted none; otherwise redone with the cleared flag cleared for the call
+        and the clearance infinite), its sole height, whether it descends, its spread."""
+        ek, s = self.ek, self.state
+        if int(self._pout[1]) == 0:
+            q0, qd0 = self._qp.copy(), self._qdp.copy()
+        else:
+            cleared = s[S_.pred_cleared]
+            s[S_.pred_cleared] = 0.0
+            q0, qd0, out0 = np.empty(6), np.empty(6), np.empty(2)
+            try:
+                code = ek.predict(self.ti, self.tf, self._conf_notd, s, self._hist, n, t, self._q, self._qd,
+                                  stance, q0, qd0, out0)
+            finally:
+                s[S_.pred_cleared] = cleared
+            if code != ek.DONE:
+                raise SensingSingular("the compiled predictor met a singular model matrix")
+        sole = lambda qq: float(ek.lowest_sole(self.ti, self.tf, np.ascontiguousarray(qq)))   # noqa: E731
+        t_j = t if j == self.k else self._decision(j)[0]
+        Pqq = propagated_position_cov(s[SENS.slice("P")].reshape(12, 12), t - t_j, self.cfg.estimator_accel_std)
+        z = sole(q0)
+        if z > self.band_k * sigma_bound(self._lever, Pqq) or sole_rate(sole, q0, qd0) >= 0.0:
+            return None
+        sz = sole_height_std(sole, q0, Pqq)
+        self.last_height = (t, int(stance), z, sz)        # the band's inputs this period (diagnostics)
+        if not in_band(z, sz, self.band_k):
+            return None
+        if int(self._pout[1]) > 0:
+            qn, qdn, sn = self._qp.copy(), self._qdp.copy(), int(self._pout[0])
+        else:
+            qn, qdn = np.empty(6), np.empty(6)
+            if not ek.flat_foot_impact(self.ti, self.tf, q0, qd0, qn, qdn):
+                raise SensingSingular("the compiled impact map met a singular model matrix")
+            sn = 1 - stance
+        return TouchdownBand(z=z, sigma_z=sz, q_old=q0, qd_old=qd0, stance_old=int(stance), q_new=qn, qd_new=qdn,
+                             stance_new=int(sn))
 
     def _impact(self) -> None:
         """The sensed touchdown on the time-updated estimate (``estimation.JointStateEstimator.relabel_impact``

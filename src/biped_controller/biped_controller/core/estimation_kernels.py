@@ -10,8 +10,9 @@ oracle of the tests (``sensing.SensingPipeline`` on ``estimation.JointStateEstim
   acceleration under the torque applied, Gamma = the sent torque clipped to the limits, relabelled
   -Gamma[::-1] if it was sent for the other stance; r the observer's last disturbance):
   x_q += x_q' dt + a dt^2 / 2, x_q' += a dt, P <- F P F^T + Q (``estimation`` module docstring);
-* measurement update with z = (q_enc, q'_rate [, pitch]), H = [[I, 0], [0, I] [, [1 1 1 0..]]],
-  R = diag(var_q, var_qd [, var_pitch]): K = P H^T S^-1 (S = H P H^T + R, Cholesky),
+* measurement update with z = (q_enc, q'_rate [, pitch] [, pitch rate]), H = [[I, 0], [0, I] [, [1 1 1 0..]]
+  [, [0.. | 1 1 1 0..]]], R = diag(var_q, var_qd [, var_pitch] [, var_pitch_rate]):
+  K = P H^T S^-1 (S = H P H^T + R, Cholesky),
   x += K (z - H x), P <- (I - K H) P (I - K H)^T + K R K^T (Joseph form, the Python core); here as
   sequential scalar updates, one measurement at a time (R diagonal: the same estimate and covariance,
   round-off apart), k = P h^T / (h P h^T + r), x += k (z - h x), P -= k (P h^T)^T;
@@ -34,7 +35,8 @@ oracle of the tests (``sensing.SensingPipeline`` on ``estimation.JointStateEstim
   the observer's A, B, H and J_j: ``model_error_kernels.update`` (``model_error.LegModelError.update``'s
   maths, its regressor in closed form), with the inputs ``estimation_compiled`` gave the Python estimator:
   restarted = (the time since the observer's restart is 0), the torque applied and the interval only when
-  not restarted, not the first sample and a decision recorded (else none and 0); its torso wrench, dR,
+  not restarted, not the first sample and a decision recorded (else none and 0), no update within the
+  settling time after the observer's restart (``model_error_settle``); its torso wrench, dR,
   cov_dR and the rows' widening k sqrt(C_r cov_dR C_r^T) replace the observer's in what the QP reads
   (``into_res``) once it has taken a sample.
 
@@ -176,16 +178,17 @@ def _est_predict(conf, s, dt, a):
 
 @numba.njit(cache=True)
 def _scalar_update(P, x, c, z, rv, ph):
-    """One scalar measurement z = h x + noise (variance rv), h = e_c (c >= 0) or e_0 + e_1 + e_2 (c = -1):
-    k = P h^T / (h P h^T + rv), x += k (z - h x), P <- P - k (P h^T)^T (symmetric by construction).
-    False if h P h^T + rv is not > 0."""
+    """One scalar measurement z = h x + noise (variance rv), h = e_c (c >= 0), e_0 + e_1 + e_2 (c = -1: the
+    torso pitch) or e_6 + e_7 + e_8 (c = -2: its rate): k = P h^T / (h P h^T + rv), x += k (z - h x),
+    P <- P - k (P h^T)^T (symmetric by construction). False if h P h^T + rv is not > 0."""
+    o = 0 if c == -1 else N
     for r in range(NX):
-        ph[r] = P[r, c] if c >= 0 else P[r, 0] + P[r, 1] + P[r, 2]
-    sv = (ph[c] if c >= 0 else ph[0] + ph[1] + ph[2]) + rv
+        ph[r] = P[r, c] if c >= 0 else P[r, o] + P[r, o + 1] + P[r, o + 2]
+    sv = (ph[c] if c >= 0 else ph[o] + ph[o + 1] + ph[o + 2]) + rv
     if not sv > 0.0:
         return False
     inv = 1.0 / sv
-    inn = z - (x[c] if c >= 0 else x[0] + x[1] + x[2])
+    inn = z - (x[c] if c >= 0 else x[o] + x[o + 1] + x[o + 2])
     for r in range(NX):
         x[r] += ph[r] * inv * inn
     for r in range(NX):
@@ -198,10 +201,10 @@ def _scalar_update(P, x, c, z, rv, ph):
 
 
 @numba.njit(cache=True)
-def _est_update(conf, s, q, qd, pitch):
+def _est_update(conf, s, q, qd, pitch, pitch_rate):
     """Measurement update (module docstring), as sequential scalar updates (R is diagonal, so this is the
-    batch update K = P H^T S^-1 of the Python core, round-off apart): encoders, rates, pitch. False if a
-    variance is not positive."""
+    batch update K = P H^T S^-1 of the Python core, round-off apart): encoders, rates, pitch, pitch rate.
+    False if a variance is not positive."""
     P = s[S_.P:S_.P + NX * NX].reshape((NX, NX))
     x = s[S_.x:S_.x + NX]
     ph = np.empty(NX)
@@ -214,6 +217,9 @@ def _est_update(conf, s, q, qd, pitch):
                 return False
     if conf[SC_.var_pitch] >= 0.0 and math.isfinite(pitch):
         if not _scalar_update(P, x, -1, pitch, max(conf[SC_.var_pitch], 1e-30), ph):
+            return False
+    if conf[SC_.var_pitch_rate] >= 0.0 and math.isfinite(pitch_rate):
+        if not _scalar_update(P, x, -2, pitch_rate, max(conf[SC_.var_pitch_rate], 1e-30), ph):
             return False
     return True
 
@@ -372,13 +378,15 @@ def _model_error(ti, tf, conf, s, q, qd, A, B, J, cov_qd, has_applied, applied, 
         for k in range(N):
             Jj[a, k] = J[a, 3 + k]
     Rres = np.zeros((3, 3))
+    Rhold = np.zeros((3, 3))
     for a in range(3):
         Rres[a, a] = conf[SC_.me_var_res]
+        Rhold[a, a] = conf[SC_.me_var_hold]
     D = conf[SC_.me_D:SC_.me_D + 2 * N_TREE_BODIES * npar].reshape((2 * N_TREE_BODIES, npar))
     ok = mek.update(ti, tf, D, q, qd, A, B, s[S_.H_est:S_.H_est + N], Jj, s[S_.r:S_.r + N],
                     s[S_.S:S_.S + 6].reshape((2, 3)), s[S_.cov_W:S_.cov_W + 9].reshape((3, 3)),
                     s[S_.W_restart:S_.W_restart + 3], s[S_.since], cov_qd, conf[SC_.K], dt, s[S_.since] == 0.0,
-                    has_applied, applied, Rres, s[S_.me_theta:S_.me_theta + npar],
+                    has_applied, applied, Rres, Rhold, conf[SC_.me_settle], s[S_.me_theta:S_.me_theta + npar],
                     s[S_.me_P:S_.me_P + npar * npar].reshape((npar, npar)),
                     s[S_.me_Yf:S_.me_Yf + npar * npar].reshape((npar, npar)),
                     s[S_.me_Yprev:S_.me_Yprev + npar * npar].reshape((npar, npar)),
@@ -412,15 +420,15 @@ def _elapsed_applied(conf, s, t, stance, applied):
     return dt
 
 
-@numba.njit(_I(_VI, _V, _V, _V, _F, _V, _V, _I, _F, _V, _V), cache=True)
-def sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
+@numba.njit(_I(_VI, _V, _V, _V, _F, _V, _V, _I, _F, _F, _V, _V), cache=True)
+def sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, pitch_rate, q_out, qd_out):
     """The rest of :func:`sense` after the time update (and the touchdown's impact map)."""
     first = s[S_.started] == 0.0
     est = conf[SC_.estimator] != 0.0
     if est:
         if first:
             _est_reset(conf, s, q, qd)
-        elif not _est_update(conf, s, q, qd, pitch):
+        elif not _est_update(conf, s, q, qd, pitch, pitch_rate):
             return SINGULAR
         for i in range(N):
             q_out[i] = s[S_.x + i]
@@ -462,9 +470,10 @@ def sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
     return DONE
 
 
-@numba.njit(_I(_VI, _V, _V, _V, _F, _V, _V, _I, _F, _V, _V), cache=True)
-def sense(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
-    """The pipeline for the sample (q, q', stance, pitch) at t [s] (delay 0: the sample is the present):
+@numba.njit(_I(_VI, _V, _V, _V, _F, _V, _V, _I, _F, _F, _V, _V), cache=True)
+def sense(ti, tf, conf, s, t, q, qd, stance, pitch, pitch_rate, q_out, qd_out):
+    """The pipeline for the sample (q, q', stance, pitch [rad], pitch_rate [rad/s]; NaN: none) at t [s]
+    (delay 0: the sample is the present):
     the estimator's time update, then, unless the stance changed (NEEDS_IMPACT: the caller applies the
     impact to x and P and calls :func:`sense_finish`), the measurement update and the observer. q_out,
     q_out' <- the state the controller acts on. SINGULAR: a model matrix was not positive definite."""
@@ -493,7 +502,7 @@ def sense(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out):
         _est_predict(conf, s, dt, a[0])
         if stance != int(s[S_.stance]):
             return NEEDS_IMPACT
-    return sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, q_out, qd_out)
+    return sense_finish(ti, tf, conf, s, t, q, qd, stance, pitch, pitch_rate, q_out, qd_out)
 
 
 @numba.njit(_I(_V, _V, _V), cache=True)

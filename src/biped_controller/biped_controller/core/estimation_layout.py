@@ -7,7 +7,8 @@ sides cannot disagree on where a field lives (the same pattern as ``period_layou
 * ``SCONF`` (fixed per controller): which parts run (estimator, momentum observer: 0/1), the observer's gain
   K [1/s] and wrench height [m] above the hip, the estimator's process noise sigma_a [rad/s^2], the
   measurement variances it assumes (encoder var_q [rad^2] including the quantisation Delta^2 / 12, rate
-  sensor var_qd [rad^2/s^2], IMU pitch var_pitch [rad^2]; -1: the sensor is not used), the rate std added
+  sensor var_qd [rad^2/s^2], IMU pitch var_pitch [rad^2], IMU gyro pitch rate var_pitch_rate [rad^2/s^2];
+  -1: the sensor is not used), the rate std added
   at a touchdown [rad/s], the rate noise std the observer assumes without an estimator [rad/s], the QP's
   confidence k [-] and its five contact rows' (C_x, C_y) (``fixed_foot.contact_rows`` with the controller's
   margins), the torque limits [N m] (the applied torque is the sent one clipped), and the Smith
@@ -23,7 +24,8 @@ sides cannot disagree on where a field lives (the same pattern as ``period_layou
   (the estimator's next time update starts there), the predictor's memory of its sample: the stance
   (-1 none) and whether the swing foot has cleared the ground since that stance began (0/1).
 * the legs' model-error estimator (``model_error``; ``SCONF.me`` 1: on, run inside the compiled pipeline by
-  ``model_error_kernels.update``): in ``SCONF`` its residual variance s_res^2 [N^2 m^2], the prior
+  ``model_error_kernels.update``): in ``SCONF`` its residual variance s_res^2 [N^2 m^2], its settling time
+  after the observer's restart [s] and the residual variance that holds a sample (``HOLD_VARIANCE``), the prior
   covariance P0 (6 x 6) of theta and the combination D (2 nb x 6) of the fixed-foot tree's bodies' unit-mass
   and unit-inertia columns into the six leg parameters (``model_error.body_combination``); in ``SENS`` its
   state (theta [kg, kg m^2], P, the filtered regressor Y_f and the last sample's joint rows Y_prev (6 x 6
@@ -41,10 +43,11 @@ N_TREE_BODIES = 7      # bodies of fast_engine.fixed_foot_tree (checked by Compi
 
 SCONF = Layout("sensing_conf", [
     ("estimator", 1), ("observer", 1), ("K", 1), ("height", 1), ("sigma_acc", 1), ("var_q", 1), ("var_qd", 1),
-    ("var_pitch", 1), ("sigma_impact", 1), ("noise_qd", 1), ("confidence", 1), ("qp_rows", 10),
+    ("var_pitch", 1), ("var_pitch_rate", 1), ("sigma_impact", 1), ("noise_qd", 1), ("confidence", 1), ("qp_rows", 10),
     ("torque_min", 6), ("torque_max", 6),
     ("period", 1), ("pred_substeps", 1), ("pred_td_height", 1), ("pred_clearance", 1), ("pred_t_tol", 1),
-    ("me", 1), ("me_var_res", 1), ("me_P0", N_LEG_PARAMETERS ** 2), ("me_D", 2 * N_TREE_BODIES * N_LEG_PARAMETERS)])
+    ("me", 1), ("me_var_res", 1), ("me_settle", 1), ("me_var_hold", 1), ("me_P0", N_LEG_PARAMETERS ** 2),
+    ("me_D", 2 * N_TREE_BODIES * N_LEG_PARAMETERS)])
 
 SENS = Layout("sensing", [
     ("x", N_STATE), ("P", N_STATE * N_STATE), ("started", 1), ("stance", 1),

@@ -48,6 +48,42 @@ evaluated at the sample's (q, q') and the model's acceleration under the torque 
 interval and the observer's r, a = A^-1 (Gamma - H + r) (at a restart: the last torque relabelled, r = 0).
 Its covariance: Sigma_dR = S Sigma_W S^T + G_t P G_t^T, G_t = G + S J_j^{T+} Y_f (W_t depends on theta too),
 Sigma_W the observer's noise covariance with the carried-wrench term taken for W_t,restart.
+
+What the regressor is fed (``model_error_regressor``, ``REGRESSOR_INPUTS``). "measured" (above): Y at the
+sample's (q, q') and a = A^-1 (Gamma - H + r). Under sensor noise this is an errors-in-variables regression
+with correlated errors: the observer's r contains the sample's rate error, dr = K A dq' (high-passed), and the
+same dq' enters the regressor through a (da = A^-1 dr, into the inertial columns: dY_j = dM_j da, dM_j the
+inertia matrix's change per unit of parameter j) and quadratically through the Coriolis terms, so least
+squares on r_s = H theta + v, H = -(Y_f)_s, tends to theta + E[H^T H]^-1 E[H^T v] with E[H^T v] != 0 even
+for theta = 0. "reference": Y is evaluated on the controller's reference at the sample's instant,
+Y_ref = Y(q_d, q_d', q_d''), (q_d, q_d', q_d'') = eq. (11) at the parameters of the last decision advanced
+to the sample's instant with the held (p'', tau'') (``AdaptiveController.reference_at``), and Y_ref replaces
+Y everywhere above (Y_f, the RLS row, G). The parameters evolve as p'' = -k_v p' + k_p (p_d - p),
+tau'' = k_v (1 - tau') whenever x* is feasible (no measurement enters) and through the QP's rows otherwise,
+so Y_ref is uncorrelated with the sample's noise (an instrumental variable, Soderstrom and Stoica,
+"Instrumental variable methods for system identification", used as the regressor itself): E[H_ref^T v] = 0.
+Under a true error the data obey r_s = H_ref theta + (H - H_ref) theta + v, a relative bias of the order of
+the tracking error (about 2e-3 rad undisturbed), and none at theta = 0; P stays the symmetric RLS
+covariance the QP's widening needs. Measured (rigid, nominal plant, 5e-4 rad, 5e-2 rad/s, 14 bits, K = 50,
+seeds 0 and 1, 4 s, with the settling time below): the two estimates differ by at most 0.15 prior std
+(0.07 after 3.2 s); the errors-in-variables bias is small at these noise levels (the drift first blamed on
+it was the start transient below), so "measured" (exact for a true error) is the default.
+
+When the update happens (``model_error_settle`` = n, in observer time constants). After the observer's
+(re)start (the first sample, every touchdown) its r carries the start transient: with p = A q' measured,
+r(t) - (filtered tau_d) = K (dp(t) - lowpass(dp)(t)) - K e^{-K t} dp(0), and dp(0) = A dq'(0) is the rate
+error of the restart sample, larger than later (the estimator starts from the raw rate, 5e-2 rad/s, and a
+touchdown widens its rates by ``estimator_impact_std``). That term is one random vector decaying over 1/K,
+a coherent error across ~1/(K dt) samples that the white residual model (s_res^2 + K^2 (A Sigma_qd A)_s per
+sample) overweighs by that factor; adding its marginal variance K^2 e^{-2 K t} (A Sigma_0 A)_s to the
+residual was measured not to be enough (thigh mass 5.7 posterior std off 0 at 0.1 s, seed 0). So no update
+while since < n / K (e^{-n} of the term left): the sample then carries no information, which the kernel
+is given as a residual variance of ``HOLD_VARIANCE`` (the gain, ~1e-200 P H^T, so the combination in the
+same call uses theta and P to round-off), and theta and P are put back afterwards, bit for bit. Measured (same
+runs): without it the thigh mass is 8.4 (seed 0) and 2.9 (seed 1) posterior std off 0 at 0.1 s, dR_y
+averages 24 and 29 N over 0.1-0.2 and 0.2-0.3 s before any push (seed 0), and the foot's inertia drifts
+to 1.0-1.3 prior std within 3.2 s (7 touchdowns); with n = 3 theta stays within 1.1 posterior std
+(Mahalanobis distance at 4 s: 2.1 and 0.6 for 6 degrees of freedom) and dR_y averages 3-4 N.
 """
 from __future__ import annotations
 
@@ -69,6 +105,11 @@ from biped_controller.core.momentum_observer import Wrench
 LEG_PARAMETERS: tuple[tuple[str, str], ...] = (("thigh", "mass"), ("thigh", "inertia"), ("shin", "mass"),
                                                ("shin", "inertia"), ("foot", "mass"), ("foot", "inertia"))
 SWING = slice(3, 6)     # the swing leg's rows among the six joint rows (paper order q4..q6)
+#: [N^2 m^2] the swing rows' variance during the settling time after a restart (module docstring): the RLS
+#: gain is then about 1e-200 P H^T (theta and P are then restored exactly)
+HOLD_VARIANCE = 1e200
+#: what the regressor is evaluated on (module docstring, "What the regressor is fed")
+REGRESSOR_INPUTS = ("measured", "reference")
 MODEL_ERROR_KERNELS = "biped_controller.core.model_error_kernels"
 MODEL_ERROR_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels")
 
@@ -239,10 +280,16 @@ def prior_std(desc: RobotDescription, mass_uncertainty: float, inertia_uncertain
 class LegModelError:
     """The estimator and the combination of the module docstring, fed once per observer sample. The algebra
     after the regressor runs in ``model_error_kernels.combine_kernel`` (Numba; ``compiled=False``: the same
-    function run by NumPy, ``combine``, the tests' oracle)."""
+    function run by NumPy, ``combine``, the tests' oracle). ``regressor_input`` (``REGRESSOR_INPUTS``) and
+    ``settle`` [observer time constants 1/K] are ``model_error_regressor`` and ``model_error_settle`` of
+    config/controller.yaml (module docstring, "What the regressor is fed", "When the update happens")."""
 
     def __init__(self, desc: RobotDescription, K: float, mass_uncertainty: float, inertia_uncertainty: float,
-                 residual_std: float, compiled: bool = True):
+                 residual_std: float, compiled: bool = True, *, regressor_input: str, settle: float):
+        if regressor_input not in REGRESSOR_INPUTS:
+            raise ModelErrorConfigError(f"model_error_regressor must be one of {REGRESSOR_INPUTS}, "
+                                        f"got {regressor_input!r}")
+        self.regressor_input = regressor_input
         for name, v in (("model_mass_uncertainty", mass_uncertainty),
                         ("model_inertia_uncertainty", inertia_uncertainty), ("model_error_residual_std", residual_std)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -250,11 +297,15 @@ class LegModelError:
         if isinstance(K, bool) or not isinstance(K, (int, float)) or not math.isfinite(K) or K <= 0:
             raise ModelErrorConfigError(f"momentum_observer_gain must be a finite number > 0, got {K!r}")
         self.K = float(K)
+        if isinstance(settle, bool) or not isinstance(settle, (int, float)) or not math.isfinite(settle) or settle < 0:
+            raise ModelErrorConfigError(f"model_error_settle must be a finite number >= 0, got {settle!r}")
+        self.settle_time = float(settle) / self.K     # [s] no update this long after the observer's (re)start
         self.reg = LegRegressor(desc)
         self.model = self.reg.base
         self.P0 = np.diag(prior_std(desc, mass_uncertainty, inertia_uncertainty) ** 2)
         self.var_res = float(residual_std) ** 2
         self._Rres = self.var_res * np.eye(3)
+        self._Rhold = HOLD_VARIANCE * np.eye(3)     # a held sample: no information (docstring)
         self._zero6 = np.zeros((6, 6))
         kern = load_model_error_kernels(warm=compiled)      # compiled now, not at the first sample
         self._combine = kern.combine_kernel if compiled else kern.combine
@@ -278,14 +329,19 @@ class LegModelError:
 
     def update(self, q: np.ndarray, qd: np.ndarray, applied: np.ndarray | None, restarted: bool, dt: float,
                obs: Wrench, W_obs_restart: np.ndarray, since: float, Jj: np.ndarray,
-               cov_qd: np.ndarray | None) -> Wrench:
+               cov_qd: np.ndarray | None, reference: tuple | None = None) -> Wrench:
         """One observer sample. ``q, qd`` the state the observer saw [rad, rad/s]; ``applied`` the torque over
         the interval that led here in this stance's paper order [N m] (None at a restart: the last one
         relabelled is used for the acceleration); ``restarted``: the observer restarted at this sample;
         ``dt`` [s] the interval; ``obs`` the observer's output; ``W_obs_restart`` the wrench it carried at
         its last restart and ``since`` [s] the time since; ``Jj`` (3, 6) the torso wrench Jacobian's joint
-        columns; ``cov_qd`` the rate covariance (None: 0). Returns the combined ``Wrench`` (r: the
+        columns; ``cov_qd`` the rate covariance (None: 0); ``reference`` (q_d, q_d', q_d'') at the sample's
+        instant in this stance's paper order [rad, rad/s, rad/s^2], required when ``regressor_input`` is
+        "reference" (module docstring; ignored otherwise). Returns the combined ``Wrench`` (r: the
         observer's, unchanged; W, cov_W: the torso wrench; dR, cov_dR: with the legs' error)."""
+        if self.regressor_input == "reference" and reference is None:
+            raise ValueError("LegModelError.update: regressor_input 'reference' needs the reference "
+                             "(q_d, q_d', q_d'') at the sample")
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         dyn = self.model.dynamics(q, qd)
@@ -298,10 +354,16 @@ class LegModelError:
             tq = np.asarray(applied, dtype=float)
             acc = Ainv @ (tq - dyn.H + obs.r)
             self._last_torque = tq.copy()
-        Y = self.reg(q, qd, acc)
+        if self.regressor_input == "reference":
+            Y = self.reg(*(np.asarray(v, dtype=float) for v in reference))
+        else:
+            Y = self.reg(q, qd, acc)
         if restarted:
             self._W_t_restart = self._W_t.copy()
-        else:
+        hold = (not restarted) and since < self.settle_time      # the observer's start transient (docstring)
+        if hold:
+            theta0, P0 = self.theta.copy(), self.P.copy()
+        elif not restarted:
             self.updates += 1
         cov = self._zero6 if cov_qd is None else np.ascontiguousarray(cov_qd, dtype=float)
         W_t, cov_W, dR, cov_dR = np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))
@@ -309,8 +371,11 @@ class LegModelError:
                       np.ascontiguousarray(obs.S, dtype=float), np.ascontiguousarray(obs.cov_W, dtype=float),
                       np.ascontiguousarray(W_obs_restart, dtype=float), np.ascontiguousarray(Jj, dtype=float),
                       cov, cov_qd is not None, K, float(dt), float(since), bool(restarted), self._has_prev,
-                      self._Rres, self.theta, self.P, self._Yf, self._Yprev, self._W_t_restart,
+                      self._Rhold if hold else self._Rres, self.theta, self.P, self._Yf, self._Yprev,
+                      self._W_t_restart,
                       W_t, cov_W, dR, cov_dR)
+        if hold:                 # exactly no update (the kernel's gain was ~1e-200: its combination used them)
+            self.theta[:], self.P[:] = theta0, P0
         self._has_prev = True
         self._W_t = W_t.copy()
         return Wrench(r=obs.r.copy(), W=W_t, cov_W=cov_W, dR=dR, cov_dR=cov_dR, S=obs.S.copy())

@@ -411,7 +411,8 @@ def combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, us
 # ------------------------------------------------------------------------------------------ one sample
 @numba.njit(cache=True, fastmath=_FAST)
 def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since, cov_qd, K, dt, restarted,
-           has_applied, applied, Rres, theta, P, Yf, Yprev, W_t_restart, last_torque, flags, W_t, cov_W, dR, cov_dR):
+           has_applied, applied, Rres, Rhold, settle_time, theta, P, Yf, Yprev, W_t_restart, last_torque, flags, W_t,
+           cov_W, dR, cov_dR):
     """One observer sample of the estimator: ``LegModelError.update``'s maths after its model terms, in place
     (the compiled pipeline's; ``LegModelError`` stays the oracle). In: the state the observer saw (q, q')
     [rad, rad/s], the model's A (6, 6), B (3, 6) (root rows), H (6,) there (the observer's
@@ -419,7 +420,8 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
     observer's r (6,) [N m], S (2, 3), cov_W_obs (3, 3), the wrench it carried at its last restart
     W_obs_restart (3,) and the time since [s], the rate covariance cov_qd (6, 6), K [1/s], dt [s],
     ``restarted`` (the observer restarted at this sample), ``has_applied`` and ``applied`` (6,) [N m] the
-    torque over the interval that led here in this stance's paper order, Rres = s_res^2 1 (3, 3). State,
+    torque over the interval that led here in this stance's paper order, Rres = s_res^2 1 (3, 3), Rhold =
+    ``HOLD_VARIANCE`` 1 (3, 3) and ``settle_time`` [s] (``model_error_settle`` / K). State,
     updated: theta (6,), P (6, 6), Y_f (6, 6), Yprev (6, 6), W_t_restart (3,), last_torque (6,), flags (3,)
     = [a Y_j of the last sample is in Yprev (0/1), last_torque holds a torque (0/1), RLS updates made].
     W_t (3,): in, the last sample's torso wrench; out, this sample's. Out: cov_W (3, 3), dR (2,) [N],
@@ -427,8 +429,9 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
 
     As ``LegModelError.update``: the acceleration a = A^-1 (Gamma - H + r) under the torque applied, or at a
     restart (or without a torque) a = A^-1 (relabel(the last torque) - H) (0 torque before any), relabel
-    = -x[::-1]; Y = :func:`regressor_into` at (q, q', a); at a restart W_t_restart <- the last torso wrench,
-    otherwise one more update counted; then :func:`combine_kernel`. A^-1 by Cholesky (``LegModelError``:
+    = -x[::-1]; Y = :func:`regressor_into` at (q, q', a); at a restart W_t_restart <- the last torso wrench;
+    within ``settle_time`` of the observer's restart the sample is held (Rhold in the combination, theta and P
+    put back after it, bit for bit), otherwise one more update counted; then :func:`combine_kernel`. A^-1 by Cholesky (``LegModelError``:
     NumPy's LU inverse; the same to round-off). Returns False (nothing changed) if A is not positive
     definite."""
     if A.shape[0] != _NJ or theta.shape[0] != _NPAR:
@@ -462,9 +465,17 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
     regressor_into(ti, tf, D, q, qd, u[ia], Y)
     if restarted:
         W_t_restart[:] = W_t
-    else:
+    hold = (not restarted) and since < settle_time      # the observer's start transient (model_error)
+    if hold:
+        theta0 = theta.copy()
+        P0 = P.copy()
+    elif not restarted:
         flags[2] += 1.0
     combine_kernel(Y, A, B, Ainv, r, S, cov_W_obs, W_obs_restart, Jj, cov_qd, True, K, dt, since, restarted,
-                   flags[0] != 0.0, Rres, theta, P, Yf, Yprev, W_t_restart, W_t, cov_W, dR, cov_dR)
+                   flags[0] != 0.0, Rhold if hold else Rres, theta, P, Yf, Yprev, W_t_restart, W_t, cov_W, dR,
+                   cov_dR)
+    if hold:                 # exactly no update (the combination used theta and P to round-off)
+        theta[:] = theta0
+        P[:, :] = P0
     flags[0] = 1.0
     return True

@@ -40,6 +40,18 @@ from biped_controller.core.estimation import EstimatorConfig, JointStateEstimato
 from biped_controller.core.model_error import LegModelError
 from biped_controller.core.momentum_observer import MomentumObserver, Wrench
 from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
+from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
+                                                  lever_bound, sigma_bound, sole_rate,
+                                                  sole_height_std)
+
+
+def estimator_config(cfg) -> EstimatorConfig:
+    """The estimator's sensors and noise from the controller's settings ``cfg`` (a ControllerConfig): the gyro
+    (``sensor_noise_pitch_rate``) only with ``estimator_gyro`` on (off: sigma = inf, not fused)."""
+    return EstimatorConfig(sigma_q=cfg.sensor_noise_q, encoder_bits=int(cfg.sensor_encoder_bits),
+                           sigma_qd=cfg.sensor_noise_qd, sigma_pitch=cfg.sensor_noise_pitch,
+                           sigma_acc=cfg.estimator_accel_std, sigma_impact=cfg.estimator_impact_std,
+                           sigma_pitch_rate=cfg.sensor_noise_pitch_rate if cfg.estimator_gyro else math.inf)
 
 
 @dataclass(frozen=True)
@@ -66,15 +78,19 @@ class SensingPipeline:
         self.fm = FloatingModel(desc)
         lo, hi = desc.torque_limits()
         self.lo, self.hi = np.array(lo, dtype=float), np.array(hi, dtype=float)
-        self.est_cfg = EstimatorConfig(sigma_q=cfg.sensor_noise_q, encoder_bits=int(cfg.sensor_encoder_bits),
-                                       sigma_qd=cfg.sensor_noise_qd, sigma_pitch=cfg.sensor_noise_pitch,
-                                       sigma_acc=cfg.estimator_accel_std, sigma_impact=cfg.estimator_impact_std)
+        self.est_cfg = estimator_config(cfg)
         self.est = JointStateEstimator(self.est_cfg) if cfg.state_estimator else None
         self.mo = (MomentumObserver(desc, cfg.momentum_observer_gain, cfg.observer_height)
                    if cfg.disturbance_observer and cfg.momentum_observer else None)
         self.me = (LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
-                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std)
+                                 cfg.model_inertia_uncertainty, cfg.model_error_residual_std,
+                                 regressor_input=cfg.model_error_regressor, settle=cfg.model_error_settle)
                    if self.mo is not None and cfg.model_error_estimator else None)
+        self.band_k = float(cfg.touchdown_band_sigmas)
+        self._lever = lever_bound(desc)
+        #: (t [s], stance) -> the controller's (q_d, q_d', q_d'') at t (``AdaptiveController.reference_at``);
+        #: set by the controller when the model-error estimator's regressor is fed the reference
+        self.reference_source = None
         self.pred = (DelayPredictor(desc, self.d, int(cfg.predictor_substeps), cfg.period,
                                     cfg.predictor_touchdown_height, cfg.predictor_clearance,
                                     cfg.predictor_time_tolerance, touchdowns=not self.at_once)
@@ -89,6 +105,7 @@ class SensingPipeline:
         self._seg = 0                         # the period whose sample first showed the current stance
         self._r = np.zeros(6)
         self.wrench: Wrench | None = None
+        self.band: TouchdownBand | None = None     # the period's touchdown band (touchdown_band.py), or None
         if self.est is not None:
             self.est.__init__(self.est_cfg)
         if self.mo is not None:
@@ -112,7 +129,8 @@ class SensingPipeline:
             self._seg = self.k            # a touchdown reported at once: a fresh sample
         return max(self.k - self.d, self._seg if self.at_once else 0)
 
-    def process(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan) -> View:
+    def process(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+                pitch_rate: float = math.nan) -> View:
         j = self.sample_period(stance)
         new = self._j is None or j > self._j
         P = None
@@ -135,7 +153,7 @@ class SensingPipeline:
                 if stance != self._stance:
                     qn, qdn = flat_foot_impact(self.fm, self.est.x[:6], self.est.x[6:], self._stance)
                     self.est.relabel_impact(qn, qdn)
-                e = self.est.update(q, qd, pitch)
+                e = self.est.update(q, qd, pitch, pitch_rate)
             else:
                 e = self.est.estimate()
             qs, qds, P = e.q, e.qd, e.P
@@ -148,23 +166,57 @@ class SensingPipeline:
             self.wrench = self.mo.update(qs, qds, stance, torque, dt, cov)
             if self.me is not None:     # the legs' model error (model_error.py): the torso wrench and dR
                 mo = self.mo
+                t_s = t if (self._j is None or j == self.k) else self._decision(j)[0]    # the sample's instant
+                ref = self.reference_source(t_s, stance) if self.reference_source is not None else None
                 self.wrench = self.me.update(qs, qds, torque, mo._since == 0.0, dt, self.wrench, mo._W_restart,
-                                             mo._since, mo.terms.wrench_jacobian(qs, mo.height)[:, 3:], cov)
+                                             mo._since, mo.terms.wrench_jacobian(qs, mo.height)[:, 3:], cov, ref)
             self._r = self.wrench.r
         if new:
             self._j = j
             self._stance = stance
         # 3. the predictor
+        self.band = None
         if self.pred is not None:
             pr = self.pred.predict(t, qs, qds, stance, self.k - j)
             qc, qdc, sc = pr.q, pr.qd, pr.stance
+            if P is not None and not self.at_once and self.pred._cleared and self.band_k > 0:
+                self.band = self._band(t, j, qs, qds, stance, P, pr)
         else:
             qc, qdc, sc = qs, qds, stance
         return View(q=qc, qd=qdc, stance=sc, wrench=self.wrench, P=P)
 
-    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan):
+    def _band(self, t: float, j: int, qs, qds, stance: int, P: np.ndarray, pr) -> TouchdownBand | None:
+        """The touchdown band of ``touchdown_band`` at t_k for the sample (qs, qds, stance) of period j and its
+        covariance P, beside the predictor's answer ``pr``: None outside the band."""
+        pred = self.pred
+        if pr.touchdowns == 0:
+            p0 = pr
+        else:
+            pred.touchdowns = False                # the old stance's hypothesis: no touchdown predicted
+            try:
+                p0 = pred.predict(t, qs, qds, stance, self.k - j)
+            finally:
+                pred.touchdowns = True
+        t_j = t if j == self.k else self._decision(j)[0]
+        Pqq = propagated_position_cov(P, t - t_j, self.est_cfg.sigma_acc)
+        z = pred.lowest_sole(p0.q)
+        if z > self.band_k * sigma_bound(self._lever, Pqq) or sole_rate(pred.lowest_sole, p0.q, p0.qd) >= 0.0:
+            return None
+        sz = sole_height_std(pred.lowest_sole, p0.q, Pqq)
+        if not in_band(z, sz, self.band_k):
+            return None
+        if pr.touchdowns > 0:
+            qn, qdn, sn = pr.q, pr.qd, pr.stance
+        else:
+            qn, qdn = pred.impact(p0.q, p0.qd, stance)
+            sn = 1 - stance
+        return TouchdownBand(z=z, sigma_z=sz, q_old=p0.q, qd_old=p0.qd, stance_old=int(stance),
+                             q_new=np.asarray(qn), qd_new=np.asarray(qdn), stance_new=int(sn))
+
+    def sense(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
+              pitch_rate: float = math.nan):
         """:meth:`process`'s (q, q', stance) (the controller's one call, as ``CompiledSensing.sense``)."""
-        v = self.process(t, q, qd, stance, pitch)
+        v = self.process(t, q, qd, stance, pitch, pitch_rate)
         return v.q, v.qd, v.stance
 
     def record(self, t: float, torque_sent: np.ndarray, told: int) -> None:

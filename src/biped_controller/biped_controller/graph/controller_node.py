@@ -9,10 +9,11 @@ IMU (issue 22): with ``use_imu`` (default ``config/graph.yaml``) the node also s
 (``sensor_msgs/msg/Imu``, ``biped_sim.graph.imu``; its reader is created before the ``/sim/state`` reader,
 which the simulator's start relies on) and answers a state only once it holds the IMU message of the same
 stamp, whichever of the two arrives first (exact-stamp pairing: the lockstep stays deterministic, nothing
-waits on the wall clock); the IMU's pitch theta = 2 atan2(-y, w) goes to ``AdaptiveController.compute`` as
-the in-process loop passes ``Observation.pitch`` (the state estimator fuses it; without the estimator it is
-not used). Without ``use_imu`` the pitch is NaN (no IMU). An IMU message that is not the planar torso IMU is
-logged naming the field and dropped (the simulator then reports the missing torque).
+waits on the wall clock); the IMU's pitch theta = 2 atan2(-y, w) and its gyro's pitch rate theta' =
+-angular_velocity.y go to ``AdaptiveController.compute`` as the in-process loop passes ``Observation.pitch``
+and ``Observation.pitch_rate`` (the state estimator fuses the pitch, and the rate with ``estimator_gyro``;
+without the estimator neither is used). Without ``use_imu`` both are NaN (no IMU). An IMU message that is not
+the planar torso IMU is logged naming the field and dropped (the simulator then reports the missing torque).
 
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
@@ -59,12 +60,12 @@ from biped_sim.graph.params import (
 )
 from biped_sim.robot.loop import ENGINES, load_loop_settings
 
-from biped_controller.core.controller import MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
+from biped_controller.core.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
 from biped_sim.robot.gait_family import GaitFamily
 
 
 #: the controller's settings that take one of a few names, with those names
-CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS}
+CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS, 'model_error_regressor': MODEL_ERROR_REGRESSORS}
 
 
 def read_controller_config(node: Node) -> ControllerConfig:
@@ -144,7 +145,8 @@ class ControllerNode(Node):
         self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
         self.state_sub = None
         self.imu_sub = None
-        self.imu_pitch: dict[int, float] = {}        # stamp [ns] -> IMU pitch [rad], not yet used
+        # stamp [ns] -> the IMU's (pitch [rad], pitch rate [rad/s]), not yet used
+        self.imu_pitch: dict[int, tuple[float, float]] = {}
         self.pending: Optional[SimState] = None      # a state waiting for its IMU message
         if not self.wait_for_recorder:
             self._subscribe()
@@ -172,12 +174,12 @@ class ControllerNode(Node):
 
     def _on_imu(self, msg: Imu):
         try:
-            pitch, _rate = imu_reading(msg)
+            pitch, rate = imu_reading(msg)
         except ImuMessageError as exc:
             self.get_logger().error(f'{gn.IMU}: {exc}: dropped')
             return
         key = self._stamp_ns(msg.header.stamp)
-        self.imu_pitch[key] = pitch
+        self.imu_pitch[key] = (pitch, rate)
         if self.pending is not None and self._stamp_ns(self.pending.stamp) == key:
             state, self.pending = self.pending, None
             self._answer(state)
@@ -212,15 +214,16 @@ class ControllerNode(Node):
         self._answer(msg)
 
     def _answer(self, msg: SimState):
-        """Compute and publish the torque of state ``msg`` (with the IMU pitch of its stamp, when used)."""
-        pitch = math.nan
+        """Compute and publish the torque of state ``msg`` (with the IMU pitch and pitch rate of its stamp, when
+        used)."""
+        pitch = rate = math.nan
         if self.use_imu:
             key = self._stamp_ns(msg.stamp)
-            pitch = self.imu_pitch[key]
+            pitch, rate = self.imu_pitch[key]
             self.imu_pitch = {k: v for k, v in self.imu_pitch.items() if k > key}
         t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
         out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
-                                int(msg.stance), pitch)
+                                int(msg.stance), pitch, rate)
         if self.publish_cdr:
             sec, nsec = msg.stamp.sec, msg.stamp.nanosec
             js = self._cdr_torque.encode(sec, nsec, '', PAPER_JOINTS, (), (),

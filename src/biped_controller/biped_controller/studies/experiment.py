@@ -883,7 +883,7 @@ def probe_run(force: float, mode: str = "both", duration: float = DEFAULT_DURATI
     records, statuses, est = [], [], []
     while True:
         obs = sim.observe()
-        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
         statuses.append(out.status)
         est.append(ctrl.force_estimate)
         rec = sim.step(out.torque)

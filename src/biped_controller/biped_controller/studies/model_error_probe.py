@@ -4,7 +4,7 @@ needed (the plant's actual minus the controller's prediction without the estimat
 (dR), the reading of the observer's whole r through the joint accelerations alone (B A^-1 r), and the
 observer's r against the true generalized force of the error, tau_d = A_m q'' + H_m - Gamma with q'' the
 plant's own acceleration (its model from ``PlantPerturbation.apply``, rigid stance foot). Forces [N],
-torques [N m], l [m].
+torques [N m], l [m]; with the legs' model-error estimator, its theta divided by the prior std (model_error.py).
 
     .venv/bin/python -m biped_controller.studies.model_error_probe --force 200 --from 0.40 --to 0.46 \\
         --set momentum_observer=true --perturb torso_inertia_scale=1.3 ...
@@ -34,6 +34,8 @@ def probe_rows(force: float, settings: ex.RunSettings, start: float = ex.DEFAULT
     sim = make_plant(scfg.plant, ctx.desc, scfg, P)
     ctrl = AdaptiveController(ccfg, ctx.family, ctx.desc, python_sensing=True)
     mo = ctrl._sensing.mo if ctrl._sensing is not None else None
+    me = ctrl._sensing.me if ctrl._sensing is not None else None
+    sd0 = np.sqrt(np.diag(me.P0)) if me is not None else None
     if mo is None:
         raise ex.OverrideError("the probe needs --set momentum_observer=true")
     plant = FixedFootModel(P.apply(ctx.desc) if P is not None else ctx.desc)
@@ -59,7 +61,8 @@ def probe_rows(force: float, settings: ex.RunSettings, start: float = ex.DEFAULT
                          l_pred=s.zmp, l_act=rec.cop,
                          needed=np.asarray(rec.wrench[:2]) - np.asarray(s.predicted_reaction) + dR, dR=dR,
                          full=full[:2], r=w.r if w is not None else np.zeros(6),
-                         tau_d=dm.A @ qdd + dm.H - rec.torque))
+                         tau_d=dm.A @ qdd + dm.H - rec.torque,
+                         theta=(me.theta / sd0) if me is not None else None))
         if rec.fallen or sim.fall is not None or sim.impact_count >= steps:
             break
     f = sim.fall
@@ -79,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     settings = dataclasses.replace(ex.parse_overrides(args.overrides), perturbation=ex.parse_perturbation(args.perturb))
     rows, outcome = probe_rows(args.force, settings, steps=args.steps)
     f = lambda v: f"({v[0]:7.1f},{v[1]:7.1f})"   # noqa: E731
-    print("t [s]   imp push qp  l_pred   l_act   needed dR (x,y)   used dR (x,y)   B A^-1 r (x,y)   r | true tau_d")
+    print("t [s]   imp push qp  l_pred   l_act   needed dR (x,y)   used dR (x,y)   B A^-1 r (x,y)   r | true tau_d"
+          " [| legs' theta / its prior std, with the model-error estimator]")
     last_imp = 0
     for k, r in enumerate(rows):
         if not args.t0 <= r["t"] <= args.t1:
@@ -87,7 +91,8 @@ def main(argv: list[str] | None = None) -> int:
         if k % args.every and r["impacts"] == last_imp:
             continue
         print(f"{r['t']:.4f} {r['impacts']:3d} {r['push']:4.0f} {r['qp_status']:2d} {r['l_pred']:+.4f} {r['l_act']:+.4f} "
-              f"{f(r['needed'])} {f(r['dR'])} {f(r['full'])}  {np.round(r['r'], 1)} | {np.round(r['tau_d'], 1)}")
+              f"{f(r['needed'])} {f(r['dR'])} {f(r['full'])}  {np.round(r['r'], 1)} | {np.round(r['tau_d'], 1)}"
+              + (f" | {np.round(r['theta'], 2)}" if r["theta"] is not None else ""))
         last_imp = r["impacts"]
     print(outcome)
     return 0

@@ -190,7 +190,7 @@ class ClosedLoop:
                 if grid_end(sim.t, dt) > t_push:
                     break
             obs = sim.observe()
-            out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
+            out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
             rec = sim.step(out.torque)
             if rec.fallen or sim.fall is not None:
                 break
@@ -250,7 +250,7 @@ class ClosedLoop:
                     continue
             last_in_seg = False
             obs = sim.observe()
-            out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch)
+            out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
             statuses.append(out.status)
             if keep_qp and out.G is not None:
                 qps.append((out.G, out.h, out.x_star, out.status.qp_status))

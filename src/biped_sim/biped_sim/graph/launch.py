@@ -33,6 +33,11 @@ it is subscribed to every topic, and sets the simulator's ``real_time_factor:=1.
 cannot start, e.g. the port is in use) the launcher reports "node 'bridge' died unexpectedly (exit
 code N): the run goes on without the live view" and carries on; its exit status stays the
 simulator's. It is stopped after the disturbance node, before the recorder.
+With the bridge's ``host_process: recorder`` (``config/graph.yaml``'s default) the bridge runs in the recorder's
+process instead: ``live_recorder`` (``biped_sim.live.live_recorder``, the same ``recorder`` node plus the bridge
+fed by its readers) takes the recorder's place and no ``bridge`` process is started; the launcher waits for
+the recorder only (its readers are the bridge's), and a server that cannot start leaves the run recorded
+without the live view (the recorder's log says so). ``own``: the separate ``bridge`` process above.
 """
 
 from __future__ import annotations
@@ -116,7 +121,9 @@ def stop_children(children: list[Child], timeout: float) -> None:
         c.proc.wait()
 
 
-BRIDGE = ('bridge', 'biped_sim', 'bridge')   # --live only
+BRIDGE = ('bridge', 'biped_sim', 'bridge')   # --live only, host_process own
+LIVE_RECORDER = ('recorder', 'biped_sim', 'live_recorder')   # --live, host_process recorder: replaces the recorder
+HOST_PROCESSES = ('recorder', 'own')   # bridge_node.HOST_PROCESSES (the launcher does not import the live room)
 
 
 def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict, node_name: str = 'recorder',
@@ -159,6 +166,20 @@ def bridge_reads_streams_on_demand(params: Path) -> bool:
         return bool(tree.get('bridge', {}).get('ros__parameters', {}).get('lazy_streams', False))
     except (OSError, yaml.YAMLError, AttributeError):
         return False
+
+
+def bridge_host_process(params: Path) -> str:
+    """The bridge's ``host_process`` in the parameters file (``recorder`` | ``own``; absent: ``recorder``, the
+    default of config/graph.yaml). :raises ValueError: an unknown value (the message names the field)."""
+    import yaml
+    try:
+        tree = yaml.safe_load(params.read_text(encoding='utf-8')) or {}
+        value = tree.get('bridge', {}).get('ros__parameters', {}).get('host_process', 'recorder')
+    except (OSError, yaml.YAMLError, AttributeError):
+        value = 'recorder'
+    if value not in HOST_PROCESSES:
+        raise ValueError(f"bridge.host_process must be one of {', '.join(HOST_PROCESSES)}, got {value!r} ({params})")
+    return value
 
 
 def default_params() -> Path:
@@ -204,7 +225,15 @@ def main(argv=None) -> int:
     if args.port is not None and not (args.live and 0 <= args.port <= 65535):
         log('--port needs --live and a port in [0, 65535]')
         return 2
-    nodes = NODES[:1] + ((BRIDGE,) if args.live else ()) + NODES[1:]
+    try:
+        cohost = args.live and bridge_host_process(params) == 'recorder'
+    except ValueError as exc:
+        log(str(exc))
+        return 2
+    if cohost:
+        nodes = (LIVE_RECORDER,) + NODES[1:]
+    else:
+        nodes = NODES[:1] + ((BRIDGE,) if args.live else ()) + NODES[1:]
     try:
         exes = {name: find_executable(pkg, exe) for name, pkg, exe in nodes}
     except FileNotFoundError as exc:
@@ -218,6 +247,8 @@ def main(argv=None) -> int:
     if args.live:   # before the --sim-param values, which win
         extra['simulator'] = ['-p', 'real_time_factor:=1.0'] + extra['simulator']
         extra['bridge'] = ['-p', f'port:={args.port}'] if args.port is not None else []
+        if cohost and args.port is not None:   # a process-wide -p: the recorder node does not declare `port`
+            extra['recorder'] += extra['bridge']
     # a push that could only start after the run's end is refused by the service: the simulator's
     # max_time (when given) is the disturbance node's horizon
     for kv in args.sim_param:
@@ -248,7 +279,7 @@ def main(argv=None) -> int:
             children[name] = Child(name, cmd)
             if name == 'recorder':
                 wait_recorder_subscribed(args.start_timeout, [children['recorder']], stop)
-                log(f'recorder subscribed; bag {bag}')
+                log(f'recorder subscribed; bag {bag}' + (' (the live bridge in its process)' if cohost else ''))
             elif name == 'bridge':
                 try:
                     wait_recorder_subscribed(args.start_timeout, [children['bridge']], stop, node_name='bridge',

@@ -229,7 +229,9 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
     sets ``node.done``; then ``node.after_spin(executor, signum)`` if the node has one (a recorder
     drains and finishes its bag, the simulator reports why it stopped) gives the exit code (default 0);
     then at most ACK_TIMEOUT s for every reliable subscriber to acknowledge what the node published
-    (:func:`wait_all_acked`). Cleans up in every case."""
+    (:func:`wait_all_acked`). Cleans up in every case. A node may bring ``companions`` (nodes of the same
+    process: added to the same executor, destroyed with it) and its own ``spinner(executor)`` (a callable for
+    one slice of spinning; called once, after the stop handlers are installed)."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
@@ -246,7 +248,10 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
         previous = install_stop_handlers(lambda s: stop.__setitem__('signal', s))
         executor = make_executor(node)
         executor.add_node(node)
-        spin = _spinner(executor)
+        for companion in getattr(node, 'companions', ()):   # nodes hosted in the same process (one executor)
+            executor.add_node(companion)
+        spinner = getattr(node, 'spinner', None)   # a node's own slice of spinning (the recorder's wait set)
+        spin = spinner(executor) if spinner is not None else _spinner(executor)
         try:
             while stop['signal'] is None and not getattr(node, 'done', False) and rclpy.ok(context=node.context):
                 spin()
@@ -264,6 +269,8 @@ def run_node(name: str, factory: Callable[[], Node], args=None, *, startup_error
         return EXIT_OK if code is None else int(code)
     finally:
         if node is not None:
+            for companion in getattr(node, 'companions', ()):
+                companion.destroy_node()
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

@@ -32,6 +32,14 @@ Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad o
   subscription, task, callback; ~0.1-0.3 ms of CPU) for every few messages (issue 20: the recorder spent 97 %
   of its thread in those rounds at real time). It adds at most ``batch_wait`` to a message's time in the
   recorder's DDS queue (deep enough: ``STREAM_DEPTH``) and to what a SIGKILL loses. 0 = no wait.
+- ``executor`` (``wait_set`` | ``single_threaded``; default: ``config/graph.yaml``): how the recorder's thread
+  waits for messages. ``single_threaded``: rclpy's Python ``SingleThreadedExecutor`` (each round rebuilds a wait
+  set over every entity of the node in Python, then one callback takes what waits on every subscription).
+  ``wait_set``: one rcl wait set over the subscriptions, built once and refilled each wake-up (rcl clears the
+  entries that were not ready), then only the *ready* subscriptions are read with raw takes (message and info),
+  the batch is recorded in publication order as above; every ``SERVICE_PERIOD`` s one non-blocking executor
+  round serves the rest (the chunk timer, parameter services; the co-hosted bridge's service client). The
+  ``EventsExecutor`` cannot be used: it fails for raw subscriptions whose callback takes the message info.
 
 The bag is finished cleanly on SIGINT and SIGTERM (own handlers stop the spin loop, then
 ``finish()`` runs) and when the ROS context is shut down by anything else.
@@ -132,6 +140,12 @@ DRAIN_BATCH = 256  # messages taken at most per executor callback, from every su
 DRAIN_PER_TOPIC = 16  # messages taken at most from one subscription per pass (no topic starves another)
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request (publishers left)
 DRAIN_MAX = 25.0   # s, upper bound of the drain (below the launcher's recorder stop timeout, 30 s)
+RECORDER_LOOPS = ("wait_set", "single_threaded")   # the ``executor`` parameter (module docstring)
+SERVICE_PERIOD = 0.1    # s between the wait-set loop's executor rounds (parameter services; the co-hosted bridge's
+                        # /apply_push answers, late by at most this): each round rebuilds rclpy's wait set over every
+                        # entity (at 0.02 s, 13 % of the co-hosted recorder's thread, py-spy). The chunk age is
+                        # checked by the loop itself after every wait (at most WAIT_SLICE apart)
+WAIT_SLICE = 0.02       # s the wait set waits at most (then run_node looks at its stop conditions)
 
 
 class RecorderNode(Node):
@@ -155,7 +169,17 @@ class RecorderNode(Node):
         # dynamic typing: a value of the wrong type is named by _read_parameters (exit 2), not refused by rclpy
         self.declare_parameter("batch_wait", float(graph_default(graph_names.RECORDER_NODE, "batch_wait")),
                                ParameterDescriptor(name="batch_wait", dynamic_typing=True))
+        self.declare_parameter("executor", str(graph_default(graph_names.RECORDER_NODE, "executor")),
+                               ParameterDescriptor(name="executor", dynamic_typing=True))
         output_dir, compression, chunk_size, chunk_time, sync, self.batch_wait = self._read_parameters()
+        self.loop = self.get_parameter("executor").value
+        if self.loop not in RECORDER_LOOPS:
+            raise ParameterError("executor", f"must be one of {', '.join(RECORDER_LOOPS)}; got {self.loop!r}")
+        # observers of every message the recorder takes, called (topic, CDR bytes) in the recorder's thread in
+        # the order it records them, each batch just before it is written (the co-hosted live view,
+        # biped_sim.live.live_recorder)
+        self.taps: List = []
+        self.wakeups = 0   # wait-set wake-ups that found a message (logged at the end: messages per wake-up)
 
         self.failure: Optional[RecorderError] = None
         self._sim_ns: Optional[int] = None   # sim time [ns] of the latest /clock recorded (the log time)
@@ -260,7 +284,50 @@ class RecorderNode(Node):
         if self.batch_wait > 0.0:
             time.sleep(self.batch_wait)
 
-    def _take_waiting(self, budget: int, first=None) -> int:
+    def spinner(self, executor):
+        """``run_node``'s slice of spinning: with ``executor: single_threaded`` one ``spin_once`` of the executor
+        (at most ``SPIN_SLICE`` s); with ``wait_set`` :meth:`_wait_and_take` over a wait set built once
+        (module docstring), plus one non-blocking executor round every ``SERVICE_PERIOD`` s."""
+        from biped_sim.graph.params import SPIN_SLICE
+        if self.loop == "single_threaded":
+            return lambda: executor.spin_once(timeout_sec=SPIN_SLICE)
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        subs = [(spec, self._subscriptions_by_topic[spec.name]) for spec in self._specs
+                if spec.name in self._subscriptions_by_topic]
+        handles = [sub.handle for _spec, sub in subs]
+        by_pointer = {sub.handle.pointer: (spec, sub) for spec, sub in subs}
+        wait_set = _rclpy.WaitSet(len(handles), 0, 0, 0, 0, 0, self.context.handle)
+        timeout_ns = int(WAIT_SLICE * 1e9)
+        next_round = [time.monotonic()]
+
+        def spin() -> None:
+            self._wait_and_take(wait_set, handles, by_pointer, timeout_ns)
+            self._poll_chunk()
+            now = time.monotonic()
+            if now >= next_round[0]:
+                next_round[0] = now + SERVICE_PERIOD
+                executor.spin_once(timeout_sec=0.0)
+        return spin
+
+    def _wait_and_take(self, wait_set, handles, by_pointer, timeout_ns: int) -> int:
+        """Wait (at most ``timeout_ns``) until a subscription has a message, then take what waits on the ready
+        ones (:meth:`_take_waiting`) and record it in publication order. rcl leaves only the ready entries in
+        the set after a wait, so it is cleared and refilled each time (the C wait set itself is kept).
+        Returns how many messages were taken."""
+        wait_set.clear_entities()
+        for handle in handles:
+            wait_set.add_subscription(handle)
+        wait_set.wait(timeout_ns)
+        ready = wait_set.get_ready_entities("subscription")
+        if not ready:
+            return 0
+        self.wakeups += 1
+        taken = self._take_waiting(DRAIN_BATCH, subs=[by_pointer[p] for p in ready if p in by_pointer])
+        if self.batch_wait > 0.0:
+            time.sleep(self.batch_wait)
+        return taken
+
+    def _take_waiting(self, budget: int, first=None, subs=None) -> int:
         """Take what waits in the subscriptions' DDS queues, in passes over every subscription with at most
         DRAIN_PER_TOPIC from each per pass (each topic's messages in their order; a lagging recorder's
         backlog on the first topics never starves the later ones: a pass that took everything of /clock
@@ -269,13 +336,15 @@ class RecorderNode(Node):
         executor already took) sorted by their DDS source timestamp, so that each message's log time is the
         latest ``/clock`` published before it whichever topic was read first (with ``batch_wait`` a batch
         holds a step or more: read topic by topic, 707 of 928 ``/sim/state`` of a real-time run got the next
-        step's ``/clock`` as log time). Returns how many were taken (``first`` not counted)."""
+        step's ``/clock`` as log time). ``subs``: only these (spec, subscription) pairs (the ready ones of the
+        wait-set loop); default every subscription. Returns how many were taken (``first`` not counted)."""
         batch = [] if first is None else [first]
         taken_total = 0
+        if subs is None:
+            subs = [(spec, self._subscriptions_by_topic.get(spec.name)) for spec in self._specs]
         while taken_total < budget:
             taken_pass = 0
-            for other in self._specs:
-                sub = self._subscriptions_by_topic.get(other.name)
+            for other, sub in subs:
                 taken_topic = 0
                 while sub is not None and taken_topic < DRAIN_PER_TOPIC and taken_total < budget:
                     if self.failure is not None or self._writer.finished:
@@ -292,6 +361,12 @@ class RecorderNode(Node):
                 break
         # stable sort: equal timestamps (or none) keep the order they were taken in
         batch.sort(key=lambda item: int(item[2]["source_timestamp"]) if item[2] else 0)
+        if self.taps and self.failure is None and not self._writer.finished:
+            # the batch to the observers first (the co-hosted live view), then to the bag: a chunk compressed
+            # and written while recording this batch does not delay its frames
+            for spec, msg, _info in batch:
+                for tap in self.taps:
+                    tap(spec.name, msg)
         for spec, msg, info in batch:
             self._record(spec, msg, info)
         return taken_total
@@ -384,6 +459,10 @@ class RecorderNode(Node):
         finally:
             executor.remove_node(self)
             self.get_logger().info(f"drained {drained} messages in {time.monotonic() - t0:.2f} s ({why})")
+            if self.loop == "wait_set":
+                n = sum(self.counts.values())
+                self.get_logger().info(f"wait set: {self.wakeups} wake-ups with messages, "
+                                       f"{n / max(self.wakeups, 1):.2f} messages per wake-up")
             try:
                 self.finish()
             except RecorderError as exc:

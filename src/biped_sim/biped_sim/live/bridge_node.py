@@ -52,6 +52,9 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
   first in each pass, so the log time is the newest sim time), as the recorder does (issue 20 part 2: 64);
   0 = the handler is the subscription's callback (one message per callback: the ``EventsExecutor``'s way,
   where a drain would only add empty takes).
+- ``host_process`` (``recorder`` | ``own``; ``config/graph.yaml``): read by the launcher (``scripts/launch --live``):
+  ``recorder`` starts ``live_recorder`` (this node co-hosted in the recorder's process, fed by the recorder's
+  readers: :mod:`biped_sim.live.live_recorder`) instead of ``recorder`` + ``bridge``; ``own`` this executable.
 - ``reconcile_period`` (s, 0.001..10; ``config/graph.yaml``): with ``lazy_streams``, how often a steady timer
   looks at which streams the clients watch (the SDK's threads only mark a change).
 
@@ -94,6 +97,7 @@ from biped_sim.graph.recorder_node import RecorderNode, recording_qos
 
 NODE_NAME = gn.BRIDGE_NODE
 SERVER_NAME = 'biped'
+HOST_PROCESSES = ('recorder', 'own')   # the ``host_process`` parameter (module docstring)
 
 
 class BridgeStartError(RuntimeError):
@@ -151,7 +155,9 @@ class BridgeNode(Node):
     :raises BridgeStartError: the server cannot bind ``host:port``.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, subscribe: bool = True, **kwargs) -> None:
+        """``subscribe`` False: no ROS subscription at all; the messages come from :meth:`tap` (the bridge
+        co-hosted in the recorder's process, :mod:`biped_sim.live.live_recorder`)."""
         super().__init__(NODE_NAME, **kwargs)
         import foxglove
         from foxglove import Channel, MessageSchema, Schema, Service, ServiceSchema
@@ -169,6 +175,9 @@ class BridgeNode(Node):
         self.drain_batch = get_int(self, 'drain_batch', lo=0, hi=100_000)
         self.executor_kind = declare_executor(self)
         self.reconcile_period = get_float(self, 'reconcile_period', lo=0.001, hi=10.0)
+        self.host_process = get_str(self, 'host_process')
+        if self.host_process not in HOST_PROCESSES:
+            raise ParameterError('host_process', f"must be one of {', '.join(HOST_PROCESSES)}, got {self.host_process!r}")
 
         self.sim_time_ns = 0
         self.clock_errors = 0
@@ -218,6 +227,11 @@ class BridgeNode(Node):
         # its channel (the bridge's cost follows what the clients show: 15 topics x 1 kHz through one
         # Python process lag a real-time run by ~0.1 s)
         self._specs = {spec.name: spec for spec in specs}
+        if not subscribe and self.lazy_streams:
+            raise ParameterError('lazy_streams', 'must be false for a bridge in the recorder\'s process (the recorder '
+                                 'reads every topic anyway)')
+        self.subscribes = subscribe
+        self._tap_handlers = {spec.name: self._handler(spec.name) for spec in specs}
         self._streams = {spec.name for spec in specs if self.lazy_streams and spec.qos in gn.STREAM_QOS}
         self._ros_subs: dict = {}
         self._handlers: dict = {}
@@ -225,7 +239,7 @@ class BridgeNode(Node):
         self._lock = threading.Lock()
         self._dirty = False                       # a client (un)subscribed to a stream since the last reconcile
         for spec in specs:
-            if spec.name not in self._streams:
+            if subscribe and spec.name not in self._streams:
                 self._subscribe(spec.name)
         if self._streams:   # the EventsExecutor takes no guard condition: a steady timer looks for changes
             self._reconcile_timer = self.create_timer(
@@ -252,6 +266,13 @@ class BridgeNode(Node):
             self._latched[topic] = msg
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self._channels[topic].log(msg, log_time=self.sim_time_ns)
+
+    def tap(self, topic: str, msg: bytes) -> None:
+        """A message another node of this process took (the co-hosted recorder, right after writing it): served as
+        if this bridge had taken it (``/clock`` also sets the server time). A topic without a channel is ignored."""
+        handler = self._tap_handlers.get(topic)
+        if handler is not None:
+            handler(msg)
 
     def _handler(self, topic: str):
         return self._on_clock if topic == gn.CLOCK else functools.partial(self._on_message, topic)
