@@ -123,8 +123,9 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
 def test_estimator_in_the_kernel_equals_the_python_estimator_period_by_period():
     """The same walk (inertias 30 % larger, a touchdown inside) with the estimator inside the compiled call and
     with ``LegModelError`` (Pinocchio's regressor, NumPy's inverse) after it: theta, P, the torso wrench, dR,
-    cov_dR and the torques equal to 1e-9 relative in every period, the same number of updates. Negative
-    control: the kernel's residual variance 1 % off changes theta by more than 1e-6 relative."""
+    cov_dR and the torques equal to 1e-9 relative in every period, the same number of updates (the settling
+    time after each restart of the observer, ``model_error_settle``, included). Negative controls, theta off by
+    more than 1e-6 relative: the kernel's residual variance 1 % off; the kernel without the settling time."""
     fast, n_fast, fall = _walk(True)
     py, n_py, _ = _walk(False)
     assert fall is None and len(set(fast["stance"].astype(int))) == 2    # a touchdown inside
@@ -136,9 +137,14 @@ def test_estimator_in_the_kernel_equals_the_python_estimator_period_by_period():
 
     def off(sens):
         sens.conf[SC_.me_var_res] *= 1.01
-    wrong, _, _ = _walk(True, tweak=off)
-    m = min(len(wrong["theta"]), n)
-    assert _rel(wrong["theta"][:m], py["theta"][:m]) > 1e-6
+
+    def no_settle(sens):                # the kernel without the settling time after the observer's restarts
+        sens.conf[SC_.me_settle] = 0.0
+    assert load_controller_config(mode="both").model_error_settle > 0
+    for tweak in (off, no_settle):
+        wrong, _, _ = _walk(True, tweak=tweak)
+        m = min(len(wrong["theta"]), n)
+        assert _rel(wrong["theta"][:m], py["theta"][:m]) > 1e-6, tweak.__name__
 
 
 @pytest.mark.parametrize("profile", ["real_sensors", "delay_2"])
