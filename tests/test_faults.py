@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
 
 from test_graph import PY, ROOT, _descendants, _kill_tree, _launch, _wait_ready
 
@@ -374,6 +375,12 @@ def test_a_recorder_that_lags_at_the_stop_still_gets_everything(ros_domain, tmp_
         assert len(out) == 1, out
         recorder = int(out[0])
         g.wait_clock(0.5)
+        # /apply_push is served once the disturbance node's event writers are matched with the recorder
+        # (DisturbanceNode.events_matched): a push accepted before could reach the bag never
+        from biped_msgs_py.srv import ApplyPush
+        cli = g.node.create_client(ApplyPush, gn.APPLY_PUSH)
+        assert cli.wait_for_service(timeout_sec=120), f'{gn.APPLY_PUSH} not served'
+        g.node.destroy_client(cli)
         os.kill(recorder, signal.SIGSTOP)
         frozen_at = g.latest
         r = call_apply_push(80.0, 0.025, delay=0.3, timeout=60, context=g.ctx)
@@ -405,6 +412,62 @@ def test_a_recorder_that_lags_at_the_stop_still_gets_everything(ros_domain, tmp_
     _copy_mcap(find_mcap(g.bag), cut, lambda topic, k, n: topic == gn.PUSH_EVENTS or (topic == gn.SIM_STATE and k >= n - 100))
     b = analyze_bag(cut, planned)
     assert b['push_events'] == 0 and any('unexpected stamps' in p for p in b['problems']), b['problems']
+
+
+def test_push_service_waits_for_the_recorder_to_match_the_event_writers(ros_domain, ros_env, rclpy_context):
+    """The disturbance node serves /apply_push only once its /push_events and /push_requests writers are
+    matched with every subscription on them, a node named ``recorder`` among them (``wait_for_recorder``):
+    with only a subscriber of another name the service does not come up; once a ``recorder`` subscribes to
+    both topics it does, and a push it accepts reaches that recorder's readers. Negative control built in:
+    the first half (another name) is the state the gate must refuse."""
+    from rclpy.executors import SingleThreadedExecutor
+    from biped_msgs_py.msg import PushEvent
+    from biped_msgs_py.srv import ApplyPush
+    from std_msgs.msg import String
+    from biped_sim.graph import names as gn
+
+    proc = subprocess.Popen([_exe('biped_sim', 'disturbance'), '--ros-args', '--params-file',
+                             str(ROOT / 'config' / 'graph.yaml')], env=ros_env, cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    other = rclpy.create_node('watcher', context=rclpy_context)
+    recorder = None
+    try:
+        got = {gn.PUSH_EVENTS: [], gn.PUSH_REQUESTS: []}
+        other.create_subscription(PushEvent, gn.PUSH_EVENTS, lambda m: None, gn.QOS_EVENTS)
+        other.create_subscription(String, gn.PUSH_REQUESTS, lambda m: None, gn.QOS_EVENTS)
+        cli = other.create_client(ApplyPush, gn.APPLY_PUSH)
+        # the node is up (its writers are on the graph) and matched with 'watcher', but no recorder: no service
+        t0 = time.monotonic()
+        while not (other.count_publishers(gn.PUSH_EVENTS) and other.count_publishers(gn.PUSH_REQUESTS)):
+            assert proc.poll() is None, proc.communicate()[0][-3000:]
+            assert time.monotonic() - t0 < 120, 'the disturbance node did not come up'
+            time.sleep(0.05)
+        assert not cli.wait_for_service(timeout_sec=2.0), 'served without a recorder'
+        recorder = rclpy.create_node(gn.RECORDER_NODE, context=rclpy_context)
+        recorder.create_subscription(PushEvent, gn.PUSH_EVENTS, got[gn.PUSH_EVENTS].append, gn.QOS_EVENTS)
+        recorder.create_subscription(String, gn.PUSH_REQUESTS, got[gn.PUSH_REQUESTS].append, gn.QOS_EVENTS)
+        assert cli.wait_for_service(timeout_sec=120), 'not served once the recorder subscribed'
+        req = ApplyPush.Request(force=50.0, duration=0.025, use_delay=True, delay=1.0, height=math.nan)
+        ex = SingleThreadedExecutor(context=rclpy_context)
+        ex.add_node(other)
+        ex.add_node(recorder)
+        future = cli.call_async(req)
+        ex.spin_until_future_complete(future, timeout_sec=120)
+        assert future.result() is not None and future.result().accepted, future.result()
+        t0 = time.monotonic()
+        while not (got[gn.PUSH_EVENTS] and got[gn.PUSH_REQUESTS]) and time.monotonic() - t0 < 120:
+            ex.spin_once(timeout_sec=0.05)
+        assert [e.id for e in got[gn.PUSH_EVENTS]] == [future.result().push_id]
+        assert len(got[gn.PUSH_REQUESTS]) == 1
+    finally:
+        other.destroy_node()
+        if recorder is not None:
+            recorder.destroy_node()
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 def _copy_mcap(src: Path, dst: Path, drop) -> None:
