@@ -120,6 +120,16 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+async def _subscribe_advertised(ws, text: str, only, topics: dict) -> None:
+    """A text frame of the Foxglove WebSocket protocol: on ``advertise``, subscribe to the channels (those whose
+    topic is in ``only``, or all) and remember each channel id's topic in ``topics``; other ops are ignored."""
+    msg = json.loads(text)
+    if msg['op'] == 'advertise':
+        subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels'] if only is None or c['topic'] in only]
+        topics.update({c['id']: c['topic'] for c in msg['channels']})
+        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+
+
 async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                   only: tuple[str, ...] | None = None, per_frame_timeout: bool = False) -> tuple[dict, list]:
     """Connect once the graph is up, subscribe to every advertised channel (or those of ``only``), read every frame until
@@ -145,12 +155,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                     break
                 t = time.time_ns()
                 if isinstance(frame, str):
-                    msg = json.loads(frame)
-                    if msg['op'] == 'advertise':
-                        subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']
-                                if only is None or c['topic'] in only]
-                        topics.update({c['id']: c['topic'] for c in msg['channels']})
-                        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+                    await _subscribe_advertised(ws, frame, only, topics)
                 else:
                     frames.append((t, frame))
         finally:
@@ -167,12 +172,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
             async for frame in ws:
                 t = now_ns()
                 if frame.__class__ is str:
-                    msg = json.loads(frame)
-                    if msg['op'] == 'advertise':
-                        subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']
-                                if only is None or c['topic'] in only]
-                        topics.update({c['id']: c['topic'] for c in msg['channels']})
-                        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+                    await _subscribe_advertised(ws, frame, only, topics)
                 else:
                     append((t, frame))
     except websockets.ConnectionClosed:
