@@ -115,6 +115,10 @@ class DisturbanceNode(Node):
         self._match_timer = self.create_timer(MATCH_POLL, self._serve_when_matched,
                                               clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._serve_when_matched()
+        if self.service is None:
+            who = 'the recorder and every other subscriber' if self.wait_for_recorder else 'every subscriber'
+            self.get_logger().info(f'{gn.APPLY_PUSH} is served once {who} of {gn.PUSH_EVENTS} and '
+                                   f'{gn.PUSH_REQUESTS} is matched (wait_for_recorder: {self.wait_for_recorder})')
 
     def events_matched(self) -> bool:
         """Every subscription the graph knows on ``/push_events`` and ``/push_requests`` is matched by our
