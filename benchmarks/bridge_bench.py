@@ -249,12 +249,14 @@ BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64, 'host_pro
 # SingleThreadedExecutor, the bridge in its own process) and the benchmark's client as it was then (an asyncio.wait_for
 # per frame; key '_client'): the before of --before main. "own": config/graph.yaml with the bridge in its own
 # process (the co-hosting alone, A/B); "stexec": config/graph.yaml with the recorder on the SingleThreadedExecutor
-# (the wait set alone, A/B).
+# (the wait set alone, A/B); "nagle": config/graph.yaml with the bridge's tcp_nodelay false (the SDK's default: Nagle's
+# algorithm on the server's sockets, A/B).
 MAIN = {'recorder': {'executor': 'single_threaded'}, 'bridge': {'host_process': 'own'}, '_client': 'per_frame_timeout'}
 SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams': True, 'host_process': 'own'}},
             'objects': {'simulator': {'publish_cdr': False}, 'controller': {'publish_cdr': False}},
             'main': MAIN, 'own': {'bridge': {'host_process': 'own'}},
-            'stexec': {'recorder': {'executor': 'single_threaded'}}}
+            'stexec': {'recorder': {'executor': 'single_threaded'}},
+            'nagle': {'bridge': {'tcp_nodelay': False}}}
 
 
 def legacy_client(setting: str) -> bool:
@@ -263,15 +265,15 @@ def legacy_client(setting: str) -> bool:
 
 
 
-def settings_params(tmp: Path, setting: str) -> Path | None:
-    """config/graph.yaml with a setting's overrides (``SETTINGS``) written to a file; None for ``after`` (the file
-    as committed)."""
+def settings_params(tmp: Path, setting: str, root: Path | None = None) -> Path | None:
+    """config/graph.yaml (of ``root``, default this tree) with a setting's overrides (``SETTINGS``) written to a
+    file; None for ``after`` (the file as committed)."""
     if setting not in SETTINGS:
         raise ValueError(f'setting must be one of {", ".join(SETTINGS)}, got {setting!r}')
     if SETTINGS[setting] is None:
         return None
     import yaml
-    tree = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
+    tree = yaml.safe_load(((root or ROOT) / 'config' / 'graph.yaml').read_text())
     for node, values in SETTINGS[setting].items():
         if not node.startswith('_'):
             tree[node]['ros__parameters'].update(values)
@@ -280,9 +282,31 @@ def settings_params(tmp: Path, setting: str) -> Path | None:
     return path
 
 
+class Revision:
+    """The project's code at a git revision, checked out (detached) in a temporary worktree for the 'before' runs of
+    ``--before-rev``: the graph is then started from that tree (its ``src`` first on ``PYTHONPATH``, ahead of the
+    venv's editable install of this tree; its own ``config/``), with this tree's venv and generated interfaces."""
+
+    def __init__(self, rev: str, parent: Path):
+        self.rev = subprocess.run(['git', 'rev-parse', '--short', rev], cwd=ROOT, check=True, capture_output=True,
+                                  text=True).stdout.strip()
+        self.path = parent / f'rev_{self.rev}'
+        subprocess.run(['git', 'worktree', 'add', '--detach', str(self.path), self.rev], cwd=ROOT, check=True,
+                       capture_output=True)
+
+    def env(self, base: dict) -> dict:
+        src = [str(self.path / 'src' / pkg) for pkg in ('biped_sim', 'biped_controller')]
+        return dict(base, PYTHONPATH=os.pathsep.join(src + ([base['PYTHONPATH']] if base.get('PYTHONPATH') else [])))
+
+    def close(self) -> None:
+        subprocess.run(['git', 'worktree', 'remove', '--force', str(self.path)], cwd=ROOT, capture_output=True)
+
+
 def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, timeout: float = 600.0,
-              only: tuple[str, ...] | None = None, params: Path | None = None, per_frame_timeout: bool = False) -> dict:
-    """One launch; the simulator's rate, and with ``live`` the client's latencies (ms)."""
+              only: tuple[str, ...] | None = None, params: Path | None = None, per_frame_timeout: bool = False,
+              revision: Revision | None = None) -> dict:
+    """One launch; the simulator's rate, and with ``live`` the client's latencies (ms). ``revision``: the graph's
+    code from that checkout instead of this tree."""
     tmp.mkdir(parents=True, exist_ok=True)
     bag, ready, log = tmp / 'bag', tmp / 'ready', tmp / 'launch.log'
     port = free_port()
@@ -293,8 +317,9 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     if live:
         cmd += ['--live', '--port', str(port)]
     cmd += ['--sim-param', f'real_time_factor:={rtf}', '--sim-param', f'start_delay:={START_DELAY}']
+    cwd, env = (ROOT, dom.env) if revision is None else (revision.path, revision.env(dom.env))
     with open(log, 'w') as fh:
-        proc = subprocess.Popen(cmd, cwd=ROOT, env=dom.env, stdout=fh, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=fh, stderr=subprocess.STDOUT)
     probe = DdsProbe(dom.id)
     cpu = TreeCpu(proc.pid, node_name, mark_when=probe.first.is_set, period=0.05)
     PROBES.append(probe)
@@ -435,6 +460,9 @@ def main(argv=None) -> int:
                     help="the setting of the 'before' runs (default BEFORE; objects: publish_cdr false)")
     ap.add_argument('--after', default='after', choices=sorted(SETTINGS),
                     help="the setting of the 'after' runs (default: config/graph.yaml as committed)")
+    ap.add_argument('--before-rev', default=None, metavar='REV',
+                    help="the 'before' runs with the code (and config/) of git revision REV, checked out in a temporary "
+                         "worktree, with --before's setting applied to that tree's config/graph.yaml")
     ap.add_argument('--layout-only', action='store_true',
                     help="real-time runs with the layout's client only (no client on every channel)")
     ap.add_argument('--json', type=Path, default=ROOT / 'benchmarks' / 'bridge_results.json',
@@ -443,37 +471,45 @@ def main(argv=None) -> int:
     t0 = time.monotonic()
     runs = []
     with tempfile.TemporaryDirectory() as tmp, Domain() as dom:
-        for i in range(a.pairs):
-            for live in (False, True):
-                r = run_graph(dom, Path(tmp) / f'rate_{i}_{int(live)}', live=live, rtf=0.0, steps=a.steps)
-                r['kind'] = 'rate'
-                runs.append(r)
-                print(json.dumps(r), flush=True)
-        # real time: a client on every channel (15 topics x 1 kHz through one Python client), then one
-        # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf); before (BEFORE) and after
-        # (config/graph.yaml), alternated
-        for k in range(a.latency_pairs):
-            for setting in ('before', 'after'):
-                for i, only in enumerate((None, LAYOUT_TOPICS)):
-                    if a.layout_only and only is None:
-                        continue
-                    load = os.getloadavg()[0]
-                    name = a.before if setting == 'before' else a.after
-                    r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
-                                  steps=a.live_steps, only=only,
-                                  params=settings_params(Path(tmp), name),
-                                  per_frame_timeout=legacy_client(name))
-                    r['load_average_1min_at_start'] = load
-                    r['kind'] = 'latency' if only is None else 'latency_layout'
-                    r['bridge'] = setting
-                    r['setting'] = name
+        revision = Revision(a.before_rev, Path(tmp)) if a.before_rev else None
+        try:
+            for i in range(a.pairs):
+                for live in (False, True):
+                    r = run_graph(dom, Path(tmp) / f'rate_{i}_{int(live)}', live=live, rtf=0.0, steps=a.steps)
+                    r['kind'] = 'rate'
                     runs.append(r)
-                    print(json.dumps({k2: v for k2, v in r.items() if k2 != 'bag_counts'}), flush=True)
+                    print(json.dumps(r), flush=True)
+            # real time: a client on every channel (15 topics x 1 kHz through one Python client), then one
+            # showing what a 3D + plot layout shows (/sim/state, /joint_states, /tf); before (BEFORE) and after
+            # (config/graph.yaml), alternated
+            for k in range(a.latency_pairs):
+                for setting in ('before', 'after'):
+                    for i, only in enumerate((None, LAYOUT_TOPICS)):
+                        if a.layout_only and only is None:
+                            continue
+                        load = os.getloadavg()[0]
+                        name = a.before if setting == 'before' else a.after
+                        rev = revision if setting == 'before' else None
+                        r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
+                                      steps=a.live_steps, only=only,
+                                      params=settings_params(Path(tmp), name, None if rev is None else rev.path),
+                                      per_frame_timeout=legacy_client(name), revision=rev)
+                        if rev is not None:
+                            r['revision'] = rev.rev
+                        r['load_average_1min_at_start'] = load
+                        r['kind'] = 'latency' if only is None else 'latency_layout'
+                        r['bridge'] = setting
+                        r['setting'] = name
+                        runs.append(r)
+                        print(json.dumps({k2: v for k2, v in r.items() if k2 != 'bag_counts'}), flush=True)
+        finally:
+            if revision is not None:
+                revision.close()
     off = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and not r['live'] and r['steps_per_s']]
     on = [r['steps_per_s'] for r in runs if r['kind'] == 'rate' and r['live'] and r['steps_per_s']]
     summary = {'date': time.strftime('%Y-%m-%d %H:%M:%S'), 'cpus': os.cpu_count(), 'machine': platform.machine(),
                'load_average_at_end': os.getloadavg(), 'wall_s': time.monotonic() - t0, 'before_setting': a.before,
-               'after_setting': a.after, 'argv': sys.argv[1:],
+               'after_setting': a.after, 'before_rev': a.before_rev, 'argv': sys.argv[1:],
                'rate_off_steps_per_s': off, 'rate_on_steps_per_s': on,
                'rate_on_over_off': (float(np.mean(on)) / float(np.mean(off))) if on and off else None,
                'runs': runs}

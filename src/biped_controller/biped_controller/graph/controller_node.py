@@ -48,6 +48,7 @@ from biped_msgs_py.msg import ControllerStatus, SimState
 from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.graph.imu import ImuMessageError, imu_reading
+from biped_sim.graph.sim_clock import SimClock
 from biped_sim.robot.description import PAPER_JOINTS, load_description
 from biped_sim.graph.params import (
     ParameterError,
@@ -130,6 +131,8 @@ class ControllerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(gn.CONTROLLER_NODE, **kwargs)
+        # use_sim_time: the node's clock is the stamp of the state it answers (no /clock reader: graph.sim_clock)
+        self.sim_clock = SimClock(self)
         self.cfg = read_controller_config(self)
         declare_executor(self)
         self.state_timeout = get_float(self, 'state_timeout', lo=0.0, lo_open=True)
@@ -222,6 +225,7 @@ class ControllerNode(Node):
             pitch, rate = self.imu_pitch[key]
             self.imu_pitch = {k: v for k, v in self.imu_pitch.items() if k > key}
         t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
+        self.sim_clock.set(self._stamp_ns(msg.stamp))
         out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
                                 int(msg.stance), pitch, rate)
         if self.publish_cdr:

@@ -23,9 +23,10 @@ published at start.
 Parameters: ``max_force`` (N, default 2000), ``max_duration`` (s, default 1.0), ``horizon`` (s of sim
 time, default 3600: the latest start accepted; the launcher sets it to the simulator's ``max_time`` when
 one is given), ``push_height`` (m, default config/simulator.yaml), the schedule arrays, ``executor``
-(``events`` | ``single_threaded``, default config/graph.yaml: ``events``; the node's only per-step work is
-the 1 kHz ``/clock`` of ``use_sim_time``, which under rclpy's Python ``SingleThreadedExecutor`` cost a wait-set
-round each, 0.3-0.5 ms of CPU per control step, issue 20), ``wait_for_recorder`` (default config/graph.yaml:
+(``events`` | ``single_threaded``, default config/graph.yaml: ``events``; the 1 kHz ``/clock`` of ``use_sim_time``
+cost a wait-set round each under rclpy's Python ``SingleThreadedExecutor``, 0.3-0.5 ms of CPU per control step,
+and still ~0.13 ms as the ``EventsExecutor``'s callback, issue 20: the sim time is now read only at a request,
+from a ``/clock`` reader that no executor dispatches, :class:`biped_sim.graph.sim_clock.SimClock`), ``wait_for_recorder`` (default config/graph.yaml:
 true; ``/apply_push`` is served only once the writers of ``/push_events`` and ``/push_requests`` are matched
 with every subscription the graph knows on them, the recorder's among them: :meth:`DisturbanceNode.events_matched`);
 ``use_sim_time`` is forced true.
@@ -57,6 +58,7 @@ from biped_sim.graph.params import (
     run_node,
 )
 from biped_sim.plant.config import load_sim_config
+from biped_sim.graph.sim_clock import SimClock
 
 
 MATCH_POLL = 0.02   # s (steady) between looks at whether the event writers are matched (at start only)
@@ -68,6 +70,8 @@ class DisturbanceNode(Node):
         overrides = [p for p in kwargs.pop('parameter_overrides', []) if p.name != 'use_sim_time']
         overrides.append(Parameter('use_sim_time', Parameter.Type.BOOL, True))
         super().__init__(gn.DISTURBANCE_NODE, parameter_overrides=overrides, **kwargs)
+        # sim time read only at a request: a polled /clock reader instead of rclpy's callback per message
+        self.sim_clock = SimClock(self, poll_clock=True)
         desc_path = get_str(self, 'description_path')
         try:
             desc = load_description(desc_path or None)
@@ -143,7 +147,13 @@ class DisturbanceNode(Node):
         self.get_logger().info(f'serving {gn.APPLY_PUSH} ({self._limits_text})')
 
     def sim_time(self) -> float:
+        """The current sim time [s]: the newest ``/clock`` received (0 before any), taken from the polled reader."""
+        self.sim_clock.poll()
         return self.get_clock().now().nanoseconds * 1e-9
+
+    def destroy_node(self):
+        self.sim_clock.destroy()
+        return super().destroy_node()
 
     def _on_apply_push(self, request, response):
         now = self.sim_time()

@@ -63,6 +63,7 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, ReliabilityPolicy
 
+from biped_sim.graph.sim_clock import SimClock
 from biped_sim.graph import names as graph_names
 from biped_sim.graph.params import ParameterError, graph_default, run_node
 from biped_sim.recording.mcap_recorder import (
@@ -161,6 +162,8 @@ class RecorderNode(Node):
         overrides = [p for p in overrides if p.name != "use_sim_time"]
         overrides.append(Parameter("use_sim_time", Parameter.Type.BOOL, True))
         super().__init__(graph_names.RECORDER_NODE, parameter_overrides=overrides, **kwargs)
+        # the node's clock follows the /clock it records (no second /clock reader: graph.sim_clock)
+        self.sim_clock = SimClock(self)
         self.declare_parameter("output_dir", "")
         self.declare_parameter("compression", "zstd")
         self.declare_parameter("chunk_size", DEFAULT_CHUNK_SIZE)
@@ -382,6 +385,7 @@ class RecorderNode(Node):
             from rosgraph_msgs.msg import Clock
             clock = deserialize_message(msg, Clock).clock
             self._sim_ns = clock.sec * 1_000_000_000 + clock.nanosec
+            self.sim_clock.set(self._sim_ns)
         log_time = self._sim_ns if self._sim_ns is not None else self.get_clock().now().nanoseconds
         publish_time = int(info["source_timestamp"]) if info else 0
         try:

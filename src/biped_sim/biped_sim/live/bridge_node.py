@@ -57,6 +57,10 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
   readers: :mod:`biped_sim.live.live_recorder`) instead of ``recorder`` + ``bridge``; ``own`` this executable.
 - ``reconcile_period`` (s, 0.001..10; ``config/graph.yaml``): with ``lazy_streams``, how often a steady timer
   looks at which streams the clients watch (the SDK's threads only mark a change).
+- ``tcp_nodelay`` (bool; ``config/graph.yaml``: true): set ``TCP_NODELAY`` on the server's listening socket
+  right after it started (accepted client sockets inherit it): the SDK leaves Nagle's algorithm on, and a frame
+  then waits for the client's delayed ACK, up to 40 ms (:mod:`biped_sim.live.sockets`; issue 20 part 3).
+  Not found or not set: a warning, the server runs with Nagle's algorithm.
 
 Exit status: 0 on SIGINT/SIGTERM, 2 for a bad parameter or a server that cannot start (port in use).
 """
@@ -94,6 +98,7 @@ from biped_sim.graph.params import (
     run_node,
 )
 from biped_sim.graph.recorder_node import RecorderNode, recording_qos
+from biped_sim.live.sockets import set_nodelay_on_port
 
 NODE_NAME = gn.BRIDGE_NODE
 SERVER_NAME = 'biped'
@@ -221,6 +226,15 @@ class BridgeNode(Node):
         except RuntimeError as exc:   # the SDK's FoxgloveError ("Failed to bind port: ...")
             raise BridgeStartError(f'cannot serve on {self.host}:{port}: {exc}') from exc
         self.port = self.server.port
+        # Nagle's algorithm off for every client (the SDK leaves it on: frames then wait up to the client's
+        # 40 ms delayed ACK; biped_sim.live.sockets)
+        self.tcp_nodelay = get_bool(self, 'tcp_nodelay')
+        if self.tcp_nodelay:
+            report = set_nodelay_on_port(self.port)
+            if report.listening == 0 or report.set < report.listening + report.connected:
+                self.get_logger().warning(
+                    f'tcp_nodelay: found {report.listening} listening socket(s) on port {self.port}, set '
+                    f'TCP_NODELAY on {report.set}: frames may wait for the client\'s delayed ACK (up to 40 ms)')
 
         # subscriptions last: nothing arrives before the channels and the server exist. /clock (the server's
         # time), latched and event topics always; a per-step stream only while a client is subscribed to
