@@ -256,7 +256,8 @@ SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams':
             'objects': {'simulator': {'publish_cdr': False}, 'controller': {'publish_cdr': False}},
             'main': MAIN, 'own': {'bridge': {'host_process': 'own'}},
             'stexec': {'recorder': {'executor': 'single_threaded'}},
-            'nagle': {'bridge': {'tcp_nodelay': False}}}
+            'nagle': {'bridge': {'tcp_nodelay': False}},
+            'batch2': {'recorder': {'batch_wait': 0.002}}}
 
 
 def legacy_client(setting: str) -> bool:
