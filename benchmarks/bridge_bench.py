@@ -18,8 +18,10 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   stamp) frame: latency = the client's ``time.time_ns()`` right after the frame was read - the
   message's DDS source timestamp (the simulator's ``publish()``), which the recorder stores as the
   MCAP ``publish_time``. Same host, same clock (CLOCK_REALTIME). The client is a Python asyncio
-  ``websockets`` client: its own wake-up is part of the figure. Beside it, in the same process, a
-  plain DDS subscriber (rclpy, raw, the recorder's QoS, its own thread) measures publish-to-callback
+  ``websockets`` client: its own wake-up is part of the figure (its garbage collector is off while it reads, as
+  in ``timeit``: its pauses are not the bridge's). Beside it, in a process of its own (:mod:`benchmarks.dds_probe`:
+  as a thread of the client's process it held the client's reads back through the interpreter lock), a
+  plain DDS subscriber (rclpy, raw, the recorder's QoS) measures publish-to-callback
   latency for ``/sim/state`` the same way: the baseline the bridge path adds to (it runs in the
   rate-off runs too, so both sides of the rate comparison carry the same subscriber). The rate-on runs
   give the same figures under the as-fast-as-possible burst (queueing).
@@ -58,9 +60,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import json
 import os
 import platform
+import signal
 import socket
 import struct
 import subprocess
@@ -131,7 +135,8 @@ async def _subscribe_advertised(ws, text: str, only, topics: dict) -> None:
 
 
 async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
-                  only: tuple[str, ...] | None = None, per_frame_timeout: bool = False) -> tuple[dict, list]:
+                  only: tuple[str, ...] | None = None, per_frame_timeout: bool = False,
+                  first=None) -> tuple[dict, list]:
     """Connect once the graph is up, subscribe to every advertised channel (or those of ``only``), read every frame until
     the server closes (the launcher stops the bridge after the run). Returns ({sub id: topic},
     [(recv ns, frame)])."""
@@ -158,11 +163,18 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                     await _subscribe_advertised(ws, frame, only, topics)
                 else:
                     frames.append((t, frame))
+                    if first is not None and frame[0] == 0x01:
+                        first.set()
+                        first = None
         finally:
             await ws.close()
             CLIENT_CPU['s'] = (time.thread_time_ns() - cpu0) * 1e-9
         return topics, frames
     append, now_ns = frames.append, time.time_ns
+    # The collector off while the frames come in (as timeit does): a full collection of this process, whose
+    # frame list grows by thousands of tuples a second, paused the read (the client's pauses are not the bridge's)
+    gc_was = gc.isenabled()
+    gc.disable()
     # The client is the measurement instrument and shares the 2 cores with the graph, so it does as little as a
     # real client can per frame: one await of the library's receive and a timestamp, no per-frame timeout (an
     # asyncio.wait_for per frame, as before issue 20 part 3, wraps each receive in a task and a timer); one deadline
@@ -175,54 +187,69 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                     await _subscribe_advertised(ws, frame, only, topics)
                 else:
                     append((t, frame))
+                    if first is not None and frame[0] == 0x01:    # message data: the run has started
+                        first.set()
+                        first = None
     except websockets.ConnectionClosed:
         pass   # closed with an error: what arrived is reported (counted against the bag)
     except TimeoutError:
         pass   # the deadline: what arrived is reported (the run's checks count the frames against the bag)
     finally:
+        if gc_was:
+            gc.enable()
         await ws.close()
         CLIENT_CPU['s'] = (time.thread_time_ns() - cpu0) * 1e-9
     return topics, frames
 
 
+class _FileFlag:
+    """``is_set()`` once a file exists (a flag another process raises)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def is_set(self) -> bool:
+        return self.path.exists()
+
+
+class Marker:
+    """A run's start flag (``first.is_set()``): the probe's first ``/sim/state``, or the client's first message
+    frame in a run without the probe. ``PROBES`` holds one per run (``benchmarks.bridge_profile`` starts py-spy then)."""
+
+    def __init__(self, first):
+        self.first = first
+
+
 class DdsProbe:
-    """A raw ``/sim/state`` subscriber spun in its own thread: (receive ns, source timestamp ns, CDR)."""
+    """A raw ``/sim/state`` subscriber in a process of its own (:mod:`benchmarks.dds_probe`): (receive ns, source
+    timestamp ns) per message. Started before the graph and waited for until its subscription exists; ``first`` is
+    raised at its first message. It used to be a thread of this process, where it held the WebSocket client's reads
+    back (the interpreter lock; module docstring of ``benchmarks.dds_probe``)."""
 
-    def __init__(self, domain: int):
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from biped_sim.graph import names as gn
-        from biped_sim.graph.recorder_node import recording_qos
-        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-        self.ctx = rclpy.Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = rclpy.create_node('bridge_bench_probe', context=self.ctx)
-        spec = gn.TOPICS[gn.SIM_STATE]
-        self.rows: list[tuple[int, int, bytes]] = []
-        self.first = threading.Event()   # set at the first /sim/state: the lockstep has started
-        self.node.create_subscription(spec.msg_class(), spec.name, self._on_msg, recording_qos(spec.qos_profile),
-                                      raw=True)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _on_msg(self, msg: bytes, info) -> None:
-        self.rows.append((time.time_ns(), int(info['source_timestamp']), msg))
-        self.first.set()
-
-    def _spin(self) -> None:
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
+    def __init__(self, env: dict, tmp: Path, timeout: float = 60.0):
+        tmp.mkdir(parents=True, exist_ok=True)
+        self.ready, self.out = tmp / 'probe_ready', tmp / 'probe_rows.json'
+        self.first = _FileFlag(tmp / 'probe_first')
+        self.proc = subprocess.Popen([sys.executable, '-m', 'benchmarks.dds_probe', '--ready', str(self.ready),
+                                      '--first', str(self.first.path), '--out', str(self.out)], cwd=ROOT, env=env)
+        deadline = time.monotonic() + timeout
+        while not self.ready.exists():
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.proc.kill()
+                raise RuntimeError('the DDS probe did not come up')
+            time.sleep(0.02)
 
     def close(self) -> list:
-        import rclpy
-        self._stop.set()
-        self._thread.join(10)
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.ctx)
-        return self.rows
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            return []
+        if not self.out.exists():
+            return []
+        return [(recv, src, None) for recv, src in json.loads(self.out.read_text())]
 
 
 def _stats(values) -> dict:
@@ -305,9 +332,10 @@ class Revision:
 
 def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, timeout: float = 600.0,
               only: tuple[str, ...] | None = None, params: Path | None = None, per_frame_timeout: bool = False,
-              revision: Revision | None = None) -> dict:
-    """One launch; the simulator's rate, and with ``live`` the client's latencies (ms). ``revision``: the graph's
-    code from that checkout instead of this tree."""
+              revision: Revision | None = None, client: bool = True, probe: bool = True) -> dict:
+    """One launch; the simulator's rate, and with ``live`` (and ``client``) the client's latencies (ms), with ``probe``
+    the plain DDS subscriber's. ``revision``: the graph's code from that checkout instead of this tree. The CPU is
+    counted from the probe's first ``/sim/state``, without a probe from the client's first message frame."""
     tmp.mkdir(parents=True, exist_ok=True)
     bag, ready, log = tmp / 'bag', tmp / 'ready', tmp / 'launch.log'
     port = free_port()
@@ -319,24 +347,29 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
         cmd += ['--live', '--port', str(port)]
     cmd += ['--sim-param', f'real_time_factor:={rtf}', '--sim-param', f'start_delay:={START_DELAY}']
     cwd, env = (ROOT, dom.env) if revision is None else (revision.path, revision.env(dom.env))
+    client = client and live
+    if not (client or probe):
+        raise ValueError('a run needs the client or the probe (the CPU is counted from their first message)')
+    dds = DdsProbe(dom.env, tmp) if probe else None   # subscribed before the graph starts
+    marker = Marker(dds.first if dds is not None else threading.Event())
     with open(log, 'w') as fh:
         proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=fh, stderr=subprocess.STDOUT)
-    probe = DdsProbe(dom.id)
-    cpu = TreeCpu(proc.pid, node_name, mark_when=probe.first.is_set, period=0.05)
-    PROBES.append(probe)
+    cpu = TreeCpu(proc.pid, node_name, mark_when=marker.first.is_set, period=0.05)
+    PROBES.append(marker)
     CLIENT_CPU['s'] = 0.0
     dds_rows = []
     try:
         topics, frames = {}, []
-        if live:
+        if client:
             topics, frames = asyncio.run(_client(f'ws://127.0.0.1:{port}', proc, ready, timeout, only,
-                                                   per_frame_timeout))
+                                                   per_frame_timeout, None if dds is not None else marker.first))
         proc.wait(timeout)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        dds_rows = probe.close()
+        if dds is not None:
+            dds_rows = dds.close()
         cpu_table = cpu.stop()
     text = log.read_text(errors='replace')
     m = _LINE.search(text)
@@ -344,7 +377,7 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
            'client_topics': 'all' if only is None else list(only),
            'steps': int(m['steps']) if m else None, 'wall_s': float(m['wall']) if m else None,
            'steps_per_s': int(m['steps']) / float(m['wall']) if m and float(m['wall']) > 0 else None}
-    if live:
+    if client:
         cpu_table['client'] = {'cpu_s': round(CLIENT_CPU['s'], 4)}
     out['cpu_s'] = cpu_table
     if m:
@@ -353,9 +386,11 @@ def run_graph(dom: Domain, tmp: Path, *, live: bool, rtf: float, steps: int, tim
     if proc.returncode != 0 or m is None:
         out['log_tail'] = text[-1500:]
         return out
-    if live:
+    out['client'], out['probe'] = client, probe
+    if client:
         out.update(latencies(bag, topics, frames))
-    out['latency_ms dds /sim/state'] = _stats([(recv - src) * 1e-6 for recv, src, _ in dds_rows])
+    if probe:
+        out['latency_ms dds /sim/state'] = _stats([(recv - src) * 1e-6 for recv, src, _ in dds_rows])
     return out
 
 
@@ -418,24 +453,27 @@ def cpu_figures(r: dict) -> dict:
 def before_after(runs: list) -> dict:
     """Per client kind: medians over the runs of each setting, and after/before ratios of those medians."""
     out: dict = {}
-    for kind in ('latency', 'latency_layout'):
+    for kind in ('latency', 'latency_layout', 'latency_dds'):
         rows: dict = {}
         for setting in ('before', 'after'):
             sel = [r for r in runs if r['kind'] == kind and r.get('bridge') == setting and r.get('steps_per_s')]
             if not sel:
                 continue
             figs = [cpu_figures(r) for r in sel]
+            # the WebSocket client's /sim/state, or (latency_dds: no client) the plain DDS subscriber's
+            key = 'latency_ms dds /sim/state' if kind == 'latency_dds' else 'latency_ms /sim/state'
             rows[setting] = {
                 'runs': len(sel),
-                'p50_ms': float(np.median([r['latency_ms /sim/state']['p50'] for r in sel])),
-                'p99_ms': float(np.median([r['latency_ms /sim/state']['p99'] for r in sel])),
+                'p50_ms': float(np.median([r[key]['p50'] for r in sel])),
+                'p99_ms': float(np.median([r[key]['p99'] for r in sel])),
                 'steps_per_s': float(np.median([r['steps_per_s'] for r in sel])),
-                'p50_ms_runs': [round(r['latency_ms /sim/state']['p50'], 2) for r in sel],
-                'p99_ms_runs': [round(r['latency_ms /sim/state']['p99'], 2) for r in sel],
-                'dds_p99_ms_runs': [round(r['latency_ms dds /sim/state'].get('p99', float('nan')), 2) for r in sel],
+                'p50_ms_runs': [round(r[key]['p50'], 2) for r in sel],
+                'p99_ms_runs': [round(r[key]['p99'], 2) for r in sel],
+                'dds_p99_ms_runs': [round(r.get('latency_ms dds /sim/state', {}).get('p99', float('nan')), 2)
+                                    for r in sel],
                 'steps_per_s_runs': [round(r['steps_per_s']) for r in sel],
                 'load_average_1min': [round(r.get('load_average_1min_at_start', float('nan')), 2) for r in sel],
-                'every_frame_delivered': all(r.get('every_frame_delivered') for r in sel),
+                'every_frame_delivered': all(r.get('every_frame_delivered', True) for r in sel),
                 **{k: float(np.median([f[k] for f in figs])) for k in figs[0]},
                 'cpu_ms_per_step_median': {
                     node: float(np.median([r['cpu_ms_per_step'].get(node, float('nan')) for r in sel]))
@@ -461,6 +499,8 @@ def main(argv=None) -> int:
                     help="the setting of the 'before' runs (default BEFORE; objects: publish_cdr false)")
     ap.add_argument('--after', default='after', choices=sorted(SETTINGS),
                     help="the setting of the 'after' runs (default: config/graph.yaml as committed)")
+    ap.add_argument('--dds-pairs', type=int, default=1,
+                    help='before/after pairs of real-time runs with the plain DDS subscriber and no WebSocket client')
     ap.add_argument('--before-rev', default=None, metavar='REV',
                     help="the 'before' runs with the code (and config/) of git revision REV, checked out in a temporary "
                          "worktree, with --before's setting applied to that tree's config/graph.yaml")
@@ -494,7 +534,7 @@ def main(argv=None) -> int:
                         r = run_graph(dom, Path(tmp) / f'live_{k}_{setting}_{i}', live=True, rtf=1.0,
                                       steps=a.live_steps, only=only,
                                       params=settings_params(Path(tmp), name, None if rev is None else rev.path),
-                                      per_frame_timeout=legacy_client(name), revision=rev)
+                                      per_frame_timeout=legacy_client(name), revision=rev, probe=False)
                         if rev is not None:
                             r['revision'] = rev.rev
                         r['load_average_1min_at_start'] = load
@@ -503,6 +543,21 @@ def main(argv=None) -> int:
                         r['setting'] = name
                         runs.append(r)
                         print(json.dumps({k2: v for k2, v in r.items() if k2 != 'bag_counts'}), flush=True)
+            # the plain DDS subscriber's baseline: the same live graph (bridge up) without a WebSocket client, one
+            # instrument per run (a second one is load on the same 2 cores)
+            for k in range(a.dds_pairs):
+                for setting in ('before', 'after'):
+                    load = os.getloadavg()[0]
+                    name = a.before if setting == 'before' else a.after
+                    rev = revision if setting == 'before' else None
+                    r = run_graph(dom, Path(tmp) / f'dds_{k}_{setting}', live=True, rtf=1.0, steps=a.live_steps,
+                                  params=settings_params(Path(tmp), name, None if rev is None else rev.path),
+                                  revision=rev, client=False, probe=True)
+                    r.update(load_average_1min_at_start=load, kind='latency_dds', bridge=setting, setting=name)
+                    if rev is not None:
+                        r['revision'] = rev.rev
+                    runs.append(r)
+                    print(json.dumps({k2: v for k2, v in r.items() if k2 != 'bag_counts'}), flush=True)
         finally:
             if revision is not None:
                 revision.close()

@@ -133,7 +133,8 @@ def _one(dom, tmp: Path, name: str, setting: str, kind: str, live: bool, only, a
             if node in a.spy_nodes:
                 profs[node] = PySpy(spy, node, d / f'{node}.collapsed', len(bb.PROBES))
     load = os.getloadavg()[0]
-    r = bb.run_graph(dom, d, live=live, rtf=a.rtf, steps=a.steps, only=only, params=bb.settings_params(tmp, setting))
+    r = bb.run_graph(dom, d, live=live, rtf=a.rtf, steps=a.steps, only=only, params=bb.settings_params(tmp, setting),
+                     probe=not live)   # one instrument per run: the client in live runs, the DDS probe otherwise
     r.update(kind=kind, setting=setting, load_average_1min_at_start=load)
     if profs:
         r['profiles'] = {node: p.result() for node, p in profs.items()}
