@@ -134,6 +134,12 @@ async def _subscribe_advertised(ws, text: str, only, topics: dict) -> None:
         await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
 
 
+def _is_state(frame: bytes, topics: dict) -> bool:
+    """A message-data frame (opcode 1) of ``/sim/state`` (its subscription id is the channel id: see
+    ``_subscribe_advertised``); a latched topic's message can come long before the run starts."""
+    return frame[0] == 0x01 and topics.get(struct.unpack_from('<I', frame, 1)[0]) == '/sim/state'
+
+
 async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                   only: tuple[str, ...] | None = None, per_frame_timeout: bool = False,
                   first=None) -> tuple[dict, list]:
@@ -163,7 +169,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                     await _subscribe_advertised(ws, frame, only, topics)
                 else:
                     frames.append((t, frame))
-                    if first is not None and frame[0] == 0x01:
+                    if first is not None and _is_state(frame, topics):
                         first.set()
                         first = None
         finally:
@@ -187,7 +193,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
                     await _subscribe_advertised(ws, frame, only, topics)
                 else:
                     append((t, frame))
-                    if first is not None and frame[0] == 0x01:    # message data: the run has started
+                    if first is not None and _is_state(frame, topics):   # the run's first /sim/state
                         first.set()
                         first = None
     except websockets.ConnectionClosed:

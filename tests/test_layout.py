@@ -24,7 +24,7 @@ PACKAGES = {"biped_sim": ROOT / "src" / "biped_sim" / "biped_sim",
 ROS_LAYER = {
     "biped_sim.graph.simulator_node", "biped_sim.graph.disturbance_node", "biped_sim.graph.recorder_node", "biped_sim.live.bridge_node",
     "biped_sim.graph.names", "biped_sim.graph.params", "biped_sim.graph.launch", "biped_sim.graph.push_client",
-    "biped_sim.graph.imu",
+    "biped_sim.graph.imu", "biped_sim.graph.sim_clock",
     "biped_sim.graph.demo", "biped_sim.graph.soak", "biped_sim.graph.bag_summary", "biped_controller.graph.controller_node",
 }
 # room -> the rooms it may import (besides itself). A module's room is its sub-package.
