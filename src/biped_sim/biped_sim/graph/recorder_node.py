@@ -4,13 +4,17 @@ Node ``recorder``. Every topic of :data:`biped_sim.graph.names.TOPICS` is subscr
 ``raw=True`` (the CDR bytes are passed through, never deserialized) and with the topic's QoS.
 For each message:
 
-- ``log_time``  = the sim time of the latest ``/clock`` the recorder has recorded before this message (so
-  log times follow the bag's own ``/clock`` sequence, whatever order the subscriptions are read in); what one
-  callback takes from every subscription is recorded in publication order (DDS source timestamp), so that is the
-  ``/clock`` published before the message (a ``/sim/state``'s log time is its own stamp) unless DDS delivered the
-  message after a later ``/clock`` was taken (each topic keeps its order, topics among themselves need not: 0-10 of
-  928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``); before the first
-  one, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
+- ``log_time``  = the sim time of the latest ``/clock`` *published* before this message among those the recorder
+  has received: looked up by DDS source timestamp in the ``/clock`` messages of the last ``CLOCK_HISTORY``
+  received (so a ``/sim/state``'s log time is its own stamp, and a controller message's the step it answers).
+  Each topic keeps its order in DDS, topics among themselves need not: a message repaired after a loss (a frozen
+  or starved recorder's full shared-memory queue) can arrive after many later ``/clock``; taken in order it got the
+  newest of them (0-10 of 928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``; 8-250 of 300
+  in a loaded run of the frozen-recorder test), looked up it gets its own (issue 20). A ``/clock`` that itself
+  arrives late still cannot serve the messages recorded before it: they get the latest earlier one. What one take
+  holds is also recorded in publication order. Before the first ``/clock`` (or for a message older than every
+  ``/clock`` kept), the newest ``/clock`` received, else the node's clock (``use_sim_time`` is forced on: 0 until a
+  ``/clock`` arrives);
 - ``publish_time`` = the source timestamp DDS hands over in the message info.
 
 Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad one makes
@@ -48,6 +52,7 @@ Exit status: 0 clean finish, 1 I/O error while recording, 2 bad parameter / cann
 
 from __future__ import annotations
 
+import bisect
 import functools
 import time
 import sys
@@ -137,6 +142,7 @@ def qos_from_rclpy(profile) -> QosProfile:
 
 
 PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
+CLOCK_HISTORY = 5000   # /clock messages kept for the log-time lookup at least (5 s at 1 kHz, the topics' DDS depth)
 DRAIN_BATCH = 256  # messages taken at most per executor callback, from every subscription (see _on_message)
 DRAIN_PER_TOPIC = 16  # messages taken at most from one subscription per pass (no topic starves another)
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request (publishers left)
@@ -185,7 +191,10 @@ class RecorderNode(Node):
         self.wakeups = 0   # wait-set wake-ups that found a message (logged at the end: messages per wake-up)
 
         self.failure: Optional[RecorderError] = None
-        self._sim_ns: Optional[int] = None   # sim time [ns] of the latest /clock recorded (the log time)
+        self._sim_ns: Optional[int] = None   # sim time [ns] of the newest /clock recorded
+        # the /clock messages received: DDS source timestamps [ns] (sorted) and their sim times [ns], for log times
+        self._clock_src: List[int] = []
+        self._clock_sim: List[int] = []
         self.done = False   # run_node leaves its loop (then drains and finishes) once set
         self._prefixes = self._prefixes_list()
         self._specs = self._recordable_topics()
@@ -386,8 +395,13 @@ class RecorderNode(Node):
             clock = deserialize_message(msg, Clock).clock
             self._sim_ns = clock.sec * 1_000_000_000 + clock.nanosec
             self.sim_clock.set(self._sim_ns)
-        log_time = self._sim_ns if self._sim_ns is not None else self.get_clock().now().nanoseconds
         publish_time = int(info["source_timestamp"]) if info else 0
+        if spec.name == graph_names.CLOCK:
+            log_time = self._sim_ns
+            if publish_time:
+                self._remember_clock(publish_time, self._sim_ns)
+        else:
+            log_time = self._log_time(publish_time)
         try:
             if not self._writer.has_topic(spec.name):
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
@@ -400,6 +414,29 @@ class RecorderNode(Node):
             self.failure = exc
             self.get_logger().error(f"recording stopped: {exc}")
             self.done = True
+
+    def _remember_clock(self, source_ns: int, sim_ns: int) -> None:
+        """Keep ``/clock``'s (source timestamp, sim time), sorted by the timestamp (a repaired one may come late),
+        at most ``CLOCK_HISTORY`` of them."""
+        src = self._clock_src
+        if not src or source_ns >= src[-1]:
+            src.append(source_ns)
+            self._clock_sim.append(sim_ns)
+        else:
+            i = bisect.bisect_right(src, source_ns)
+            src.insert(i, source_ns)
+            self._clock_sim.insert(i, sim_ns)
+        if len(src) > 2 * CLOCK_HISTORY:
+            del src[:CLOCK_HISTORY]
+            del self._clock_sim[:CLOCK_HISTORY]
+
+    def _log_time(self, source_ns: int) -> int:
+        """The sim time of the latest ``/clock`` published at or before ``source_ns`` among those kept (module
+        docstring); without one, the newest ``/clock`` received, else the node's clock."""
+        i = bisect.bisect_right(self._clock_src, source_ns) if source_ns else 0
+        if i:
+            return self._clock_sim[i - 1]
+        return self._sim_ns if self._sim_ns is not None else self.get_clock().now().nanoseconds
 
     def _poll_chunk(self) -> None:
         """(steady timer) Write the open chunk out once it is ``chunk_time`` old."""
