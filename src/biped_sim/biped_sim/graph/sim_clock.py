@@ -18,7 +18,8 @@ time) and removes that reader; the node feeds the clock itself, in one of two wa
   rclpy's callback would have set by then (its callback may still be queued behind others).
 
 If ``use_sim_time`` is false the node keeps the system clock and :meth:`set` / :meth:`poll` change nothing. If
-``use_sim_time`` is set at run time, rclpy's ``TimeSource`` takes over again as usual (its reader comes back).
+``use_sim_time`` is turned off and on again at run time, rclpy's ``TimeSource`` subscribes again as usual (its
+reader comes back; :meth:`set` then competes with it).
 
 This relies on two private attributes of rclpy 7.1 (Jazzy), checked at construction: ``Node._time_source`` (the
 node's ``TimeSource``) and its ``_clock_sub``; the tests hold the behaviour (no ``/clock`` reader of the node, the
