@@ -60,6 +60,7 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 import rclpy
+from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rcl_interfaces.msg import ParameterDescriptor
@@ -155,6 +156,20 @@ SERVICE_PERIOD = 0.1    # s between the wait-set loop's executor rounds (paramet
 WAIT_SLICE = 0.02       # s the wait set waits at most (then run_node looks at its stop conditions)
 
 
+class _LoopOnly(CallbackGroup):
+    """A callback group no executor runs (``can_execute`` false: rclpy's executors leave its entities out of their
+    wait sets): the recorder's subscriptions under ``executor: wait_set``, read by its own loop only."""
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        return None
+
+
 class RecorderNode(Node):
     """Thin ROS wrapper around :class:`Rosbag2McapWriter`.
 
@@ -205,10 +220,16 @@ class RecorderNode(Node):
             self._chunk_timer = self.create_timer(chunk_time / 2, self._poll_chunk,
                                                   clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._subscriptions_by_topic = {}
+        # wait_set: the subscriptions are the loop's alone; the executor's rounds serve the rest (parameter
+        # services, the co-hosted bridge's /apply_push client). Seen by the executor, a busy graph's always-ready
+        # subscriptions came first in every round (rclpy serves subscriptions before clients) and a Foxglove push
+        # call's answer waited 1.7 s (tests/test_bridge.py's live test, once).
+        group = _LoopOnly() if self.loop == "wait_set" else None
         for spec in self._specs:
             callback = functools.partial(self._on_message, spec)
             self._subscriptions_by_topic[spec.name] = self.create_subscription(
-                spec.msg_class(), spec.name, callback, recording_qos(spec.qos_profile), raw=True)
+                spec.msg_class(), spec.name, callback, recording_qos(spec.qos_profile), raw=True,
+                callback_group=group)
         self.get_logger().info(
             f"recording {len(self._specs)} topics to {self._writer.bag_dir} "
             f"({compression}, chunks of {chunk_size} B"
