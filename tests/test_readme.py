@@ -58,7 +58,7 @@ def readme_commands(text: str) -> list[str]:
         if not in_block:
             continue
         if stripped.endswith("\\"):
-            pending += stripped[:-1] + " "
+            pending += stripped[:-1].rstrip() + " "
             continue
         full = (pending + stripped).strip()
         pending = ""
