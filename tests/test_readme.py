@@ -140,7 +140,7 @@ def test_the_readme_shows_commands():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("line", COMMANDS)
+@pytest.mark.parametrize("line", COMMANDS, ids=[c[:70] for c in COMMANDS])
 def test_readme_command(line):
     assert check_command(line) == []
 
