@@ -169,3 +169,32 @@ def test_benchmarks_hold_code_only():
     if not tracked:
         pytest.skip("not a git checkout")
     assert [p for p in tracked if not p.endswith(".py")] == []
+
+
+def test_a_command_records_what_it_wrote(tmp_path):
+    """``track`` records, for each file written under its roots after the start, every field; files
+    already there and the provenance file itself get no record; ``--set plant=`` names the plant."""
+    import argparse
+    import os
+    import time
+
+    from biped_controller.studies import provenance
+    old = tmp_path / "old.json"
+    old.write_text("{}")
+    os.utime(old, (time.time() - 60, time.time() - 60))
+    args = argparse.Namespace(overrides=["plant=mujoco"], profile=None)
+    run = provenance.track(tmp_path, None, args=args, argv=["table", "--json", str(tmp_path / "new.json")])
+    (tmp_path / "new.json").write_text("{}")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "fig.png").write_bytes(b"png")
+    done = run.finish()
+    assert sorted(p.name for p in done) == ["fig.png", "new.json"]
+    top, sub = read_records(tmp_path), read_records(tmp_path / "sub")
+    assert set(top) == {"new.json"} and set(sub) == {"fig.png"}
+    rec = top["new.json"]
+    assert set(FIELDS) <= set(rec) and rec["reconstructed"] is False
+    assert rec["plant"] == "mujoco" and rec["profile"] is None
+    assert rec["command"].endswith(f"table --json {tmp_path / 'new.json'}")
+    assert rec["duration_s"] >= 0 and len(rec["load_average"]) == 3 and rec["date"].endswith("+00:00")
+    assert rec["clean"] in (True, False) and (rec["clean"] or rec["modified"])
+    assert provenance.missing_fields({"commit": "x"}) == [f for f in FIELDS if f != "commit"]
