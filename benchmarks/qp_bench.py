@@ -50,6 +50,7 @@ from pathlib import Path
 from time import perf_counter_ns
 
 import numpy as np
+from biped_controller.studies import provenance
 
 ROOT = Path(__file__).resolve().parents[1]
 PUSH_START, PUSH_DURATION = 0.2315, 0.025
@@ -395,6 +396,7 @@ def main(argv=None) -> int:
     ap.add_argument("--instances", type=Path, default=None, help="npz cache of the instances (read, or written)")
     ap.add_argument("--quick", action="store_true", help="one force, 5 repeats")
     a = ap.parse_args(argv)
+    provenance.track(a.out, argv=argv)   # record of each file written (results/README.md)
     if a.quick:
         a.forces, a.repeats = a.forces[:1], 5
     res = run_bench(tuple(a.forces), tuple(a.modes), a.repeats, a.instances)

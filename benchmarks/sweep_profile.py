@@ -19,6 +19,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from biped_controller.studies import provenance
 
 
 def profile(phases: int) -> dict:
@@ -70,6 +71,7 @@ def main(argv=None) -> int:
     ap.add_argument("--phases", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
+    provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
     r = profile(a.phases)
     print(f"{r['cells']} cells, {r['simulations']} simulations, CPU {r['cpu_s']:.2f} s "
           f"({r['ms_per_simulation']:.1f} ms per simulation), load {r['load_average_before']}")

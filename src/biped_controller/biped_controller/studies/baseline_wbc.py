@@ -1,6 +1,6 @@
 """The whole-body QP baseline against the paper's adaptation (issue 26): one push, seen period by period.
 
-``python -m biped_controller.studies.baseline_wbc [--force 300] [--out docs/baseline_wbc] [--set K=V]``
+``python -m biped_controller.studies.baseline_wbc [--force 300] [--out results/baseline_wbc] [--set K=V]``
 runs the same push (forward, 25 ms at mid first step, the paper's cell) in modes none, wbc, both and
 hybrid on the rigid plant, writes ``findings.json`` (per mode: outcome, fall instant and cause, impact
 instants, periods where the whole-body QP was active and its rows, the state at the fall) and the
@@ -32,6 +32,7 @@ import numpy as np
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
 from biped_controller.studies.experiment import (DEFAULT_DURATION, DEFAULT_START, OverrideError, RunSettings,
                                                  parse_overrides, push_run)
+from biped_controller.studies import provenance
 
 MODES = ("none", "wbc", "both", "hybrid")
 
@@ -285,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.baseline_wbc", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--force", type=float, default=300.0, help="[N], + forward (on the back)")
-    ap.add_argument("--out", type=Path, default=Path("docs/baseline_wbc"))
+    ap.add_argument("--out", type=Path, default=Path("results/baseline_wbc"))
     ap.add_argument("--start", type=float, default=DEFAULT_START, help="[s] onset of the push (default mid first step)")
     ap.add_argument("--observer", choices=("on", "off"), default=None)
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -300,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="with --slice-*: the slice as JSON")
     ap.add_argument("--figure", type=Path, default=None, help="with --slice-*: PNG of the edges by phase")
     args = ap.parse_args(argv)
+    provenance.track(args.json, args.figure, args.refine, args.out if args.slice_rigid is None and args.slice_mujoco is None else None, args=args, argv=argv)   # record of each file written (results/README.md)
     if args.slice_rigid is not None or args.slice_mujoco is not None:
         return slice_main(args)
     try:

@@ -72,6 +72,7 @@ from biped_controller.core.qp import STATUS_NAMES
 from biped_controller.core.period_layout import M_
 from biped_controller.studies.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.runner import RunResult
+from biped_controller.studies import provenance
 
 #: The paper's largest survivable push [N] (250 N-class push on the back during 0.025 s at mid-step);
 #: mode "none" (classical computed torque) has no number in the paper.
@@ -1043,6 +1044,7 @@ def main(argv: list[str] | None = None) -> int:
         a.add_argument("--json", type=Path)
         _add_settings_args(a)
     args = ap.parse_args(argv)
+    provenance.track(getattr(args, "json", None), getattr(args, "figures", None), args=args, argv=argv)   # record of each file written (results/README.md)
     try:
         settings = parse_overrides(args.overrides, args.observer, args.full_trials)
         pert = parse_perturbation(args.perturb)

@@ -3,7 +3,7 @@ prints. Pure Python on ``runner.run`` (no ROS). Usage::
 
     python -m biped_controller.studies.plant_compare walk  [--steps 20] [--modes both tau p none] [--json F]
     python -m biped_controller.studies.plant_compare falls [--json F]
-    python -m biped_controller.studies.plant_compare pushes [--dir docs/mujoco_runs] [--reuse]
+    python -m biped_controller.studies.plant_compare pushes [--dir results/mujoco_plant] [--reuse]
     python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off]
     python -m biped_controller.studies.plant_compare cmap --rigid STORE --mujoco STORE
     python -m biped_controller.studies.plant_compare fingerprint
@@ -63,6 +63,7 @@ import numpy as np
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
 from biped_controller.studies import runner
+from biped_controller.studies import provenance
 
 PLANTS = ("rigid", "mujoco")
 
@@ -389,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     fl = sub.add_parser("falls")
     fl.add_argument("--json", type=Path, default=None)
     pu = sub.add_parser("pushes")
-    pu.add_argument("--dir", type=Path, default=Path("docs/mujoco_runs"))
+    pu.add_argument("--dir", type=Path, default=Path("results/mujoco_plant"))
     pu.add_argument("--reuse", action="store_true")
     pu.add_argument("--json", type=Path, default=None)
     po = sub.add_parser("push")
@@ -409,6 +410,8 @@ def main(argv: list[str] | None = None) -> int:
     rb.add_argument("--mujoco", type=Path, nargs="+", required=True)
     rb.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
+    provenance.track(getattr(a, "json", None), getattr(a, "dir", None) if a.cmd == "pushes" else None, argv=argv,
+                     plant=None if a.cmd in ("fingerprint",) else "rigid,mujoco")   # record of each file written (results/README.md)
     if a.cmd == "fingerprint":
         mujoco_fingerprint()
         return 0

@@ -52,6 +52,7 @@ from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.experiment import RunSettings
 from biped_sim.plant.config import SimConfigError
+from biped_controller.studies import provenance
 
 WALK_STEPS = 20
 PUSH_CELL = dict(direction="forward", phase=0.5, duration=0.025)
@@ -422,6 +423,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="a config/simulator.yaml setting for every run, e.g. --set plant=mujoco (repeatable)")
     args = ap.parse_args(argv)
+    provenance.track(args.json, args.table, args.figures, args=args, argv=argv)   # record of each file written (results/README.md)
     global SIMULATOR_OVERRIDES
     try:
         st = experiment.parse_overrides(args.overrides)

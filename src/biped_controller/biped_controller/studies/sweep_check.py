@@ -29,6 +29,7 @@ from biped_controller.studies import experiment
 from biped_controller.studies.capmap.spec import DIRECTIONS, onset_time
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.studies.executor import make_executor
+from biped_controller.studies import provenance
 
 
 def _cells(summary: dict) -> dict:
@@ -143,6 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--workers", type=int, default=2)
     m.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    provenance.track(args.json, args=args, argv=argv)   # record of each file written (results/README.md)
     if args.cmd == "compare":
         fast, full = (json.loads(p.read_text()) for p in (args.fast, args.full))
         recs = [RecordStore(p).load() for p in args.stores] if args.stores else [None, None]

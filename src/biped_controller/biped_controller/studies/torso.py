@@ -37,6 +37,7 @@ from biped_sim.plant.push import Push
 from biped_controller.core.controller import MODES
 from biped_controller.studies import experiment
 from biped_controller.studies.runner import RunResult, run
+from biped_controller.studies import provenance
 
 
 def _modes(text: str) -> tuple[str, ...]:
@@ -186,6 +187,7 @@ def main(argv=None) -> int:
         if name == "figure":
             a.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
+    provenance.track(getattr(args, "json", None), getattr(args, "out", None), args=args, argv=argv)   # record of each file written (results/README.md)
     if args.cmd == "compare":
         try:
             summary = json.loads(args.summary.read_text(encoding="utf-8"))

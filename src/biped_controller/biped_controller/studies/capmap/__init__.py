@@ -5,7 +5,7 @@ Run through ``scripts/capability_map [options]`` (``--help``); e.g. the default 
 directions x 20 phases x 3 durations) on two processes, resumable, with figures and a summary::
 
     scripts/capability_map --workers 2 --store build/capability_map/records.jsonl \\
-        --out docs/figures/capability_map --json build/capability_map/summary.json
+        --out results/capability_map --json build/capability_map/summary.json
 
 What one simulation is (:func:`simulate`, the pure task function every executor runs): the in-process
 closed loop of ``experiment.survives`` (``runner.run``: Simulator + AdaptiveController, no ROS) with one

@@ -24,6 +24,7 @@ from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.studies.executor import ProgressBar
 from biped_controller.studies.experiment import OverrideError
 from biped_controller.studies.provenance import git_state
+from biped_controller.studies import provenance
 
 
 def _split(values: Sequence[str]) -> list[str]:
@@ -72,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="run nothing: summary and figures from the store (incomplete cells are left out)")
     experiment._add_settings_args(ap)
     args = ap.parse_args(argv)
+    provenance.track(args.json, args.out, args=args, argv=argv)   # record of each file written (results/README.md)
     try:
         settings = experiment.parse_overrides(args.overrides, args.observer, args.full_trials)
         experiment.check_settings(settings)
