@@ -428,7 +428,8 @@ class RecorderNode(Node):
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
             self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
             if spec.name == graph_names.SIM_PLANT:
-                # the plant's true parameters (biped_sim.plant.perturbation) also as the bag's metadata record 'biped_plant'
+                # the plant's true parameters (biped_sim.plant.perturbation) also as the bag's metadata
+                # record 'biped_plant'
                 from std_msgs.msg import String
                 self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
         except RecorderError as exc:

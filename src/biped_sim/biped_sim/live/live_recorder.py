@@ -15,7 +15,8 @@ reader, and each reader costs the simulator and the controller a write (Fast DDS
 remained of their publish), plus the bridge process's own take of every message (Python thread, Fast DDS's
 receive thread). Co-hosted, the bridge's work per message is ``Channel.log`` only.
 
-Failure isolation is the price: the live view is not a separate process that may die while the run goes on. A server that cannot start (port in use) is reported and the recorder records without the live view
+Failure isolation is the price: the live view is not a separate process that may die while the run goes on.
+A server that cannot start (port in use) is reported and the recorder records without the live view
 (exit status as the recorder's); a bridge parameter that is invalid exits 2 naming it, as the bridge's own
 executable does, before any file is created.
 """
