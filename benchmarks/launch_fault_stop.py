@@ -1,6 +1,7 @@
 """How long the rest of the node graph lives after one of its nodes is killed.
 
     .venv/bin/python -m benchmarks.launch_fault_stop [--victim recorder] [--trials 5] [--json FILE]
+                                                     [--launcher-arg=--fault-stop-timeout=10 ...]
 
 Each trial: the whole graph (``biped_sim.graph.launch --steps 0``: it walks until stopped) in its own ROS domain
 on 127.0.0.1; once the bag's file holds ``--warmup-bytes`` bytes, SIGKILL to the victim node's process; then
@@ -8,7 +9,7 @@ the exit instant of every other node process and of the launcher, as the kernel 
 process becomes readable when that process exits). Printed per trial: each survivor's lifetime after the kill
 (wall s), the launcher's exit status and its line naming the dead node, and whether the bag reads (a finished
 bag; for a killed recorder, its complete chunks rewritten by ``recover_bag``). Nothing is asserted (the test is
-``tests/test_faults.py::test_a_dead_node_stops_the_graph``).
+``tests/test_faults.py::test_a_killed_recorder_stops_the_graph``).
 """
 from __future__ import annotations
 
@@ -62,13 +63,13 @@ def exit_times(pidfds: dict[str, int], timeout: float) -> dict[str, float]:
     return seen
 
 
-def trial(victim: str, warmup_bytes: int, timeout: float) -> dict:
+def trial(victim: str, warmup_bytes: int, timeout: float, launcher_args: list[str]) -> dict:
     from biped_sim.graph.soak import node_pids
-    from biped_sim.recording.bag_reader import find_mcap, read_bag, recover_bag
+    from biped_sim.recording.bag_reader import BagReadError, find_mcap, read_bag, recover_bag
     with tempfile.TemporaryDirectory() as tmp, Domain() as dom:
         bag, ready, logf = Path(tmp) / 'bag', Path(tmp) / 'ready', Path(tmp) / 'launch.log'
         cmd = [sys.executable, '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--ready-file', str(ready),
-               '--steps', '0']
+               '--steps', '0', *launcher_args]
         with open(logf, 'w') as out:
             proc = subprocess.Popen(cmd, env=dom.env, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
         pidfds: dict[str, int] = {}
@@ -92,18 +93,19 @@ def trial(victim: str, warmup_bytes: int, timeout: float) -> dict:
                 proc.kill()
                 proc.wait()
         text = logf.read_text(errors='replace')
-        lines = [ln for ln in text.splitlines() if ln.startswith('launch:') and 'died' in ln]
+        lines = [ln for ln in text.splitlines() if (ln.startswith('launch:') and 'died' in ln)
+                 or 'not acknowledged' in ln]
         if victim == 'recorder':
             try:
                 report = recover_bag(find_mcap(bag), Path(tmp) / 'recovered')
                 bag_state = f'recovered: {report.message_count} messages'
-            except Exception as exc:   # reported, not raised: the measurement goes on
+            except (BagReadError, OSError) as exc:   # reported, not raised: the measurement goes on
                 bag_state = f'not recovered: {type(exc).__name__}: {exc}'
         else:
             try:
                 d = read_bag(bag)
                 bag_state = f'finished: {sum(d["counts"].values())} messages' if d['has_summary'] else 'no summary'
-            except Exception as exc:   # reported, not raised
+            except (BagReadError, OSError) as exc:   # reported, not raised
                 bag_state = f'unreadable: {type(exc).__name__}: {exc}'
         return {'victim': victim,
                 'lived_s': {name: round(seen[name] - t_kill, 3) if name in seen else None for name in pidfds},
@@ -117,12 +119,14 @@ def main(argv=None) -> int:
     ap.add_argument('--warmup-bytes', type=int, default=300_000, help='bag size before the kill')
     ap.add_argument('--timeout', type=float, default=120.0, help='s to wait for the survivors')
     ap.add_argument('--json', type=Path, default=None, help='write the trials here')
+    ap.add_argument('--launcher-arg', action='append', default=[], metavar='ARG',
+                    help='extra launcher argument (repeatable), e.g. --launcher-arg=--fault-stop-timeout=10')
     a = ap.parse_args(argv)
     if a.trials < 1:
         ap.error(f'--trials must be >= 1, got {a.trials}')
     rows = []
     for k in range(a.trials):
-        r = trial(a.victim, a.warmup_bytes, a.timeout)
+        r = trial(a.victim, a.warmup_bytes, a.timeout, a.launcher_arg)
         rows.append(r)
         last = max((v for v in r['lived_s'].values() if v is not None), default=None)
         print(f'trial {k + 1}: {a.victim} killed; survivors gone after '

@@ -9,11 +9,9 @@ import math
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 import rclpy
 
