@@ -15,8 +15,7 @@ Then it waits for the simulator to finish and stops the others (SIGINT; SIGTERM 
 messages: every node waits (at most 5 s: Fast DDS re-sends a lost sample after its next heartbeat,
 every 0.1 s with ``config/fastdds.xml``) for its reliable subscribers to acknowledge what it published
 before it exits, and the recorder, once no publisher is left, takes everything still queued before it
-finishes the bag
-(``--recorder-stop-timeout``, 30 s, between its SIGINT and SIGTERM).
+finishes the bag (``--recorder-stop-timeout``, 30 s, between its SIGINT and SIGTERM).
 It isolates nothing (children inherit ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE).
 
 Waiting: the launcher sleeps until a child exits (one pidfd per child, readable once that process has
@@ -25,8 +24,9 @@ exited) or a signal arrives (``signal.set_wakeup_fd``), so a dead node is seen w
 - A node that exits before the simulator finished (the simulator itself killed by a signal, or any other
   node exiting while the run goes on): "launch: node 'X' died unexpectedly (exit code N | killed by SIG...)",
   then every other node is stopped at once: SIGINT, SIGTERM ``--fault-stop-timeout`` s (0.5) later, SIGKILL
-  as long again after that (a survivor's wait for the acknowledgements of a dead node's readers, which DDS
-  keeps matched until its lease expires, is cut short), the recorder last and as at a normal end (it drains
+  as long again after that (this cuts short a survivor's wait for the acknowledgements of the dead node's
+  readers: they stay matched after its death, and without the SIGTERM a survivor of a killed recorder
+  lingered the whole 5 s of that wait), the recorder last and as at a normal end (it drains
   and finishes the bag). A killed recorder leaves its file without a summary: the launcher names the
   ``scripts/bag recover`` command that rewrites its complete chunks into a finished bag. Exit status 1, after
   "launch: graph stopped T s after node 'X' died".
