@@ -5,7 +5,7 @@ parameters, which have the keys of ``config/controller.yaml`` (defaults from tha
 ``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
 ``mode`` is validated against none | tau | p | both | wbc | hybrid | lambda | all (``controller.MODES``).
 
-IMU (issue 22): with ``use_imu`` (default ``config/graph.yaml``) the node also subscribes to ``/imu``
+IMU: with ``use_imu`` (default ``config/graph.yaml``) the node also subscribes to ``/imu``
 (``sensor_msgs/msg/Imu``, ``biped_sim.graph.imu``; its reader is created before the ``/sim/state`` reader,
 which the simulator's start relies on) and answers a state only once it holds the IMU message of the same
 stamp, whichever of the two arrives first (exact-stamp pairing: the lockstep stays deterministic, nothing
@@ -138,7 +138,7 @@ class ControllerNode(Node):
         self.state_timeout = get_float(self, 'state_timeout', lo=0.0, lo_open=True)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder')
         self.use_imu = get_bool(self, 'use_imu')
-        # /controller/torque and /controller/status as CDR bytes (biped_sim.graph.cdr): issue 20 part 3
+        # /controller/torque and /controller/status as CDR bytes (biped_sim.graph.cdr), as the simulator's
         self.publish_cdr = get_bool(self, 'publish_cdr')
         self._cdr_torque, self._cdr_status = cdr.JointState(), cdr.ControllerStatus()
         desc, family = load_robot_files(self)

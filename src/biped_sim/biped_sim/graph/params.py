@@ -212,8 +212,8 @@ def _spinner(executor) -> Callable[[], None]:
     at most SPIN_SLICE s of waiting). The EventsExecutor: every event for SPIN_SLICE s, through its
     ``spin_until_future_complete`` on a future that never completes (this rclpy's ``spin`` takes no timeout):
     its ``spin_once`` returns after each callback, and the loop's own checks around it (``rclpy.ok``: the
-    context's lock) took 15-20 % of the bridge's thread at 10 messages per millisecond (issue 20 part 3,
-    py-spy). A signal or ``node.done`` is then seen within SPIN_SLICE s."""
+    context's lock) took 15-20 % of the bridge's thread at 10 messages per millisecond (py-spy).
+    A signal or ``node.done`` is then seen within SPIN_SLICE s."""
     from rclpy.executors import SingleThreadedExecutor
     if isinstance(executor, SingleThreadedExecutor):
         return lambda: executor.spin_once(timeout_sec=SPIN_SLICE)

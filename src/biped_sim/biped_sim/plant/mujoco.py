@@ -15,7 +15,7 @@ same clipping as the rigid plant). After ``mj_step`` from t0 to t1 the contact l
 forces are those MuJoCo computed at t0 and applied over [t0, t1] (semi-implicit Euler), so the ground's
 impulse over the step is exactly h x force.
 
-What differs from the rigid plant, by design (issue 24):
+What differs from the rigid plant, by design:
 
 * **Sensed, not declared.** A foot is *loaded* when the normal force of its contacts exceeds
   ``mujoco_touch_threshold``. The swing foot is *armed* once it has stayed unloaded for
@@ -279,7 +279,7 @@ class MujocoPlant(ScheduledPushes):
 
     def observe(self) -> Observation:
         q, qd = self.measured(self.x, self.v, self.stance)
-        pitch = float(self.x[2])          # the IMU (issue 22): the torso's pitch in the world, = q1 + q2 + q3 here
+        pitch = float(self.x[2])          # the IMU: the torso's pitch in the world, = q1 + q2 + q3 here
         rate = float(self.v[2])           # and its gyro's pitch rate
         if self.sensor.identity:
             obs = object.__new__(Observation)     # the fields at once (as StepRecord's)

@@ -1,4 +1,4 @@
-"""Plant perturbations (issue 14): the simulated robot differs from the controller's model.
+"""Plant perturbations: the simulated robot differs from the controller's model.
 
 Pure Python (NumPy, PyYAML), no ROS. Perturbations live in the simulator only: the controller keeps
 the nominal :class:`~biped_sim.robot.description.RobotDescription` (``config/biped.yaml``), while

@@ -63,7 +63,7 @@ def _state_field(name: str, kind):
 
 @dataclass(frozen=True, eq=False)
 class SimSnapshot:
-    """Everything :class:`Simulator` carries from one period to the next (issue 19): a copy of its
+    """Everything :class:`Simulator` carries from one period to the next: a copy of its
     ``sim_state`` array (t, period index, stance, clearance, anchor, x, v), the impacts so far, the fall
     (None while walking) and the push schedule. Impact records are immutable and shared, not copied."""
 
@@ -83,7 +83,7 @@ class Simulator(ScheduledPushes):
     copy them to keep a value); its fixed limits are ``limits`` (``SIM_LIMITS``). The compiled closed loop
     takes the same arrays.
 
-    ``perturbation`` (issue 14, ``biped_sim.plant.perturbation``; None = none): the simulated plant is
+    ``perturbation`` (``biped_sim.plant.perturbation``; None = none): the simulated plant is
     ``perturbation.apply(desc)`` (``self.desc``: masses, centres of mass, inertias, friction of the fall
     checks), ``self.nominal_desc`` is ``desc`` as given (the controller's model); :meth:`observe` returns
     what the sensors report (noise, delay: ``self.sensor``) while every record keeps the true state."""
