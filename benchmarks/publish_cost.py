@@ -37,6 +37,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
 from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
 

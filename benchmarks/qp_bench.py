@@ -50,6 +50,7 @@ from pathlib import Path
 from time import perf_counter_ns
 
 import numpy as np
+
 from biped_controller.studies import provenance
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -20,10 +20,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
 from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def bench_sweep(quick: bool) -> dict:

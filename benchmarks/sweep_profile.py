@@ -19,6 +19,7 @@ import os
 import sys
 import time
 from pathlib import Path
+
 from biped_controller.studies import provenance
 
 

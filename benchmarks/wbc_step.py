@@ -30,6 +30,7 @@ from pathlib import Path
 from time import perf_counter_ns
 
 import numpy as np
+
 from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
 

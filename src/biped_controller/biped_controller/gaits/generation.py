@@ -22,7 +22,6 @@ from biped_sim.robot.floating import impact_paper
 from biped_sim.robot.gait_family import SPLINE, GaitFamily, fit_family, fit_spline_family
 from biped_controller.gaits.optimizer import GaitSettings, StepOptimizer, StepSolution, basis, load_gait_settings
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES, relabel
-from biped_controller.studies import provenance
 
 
 
@@ -485,7 +484,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="write the validation figures as JSON")
     ap.add_argument("--out", type=Path, default=default_config_dir() / "gait_family.json")
     args = ap.parse_args(argv)
-    provenance.track(args.json, args=args, argv=argv)   # record of each file written (results/README.md)
     st = load_gait_settings(args.settings) if args.settings else load_gait_settings()
     if args.refit:
         data = refit(args.out, args.settings)
