@@ -29,8 +29,8 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.estimation import Estimate
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.sensing.estimation import Estimate
 
 REAL = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
             sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 def profile(phases: int) -> dict:
     from biped_sim.plant import rigid
-    from biped_controller.core import controller as C
+    from biped_controller.core.control import controller as C
     from biped_controller.studies import capability_map as cm, experiment, runner, segment
 
     acc: dict[str, list] = {}

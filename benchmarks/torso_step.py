@@ -40,7 +40,7 @@ def main(argv=None) -> int:
                     help="[N] the push of mode lambda's own run (lambda_own); default its boundary at the paper's cell")
     ap.add_argument("--json", type=Path, default=Path(__file__).with_name("torso_step_results.json"))
     a = ap.parse_args(argv)
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
     from biped_sim.robot.description import LEFT, load_description

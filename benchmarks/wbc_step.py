@@ -43,8 +43,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=Path(__file__).with_name("wbc_step_results.json"))
     ap.add_argument("--results", type=Path, default=Path(__file__).with_name("results.json"))
     a = ap.parse_args(argv)
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
-    from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
     from biped_sim.robot.description import load_description

@@ -17,9 +17,9 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.estimation_layout import SC_
-from biped_controller.core.model_error import (LEG_PARAMETERS, CompiledLegRegressor, LegRegressor,
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.sensing.pipeline_layout import SC_
+from biped_controller.core.sensing.model_error import (LEG_PARAMETERS, CompiledLegRegressor, LegRegressor,
                                                 RneaLegRegressor, body_combination)
 
 DESC = load_description()

@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biped_controller.core import qp_exact
-from biped_controller.core.qp import load_qp_fast
-from biped_controller.core import qp_types
-from biped_controller.core.controller import QP_ROWS
+from biped_controller.core.qp import exact as qp_exact
+from biped_controller.core.qp.solver import load_qp_fast
+from biped_controller.core.qp import problem as qp_types
+from biped_controller.core.control.controller import QP_ROWS
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS
-from biped_controller.core.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
-from biped_controller.core.qp_types import constraint_values, kkt_residuals
+from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
+from biped_controller.core.qp.problem import constraint_values, kkt_residuals
 
 from test_qp import rand_feasible, rand_infeasible, rand_W, scale
 
@@ -461,7 +461,7 @@ def test_adaptation_qp_solvers_on_real_instances(real_instances):
 
 
 def _import_qp_fast(env):
-    code = ("import numba; from biped_controller.core.qp import load_qp_fast; load_qp_fast(); "
+    code = ("import numba; from biped_controller.core.qp.solver import load_qp_fast; load_qp_fast(); "
             "print(numba.config.CACHE_DIR)")
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
 

@@ -23,8 +23,8 @@ from biped_sim.robot.layout import Layout, LayoutError
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_sim.plant.rigid_layout import S_, SIM_STATE
-from biped_controller.core.controller import AdaptiveController, load_control_kernels, load_controller_config
-from biped_controller.core.period_layout import (
+from biped_controller.core.control.controller import AdaptiveController, load_control_kernels, load_controller_config
+from biped_controller.core.control.controller_layout import (
     CONS, GAINS, M_, MEMORY, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, R_, RES, WORK)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -250,18 +250,18 @@ def test_kernel_modules_import_without_side_effects(tmp_path):
     imported directly (not through numba_cache.load) refuses instead of caching in a stray place."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     code = ("import os, sys, numba\n"
-            "import biped_sim.robot.fast_engine, biped_sim.plant.rigid, biped_controller.core.controller\n"
-            "import biped_controller.core.qp, biped_controller.studies.segment, biped_controller.studies.runner\n"
-            "import biped_controller.core.model_error\n"
-            "kern = [m for m in ('biped_sim.robot.planar_kernels', 'biped_controller.core.qp_fast',\n"
-            "        'biped_controller.core.control_kernels', 'biped_controller.core.wbc_kernels',\n"
-            "        'biped_controller.studies.loop_kernels', 'biped_controller.core.model_error_kernels')\n"
+            "import biped_sim.robot.fast_engine, biped_sim.plant.rigid, biped_controller.core.control.controller\n"
+            "import biped_controller.core.qp.solver, biped_controller.studies.segment, biped_controller.studies.runner\n"
+            "import biped_controller.core.sensing.model_error\n"
+            "kern = [m for m in ('biped_sim.robot.planar_kernels', 'biped_controller.core.qp.exact_kernels',\n"
+            "        'biped_controller.core.control.controller_kernels', 'biped_controller.core.control.wbc_kernels',\n"
+            "        'biped_controller.studies.loop_kernels', 'biped_controller.core.sensing.model_error_kernels')\n"
             "        if m in sys.modules]\n"
             "print(kern, 'NUMBA_CACHE_DIR' in os.environ, repr(numba.config.CACHE_DIR))\n")
     out = _python(code, env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[] False ''" and out.stderr == ""
-    for mod in ("biped_sim.robot.planar_kernels", "biped_controller.core.model_error_kernels"):
+    for mod in ("biped_sim.robot.planar_kernels", "biped_controller.core.sensing.model_error_kernels"):
         direct = _python(f"import {mod}", env)
         assert direct.returncode != 0 and "CacheNotConfigured" in direct.stderr and "numba_cache.load" in direct.stderr
     # through load: the repository's cache, nothing printed when it is warm (setup compiled it)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from helpers import assert_same_fields, assert_same_run, count_compiled_periods
-from biped_controller.core import controller as C
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.period_layout import G_, TORSO_QP_ROWS
-from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
+from biped_controller.core.control import controller as C
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.controller_layout import G_, TORSO_QP_ROWS
+from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.studies import runner, segment
 from biped_sim.plant.push import Push
 from biped_sim.robot.gait_family import torso_profile
@@ -160,7 +160,7 @@ def test_begin_advances_lambda_exactly_and_commit_keeps_it():
     lambda does not); lambda'' and lambda''* of the new period start at 0; period_commit stores lambda, lambda'
     and the period's lambda''. Negative control: before any decision nothing advances."""
     from fractions import Fraction
-    from biped_controller.core.period_layout import M_, MEMORY, R_, RES, WORK
+    from biped_controller.core.control.controller_layout import M_, MEMORY, R_, RES, WORK
     ck = C.load_control_kernels()
     mem = MEMORY.new()
     mem[M_.p:M_.p + 6] = (0.4, 0.0, 0.2, 1.0, 0.0, 0.0)

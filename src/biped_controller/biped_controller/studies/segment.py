@@ -17,11 +17,11 @@ from biped_sim.robot.floating import PAPER_FROM_URDF
 from biped_sim.plant.records import StepRecord
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import (
+from biped_controller.core.control.controller import (
     CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
     WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
-from biped_controller.core.period_layout import RES, WORK
-from biped_controller.core.qp_types import UNCONSTRAINED
+from biped_controller.core.control.controller_layout import RES, WORK
+from biped_controller.core.qp.problem import UNCONSTRAINED
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 

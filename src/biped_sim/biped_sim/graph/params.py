@@ -19,7 +19,7 @@ import signal
 import time
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, Iterable, Optional, Sequence
+from typing import Any, Callable, Sequence
 
 import yaml
 

@@ -1,5 +1,5 @@
 """The family of reference trajectories q_d(p, tau) (paper eqs. 12-14) and its partial derivatives,
-and its extension by a third parameter, the torso offset lambda (issue 21: ``with_torso``, ``eq11_torso``).
+and its extension by a third parameter, the torso offset lambda (``with_torso``, ``eq11_torso``).
 
 Pure Python (NumPy), no ROS. An asset of the robot that both sides use: the simulator takes its initial
 state from it, the controller its reference (hence it lives in ``biped_sim``, which the controller
@@ -70,7 +70,7 @@ def eq11(g: GaitSample, p_dot: float, tau_dot: float, p_ddot: float = 0.0, tau_d
     return g.q, qd, qdd
 
 
-# ---------------------------------------------------------------------- the torso parameter lambda (issue 21)
+# ---------------------------------------------------------------------- the torso parameter lambda
 #: dq/dlambda per unit profile: the torso's absolute pitch q1 + q2 + q3 changes by lambda phi, the stance
 #: thigh's (q1 + q2) and the swing thigh's (q1 + q2 + q3 + q4) absolute angles do not: q3 += lambda phi
 #: (torso w.r.t. stance thigh), q4 -= lambda phi (swing thigh w.r.t. torso). Paper order q1..q6.
