@@ -328,8 +328,8 @@ def ratios(group: dict) -> dict:
 
 
 def run_bench(forces=(250.0, 600.0), modes=("both",), repeats: int = 30, instances: Path | None = None) -> dict:
-    from biped_controller.core.qp.solver import load_qp_fast
-    load_qp_fast()   # compiles or loads the kernels before any timing
+    from biped_controller.core.qp.solver import load_exact_kernels
+    load_exact_kernels()   # compiles or loads the kernels before any timing
     if instances is not None and Path(instances).exists():
         inst = load_instances(Path(instances))
         log(f"loaded {len(inst)} instances from {instances}")

@@ -20,7 +20,7 @@ from biped_sim.plant.perturbation import PlantPerturbation
 
 from biped_controller.core.sensing import momentum_observer as mom
 from biped_controller.core.control.controller import AdaptiveController, load_controller_config
-from biped_controller.core.sensing.pipeline_compiled import CompiledSensing, load_estimation_kernels
+from biped_controller.core.sensing.pipeline_compiled import CompiledSensing, load_pipeline_kernels
 from biped_controller.core.sensing.pipeline_layout import SENS
 from biped_controller.core.control.controller_layout import G_
 
@@ -44,7 +44,7 @@ def test_momentum_terms_against_pinocchio():
     """A, B, H, beta = g - C^T q' (g and the kinetic energy's gradient in closed form) and the torso wrench Jacobian
     against Pinocchio at seeded random states; negative control: g - C q' (Coriolis matrix not transposed)
     is a different vector at the same states."""
-    ek = load_estimation_kernels()
+    ek = load_pipeline_kernels()
     fast = FastFixedFootModel(DESC)
     terms = mom.MomentumTerms(DESC)
     rng = np.random.default_rng(7)
@@ -163,7 +163,7 @@ def test_predictor_pieces_against_python():
     from biped_sim.robot.floating import FloatingModel
     from biped_sim.robot.fixed_foot import relabel
     from biped_controller.core.sensing.predictor import DelayPredictor, flat_foot_impact
-    ek = load_estimation_kernels()
+    ek = load_pipeline_kernels()
     fast = FastFixedFootModel(DESC)
     fm = FloatingModel(DESC)
     dp = DelayPredictor(DESC, 2, 2, 1e-3, 1e-8, 1e-4, 1e-9)

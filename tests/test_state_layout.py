@@ -23,7 +23,7 @@ from biped_sim.robot.layout import Layout, LayoutError
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_sim.plant.rigid_layout import S_, SIM_STATE
-from biped_controller.core.control.controller import AdaptiveController, load_control_kernels, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, load_controller_kernels, load_controller_config
 from biped_controller.core.control.controller_layout import (
     CONS, GAINS, M_, MEMORY, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, R_, RES, WORK)
 
@@ -52,7 +52,7 @@ def test_every_layout_tiles_its_array(layout):
 
 def test_numba_reads_the_offsets_as_the_python_side_does():
     """The compiled commit writes the memory fields where the Python properties read them."""
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     mem, res, work, qd = MEMORY.new(), np.arange(RES.size, dtype=float) + 0.5, np.zeros((WORK.size, 6)), np.arange(6.0)
     work[WORK.at.w] = 7.0
     work[WORK.at.A:WORK.at.A + 6] = np.arange(36.0).reshape(6, 6)
@@ -75,7 +75,7 @@ def _memory(decided: bool, stance: int) -> np.ndarray:
 def test_begin_is_the_exact_advance_over_the_elapsed_nanoseconds():
     """p(h) = p + p' h + p'' h^2 / 2, p'(h) = p' + p'' h (tau likewise) with h from integer nanoseconds,
     against exact rational arithmetic; the memory is not changed."""
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     t = 1.0 + 1234567e-9
     mem = _memory(True, LEFT)
     before = mem.copy()
@@ -93,7 +93,7 @@ def test_begin_is_the_exact_advance_over_the_elapsed_nanoseconds():
 
 
 def test_begin_restarts_the_phase_at_an_impact_and_keeps_the_estimate():
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     res_same, res_new = np.empty(RES.size), np.empty(RES.size)
     ck.begin(_memory(True, LEFT), 1.001, LEFT, res_same)
     ck.begin(_memory(True, LEFT), 1.001, RIGHT, res_new)
@@ -103,7 +103,7 @@ def test_begin_restarts_the_phase_at_an_impact_and_keeps_the_estimate():
 
 
 def test_begin_before_any_decision_leaves_the_parameters():
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     mem = _memory(False, LEFT)
     res = np.empty(RES.size)
     ck.begin(mem, 5.0, LEFT, res)

@@ -37,7 +37,7 @@ def _compiled(monkeypatch, **kw):
 
 
 def test_compiled_torso_profile_is_the_gait_familys():
-    ck = C.load_control_kernels()
+    ck = C.load_controller_kernels()
     for s in (-0.1, 0.0, 1e-9, 0.13, 0.5, 0.77, 1.0 - 1e-12, 1.0, 1.4):
         assert ck.torso_profile(s) == torso_profile(s), s
 
@@ -161,7 +161,7 @@ def test_begin_advances_lambda_exactly_and_commit_keeps_it():
     and the period's lambda''. Negative control: before any decision nothing advances."""
     from fractions import Fraction
     from biped_controller.core.control.controller_layout import M_, MEMORY, R_, RES, WORK
-    ck = C.load_control_kernels()
+    ck = C.load_controller_kernels()
     mem = MEMORY.new()
     mem[M_.p:M_.p + 6] = (0.4, 0.0, 0.2, 1.0, 0.0, 0.0)
     mem[M_.lam], mem[M_.lam_dot], mem[M_.lam_ddot] = 0.0123, -0.456, 7.89

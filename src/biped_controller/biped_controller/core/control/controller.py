@@ -91,29 +91,29 @@ MSG_NO_ADAPTATION = "mode none: classical computed torque"
 MSG_FIXED_REFERENCE = {"none": MSG_NO_ADAPTATION, "wbc": "mode wbc: fixed reference, whole-body QP on w"}
 MSG_X_STAR_FEASIBLE = "x* feasible"
 
-CONTROL_KERNELS = "biped_controller.core.control.controller_kernels"
+CONTROLLER_KERNELS = "biped_controller.core.control.controller_kernels"
 # what the compiled period is compiled against besides its own source (kernels it calls, offsets it reads)
-CONTROL_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
+CONTROLLER_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
                            "biped_sim.robot.gait_family",
                            "biped_controller.core.control.controller_layout", "biped_controller.core.qp.problem",
                            "biped_controller.core.qp.exact_kernels")
 
 
 WBC_KERNELS = "biped_controller.core.control.wbc_kernels"
-WBC_KERNELS_SOURCES = CONTROL_KERNELS_SOURCES + (CONTROL_KERNELS,)
+WBC_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS,)
 
 
 def load_wbc_kernels():
     """The compiled whole-body stage (``wbc_kernels``, modes wbc and hybrid) through ``numba_cache.load``."""
-    load_control_kernels()
+    load_controller_kernels()
     return numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
 
 
-def load_control_kernels():
+def load_controller_kernels():
     """The compiled control period (``controller_kernels``), through ``numba_cache.load``: its ``begin`` and
     ``commit`` are the one home of the parameter advance, the observer's mode and the period's commit, for
     the compiled period and the Python steps alike."""
-    return numba_cache.load(CONTROL_KERNELS, sources=CONTROL_KERNELS_SOURCES)
+    return numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
 
 
 class ControllerConfigError(ValueError):
@@ -423,7 +423,7 @@ class AdaptiveController:
         self.desc = desc if desc is not None else load_description()
         self.family = family if family is not None else GaitFamily.load()
         self.model = FixedFootModel(self.desc)
-        self.ck = load_control_kernels()
+        self.ck = load_controller_kernels()
         self._fast = None
         self._kernel = None
         if self.cfg.engine == "fast":

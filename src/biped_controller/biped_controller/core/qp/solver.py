@@ -192,16 +192,16 @@ def least_violation(G, h, x_star, W, eps_reg: float = DEFAULT_EPS_REG, active_to
     return finish_result(x, G, h, INFEASIBLE_FALLBACK, violation_message(G, h, x, prefix), active_tol, it)
 
 
-QP_FAST = "biped_controller.core.qp.exact_kernels"
-QP_FAST_SOURCES = ("biped_controller.core.qp.problem",)
+EXACT_KERNELS = "biped_controller.core.qp.exact_kernels"
+EXACT_KERNELS_SOURCES = ("biped_controller.core.qp.problem",)
 
 
-def load_qp_fast():
+def load_exact_kernels():
     """The compiled QP kernels (``exact_kernels``), loaded through ``numba_cache.load`` when a solver is built,
     not by users of the constants."""
     from biped_sim.robot import numba_cache
 
-    return numba_cache.load(QP_FAST, sources=QP_FAST_SOURCES)
+    return numba_cache.load(EXACT_KERNELS, sources=EXACT_KERNELS_SOURCES)
 
 
 
@@ -225,7 +225,7 @@ def polish(G, h, x_star, W, z, x, feas_rtol: float = DEFAULT_FEAS_RTOL):
         raise QPShapeError(f"z {z.shape} / x {x.shape} do not match h {h.shape} / x_star {x_star.shape}")
     m, n = G.shape
     xp, zp, active = np.empty(n), np.empty(m), np.empty(m, dtype=bool)
-    mv = load_qp_fast().polish(G, h, x_star, W, z, np.arange(m, dtype=np.int64), x, float(feas_rtol), DEFAULT_ACTIVE_TOL,
+    mv = load_exact_kernels().polish(G, h, x_star, W, z, np.arange(m, dtype=np.int64), x, float(feas_rtol), DEFAULT_ACTIVE_TOL,
                         xp, zp, active)
     return (xp, zp) if mv == mv else None
 
@@ -301,7 +301,7 @@ class AdaptationQP:
             raise ValueError(f"fallback must be 'exact' (n <= 2) or 'piqp', got {fallback!r} with n={n}")
         if not (screen_eps > 0.0):
             raise ValueError(f"screen_eps must be > 0, got {screen_eps}")
-        self._k = load_qp_fast()
+        self._k = load_exact_kernels()
         self.n, self.m = int(n), int(m)
         self.solver_name = solver
         self.active_tol = float(active_tol)

@@ -42,17 +42,17 @@ from biped_controller.core.sensing.touchdown_band import (TouchdownBand, in_band
                                                   lever_bound, sigma_bound, sole_rate,
                                                   sole_height_std)
 
-ESTIMATION_KERNELS = "biped_controller.core.sensing.pipeline_kernels"
-ESTIMATION_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
+PIPELINE_KERNELS = "biped_controller.core.sensing.pipeline_kernels"
+PIPELINE_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
                               "biped_sim.robot.layout", "biped_controller.core.sensing.pipeline_layout",
                               "biped_controller.core.sensing.model_error_kernels")
 
 
-def load_estimation_kernels():
+def load_pipeline_kernels():
     """``pipeline_kernels`` through ``numba_cache.load`` (cache kept with its dependencies; the model-error
     kernels it calls loaded first through their own loader)."""
     load_model_error_kernels()
-    return numba_cache.load(ESTIMATION_KERNELS, sources=ESTIMATION_KERNELS_SOURCES)
+    return numba_cache.load(PIPELINE_KERNELS, sources=PIPELINE_KERNELS_SOURCES)
 
 
 class SensingSingular(FloatingPointError):
@@ -94,7 +94,7 @@ class CompiledSensing:
                  torque_min: np.ndarray, torque_max: np.ndarray):
         self.d = int(cfg.delay_compensation)
         self.at_once = bool(cfg.predictor_touchdown_at_once)
-        self.ek = load_estimation_kernels()
+        self.ek = load_pipeline_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
         est = estimator_config(cfg)
