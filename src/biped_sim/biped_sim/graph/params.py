@@ -26,6 +26,8 @@ import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
+from biped_sim.robot.finite import finite_number
+
 EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
 SPIN_SLICE = 0.1    # s between two looks of run_node at its stop conditions (signal, node.done, context)
@@ -87,8 +89,7 @@ def get_float(node: Node, name: str, default: float | None = None, *, lo: float 
     v = float(v)
     if math.isnan(v) and allow_nan:
         return v
-    if not math.isfinite(v):
-        raise ParameterError(name, f"must be finite, got {v}")
+    finite_number(v, name, error=lambda m: ParameterError(name, m), message=f"must be finite, got {v}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
         raise ParameterError(name, f"must be {'>' if lo_open else '>='} {lo}, got {v}")
     if hi is not None and v > hi:

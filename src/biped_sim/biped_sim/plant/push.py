@@ -77,8 +77,8 @@ class PushLimits:
                 raise ValueError(f'{name} must be a number > 0, got {v!r}')
         finite_number(self.torso_length, 'torso_length', message=f'torso_length must be finite, got {self.torso_length!r}')
         h = self.default_height
-        if not (isinstance(h, (int, float)) and math.isfinite(h) and 0.0 <= h <= self.torso_length):
-            raise ValueError(f'default_height must be within [0, {self.torso_length}] m, got {h!r}')
+        finite_number(h, 'default_height', at_least=0.0, at_most=self.torso_length,
+                      message=f'default_height must be within [0, {self.torso_length}] m, got {h!r}')
 
 
 def _is_number(v) -> bool:

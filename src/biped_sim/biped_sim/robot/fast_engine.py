@@ -17,7 +17,6 @@ says so on stderr. Importing this module compiles nothing.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -26,7 +25,7 @@ import numpy as np
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_abi as abi
 from biped_sim.robot.description import RobotDescription, load_description
-from biped_sim.robot.finite import finite_number
+from biped_sim.robot.finite import finite_array, finite_number
 from biped_sim.robot.floating import ContactSolution, FloatingModel, ImpactResult, SimulationError
 
 PX, PZ, REV = abi.PX, abi.PZ, abi.REV
@@ -90,8 +89,10 @@ class PlanarTree:
                 raise TreeError(f"joint {k} '{j.name}': kind must be PX, PZ or REV, got {j.kind!r}")
             if not -1 <= j.parent < k:
                 raise TreeError(f"joint {k} '{j.name}': parent must be in [-1, {k - 1}], got {j.parent}")
-            if len(j.offset) != 2 or not all(math.isfinite(o) for o in j.offset):
-                raise TreeError(f"joint {k} '{j.name}': offset must be two finite numbers, got {j.offset!r}")
+            message = f"joint {k} '{j.name}': offset must be two finite numbers, got {j.offset!r}"
+            if len(j.offset) != 2:
+                raise TreeError(message)
+            finite_array(j.offset, "offset", error=TreeError, message=message)
         if not self.bodies:
             raise TreeError("tree has no body")
         for b in self.bodies:
@@ -101,8 +102,10 @@ class PlanarTree:
                           message=f"body '{b.name}': mass must be > 0 kg, got {b.mass}")
             finite_number(b.inertia, "inertia", at_least=0, error=TreeError,
                           message=f"body '{b.name}': inertia must be >= 0 kg m^2, got {b.inertia}")
-            if len(b.com) != 2 or not all(math.isfinite(c) for c in b.com):
-                raise TreeError(f"body '{b.name}': com must be two finite numbers, got {b.com!r}")
+            message = f"body '{b.name}': com must be two finite numbers, got {b.com!r}"
+            if len(b.com) != 2:
+                raise TreeError(message)
+            finite_array(b.com, "com", error=TreeError, message=message)
         for what, k in (("push_joint", self.push_joint), ("feet[0]", self.feet[0]), ("feet[1]", self.feet[1])):
             if not 0 <= k < nj:
                 raise TreeError(f"{what} must be a joint index in [0, {nj - 1}], got {k}")

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from biped_sim.robot.finite import finite_array
 from biped_sim.robot.settings import default_config_dir
 
 SPLINE = "cubic_spline_in_p"
@@ -163,8 +164,8 @@ class GaitFamily:
 
     def _setup(self, representation: str, coef: np.ndarray, centers: np.ndarray, inner: list[float], T: float,
                p_d: float, p_min: float, p_max: float, meta: dict | None) -> None:
-        if not np.all(np.isfinite(coef)):
-            raise GaitFamilyError("gait family: coefficients contain non-finite values")
+        finite_array(coef, "coefficients", error=GaitFamilyError,
+                     message="gait family: coefficients contain non-finite values")
         if not (p_min <= p_d <= p_max) or not T > 0:
             raise GaitFamilyError(f"gait family: need p_min <= p_d <= p_max and T > 0 (got {p_min}, {p_d}, {p_max}, {T})")
         self.representation = representation
