@@ -1,4 +1,4 @@
-"""The compiled sensing pipeline (issue 22): ``estimation_kernels`` against the Python cores and Pinocchio.
+"""The compiled sensing pipeline (issue 22): ``pipeline_kernels`` against the Python cores and Pinocchio.
 
 Oracles: Pinocchio's A(q), B, g(q) - C(q, q')^T q' (``momentum_observer.MomentumTerms``) and torso Jacobian
 for the observer's model terms; the Python pipeline (``pipeline.SensingPipeline``: ``JointStateEstimator``,

@@ -1,6 +1,6 @@
-"""Tests of the compiled QP kernels (qp_fast) and of AdaptationQP's paths through them.
+"""Tests of the compiled QP kernels (``qp.exact_kernels``, here ``qp_fast``) and of AdaptationQP's paths through them.
 
-References: the numpy exact solver qp_exact (the oracle the kernels must reproduce), KKT residuals
+References: the numpy exact solver ``qp.exact`` (the oracle the kernels must reproduce), KKT residuals
 (qp_types.kkt_residuals, scipy NNLS for multipliers), exact rational arithmetic (fractions) for the
 feasibility decision, numpy.linalg.lstsq. Instances: seeded random ones (17 and 37 rows, feasible,
 infeasible, degenerate) and the controller's own, recorded from short pushed runs (37 rows).

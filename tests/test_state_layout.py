@@ -1,6 +1,6 @@
 """One state layout (issue 23): the controller's and the simulator's per-period state are array-backed records
 declared once (``robot.layout.Layout``), the objects keep their state in them and the compiled kernels take
-the same arrays; the one home of the parameter advance and the observer's mode (``control_kernels.begin``)
+the same arrays; the one home of the parameter advance and the observer's mode (``controller_kernels.begin``)
 against closed forms; the mends (reset clears the decision, the torque within a period before any decision);
 the typed floating-base model; kernel modules import without side effects."""
 from __future__ import annotations

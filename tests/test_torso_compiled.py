@@ -1,5 +1,5 @@
 """The torso parameter lambda (issue 21) on the compiled paths: the compiled controller period
-(``control_kernels``, modes lambda and all) against the controller's own Python steps, and the compiled
+(``controller_kernels``, modes lambda and all) against the controller's own Python steps, and the compiled
 closed loop (``segment`` + ``loop_kernels``) against the objects, over a walk, pushes that make the QP
 active (and one whose QP has no answer: the least-violation answer and the torso's hold) and a fall."""
 from __future__ import annotations
@@ -63,7 +63,7 @@ def test_torso_modes_have_a_compiled_period_and_the_compiled_loop():
 @pytest.mark.parametrize("mode", ["all", "lambda"])
 @pytest.mark.parametrize("case", list(CASES))
 def test_compiled_torso_period_matches_its_python_steps(monkeypatch, mode, case):
-    """control_kernels.step with the third column against the Python steps on the same compiled model
+    """controller_kernels.step with the third column against the Python steps on the same compiled model
     terms: the same QP status every period and the same run to 1e-9 (relative), lambda fields included."""
     kw = dict(steps=2, mode=mode, pushes=CASES[case])
     fast = _compiled(monkeypatch, **kw)
