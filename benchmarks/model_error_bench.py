@@ -1,4 +1,4 @@
-"""Cost of the legs' model-error estimator (issue 22, ``core/model_error.py``): ``AdaptiveController.compute``
+"""Cost of the legs' model-error estimator (issue 22, ``core/sensing/model_error.py``): ``AdaptiveController.compute``
 per call, the compiled step with the compiled sensing pipeline, p50/p99 after the first 50 periods, side by
 side in one run. Each case's observations come from its own closed loop on the rigid plant (1 s); they are
 then replayed through a fresh controller of every case, the cases in turn by blocks of ``BLOCK`` periods
@@ -42,8 +42,8 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.model_error import CompiledLegRegressor, LegRegressor, RneaLegRegressor
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.sensing.model_error import CompiledLegRegressor, LegRegressor, RneaLegRegressor
 from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
 

@@ -97,7 +97,6 @@ def _makers(rng: random.Random):
     x = [rng.uniform(-1, 1) for _ in range(9)]
     q6 = [rng.uniform(-1, 1) for _ in range(6)]
     sec, ns = 3, 141_000_000
-    stamp = Time(sec=sec, nanosec=ns)
     ss_enc, js_enc, st_enc = cdr.SimState(), cdr.JointState(), cdr.ControllerStatus()
     wr_enc, pt_enc = cdr.Stamped('WrenchStamped', 6), cdr.Stamped('PointStamped', 3)
     imu_enc = cdr.Imu('torso')

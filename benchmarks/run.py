@@ -23,13 +23,12 @@ import platform
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from time import perf_counter_ns
 
 import numpy as np
 
-from biped_controller.core.controller import QP_ROWS
+from biped_controller.core.control.controller import QP_ROWS
 from biped_controller.studies import provenance
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,7 +131,7 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     now inside those (reported as 0).
     Passes repeat the recording until >= min_steps steps each.
     """
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     from biped_sim.robot.gait_family import GaitFamily
     from biped_sim.robot.description import LEFT, load_description
     from biped_sim.plant.config import load_sim_config
@@ -249,8 +248,8 @@ SOLVER_KW = {
 
 
 def _solvers(W):
-    from biped_controller.core.qp import AdaptationQP, solve_with_qpsolvers
-    from biped_controller.core.qp_exact import solve_exact
+    from biped_controller.core.qp.solver import AdaptationQP, solve_with_qpsolvers
+    from biped_controller.core.qp.exact import solve_exact
 
     held = AdaptationQP(len(W), QP_ROWS, W)   # the controller's production object
     out = {
@@ -264,7 +263,7 @@ def _solvers(W):
 
 
 def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
-    from biped_controller.core.qp_exact import solve_exact
+    from biped_controller.core.qp.exact import solve_exact
 
     constrained, unconstrained, forces = [], 0, set()
     for F, (G, h, xs, _status) in instances:
@@ -319,7 +318,7 @@ def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
         p = table[n]["p50"]
         table[n]["ratio_to_fastest"] = (p / table[fastest]["p50"]) if (fastest and p) else None
     # unconstrained instances: what the production object costs when x* is feasible (no solver call)
-    from biped_controller.core.qp import AdaptationQP
+    from biped_controller.core.qp.solver import AdaptationQP
     held = AdaptationQP(len(W), QP_ROWS, W)
     un_t = []
     k = 0
@@ -417,7 +416,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     """In-process closed loop (runner.run), sim time / wall time, per engine and mode, the engines
     interleaved in the same run (the machine's speed varies: compare ratios). The first fast run of a
     process loads the compiled kernels: a warm-up run of each engine comes first and is not timed."""
-    from biped_controller.core.controller import load_controller_config
+    from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies.runner import run
     from biped_sim.plant.config import load_sim_config
 
@@ -747,7 +746,7 @@ def main(argv=None) -> int:
     R = {"meta": {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "quick": quick, "cpus": os.cpu_count(),
                   "machine": platform.processor() or platform.machine(), "python": platform.python_version()},
          "targets": TARGETS}
-    from biped_controller.core.controller import load_controller_config
+    from biped_controller.core.control.controller import load_controller_config
     log("0. searching the hard run (largest surviving push, mode both)")
     hard = find_hard_run(quick)
     steps = 1 if quick else 22

@@ -25,7 +25,7 @@ from biped_controller.studies import provenance
 
 def profile(phases: int) -> dict:
     from biped_sim.plant import rigid
-    from biped_controller.core import controller as C
+    from biped_controller.core.control import controller as C
     from biped_controller.studies import capability_map as cm, experiment, runner, segment
 
     acc: dict[str, list] = {}

@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=RESULTS_DIR / "torso_step.json")
     a = ap.parse_args(argv)
     provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
     from biped_sim.robot.description import LEFT, load_description

@@ -47,8 +47,8 @@ def main(argv=None) -> int:
     ap.add_argument("--results", type=Path, default=RESULTS_DIR / "results.json")
     a = ap.parse_args(argv)
     provenance.track(a.json, a.results, argv=argv)   # record of each file written (results/README.md)
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
-    from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
     from biped_sim.robot.description import load_description

@@ -19,7 +19,7 @@ from helpers import assert_close, central_diff
 
 from biped_controller.studies import capability_map as cm
 from biped_controller.studies import experiment
-from biped_controller.core.period_layout import M_, MEMORY
+from biped_controller.core.control.controller_layout import M_, MEMORY
 from biped_sim.robot.description import load_description
 from biped_sim.robot.floating import FloatingModel
 

@@ -20,7 +20,7 @@ import pytest
 import helpers
 from biped_controller.studies import experiment as ex
 from biped_controller.studies import runner
-from biped_controller.core.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfigError, load_sim_config
 

@@ -425,7 +425,7 @@ def test_relative_push_requests_accepted_under_a_busy_graph(ros_domain, tmp_path
     soak under load; the service's time is known exactly from its answer: scheduled_start - delay)."""
     from biped_sim.graph.push_client import call_apply_push
     from biped_sim.graph.soak import push_delay
-    from biped_sim.graph.bag_summary import analyze_bag
+    from biped_sim.recording.bag_summary import analyze_bag
 
     g = _UnpacedGraph(tmp_path, 'busy_probe')
     answers = []
@@ -471,7 +471,7 @@ def test_a_recorder_that_lags_at_the_stop_still_gets_everything(ros_domain, tmp_
     Negative control: the same analysis flags a bag cut short (the stamps of /clock beyond /sim/state)."""
     from biped_sim.graph import names as gn
     from biped_sim.graph.push_client import call_apply_push
-    from biped_sim.graph.bag_summary import analyze_bag
+    from biped_sim.recording.bag_summary import analyze_bag
     from biped_sim.recording.bag_reader import find_mcap
 
     g = _UnpacedGraph(tmp_path, 'lag_probe')

@@ -1,5 +1,5 @@
 """Issue 22, model error: the momentum observer against the true generalized force of an inertia error, and the
-legs' model-error estimator (``core/model_error.py``): its regressor against the plant's own dynamics, its
+legs' model-error estimator (``core/sensing/model_error.py``): its regressor against the plant's own dynamics, its
 identification in noise-free closed loops, its compiled-pipeline twin, its settings."""
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from biped_sim.robot.description import load_description
 from biped_sim.robot.fixed_foot import FixedFootModel
 from biped_sim.plant.perturbation import PlantPerturbation
 
-from biped_controller.core.controller import ControllerConfigError, load_controller_config
-from biped_controller.core.model_error import (LEG_PARAMETERS, LINK_JOINTS, LegModelError, LegRegressor,
+from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.sensing.model_error import (LEG_PARAMETERS, LINK_JOINTS, LegModelError, LegRegressor,
                                                 ModelErrorConfigError, RneaLegRegressor, _bumped,
                                                 load_model_error_kernels, parameter_bumps, prior_std)
 from biped_sim.robot.fixed_foot import relabel
@@ -337,7 +337,7 @@ def _theta_track(monkeypatch, t_end, perturbation, **extra):
     """A closed loop (compiled pipeline) keeping the estimator's (theta, P) after every sample: from
     ``LegModelError.update`` when the estimator runs in Python after the compiled call (the reference
     regressor), from the pipeline's state after each sample when it runs inside the call (the measured one)."""
-    from biped_controller.core.estimation_compiled import CompiledSensing
+    from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
     hist = []
     orig, orig_sense = LegModelError.update, CompiledSensing.sense
 
@@ -383,7 +383,7 @@ def test_theta_unbiased_under_noise_on_the_nominal_plant(monkeypatch):
 def test_a_held_sample_leaves_theta_and_P_unchanged():
     """Within the settling time the RLS gets a residual variance of HOLD_VARIANCE: theta and P stay bit for bit
     while the filtered regressor still runs; the first sample after it updates them (negative control)."""
-    from biped_controller.core.momentum_observer import Wrench
+    from biped_controller.core.sensing.momentum_observer import Wrench
     me = LegModelError(DESC, 50.0, 0.2, 0.2, 0.5, regressor_input="measured", settle=3.0)
     rng = np.random.default_rng(7)
     q, qd, a = next(_states(1, 5))
@@ -416,7 +416,7 @@ def test_reference_at_is_the_controllers_reference():
     assert np.abs((hi[1] - lo[1]) / (2 * h) - qd_d[2]).max() < 1e-4 * np.abs(qd_d[2]).max()
     # the live run: the sample's instant against the true state (the log keeps the last decisions only, so
     # replay a fresh controller step by step)
-    from biped_controller.core.controller import AdaptiveController
+    from biped_controller.core.control.controller import AdaptiveController
     from biped_sim.robot.gait_family import GaitFamily
     from biped_sim.plant.rigid import Simulator
     from biped_sim.robot.description import LEFT

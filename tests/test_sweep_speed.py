@@ -8,7 +8,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 
-import numpy as np
 import pytest
 
 from biped_sim.plant.perturbation import PlantPerturbation
@@ -122,8 +121,8 @@ def test_the_compiled_loop_takes_the_qp_periods_bit_for_bit(monkeypatch, mode, f
     run by it: records, statuses (QP status and message included) and impacts are the objects' bit for bit;
     hybrid's whole-body stage keeps them with the objects (decide answers None)."""
     from biped_controller.studies import segment
-    from biped_controller.core.qp_types import UNCONSTRAINED
-    from biped_controller.core.controller import NO_ADAPTATION
+    from biped_controller.core.qp.problem import UNCONSTRAINED
+    from biped_controller.core.control.controller import NO_ADAPTATION
     answers = []
     orig = segment.Segment.decide
 

@@ -1,6 +1,6 @@
 """ROS 2 node ``controller``: the p/tau-adaptive controller answering the simulator's lockstep.
 
-Owns an :class:`biped_controller.core.controller.AdaptiveController`; its configuration comes from the
+Owns an :class:`biped_controller.core.control.controller.AdaptiveController`; its configuration comes from the
 parameters, which have the keys of ``config/controller.yaml`` (defaults from that file) plus
 ``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
 ``mode`` is validated against none | tau | p | both | wbc | hybrid | lambda | all (``controller.MODES``).
@@ -49,7 +49,7 @@ from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.graph.imu import ImuMessageError, imu_reading
 from biped_sim.graph.sim_clock import SimClock
-from biped_sim.robot.description import PAPER_JOINTS, load_description
+from biped_sim.robot.description import PAPER_JOINTS
 from biped_sim.graph.params import (
     ParameterError,
     declare_executor,
@@ -61,8 +61,7 @@ from biped_sim.graph.params import (
 )
 from biped_sim.robot.loop import ENGINES, load_loop_settings
 
-from biped_controller.core.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
-from biped_sim.robot.gait_family import GaitFamily
+from biped_controller.core.control.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
 
 
 #: the controller's settings that take one of a few names, with those names

@@ -65,11 +65,11 @@ from biped_sim.plant.push import Push
 from biped_sim.plant.protocol import make_plant
 
 from biped_controller.studies import runner
-from biped_controller.core.controller import (MODES, NO_ADAPTATION, TORSO_MODES, AdaptiveController, ControllerConfig, ControllerConfigError,
+from biped_controller.core.control.controller import (MODES, NO_ADAPTATION, TORSO_MODES, AdaptiveController, ControllerConfig, ControllerConfigError,
                          load_controller_config)
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
-from biped_controller.core.qp import STATUS_NAMES
-from biped_controller.core.period_layout import M_
+from biped_controller.core.qp.solver import STATUS_NAMES
+from biped_controller.core.control.controller_layout import M_
 from biped_controller.studies.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.runner import RunResult
 from biped_controller.studies import provenance

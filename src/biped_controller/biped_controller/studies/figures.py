@@ -15,7 +15,6 @@ Pure Python (matplotlib with the Agg backend, Pinocchio through ``FixedFootModel
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 

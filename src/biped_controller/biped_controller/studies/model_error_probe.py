@@ -21,7 +21,7 @@ from biped_sim.robot.description import LEFT
 from biped_sim.robot.fixed_foot import FixedFootModel
 from biped_sim.plant.protocol import make_plant
 
-from biped_controller.core.controller import AdaptiveController
+from biped_controller.core.control.controller import AdaptiveController
 from biped_controller.studies import experiment as ex
 
 

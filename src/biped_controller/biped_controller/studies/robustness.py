@@ -47,7 +47,7 @@ from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 from biped_controller.studies import capability_map as cmap
 from biped_controller.studies import experiment
 from biped_controller.studies import runner
-from biped_controller.core.controller import MODES
+from biped_controller.core.control.controller import MODES
 from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.experiment import RunSettings

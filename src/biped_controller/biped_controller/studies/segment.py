@@ -17,23 +17,23 @@ from biped_sim.robot.floating import PAPER_FROM_URDF
 from biped_sim.plant.records import StepRecord
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import (
-    CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
+from biped_controller.core.control.controller import (
+    CONTROLLER_KERNELS, CONTROLLER_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
     WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
-from biped_controller.core.period_layout import RES, WORK
-from biped_controller.core.qp_types import UNCONSTRAINED
+from biped_controller.core.control.controller_layout import RES, WORK
+from biped_controller.core.qp.problem import UNCONSTRAINED
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 
 LOOP_KERNELS = "biped_controller.studies.loop_kernels"
 # what the compiled loop is compiled against besides its own source
-LOOP_KERNELS_SOURCES = CONTROL_KERNELS_SOURCES + (CONTROL_KERNELS, WBC_KERNELS, "biped_sim.plant.rigid_layout")
+LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, "biped_sim.plant.rigid_layout")
 
 
 def load_loop_kernels():
     """The compiled closed loop (``loop_kernels``) through ``numba_cache.load`` (cache kept with its
     dependencies: the planar kernels, the compiled period, the layouts)."""
-    numba_cache.load(CONTROL_KERNELS, sources=CONTROL_KERNELS_SOURCES)
+    numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
     numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
     return numba_cache.load(LOOP_KERNELS, sources=LOOP_KERNELS_SOURCES)
 

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from biped_sim.plant.push import Push
-from biped_controller.core.controller import MODES
+from biped_controller.core.control.controller import MODES
 from biped_controller.studies import experiment
 from biped_controller.studies.runner import RunResult, run
 from biped_controller.studies import provenance

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import Optional
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node

@@ -19,12 +19,14 @@ import signal
 import time
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, Iterable, Optional, Sequence
+from typing import Any, Callable, Sequence
 
 import yaml
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
+
+from biped_sim.robot.finite import finite_number
 
 EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
@@ -87,8 +89,7 @@ def get_float(node: Node, name: str, default: float | None = None, *, lo: float 
     v = float(v)
     if math.isnan(v) and allow_nan:
         return v
-    if not math.isfinite(v):
-        raise ParameterError(name, f"must be finite, got {v}")
+    finite_number(v, name, error=lambda m: ParameterError(name, m), message=f"must be finite, got {v}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
         raise ParameterError(name, f"must be {'>' if lo_open else '>='} {lo}, got {v}")
     if hi is not None and v > hi:

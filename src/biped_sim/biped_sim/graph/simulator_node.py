@@ -91,10 +91,9 @@ from tf2_msgs.msg import TFMessage
 from biped_msgs_py.msg import AppliedPush, Impact, PushEvent, SimState
 from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
-from biped_sim.robot.description import LEFT, PAPER_JOINTS, URDF_JOINTS, load_description, make_urdf
+from biped_sim.robot.description import LEFT, URDF_JOINTS, make_urdf
 from biped_sim.robot.floating import urdf_from_paper
 from biped_sim.graph.params import (
-    EXIT_BAD_PARAMETER,
     ParameterError,
     declare_executor,
     wait_all_acked,

@@ -333,10 +333,6 @@ class BridgeNode(Node):
             elif topic not in wanted and topic in self._ros_subs:
                 self.destroy_subscription(self._ros_subs.pop(topic))
 
-    def subscribed_topics(self) -> set[str]:
-        """The topics the bridge is subscribed to on the ROS side now."""
-        return set(self._ros_subs)
-
     def on_client_subscribe(self, client_id: int, topic: str) -> None:
         """(SDK thread) A client subscribed: log it; a stream is subscribed on the ROS side (on the executor's
         thread); a latched topic's last message is sent again."""

@@ -25,7 +25,7 @@ from __future__ import annotations
 import sys
 from typing import List, Optional
 
-from biped_sim.graph.params import ParameterError, run_node
+from biped_sim.graph.params import run_node
 from biped_sim.graph.recorder_node import RecorderNode
 from biped_sim.live.bridge_node import BridgeNode, BridgeStartError
 from biped_sim.recording.mcap_recorder import RecorderError

@@ -67,7 +67,7 @@ from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
 from biped_sim.robot import numba_cache
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, paper_from_urdf, urdf_from_paper
+from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, urdf_from_paper
 from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, FOOT_GEOMS, MjcfContact, make_mjcf
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]

@@ -11,7 +11,7 @@ from typing import Sequence
 
 from biped_sim.plant.config import SimConfigError
 
-from biped_controller.core.controller import MODES, PAPER_MODES, ControllerConfigError
+from biped_controller.core.control.controller import MODES, PAPER_MODES, ControllerConfigError
 from biped_controller.studies import capmap, experiment
 from biped_controller.studies.capmap.driver import run_map
 from biped_controller.studies.capmap.executors import DEFAULT_BATCH, SerialExecutor, make_executor

@@ -7,7 +7,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
 
-from biped_controller.core.controller import MODES
+from biped_controller.core.control.controller import MODES
 from biped_controller.studies import experiment
 from biped_controller.studies.capmap.driver import MapRun
 from biped_controller.studies.capmap.metrics import body_weight_fraction, com_velocity_change, impulse

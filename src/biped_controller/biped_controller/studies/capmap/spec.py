@@ -9,7 +9,7 @@ from pathlib import Path
 
 from biped_sim.robot.settings import default_config_dir, read_settings
 
-from biped_controller.core.controller import MODES, PAPER_MODES
+from biped_controller.core.control.controller import MODES, PAPER_MODES
 from biped_controller.studies import experiment
 from biped_controller.studies.experiment import DEFAULT_SETTINGS, RunSettings
 

@@ -1,9 +1,9 @@
-"""The legs' model-error estimator's kernels (``model_error``, issue 22): its algebra after the regressor, in
+"""The legs' model-error estimator's kernels (``model_error``): its algebra after the regressor, in
 NumPy (``combine``, the oracle) and compiled by Numba as loops (``combine_kernel``, checked against it); the
 six-column leg regressor Y(q, q', q'') in closed form on the planar fixed-foot tree (``leg_regressor``,
 Pinocchio's joint torque regressor its oracle); and the estimator's whole sample compiled (``update``: the
 maths of ``LegModelError.update`` after the model terms, run by the compiled sensing pipeline inside
-``estimation_kernels.sense_finish``). A kernel module: import it with ``model_error.load_model_error_kernels``
+``pipeline_kernels.sense_finish``). A kernel module: import it with ``model_error.load_model_error_kernels``
 (``biped_sim.robot.numba_cache.load``), never directly. The maths, units and conventions: ``model_error``'s
 module docstring, ``combine``'s, ``regressor_into``'s and ``update``'s."""
 from __future__ import annotations
@@ -35,7 +35,7 @@ def regressor_into(ti, tf, D, q, qd, a, Y):
 
     * column b (unit mass of body b, its centre of mass P_b and its inertia about it fixed: a point mass at
       P_b): F[k, b] = J_b,k . (a_b + g e_z), J_b,k the (x, z) column of P_b's Jacobian for coordinate k
-      (``planar_kernels._column``: perp(P_b - p_k) for a hinge, the prism's axis), a_b = P_b'' the centre of
+      (``planar_kernels.jacobian_column``: perp(P_b - p_k) for a hinge, the prism's axis), a_b = P_b'' the centre of
       mass's acceleration, g e_z gravity's (z up); 0 where k is not an ancestor of b's joint;
     * column nb + b (unit rotational inertia of body b about its centre of mass and the plane's normal):
       F[k, nb + b] = w_b,k alpha_b, w_b,k = 1 for a hinge ancestor (0 for a prism), alpha_b the body's
@@ -44,7 +44,7 @@ def regressor_into(ti, tf, D, q, qd, a, Y):
     Both are the Newton-Euler equations of that unit body (the inertial + weight wrench m (a + g e_z),
     I alpha mapped to the coordinates by the transposed Jacobian), so Y is exact: the inverse dynamics are
     linear in the inertial parameters. Accelerations by one forward recursion over the frames: origin
-    acceleration = the drift of ``planar_kernels._kinematics`` (the part at q'' = 0) + the part linear in
+    acceleration = the drift of ``planar_kernels.kinematics`` (the part at q'' = 0) + the part linear in
     q'': l_k = l_par + alpha_par perp(r_k) (+ e_k q''_k for a prism), alpha_k = alpha_par (+ q''_k for a
     hinge), r_k the origin's offset from its parent's, perp(x, z) = (-z, x); a point r from the origin of
     frame j: a_j + alpha_j perp(r) - omega_j^2 r. Signs as ``planar_kernels``: angles counter-clockwise in
@@ -61,43 +61,43 @@ def regressor_into(ti, tf, D, q, qd, a, Y):
         qf[i] = q[i - m] if i >= m else 0.0
         vf[i] = qd[i - m] if i >= m else 0.0
         K[12, i] = a[i - m] if i >= m else 0.0
-    pk._kinematics(ti, tf, qf, vf, K)
+    pk.kinematics(ti, tf, qf, vf, K)
     for k in range(n):
-        p = pk._parent(ti, k)
+        p = pk.parent(ti, k)
         if p < 0:
             alp, lxp, lzp, rx, rz = 0.0, 0.0, 0.0, 0.0, 0.0
         else:
             alp, lxp, lzp = K[13, p], K[14, p], K[15, p]
-            rx = K[pk._PX, k] - K[pk._PX, p]
-            rz = K[pk._PZ, k] - K[pk._PZ, p]
+            rx = K[pk.K_PX, k] - K[pk.K_PX, p]
+            rz = K[pk.K_PZ, k] - K[pk.K_PZ, p]
         lxk = lxp - alp * rz
         lzk = lzp + alp * rx
-        typ = pk._jtype(ti, k)
+        typ = pk.joint_type(ti, k)
         ak = K[12, k]
         if typ == pk.REV:
             K[13, k] = alp + ak
         else:
             K[13, k] = alp
             if typ == pk.PX:
-                lxk += K[pk._C, k] * ak
-                lzk += K[pk._S, k] * ak
+                lxk += K[pk.K_C, k] * ak
+                lzk += K[pk.K_S, k] * ak
             else:
-                lxk -= K[pk._S, k] * ak
-                lzk += K[pk._C, k] * ak
+                lxk -= K[pk.K_S, k] * ak
+                lzk += K[pk.K_C, k] * ak
         K[14, k] = lxk
         K[15, k] = lzk
     Y[:, :] = 0.0
     ob = pk.HEADER_F + 2 * n
     for b in range(nb):
         j = ti[pk.HEADER_I + 2 * n + b]
-        Px, Pz, rx, rz = pk._point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
-        om2 = K[pk._OM, j] * K[pk._OM, j]
+        Px, Pz, rx, rz = pk.frame_point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
+        om2 = K[pk.K_OM, j] * K[pk.K_OM, j]
         alpha = K[13, j]
-        ax = K[pk._AX, j] + K[14, j] - alpha * rz - om2 * rx
-        az = K[pk._AZ, j] + K[15, j] + alpha * rx - om2 * rz + g
+        ax = K[pk.K_AX, j] + K[14, j] - alpha * rz - om2 * rx
+        az = K[pk.K_AZ, j] + K[15, j] + alpha * rx - om2 * rz + g
         k = j
         while k >= 0:
-            jx, jz, jw = pk._column(ti, K, k, Px, Pz)
+            jx, jz, jw = pk.jacobian_column(ti, K, k, Px, Pz)
             fm = jx * ax + jz * az
             fi = jw * alpha
             for c in range(npar):
@@ -107,7 +107,7 @@ def regressor_into(ti, tf, D, q, qd, a, Y):
                     Y[k, c] += fm * dm
                 if di != 0.0:
                     Y[k, c] += fi * di
-            k = pk._parent(ti, k)
+            k = pk.parent(ti, k)
 
 
 @numba.njit(numba.int64(_VI, _V, _M, _V, _V, _V, _M), cache=True)
@@ -416,7 +416,7 @@ def update(ti, tf, D, q, qd, A, B, H, Jj, r, S, cov_W_obs, W_obs_restart, since,
     """One observer sample of the estimator: ``LegModelError.update``'s maths after its model terms, in place
     (the compiled pipeline's; ``LegModelError`` stays the oracle). In: the state the observer saw (q, q')
     [rad, rad/s], the model's A (6, 6), B (3, 6) (root rows), H (6,) there (the observer's
-    ``estimation_kernels.momentum_terms``), J_j (3, 6) the torso wrench Jacobian's joint columns, the
+    ``pipeline_kernels.momentum_terms``), J_j (3, 6) the torso wrench Jacobian's joint columns, the
     observer's r (6,) [N m], S (2, 3), cov_W_obs (3, 3), the wrench it carried at its last restart
     W_obs_restart (3,) and the time since [s], the rate covariance cov_qd (6, 6), K [1/s], dt [s],
     ``restarted`` (the observer restarted at this sample), ``has_applied`` and ``applied`` (6,) [N m] the

@@ -1,6 +1,6 @@
 """Problem, result and status types of the adaptation QP, and the checks and result constructors its
-solvers share (types only: the solvers live in :mod:`qp` (PIQP, and the least-violation fallback),
-:mod:`qp_exact` (numpy, the exact least-violation point) and :mod:`qp_fast` (numba); no private name
+solvers share (types only: the solvers live in :mod:`solver` (PIQP, and the least-violation fallback),
+:mod:`exact` (numpy, the exact least-violation point) and :mod:`exact_kernels` (numba); no private name
 crosses a module).
 
 Problem (n = 2 variables, or n = 1 in single-parameter modes; m rows, m = 37 in the controller:
@@ -203,8 +203,8 @@ def constraint_values(G, x, h) -> np.ndarray:
     The one floating-point expression behind every "is x feasible" decision of the solvers
     (x* feasible <=> all v <= 0): IEEE products and sums in this order, no fused multiply-add.
     ``G @ x`` is not used because BLAS may fuse or reorder (it differs from this in the last bit
-    for ~15 % of random rows), and the compiled kernels (:mod:`qp_fast`) evaluate the same
-    expression, so their decisions are bit-for-bit those of :mod:`qp_exact`.
+    for ~15 % of random rows), and the compiled kernels (:mod:`exact_kernels`) evaluate the same
+    expression, so their decisions are bit-for-bit those of :mod:`exact`.
     """
     v = G[:, 0] * x[0]
     for j in range(1, G.shape[1]):

@@ -1,4 +1,4 @@
-"""Compiled (numba) control period of the adaptive controller, for the fast engine (issue 11).
+"""Compiled (numba) control period of the adaptive controller, for the fast engine.
 
 Pure numerics, no ROS, no side effects on import (load it through ``numba_cache.load``, as
 ``controller`` does, so its cache is kept with its dependencies). The per-period work of
@@ -16,13 +16,13 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
 * model terms, eq. (1): A, H, B, h_b on the controller's locked-root chain
   (``biped_sim.robot.planar_kernels.fixed_root_terms``' maths) and the torso point's Jacobian x row;
 * disturbance observer: F = j6 . r / j6 . j6, r = A_prev ((q'_now - q'_prev) / dt - w_prev);
-  h_b,c = h_b + B A^-1 j6 F - Jb F; or, with the momentum observer (issue 22, GAINS.momentum), the
-  compiled sensing pipeline's (``estimation_kernels``) h_b,c = h_b + (dR, 0), F = F_x, and the five
+  h_b,c = h_b + B A^-1 j6 F - Jb F; or, with the momentum observer (GAINS.momentum), the
+  compiled sensing pipeline's (``pipeline_kernels``) h_b,c = h_b + (dR, 0), F = F_x, and the five
   contact rows stated with the estimate widened by its spread (RES.sens_*, written before the period);
 * rows, eq. (21): G x <= h (37 rows: the 17 constraints with and without the estimate, p range,
   tau' >= tau_dot_min), the early-out decision "x* feasible" evaluated on the adapted columns
-  exactly as ``qp_fast.early_out`` does (same expression, bit for bit);
-* modes lambda and all (issue 21, GAINS.torso): the torso offset of ``gait_family.with_torso`` in the
+  exactly as ``exact_kernels.early_out`` does (same expression, bit for bit);
+* modes lambda and all (GAINS.torso): the torso offset of ``gait_family.with_torso`` in the
   reference (q_d += lambda phi(tau/T) e, its lambda terms in dq/dtau, d2q/dtau2 and eq. (11)), a third
   column dq/dlambda (WORK.dq_dlam) and x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
   lambda, four more rows (lambda, lambda' after one period within +-lambda_max, +-lambda_dot_max; G is then
@@ -38,7 +38,7 @@ When x* is not feasible the caller solves the QP (PIQP or the exact solver) on G
 answer does not hold the rows, ``controller._FastPeriod.solve_qp``). Any non-finite value sends the caller back to the reference path
 (memory unchanged).
 
-Arrays (float64, C order; fields and offsets declared once in ``period_layout``): ``gains`` (GAINS),
+Arrays (float64, C order; fields and offsets declared once in ``controller_layout``): ``gains`` (GAINS),
 ``cons`` (CONS), ``mem`` (MEMORY: the controller's own state), ``res`` (RES), ``work`` (WORK rows x 6).
 """
 from __future__ import annotations
@@ -51,9 +51,9 @@ import numpy as np
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_kernels as pk
 from biped_sim.robot.gait_family import TORSO_DIRECTION
-from biped_controller.core.period_layout import (
+from biped_controller.core.control.controller_layout import (
     C_, G_, M_, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, QP_ROWS, R_, TORSO_ROWS, W_, CONS, RES, WORK, N_JOINTS)
-from biped_controller.core.qp_fast import rows_and_decision
+from biped_controller.core.qp.exact_kernels import rows_and_decision
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -89,7 +89,7 @@ def advance(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
 
 @numba.njit(cache=True)
 def period_start(mem, t, stance, res):
-    """The period's parameters into res (p, p', tau, tau', and lambda, lambda' of issue 21), advanced from the
+    """The period's parameters into res (p, p', tau, tau', and lambda, lambda' in the torso modes), advanced from the
     memory over the elapsed integer nanoseconds with the held decision; tau = 0 when the stance changed; the
     observer's mode and elapsed time (RES.obs_mode, obs_dt); lambda'' = lambda''* = 0 (res x[2], x_star[2]) until
     a torso mode decides them. The memory is not changed."""
@@ -106,7 +106,7 @@ def period_start(mem, t, stance, res):
     res[R_.p_dot] = p_dot
     res[R_.tau] = tau
     res[R_.tau_dot] = tau_dot
-    # issue 21: lambda, lambda' advanced likewise with the held lambda'' (carried over an impact: phi(0) = 0);
+    # torso modes: lambda, lambda' advanced likewise with the held lambda'' (carried over an impact: phi(0) = 0);
     # 0 outside modes lambda and all. The period's lambda'' and lambda''* start at 0 (the torso modes decide them).
     lam, lam_dot = mem[M_.lam], mem[M_.lam_dot]
     if decided:
@@ -232,7 +232,7 @@ def _finish(cons, work, res):
     for i in range(6):
         work[W_.w, i] = work[W_.dq_dp, i] * x0 + work[W_.dq_dtau, i] * x1 + work[W_.v, i]
     x2 = res[R_.x + 2]
-    if x2 != 0.0:       # issue 21: + dq/dlambda lambda'' (x2 is 0 outside the torso modes: w as before, bit for bit)
+    if x2 != 0.0:       # torso modes: + dq/dlambda lambda'' (x2 is 0 outside the torso modes: w as before, bit for bit)
         for i in range(6):
             work[W_.w, i] += work[W_.dq_dlam, i] * x2
     _outputs(cons, work, res)
@@ -284,7 +284,7 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
     torso = gains[G_.torso] != 0.0
     maxerr = 0.0
     if torso:
-        # issue 21 (gait_family.with_torso, eq11_torso): q_d += lambda phi e, dq/dtau += lambda phi'/T e,
+        # torso modes (gait_family.with_torso, eq11_torso): q_d += lambda phi e, dq/dtau += lambda phi'/T e,
         # d2q/dtau2 += lambda phi''/T^2 e, dq/dlambda = phi e, d2q/dtau dlambda = phi'/T e; eq. (11) gains
         # dq/dlambda lambda' in q_d' and 2 d2q/dtau dlambda tau' lambda' in the drift
         T = gains[G_.T]
@@ -341,8 +341,8 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
     hbc[:] = hb
     F = 0.0
     if gains[G_.momentum] != 0.0:
-        # issue 22: the momentum observer's shift of (R_x, R_y), from the compiled sensing pipeline
-        # (estimation_kernels; written into res before the period)
+        # the momentum observer's shift of (R_x, R_y), from the compiled sensing pipeline
+        # (pipeline_kernels; written into res before the period)
         F = res[R_.sens_force]
         hbc[0] = hb[0] + res[R_.sens_dR]
         hbc[1] = hb[1] + res[R_.sens_dR + 1]
@@ -402,7 +402,7 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
             Aq[r, k] = _contact(cons, C_.qp_rows, r, B[0, k], B[1, k], A[0, k])
         bq[r] = _contact(cons, C_.qp_rows, r, hbc[0], hbc[1], H[0]) + cons[C_.margin + r]
         if gains[G_.momentum] != 0.0:
-            bq[r] += res[R_.sens_margin + r]     # issue 22: the estimate's spread, its rows only
+            bq[r] += res[R_.sens_margin + r]     # the estimate's spread, its rows only
         b0[r] = _contact(cons, C_.qp_rows, r, hb[0], hb[1], H[0]) + cons[C_.margin + r]
     for i in range(6):
         for k in range(6):
@@ -446,7 +446,7 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
     for r in range(QP_ROWS):
         if not (math.isfinite(G[r, 0]) and math.isfinite(G[r, 1]) and math.isfinite(h[r])):
             return NONFINITE
-    # x* feasible on the adapted columns? (qp_fast.early_out's expression; a fixed parameter stays at x*
+    # x* feasible on the adapted columns? (exact_kernels.early_out's expression; a fixed parameter stays at x*
     # and moves to the right-hand side)
     v = np.empty(QP_ROWS)
     if ap and at:
@@ -470,7 +470,7 @@ def period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, wor
 
 @numba.njit(cache=True)
 def _torso_rows_and_decision(gains, cons, work, res, G, h, ap, at, al):
-    """Modes lambda and all (issue 21), after the 37 rows of :func:`period_step` (their third column written):
+    """Modes lambda and all, after the 37 rows of :func:`period_step` (their third column written):
     the third column of the three range rows (0) and the four torso rows, lambda + lambda' dt + lambda'' dt^2/2
     within +-lambda_max and lambda' + lambda'' dt within +-lambda_dot_max (``controller._qp_rows``' order), then
     the early-out on the adapted columns (a fixed parameter stays at x* and moves to the right-hand side,
@@ -539,7 +539,7 @@ def step(coef, inner, centers, ti, tf, q, qd, t, stance, gains, cons, mem, G, h,
     """One control period at time t [s] in ``stance`` up to the QP decision (module docstring). Returns
     FEASIBLE (x = x*, every output computed, the memory committed), NEEDS_QP (G, h filled; solve, put x
     in res, call :func:`finish`) or NONFINITE (use the reference path; the memory is unchanged).
-    G (QP_ROWS, 2), h (QP_ROWS,) are filled whenever a parameter is adapted; in modes lambda and all (issue 21)
+    G (QP_ROWS, 2), h (QP_ROWS,) are filled whenever a parameter is adapted; in modes lambda and all
     G (TORSO_QP_ROWS, 3), h (TORSO_QP_ROWS,): x = (p'', tau'', lambda'')."""
     period_start(mem, t, stance, res)
     code = period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, work, res)
@@ -549,7 +549,7 @@ def step(coef, inner, centers, ti, tf, q, qd, t, stance, gains, cons, mem, G, h,
 
 
 #: the outputs of a period for the decision x = res[x] (w, torque, margins, reaction, l, tightest row), the
-#: memory untouched: the compiled loop's QP periods, committed with the period (issue 19)
+#: memory untouched: the compiled loop's QP periods, committed with the period
 period_outputs = _finish
 
 

@@ -1,4 +1,4 @@
-"""Joint state estimation from encoders, a rate sensor and a torso pitch IMU (issue 22). Pure NumPy, no ROS.
+"""Joint state estimation from encoders, a rate sensor and a torso pitch IMU. Pure NumPy, no ROS.
 
 A Kalman filter on the joint state x = (q, q') (paper order q1..q6 [rad], q1'..q6' [rad/s]) whose time
 update is the controller's model driven by the torque it applied, not a difference of measurements:
@@ -8,7 +8,7 @@ update is the controller's model driven by the torque it applied, not a differen
       P  <- F P F^T + Q,   Q = sigma_a^2 [[dt^4/4 I, dt^3/2 I], [dt^3/2 I, dt^2 I]]
   (piecewise-constant white acceleration noise sigma_a [rad/s^2]: what the model does not predict over
   one interval: the gait's jerk over a period, an unmodelled force until the momentum observer sees it);
-  a = A(q)^-1 (Gamma - H(q, q') + r) is computed by the caller (``sensing.SensingPipeline``) from the
+  a = A(q)^-1 (Gamma - H(q, q') + r) is computed by the caller (``pipeline.SensingPipeline``) from the
   applied torque Gamma and the momentum observer's disturbance r.
 
   measurement update with z = (q_enc, q'_rate [, theta_imu] [, omega_gyro]),
@@ -35,6 +35,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from biped_sim.robot.finite import finite_number
 
 N = 6
 
@@ -150,8 +152,7 @@ class JointStateEstimator:
     # ------------------------------------------------------------------ filter
     def predict(self, dt: float, acc: np.ndarray) -> Estimate:
         """Time update over ``dt`` [s] with the joint acceleration ``acc`` [rad/s^2] held over it."""
-        if not (math.isfinite(dt) and dt >= 0):
-            raise ValueError(f"dt must be a finite number >= 0, got {dt!r}")
+        finite_number(dt, "dt", at_least=0)
         a = np.asarray(acc, dtype=float)
         q, qd = self.x[:N], self.x[N:]
         self.x = np.r_[q + qd * dt + 0.5 * a * dt * dt, qd + a * dt]

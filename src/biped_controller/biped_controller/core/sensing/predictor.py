@@ -1,4 +1,4 @@
-"""Smith predictor for a known measurement delay of d control periods, across a touchdown (issue 22).
+"""Smith predictor for a known measurement delay of d control periods, across a touchdown.
 Pure NumPy + Pinocchio, no ROS.
 
 At period k the controller receives the sample of period k - d (stance included: a touchdown reaches it d
@@ -27,7 +27,7 @@ old (the first ones younger: k < d), except with a touchdown reported at once (t
 stance is of the period it arrives in, then held while it ages to d periods. :meth:`DelayPredictor.predict`
 takes the sample's age in periods (``periods``: the prediction runs through the last ``periods`` decisions
 only; 0: the sample is the present state, the pending prediction of the old stance is dropped), which
-``sensing.SensingPipeline`` (and ``estimation_compiled.CompiledSensing``) derive from the stance changes.
+``pipeline.SensingPipeline`` (and ``pipeline_compiled.CompiledSensing``) derive from the stance changes.
 With the touchdown reported at once the present stance is always the sensed one (a touchdown before t_k is in
 the sample of period k), so the pipeline builds the predictor with ``touchdowns`` False: it integrates in
 the sample's stance and never predicts a touchdown, which could only be a false one (under sensor noise the
@@ -43,6 +43,7 @@ import numpy as np
 
 from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
+from biped_sim.robot.finite import finite_number
 from biped_sim.robot.floating import FloatingModel, impact_paper
 
 
@@ -81,8 +82,7 @@ class DelayPredictor:
                 raise PredictorError(f"{name} must be an integer >= 1, got {v!r}")
         for name, v in (("period", period), ("predictor_touchdown_height", touchdown_height),
                         ("predictor_clearance", clearance), ("predictor_time_tolerance", time_tolerance)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise PredictorError(f"{name} must be a finite number > 0, got {v!r}")
+            finite_number(v, name, above=0, error=PredictorError)
         self.d, self.substeps, self.period = delay, substeps, float(period)
         self.td_height, self.clearance, self.t_tol = float(touchdown_height), float(clearance), float(time_tolerance)
         self.touchdowns = bool(touchdowns)     # False: never predict a touchdown (it is reported at once)

@@ -1,13 +1,13 @@
-"""Compiled (numba) kernels of the adaptation QP (problem, units, signs and statuses: :mod:`qp_types`).
+"""Compiled (numba) kernels of the adaptation QP (problem, units, signs and statuses: :mod:`problem`).
 
 Kernels, each one call from Python:
 
 * :func:`early_out` -- is x* feasible, G x* <= h, with zero tolerance? The rows are evaluated
-  as :func:`qp_types.constraint_values` does (IEEE products and sums left to right; numba emits
-  no fused multiply-add without fastmath), so the decision is qp_exact's bit for bit.
+  as :func:`problem.constraint_values` does (IEEE products and sums left to right; numba emits
+  no fused multiply-add without fastmath), so the decision is exact's bit for bit.
 * :func:`solve_small` -- the exact optimum for n <= 2, a compiled counterpart of
-  :func:`qp_exact.solve_exact` with the same candidates, tolerances, tie rules, multipliers and
-  least-violation fallback (:func:`qp_exact.least_violation_exact`). Candidates: x*, the
+  :func:`exact.solve_exact` with the same candidates, tolerances, tie rules, multipliers and
+  least-violation fallback (:func:`exact.least_violation_exact`). Candidates: x*, the
   projections onto violated rows, then the vertices of non-parallel pairs. Vertices are visited
   first for pairs holding a row violated at x* (the support of the optimal multipliers always
   holds one: sum_i z_i (g_i x* - h_i) = |x* - x|_W^2 > 0), then the remaining pairs only when
@@ -26,8 +26,8 @@ the controller's G is column-major -- and float64 scalars): importing this modul
 on stderr when it compiles, ~30 s on the project machine; loading takes ~1 s) compiles them or loads
 them from the cache. Other
 argument types raise TypeError instead of compiling on the fly. The kernels do not check shapes
-(numba does not bound-check): call them through :func:`solve_exact`, :func:`qp.polish` or
-:class:`qp.AdaptationQP`, which do.
+(numba does not bound-check): call them through :func:`solve_exact`, :func:`solver.polish` or
+:class:`solver.AdaptationQP`, which do.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ import numba
 import numpy as np
 
 from biped_sim.robot import numba_cache
-from biped_controller.core.qp_types import (
+from biped_controller.core.qp.problem import (
     ACTIVE,
     DEFAULT_ACTIVE_TOL,
     DEFAULT_EPS_REG,
@@ -104,7 +104,7 @@ _f8 = numba.types.float64
 
 @_jit
 def rows_and_decision(G, h, x, v):
-    """Fill v = G x - h as :func:`qp_types.constraint_values` evaluates it (rows summed left to
+    """Fill v = G x - h as :func:`problem.constraint_values` evaluates it (rows summed left to
     right, no fused multiply-add) and return True when every v_i <= 0 (NaN counts as > 0)."""
     m, n = G.shape
     feasible = True
@@ -145,7 +145,7 @@ def _first_nonfinite(G, h, x, W, check_w):
 
 @_kernel(_A2, _A1, _A1, _f8, _B1)
 def early_out(G, h, x_star, active_tol, active):
-    """Decide G x* <= h (zero tolerance; the decision of qp_exact bit for bit). Returns a code:
+    """Decide G x* <= h (zero tolerance; the decision of exact bit for bit). Returns a code:
 
     EARLY_FEASIBLE (0): x* feasible; ``active`` (m,) is set to the mask G x* - h >= -active_tol;
     EARLY_NOT_FEASIBLE (1): some row has g_i x* - h_i > 0;
@@ -166,7 +166,7 @@ def early_out(G, h, x_star, active_tol, active):
 
 
 # ----------------------------------------------------------------------------------------
-# least violation (compiled counterpart of qp_exact.least_violation_exact)
+# least violation (compiled counterpart of exact.least_violation_exact)
 # ----------------------------------------------------------------------------------------
 
 
@@ -194,7 +194,7 @@ def _reg_weight(G, W, eps_reg):
 @_jit
 def _min_pwq_1d(alpha, beta, q, t0):
     """Exact minimiser of sum_i max(alpha_i t - beta_i, 0)^2 + q (t - t0)^2 (see
-    :func:`qp_exact.min_piecewise_quadratic_1d`, same steps)."""
+    :func:`exact.min_piecewise_quadratic_1d`, same steps)."""
     k = 0
     for i in range(alpha.size):
         if alpha[i] != 0.0:
@@ -289,7 +289,7 @@ def _sym2_pinv_solve(h00, h01, h11, g0, g1, rcond):
 @_jit
 def _least_violation(G, h, xs, W, eps_reg, max_iter):
     """(x, iterations): the exact least-violation point, n in {1, 2} (steps of
-    :func:`qp_exact.least_violation_exact`)."""
+    :func:`exact.least_violation_exact`)."""
     m, n = G.shape
     sw = np.sqrt(W)
     A = np.empty((m, n))
@@ -383,7 +383,7 @@ def _least_violation(G, h, xs, W, eps_reg, max_iter):
 @_jit
 def _feasible_within(G, h, keep, nk, X0, X1, xs0, xs1, feas_rtol):
     """Every kept row accepts (X0, X1):
-    g x - h <= feas_rtol (|g| |x| + |h|) + ROUNDING_RTOL |g| |x*| (qp_types.DEFAULT_FEAS_RTOL)."""
+    g x - h <= feas_rtol (|g| |x| + |h|) + ROUNDING_RTOL |g| |x*| (problem.DEFAULT_FEAS_RTOL)."""
     a0 = abs(X0)
     a1 = abs(X1)
     r0 = ROUNDING_RTOL * abs(xs0)
@@ -432,7 +432,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
     multipliers (zeros for the fallback and errors) and active (m,) bool. Returns
     (status, max_violation, iterations, kind, i, j):
 
-    status : UNCONSTRAINED / ACTIVE / INFEASIBLE_FALLBACK / SOLVER_ERROR (qp_types);
+    status : UNCONSTRAINED / ACTIVE / INFEASIBLE_FALLBACK / SOLVER_ERROR (problem);
     kind : KIND_* (how the answer was found); i, j : the rows involved (-1 if none), or for
         KIND_ERROR i = 0 G, 1 h, 2 x_star, 3 W (the first array with a NaN/inf, or W <= 0).
     The outputs are arguments because handing new arrays back to Python costs more than the
@@ -615,7 +615,7 @@ def solve_small(G, h, x_star, W, active_tol, eps_reg, feas_rtol, parallel_tol, z
     zj = (G[bi, 0] * r1 - G[bi, 1] * r0) / bdet
     if zi < 0.0 or zj < 0.0:
         # more than two rows through the vertex: the first pair of rows through it (in row
-        # order) whose multipliers are both >= 0 (see qp_exact)
+        # order) whose multipliers are both >= 0 (see exact)
         found = False
         for ca in range(nk):
             a = keep[ca]
@@ -668,7 +668,7 @@ def _try_active_set(G, h, x_star, W, order, n_order, max_rows, feas_rtol, x_out,
     already chosen exceeds 1e-12 of its own W^-1-norm^2 (pivoted Cholesky of G_A W^-1 G_A^T = L L^T).
     Then x = x* - W^-1 G_A^T lam with (G_A W^-1 G_A^T) lam = G_A x* - h_A; accepted when
     lam >= -feas_rtol max|lam| and every row has
-    g x - h <= feas_rtol (|g| |x| + |h|) + ROUNDING_RTOL |g| |x*| (qp_types.DEFAULT_FEAS_RTOL).
+    g x - h <= feas_rtol (|g| |x| + |h|) + ROUNDING_RTOL |g| |x*| (problem.DEFAULT_FEAS_RTOL).
     """
     m, n = G.shape
     L = np.zeros((n, n))
@@ -865,7 +865,7 @@ _ARRAY_NAMES = ("G", "h", "x_star", "W")
 
 
 def message(kind: int, i: int, j: int, G, h, x) -> str:
-    """The message :func:`qp_exact.solve_exact` gives for the same answer (kind, rows i, j)."""
+    """The message :func:`exact.solve_exact` gives for the same answer (kind, rows i, j)."""
     if kind == KIND_UNCONSTRAINED:
         return "x* feasible"
     if kind == KIND_INTERVAL:
@@ -886,12 +886,12 @@ def message(kind: int, i: int, j: int, G, h, x) -> str:
 def solve_exact(G, h, x_star, W, *, active_tol: float = DEFAULT_ACTIVE_TOL, eps_reg: float = DEFAULT_EPS_REG,
                 feas_rtol: float = DEFAULT_FEAS_RTOL, parallel_tol: float = DEFAULT_PARALLEL_TOL) -> QPResult:
     """Exact QP solution for n in {1, 2}, compiled; same contract, tolerances and statuses as
-    :func:`qp_exact.solve_exact`. Raises only :class:`QPShapeError`. For SOLVER_ERROR x = x*
-    (max_violation and the active mask as qp_exact gives them); the least-violation answer carries
+    :func:`exact.solve_exact`. Raises only :class:`QPShapeError`. For SOLVER_ERROR x = x*
+    (max_violation and the active mask as exact gives them); the least-violation answer carries
     no multipliers (z None)."""
     G, h, x_star, W = validate(G, h, x_star, W)
     if G.shape[1] > 2:
-        raise QPShapeError(f"qp_fast.solve_exact handles n = 1 or 2, G has {G.shape[1]} columns")
+        raise QPShapeError(f"exact_kernels.solve_exact handles n = 1 or 2, G has {G.shape[1]} columns")
     m, n = G.shape
     x, z, active = np.empty(n), np.empty(m), np.empty(m, dtype=bool)
     st, mv, it, kind, i, j = solve_small(G, h, x_star, W, float(active_tol), float(eps_reg), float(feas_rtol),

@@ -1,4 +1,4 @@
-"""The legs' model error, identified from the momentum observer's swing-leg rows (issue 22). NumPy +
+"""The legs' model error, identified from the momentum observer's swing-leg rows. NumPy +
 Pinocchio + Numba kernels (``model_error_kernels``), no ROS.
 
 Why. The momentum observer (``momentum_observer``) estimates tau_d, everything the model does not contain,
@@ -29,7 +29,7 @@ the RNEA differences are kept as ``RneaLegRegressor``, the tests' oracle), or in
 tree (``model_error_kernels.regressor_into``: each column the generalized force of a unit mass at a link's
 centre of mass or of a unit inertia, summed over both legs' bodies by ``body_combination``;
 ``CompiledLegRegressor``), which the compiled pipeline runs with the whole sample below inside its kernel
-(``model_error_kernels.update``, called by ``estimation_kernels.sense_finish``; this class stays the
+(``model_error_kernels.update``, called by ``pipeline_kernels.sense_finish``; this class stays the
 Python pipeline's estimator and the oracle). The observer's r is tau_d = -e_j
 through its first-order filter (r' = K (tau_d - r)), so its swing-leg rows obey r_s = -(Y_f theta)_s, Y_f the
 joint rows of Y through the same filter (discrete: Y_f <- e^{-K dt} Y_f + (1 - e^{-K dt}) (Y_{k-1} + Y_k) / 2,
@@ -88,7 +88,6 @@ to 1.0-1.3 prior std within 3.2 s (7 touchdowns); with n = 3 theta stays within 
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,8 +97,9 @@ from biped_sim.robot import numba_cache
 from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.fast_engine import fixed_foot_tree
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
+from biped_sim.robot.finite import finite_number
 
-from biped_controller.core.momentum_observer import Wrench
+from biped_controller.core.sensing.momentum_observer import Wrench
 
 #: the identified parameters, in the order of theta: (link of the description, field)
 LEG_PARAMETERS: tuple[tuple[str, str], ...] = (("thigh", "mass"), ("thigh", "inertia"), ("shin", "mass"),
@@ -110,7 +110,7 @@ SWING = slice(3, 6)     # the swing leg's rows among the six joint rows (paper o
 HOLD_VARIANCE = 1e200
 #: what the regressor is evaluated on (module docstring, "What the regressor is fed")
 REGRESSOR_INPUTS = ("measured", "reference")
-MODEL_ERROR_KERNELS = "biped_controller.core.model_error_kernels"
+MODEL_ERROR_KERNELS = "biped_controller.core.sensing.model_error_kernels"
 MODEL_ERROR_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels")
 
 
@@ -292,14 +292,10 @@ class LegModelError:
         self.regressor_input = regressor_input
         for name, v in (("model_mass_uncertainty", mass_uncertainty),
                         ("model_inertia_uncertainty", inertia_uncertainty), ("model_error_residual_std", residual_std)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ModelErrorConfigError(f"{name} must be a finite number > 0, got {v!r}")
-        if isinstance(K, bool) or not isinstance(K, (int, float)) or not math.isfinite(K) or K <= 0:
-            raise ModelErrorConfigError(f"momentum_observer_gain must be a finite number > 0, got {K!r}")
-        self.K = float(K)
-        if isinstance(settle, bool) or not isinstance(settle, (int, float)) or not math.isfinite(settle) or settle < 0:
-            raise ModelErrorConfigError(f"model_error_settle must be a finite number >= 0, got {settle!r}")
-        self.settle_time = float(settle) / self.K     # [s] no update this long after the observer's (re)start
+            finite_number(v, name, above=0, error=ModelErrorConfigError)
+        self.K = finite_number(K, "momentum_observer_gain", above=0, error=ModelErrorConfigError)
+        settle = finite_number(settle, "model_error_settle", at_least=0, error=ModelErrorConfigError)
+        self.settle_time = settle / self.K     # [s] no update this long after the observer's (re)start
         self.reg = LegRegressor(desc)
         self.model = self.reg.base
         self.P0 = np.diag(prior_std(desc, mass_uncertainty, inertia_uncertainty) ** 2)

@@ -1,8 +1,8 @@
-"""The compiled sensing pipeline's state and settings arrays, declared once (issue 22).
+"""The compiled sensing pipeline's state and settings arrays, declared once.
 
 Pure Python + NumPy, no ROS. Two :class:`biped_sim.robot.layout.Layout` records that the Python wrapper
-(``estimation_compiled.CompiledSensing``) and the numba kernels (``estimation_kernels``) share, so the two
-sides cannot disagree on where a field lives (the same pattern as ``period_layout``):
+(``pipeline_compiled.CompiledSensing``) and the numba kernels (``pipeline_kernels``) share, so the two
+sides cannot disagree on where a field lives (the same pattern as ``controller_layout``):
 
 * ``SCONF`` (fixed per controller): which parts run (estimator, momentum observer: 0/1), the observer's gain
   K [1/s] and wrench height [m] above the hip, the estimator's process noise sigma_a [rad/s^2], the

@@ -1,9 +1,9 @@
 """Compiled (numba) sensing pipeline of one control period: the Kalman joint-state estimator and the
-generalized-momentum observer (issue 22), for the controller's compiled period.
+generalized-momentum observer, for the controller's compiled period.
 
 Pure numerics, no ROS, no side effects on import (load it through ``numba_cache.load``, as
-``estimation_compiled`` does). The same equations, units and order as the Python cores, which stay the
-oracle of the tests (``sensing.SensingPipeline`` on ``estimation.JointStateEstimator`` and
+``pipeline_compiled`` does). The same equations, units and order as the Python cores, which stay the
+oracle of the tests (``pipeline.SensingPipeline`` on ``estimation.JointStateEstimator`` and
 ``momentum_observer.MomentumObserver``, Pinocchio):
 
 * estimator time update over dt [s] with a = A(x_q)^-1 (Gamma - H(x_q, x_q') + r) (the model's
@@ -33,14 +33,14 @@ oracle of the tests (``sensing.SensingPipeline`` on ``estimation.JointStateEstim
   and the QP's contact rows widened by k sqrt(C_r cov_dR C_r^T) (``controller._observe_momentum``);
 * with the legs' model-error estimator on (``SCONF.me``), right after the observer on the same sample and
   the observer's A, B, H and J_j: ``model_error_kernels.update`` (``model_error.LegModelError.update``'s
-  maths, its regressor in closed form), with the inputs ``estimation_compiled`` gave the Python estimator:
+  maths, its regressor in closed form), with the inputs ``pipeline_compiled`` gave the Python estimator:
   restarted = (the time since the observer's restart is 0), the torque applied and the interval only when
   not restarted, not the first sample and a decision recorded (else none and 0), no update within the
   settling time after the observer's restart (``model_error_settle``); its torso wrench, dR,
   cov_dR and the rows' widening k sqrt(C_r cov_dR C_r^T) replace the observer's in what the QP reads
   (``into_res``) once it has taken a sample.
 
-Arrays (float64, C order): ``conf`` (``estimation_layout.SCONF``), ``s`` (``SENS``), ``ti``/``tf`` the
+Arrays (float64, C order): ``conf`` (``pipeline_layout.SCONF``), ``s`` (``SENS``), ``ti``/``tf`` the
 fixed-foot tree (``fast_engine.fixed_foot_tree``).
 """
 from __future__ import annotations
@@ -52,8 +52,8 @@ import numpy as np
 
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_kernels as pk
-from biped_controller.core import model_error_kernels as mek
-from biped_controller.core.estimation_layout import N_LEG_PARAMETERS, N_TREE_BODIES, S_, SC_
+from biped_controller.core.sensing import model_error_kernels as mek
+from biped_controller.core.sensing.pipeline_layout import N_LEG_PARAMETERS, N_TREE_BODIES, S_, SC_
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -86,15 +86,15 @@ def momentum_terms(ti, tf, q, qd, height, A, B, beta, J, H):
     hinge i's subtree, x_i its origin, g0 gravity along -z), J (3, 9) rows x, z velocity of the torso point
     ``height`` [m] above the hip and the torso's pitch rate (all 9 coordinates of the locked-root chain)."""
     n = ti[0]
-    K, M, L, R, U, Cm = pk._workspace(n)
+    K, M, L, R, U, Cm = pk.workspace(n)
     qf = np.zeros(n)
     vf = np.zeros(n)
     for i in range(N):
         qf[3 + i] = q[i]
         vf[3 + i] = qd[i]
     h = U[0]
-    pk._kinematics(ti, tf, qf, vf, K)
-    pk._mass_bias(ti, tf, K, M, h, Cm)            # M(q), h(q, q')
+    pk.kinematics(ti, tf, qf, vf, K)
+    pk.composite_mass_bias(ti, tf, K, M, h, Cm)            # M(q), h(q, q')
     for i in range(N):
         H[i] = h[3 + i]
         for k in range(N):
@@ -103,7 +103,7 @@ def momentum_terms(ti, tf, q, qd, height, A, B, beta, J, H):
         for k in range(N):
             B[r, k] = M[r, 3 + k]
     Jt = R[7:10]
-    pk._point_jacobian(ti, K, ti[2], 0.0, height, Jt)
+    pk.point_jacobian(ti, K, ti[2], 0.0, height, Jt)
     for r in range(3):
         for k in range(n):
             J[r, k] = Jt[r, k]
@@ -116,16 +116,16 @@ def momentum_terms(ti, tf, q, qd, height, A, B, beta, J, H):
     for b in range(nb):
         j = ti[pk.HEADER_I + 2 * n + b]
         m = tf[ob + b]
-        px, _, rx, rz = pk._point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
-        om = K[pk._OM, j]
-        vx = K[pk._VX, j] - om * rz
-        vz = K[pk._VZ, j] + om * rx
+        px, _, rx, rz = pk.frame_point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
+        om = K[pk.K_OM, j]
+        vx = K[pk.K_VX, j] - om * rz
+        vz = K[pk.K_VZ, j] + om * rx
         i = j
         while i >= 0:                            # every hinge whose subtree holds body b
-            if pk._jtype(ti, i) == pk.REV:
-                ctq[i] += m * (vx * K[pk._VZ, i] - vz * K[pk._VX, i])
-                grav[i] += m * (px - K[pk._PX, i])
-            i = pk._parent(ti, i)
+            if pk.joint_type(ti, i) == pk.REV:
+                ctq[i] += m * (vx * K[pk.K_VZ, i] - vz * K[pk.K_VX, i])
+                grav[i] += m * (px - K[pk.K_PX, i])
+            i = pk.parent(ti, i)
     for i in range(N):
         beta[i] = g0 * grav[3 + i] - ctq[3 + i]
 
@@ -585,10 +585,10 @@ def lowest_sole(ti, tf, q):
     qf = np.zeros(n)
     for i in range(N):
         qf[3 + i] = q[i]
-    pk._kinematics(ti, tf, qf, qf, K)
+    pk.kinematics(ti, tf, qf, qf, K)
     fj = ti[4]
-    th = K[pk._TH, fj]
-    z = K[pk._PZ, fj]
+    th = K[pk.K_TH, fj]
+    z = K[pk.K_PZ, fj]
     return z + min(tf[1] * math.sin(th), tf[2] * math.sin(th))
 
 

@@ -1,4 +1,4 @@
-"""Compiled (numba) whole-body stage of the modes ``wbc`` and ``hybrid`` (issue 26).
+"""Compiled (numba) whole-body stage of the modes ``wbc`` and ``hybrid``.
 
 Pure numerics, no ROS, no side effects on import (load it with ``controller.load_wbc_kernels``, which goes
 through ``numba_cache.load``). The compiled twin of :class:`wbc.WholeBodyStage` (the Python stage stays
@@ -11,8 +11,8 @@ the oracle of the tests): over w in R^6 (rad/s^2, paper joints q1..q6, stance fo
 * :func:`rows` builds G, h from the period's arrays (``work``: A, H, B; ``res``: h_b, h_b,c; ``cons``: the
   controller's contact rows, margins and torque limits), element by element in the order of
   ``wbc.rows_on_w``'s numpy expressions (no BLAS), so the two give the same bits.
-* The early-out "w* holds every row" is ``qp_fast.rows_and_decision``, the expression of
-  ``qp_types.constraint_values`` (zero tolerance, bit for bit the Python stage's decision): then w = w*
+* The early-out "w* holds every row" is ``exact_kernels.rows_and_decision``, the expression of
+  ``problem.constraint_values`` (zero tolerance, bit for bit the Python stage's decision): then w = w*
   and nothing else changes (status UNCONSTRAINED).
 * Otherwise a dual active-set iteration from the unconstrained optimum w* (the optimum of the stage
   moves only as far as the rows require): add the row of largest violation in the metric of M
@@ -20,22 +20,22 @@ the oracle of the tests): over w in R^6 (rad/s^2, paper joints q1..q6, stance fo
   equality-constrained problem on the active set S,
   ``(G_S M^-1 G_S^T) lambda = G_S w* - h_S,  w = w* - M^-1 G_S^T lambda``, drop the row of most negative
   multiplier and solve again while one is negative; stop when no row is violated beyond
-  ``DEFAULT_FEAS_RTOL (|g_i| |w| + |h_i|)`` (qp_types' feasibility test). The answer then satisfies the
+  ``DEFAULT_FEAS_RTOL (|g_i| |w| + |h_i|)`` (problem's feasibility test). The answer then satisfies the
   KKT conditions of the convex QP (primal feasible, lambda >= 0, stationarity M (w - w*) + G_S^T lambda = 0
   by construction, complementarity on S), so it is the optimum (status ACTIVE). It does not settle --
   more than 6 rows, linearly dependent rows (a pivot of the Cholesky factor below ``PIVOT_RTOL`` of its
   diagonal), or ``MAX_ITER`` iterations -- when no w holds every row, or in a degenerate corner: the
   caller then takes PIQP (:class:`wbc.WholeBodyQP`, held, with the least-violation answer) and hands its w
   to :func:`apply`.
-* Multipliers have the sign convention of :mod:`qp_types`: M (w - w*) + G^T z = 0, z >= 0.
+* Multipliers have the sign convention of :mod:`problem`: M (w - w*) + G^T z = 0, z >= 0.
 
 With the stage's w: Gamma = A w + H (eq. 15), the reported margins, reaction, l and tightest row
-(``control_kernels._outputs``, the one home), the memory's w of the period (the observer's next
+(``controller_kernels._outputs``, the one home), the memory's w of the period (the observer's next
 residual), and the status fields of ``RES`` (wbc_status, wbc_active: bit mask over the 17 rows folded
 over both blocks, active when G w - h >= -DEFAULT_ACTIVE_TOL; wbc_deviation = |w - w*|_2).
 
-Arrays: ``wbc`` (``period_layout.WBC``: the stage's mode, M, M^-1), the controller's ``cons``, ``mem``,
-``work``, ``res`` (``period_layout``), G (34, 6) and h (34,) buffers.
+Arrays: ``wbc`` (``controller_layout.WBC``: the stage's mode, M, M^-1), the controller's ``cons``, ``mem``,
+``work``, ``res`` (``controller_layout``), G (34, 6) and h (34,) buffers.
 """
 from __future__ import annotations
 
@@ -45,11 +45,11 @@ import numba
 import numpy as np
 
 from biped_sim.robot import numba_cache
-from biped_controller.core import control_kernels as ck
-from biped_controller.core.period_layout import (
+from biped_controller.core.control import controller_kernels as ck
+from biped_controller.core.control.controller_layout import (
     C_, M_, R_, W_, WB_, N_JOINTS, WBC_MODE_OFF)
-from biped_controller.core.qp_fast import rows_and_decision
-from biped_controller.core.qp_types import (
+from biped_controller.core.qp.exact_kernels import rows_and_decision
+from biped_controller.core.qp.problem import (
     ACTIVE, DEFAULT_ACTIVE_TOL, DEFAULT_FEAS_RTOL, UNCONSTRAINED)
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
@@ -105,7 +105,7 @@ def rows(cons, work, res, G, h):
 
 @numba.njit(cache=True)
 def _row_value(G, h, w, i):
-    """g_i w - h_i, summed left to right (``qp_types.constraint_values``' expression)."""
+    """g_i w - h_i, summed left to right (``problem.constraint_values``' expression)."""
     s = G[i, 0] * w[0]
     for j in range(1, G.shape[1]):
         s += G[i, j] * w[j]
@@ -319,7 +319,7 @@ def stage(wbc, cons, mem, work, res, G, h, run):
 
 @numba.njit(_I(_V, _V, _M, _V, _M, _V, _V, _V, _I), cache=True)
 def apply(cons, mem, work, res, G, h, w_star, w, status):
-    """PIQP's answer ``w`` (status ``status``: ACTIVE, INFEASIBLE_FALLBACK or SOLVER_ERROR, qp_types) around
+    """PIQP's answer ``w`` (status ``status``: ACTIVE, INFEASIBLE_FALLBACK or SOLVER_ERROR, problem) around
     ``w_star`` taken as the period's: status fields, torque, outputs, the memory's w."""
     _report(G, h, w, w_star, status, res)
     _take(cons, mem, work, res, w, True)

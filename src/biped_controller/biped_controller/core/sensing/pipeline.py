@@ -1,4 +1,4 @@
-"""The controller's view of the robot from real sensing (issue 22): estimator, momentum observer and delay
+"""The controller's view of the robot from real sensing: estimator, momentum observer and delay
 predictor in one per-period pipeline. Pure NumPy + Pinocchio, no ROS.
 
 Per control period k the controller receives a sample (stance, q, q' [, IMU pitch]); with a known delay
@@ -36,11 +36,11 @@ from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
 from biped_sim.robot.floating import FloatingModel
 
-from biped_controller.core.estimation import EstimatorConfig, JointStateEstimator
-from biped_controller.core.model_error import LegModelError
-from biped_controller.core.momentum_observer import MomentumObserver, Wrench
-from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
-from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
+from biped_controller.core.sensing.estimation import EstimatorConfig, JointStateEstimator
+from biped_controller.core.sensing.model_error import LegModelError
+from biped_controller.core.sensing.momentum_observer import MomentumObserver, Wrench
+from biped_controller.core.sensing.predictor import DelayPredictor, flat_foot_impact
+from biped_controller.core.sensing.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
                                                   lever_bound, sigma_bound, sole_rate,
                                                   sole_height_std)
 

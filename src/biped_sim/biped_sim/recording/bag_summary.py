@@ -1,6 +1,6 @@
 """Summaries of a recorded run, read from its MCAP alone (used by the demo and the soak).
 
-ROS layer only through ``graph_names`` (topic names); the bag is read with ``bag_reader`` / ``mcap``.
+Pure (no ROS import): topic names from ``topics``; the bag is read with ``bag_reader`` / ``mcap``.
 :func:`summarize_bag`: outcome, excursions, message counts (the demo's summary). :func:`analyze_bag`:
 the soak's checks (sequence gaps, every push applied once, momentum change of each push, and from
 ``/sim/push`` the impulse of every period: F x its overlap with a push window, zero outside every window).
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.graph import names as gn
+from biped_sim.recording import topics as gn
 
 # relative tolerance of a push's impulse recovered from the recorded ground reaction (soak check)
 IMPULSE_TOLERANCE = 0.10

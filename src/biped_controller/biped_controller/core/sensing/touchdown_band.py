@@ -1,4 +1,4 @@
-"""A predicted touchdown under an uncertain estimate (issue 22): the k-sigma band of the swing sole's
+"""A predicted touchdown under an uncertain estimate: the k-sigma band of the swing sole's
 predicted height and the torque admissible in both stances inside it. Pure NumPy + Pinocchio, no ROS.
 
 With a known delay of d periods and the touchdown in the delayed sample (the plant's ``touchdown_delayed``),
@@ -35,12 +35,12 @@ stance, drives its ankle into the ground) (eq. 10, ``FixedFootModel.constraints`
 tightened mu, heel and toe and its margins m) are linear in the torque: w_h = A_h^-1 (L_h Gamma - H_h),
 L_h = I or the relabelling -flip, so A_q,h A_h^-1 L_h Gamma <= -m - b_q,h + A_q,h A_h^-1 H_h. If the
 controller's torque Gamma* (in the told stance's paper order) satisfies the 36 rows (17 + 17 + 2) it is sent
-unchanged; otherwise the torque sent is the least-violation answer ``qp.least_violation`` of the 36 rows with
+unchanged; otherwise the torque sent is the least-violation answer ``solver.least_violation`` of the 36 rows with
 x* = Gamma* and W = diag(1 / Gamma_max^2) (PIQP on the slack form: as its regularisation goes to 0, the
 W-closest torque to Gamma* that holds both hypotheses' rows when they have a common point, else the one of
 least summed squared violation; an active row is held to that regularisation, tested to 1e-4 m/s^2).
 Reconciliation: the prediction is redone each period from the newest sample, so when the sensed stance
-arrives the sample starts in it and there is no band (the estimate's impact map, ``sensing``).
+arrives the sample starts in it and there is no band (the estimate's impact map, ``pipeline``).
 
 Without the estimator (perfect sensing, P = None) there is no band: the predictor is exact with an exact
 model, and every run with perfect sensors is unchanged.
@@ -55,7 +55,7 @@ import numpy as np
 
 from biped_sim.robot.fixed_foot import FixedFootModel
 
-from biped_controller.core.qp import least_violation
+from biped_controller.core.qp.solver import least_violation
 
 FD_STEP = 1e-7      # [rad] central-difference step of dz_s/dq (z_s is smooth away from a flat foot's kink)
 

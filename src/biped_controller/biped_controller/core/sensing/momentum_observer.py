@@ -1,5 +1,5 @@
 """Generalized-momentum disturbance observer (De Luca & Mattone, 2003), on the controller's fixed-stance-foot
-model (issue 22). Pure NumPy + Pinocchio, no ROS.
+model. Pure NumPy + Pinocchio, no ROS.
 
 Joint dynamics of the model in single support (paper joints q1..q6, stance foot fixed):
     A(q) q'' + C(q, q') q' + g(q) = Gamma + tau_d
@@ -44,6 +44,7 @@ import pinocchio as pin
 
 from biped_sim.robot.description import RobotDescription
 from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_sim.robot.finite import finite_number
 
 
 class MomentumObserverError(ValueError):
@@ -104,9 +105,7 @@ class MomentumObserver:
     """The observer of the module docstring (gain ``K`` [1/s], wrench point ``height`` [m] above the hip)."""
 
     def __init__(self, desc: RobotDescription, K: float, height: float):
-        if isinstance(K, bool) or not isinstance(K, (int, float)) or not math.isfinite(K) or K <= 0:
-            raise MomentumObserverError(f"momentum_observer_gain must be a finite number > 0, got {K!r}")
-        self.K = float(K)
+        self.K = finite_number(K, "momentum_observer_gain", above=0, error=MomentumObserverError)
         self.height = float(height)
         self.terms = MomentumTerms(desc)
         self.reset()

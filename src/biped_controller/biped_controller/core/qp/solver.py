@@ -1,16 +1,16 @@
 """Adaptation QP for the walking controller: choose x = (p'', tau'') closest to x*.
 
-The problem, units, multiplier signs and statuses are stated once, in :mod:`qp_types`::
+The problem, units, multiplier signs and statuses are stated once, in :mod:`problem`::
 
     minimise    1/2 (x - x*)^T W (x - x*)
     subject to  G x <= h            (n = 2 or 1 variables, m = 37 rows in the controller)
 
 This module holds the solver the controller uses, :class:`AdaptationQP`, and a qpsolvers-based
-helper for benchmarks. The names of :mod:`qp_types` (statuses, :class:`QPResult`,
+helper for benchmarks. The names of :mod:`problem` (statuses, :class:`QPResult`,
 :func:`kkt_residuals` ...) are re-exported here.
 
 Per control step, :meth:`AdaptationQP.solve` first decides whether x* is feasible (compiled
-kernel :func:`qp_fast.early_out`, the decision of :func:`qp_exact.solve_exact` bit for bit;
+kernel :func:`exact_kernels.early_out`, the decision of :func:`exact.solve_exact` bit for bit;
 ~97 % of the steps end there). Otherwise:
 
 * ``solver="piqp"`` (default, the product's solver): PIQP, held and updated (never rebuilt),
@@ -19,8 +19,8 @@ kernel :func:`qp_fast.early_out`, the decision of :func:`qp_exact.solve_exact` b
   active set its multipliers indicate and accepted only if the KKT conditions hold
   (:func:`polish`); if not, PIQP runs again to the tight tolerance. Infeasible problems go to
   the least-violation fallback.
-* ``solver="exact"`` (n <= 2): the compiled exact solver :func:`qp_fast.solve_small`, whose
-  answers equal :func:`qp_exact.solve_exact`'s.
+* ``solver="exact"`` (n <= 2): the compiled exact solver :func:`exact_kernels.solve_small`, whose
+  answers equal :func:`exact.solve_exact`'s.
 """
 
 from __future__ import annotations
@@ -29,8 +29,9 @@ from typing import Optional
 
 import numpy as np
 
-from biped_controller.core.qp_exact import least_violation_exact, reg_weight
-from biped_controller.core.qp_types import (
+from biped_sim.robot.finite import finite_array
+from biped_controller.core.qp.exact import least_violation_exact, reg_weight
+from biped_controller.core.qp.problem import (
     ACTIVE,
     DEFAULT_ACTIVE_TOL,
     DEFAULT_EPS_REG,
@@ -99,7 +100,7 @@ _empty = np.empty
 
 
 def piqp_module():
-    import piqp  # local import keeps `import qp_types` cheap for users of the exact solvers only
+    import piqp  # local import keeps `import problem` cheap for users of the exact solvers only
 
     return piqp
 
@@ -191,16 +192,16 @@ def least_violation(G, h, x_star, W, eps_reg: float = DEFAULT_EPS_REG, active_to
     return finish_result(x, G, h, INFEASIBLE_FALLBACK, violation_message(G, h, x, prefix), active_tol, it)
 
 
-QP_FAST = "biped_controller.core.qp_fast"
-QP_FAST_SOURCES = ("biped_controller.core.qp_types",)
+EXACT_KERNELS = "biped_controller.core.qp.exact_kernels"
+EXACT_KERNELS_SOURCES = ("biped_controller.core.qp.problem",)
 
 
-def load_qp_fast():
-    """The compiled QP kernels (``qp_fast``), loaded through ``numba_cache.load`` when a solver is built,
+def load_exact_kernels():
+    """The compiled QP kernels (``exact_kernels``), loaded through ``numba_cache.load`` when a solver is built,
     not by users of the constants."""
     from biped_sim.robot import numba_cache
 
-    return numba_cache.load(QP_FAST, sources=QP_FAST_SOURCES)
+    return numba_cache.load(EXACT_KERNELS, sources=EXACT_KERNELS_SOURCES)
 
 
 
@@ -213,9 +214,9 @@ def polish(G, h, x_star, W, z, x, feas_rtol: float = DEFAULT_FEAS_RTOL):
     n linearly independent rows of A, taken in order of decreasing z, give the equality-
     constrained optimum ``x = x* - W^-1 G_A^T lam``, ``(G_A W^-1 G_A^T) lam = G_A x* - h_A``;
     it is accepted only if the KKT conditions hold: G x <= h within the tolerance of
-    qp_types.DEFAULT_FEAS_RTOL on every row and lam >= -feas_rtol max|lam| -- then x is the
+    problem.DEFAULT_FEAS_RTOL on every row and lam >= -feas_rtol max|lam| -- then x is the
     exact optimum up to rounding. If rejected, the rows of largest z are tried alone (up to
-    four). Returns (x, z) or None (keep the unpolished answer). Compiled: :func:`qp_fast.polish`.
+    four). Returns (x, z) or None (keep the unpolished answer). Compiled: :func:`exact_kernels.polish`.
     """
     G, h, x_star, W = validate(G, h, x_star, W)
     z = as_float(z, "z")
@@ -224,7 +225,7 @@ def polish(G, h, x_star, W, z, x, feas_rtol: float = DEFAULT_FEAS_RTOL):
         raise QPShapeError(f"z {z.shape} / x {x.shape} do not match h {h.shape} / x_star {x_star.shape}")
     m, n = G.shape
     xp, zp, active = np.empty(n), np.empty(m), np.empty(m, dtype=bool)
-    mv = load_qp_fast().polish(G, h, x_star, W, z, np.arange(m, dtype=np.int64), x, float(feas_rtol), DEFAULT_ACTIVE_TOL,
+    mv = load_exact_kernels().polish(G, h, x_star, W, z, np.arange(m, dtype=np.int64), x, float(feas_rtol), DEFAULT_ACTIVE_TOL,
                         xp, zp, active)
     return (xp, zp) if mv == mv else None
 
@@ -271,7 +272,7 @@ class AdaptationQP:
 
     PIQP 0.7 formulates ``min 1/2 x^T P x + c^T x  s.t.  h_l <= G x <= h_u`` (and more); we use
     P = diag(W), c = -W x*, G = G[rows], h_u = h[rows], h_l = -inf (None at setup), where rows
-    drops duplicated rows (:func:`qp_fast.load_piqp`; 37 -> 20 rows for the controller): the
+    drops duplicated rows (:func:`exact_kernels.load_piqp`; 37 -> 20 rows for the controller): the
     objective differs from 1/2 (x-x*)^T W (x-x*) by a constant. The PIQP objects of a row count
     are created and ``setup`` on its first use (the one for m rows in the constructor) and then
     only updated: :meth:`solve` calls ``update`` and ``solve``, never rebuilds.
@@ -289,8 +290,7 @@ class AdaptationQP:
         W = as_float(W, "W")
         if W.shape != (n,):
             raise QPShapeError(f"W has shape {W.shape}, expected ({n},) (the diagonal)")
-        if not np.all(np.isfinite(W)) or not np.all(W > 0):
-            raise ValueError(f"W must be finite and positive, got {W}")
+        finite_array(W, "W", positive=True)
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         if solver == "exact" and n > 2:
@@ -301,7 +301,7 @@ class AdaptationQP:
             raise ValueError(f"fallback must be 'exact' (n <= 2) or 'piqp', got {fallback!r} with n={n}")
         if not (screen_eps > 0.0):
             raise ValueError(f"screen_eps must be > 0, got {screen_eps}")
-        self._k = load_qp_fast()
+        self._k = load_exact_kernels()
         self.n, self.m = int(n), int(m)
         self.solver_name = solver
         self.active_tol = float(active_tol)
@@ -364,8 +364,7 @@ class AdaptationQP:
         W = as_float(W, "W")
         if W.shape != (self.n,):
             raise QPShapeError(f"W has shape {W.shape}, expected ({self.n},)")
-        if not np.all(np.isfinite(W)) or not np.all(W > 0):
-            raise ValueError(f"W must be finite and positive, got {W}")
+        finite_array(W, "W", positive=True)
         self.W = np.ascontiguousarray(W, dtype=float).copy()
         if self._held:
             idx = np.arange(self.n)
@@ -379,7 +378,7 @@ class AdaptationQP:
         """Solve the QP for this step's data. Raises only :class:`QPShapeError`.
 
         1. non-finite G, h or x* -> SOLVER_ERROR, x = x*;
-        2. G x* <= h (zero tolerance, :func:`qp_types.constraint_values`) -> UNCONSTRAINED,
+        2. G x* <= h (zero tolerance, :func:`problem.constraint_values`) -> UNCONSTRAINED,
            x = x* bit-exact, no solver;
         3. solver="exact": the compiled exact solver (ACTIVE or INFEASIBLE_FALLBACK);
         4. solver="piqp": duplicated rows dropped, PIQP (update + solve) to screen_eps and

@@ -1,4 +1,4 @@
-"""Whole-body QP (the field's standard baseline, issue 26): choose the joint accelerations themselves.
+"""Whole-body QP (the field's standard baseline): choose the joint accelerations themselves.
 
 Pure numerics, no ROS. Kuindersma, Permenter & Tedrake (2014), TSID and mc_rtc control a legged robot
 this way: keep the reference, and each period pick the joint accelerations w closest to the tracking
@@ -19,12 +19,12 @@ q1..q6 of the stance-foot-fixed chain)::
 * M = weight_joint I_6 + weight_torso s s^T, s = (1, 1, 1, 0, 0, 0): s . w is the torso's pitch
   acceleration (its absolute angle is q1 + q2 + q3 with the stance foot flat), so the second term is a
   torso-pitch task weight. Units 1/(rad/s^2)^2 times a cost unit; only the ratio matters.
-* Multipliers z >= 0 with W (w - w*) + G^T z = 0 (the sign convention of :mod:`qp_types`).
+* Multipliers z >= 0 with W (w - w*) + G^T z = 0 (the sign convention of :mod:`problem`).
 
-Solver: the PIQP-held :class:`qp.AdaptationQP` (n = 6, any n works with PIQP; held and updated, never
+Solver: the PIQP-held :class:`solver.AdaptationQP` (n = 6, any n works with PIQP; held and updated, never
 rebuilt; duplicated rows dropped; polished and KKT-checked), on the variable y = L^T w with M = L L^T
 (Cholesky), which turns the weight into the identity that solver takes (its weight is diagonal):
-1/2 |y - y*|^2 = 1/2 (w - w*)^T M (w - w*), G w = (G L^-T) y. Statuses are those of :mod:`qp_types`:
+1/2 |y - y*|^2 = 1/2 (w - w*)^T M (w - w*), G w = (G L^-T) y. Statuses are those of :mod:`problem`:
 UNCONSTRAINED (G w* <= h with zero tolerance, evaluated on w itself; w = w* bit for bit, no solver),
 ACTIVE, INFEASIBLE_FALLBACK (no w holds every row: the least-violation answer
 ``argmin sum_i max(G w - h, 0)_i^2 + eps (w - w*)^T M (w - w*)``, the p/tau QP's own definition, which
@@ -43,9 +43,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS
-from biped_controller.core.period_layout import WBC_MODE_HYBRID, WBC_MODE_WBC
-from biped_controller.core.qp import AdaptationQP
-from biped_controller.core.qp_types import (
+from biped_sim.robot.finite import finite_number
+from biped_controller.core.control.controller_layout import WBC_MODE_HYBRID, WBC_MODE_WBC
+from biped_controller.core.qp.solver import AdaptationQP
+from biped_controller.core.qp.problem import (
     DEFAULT_ACTIVE_TOL,
     INFEASIBLE_FALLBACK,
     SOLVER_ERROR,
@@ -70,9 +71,7 @@ def weight_matrix(weight_joint: float, weight_torso: float) -> np.ndarray:
     """M = weight_joint I_6 + weight_torso s s^T (symmetric positive definite for weight_joint > 0 and
     weight_torso >= 0). Raises :class:`WBCError` naming the bad weight."""
     for name, v, lo_ok in (("wbc_weight_joint", weight_joint, False), ("wbc_weight_torso", weight_torso, True)):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                or v < 0 or (v == 0 and not lo_ok):
-            raise WBCError(f"{name} must be a finite number {'>= 0' if lo_ok else '> 0'}, got {v!r}")
+        finite_number(v, name, **({"at_least": 0} if lo_ok else {"above": 0}), error=WBCError)
     return float(weight_joint) * np.eye(N_JOINTS) + float(weight_torso) * np.outer(TORSO_PITCH_ROW, TORSO_PITCH_ROW)
 
 
@@ -106,7 +105,7 @@ class WBCResult:
     """Answer of the whole-body QP.
 
     w : (6,) chosen joint accelerations [rad/s^2].
-    status : UNCONSTRAINED, ACTIVE, INFEASIBLE_FALLBACK or SOLVER_ERROR (:mod:`qp_types`).
+    status : UNCONSTRAINED, ACTIVE, INFEASIBLE_FALLBACK or SOLVER_ERROR (:mod:`problem`).
     message : detail (solver, violated rows).
     active : (17,) bool, constraint i active (G w - h >= -active_tol) in either block (with or without
         the estimated force), in the order of ``CONSTRAINT_NAMES``.
@@ -194,7 +193,7 @@ class WholeBodyQP:
 
 #: status of a whole-body stage that did not run (the ControllerStatus constant NO_ADAPTATION)
 NOT_RUN = 4
-#: the modes with a whole-body stage, and their code in the compiled stage's constants (period_layout.WBC)
+#: the modes with a whole-body stage, and their code in the compiled stage's constants (controller_layout.WBC)
 WBC_MODES = {"wbc": WBC_MODE_WBC, "hybrid": WBC_MODE_HYBRID}
 
 

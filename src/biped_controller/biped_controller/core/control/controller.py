@@ -24,11 +24,11 @@ status SOLVER_ERROR and x = x*.
 p is kept inside the family's valid range by two extra QP rows (p after one period within
 [p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min).
 
-State: the controller's state between periods is one array, ``memory`` (``period_layout.MEMORY``), shared
+State: the controller's state between periods is one array, ``memory`` (``controller_layout.MEMORY``), shared
 with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a
-period are ``control_kernels``' numba functions for every path (their one home).
+period are ``controller_kernels``' numba functions for every path (their one home).
 
-Modes ``wbc`` and ``hybrid`` (issue 26; :mod:`wbc`) add a whole-body stage after the decision:
+Modes ``wbc`` and ``hybrid`` (:mod:`wbc`) add a whole-body stage after the decision:
 ``wbc`` keeps the reference (x = x*, as mode none: p = p_d, tau' = 1) and relaxes w itself by the
 whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = the tracking law's w;
 ``hybrid`` decides (p'', tau'') exactly as mode ``both`` and runs the same whole-body QP around the
@@ -39,7 +39,7 @@ runs it as well); the Python steps (and ``_FastPeriod.python_stage``, the tests'
 ``wbc.WholeBodyStage``. Either overwrites the period's w (in ``memory``, the observer's next residual),
 torque and reported outputs when it changes w.
 
-Modes ``lambda`` and ``all`` (issue 21; docs/torso_parameter.md) add a third parameter, the torso offset
+Modes ``lambda`` and ``all`` (docs/torso_parameter.md) add a third parameter, the torso offset
 lambda [rad] of ``gait_family.with_torso``: q_d(p, tau, lambda) = q_d(p, tau) + lambda phi(tau/T) e. Then
 D = [dq/dp, dq/dtau, dq/dlambda], x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
 lambda, four more rows (lambda and lambda' after one period within +-lambda_max, +-lambda_dot_max), held
@@ -65,23 +65,24 @@ from biped_sim.robot.gait_family import GaitFamily, eq11, eq11_torso
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
 from biped_sim.robot import numba_cache
 from biped_sim.robot.layout import SnapshotUnsupported
-from biped_controller.core.period_layout import (
+from biped_sim.robot.finite import finite_number
+from biped_controller.core.control.controller_layout import (
     CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, TORSO_QP_ROWS, TORSO_ROWS, WBC, WORK, M_, R_, W_,
     WB_)
-from biped_controller.core.qp import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
-from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
-from biped_controller.core.wbc import NOT_RUN, WBC_MODES, WholeBodyStage, weight_matrix
+from biped_controller.core.qp.solver import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
+from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
+from biped_controller.core.control.wbc import WBC_MODES, WholeBodyStage, weight_matrix
 
 MODES = ("none", "tau", "p", "both", "wbc", "hybrid", "lambda", "all")
 #: what the legs' model-error estimator's regressor is evaluated on (``model_error.REGRESSOR_INPUTS``)
 MODEL_ERROR_REGRESSORS = ("measured", "reference")
 #: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
 PAPER_MODES = ("none", "tau", "p", "both")
-#: the parameters each mode's p/tau QP adapts (0: p'', 1: tau'', 2: lambda'', the torso offset of issue 21);
+#: the parameters each mode's p/tau QP adapts (0: p'', 1: tau'', 2: lambda'', the torso offset);
 #: wbc keeps the reference fixed like none
 ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1), "lambda": (2,),
            "all": (0, 1, 2)}
-#: the modes whose reference has the torso parameter lambda (issue 21); TORSO_ROWS (period_layout): the rows it adds
+#: the modes whose reference has the torso parameter lambda; TORSO_ROWS (controller_layout): the rows it adds
 #: to the QP, lambda and lambda' after one period within [-lambda_max, lambda_max] and [-lambda_dot_max, lambda_dot_max]
 TORSO_MODES = ("lambda", "all")
 NO_ADAPTATION = 4
@@ -90,29 +91,29 @@ MSG_NO_ADAPTATION = "mode none: classical computed torque"
 MSG_FIXED_REFERENCE = {"none": MSG_NO_ADAPTATION, "wbc": "mode wbc: fixed reference, whole-body QP on w"}
 MSG_X_STAR_FEASIBLE = "x* feasible"
 
-CONTROL_KERNELS = "biped_controller.core.control_kernels"
+CONTROLLER_KERNELS = "biped_controller.core.control.controller_kernels"
 # what the compiled period is compiled against besides its own source (kernels it calls, offsets it reads)
-CONTROL_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
+CONTROLLER_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
                            "biped_sim.robot.gait_family",
-                           "biped_controller.core.period_layout", "biped_controller.core.qp_types",
-                           "biped_controller.core.qp_fast")
+                           "biped_controller.core.control.controller_layout", "biped_controller.core.qp.problem",
+                           "biped_controller.core.qp.exact_kernels")
 
 
-WBC_KERNELS = "biped_controller.core.wbc_kernels"
-WBC_KERNELS_SOURCES = CONTROL_KERNELS_SOURCES + (CONTROL_KERNELS,)
+WBC_KERNELS = "biped_controller.core.control.wbc_kernels"
+WBC_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS,)
 
 
 def load_wbc_kernels():
     """The compiled whole-body stage (``wbc_kernels``, modes wbc and hybrid) through ``numba_cache.load``."""
-    load_control_kernels()
+    load_controller_kernels()
     return numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
 
 
-def load_control_kernels():
-    """The compiled control period (``control_kernels``), through ``numba_cache.load``: its ``begin`` and
+def load_controller_kernels():
+    """The compiled control period (``controller_kernels``), through ``numba_cache.load``: its ``begin`` and
     ``commit`` are the one home of the parameter advance, the observer's mode and the period's commit, for
     the compiled period and the Python steps alike."""
-    return numba_cache.load(CONTROL_KERNELS, sources=CONTROL_KERNELS_SOURCES)
+    return numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
 
 
 class ControllerConfigError(ValueError):
@@ -143,17 +144,17 @@ class ControllerConfig:
     wbc_weight_torso: float       # torso-pitch task weight of M (s . w = torso pitch acceleration)
     engine: str                   # "fast": compiled model terms (biped_sim.robot.fast_engine); "reference": Pinocchio
     period: float                 # [s] control period (config/simulator.yaml control_period)
-    # issue 21 (the torso parameter lambda, modes lambda and all): second task and range of lambda
+    # the torso parameter lambda (modes lambda and all): second task and range of lambda
     kp_lambda: float              # [1/s^2] lambda -> 0 (lambda''* = -kv_lambda lambda' - kp_lambda lambda)
     kv_lambda: float              # [1/s] lambda' -> 0
     weight_lambda: float          # QP weight on (lambda'' - lambda''*)^2
     lambda_max: float             # [rad] QP keeps |lambda| (after one period) <= this: the torso's range
     lambda_dot_max: float         # [rad/s] QP keeps |lambda'| (after one period) <= this
-    # issue 22 (real sensing): core/sensing.py; with all of them off the controller is the one above
+    # real sensing: core/sensing/pipeline.py; with all of them off the controller is the one above
     momentum_observer: bool       # the observer is the generalized-momentum one (else acceleration residual)
     momentum_observer_gain: float   # [1/s] its bandwidth K
     estimate_confidence: float      # [-] k: the QP's contact rows keep k sigma of the estimate's spread
-    state_estimator: bool         # Kalman filter on (q, q') (core/estimation.py)
+    state_estimator: bool         # Kalman filter on (q, q') (core/sensing/estimation.py)
     sensor_noise_q: float           # [rad] encoder noise std the controller assumes
     sensor_encoder_bits: int          # [bits per turn] encoder resolution it assumes (0: none)
     sensor_noise_qd: float          # [rad/s] rate sensor noise std it assumes
@@ -185,18 +186,12 @@ class ControllerConfig:
             raise ControllerConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
         for name in ("Kp", "Kv", "kp", "kv", "weight_p", "weight_tau", "period", "tau_dot_min", "kp_lambda",
                      "kv_lambda", "weight_lambda", "lambda_max", "lambda_dot_max"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ControllerConfigError(f"{name} must be a finite number > 0, got {v!r}")
+            finite_number(getattr(self, name), name, above=0, error=ControllerConfigError)
         for name in ("margin_normal_force", "margin_zmp", "margin_torque"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
+            finite_number(getattr(self, name), name, at_least=0, error=ControllerConfigError)
         if not isinstance(self.disturbance_observer, bool):
             raise ControllerConfigError(f"disturbance_observer must be true or false, got {self.disturbance_observer!r}")
-        if isinstance(self.observer_height, bool) or not isinstance(self.observer_height, (int, float)) \
-                or not math.isfinite(self.observer_height):
-            raise ControllerConfigError(f"observer_height must be a finite number, got {self.observer_height!r}")
+        finite_number(self.observer_height, "observer_height", error=ControllerConfigError)
         try:
             weight_matrix(self.wbc_weight_joint, self.wbc_weight_torso)
         except ValueError as exc:
@@ -209,29 +204,24 @@ class ControllerConfig:
                 raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         ints = {}
         for name in ("sensor_encoder_bits", "delay_compensation", "predictor_substeps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v) or v < 0:
-                raise ControllerConfigError(f"{name} must be an integer >= 0, got {v!r}")
-            ints[name] = int(v)     # (a ROS parameter arrives as a float)
+            ints[name] = int(finite_number(getattr(self, name), name, at_least=0, integer=True,
+                                           error=ControllerConfigError))   # (a ROS parameter arrives as a float)
         for name in ("momentum_observer_gain", "estimate_confidence", "sensor_noise_q", "sensor_noise_qd",
                      "sensor_noise_pitch", "sensor_noise_pitch_rate", "estimator_accel_std", "estimator_impact_std",
                      "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance",
                      "touchdown_band_sigmas"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ControllerConfigError(f"{name} must be a finite number >= 0, got {v!r}")
+            finite_number(getattr(self, name), name, at_least=0, error=ControllerConfigError)
         if self.momentum_observer and self.disturbance_observer and self.momentum_observer_gain <= 0:
             raise ControllerConfigError("momentum_observer_gain must be > 0 with the momentum observer on")
         if self.model_error_estimator:
             for name in ("model_mass_uncertainty", "model_inertia_uncertainty", "model_error_residual_std"):
                 v = getattr(self, name)
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                    raise ControllerConfigError(f"{name} must be a finite number > 0 with model_error_estimator "
-                                                f"on, got {v!r}")
+                finite_number(v, name, above=0, error=ControllerConfigError,
+                              message=f"{name} must be a finite number > 0 with model_error_estimator on, got {v!r}")
             v = self.model_error_settle
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ControllerConfigError(f"model_error_settle must be a finite number >= 0 with "
-                                            f"model_error_estimator on, got {v!r}")
+            finite_number(v, "model_error_settle", at_least=0, error=ControllerConfigError,
+                          message=f"model_error_settle must be a finite number >= 0 with model_error_estimator on, "
+                                  f"got {v!r}")
             if not (self.disturbance_observer and self.momentum_observer):
                 raise ControllerConfigError("model_error_estimator needs disturbance_observer and momentum_observer on")
             if self.model_error_regressor not in MODEL_ERROR_REGRESSORS:
@@ -256,7 +246,7 @@ class ControllerConfig:
 
     @property
     def real_sensing(self) -> bool:
-        """Any of issue 22's parts on: the sensing pipeline runs (Python steps, no compiled period)."""
+        """Any part of real sensing on: the sensing pipeline runs (Python steps, no compiled period)."""
         return bool(self.state_estimator or self.delay_compensation > 0
                     or (self.disturbance_observer and self.momentum_observer))
 
@@ -322,7 +312,7 @@ class ControllerStatusData:
     max_tracking_error: float
     predicted_reaction: np.ndarray = field(default_factory=lambda: np.zeros(2))
     force_estimate: float = 0.0
-    wbc_status: int = NO_ADAPTATION_STATUS   # whole-body stage (modes wbc, hybrid): qp_types status, or 4 = not run
+    wbc_status: int = NO_ADAPTATION_STATUS   # whole-body stage (modes wbc, hybrid): problem status, or 4 = not run
     wbc_active: int = 0                      # bit i: row CONSTRAINT_NAMES[i] active in the whole-body QP's answer
     wbc_deviation: float = 0.0               # [rad/s^2] |w - w*| of the whole-body stage (0 when w* held)
     lam: float = 0.0                         # [rad] torso offset lambda of the period (modes lambda, all; else 0)
@@ -353,7 +343,7 @@ def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float
     wbc = mode in WBC_MODES       # the whole-body stage's fields (RES wbc_*); the class defaults otherwise
     if wbc:
         WS, WA, WD = ([int(v) for v in c[R_.wbc_status]], [int(v) for v in c[R_.wbc_active]], c[R_.wbc_deviation])
-    torso = mode in TORSO_MODES   # issue 21: lambda, lambda', lambda'', lambda''* (RES lam, x[2], x_star[2])
+    torso = mode in TORSO_MODES   # torso modes: lambda, lambda', lambda'', lambda''* (RES lam, x[2], x_star[2])
     if torso:
         LA, LD, X2, XS2 = c[R_.lam], c[R_.lam + 1], c[R_.x + 2], c[R_.x_star + 2]
     out = []
@@ -373,7 +363,7 @@ def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float
 
 
 def computed_torque(A: np.ndarray, H: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Eq. (15): Gamma = A(q) w + H(q, q') [N m] (the Python steps; ``control_kernels._finish`` is its
+    """Eq. (15): Gamma = A(q) w + H(q, q') [N m] (the Python steps; ``controller_kernels._finish`` is its
     compiled twin)."""
     return A @ w + H
 
@@ -413,15 +403,15 @@ def _mem_scalar(name: str, kind=float):
 class AdaptiveController:
     """Owns its FixedFootModel (own Pinocchio Data) and its PIQP solver object.
 
-    Real sensing (issue 22, ``ControllerConfig.real_sensing``): on the fast engine the estimator, the
-    momentum observer and the Smith predictor run as compiled kernels (``estimation_compiled.CompiledSensing``)
+    Real sensing (``ControllerConfig.real_sensing``): on the fast engine the estimator, the
+    momentum observer and the Smith predictor run as compiled kernels (``pipeline_compiled.CompiledSensing``)
     before the compiled period; on the reference engine, or with
-    ``python_sensing`` True (the tests' oracle) the Python pipeline (``sensing.SensingPipeline``) and the
+    ``python_sensing`` True (the tests' oracle) the Python pipeline (``pipeline.SensingPipeline``) and the
     Python steps.
 
-    Its state between periods is the array ``memory`` (``period_layout.MEMORY``: parameters, the held
+    Its state between periods is the array ``memory`` (``controller_layout.MEMORY``: parameters, the held
     decision, the last decision's time and stance, F, the observer's memory); ``state``, ``stance``,
-    ``step_index`` and ``force_estimate`` are views of it. The compiled period (``control_kernels``) and the
+    ``step_index`` and ``force_estimate`` are views of it. The compiled period (``controller_kernels``) and the
     compiled loop (``loop_kernels``) take the same array."""
 
     step_index = _mem_scalar("step", int)
@@ -433,7 +423,7 @@ class AdaptiveController:
         self.desc = desc if desc is not None else load_description()
         self.family = family if family is not None else GaitFamily.load()
         self.model = FixedFootModel(self.desc)
-        self.ck = load_control_kernels()
+        self.ck = load_controller_kernels()
         self._fast = None
         self._kernel = None
         if self.cfg.engine == "fast":
@@ -447,12 +437,12 @@ class AdaptiveController:
         self._mu_ratio = c.margin_friction
         self.adapted = ADAPTED[c.mode]
         self.whole_body = WholeBodyStage.for_controller(c, self.model) if c.mode in WBC_MODES else None
-        self.wbc = WBC.new()           # the compiled stage's constants (period_layout.WBC; mode 0: off)
+        self.wbc = WBC.new()           # the compiled stage's constants (controller_layout.WBC; mode 0: off)
         if self.whole_body is not None:
             self.wbc[WB_.mode] = WBC_MODES[c.mode]
             self.wbc[WBC.slice("M")] = self.whole_body.qp.M.ravel()
             self.wbc[WBC.slice("Minv")] = np.linalg.inv(self.whole_body.qp.M).ravel()
-        self.torso = c.mode in TORSO_MODES     # the reference has the torso parameter lambda (issue 21)
+        self.torso = c.mode in TORSO_MODES     # the reference has the torso parameter lambda
         nx = 3 if self.torso else 2
         self._adapted_idx = list(self.adapted)
         self._fixed_idx = [i for i in range(nx) if i not in self.adapted]
@@ -468,18 +458,18 @@ class AdaptiveController:
         self._compiled_sensing = False
         if self.cfg.real_sensing:
             if self._fast is not None and not python_sensing and not self.torso:
-                # issue 22: the estimator and the momentum observer as compiled kernels (estimation_kernels)
-                from biped_controller.core.estimation_compiled import CompiledSensing
+                # real sensing: the estimator and the momentum observer as compiled kernels (pipeline_kernels)
+                from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
                 m = self.model
                 qp_C, _ = contact_rows(c.margin_friction * m.mu, m.l_min + c.margin_zmp, m.l_max - c.margin_zmp)
                 self._sensing = CompiledSensing(self.cfg, self.desc, self._fast.ti, self._fast.tf, qp_C,
                                                 m.torque_min, m.torque_max)
                 self._compiled_sensing = True
             else:
-                from biped_controller.core.sensing import SensingPipeline
+                from biped_controller.core.sensing.pipeline import SensingPipeline
                 self._sensing = SensingPipeline(self.cfg, self.desc)
             if self.cfg.delay_compensation > 0:
-                from biped_controller.core.touchdown_band import BothStancesTorque
+                from biped_controller.core.sensing.touchdown_band import BothStancesTorque
                 m = self.model
                 self._both = BothStancesTorque(m, self.margin, c.margin_friction * m.mu, m.l_min + c.margin_zmp,
                                                m.l_max - c.margin_zmp)
@@ -573,7 +563,7 @@ class AdaptiveController:
     def reference_at(self, t: float, stance: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The controller's reference (q_d [rad], q_d' [rad/s], q_d'' [rad/s^2], paper order of ``stance``) at
         instant ``t`` [s]: eq. (11) at the parameters of the last decision taken at or before ``t``, advanced
-        over the integer nanoseconds since with the (p'', tau'') held then (``control_kernels.advance``, the
+        over the integer nanoseconds since with the (p'', tau'') held then (``controller_kernels.advance``, the
         period's own advance), tau = 0 if ``stance`` differs from that decision's (an impact: the next step
         starts, as ``period_start``); before any decision the initial parameters (p = p_d, tau = 0, tau' = 1).
         It depends on the controller's parameters only, not on the sample taken at ``t`` (model_error.py,
@@ -598,7 +588,7 @@ class AdaptiveController:
         return eq11(self.family.evaluate(p, tau), pd, taud, p_dd, t_dd)
 
     def snapshot(self) -> np.ndarray:
-        """The state between two periods (issue 19): a copy of ``memory``. The held solvers (PIQP, the
+        """The state between two periods: a copy of ``memory``. The held solvers (PIQP, the
         whole-body QP) keep no answer from one call to the next that changes the next answer (every solve
         starts afresh from the instance: tested by reusing a controller across trials), so the memory is all
         there is. Raises :class:`SnapshotUnsupported` with real sensing (its filters hold state of their
@@ -615,7 +605,7 @@ class AdaptiveController:
 
     # --------------------------------------------------------------- the steps of one period
     def _begin(self, t: float, stance: int) -> np.ndarray:
-        """The period's start (``control_kernels.begin``, the one home of the equation, shared with the
+        """The period's start (``controller_kernels.begin``, the one home of the equation, shared with the
         compiled period and loop): a ``RES`` row holding (p, p', tau, tau') advanced over the time actually
         elapsed since the last decision with the p'', tau'' chosen then (exact integration, from integer
         nanoseconds, so a time that travelled through a ROS stamp gives the same arithmetic; a period cut
@@ -818,13 +808,13 @@ class AdaptiveController:
                 pitch_rate: float = math.nan) -> ControlOutput:
         """One control period: advance the parameters, observe, reference, rows, decide, torque, commit.
 
-        With the fast engine the steps are one compiled call (``control_kernels.step``, the same
+        With the fast engine the steps are one compiled call (``controller_kernels.step``, the same
         equations) and, when x* is not feasible, the QP and one more call; a non-finite value anywhere
         falls back to the Python steps below (the memory is then unchanged by the compiled call).
 
-        With real sensing (``ControllerConfig.real_sensing``, issue 22) the measurement (stance, q, q' and
+        With real sensing (``ControllerConfig.real_sensing``) the measurement (stance, q, q' and
         the IMU's torso ``pitch`` [rad] and its gyro's ``pitch_rate`` [rad/s], NaN: none) goes through
-        ``sensing.SensingPipeline`` first: the Python steps run on its estimate, in the stance it predicts,
+        ``pipeline.SensingPipeline`` first: the Python steps run on its estimate, in the stance it predicts,
         and the torque returned is in the paper order of the stance given here (relabelled when a touchdown
         is predicted before it is sensed). Inside a predicted touchdown's band (``touchdown_band``, with the
         estimator and a delay) that torque is replaced by one holding both stances' rows when it does not."""
@@ -844,7 +834,7 @@ class AdaptiveController:
                     self._sensing.record(t, out.torque, told)
                 return out
         res = self._begin(t, stance)
-        lam = self._torso_begin(res) if self.torso else None     # (lambda, lambda') of the period (issue 21)
+        lam = self._torso_begin(res) if self.torso else None     # (lambda, lambda') of the period (torso modes)
         ref = self._reference(q, qd, res, lam)
         dyn, jp = self._model_terms(q, qd)                     # eq. (1): A, H and the reaction rows
         dyn_c, F = self._observe(res, qd, dyn, jp)
@@ -916,7 +906,7 @@ class AdaptiveController:
 
 
 class _FastPeriod:
-    """The compiled period of an :class:`AdaptiveController` (fast engine): ``control_kernels.step`` on the
+    """The compiled period of an :class:`AdaptiveController` (fast engine): ``controller_kernels.step`` on the
     controller's own arrays (gains, cons, memory), the QP when x* is not feasible, the same
     ``ControlOutput`` as the Python steps."""
 
@@ -945,7 +935,7 @@ class _FastPeriod:
             qd = np.ascontiguousarray(qd, dtype=float)
         work = np.empty((WORK.size, 6))
         res = np.empty(RES.size)
-        if ctrl._compiled_sensing:              # issue 22: the momentum observer's inputs to the period
+        if ctrl._compiled_sensing:              # the momentum observer's inputs to the period
             ctrl._sensing.into_res(res[_SENS_RES])
         G, h = self.G, self.h
         t, stance = float(t), int(stance)
@@ -1008,7 +998,7 @@ class _FastPeriod:
         return Gr, hr, xs
 
     def solve_qp(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
-        """The period's decision when x* is not feasible (``control_kernels.step`` returned NEEDS_QP with G,
+        """The period's decision when x* is not feasible (``controller_kernels.step`` returned NEEDS_QP with G,
         h and ``res``): the controller's QP on the adapted parameters. Returns (x (2,), status, message, G_r,
         h_r, x*_r), or None when the answer is not finite (the caller takes the reference path). Also the
         compiled loop's QP periods (``segment``): one home of the decision. Modes lambda and all: x (3,), and

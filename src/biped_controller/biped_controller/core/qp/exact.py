@@ -1,7 +1,7 @@
 """Exact solver of the adaptation QP for n = 1 and n = 2, in numpy: the reference (oracle) of
-the other solvers (PIQP in :mod:`qp`, the numba kernel in :mod:`qp_fast`).
+the other solvers (PIQP in :mod:`solver`, the numba kernel in :mod:`exact_kernels`).
 
-Same problem, sign conventions, units and statuses as :mod:`qp_types`::
+Same problem, sign conventions, units and statuses as :mod:`problem`::
 
     minimise 1/2 (x - x*)^T W (x - x*)   s.t.   G x <= h,   W = diag(W) > 0,  G (m, n), n in {1, 2}.
 
@@ -11,7 +11,7 @@ multipliers; in 2-D a set of at most two linearly independent active rows suffic
 (Caratheodory), so the optimum is one of
 
 * x*                                   (if G x* <= h, tolerance 0 -> UNCONSTRAINED; G x* - h as
-                                        evaluated by :func:`qp_types.constraint_values`),
+                                        evaluated by :func:`problem.constraint_values`),
 * the W-projection of x* onto a line g_i x = h_i for a row with g_i x* > h_i
   ``x = x* - (g_i x* - h_i) / (g_i W^-1 g_i^T) W^-1 g_i^T``,
 * a vertex g_i x = h_i, g_j x = h_j of two non-parallel rows (n = 2 only); its multipliers
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from biped_controller.core.qp_types import (
+from biped_controller.core.qp.problem import (
     ACTIVE,
     DEFAULT_ACTIVE_TOL,
     DEFAULT_EPS_REG,
@@ -200,14 +200,14 @@ def solve_exact(G, h, x_star, W, *, active_tol: float = DEFAULT_ACTIVE_TOL, eps_
 
     feas_rtol : relative feasibility tolerance for candidates: row i accepts x when
         g_i x - h_i <= feas_rtol (|g_i| |x| + |h_i|) + ROUNDING_RTOL |g_i| |x*| (rounding of
-        the candidate formulas; the last term for those computed from x*, see qp_types).
+        the candidate formulas; the last term for those computed from x*, see problem).
     parallel_tol : pairs with |det [g_i; g_j]| <= parallel_tol |g_i| |g_j| are not intersected.
     Multipliers z (>= 0, W (x - x*) + G^T z = 0) of the chosen candidate are returned in ``z``.
     """
     G, h, x_star, W = validate(G, h, x_star, W)
     m, n = G.shape
     if n > 2:
-        raise QPShapeError(f"qp_exact handles n = 1 or 2, G has {n} columns")
+        raise QPShapeError(f"exact handles n = 1 or 2, G has {n} columns")
     bad = nonfinite_name(G, h, x_star, W)
     if bad is not None or not np.all(W > 0):
         return error_result(x_star, G, h, f"non-finite or invalid values in {bad or 'W'}", active_tol)

@@ -1,17 +1,17 @@
-"""The sensing pipeline on compiled kernels (issue 22): the estimator, the momentum observer and the Smith
-predictor of ``sensing.SensingPipeline``, for the controller's compiled period.
+"""The sensing pipeline on compiled kernels: the estimator, the momentum observer and the Smith
+predictor of ``pipeline.SensingPipeline``, for the controller's compiled period.
 
-Pure Python + NumPy around ``estimation_kernels`` (numba), no ROS. One :class:`CompiledSensing` per
-controller keeps its state in one array (``estimation_layout.SENS``) that the kernels update in place; the
+Pure Python + NumPy around ``pipeline_kernels`` (numba), no ROS. One :class:`CompiledSensing` per
+controller keeps its state in one array (``pipeline_layout.SENS``) that the kernels update in place; the
 Python cores stay the oracle (tests: the same seeded noisy run period by period, to round-off). A sensed
 touchdown (once a step) takes the model's flat-foot impact map in Python (``predictor.flat_foot_impact``,
 the same function as the Python pipeline's); everything else is one compiled call a period. With a known
 delay of d > 0 periods (``delay_compensation``) the bookkeeping of the delayed samples is the Python
 pipeline's (which period's sample, the interval since the previous one and the torque applied over it, from
 the log of the controller's decisions), the estimator and the observer run on the sample, and the predictor
-(``estimation_kernels.predict``: RK4 on the fixed-foot chain, the touchdown and its flat-foot impact map
+(``pipeline_kernels.predict``: RK4 on the fixed-foot chain, the touchdown and its flat-foot impact map
 compiled) takes it to the present through the last d decisions. The legs' model-error estimator
-(``model_error``) runs inside the same compiled call, after the observer (``estimation_kernels.sense_finish``
+(``model_error``) runs inside the same compiled call, after the observer (``pipeline_kernels.sense_finish``
 -> ``model_error_kernels.update``: its regressor in closed form, its state in ``SENS``'s ``me_*`` fields);
 ``use_model_error_kernel(False)`` runs ``model_error.LegModelError`` (Pinocchio) after the compiled call
 instead, with the same inputs (the tests' oracle and the benchmark's "before").
@@ -31,28 +31,28 @@ from collections import deque
 
 from biped_sim.robot.fixed_foot import relabel
 
-from biped_controller.core.estimation import RELABEL
-from biped_controller.core.sensing import estimator_config
-from biped_controller.core.estimation_layout import N_LEG_PARAMETERS, N_TREE_BODIES, SCONF, SENS, SC_, S_
-from biped_controller.core.model_error import (HOLD_VARIANCE, LEG_PARAMETERS, LegErrorEstimate, LegModelError,
+from biped_controller.core.sensing.estimation import RELABEL
+from biped_controller.core.sensing.pipeline import estimator_config
+from biped_controller.core.sensing.pipeline_layout import N_LEG_PARAMETERS, N_TREE_BODIES, SCONF, SENS, SC_, S_
+from biped_controller.core.sensing.model_error import (HOLD_VARIANCE, LEG_PARAMETERS, LegErrorEstimate, LegModelError,
                                                 body_combination, load_model_error_kernels)
-from biped_controller.core.momentum_observer import Wrench
-from biped_controller.core.predictor import flat_foot_impact
-from biped_controller.core.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
+from biped_controller.core.sensing.momentum_observer import Wrench
+from biped_controller.core.sensing.predictor import flat_foot_impact
+from biped_controller.core.sensing.touchdown_band import (TouchdownBand, in_band, propagated_position_cov,
                                                   lever_bound, sigma_bound, sole_rate,
                                                   sole_height_std)
 
-ESTIMATION_KERNELS = "biped_controller.core.estimation_kernels"
-ESTIMATION_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
-                              "biped_sim.robot.layout", "biped_controller.core.estimation_layout",
-                              "biped_controller.core.model_error_kernels")
+PIPELINE_KERNELS = "biped_controller.core.sensing.pipeline_kernels"
+PIPELINE_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
+                              "biped_sim.robot.layout", "biped_controller.core.sensing.pipeline_layout",
+                              "biped_controller.core.sensing.model_error_kernels")
 
 
-def load_estimation_kernels():
-    """``estimation_kernels`` through ``numba_cache.load`` (cache kept with its dependencies; the model-error
+def load_pipeline_kernels():
+    """``pipeline_kernels`` through ``numba_cache.load`` (cache kept with its dependencies; the model-error
     kernels it calls loaded first through their own loader)."""
     load_model_error_kernels()
-    return numba_cache.load(ESTIMATION_KERNELS, sources=ESTIMATION_KERNELS_SOURCES)
+    return numba_cache.load(PIPELINE_KERNELS, sources=PIPELINE_KERNELS_SOURCES)
 
 
 class SensingSingular(FloatingPointError):
@@ -86,7 +86,7 @@ class KernelLegError:
 
 
 class CompiledSensing:
-    """``SensingPipeline`` for delay 0 on ``estimation_kernels``. ``cfg``: the ControllerConfig; ``ti``, ``tf``:
+    """``SensingPipeline`` for delay 0 on ``pipeline_kernels``. ``cfg``: the ControllerConfig; ``ti``, ``tf``:
     the fixed-foot tree's arrays (``FastFixedFootModel``); ``qp_rows`` (5, 2): the QP's contact rows' (C_x,
     C_y); ``torque_min``, ``torque_max``: the limits [N m]."""
 
@@ -94,7 +94,7 @@ class CompiledSensing:
                  torque_min: np.ndarray, torque_max: np.ndarray):
         self.d = int(cfg.delay_compensation)
         self.at_once = bool(cfg.predictor_touchdown_at_once)
-        self.ek = load_estimation_kernels()
+        self.ek = load_pipeline_kernels()
         self.cfg = cfg
         self.ti, self.tf = ti, tf
         est = estimator_config(cfg)
@@ -129,7 +129,7 @@ class CompiledSensing:
         self.me_on = bool(self.observer and cfg.model_error_estimator)
         if self.me_on:        # the legs' model-error estimator (model_error.py), run inside the kernel
             if len(LEG_PARAMETERS) != N_LEG_PARAMETERS or int(ti[1]) != N_TREE_BODIES:
-                raise ValueError(f"estimation_layout declares {N_LEG_PARAMETERS} leg parameters and {N_TREE_BODIES} "
+                raise ValueError(f"pipeline_layout declares {N_LEG_PARAMETERS} leg parameters and {N_TREE_BODIES} "
                                  f"tree bodies; the model has {len(LEG_PARAMETERS)} and {int(ti[1])}")
             # the settings' checks and the prior: LegModelError's own (also the oracle path's estimator)
             self._me_py = LegModelError(desc, cfg.momentum_observer_gain, cfg.model_mass_uncertainty,
@@ -228,7 +228,7 @@ class CompiledSensing:
     def _model_error(self, t_s: float, stance: int, pre: tuple) -> None:
         """The legs' model error in Python (``use_model_error_kernel(False)``) on the sample the compiled
         observer has just taken (``model_error``, the Python pipeline's call with the same inputs: the interval
-        and the torque applied over it as ``estimation_kernels._elapsed_applied``, the restart as the
+        and the torque applied over it as ``pipeline_kernels._elapsed_applied``, the restart as the
         kernel's). The kernel's ``_model_error`` takes the same inputs."""
         s = self.state
         first, decided, t_prev, torque_prev, told_prev, stance_prev = pre
