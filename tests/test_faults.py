@@ -57,6 +57,8 @@ CASES = [
     ('biped_controller', 'controller', 'gait_family_path:={tmp}/broken.json', 'gait_family_path'),
     ('biped_controller', 'controller', 'description_path:=/nonexistent.yaml', 'description_path'),
     ('biped_controller', 'controller', 'mode:=fast', 'mode'),
+    ('biped_controller', 'controller', 'profile:=no_such_profile', 'profile'),
+    ('biped_sim', 'simulator', 'profile:=no_such_profile', 'profile'),
     ('biped_controller', 'controller', 'use_imu:=maybe', 'use_imu'),
     ('biped_controller', 'controller', 'publish_cdr:=maybe', 'publish_cdr'),
     ('biped_sim', 'simulator', 'publish_cdr:=2', 'publish_cdr'),
@@ -72,6 +74,8 @@ def test_bad_parameter_exits_2_naming_it(ros_domain, other_robot, pkg, name, par
     r = _run_node(pkg, name, param.format(tmp=other_robot))
     assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
     assert f"invalid parameter '{named}'" in r.stderr, r.stderr[-2000:]
+    if named == 'profile':      # the message lists the profiles there are
+        assert "known profiles: " in r.stderr and "paper" in r.stderr, r.stderr[-2000:]
 
 
 def _fault_run(tmp, env, victim: str, *extra):
