@@ -116,9 +116,10 @@ def test_a_bad_value_is_one_line_naming_it_with_exit_status_2(argv, option, valu
     assert option in lines[0] and value in lines[0], lines[0]
 
 
-def test_the_profile_is_printed_with_only_the_differing_settings():
-    r = _cli("biped_controller.studies.experiment", "walk", "--steps", "1", "--mode", "none", "--profile", "paper",
-             "--set", "Kp=900")
-    assert r.returncode == 0, r.stderr[-2000:]
-    line = next(x for x in r.stdout.splitlines() if x.startswith("profile "))
-    assert line == "profile paper; settings differing from config/: Kp=900, disturbance_observer=False", line
+def test_the_profile_is_printed_with_only_the_differing_settings(capsys):
+    ts.print_settings(ts.parse_overrides(["Kp=900"], profile="paper"))
+    assert capsys.readouterr().out == "profile paper; settings differing from config/: Kp=900, disturbance_observer=False\n"
+    ts.print_settings(ts.run_settings("delay2"))
+    out = capsys.readouterr().out.splitlines()
+    assert out == ["profile delay2; settings differing from config/: delay_compensation=2, momentum_observer=True",
+                   "plant perturbation: delay=2"], out
