@@ -40,7 +40,7 @@ def _trial(mode, force, duration, phase, pool=None, steps=None):
     ctx = tcontext.context()
     start = phase * ctx.family.T
     settings = ts.DEFAULT_SETTINGS
-    n = steps if steps is not None else runs.push_step_index(start, duration, ctx.family.T) + 3
+    n = steps if steps is not None else runs.push_step_index(Push(start, duration, force), ctx.family.T) + 3
     return runner.run(n, mode, (Push(start, duration, force),), sim_config=settings.sim_config(),
                       ctrl_config=settings.ctrl_config(mode), family=ctx.family, desc=ctx.desc, pool=pool), start
 

@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
+from biped_sim.plant.push import Push
+
 from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float,
                                                  nonnegative_float, positive_float, settings_from_args)
@@ -79,7 +81,10 @@ def summarise(mode: str, res) -> dict:
     return out
 
 
-def figure(runs: dict, force: float, path: Path, plant: str = "rigid", start: float = DEFAULT_START) -> None:
+def figure(runs: dict, push: Push, path: Path, plant: str = "rigid") -> None:
+    """p, tau', the whole-body QP's active rows, |w - w*| and the impacts over time, one line per mode, for
+    the runs of ``push``."""
+    force, start, duration = push.force, push.start, push.duration
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -112,9 +117,9 @@ def figure(runs: dict, force: float, path: Path, plant: str = "rigid", start: fl
     ax[4].set_xlabel("t [s] (dotted: impacts; x: fall)")
     ax[0].legend(fontsize=8)
     ax[4].set_xlim(0.0, min(1.5, max(float(r.statuses[-1].t) for r in runs.values()) + 0.05))
-    ax[0].set_title(f"{force:g} N forward for {DEFAULT_DURATION * 1e3:g} ms at t = {start:g} s ({plant} plant)")
+    ax[0].set_title(f"{force:g} N forward for {duration * 1e3:g} ms at t = {start:g} s ({plant} plant)")
     for a in ax:
-        a.axvspan(start, start + DEFAULT_DURATION, color="0.9")
+        a.axvspan(start, start + duration, color="0.9")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -317,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{m:<7} fallen={s['fallen']} {s['fall_cause'] or '-'} t={s['fall_time']} impacts={s['impacts']} "
               f"wbc active={s['wbc_periods_active']} infeasible={s['wbc_periods_infeasible']} rows={s['wbc_rows_active_periods']}")
     if not args.no_figure:
-        figure(runs, args.force, args.out / f"{tag}.png", settings.sim_config().plant, args.start)
+        figure(runs, push, args.out / f"{tag}.png", settings.sim_config().plant)
     return 0
 
 

@@ -19,7 +19,7 @@ from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.records import ImpactRecord, StepRecord
-from biped_sim.plant.protocol import make_plant
+from biped_sim.plant.protocol import Plant, make_plant
 
 from biped_controller.core.controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
 from biped_controller.studies.segment import Segment
@@ -49,7 +49,7 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,
         extra_time_after_steps: float = 0.0, perturbation: PlantPerturbation | None = None,
         compiled_loop: bool = True, keep_records: bool = True,
-        on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None,
+        on_impact: Callable[[Plant, AdaptiveController], bool] | None = None,
         pool: "LoopPool | None" = None) -> RunResult:
     """Walk ``steps`` steps (impacts) or until a fall. ``integration_rate``: the controller's torque law is
     evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` goes to the
@@ -191,7 +191,7 @@ class ClosedLoop:
 
     def run(self, steps: int, pushes: tuple[Push, ...] = (), *, limit: float, integration_rate: bool = False,
             extra_time_after_steps: float = 0.0, compiled_loop: bool = True, keep_records: bool = True,
-            on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None, seen: int = 0,
+            on_impact: Callable[[Plant, AdaptiveController], bool] | None = None, seen: int = 0,
             pending: bool = False) -> RunResult:
         """``run``'s loop from the current state (after :meth:`reset` or :meth:`restore`): schedules
         ``pushes`` and walks until ``steps`` impacts, a fall, ``limit`` [s] or ``on_impact`` says stop.

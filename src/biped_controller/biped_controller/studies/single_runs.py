@@ -87,7 +87,7 @@ def push_experiment(push: Push, mode: str = "both", figures: str | Path | None =
     out = {"force": force, "duration": duration, "start": start, "mode": mode, "height": height,
            "survived": ok, "reason": why, **s}
     if figures is not None:
-        out["figures"] = [str(p) for p in push_figures(res, Path(figures), start, duration,
+        out["figures"] = [str(p) for p in push_figures(res, Path(figures), push,
                                                        title=f"{force:g} N, {duration * 1e3:g} ms at t = {start:g} s, mode {mode}")]
     return out
 
@@ -109,10 +109,11 @@ def print_push(r: dict) -> None:
         print(f"  figure: {f}")
 
 
-def push_figures(result: RunResult, outdir: Path, start: float, duration: float, joint: int | None = None,
+def push_figures(result: RunResult, outdir: Path, push: Push, joint: int | None = None,
                  title: str = "") -> list[Path]:
-    """PNG figures like the paper's Figs. 3-7. ``joint`` (0-based) for Figs. 6-7; default: the joint
-    with the largest tracking error."""
+    """PNG figures like the paper's Figs. 3-7 of a run with ``push``. ``joint`` (0-based) for Figs. 6-7;
+    default: the joint with the largest tracking error."""
+    start, duration = push.start, push.duration
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

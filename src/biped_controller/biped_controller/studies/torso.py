@@ -70,7 +70,7 @@ def costs(runs: dict[str, RunResult], push_end: float) -> dict:
     return out
 
 
-def figure(runs: dict[str, RunResult], start: float, duration: float, title: str, path: Path) -> Path:
+def figure(runs: dict[str, RunResult], push: Push, title: str, path: Path) -> Path:
     """p, tau' and lambda against t for each mode's run (three panels)."""
     import matplotlib
     matplotlib.use("Agg")
@@ -88,7 +88,7 @@ def figure(runs: dict[str, RunResult], start: float, duration: float, title: str
     ax[1].axhline(1.0, color="k", ls=":", lw=0.8)
     ax[2].axhline(0.0, color="k", ls=":", lw=0.8)
     for a, lab in zip(ax, ("p [m]", "tau' [-]", "lambda [rad] (+ leans back)")):
-        a.axvspan(start, start + duration, color="tab:red", alpha=0.15)
+        a.axvspan(push.start, push.end, color="tab:red", alpha=0.15)
         a.set_ylabel(lab)
         a.grid(alpha=0.3)
     ax[0].set_title(title, fontsize=9)
@@ -197,7 +197,8 @@ def main(argv=None) -> int:
     if not (math.isfinite(args.force) and args.force >= 0):
         ap.error(f"--force must be a finite number >= 0 (use --backward for the sign), got {args.force}")
     force = -args.force if args.backward else args.force
-    runs = push_runs(Push(args.start, args.duration, force), args.modes, args.steps)
+    push = Push(args.start, args.duration, force)
+    runs = push_runs(push, args.modes, args.steps)
     push_end = args.start + args.duration
     res = {"argv": list(sys.argv[1:] if argv is None else argv), "force": force, "start": args.start,
            "duration": args.duration, **costs(runs, push_end)}
@@ -208,7 +209,7 @@ def main(argv=None) -> int:
               f"{c['abs_work_J']:9.2f} {c['torque_sq_integral']:10.1f} {c['max_abs_lambda_rad']:9.4f}  {c['reason']}")
     if args.cmd == "figure":
         title = f"{force:g} N, {args.duration * 1e3:g} ms at t = {args.start:g} s"
-        res["figure"] = str(figure(runs, args.start, args.duration, title, args.out))
+        res["figure"] = str(figure(runs, push, title, args.out))
         print(f"figure: {res['figure']}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -40,15 +40,15 @@ def run(steps: int, mode: str, pushes: tuple[Push, ...] = (), *, integration_rat
                       perturbation=settings.perturbation, keep_records=keep_records, on_impact=on_impact, pool=pool)
 
 
-def push_step_index(start: float, duration: float, T: float) -> int:
-    """Index of the (nominal) step during which a push over [start, start + duration) [s] ends (0 = first
-    step; ``T`` the nominal step duration [s])."""
-    return int(math.floor((start + duration) / T))
+def push_step_index(push: Push, T: float) -> int:
+    """Index of the (nominal) step during which ``push`` ends (0 = first step; ``T`` the nominal step
+    duration [s]): floor((start + duration) / T)."""
+    return int(math.floor((push.start + push.duration) / T))
 
 
 def trial_steps(push: Push, steps_after: int = SURVIVAL_STEPS) -> int:
     """The impacts a pushed run walks: up to the end of the push's step, then ``steps_after`` more."""
-    return push_step_index(push.start, push.duration, context().family.T) + 1 + steps_after
+    return push_step_index(push, context().family.T) + 1 + steps_after
 
 
 def push_run(push: Push, mode: str = "both", *, steps_after: int = SURVIVAL_STEPS, keep_qp: bool = False,
