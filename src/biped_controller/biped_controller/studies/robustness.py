@@ -55,7 +55,8 @@ from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, positive_int, profile_arg)
 from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.settings import DEFAULT_PROFILE, RunSettings, parse_overrides, print_settings
+from biped_controller.studies.trial.settings import (DEFAULT_PROFILE, RunSettings, differences, parse_overrides,
+                                                     print_settings)
 
 WALK_STEPS = 20
 PUSH_CELL = dict(direction="forward", phase=0.5, duration=0.025)
@@ -498,7 +499,10 @@ def main(argv: list[str] | None = None) -> int:
             "searches": {m: {"coarse": s.coarse, "max": s.fmax, "resolution": s.resolution} for m, s in SEARCHES.items()},
             "push_cell": PUSH_CELL, "walk_steps": WALK_STEPS, "figures": figs,
             "git": git_state(), "wall_time": wall, "workers": args.workers,
-            "full_trials": args.full_trials, "profile": args.profile}, indent=1), encoding="utf-8")
+            "full_trials": args.full_trials,
+            # the profile and what differs from the configuration files in every row (the observer: per row)
+            "settings": differences(RunSettings(CONTROLLER_OVERRIDES, SIMULATOR_OVERRIDES, profile=PROFILE))},
+            indent=1), encoding="utf-8")
     return 0
 
 

@@ -12,7 +12,7 @@ from biped_controller.studies.trial import stop, survival
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION
 from biped_controller.studies.trial.search import PAPER_MAX_PUSH
-from biped_controller.studies.trial.settings import check_settings
+from biped_controller.studies.trial.settings import differences
 from biped_controller.studies.capmap.driver import MapRun
 from biped_controller.studies.capmap.metrics import body_weight_fraction, com_velocity_change, impulse
 from biped_controller.studies.capmap.search import island_ranges
@@ -172,8 +172,7 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
                 "survival": f"no fall for {survival.SURVIVAL_STEPS} steps after the push end, "
                             f"|p - p_d| <= {survival.P_TOL} m and |tau' - 1| <= {survival.TAU_DOT_TOL} at the end"},
         "fingerprint": run.fingerprint,
-        "settings": check_settings(s.settings),
-        "profile": s.settings.profile,
+        "settings": differences(s.settings),
         "robot": {"mass": M, "gravity": g, "weight": M * g},
         "units": {"force": "N", "impulse": "N s", "delta_v_com": "m/s", "body_weight_fraction": "-",
                   "phase": "fraction of the step", "start": "s", "duration": "s"},
