@@ -123,3 +123,27 @@ def test_the_profile_is_printed_with_only_the_differing_settings(capsys):
     out = capsys.readouterr().out.splitlines()
     assert out == ["profile delay2; settings differing from config/: delay_compensation=2, momentum_observer=True",
                    "plant perturbation: delay=2"], out
+
+
+# ------------------------------------------------------------------------------------------ nodes
+def test_the_nodes_take_a_profile_and_explicit_parameters_win(rclpy_context):
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from biped_controller.graph.controller_node import read_controller_config
+    from biped_sim.graph.simulator_node import read_perturbation, read_sim_config
+    from biped_sim.robot.description import load_description
+
+    def node(name, **params):
+        return Node(name, context=rclpy_context,
+                    parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    n = node("controller", profile="real-sensors", Kp=900.0)
+    cfg = read_controller_config(n)
+    want = ts.parse_overrides(["Kp=900"], profile="real-sensors").ctrl_config(cfg.mode)
+    assert cfg == want and cfg.state_estimator and cfg.momentum_observer_gain == 50.0
+    n.destroy_node()
+    assert read_controller_config(node("controller")).disturbance_observer is True      # default profile
+    s = node("simulator", profile="delay2")
+    assert read_sim_config(s) == ts.DEFAULT_SETTINGS.sim_config()
+    assert read_perturbation(s, load_description()).delay == 2
+    s = node("simulator", profile="real-sensors-mujoco")
+    assert read_sim_config(s).plant == "mujoco"
