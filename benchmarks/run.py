@@ -490,8 +490,8 @@ def bench_experiment(quick: bool) -> dict:
     from benchmarks.experiment_bench import time_table
     if quick:   # the table takes minutes even with coarse settings: only check the API is there
         import inspect
-        from biped_controller.studies import experiment
-        sig = inspect.signature(experiment.max_push_modes)
+        from biped_controller.studies.trial import search
+        sig = inspect.signature(search.max_push_modes)
         missing = [k for k in ("resolution", "fmax", "coarse", "workers", "progress") if k not in sig.parameters]
         return {"available": False, "reason": "skipped in --quick" + (f" (API changed: {missing})" if missing else "")}
     try:

@@ -20,13 +20,12 @@ import sys
 import time
 from pathlib import Path
 
-from biped_controller.studies import provenance
-
 
 def profile(phases: int) -> dict:
     from biped_sim.plant import rigid
     from biped_controller.core.control import controller as C
-    from biped_controller.studies import capability_map as cm, experiment, runner, segment
+    from biped_controller.studies import capability_map as cm, runner, segment
+    from biped_controller.studies.trial import runs, trials
 
     acc: dict[str, list] = {}
 
@@ -45,7 +44,7 @@ def profile(phases: int) -> dict:
                 e[1] += 1
         setattr(owner, name, timed)
 
-    experiment.survives(100.0, "both", 0.025, 0.1)        # compile and load outside the timed part
+    trials.survives(runs.paper_push(100.0, start=0.1), "both")   # compile and load outside the timed part
     for owner, name, key in ((segment.Segment, "run", "compiled loop (Segment.run)"),
                              (segment.Segment, "decide", "QP decisions in the loop (Segment.decide)"),
                              (C.AdaptiveController, "compute", "objects: controller period"),
@@ -72,7 +71,6 @@ def main(argv=None) -> int:
     ap.add_argument("--phases", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
-    provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
     r = profile(a.phases)
     print(f"{r['cells']} cells, {r['simulations']} simulations, CPU {r['cpu_s']:.2f} s "
           f"({r['ms_per_simulation']:.1f} ms per simulation), load {r['load_average_before']}")

@@ -352,13 +352,13 @@ def test_controller_settings_rejected_by_name():
 
 
 def test_experiment_perturb_option():
-    from biped_controller.studies import experiment as ex
-    p = ex.parse_perturbation(["noise_q=5e-4", "encoder_bits=14", "delay=2", "touchdown_delayed=false"])
+    from biped_controller.studies.trial import settings as ts
+    p = ts.parse_perturbation(["noise_q=5e-4", "encoder_bits=14", "delay=2", "touchdown_delayed=false"])
     assert p == PlantPerturbation(noise_q=5e-4, encoder_bits=14, delay=2, touchdown_delayed=False)
     with pytest.raises(PerturbationError, match="torso_mas"):
-        ex.parse_perturbation(["torso_mas_scale=0.8"])
-    with pytest.raises(ex.OverrideError, match="twice"):
-        ex.parse_perturbation(["delay=1", "delay=2"])
+        ts.parse_perturbation(["torso_mas_scale=0.8"])
+    with pytest.raises(ts.OverrideError, match="twice"):
+        ts.parse_perturbation(["delay=1", "delay=2"])
     out = subprocess.run([sys.executable, "-m", "biped_controller.studies.experiment", "walk", "--steps", "1",
                           "--perturb", "torso_mass_scale=0.8", "--perturb", "noise_q=1e-4", "--perturb", "encoder_bits=16"],
                          capture_output=True, text=True, cwd=ROOT, timeout=600)

@@ -55,6 +55,8 @@ CASES = [
     ('biped_controller', 'controller', 'gait_family_path:={tmp}/broken.json', 'gait_family_path'),
     ('biped_controller', 'controller', 'description_path:=/nonexistent.yaml', 'description_path'),
     ('biped_controller', 'controller', 'mode:=fast', 'mode'),
+    ('biped_controller', 'controller', 'profile:=no_such_profile', 'profile'),
+    ('biped_sim', 'simulator', 'profile:=no_such_profile', 'profile'),
     ('biped_controller', 'controller', 'use_imu:=maybe', 'use_imu'),
     ('biped_controller', 'controller', 'publish_cdr:=maybe', 'publish_cdr'),
     ('biped_sim', 'simulator', 'publish_cdr:=2', 'publish_cdr'),
@@ -70,6 +72,8 @@ def test_bad_parameter_exits_2_naming_it(ros_domain, other_robot, pkg, name, par
     r = _run_node(pkg, name, param.format(tmp=other_robot))
     assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
     assert f"invalid parameter '{named}'" in r.stderr, r.stderr[-2000:]
+    if named == 'profile':      # the message lists the profiles there are
+        assert "known profiles: " in r.stderr and "paper" in r.stderr, r.stderr[-2000:]
 
 
 STOP_BOUND = 5.0   # wall s the other nodes may take to be gone after one died: generous for a loaded 2-core

@@ -307,24 +307,27 @@ def test_settings_rejected_by_name():
 
 # ------------------------------------------------------------------------------ survival under model error
 def test_survival_under_model_error_compares_p_with_the_unpushed_walk():
-    """The criterion (experiment module docstring): with ``p_ref`` the unpushed walk's p, a run 1.3 mm short
+    """The survival rule (trial.survival): with ``p_ref`` the unpushed walk's p, a run 1.3 mm short
     of p_d is back when the unpushed walk is 1.2 mm short (and not when it is at p_d: negative control); the
     reference applies under model error only (not friction or noise)."""
     from types import SimpleNamespace
-    from biped_controller.studies import experiment as ex
+    from biped_controller.studies.trial import context as tcontext
+    from biped_controller.studies.trial import runs, trials
+    from biped_controller.studies.trial import settings as ts
+    from biped_controller.studies.trial import survival as surv
     from biped_controller.studies.runner import RunResult
-    p_d = ex.context().family.p_d
+    p_d = tcontext.context().family.p_d
     res = RunResult(records=[], statuses=[SimpleNamespace(p=p_d - 1.3e-3, tau_dot=1.0)], steps_walked=11,
                     fallen=False, fall_cause="", fall_detail="", fall_time=float("nan"),
                     impacts=[SimpleNamespace(t=0.3 + 0.46 * k) for k in range(11)])
-    assert not ex.survival(res, 0.2565)[0]
-    assert ex.survival(res, 0.2565, p_ref=p_d - 1.2e-3) == (True, "survived")
-    assert not ex.survival(res, 0.2565, p_ref=p_d)[0]
-    settings = ex.RunSettings()
-    assert not ex.model_error(settings)
-    assert ex.model_error(dataclasses.replace(settings, perturbation=INERTIAS))
-    assert not ex.model_error(dataclasses.replace(settings, perturbation=PlantPerturbation(mu=0.5, noise_q=1e-4)))
-    assert ex._p_ref("both", ex.DEFAULT_START, ex.DEFAULT_DURATION, settings) is None
+    assert not surv.survival(res, 0.2565)[0]
+    assert surv.survival(res, 0.2565, p_ref=p_d - 1.2e-3) == (True, "survived")
+    assert not surv.survival(res, 0.2565, p_ref=p_d)[0]
+    settings = ts.RunSettings()
+    assert not surv.model_error(settings)
+    assert surv.model_error(dataclasses.replace(settings, perturbation=INERTIAS))
+    assert not surv.model_error(dataclasses.replace(settings, perturbation=PlantPerturbation(mu=0.5, noise_q=1e-4)))
+    assert trials.p_reference("both", runs.paper_push(100.0), settings) is None
 
 
 # ------------------------------------------------------------------------------ under sensor noise (issue 22, mebias)

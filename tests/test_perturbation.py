@@ -326,7 +326,7 @@ def test_experiment_settings_carry_the_perturbation():
     """The experiments' RunSettings pass it to the simulator and into the capability map's fingerprint;
     the nominal settings' description (and so every existing store) is unchanged."""
     from biped_controller.studies import capability_map as cmap
-    from biped_controller.studies.experiment import RunSettings
+    from biped_controller.studies.trial.settings import RunSettings
     p = PlantPerturbation(delay=1)
     assert "perturbation" not in RunSettings().describe()
     assert "perturbation" not in RunSettings(perturbation=ZERO).describe()

@@ -235,7 +235,7 @@ def test_node_message_carries_lambda():
 def test_studies_accept_the_torso_modes():
     from biped_controller.studies.capmap.spec import MapError, MapSpec
     from biped_controller.studies.robustness import SEARCHES
-    from biped_controller.studies.experiment import _modes_arg
+    from biped_controller.studies.trial.args import modes_arg as _modes_arg
     import argparse
     assert MapSpec(modes=("lambda", "all", "both")).modes == ("lambda", "all", "both")
     with pytest.raises(MapError, match="torso"):

@@ -351,7 +351,8 @@ def test_table_modes_option():
     """``scripts/experiment table --modes``: any distinct known modes; unknown, repeated or empty -> the
     option's error (argparse names it)."""
     import argparse
-    from biped_controller.studies.experiment import TABLE_MODES, _modes_arg
+    from biped_controller.studies.experiment import TABLE_MODES
+    from biped_controller.studies.trial.args import modes_arg as _modes_arg
     assert _modes_arg("none,wbc,both,hybrid") == ("none", "wbc", "both", "hybrid")
     assert TABLE_MODES == ("none", "tau", "p", "both")
     for bad in ("none,bogus", "wbc,wbc", ",", ""):

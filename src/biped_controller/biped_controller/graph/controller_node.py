@@ -4,6 +4,9 @@ Owns an :class:`biped_controller.core.control.controller.AdaptiveController`; it
 parameters, which have the keys of ``config/controller.yaml`` (defaults from that file) plus
 ``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
 ``mode`` is validated against none | tau | p | both | wbc | hybrid | lambda | all (``controller.MODES``).
+``profile`` (default ``config/graph.yaml``: ``default``) names a profile of ``config/profiles/``: its controller
+settings replace the file's as the parameters' defaults (a parameter given explicitly still wins; the
+profile's simulator settings and plant perturbation are the simulator node's).
 
 IMU: with ``use_imu`` (default ``config/graph.yaml``) the node also subscribes to ``/imu``
 (``sensor_msgs/msg/Imu``, ``biped_sim.graph.imu``; its reader is created before the ``/sim/state`` reader,
@@ -53,6 +56,7 @@ from biped_sim.robot.description import PAPER_JOINTS
 from biped_sim.graph.params import (
     ParameterError,
     declare_executor,
+    get_profile,
     get_bool,
     get_float,
     get_str,
@@ -70,9 +74,14 @@ CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS, 'model_err
 
 def read_controller_config(node: Node) -> ControllerConfig:
     """ControllerConfig from the parameters (one per field, defaults config/controller.yaml; ``control_period``
-    from config/simulator.yaml): a name from ``CHOICES``, a bool, or a number; a bad one raises ParameterError
-    naming it."""
-    base = load_controller_config()
+    from config/simulator.yaml), over the controller settings of the profile of parameter ``profile``: a name
+    from ``CHOICES``, a bool, or a number; a bad one (or an unknown profile) raises ParameterError naming it."""
+    profile = get_profile(node)
+    fields = ControllerConfig.__dataclass_fields__
+    try:
+        base = load_controller_config(**{k: v for k, v in profile.settings if k in fields and k != 'period'})
+    except ControllerConfigError as exc:
+        raise ParameterError('profile', f"profile {profile.name}: {exc}") from exc
     kw = {}
     for name in ControllerConfig.__dataclass_fields__:
         if name == 'period':
@@ -160,7 +169,8 @@ class ControllerNode(Node):
         # wall-clock timer: with use_sim_time a ROS-time timer would stop with /clock, i.e. exactly when
         # the simulator is gone or not started yet
         self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s, publishing '
+        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s, profile '
+                               f'{self.get_parameter("profile").value}, publishing '
                                f'{"CDR bytes" if self.publish_cdr else "message objects"}')
 
     def _subscribe(self):

@@ -1,4 +1,4 @@
-"""Compiled closed loop (numba): many control periods of controller + simulator in one call (issue 11).
+"""Compiled closed loop (numba): many control periods of controller + simulator in one call.
 
 Pure numerics, no ROS, no side effects on import (load it with ``segment.load_loop_kernels``). The
 in-process runner (``runner.run``) hands a *segment* of periods to :func:`run_segment` while nothing in
@@ -8,8 +8,8 @@ with the same kernels --
   1. the sensors: paper (q, q') of the stance from the floating state (``paper_from_urdf``);
   2. the controller: ``controller_kernels.period_start`` (the parameter advance and the observer's mode, the one
      home of both) and ``controller_kernels.period_step``; a period that needs the QP ends the segment before it
-     (its rows handed back), and the next call takes it with the caller's decision (issue 19:
-     ``controller_kernels.period_outputs``, the controller's ``finish`` without the commit of step 5);
+     (its rows handed back), and the next call takes it with the caller's decision
+     (``controller_kernels.period_outputs``, the controller's ``finish`` without the commit of step 5);
   3. the torque: clipped to the limits, mapped to the URDF joints of the stance;
   4. the simulator: the period's intervals (RK4 substeps, split at push starts and ends, as
      ``Simulator.step``) and ``planar_kernels.period`` (an event -- touchdown candidate, failed wrench
@@ -64,8 +64,10 @@ _B = numba.types.boolean
 
 @numba.njit(cache=True)
 def _knots(t_start, dt_nom, substeps, pushes, knots):
-    """The period's integration intervals as ``Simulator.step`` builds them; returns (count of knots,
-    t at the period's grid end)."""
+    """The compiled twin of ``biped_sim.plant.period_grid``: the period's grid end (``grid_end``) and its
+    integration knots (``period_knots`` with the rigid plant's substep count ceil(substeps dt / dt_nom)) into
+    ``knots``, the push starts and ends of ``pushes`` (rows: start, end, ...) as cuts; returns (count of
+    knots, the grid end), count -1 when ``knots`` is too short (tested equal to the Python home)."""
     t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
     dt = t_grid_end - t_start
     n_sub = max(1, int(math.ceil(substeps * dt / dt_nom - 1e-9)))

@@ -56,7 +56,7 @@ class Segment:
         self.n = 0
         self._last = None
         # the QP period handed back (END_QP): its rows and RES row; the decision given with the next call
-        # (modes lambda and all, issue 21: the torso rows and the column of lambda'', as the compiled period's)
+        # (modes lambda and all: the torso rows and the column of lambda'', as the compiled period's)
         self.G = np.zeros_like(self.fp.G)
         self.h = np.zeros_like(self.fp.h)
         self.res = np.zeros(RES.size)
@@ -73,8 +73,8 @@ class Segment:
         # modes wbc, hybrid: the compiled whole-body stage runs in the loop (wbc_kernels); a period where it
         # needs PIQP, or where hybrid's p/tau QP runs, goes to the objects; the Python stage (the tests'
         # oracle, ``python_stage``) never runs in the loop
-        # (real sensing, issue 22: the compiled loop has no sensing pipeline; the controller's compiled step has;
-        # modes lambda and all, issue 21: the compiled period takes lambda, the QP periods are decided as the others')
+        # (real sensing: the compiled loop has no sensing pipeline; the controller's compiled step has;
+        # modes lambda and all: the compiled period takes lambda, the QP periods are decided as the others')
         fp = getattr(ctrl, "compiled_period", None)
         return bool(sim.compiled and fp is not None and sim.sensor.identity and not fp.python_stage
                     and not ctrl.cfg.real_sensing)

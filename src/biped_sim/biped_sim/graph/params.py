@@ -124,6 +124,19 @@ def get_str(node: Node, name: str, default: str | None = None, *, choices: Seque
     return v
 
 
+def get_profile(node: Node):
+    """The named profile of parameter ``profile`` (``config/profiles/NAME.yaml``,
+    :mod:`biped_sim.robot.profiles`; default ``config/graph.yaml``); an unknown name or a malformed file
+    raises ParameterError naming ``profile`` and the known profiles."""
+    from biped_sim.robot.profiles import ProfileError, load_profile
+    # declared once (the simulator reads it for its settings and for its perturbation)
+    name = node.get_parameter('profile').value if node.has_parameter('profile') else get_str(node, 'profile')
+    try:
+        return load_profile(name)
+    except ProfileError as exc:
+        raise ParameterError('profile', str(exc)) from exc
+
+
 def get_float_list(node: Node, name: str) -> list[float]:
     """A list of numbers (default: empty). An empty list in YAML has no type: accepted too."""
     desc = ParameterDescriptor(name=name, dynamic_typing=True)

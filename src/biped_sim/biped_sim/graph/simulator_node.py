@@ -100,6 +100,7 @@ from biped_sim.graph.params import (
     get_bool,
     get_float,
     get_int,
+    get_profile,
     get_str,
     load_robot_files,
     run_node,
@@ -192,8 +193,14 @@ class TransformBuilder:
 
 
 def read_sim_config(node: Node) -> SimConfig:
-    """SimConfig from the parameters (defaults: config/simulator.yaml)."""
-    base = load_sim_config()
+    """SimConfig from the parameters (defaults: config/simulator.yaml with the simulator settings of the
+    profile of parameter ``profile``, config/profiles/; an unknown profile raises ParameterError naming
+    ``profile`` and the known ones)."""
+    profile = get_profile(node)
+    try:
+        base = load_sim_config(**{k: v for k, v in profile.settings if k in SimConfig.__dataclass_fields__})
+    except SimConfigError as exc:
+        raise ParameterError('profile', f"profile {profile.name}: {exc}") from exc
     kw = {}
     for name in SimConfig.__dataclass_fields__:
         default = getattr(base, name)
@@ -217,10 +224,13 @@ def read_sim_config(node: Node) -> SimConfig:
 
 
 def read_perturbation(node: Node, desc) -> PlantPerturbation:
-    """The plant's perturbation from the parameters ``perturbation.<field>`` (defaults: none;
-    ``perturbation.mu`` 0 = the description's friction), validated against ``desc``: a bad value raises
-    ``ParameterError`` naming ``perturbation.<field>``."""
-    zero = PlantPerturbation()
+    """The plant's perturbation from the parameters ``perturbation.<field>`` (defaults: the profile's
+    perturbation, else none; ``perturbation.mu`` 0 = the description's friction), validated against ``desc``:
+    a bad value raises ``ParameterError`` naming ``perturbation.<field>``."""
+    try:
+        zero = PlantPerturbation.from_dict(dict(get_profile(node).perturbation))
+    except PerturbationError as exc:
+        raise ParameterError('profile', f"perturbation: {exc}") from exc
     kw = {}
     for name in PlantPerturbation.__dataclass_fields__:
         key = f'perturbation.{name}'
@@ -229,7 +239,7 @@ def read_perturbation(node: Node, desc) -> PlantPerturbation:
         elif name == 'touchdown_delayed':
             kw[name] = get_bool(node, key, getattr(zero, name))
         elif name == 'mu':
-            mu = get_float(node, key, 0.0, lo=0.0)
+            mu = get_float(node, key, zero.mu or 0.0, lo=0.0)
             kw[name] = None if mu == 0.0 else mu
         else:
             kw[name] = get_float(node, key, getattr(zero, name))

@@ -63,6 +63,7 @@ import numpy as np
 
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
+from biped_sim.plant.period_grid import grid_end, period_knots
 from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
 from biped_sim.robot import numba_cache
@@ -431,7 +432,7 @@ class MujocoPlant(ScheduledPushes):
         m, d, k = self.model, self.data, self._k
         dt_nom = self.cfg.control_period
         t_start = self.t
-        t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+        t_grid_end = grid_end(t_start, dt_nom)
         obs_stance = self.stance
         if not self.sensor.identity:
             if callable(torque):
@@ -446,13 +447,9 @@ class MujocoPlant(ScheduledPushes):
         else:
             fn = None
         n_sub = max(1, int(math.ceil((t_grid_end - t_start) / self._h - 1e-9)))
-        hh = (t_grid_end - t_start) / n_sub
-        knots = [t_start + i * hh for i in range(n_sub)]
-        knots.append(t_grid_end)
         has_pushes = bool(self.book.pushes)
-        if has_pushes:
-            cuts = {c for p in self.book.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
-            knots = sorted(set(knots) | cuts)
+        knots = period_knots(t_start, t_grid_end, n_sub,
+                             (c for p in self.book.pushes for c in (p.start, p.end)) if has_pushes else ())
         first = self.interval_pushes(knots[0], knots[1]) if has_pushes else ()
         impacts0 = self.impact_count
         acc = self._acc

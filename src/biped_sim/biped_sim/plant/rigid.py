@@ -38,6 +38,7 @@ from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
 from biped_sim.robot.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
 from biped_sim.robot.layout import SnapshotUnsupported
+from biped_sim.plant.period_grid import grid_end, period_knots
 from biped_sim.plant.push import Push, ScheduledPushes
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
 from biped_sim.plant.config import SimConfig, load_sim_config
@@ -386,7 +387,7 @@ class Simulator(ScheduledPushes):
         dt_nom = self.cfg.control_period
         t_start = self.t
         # periods end on the grid k * control_period, except a period cut short by an impact
-        t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+        t_grid_end = grid_end(t_start, dt_nom)
         dt = t_grid_end - t_start
         obs_stance = self.stance
         if not self.sensor.identity:
@@ -416,10 +417,7 @@ class Simulator(ScheduledPushes):
                 return tj
         # the period's integration intervals: RK4 substeps, split exactly at every push start and end
         n_sub = max(1, int(math.ceil(self.cfg.substeps * dt / dt_nom - 1e-9)))
-        h = dt / n_sub
-        knots = [t_start + i * h for i in range(n_sub)] + [t_grid_end]
-        cuts = {c for p in self.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
-        knots = sorted(set(knots) | cuts)
+        knots = period_knots(t_start, t_grid_end, n_sub, (c for p in self.pushes for c in (p.start, p.end)))
         if self._fast and self._tau_const is not None:
             rec = self._fast_period(knots, t_start, t_grid_end, applied, obs_stance)
             if rec is not None:
