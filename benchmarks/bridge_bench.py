@@ -26,7 +26,7 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   rate-off runs too, so both sides of the rate comparison carry the same subscriber). The rate-on runs
   give the same figures under the as-fast-as-possible burst (queueing).
 
-- **latency before/after** (issue 20 part 3; ``--latency-pairs`` pairs, alternated): the real-time runs above
+- **latency before/after** (``--latency-pairs`` pairs, alternated): the real-time runs above
   are made once per setting, ``before`` (:data:`BEFORE`: the bridge and the disturbance node on rclpy's
   Python ``SingleThreadedExecutor``, the bridge's ``drain_batch`` 64, the recorder's ``batch_wait`` 0: main's
   settings; the code is this one in both, e.g. ``run_node``'s spin slices) and ``after`` (``config/graph.yaml`` as committed), each with a client on every channel and
@@ -38,7 +38,7 @@ Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included)
   and each node's, and the after/before ratios (``before_after``). CPU per message or per step is far less
   load-sensitive than latency on a shared machine.
 
-- **settings** (``SETTINGS``; ``--before NAME`` / ``--after NAME``): ``main`` = the graph as main had it before issue 20
+- **settings** (``SETTINGS``; ``--before NAME`` / ``--after NAME``): ``main`` = the graph as main had it before the durability changes
   part 3's last round (the recorder on rclpy's ``SingleThreadedExecutor``, the bridge in its own process) *and* the
   client as it was then (an ``asyncio.wait_for`` per frame); ``own`` = ``config/graph.yaml`` with the bridge in its
   own process (co-hosting off alone); ``stexec`` = ``config/graph.yaml`` with the recorder on the
@@ -50,7 +50,7 @@ The client is the measurement instrument and runs on the same 2 cores as the gra
 the user's side): it does as little as a real WebSocket client can per frame (one ``await`` of the library's
 receive and a timestamp; frames are parsed after the run).
 
-Issue 20 part 3's before/after (the command the lead re-runs)::
+The latency before/after (the command the lead re-runs)::
 
     .venv/bin/python -m benchmarks.bridge_bench --before main --latency-pairs 3 --json results/benchmarks/bridge.json
 
@@ -157,7 +157,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
     ws = await websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None, open_timeout=30)
     cpu0 = time.thread_time_ns()
     topics, frames = {}, []
-    if per_frame_timeout:   # the client as it was before issue 20 part 3 (setting 'main'): a wait_for per frame
+    if per_frame_timeout:   # the client as it was before the latency changes (setting 'main'): a wait_for per frame
         try:
             while time.monotonic() < deadline:
                 try:
@@ -185,7 +185,7 @@ async def _client(url: str, proc: subprocess.Popen, ready: Path, timeout: float,
     gc.disable()
     # The client is the measurement instrument and shares the 2 cores with the graph, so it does as little as a
     # real client can per frame: one await of the library's receive and a timestamp, no per-frame timeout (an
-    # asyncio.wait_for per frame, as before issue 20 part 3, wraps each receive in a task and a timer); one deadline
+    # asyncio.wait_for per frame, as before the latency changes, wraps each receive in a task and a timer); one deadline
     # for the whole read instead. Frames are parsed after the run.
     try:
         async with asyncio.timeout_at(asyncio.get_running_loop().time() + max(0.0, deadline - time.monotonic())):
@@ -268,7 +268,7 @@ def _stats(values) -> dict:
             'max': float(a.max())}
 
 
-# The graph's settings before issue 20 part 3 (the bridge, the disturbance node and the recorder on rclpy's Python
+# The graph's settings before the latency changes (the bridge, the disturbance node and the recorder on rclpy's Python
 # SingleThreadedExecutor; the bridge taking up to 64 waiting messages per callback, as part 2 left it; the recorder
 # without batch_wait): settings only, the code is the same in both. "after" = config/graph.yaml as committed.
 BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64, 'host_process': 'own'},
@@ -280,7 +280,7 @@ BEFORE = {'bridge': {'executor': 'single_threaded', 'drain_batch': 64, 'host_pro
 # watches it): what the layout's client costs when the bridge does not take the streams nobody shows.
 # "objects": config/graph.yaml with the simulator and the controller publishing message objects instead of CDR
 # bytes (publish_cdr false): the before of raw publishing (--before objects).
-# "main": the graph as main had it before issue 20 part 3's last round (the recorder on rclpy's Python
+# "main": the graph as main had it before its last latency change (the recorder on rclpy's Python
 # SingleThreadedExecutor, the bridge in its own process) and the benchmark's client as it was then (an asyncio.wait_for
 # per frame; key '_client'): the before of --before main. "own": config/graph.yaml with the bridge in its own
 # process (the co-hosting alone, A/B); "stexec": config/graph.yaml with the recorder on the SingleThreadedExecutor
@@ -296,7 +296,7 @@ SETTINGS = {'before': BEFORE, 'after': None, 'lazy': {'bridge': {'lazy_streams':
 
 
 def legacy_client(setting: str) -> bool:
-    """Whether a setting runs the benchmark's client as it was before issue 20 part 3 (a timeout per frame)."""
+    """Whether a setting runs the benchmark's client as it was before the latency changes (a timeout per frame)."""
     return (SETTINGS.get(setting) or {}).get('_client') == 'per_frame_timeout'
 
 

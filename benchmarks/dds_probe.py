@@ -7,7 +7,7 @@ A raw ``/sim/state`` subscription with the recorder's QoS on rclpy's ``SingleThr
 ``--first`` at the first message (the benchmark starts its CPU accounting then); on SIGINT or SIGTERM the rows go to
 ``--out`` as JSON and the process exits 0.
 
-Why a process of its own (issue 20 part 3): as a thread of the benchmark's process it shared the WebSocket client's
+Why a process of its own: as a thread of the benchmark's process it shared the WebSocket client's
 interpreter lock; its Python work on every message (an executor round and a callback at 1 kHz) held the client's
 reads back, by tens of milliseconds at times (traced: the client's socket receive queue grew to 140 kB while the
 server's frames had left), and those were counted as the bridge's latency.

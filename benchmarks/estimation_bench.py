@@ -1,4 +1,4 @@
-"""Cost of the controller's period with real sensing (issue 22): ``AdaptiveController.compute`` per call in
+"""Cost of the controller's period with real sensing: ``AdaptiveController.compute`` per call in
 a closed loop on the rigid plant, p50/p99, side by side in one run: the plain compiled step (estimation
 off), the compiled step with the compiled sensing pipeline (``controller.step_p50_us_estimation``: the
 real-sensor profile, estimator + momentum observer, under noise 5e-4 rad, 5e-2 rad/s and 14 bits; and the
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
         res["keys"][key.replace("p50", "p99")] = float(np.percentile(us, 99))
         print(f"{key:<52} p50 {np.percentile(us, 50):8.1f} us  p99 {np.percentile(us, 99):8.1f} us  ({us.size} calls)")
     p50 = res["keys"]["controller.step_p50_us_estimation"]
-    print(f"target of issue 22: the compiled step with estimation <= 30 us p50: {p50:.1f} us "
+    print(f"target: the compiled step with estimation <= 30 us p50: {p50:.1f} us "
           f"({'met' if p50 <= 30 else 'not met'} on this run)")
     res["accuracy"] = accuracy()
     for k, v in res["accuracy"].items():

@@ -1,4 +1,4 @@
-"""Cost of the IMU in the DDS lockstep (issue 22): the simulator node publishes ``/imu`` with every state and
+"""Cost of the IMU in the DDS lockstep: the simulator node publishes ``/imu`` with every state and
 the controller node answers a state only once it holds the ``/imu`` of its stamp (``use_imu: true``, the
 default) or ignores the IMU (``use_imu: false``). Runs ``lockstep.measure`` (simulator + controller, no
 recorder, isolated domain) alternately with the two settings, ``--pairs`` times, and writes the rates with

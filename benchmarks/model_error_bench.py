@@ -1,4 +1,4 @@
-"""Cost of the legs' model-error estimator (issue 22, ``core/sensing/model_error.py``): ``AdaptiveController.compute``
+"""Cost of the legs' model-error estimator (``core/sensing/model_error.py``): ``AdaptiveController.compute``
 per call, the compiled step with the compiled sensing pipeline, p50/p99 after the first 50 periods, side by
 side in one run. Each case's observations come from its own closed loop on the rigid plant (1 s); they are
 then replayed through a fresh controller of every case, the cases in turn by blocks of ``BLOCK`` periods
@@ -164,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
                      for k in ("controller.step_p50_us_model_error", "controller.step_p50_us_estimation_model_error")}
     print(f"ratios (p50): {res['ratios']}")
     print(f"regressor call alone p50 [us]: {calls}")
-    print(f"targets (issue 22, <= 30 us p50): {json.dumps(res['target'])}")
+    print(f"targets (<= 30 us p50): {json.dumps(res['target'])}")
     args.out.write_text(json.dumps(res, indent=1) + "\n")
     print(f"written {args.out}")
     if args.results is not None and args.results.exists():

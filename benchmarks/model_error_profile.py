@@ -1,4 +1,4 @@
-"""Where the controller step's time goes with the legs' model-error estimator (issue 22): each call of the
+"""Where the controller step's time goes with the legs' model-error estimator: each call of the
 compiled step's sensing path wrapped by a timer (so every figure is high by its timer's cost), p50 per call
 over ``--rounds`` closed loops of 1 s on the rigid plant (perfect sensors, momentum observer K = 200):
 

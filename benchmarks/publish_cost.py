@@ -1,5 +1,5 @@
 """CPU per ``Publisher.publish`` of each per-step message: the message object built as the nodes build it vs.
-pre-serialised bytes from ``biped_sim.graph.cdr`` (issue 20 part 3).
+pre-serialised bytes from ``biped_sim.graph.cdr``.
 
     .venv/bin/python -m benchmarks.publish_cost [--n 2000] [--pairs 3] [--lockstep-pairs 0] [--json results/benchmarks/publish_cost.json]
 

@@ -14,7 +14,7 @@ chunks): **lost = sim time at the kill - the last recorded log time** (sim s), a
 instant - the latest recorded ``publish_time``. ``bag_reader.recover_bag`` rewrites the bag into a
 finished one that ``read_bag`` must open with the same message count. Configurations, interleaved so the machine's drift hits both alike:
 ``after`` = ``config/graph.yaml`` as committed (chunks closed by size or by ``chunk_time``), ``before`` =
-the same with ``chunk_time: 0`` (by size only, the behaviour before issue 20), ``--before`` runs of it.
+the same with ``chunk_time: 0`` (by size only, the behaviour before the durability changes), ``--before`` runs of it.
 
 **Sync cost** (the writer alone, no ROS): the messages of the first recovered bag replayed through
 ``Rosbag2McapWriter`` into a fresh bag as fast as possible, ``sync`` off and on alternately (``--sync-reps``

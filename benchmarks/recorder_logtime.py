@@ -5,7 +5,7 @@
 For each recorder ``batch_wait`` given: the whole graph (``biped_sim.graph.launch``, its own ROS domain,
 127.0.0.1) walks ``--steps`` steps at ``real_time_factor`` 1.0; the bag's ``/sim/state`` messages whose log time
 differs from their own stamp are counted (the recorder's log time is the latest ``/clock`` published before the
-message, looked up by DDS source timestamp among those received, since issue 20 part 3 round 4; the simulator
+message, looked up by DDS source timestamp among those received; the simulator
 publishes ``/clock`` k just before ``/sim/state`` k). Nothing is asserted (the test
 is ``tests/test_recorder.py::test_node_log_time_is_the_clock_published_before_each_message``).
 """

@@ -425,7 +425,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         "fast_outcome_only": ("fast", {"keep_records": False}),     # compiled loop, outcome only (the sweeps)
         "fast_objects": ("fast", {"compiled_loop": False}),         # compiled kernels, objects every period
         "reference": ("reference", {}),                             # Pinocchio, Python
-        "mujoco": ("mujoco", {}),                                   # the MuJoCo plant (issue 24), compiled controller
+        "mujoco": ("mujoco", {}),                                   # the MuJoCo plant, compiled controller
     }
 
     from biped_sim.robot.description import load_description
@@ -603,7 +603,7 @@ def markdown(R: dict) -> str:
              "kept (runner.run's default); "
              "`fast_outcome_only` = the same with keep_records=False (what survival sweeps run); `fast_objects` = "
              "compiled kernels, the Python objects every period (compiled_loop=False); `reference` = Pinocchio; "
-             "`mujoco` = the MuJoCo plant (`plant: mujoco`, issue 24; target >= 20x in mode both) with the controller's "
+             "`mujoco` = the MuJoCo plant (`plant: mujoco`; target >= 20x in mode both) with the controller's "
              f"compiled period, objects every period: mujoco / fast_objects = {_f(ip.get('mujoco_over_fast_objects'), 2)} "
              f"(by CPU time {_f(ip.get('mujoco_over_fast_objects_cpu'), 2)}). CPU s: this process's user + system "
              "time, which on a shared machine leaves out the other jobs' time slices that the wall time counts.")
@@ -626,7 +626,7 @@ def markdown(R: dict) -> str:
     sw = R.get("sweep") or {}
     if sw.get("available"):
         L.append("")
-        L.append(f"**6. Sweep** (issue 19): {'a 2-phase map' if sw['quick'] else 'the default capability map'} "
+        L.append(f"**6. Sweep**: {'a 2-phase map' if sw['quick'] else 'the default capability map'} "
                  f"({sw['cells']} cells, {sw['workers']} processes, early stop + bracketed search): "
                  f"{sw['simulations']} simulations in {_f(sw['wall_s'])} s = {_f(sw['sims_per_s'], 1)} sims/s "
                  f"(target <= {TARGETS['sweep_map_full_wall_s']:.0f} s for the full map; load average "
@@ -732,7 +732,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sub-results", type=Path, default=RESULTS_DIR,
                     help="directory of the sub-benchmarks' files whose keys are merged (default: %(default)s)")
     ap.add_argument("--inprocess-only", action="store_true",
-                    help="section 4 alone (the MuJoCo plant beside the rigid one, issue 24): merged into the JSON as "
+                    help="section 4 alone (the MuJoCo plant beside the rigid one): merged into the JSON as "
                          "'inprocess_side_by_side' with its own date and load average, with the keys "
                          "inprocess.mujoco.*; the rest of the JSON is left as it is")
     a = ap.parse_args(argv)

@@ -1,4 +1,4 @@
-"""Sweep speed (issue 19): the capability map's default map (4 modes x 2 directions x 20 phases x 3
+"""Sweep speed: the capability map's default map (4 modes x 2 directions x 20 phases x 3
 durations = 480 cells) with the early stop and the bracketed search, on os.cpu_count() worker processes,
 from an empty store. Keys ``sweep.map_full_wall_s`` (wall time [s]) and ``sweep.sims_per_s``
 (simulations per second of wall time); ``--quick``: a 2-phase, 1-mode map (no ``map_full_wall_s``).

@@ -1,4 +1,4 @@
-"""Where a sweep's CPU goes (issue 19): a small capability map run in this process, serially, with timers
+"""Where a sweep's CPU goes: a small capability map run in this process, serially, with timers
 (``time.process_time``) around the parts of a survival trial -- the compiled loop's calls
 (``Segment.run``), the QP decisions between them (``Segment.decide``, where it exists), the periods the
 objects take (``AdaptiveController.compute``, ``Simulator.step``), building the plant and the controller,

@@ -1,4 +1,4 @@
-"""Controller step of modes lambda and all (issue 21, the torso parameter) beside both, on the same states.
+"""Controller step of modes lambda and all (the torso parameter) beside both, on the same states.
 
 ``.venv/bin/python -m benchmarks.torso_step [--force 553.125] [--steps 4] [--json results/benchmarks/torso_step.json]``
 

@@ -1,4 +1,4 @@
-"""The touchdown band's spread against the truth (issue 22, ``core/sensing/touchdown_band.py``): on a noisy walk with
+"""The touchdown band's spread against the truth (``core/sensing/touchdown_band.py``): on a noisy walk with
 the issue's delay row (real-sensor profile, predictor d, the touchdown delayed, noise 5e-4 rad, 5e-2 rad/s,
 14 bits, seed 0), every period where the compiled pipeline evaluated the band (the swing sole descending),
 the predicted sole height without a touchdown z, its standard deviation sigma_z, and the true sole height of

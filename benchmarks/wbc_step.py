@@ -1,4 +1,4 @@
-"""Controller step of modes wbc and hybrid (issue 26) beside none and both, side by side in one run.
+"""Controller step of modes wbc and hybrid beside none and both, side by side in one run.
 
 ``.venv/bin/python -m benchmarks.wbc_step [--force 553.125] [--wbc-force 240] [--steps 4] [--replays 3]
 [--json results/benchmarks/wbc_step.json] [--results results/benchmarks/results.json]``
@@ -14,7 +14,7 @@ the compiled whole-body stage (``wbc_kernels``; PIQP only when its active set do
 * ``wbc``: the states of its own run (the key ``controller.step_p50_us_wbc``: the controller's workload in its
   own closed loop).
 
-Targets (issue 26: compiled steps p50 <= 30 us) are printed, never asserted. Keys
+Targets (compiled steps p50 <= 30 us) are printed, never asserted. Keys
 ``controller.step_p50_us_wbc``, ``controller.step_p50_us_hybrid`` (and ``controller.step_p50_us_both_wbc_run``,
 the plain compiled step of the same run) are merged into ``--results`` (``keys``, section ``wbc_step``).
 """

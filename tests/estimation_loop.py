@@ -1,5 +1,5 @@
 """A closed loop (simulator + controller, the order of ``runner.run``) that also keeps, per period, the true
-state, the controller's estimate and its momentum observer's output: the tests of issue 22 compare them."""
+state, the controller's estimate and its momentum observer's output: the tests compare them."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -586,7 +586,7 @@ def test_bridge_subscribes_to_a_stream_only_while_a_client_watches_it(rclpy_cont
 def test_bridge_passes_a_burst_on_in_order(rclpy_context, executor, drain_batch):
     """A burst of 3000 /joint_states published at once (the bridge's queue fills): on rclpy's EventsExecutor
     (config/graph.yaml: one message per callback, taken in C++), and on the SingleThreadedExecutor with messages
-    taken drain_batch at a time after the executor's one (64, before issue 20 part 3) or one per executor round
+    taken drain_batch at a time after the executor's one (64 in an earlier design) or one per executor round
     (0), the client gets every one, once, in publication order."""
     import rclpy
     from sensor_msgs.msg import JointState

@@ -405,7 +405,7 @@ def test_cli_resumes_everything_and_writes_summary_and_figures(pool_store, tmp_p
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-# ------------------------------------------------------------------------------------------ issue 19: faster sweeps
+# ------------------------------------------------------------------------------------------ faster sweeps
 class HoleySurvives(FakeSurvives):
     """FakeSurvives with extra failing force intervals below the edge (a "hole": survival not monotone
     below the edge), per (mode, direction), for pushes starting after 0.05 s (not at phase 0)."""

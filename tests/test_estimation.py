@@ -1,4 +1,4 @@
-"""Real sensing (issue 22): the joint state estimator, the momentum observer, the delay predictor, the sensor
+"""Real sensing: the joint state estimator, the momentum observer, the delay predictor, the sensor
 model's encoder quantisation and IMU, and the command lines.
 
 Oracles: the true state of the simulator (the estimator against it, its errors normalised by its own

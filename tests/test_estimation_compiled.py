@@ -1,4 +1,4 @@
-"""The compiled sensing pipeline (issue 22): ``pipeline_kernels`` against the Python cores and Pinocchio.
+"""The compiled sensing pipeline: ``pipeline_kernels`` against the Python cores and Pinocchio.
 
 Oracles: Pinocchio's A(q), B, g(q) - C(q, q')^T q' (``momentum_observer.MomentumTerms``) and torso Jacobian
 for the observer's model terms; the Python pipeline (``pipeline.SensingPipeline``: ``JointStateEstimator``,
@@ -236,7 +236,7 @@ def test_imu_pitch_in_the_mujoco_plant():
     assert tilt > 1e-3, tilt          # measured 7.1e-3 rad
 
 
-# ------------------------------------------------------------------------------ the IMU gyro (issue 22)
+# ------------------------------------------------------------------------------ the IMU gyro
 # the same noisy run with the gyro on the plant (5e-3 rad/s, its own generator) and fused by the estimator
 GYRO_NOISE = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch=1e-3, noise_pitch_rate=5e-3,
                                seed=3)

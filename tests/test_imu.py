@@ -1,4 +1,4 @@
-"""The torso IMU (issue 22, graph part): the gyro of the sensor model and the ``/imu`` message.
+"""The torso IMU (graph part): the gyro of the sensor model and the ``/imu`` message.
 
 Oracles: the rotation matrix of the message's quaternion (the textbook formula, written here) against the
 sagittal-view convention of DESIGN.md (a counter-clockwise pitch turns the torso's x axis towards +z); the

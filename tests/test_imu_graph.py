@@ -1,4 +1,4 @@
-"""The IMU in the ROS graph (issue 22): real sensing over the real DDS graph equals the in-process loop.
+"""The IMU in the ROS graph: real sensing over the real DDS graph equals the in-process loop.
 
 The launcher starts the whole graph (Fast DDS on loopback, isolated domain: ``ros_domain``) with the
 simulator's sensor model on (joint noise 5e-4 rad and 5e-2 rad/s, 14-bit encoders, IMU pitch noise 1e-3 rad

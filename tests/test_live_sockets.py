@@ -1,4 +1,4 @@
-"""TCP_NODELAY on the Foxglove server's sockets (biped_sim.live.sockets; issue 20 part 3).
+"""TCP_NODELAY on the Foxglove server's sockets (biped_sim.live.sockets).
 
 The pure function against plain sockets (a listener's TCP_NODELAY is inherited by the sockets it accepts, the
 duplicate descriptors leave the server's own ones open), then the bridge node in this process: after a WebSocket

@@ -1,4 +1,4 @@
-"""Issue 22, model error: the momentum observer against the true generalized force of an inertia error, and the
+"""Model error: the momentum observer against the true generalized force of an inertia error, and the
 legs' model-error estimator (``core/sensing/model_error.py``): its regressor against the plant's own dynamics, its
 identification in noise-free closed loops, its compiled-pipeline twin, its settings."""
 from __future__ import annotations
@@ -330,7 +330,7 @@ def test_survival_under_model_error_compares_p_with_the_unpushed_walk():
     assert trials.p_reference("both", runs.paper_push(100.0), settings) is None
 
 
-# ------------------------------------------------------------------------------ under sensor noise (issue 22, mebias)
+# ------------------------------------------------------------------------------ under sensor noise (mebias)
 REAL = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
             sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0, model_error_estimator=True)
 NOISE = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, seed=0)

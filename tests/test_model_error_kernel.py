@@ -1,4 +1,4 @@
-"""Issue 22, cost: the legs' model-error estimator inside the compiled sensing call. Its closed-form regressor
+"""Cost: the legs' model-error estimator inside the compiled sensing call. Its closed-form regressor
 (``model_error_kernels.regressor_into`` through ``CompiledLegRegressor``) against Pinocchio's joint torque
 regressor (``LegRegressor``) and the RNEA differences of seven models (``RneaLegRegressor``); the whole
 estimator in the kernel (``model_error_kernels.update`` from ``pipeline_kernels.sense_finish``) against

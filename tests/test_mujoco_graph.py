@@ -1,4 +1,4 @@
-"""The node graph over real DDS with the MuJoCo plant (``--sim-param plant:=mujoco``, issue 24): the graph runs
+"""The node graph over real DDS with the MuJoCo plant (``--sim-param plant:=mujoco``): the graph runs
 unchanged, the bag decodes with readers that are not the project's (``mcap`` + ``mcap_ros2`` in Python, and
 Foxglove's npm libraries when node is installed), and its physics is checkable from the bag alone: per period,
 the momentum change of the state (base from ``/sim/state``, joints from ``/joint_states``: the encoders) equals

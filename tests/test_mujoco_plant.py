@@ -1,4 +1,4 @@
-"""The MuJoCo plant (issue 24): model equivalence with Pinocchio, the contact's forces read two ways, the
+"""The MuJoCo plant: model equivalence with Pinocchio, the contact's forces read two ways, the
 switch, a walk, sensed touchdown against the geometric contact, a physical fall, the records' momentum
 balance, the stance ankle measured against the ground, and the rigid plant's records unchanged."""
 from __future__ import annotations
@@ -283,8 +283,8 @@ def test_fall_checks_each_fire(monkeypatch):
 
 
 # ------------------------------------------------------------------------------------------ rigid unchanged
-# status fields added after these digests were taken (issue 26: the whole-body stage's status, constant
-# outside modes wbc / hybrid; issue 21: the torso parameter's, 0 outside modes lambda / all); every other field of
+# status fields added after these digests were taken (the whole-body stage's status, constant
+# outside modes wbc / hybrid; the torso parameter's, 0 outside modes lambda / all); every other field of
 # every record is hashed
 _NEWER_FIELDS = ("wbc_status", "wbc_active", "wbc_deviation", "lam", "lam_dot", "lam_ddot", "lam_ddot_star")
 

@@ -1,4 +1,4 @@
-"""Plant perturbations (issue 14): applied to the simulator only, exact on the plant's model, a zero
+"""Plant perturbations: applied to the simulator only, exact on the plant's model, a zero
 perturbation bit for bit the nominal run, seeded noise reproducible, delay = the state of d periods ago.
 
 Oracles: the plant's mass matrix (total mass in the base's translation row, inertias in the pitch row:
@@ -180,7 +180,7 @@ def test_controller_keeps_the_nominal_model(monkeypatch):
 
     make_plant = runner.make_plant
 
-    def spy_plant(*a, **k):     # runner builds its plant through make_plant (issue 24)
+    def spy_plant(*a, **k):     # runner builds its plant through make_plant
         made["sim"] = make_plant(*a, **k)
         return made["sim"]
 

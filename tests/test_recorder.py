@@ -359,7 +359,7 @@ def test_truncated_read_after_sigkill(tmp_path, prefix):
     assert got["complete_chunks"] > 5 and got["bad_chunks"] == 0 and got["truncated"]
 
 
-# ------------------------------------------------------------------------------ durability (issue 20)
+# ------------------------------------------------------------------------------ durability
 class FakeClock:
     """A monotonic clock the test moves by hand [s]."""
 
@@ -685,7 +685,7 @@ def test_node_records_with_sim_time_and_finishes_on_signal(tmp_path, stop_signal
             assert time.monotonic() < deadline, "recorder never subscribed"
             time.sleep(0.1)
         # one /clock reader: the recorder's own (its node clock is fed from it, no rclpy TimeSource reader:
-        # graph.sim_clock; there were two before issue 20 part 3)
+        # graph.sim_clock)
         assert len(node.get_subscriptions_info_by_topic(graph_names.CLOCK)) == 1
         stamps = []
         for k in range(50):
@@ -761,7 +761,7 @@ def test_foxglove_js_reader_decodes_every_message(tmp_path, prefix, compression)
             assert [p["index"] for p in msg["phases"]] == [0, 1]
 
 
-# ------------------------------------------------------------------------------ SIGKILL -> recover (issue 20)
+# ------------------------------------------------------------------------------ SIGKILL -> recover
 @pytest.mark.timeout(300)
 def test_killed_recorder_node_bag_recovered(tmp_path, ros_domain):
     """The recorder node (chunks by time: chunk_time 0.05 s, chunk_size far above what is published)
@@ -848,7 +848,7 @@ def test_node_log_time_is_the_clock_published_before_each_message(tmp_path, ros_
     frozen (SIGSTOP: a backlog of every step, taken in batches with DRAIN_PER_TOPIC per topic per pass), then
     paced: every /sim/state's log time is its own step's /clock, i.e. the latest /clock *published* before it.
     Recording topic by topic in the order taken gave a backlog's states a later /clock (the pass takes up to 16
-    /clock first), and 76 % of a real-time run's states with batch_wait 2 ms (issue 20 part 3). On a loaded machine
+    /clock first), and 76 % of a real-time run's states with batch_wait 2 ms. On a loaded machine
     the frozen recorder's queue overflows and DDS repairs the lost samples later, after many later /clock: taken in
     order those got a later step's /clock (2 of 10 runs beside two busy processes failed, 8-250 states each, on this
     code and on 5348834); the log time is now looked up by source timestamp (10 of 10 passed the same way)."""

@@ -1,4 +1,4 @@
-"""biped_sim.graph.sim_clock: use_sim_time without rclpy's per-message /clock reader (issue 20 part 3).
+"""biped_sim.graph.sim_clock: use_sim_time without rclpy's per-message /clock reader.
 
 Against rclpy's own behaviour in the same process: a node with use_sim_time has one /clock reader (the negative
 control), with SimClock none; the clock reads what is fed (set) or the newest /clock waiting (poll); without

@@ -1,4 +1,4 @@
-"""One state layout (issue 23): the controller's and the simulator's per-period state are array-backed records
+"""One state layout: the controller's and the simulator's per-period state are array-backed records
 declared once (``robot.layout.Layout``), the objects keep their state in them and the compiled kernels take
 the same arrays; the one home of the parameter advance and the observer's mode (``controller_kernels.begin``)
 against closed forms; the mends (reset clears the decision, the torque within a period before any decision);

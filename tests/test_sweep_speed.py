@@ -1,4 +1,4 @@
-"""Sweeps 5x faster (issue 19, second part): a survival trial restored from the walk up to its push, on a
+"""Sweeps 5x faster (second part): a survival trial restored from the walk up to its push, on a
 plant and a controller reused from earlier trials, is the trial run from t = 0 on new objects, hash for
 hash (every field of every record, impact and status after the snapshot); a snapshot one period too
 late is not (negative control); where no snapshot can be taken (a sensor model) the trial runs from the

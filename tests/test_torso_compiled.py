@@ -1,4 +1,4 @@
-"""The torso parameter lambda (issue 21) on the compiled paths: the compiled controller period
+"""The torso parameter lambda on the compiled paths: the compiled controller period
 (``controller_kernels``, modes lambda and all) against the controller's own Python steps, and the compiled
 closed loop (``segment`` + ``loop_kernels``) against the objects, over a walk, pushes that make the QP
 active (and one whose QP has no answer: the least-violation answer and the torso's hold) and a fall."""

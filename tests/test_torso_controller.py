@@ -1,4 +1,4 @@
-"""The torso parameter in the controller (issue 21): modes ``lambda`` and ``all``.
+"""The torso parameter in the controller: modes ``lambda`` and ``all``.
 
 Independent references: the QP rows against the robot's own constraint evaluation (``margins_direct``
 with w = D x + v, for random x), the torso-range rows against the exact advance of lambda; the QP

@@ -1,4 +1,4 @@
-"""The torso parameter lambda of the reference family (issue 21): q_d(p, tau, lambda).
+"""The torso parameter lambda of the reference family: q_d(p, tau, lambda).
 
 Independent references: central finite differences of ``GaitFamily.evaluate_torso`` for every partial
 derivative (and of q_d along a parameter path for eq. 11), Pinocchio's forward kinematics for what the

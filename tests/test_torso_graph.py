@@ -1,4 +1,4 @@
-"""Mode ``all`` over the real node graph (issue 21): Fast DDS on loopback, isolated domain (``ros_domain``).
+"""Mode ``all`` over the real node graph: Fast DDS on loopback, isolated domain (``ros_domain``).
 
 The launcher starts the graph with the controller node's parameter ``mode:=all``, one push goes through
 /apply_push, and the MCAP bag (read back by ``bag_reader``) must hold the in-process run's trajectory bit

@@ -1,4 +1,4 @@
-"""studies/torso.map_comparison (issue 21): a capability map's boundaries read back per duration and
+"""studies/torso.map_comparison: a capability map's boundaries read back per duration and
 direction, against sums done by hand on a small synthetic map (means over the phases both modes have,
 ratio of means, higher / equal / lower phases, the best cell); the CLI on a real summary file."""
 from __future__ import annotations

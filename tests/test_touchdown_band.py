@@ -1,4 +1,4 @@
-"""The predicted touchdown's k-sigma band and the torque admissible in both stances (issue 22,
+"""The predicted touchdown's k-sigma band and the torque admissible in both stances (
 ``core/sensing/touchdown_band.py``).
 
 Oracles: the sole height's standard deviation against a seeded Monte Carlo of the swing sole over

@@ -1,4 +1,4 @@
-"""Whole-body QP (core/control/wbc.py) and the modes `wbc` and `hybrid` of the controller (issue 26).
+"""Whole-body QP (core/control/wbc.py) and the modes `wbc` and `hybrid` of the controller.
 
 References independent of the code under test: quadprog and DAQP through qpsolvers (other solvers than
 the PIQP the product holds), scipy's minimiser for the least-violation answer, KKT residuals with the full

@@ -1,5 +1,5 @@
 """The compiled whole-body stage (core/control/wbc_kernels.py) against the Python stage (core/control/wbc.py) and against
-independent solvers (issue 26).
+independent solvers.
 
 References: the Python stage's rows (``wbc.rows_on_w``) and its held PIQP (``wbc.WholeBodyQP``), quadprog
 through qpsolvers, KKT residuals with the full weight M (``test_wbc.kkt_full``: multipliers by NNLS), and

@@ -1,4 +1,4 @@
-"""The slice tables of issue 26 (studies/baseline_wbc.py: no-fall edges from a map's store, the goal check
+"""The whole-body baseline's slice tables (studies/baseline_wbc.py: no-fall edges from a map's store, the goal check
 hybrid >= max(both, wbc)) on hand-made store records whose answers are known by construction."""
 from __future__ import annotations
 
