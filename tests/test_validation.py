@@ -268,8 +268,16 @@ def test_controller_config_rejects_naming_key(key, bad):
     assert key in str(ei.value)
 
 
+def _modes():
+    from biped_controller.core.control.controller import MODES
+    return tuple(MODES)
+
+
+_MODES = _modes()   # every valid mode (none, tau, p, both, wbc, hybrid, lambda, all)
+
+
 @SETTINGS
-@given(mode=st.text(max_size=8).filter(lambda m: m not in ('none', 'tau', 'p', 'both')))
+@given(mode=st.text(max_size=8).filter(lambda m: m not in _MODES))
 def test_controller_config_rejects_unknown_mode(mode):
     from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
     with pytest.raises(ControllerConfigError) as ei:
