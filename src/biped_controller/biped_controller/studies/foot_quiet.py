@@ -95,7 +95,7 @@ def figures(s: PeriodSeries, l_min: float, l_max: float, f_min: float = F_MIN, b
     cop = np.where(s.fz > 0.0, s.cop, np.nan)
     inside = (cop > l_min + band) & (cop < l_max - band)          # NaN compares False: undefined = at an edge
     # consecutive counted periods of the same support phase (a cut in the series is not a change between periods)
-    same = (np.diff(s.support) == 0) & (np.diff(s.t) < 1.5 * np.min(np.diff(s.t))) if n > 1 else np.zeros(0, bool)
+    same = (np.diff(s.support) == 0) & (np.diff(s.t) < 1.5 * np.median(np.diff(s.t))) if n > 1 else np.zeros(0, bool)
     dfz = np.abs(np.diff(s.fz))[same] if n > 1 else np.zeros(0)
     return {"periods": int(n),
             "unloaded": float(np.mean(s.fz < f_min)),
