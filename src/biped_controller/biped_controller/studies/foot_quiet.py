@@ -3,9 +3,9 @@
 Usage::
 
     python -m biped_controller.studies.foot_quiet [--plant rigid|mujoco] [--mode both] [--steps 10]
-        [--set KEY=VALUE ...] [--observer on|off] [--json FILE]
+        [--set KEY=VALUE ...] [--observer on|off] [--perturb FIELD=VALUE ...] [--integration-rate] [--json FILE]
 
-One run (undisturbed unless a push is set up through the settings), then, over the control periods that
+One undisturbed walk, then, over the control periods that
 start at least ``skip`` (10 ms) after the run's start or after a touchdown, from each period's record
 (``StepRecord``: ``wrench`` = [F_x, F_z, m] of the ground on the robot over the period, ``cop`` = m / F_z
 [m] ahead of the stance ankle, ``x`` the floating state at the period's start):
@@ -23,7 +23,9 @@ period's model (the rigid foot cannot rock); a MuJoCo period's is the mean of th
 MuJoCo steps (``biped_sim.plant.mujoco``).
 
 ``--set`` takes any key of ``config/controller.yaml`` (but ``mode``) or ``config/simulator.yaml``, as
-``scripts/experiment`` does; ``--plant`` is the simulator's ``plant`` key.
+``scripts/experiment`` does; ``--plant`` is the simulator's ``plant`` key; ``--perturb`` a field of the plant's
+``PlantPerturbation`` (the plant's model only, e.g. ``foot_inertia_scale=10``); ``--integration-rate`` evaluates
+the controller's torque law at every integration step (MuJoCo step) instead of holding it over the period.
 """
 from __future__ import annotations
 
@@ -132,13 +134,16 @@ def measure(result: "runner.RunResult", skip: float = SKIP, f_min: float = F_MIN
 
 
 def run_figures(plant: str = "mujoco", mode: str = "both", steps: int = 10, overrides: tuple[str, ...] = (),
-                observer: str | None = None) -> dict:
-    """One undisturbed walk (``--set`` style ``overrides``) and its figures (:func:`measure`)."""
-    from biped_controller.studies.experiment import parse_overrides
+                observer: str | None = None, perturb: tuple[str, ...] = (), integration_rate: bool = False) -> dict:
+    """One undisturbed walk (``--set`` style ``overrides``, ``--perturb`` style ``perturb``) and its figures
+    (:func:`measure`)."""
+    from biped_controller.studies.experiment import parse_overrides, parse_perturbation
     settings = parse_overrides(tuple(overrides) + (f"plant={plant}",), observer=observer)
     scfg = settings.sim_config()
-    r = runner.run(steps=steps, mode=mode, sim_config=scfg, ctrl_config=settings.ctrl_config(mode))
-    out = {"plant": plant, "mode": mode, "steps": steps, "overrides": list(overrides), "observer": observer}
+    r = runner.run(steps=steps, mode=mode, sim_config=scfg, ctrl_config=settings.ctrl_config(mode),
+                   perturbation=parse_perturbation(tuple(perturb)), integration_rate=integration_rate)
+    out = {"plant": plant, "mode": mode, "steps": steps, "overrides": list(overrides), "observer": observer,
+           "perturb": list(perturb), "integration_rate": integration_rate}
     out.update(measure(r))
     return out
 
@@ -187,6 +192,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--observer", choices=("on", "off"), default=None)
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="override a key of config/controller.yaml or config/simulator.yaml (repeatable)")
+    ap.add_argument("--perturb", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a field of the plant's PlantPerturbation, e.g. foot_inertia_scale=10 (repeatable)")
+    ap.add_argument("--integration-rate", action="store_true",
+                    help="the torque law evaluated at every integration step (no zero-order hold)")
     ap.add_argument("--json", type=Path, default=None, help="write the figures with their provenance here")
     a = ap.parse_args(argv)
     if a.steps < 1:
@@ -195,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--set plant=...: use --plant")
     from biped_controller.studies.experiment import OverrideError
     try:
-        res = run_figures(a.plant, a.mode, a.steps, tuple(a.overrides), a.observer)
+        res = run_figures(a.plant, a.mode, a.steps, tuple(a.overrides), a.observer, tuple(a.perturb),
+                          a.integration_rate)
     except (OverrideError, ValueError) as exc:
         print(f"foot_quiet: {exc}", file=sys.stderr)
         return 2
