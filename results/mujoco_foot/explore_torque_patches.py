@@ -8,7 +8,9 @@ NAME: ``ankle_lowpass=TAU`` (the stance-ankle torque through a first-order low-p
 per control period), ``all_lowpass=TAU`` (all six torques), ``cop_clamp=M`` (the stance-ankle torque clipped to
 [(l_min + M) F_z, (l_max - M) F_z] with F_z the last period's measured normal force: the CoP kept M [m]
 inside the sole), ``ankle_armature=A`` (MJCF: armature A [kg m^2] on both ankle hinges, the controller
-unchanged). ``--sole N``: ``mujoco_sole_points`` (default 0, the box).
+unchanged), ``reference_lead=D`` (after the controller's first decision of each new step, its tau advanced by
+D [s]: the reference restarted D later than the sensed touchdown). ``--sole N``: ``mujoco_sole_points`` (default
+0, the box).
 """
 from __future__ import annotations
 
@@ -30,6 +32,19 @@ from biped_controller.studies.foot_quiet import measure, provenance
 def patch(kind: str, value: float) -> None:
     step = pm.MujocoPlant.step
     state: dict = {"g": None, "stance": None, "fz": None}
+    if kind == "reference_lead":
+        from biped_controller.core import controller as ctl
+        from biped_controller.core.period_layout import M_
+        compute = ctl.AdaptiveController.compute
+
+        def lead(self, t, q, qd, stance, *a, **k):
+            before = self.stance
+            out = compute(self, t, q, qd, stance, *a, **k)
+            if before is not None and before != stance:
+                self.memory[M_.tau] += value
+            return out
+        ctl.AdaptiveController.compute = lead
+        return
     if kind == "ankle_armature":
         make = pm.make_mjcf
         pm.make_mjcf = lambda desc, c: re.sub(r'(<joint name="(left|right)_ankle" type="hinge")',
@@ -64,7 +79,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     kind, _, v = a.name.partition("=")
-    if kind not in ("ankle_lowpass", "all_lowpass", "cop_clamp", "ankle_armature"):
+    if kind not in ("ankle_lowpass", "all_lowpass", "cop_clamp", "ankle_armature", "reference_lead"):
         ap.error(f"unknown patch {kind!r}")
     patch(kind, float(v))
     scfg = load_sim_config(plant="mujoco", mujoco_sole_points=a.sole)
