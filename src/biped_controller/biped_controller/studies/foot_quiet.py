@@ -209,10 +209,10 @@ def main(argv: list[str] | None = None) -> int:
     except (OverrideError, ValueError) as exc:
         print(f"foot_quiet: {exc}", file=sys.stderr)
         return 2
-    print(table(res))
     if a.json is not None:
         a.json.parent.mkdir(parents=True, exist_ok=True)
         a.json.write_text(json.dumps({"provenance": provenance(argv), **res}, indent=1) + "\n", encoding="utf-8")
+    print(table(res))
     return 0
 
 
