@@ -3,6 +3,9 @@
     .venv/bin/python -m benchmarks.launch_fault_stop [--victim recorder] [--trials 5] [--json FILE]
                                                      [--launcher-arg=--fault-stop-timeout=10 ...]
 
+The trials go to ``--json`` (default ``results/node_graph/fault_stop_<victim>.json``; ``--json ''``: none),
+with a provenance record beside it (``results/README.md``).
+
 Each trial: the whole graph (``biped_sim.graph.launch --steps 0``: it walks until stopped) in its own ROS domain
 on 127.0.0.1; once the bag's file holds ``--warmup-bytes`` bytes, SIGKILL to the victim node's process; then
 the exit instant of every other node process and of the launcher, as the kernel reports them (a pidfd per
@@ -28,9 +31,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from benchmarks import RESULTS_DIR  # noqa: E402
 from benchmarks.bridge_bench import Domain  # noqa: E402
+from biped_controller.studies import provenance  # noqa: E402
 
 VICTIMS = ('recorder', 'controller', 'disturbance', 'simulator')
+OUT_DIR = RESULTS_DIR.parent / 'node_graph'
 
 
 def _wait_for(pred, proc: subprocess.Popen, timeout: float, what: str) -> None:
@@ -118,12 +124,15 @@ def main(argv=None) -> int:
     ap.add_argument('--trials', type=int, default=5)
     ap.add_argument('--warmup-bytes', type=int, default=300_000, help='bag size before the kill')
     ap.add_argument('--timeout', type=float, default=120.0, help='s to wait for the survivors')
-    ap.add_argument('--json', type=Path, default=None, help='write the trials here')
+    ap.add_argument('--json', type=str, default=None,
+                    help="write the trials here (default results/node_graph/fault_stop_<victim>.json; '': none)")
     ap.add_argument('--launcher-arg', action='append', default=[], metavar='ARG',
                     help='extra launcher argument (repeatable), e.g. --launcher-arg=--fault-stop-timeout=10')
     a = ap.parse_args(argv)
     if a.trials < 1:
         ap.error(f'--trials must be >= 1, got {a.trials}')
+    out = OUT_DIR / f'fault_stop_{a.victim}.json' if a.json is None else (Path(a.json) if a.json else None)
+    provenance.track(out, argv=argv)   # record of each file written (results/README.md)
     rows = []
     for k in range(a.trials):
         r = trial(a.victim, a.warmup_bytes, a.timeout, a.launcher_arg)
@@ -138,8 +147,9 @@ def main(argv=None) -> int:
     worst = [max(v if v is not None else float('inf') for v in r['lived_s'].values()) for r in rows]
     print(f'{a.victim} killed, {a.trials} trials: the last survivor gone after '
           + ', '.join(f'{w:.2f}' for w in worst) + ' s; load average ' + ' '.join(f'{x:.2f}' for x in os.getloadavg()))
-    if a.json is not None:
-        a.json.write_text(json.dumps({'victim': a.victim, 'trials': rows}, indent=1) + '\n')
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({'victim': a.victim, 'trials': rows}, indent=1) + '\n')
     return 0
 
 

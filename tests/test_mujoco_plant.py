@@ -341,7 +341,7 @@ def test_robustness_set_reaches_every_run(monkeypatch, capsys):
     assert "only config/simulator.yaml keys" in capsys.readouterr().err
 
 
-# the digests of plant_compare.FINGERPRINT_RUNS with the plant's pure-Python step (main 1752382's
+# the digests of plant_compare.FINGERPRINT_RUNS (box sole, mujoco_sole_points 0) with the plant's pure-Python step (main 1752382's
 # plant/mujoco.py put in place of the compiled one, the rest of the code this branch merged with main; the
 # total `plant_compare fingerprint` d134575e... is the same with either; on 9b97d77 both gave eabdf4b7...);
 # machine-specific, as the rigid plant's above
@@ -359,7 +359,8 @@ def test_mujoco_records_bit_identical_to_the_python_step(name):
     (mujoco_kernels) changes no bit. Negative control: one record's torque changed by one ulp changes the hash."""
     from biped_controller.studies import plant_compare, fingerprint
     spec = next(s for s in plant_compare.FINGERPRINT_RUNS if s[0] == name)
-    digest, r = plant_compare.run_digest(spec)
+    # the sole these digests were taken with: the box (mujoco_sole_points 0; the default sole since is points)
+    digest, r = plant_compare.run_digest(spec, load_sim_config(plant="mujoco", mujoco_sole_points=0))
     assert digest == MUJOCO_DIGESTS[name]
     a = fingerprint.digest(r, ())
     rec = r.records[len(r.records) // 2]

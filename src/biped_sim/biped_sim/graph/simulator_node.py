@@ -206,6 +206,8 @@ def read_sim_config(node: Node) -> SimConfig:
         default = getattr(base, name)
         if name == 'substeps':
             kw[name] = get_int(node, name, default, lo=1, hi=1000)
+        elif name == 'mujoco_sole_points':
+            kw[name] = get_int(node, name, default, lo=0, hi=101)
         elif name == 'engine':
             kw[name] = get_str(node, name, default, choices=ENGINES)
         elif name == 'plant':

@@ -52,6 +52,7 @@ class SimConfig:
     mujoco_solimp_width: float       # [m] width of the impedance transition
     mujoco_foot_thickness: float     # [m] collision box of a foot, sole on the ankle line
     mujoco_foot_width: float         # [m]
+    mujoco_sole_points: int          # 0: each sole a box (contacts at its corners); n >= 2: n contact spheres heel to toe
     mujoco_body_radius: float        # [m] fall-detection capsules on torso, thighs, shins
     mujoco_shin_capsule_gap: float   # [m] the shin capsule ends this far above the ankle
     mujoco_touch_threshold: float    # [N] a foot is loaded above this normal force
@@ -86,6 +87,10 @@ class SimConfig:
         if self.plant == "mujoco" and (abs(n - round(n)) > 1e-9 * n or round(n) < 1):
             raise SimConfigError(f"mujoco_timestep must divide control_period ({self.control_period} s), "
                                  f"got {self.mujoco_timestep}")
+        if not (isinstance(self.mujoco_sole_points, int) and (self.mujoco_sole_points == 0
+                                                              or 2 <= self.mujoco_sole_points <= 101)):
+            raise SimConfigError(f"mujoco_sole_points must be 0 (a box) or an integer in [2, 101], got "
+                                 f"{self.mujoco_sole_points!r}")
         if not 0.0 < self.mujoco_solimp_dmin <= self.mujoco_solimp_dmax < 1.0:
             raise SimConfigError("mujoco_solimp_dmin and mujoco_solimp_dmax must satisfy 0 < dmin <= dmax < 1, got "
                                  f"{self.mujoco_solimp_dmin}, {self.mujoco_solimp_dmax}")
@@ -112,4 +117,8 @@ def load_sim_config(path: str | Path | None = None, **overrides) -> SimConfig:
     if float(kw["substeps"]) != int(kw["substeps"]):
         raise SimConfigError(f"substeps must be an integer, got {kw['substeps']!r} ({p})")
     kw["substeps"] = int(kw["substeps"])
+    for k in ("mujoco_sole_points",):
+        if float(kw[k]) != int(kw[k]):
+            raise SimConfigError(f"{k} must be an integer, got {kw[k]!r} ({p})")
+        kw[k] = int(kw[k])
     return SimConfig(**kw).validate()

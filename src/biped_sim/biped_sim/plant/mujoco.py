@@ -69,7 +69,7 @@ from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRec
 from biped_sim.robot import numba_cache
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, urdf_from_paper
-from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, FOOT_GEOMS, MjcfContact, make_mjcf
+from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, MjcfContact, foot_geom_names, make_mjcf
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
 FOOT_BODIES = ("left_foot", "right_foot")
@@ -95,7 +95,8 @@ def contact_settings(cfg: SimConfig) -> MjcfContact:
                        solref=(cfg.mujoco_solref_timeconst, cfg.mujoco_solref_dampratio),
                        solimp=(cfg.mujoco_solimp_dmin, cfg.mujoco_solimp_dmax, cfg.mujoco_solimp_width),
                        foot_thickness=cfg.mujoco_foot_thickness, foot_width=cfg.mujoco_foot_width,
-                       body_radius=cfg.mujoco_body_radius, shin_gap=cfg.mujoco_shin_capsule_gap)
+                       body_radius=cfg.mujoco_body_radius, shin_gap=cfg.mujoco_shin_capsule_gap,
+                       sole_points=cfg.mujoco_sole_points)
 
 
 @dataclass
@@ -153,8 +154,9 @@ class MujocoPlant(ScheduledPushes):
         gid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)   # noqa: E731
         # geom id -> 0 left foot, 1 right foot, 2 a body capsule, 3 the floor
         self._kind = np.full(m.ngeom, 3, dtype=np.int64)
-        for k, n in enumerate(FOOT_GEOMS):
-            self._kind[gid(n)] = k
+        for k, side in enumerate(("left", "right")):
+            for n in foot_geom_names(side, self.cfg.mujoco_sole_points):
+                self._kind[gid(n)] = k
         for n in BODY_GEOMS:
             self._kind[gid(n)] = 2
         self._floor = gid(FLOOR_GEOM)

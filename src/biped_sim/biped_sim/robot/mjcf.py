@@ -12,7 +12,11 @@ The model mirrors ``description.make_urdf`` + the floating root of ``floating.Fl
   view, DESIGN.md); inertials (mass, centre of mass on the link axis, I_yy; the other two axes equal, as the
   URDF) from ``config/biped.yaml``; no joint limits, damping or armature (the rigid plant has none);
 * contact geometry: each foot a box from ``foot.l_min`` to ``foot.l_max`` along x (heel, toe), ``thickness``
-  thick with its sole on the ankle line (``foot.ankle_height`` = 0), friction ``mu``; the floor a plane at
+  thick with its sole on the ankle line (``foot.ankle_height`` = 0), friction ``mu`` (``sole_points`` = 0); or
+  (``sole_points`` = n >= 2) the sole as n spheres of diameter ``thickness`` whose lowest points lie on the ankle
+  line at x = l_min + i (l_max - l_min) / (n - 1), i = 0..n-1 (heel and toe included): a box on a plane touches
+  only at its corners, so its whole load sits on the heel and toe lines; the spheres spread it along the sole.
+  Geom names ``<side>_foot_sole`` (the box, or the heel sphere) and ``<side>_foot_sole_<i>`` (i >= 1); the floor a plane at
   z = 0; massless capsules on torso, thighs and shins (the shin's ends ``shin_gap`` above the ankle) that only
   detect a body touching the floor. Robot geoms collide with the floor only (contype 0 / conaffinity 1,
   floor contype 1 / conaffinity 0);
@@ -48,6 +52,13 @@ class MjcfContact:
     foot_width: float          # [m]
     body_radius: float         # [m]
     shin_gap: float            # [m]
+    sole_points: int = 0       # 0: the sole is the box; n >= 2: n contact spheres from heel to toe
+
+
+def foot_geom_names(side: str, sole_points: int) -> tuple[str, ...]:
+    """The collision geoms of one foot (``side`` "left" | "right"), heel first (module docstring)."""
+    base = f"{side}_foot_sole"
+    return (base,) + tuple(f"{base}_{i}" for i in range(1, sole_points))
 
 
 def _f(v: float) -> str:
@@ -86,8 +97,19 @@ def make_mjcf(desc: RobotDescription, contact: MjcfContact) -> str:
         f'      {_inertial(t.mass, 0.0, t.com, t.inertia)}',
         f'      <geom name="torso_capsule" type="capsule" fromto="0 0 0 0 0 {_f(t.length)}" size="{_f(r)}" {detect}/>',
     ]
+    if c.sole_points and (not isinstance(c.sole_points, int) or c.sole_points < 2):
+        raise ValueError(f"sole_points must be 0 (a box) or an integer >= 2, got {c.sole_points!r}")
     for side in ("left", "right"):
         j_hip, j_knee, j_ankle = (n for n in URDF_JOINTS if n.startswith(side))
+        if c.sole_points:
+            n = c.sole_points
+            sole = [f'            <geom name="{name}" type="sphere" '
+                    f'pos="{_f(ft.l_min + i * (ft.l_max - ft.l_min) / (n - 1))} 0 {_f(-ft.ankle_height + half[2])}" '
+                    f'size="{_f(half[2])}" contype="0" conaffinity="1" mass="0"/>'
+                    for i, name in enumerate(foot_geom_names(side, n))]
+        else:
+            sole = [f'            <geom name="{side}_foot_sole" type="box" pos="{_f(sole_x)} 0 {_f(-ft.ankle_height + half[2])}" '
+                    f'size="{_f(half[0])} {_f(half[1])} {_f(half[2])}" contype="0" conaffinity="1" mass="0"/>']
         out += [
             f'      <body name="{side}_thigh" pos="0 0 0">',
             f'        <joint name="{j_hip}" type="hinge"/>',
@@ -102,8 +124,7 @@ def make_mjcf(desc: RobotDescription, contact: MjcfContact) -> str:
             f'          <body name="{side}_foot" pos="0 0 {_f(-sh.length)}">',
             f'            <joint name="{j_ankle}" type="hinge"/>',
             f'            {_inertial(ft.mass, ft.com_forward, -ft.ankle_height, ft.inertia)}',
-            f'            <geom name="{side}_foot_sole" type="box" pos="{_f(sole_x)} 0 {_f(-ft.ankle_height + half[2])}" '
-            f'size="{_f(half[0])} {_f(half[1])} {_f(half[2])}" contype="0" conaffinity="1" mass="0"/>',
+            *sole,
             '          </body>',
             '        </body>',
             '      </body>',
