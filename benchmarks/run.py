@@ -32,6 +32,25 @@ from biped_controller.core.control.controller import QP_ROWS
 from biped_controller.studies import provenance
 
 ROOT = Path(__file__).resolve().parents[1]
+
+#: The run's named profile (``--profile``), as the studies' settings: its controller and simulator settings
+#: apply to every controller and plant the bench builds (sections 0, 1, 2 and 4); the bench's own variants (the
+#: engine, ``plant: mujoco`` for the MuJoCo rows) are set over it. None until :func:`main` parses it.
+_SETTINGS = None
+
+
+def _ctrl_cfg(mode: str, **kw):
+    """``load_controller_config`` with the profile's controller settings, then ``kw``."""
+    from biped_controller.core.control.controller import load_controller_config
+    base = dict(_SETTINGS.controller) if _SETTINGS is not None else {}
+    return load_controller_config(**{**base, "mode": mode, **kw})
+
+
+def _sim_cfg(**kw):
+    """``load_sim_config`` with the profile's simulator settings (its ``plant`` too, unless ``kw`` names one)."""
+    from biped_sim.plant.config import load_sim_config
+    base = dict(_SETTINGS.simulator) if _SETTINGS is not None else {}
+    return load_sim_config(**{**base, **kw})
 if str(ROOT) not in sys.path:  # `python benchmarks/run.py`
     sys.path.insert(0, str(ROOT))
 from benchmarks import RESULTS_DIR  # noqa: E402  (after the path above)
@@ -68,7 +87,9 @@ def pct(a) -> dict:
 def _push_run(force: float, steps: int, mode: str = "both", keep_qp: bool = True):
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
-    return run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp)
+    scfg = _sim_cfg()
+    return run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp,
+               sim_config=scfg, ctrl_config=_ctrl_cfg(mode, period=scfg.control_period))
 
 
 def _qp_counts(res) -> dict:
@@ -131,17 +152,16 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     now inside those (reported as 0).
     Passes repeat the recording until >= min_steps steps each.
     """
-    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController
     from biped_sim.robot.gait_family import GaitFamily
     from biped_sim.robot.description import LEFT, load_description
-    from biped_sim.plant.config import load_sim_config
 
-    desc, family, scfg = load_description(), GaitFamily.load(), load_sim_config()
-    ccfg = load_controller_config(mode=mode, period=scfg.control_period)
+    desc, family, scfg = load_description(), GaitFamily.load(), _sim_cfg()
+    ccfg = _ctrl_cfg(mode, period=scfg.control_period)
     states = [(r.t, np.array(r.q), np.array(r.qd), r.stance) for r in records]
     reps = max(1, math.ceil(min_steps / len(states)))
 
-    ccfg_ref = load_controller_config(mode=mode, period=scfg.control_period, engine="reference")
+    ccfg_ref = _ctrl_cfg(mode, period=scfg.control_period, engine="reference")
 
     def fresh(cfg=ccfg, compiled=True):
         c = AdaptiveController(cfg, family, desc)
@@ -416,9 +436,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     """In-process closed loop (runner.run), sim time / wall time, per engine and mode, the engines
     interleaved in the same run (the machine's speed varies: compare ratios). The first fast run of a
     process loads the compiled kernels: a warm-up run of each engine comes first and is not timed."""
-    from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies.runner import run
-    from biped_sim.plant.config import load_sim_config
 
     variants = {   # name: (engine, runner.run keywords)
         "fast": ("fast", {}),                                       # compiled loop, every record kept
@@ -431,10 +449,10 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     from biped_sim.robot.description import load_description
     from biped_sim.robot.gait_family import GaitFamily
     desc, family = load_description(), GaitFamily.load()
-    configs = {(e, m): (load_sim_config(engine=e), load_controller_config(mode=m, engine=e))
+    configs = {(e, m): (_sim_cfg(engine=e, plant="rigid"), _ctrl_cfg(m, engine=e))
                for e in ("fast", "reference") for m in ("none", "both")}
     for m in ("none", "both"):   # the MuJoCo plant with the fast engine's controller (its compiled period)
-        configs[("mujoco", m)] = (load_sim_config(engine="fast", plant="mujoco"), configs[("fast", m)][1])
+        configs[("mujoco", m)] = (_sim_cfg(engine="fast", plant="mujoco"), configs[("fast", m)][1])
 
     def one(variant, mode, n):
         """The closed loop only: the robot, the family and the settings are read before the clock starts
@@ -735,7 +753,18 @@ def main(argv=None) -> int:
                     help="section 4 alone (the MuJoCo plant beside the rigid one): merged into the JSON as "
                          "'inprocess_side_by_side' with its own date and load average, with the keys "
                          "inprocess.mujoco.*; the rest of the JSON is left as it is")
+    ap.add_argument("--profile", default=None, metavar="NAME",
+                    help="a named profile of config/profiles/ for every controller and plant the bench builds "
+                         "(default: the configuration files); a profile with a plant perturbation is refused")
     a = ap.parse_args(argv)
+    global _SETTINGS
+    from biped_controller.studies.trial.settings import OverrideError, differences, run_settings
+    try:
+        _SETTINGS = run_settings(profile=a.profile)
+    except (OverrideError, ValueError) as exc:
+        ap.error(f"--profile {a.profile}: {exc}")
+    if _SETTINGS.perturbation is not None and not _SETTINGS.perturbation.is_zero:
+        ap.error(f"--profile {a.profile}: sets a plant perturbation; the bench times unperturbed plants")
     json_path = Path(a.json)
     md_path = Path(a.md) if a.md else json_path.with_suffix(".md")
     provenance.track(json_path, None if a.inprocess_only else md_path, argv=argv, plant="rigid,mujoco")
@@ -744,9 +773,9 @@ def main(argv=None) -> int:
     T0 = time.perf_counter()
     quick = a.quick
     R = {"meta": {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "quick": quick, "cpus": os.cpu_count(),
+                  "settings": differences(_SETTINGS),
                   "machine": platform.processor() or platform.machine(), "python": platform.python_version()},
          "targets": TARGETS}
-    from biped_controller.core.control.controller import load_controller_config
     log("0. searching the hard run (largest surviving push, mode both)")
     hard = find_hard_run(quick)
     steps = 1 if quick else 22
@@ -766,7 +795,7 @@ def main(argv=None) -> int:
     R["controller"] = c
     log(f"   total p50 {c['pieces_us']['total']['p50']:.1f} us; replay matches run: {c['replay_matches_run']}")
     log("2. QP solvers")
-    cfg = load_controller_config(mode="both")
+    cfg = _ctrl_cfg("both")
     W = np.array([cfg.weight_p, cfg.weight_tau])
     if quick:   # every constrained instance (a few hundred at most) and 200 with x* feasible
         con = [i for i in instances if not np.all(i[1][0] @ i[1][2] - i[1][1] <= 0.0)]
