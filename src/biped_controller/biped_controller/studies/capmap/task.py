@@ -48,6 +48,8 @@ def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: fl
         "survived": bool(trial["survived"]), "reason": trial["reason"], "cause": failure_cause(trial),
         "fall_time": trial["fall_time"], "steps_walked": int(trial["steps_walked"]),
         "decided_at_step": trial.get("decided_at_step"),
+        # the controller's parameter excursion over the trial (``trials.parameter_excursion``)
+        **{k: trial[k] for k in ("max_abs_p_minus_pd", "min_p", "max_p", "min_tau_dot", "max_tau_dot")},
     }
 
 
