@@ -28,7 +28,9 @@ HELD = "held to the parameters' ranges"
 def _in_range(statuses, fam, tau_dot_min):
     p = np.array([s.p for s in statuses])
     td = np.array([s.tau_dot for s in statuses])
-    return p, td, bool(np.all(p >= fam.p_min) and np.all(p <= fam.p_max) and np.all(td >= tau_dot_min))
+    tol = trials.RANGE_TOL
+    return p, td, bool(np.all(p >= fam.p_min - tol) and np.all(p <= fam.p_max + tol)
+                       and np.all(td >= tau_dot_min - tol))
 
 
 def test_hold_puts_the_next_parameters_on_the_range_bounds():
@@ -53,19 +55,21 @@ def test_hold_puts_the_next_parameters_on_the_range_bounds():
     assert x[0] == 1e6 and x[1] == pytest.approx((tdm - 0.4) / dt)
 
 
-def _hybrid_push(force, settings, steps_after=3):
-    fam = context().family
-    return runs.push_run(Push(onset_time(0.55, fam.T), 0.025, force, None), "hybrid", steps_after=steps_after,
-                         settings=settings)
-
-
-def test_hybrid_700n_on_mujoco_stays_in_range_and_ends_physically():
-    """Mode hybrid, 700 N for 25 ms at phase 0.55 of the first step, MuJoCo plant (deterministic): the p/tau QP
-    is infeasible and the whole-body stage takes periods, the hold acts, yet every period's p and tau' are
-    finite and in range; the run walks or ends in one of the plant's physical falls; the run's recorded
-    excursion equals its periods' extremes."""
+@pytest.fixture(scope="module")
+def mujoco_700():
+    """Mode hybrid, 700 N for 25 ms at phase 0.55 of the first step, on the MuJoCo plant (deterministic), and
+    the settings."""
     settings = run_settings(None, ["plant=mujoco"])
-    r = _hybrid_push(700.0, settings)
+    fam = context().family
+    push = Push(onset_time(0.55, fam.T), 0.025, 700.0, None)
+    return runs.push_run(push, "hybrid", steps_after=3, settings=settings), settings
+
+
+def test_hybrid_700n_on_mujoco_stays_in_range_and_ends_physically(mujoco_700):
+    """The p/tau QP is infeasible and the whole-body stage takes periods, the hold acts, yet every period's p
+    and tau' are finite and in range; the run walks or ends in one of the plant's physical falls; the run's
+    recorded excursion equals its periods' extremes."""
+    r, settings = mujoco_700
     fam, tdm = context().family, settings.ctrl_config("hybrid").tau_dot_min
     p, td, ok = _in_range(r.statuses, fam, tdm)
     assert np.all(np.isfinite(p)) and np.all(np.isfinite(td))
@@ -77,12 +81,13 @@ def test_hybrid_700n_on_mujoco_stays_in_range_and_ends_physically():
     assert r.param_range == (p.min(), p.max(), td.min(), td.max())
 
 
-def test_python_steps_equal_the_compiled_period_where_the_hold_acts():
-    """The states of a rigid hybrid run pushed beyond what the adaptation holds, fed to a controller on its
-    compiled period and to one on its Python steps: the same decisions (p'', tau''), statuses and messages,
-    periods where the hold acted among them."""
-    r = runner.run(steps=2, mode="hybrid", pushes=(Push(0.2315, 0.025, 900.0, None),))
-    recs = r.records
+def test_python_steps_equal_the_compiled_period_where_the_hold_acts(mujoco_700):
+    """The states of that run fed to a controller on its compiled period and to one on its Python steps (with
+    the Python whole-body stage): the same QP and stage statuses and the same periods held, decisions (p'',
+    tau'') and parameters equal to round-off carried through the loop (the observer and the two stages reach
+    the same answers by different arithmetic, test_wbc_kernels; measured: p, tau' within 3.2e-5, p'', tau''
+    within 1.1e-3 relative over this run's 124 held periods)."""
+    recs = mujoco_700[0].records
 
     def replay(compiled):
         ctrl = AdaptiveController(load_controller_config(mode="hybrid"))
@@ -93,9 +98,10 @@ def test_python_steps_equal_the_compiled_period_where_the_hold_acts():
     a, b = replay(True), replay(False)
     held = 0
     for k, (sa, sb) in enumerate(zip(a, b)):
-        assert (sa.qp_status, sa.qp_message, sa.wbc_status) == (sb.qp_status, sb.qp_message, sb.wbc_status), k
-        assert sa.p_ddot == pytest.approx(sb.p_ddot, rel=1e-9, abs=1e-9), k
-        assert sa.tau_ddot == pytest.approx(sb.tau_ddot, rel=1e-9, abs=1e-9), k
+        assert (sa.qp_status, sa.wbc_status, HELD in sa.qp_message) == \
+            (sb.qp_status, sb.wbc_status, HELD in sb.qp_message), (k, sa.t)
+        for f, tol in (("p", 1e-4), ("tau_dot", 1e-4), ("p_ddot", 1e-2), ("tau_ddot", 1e-2)):
+            assert getattr(sa, f) == pytest.approx(getattr(sb, f), rel=tol, abs=tol), (k, sa.t, f)
         held += HELD in sa.qp_message
     assert held >= 1, "no period where the hold acted: the comparison checks little"
 
@@ -123,5 +129,7 @@ def test_out_of_range_names_what_leaves():
     assert "p_min" in trials.out_of_range({**ok, "min_p": 0.30}, 0.35, 0.65, 0.05)
     assert "p_max" in trials.out_of_range({**ok, "max_p": 1e13}, 0.35, 0.65, 0.05)
     assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": -3e13}, 0.35, 0.65, 0.05)
+    assert trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-16}, 0.35, 0.65, 0.05) == ""   # on the bound
+    assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-9}, 0.35, 0.65, 0.05)
     assert trials.out_of_range({**ok, "max_p": math.nan}, 0.35, 0.65, 0.05) != ""
     assert trials.out_of_range({"mode": "both"}, 0.35, 0.65, 0.05) == "parameter excursion not recorded"

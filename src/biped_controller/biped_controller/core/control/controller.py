@@ -22,7 +22,10 @@ INFEASIBLE_FALLBACK). The controller never raises inside the loop: a numerical f
 status SOLVER_ERROR and x = x*.
 
 p is kept inside the family's valid range by two extra QP rows (p after one period within
-[p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min).
+[p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min). These ranges are hard: on
+an answer that does not hold the rows (least violation, or the solver's error answer) each adapted
+parameter's acceleration is held to the interval of its own range rows (``_hold_ranges``), in every path
+(the Python steps, the compiled period and the compiled loop take the decision from the same two callers).
 
 State: the controller's state between periods is one array, ``memory`` (``controller_layout.MEMORY``), shared
 with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a

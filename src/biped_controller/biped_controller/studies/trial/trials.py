@@ -80,18 +80,24 @@ def parameter_excursion(res: runner.RunResult) -> dict:
             "min_tau_dot": td_lo, "max_tau_dot": td_hi}
 
 
+#: [m for p, - for tau'] how far past a bound a committed value may lie and still be on it: an active range row
+#: (the QP's or the hold's) puts p + p' dt + p'' dt^2 / 2 on the bound up to the rounding of that sum
+#: (measured: 1.4e-17 past tau_dot_min)
+RANGE_TOL = 1e-12
+
+
 def out_of_range(rec: dict, p_min: float, p_max: float, tau_dot_min: float) -> str:
     """What of a record's parameter excursion (:func:`parameter_excursion`'s fields) leaves the valid range
-    p in [p_min, p_max] [m], tau' >= tau_dot_min [-] ("" when nothing; a NaN counts as
+    p in [p_min, p_max] [m], tau' >= tau_dot_min [-], each to :data:`RANGE_TOL` ("" when nothing; a NaN counts as
     leaving it; a record without them says so)."""
     if not all(k in rec for k in ("min_p", "max_p", "min_tau_dot")):
         return "parameter excursion not recorded"
     bad = []
     lo, hi, td = rec.get("min_p", math.nan), rec.get("max_p", math.nan), rec.get("min_tau_dot", math.nan)
-    if not lo >= p_min:
+    if not lo >= p_min - RANGE_TOL:
         bad.append(f"p = {lo!r} < p_min = {p_min!r}")
-    if not hi <= p_max:
+    if not hi <= p_max + RANGE_TOL:
         bad.append(f"p = {hi!r} > p_max = {p_max!r}")
-    if not td >= tau_dot_min:
+    if not td >= tau_dot_min - RANGE_TOL:
         bad.append(f"tau' = {td!r} < tau_dot_min = {tau_dot_min!r}")
     return "; ".join(bad)
