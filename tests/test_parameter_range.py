@@ -133,3 +133,4 @@ def test_out_of_range_names_what_leaves():
     assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-9}, 0.35, 0.65, 0.05)
     assert trials.out_of_range({**ok, "max_p": math.nan}, 0.35, 0.65, 0.05) != ""
     assert trials.out_of_range({"mode": "both"}, 0.35, 0.65, 0.05) == "parameter excursion not recorded"
+    assert trials.out_of_range({**ok, "min_p": None}, 0.35, 0.65, 0.05) == "parameter excursion not recorded"

@@ -89,8 +89,8 @@ RANGE_TOL = 1e-12
 def out_of_range(rec: dict, p_min: float, p_max: float, tau_dot_min: float) -> str:
     """What of a record's parameter excursion (:func:`parameter_excursion`'s fields) leaves the valid range
     p in [p_min, p_max] [m], tau' >= tau_dot_min [-], each to :data:`RANGE_TOL` ("" when nothing; a NaN counts as
-    leaving it; a record without them says so)."""
-    if not all(k in rec for k in ("min_p", "max_p", "min_tau_dot")):
+    leaving it; a record without them, or with null ones, says so)."""
+    if any(rec.get(k) is None for k in ("min_p", "max_p", "min_tau_dot")):
         return "parameter excursion not recorded"
     bad = []
     lo, hi, td = rec.get("min_p", math.nan), rec.get("max_p", math.nan), rec.get("min_tau_dot", math.nan)
