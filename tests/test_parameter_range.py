@@ -14,7 +14,6 @@ from biped_controller.core.control.controller import AdaptiveController, load_co
 from biped_controller.core.control.controller_layout import R_, RES
 from biped_controller.core.qp.problem import INFEASIBLE_FALLBACK
 from biped_controller.core.control.wbc import NOT_RUN
-from biped_controller.studies import runner
 from biped_controller.studies.capmap.spec import Cell, SimSpec, onset_time
 from biped_controller.studies.capmap.task import simulate
 from biped_controller.studies.trial import runs, trials
