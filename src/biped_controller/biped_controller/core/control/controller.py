@@ -783,6 +783,8 @@ class AdaptiveController:
         held to the interval of its own range rows, at the period's parameters ``res`` (None: the memory's):
 
           p'' in [2 (p_min - p - p' dt) / dt^2, 2 (p_max - p - p' dt) / dt^2]   (p after one period in range)
+          and, where it meets that interval, p + 2 p' dt + 3/2 p'' dt^2 in [p_min, p_max] (after a second
+          period at the new p' with no acceleration: bounds p')
           tau'' >= (tau_dot_min - tau') / dt                                   (tau' after one period >= it)
 
         and lambda'' by :meth:`_torso_box` (modes lambda and all, ``lam`` = (lambda, lambda')). The
@@ -795,8 +797,15 @@ class AdaptiveController:
         p, p_dot, _, tau_dot = self._params(res)
         held = []
         if 0 in self.adapted:
-            k = 2.0 / (dt * dt)
-            lo, hi = (fam.p_min - p - p_dot * dt) * k, (fam.p_max - p - p_dot * dt) * k
+            k, sd = 1.0 / (dt * dt), p_dot * dt
+            lo, hi = 2.0 * (fam.p_min - p - sd) * k, 2.0 * (fam.p_max - p - sd) * k
+            # and, where the two meet, p after a second period at the new p' (no acceleration) in range too:
+            # p + 2 p' dt + 3/2 p'' dt^2 within [p_min, p_max]. Held so, p' stays bounded (|p'| dt <= p_max -
+            # p_min); without it p bounces between the bounds with a growing p', and a period cut short by an
+            # impact leaves the range
+            clo, chi = (fam.p_min - p - 2.0 * sd) * k / 1.5, (fam.p_max - p - 2.0 * sd) * k / 1.5
+            if max(lo, clo) <= min(hi, chi):
+                lo, hi = max(lo, clo), min(hi, chi)
             v = min(max(float(x[0]), lo), hi)
             if v != x[0]:
                 x[0] = v
