@@ -22,6 +22,7 @@ from biped_sim.plant.records import ImpactRecord, StepRecord
 from biped_sim.plant.protocol import Plant, make_plant
 
 from biped_controller.core.control.controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
+from biped_controller.core.control.controller_layout import M_
 from biped_controller.studies.segment import Segment
 from biped_sim.robot.gait_family import GaitFamily
 
@@ -38,6 +39,9 @@ class RunResult:
     impacts: list[ImpactRecord]
     # with keep_qp: (G, h, x*, qp_status) of every period that built a QP instance
     qp_instances: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = field(default_factory=list)
+    # the controller's committed parameters over the run (from its reset, the walk to a restored snapshot
+    # included): (smallest p, largest p [m], smallest tau', largest tau' [-]), NaN when one was NaN
+    param_range: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, math.nan)
 
     def series(self, name: str) -> np.ndarray:
         return np.array([getattr(s, name) for s in self.statuses])
@@ -267,7 +271,9 @@ class ClosedLoop:
         return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
                          fallen=fall is not None, fall_cause=fall.cause if fall else "",
                          fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
-                         impacts=list(sim.impact_log), qp_instances=qps)
+                         impacts=list(sim.impact_log), qp_instances=qps,
+                         param_range=tuple(float(ctrl.memory[o]) for o in (M_.p_lo, M_.p_hi, M_.tau_dot_lo,
+                                                                           M_.tau_dot_hi)))
 
 
 class LoopPool:

@@ -22,7 +22,10 @@ INFEASIBLE_FALLBACK). The controller never raises inside the loop: a numerical f
 status SOLVER_ERROR and x = x*.
 
 p is kept inside the family's valid range by two extra QP rows (p after one period within
-[p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min).
+[p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min). These ranges are hard: on
+an answer that does not hold the rows (least violation, or the solver's error answer) each adapted
+parameter's acceleration is held to the interval of its own range rows (``_hold_ranges``), in every path
+(the Python steps, the compiled period and the compiled loop take the decision from the same two callers).
 
 State: the controller's state between periods is one array, ``memory`` (``controller_layout.MEMORY``), shared
 with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a
@@ -767,14 +770,57 @@ class AdaptiveController:
             if not np.all(np.isfinite(x)):
                 raise FloatingPointError("non-finite QP answer")
             msg = qres.message
-            if lam is not None and qres.status not in (UNCONSTRAINED, ACTIVE):
-                x[2], clipped = self._torso_box(x[2], lam)
-                if clipped:
-                    msg += "; lambda'' held to the torso's range"
+            if qres.status not in (UNCONSTRAINED, ACTIVE):
+                msg += self._hold_ranges(x, res, lam)
             return x, qres.status, msg, G, h, xs
         except (FloatingPointError, np.linalg.LinAlgError) as exc:
             # numerical failure only (programming errors such as QPShapeError propagate): desired values
             return ref.x_star.copy(), SOLVER_ERROR, f"{type(exc).__name__}: {exc}", None, None, None
+
+    def _hold_ranges(self, x: np.ndarray, res: np.ndarray | None, lam: tuple[float, float] | None) -> str:
+        """After an answer that does not hold the rows (least violation, or the solver's error answer x*): the
+        parameters' ranges are hard, so each adapted parameter's acceleration in ``x`` (changed in place) is
+        held to the interval of its own range rows, at the period's parameters ``res`` (None: the memory's):
+
+          p'' in [2 (p_min - p - p' dt) / dt^2, 2 (p_max - p - p' dt) / dt^2]   (p after one period in range)
+          and, where it meets that interval, p + 2 p' dt + 3/2 p'' dt^2 in [p_min, p_max] (after a second
+          period at the new p' with no acceleration: bounds p')
+          tau'' >= (tau_dot_min - tau') / dt                                   (tau' after one period >= it)
+
+        and lambda'' by :meth:`_torso_box` (modes lambda and all, ``lam`` = (lambda, lambda')). The
+        least-violation answer weighs a violation of these rows [m, -] against violations of the contact and
+        torque rows [N, N m]: without the hold it lets p and tau' run away (p'' ~ 1e6 m/s^2), and in mode
+        hybrid, where the whole-body stage then takes over the period's w, nothing brings them back. The
+        parameters that are not adapted stay at x* (their rows are not the QP's). Returns the message's
+        suffix naming what was held ("" when nothing changed)."""
+        c, fam, dt = self.cfg, self.family, self.cfg.period
+        p, p_dot, _, tau_dot = self._params(res)
+        held = []
+        if 0 in self.adapted:
+            k, sd = 1.0 / (dt * dt), p_dot * dt
+            lo, hi = 2.0 * (fam.p_min - p - sd) * k, 2.0 * (fam.p_max - p - sd) * k
+            # and, where the two meet, p after a second period at the new p' (no acceleration) in range too:
+            # p + 2 p' dt + 3/2 p'' dt^2 within [p_min, p_max]. Held so, p' stays bounded (|p'| dt <= p_max -
+            # p_min); without it p bounces between the bounds with a growing p', and a period cut short by an
+            # impact leaves the range
+            clo, chi = (fam.p_min - p - 2.0 * sd) * k / 1.5, (fam.p_max - p - 2.0 * sd) * k / 1.5
+            if max(lo, clo) <= min(hi, chi):
+                lo, hi = max(lo, clo), min(hi, chi)
+            v = min(max(float(x[0]), lo), hi)
+            if v != x[0]:
+                x[0] = v
+                held.append("p''")
+        if 1 in self.adapted:
+            lo = (c.tau_dot_min - tau_dot) / dt
+            if x[1] < lo:
+                x[1] = lo
+                held.append("tau''")
+        msg = f"; {', '.join(held)} held to the parameters' ranges" if held else ""
+        if lam is not None:
+            x[2], clipped = self._torso_box(x[2], lam)
+            if clipped:
+                msg += "; lambda'' held to the torso's range"
+        return msg
 
     def _torso_box(self, lam_ddot: float, lam: tuple[float, float]) -> tuple[float, bool]:
         """The torso's range is hard: lambda'' held to the interval of its four range rows (lambda within
@@ -1010,10 +1056,9 @@ class _FastPeriod:
         if not np.all(np.isfinite(x)):
             return None
         msg = qres.message
-        if self.nx == 3 and qres.status not in (UNCONSTRAINED, ACTIVE):
-            x[2], clipped = self.ctrl._torso_box(x[2], (float(res[R_.lam]), float(res[R_.lam + 1])))
-            if clipped:
-                msg += "; lambda'' held to the torso's range"
+        if qres.status not in (UNCONSTRAINED, ACTIVE):
+            msg += self.ctrl._hold_ranges(x, res, (float(res[R_.lam]), float(res[R_.lam + 1]))
+                                          if self.nx == 3 else None)
         return x, qres.status, msg, Gr, hr, xs
 
     def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):

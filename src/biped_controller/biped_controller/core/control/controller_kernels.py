@@ -126,9 +126,27 @@ def period_start(mem, t, stance, res):
 
 
 @numba.njit(cache=True)
+def _extremes(mem, v, lo, first):
+    """mem[lo], mem[lo + 1] <- the smallest and largest committed value of a parameter: ``v`` alone at the first
+    commit since the reset (``first``), else widened by ``v``; a NaN, once there, stays (the run's range is then
+    unknown, not silently the finite part)."""
+    if first or v != v:
+        mem[lo] = v
+        mem[lo + 1] = v
+        return
+    if mem[lo] == mem[lo] and v < mem[lo]:
+        mem[lo] = v
+    if mem[lo + 1] == mem[lo + 1] and v > mem[lo + 1]:
+        mem[lo + 1] = v
+
+
+@numba.njit(cache=True)
 def period_commit(mem, res, work, qd, t, stance):
     """The period is applied: the memory takes its parameters, decision, time, stance, F, q', w, A (and lambda,
-    lambda', lambda'': 0 outside the torso modes)."""
+    lambda', lambda'': 0 outside the torso modes), and the extremes of p and tau' since the reset (:func:`_extremes`)."""
+    first = mem[M_.decided] == 0.0
+    _extremes(mem, res[R_.p], M_.p_lo, first)
+    _extremes(mem, res[R_.tau_dot], M_.tau_dot_lo, first)
     mem[M_.p] = res[R_.p]
     mem[M_.p_dot] = res[R_.p_dot]
     mem[M_.tau] = res[R_.tau]

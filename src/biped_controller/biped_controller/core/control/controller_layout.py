@@ -20,7 +20,8 @@ read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time con
   stance of the last decision (or of the reset; -1 none), the force estimate F [N], the period index,
   and the observer's memory of the last period: q'_prev [rad/s], w_prev [rad/s^2], A_prev (6 x 6); then
   (modes lambda and all; 0 otherwise) the torso offset lambda [rad], lambda' [rad/s] at the last
-  decision and its decision lambda'' [rad/s^2].
+  decision and its decision lambda'' [rad/s^2]; the smallest and largest p [m] and tau' [-] committed since
+  the reset (NaN once a committed value was NaN).
 * ``RES`` (one period's answer; also the status row of the compiled loop): the period's parameters,
   x = (p'', tau'', lambda'') (lambda'' = 0 outside modes lambda, all), x*, F, max |q_d - q|, the ZMP l [m], the tightest row, R = (R_x, R_y) [N], h_b and
   h_b,c, the 17 margins (positive = satisfied), and the observer mode and elapsed time of the period;
@@ -62,7 +63,9 @@ MEMORY = Layout("memory", [
     ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("p_ddot", 1), ("tau_ddot", 1),
     ("decided", 1), ("t_last", 1), ("stance", 1), ("force", 1), ("step", 1),
     ("prev_qd", N_JOINTS), ("prev_w", N_JOINTS), ("prev_A", N_JOINTS * N_JOINTS),
-    ("lam", 1), ("lam_dot", 1), ("lam_ddot", 1)])
+    ("lam", 1), ("lam_dot", 1), ("lam_ddot", 1),
+    # the extremes of the committed p [m] and tau' [-] since the reset (a run's range, for the studies' records)
+    ("p_lo", 1), ("p_hi", 1), ("tau_dot_lo", 1), ("tau_dot_hi", 1)])
 
 RES = Layout("res", [
     ("p", 1), ("p_dot", 1), ("tau", 1), ("tau_dot", 1), ("x", 3), ("x_star", 3), ("force", 1), ("max_error", 1),

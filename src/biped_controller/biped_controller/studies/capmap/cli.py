@@ -125,6 +125,11 @@ def main(argv: list[str] | None = None) -> int:
           + (f"; ? = search incomplete: {len(run.missing)} cells)" if run.missing else ")"))
     for line in findings_text(summ["findings"]):
         print(line)
+    pr = summ["parameter_range"]
+    if pr["max_abs_p_minus_pd"] is not None:
+        print(f"parameters: max |p - p_d| = {pr['max_abs_p_minus_pd']:.4f} m (range [{pr['p_min']:g}, {pr['p_max']:g}] m), "
+              f"tau' in [{pr['min_tau_dot']:.4f}, {pr['max_tau_dot']:.4f}] (>= {pr['tau_dot_min']:g}); "
+              f"{len(pr['trials_out_of_range'])} trials out of range, {pr['trials_not_recorded']} without the record")
     for p in figs:
         print(f"figure: {p}")
     if args.json is not None:

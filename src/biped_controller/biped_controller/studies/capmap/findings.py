@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Sequence
 
 from biped_controller.core.control.controller import MODES
-from biped_controller.studies.trial import stop, survival
+from biped_controller.studies.trial import stop, survival, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION
 from biped_controller.studies.trial.search import PAPER_MAX_PUSH
@@ -151,6 +151,26 @@ def findings_text(f: dict) -> list[str]:
     return lines
 
 
+def parameter_range(run: MapRun) -> dict:
+    """The map's trials against the parameters' valid range (``trials.out_of_range``: p in the family's
+    [p_min, p_max] [m], tau' >= tau_dot_min): the range, the largest |p - p_d| [m] and the extremes of tau' [-]
+    over the recorded trials, the trials that leave the range (key and what leaves) and how many records
+    carry no excursion (stored before it was recorded)."""
+    fam, tdm = context().family, run.spec.settings.ctrl_config(run.spec.modes[0]).tau_dot_min
+    recs = [r for by_force in run.records.values() for r in by_force.values()]
+    known = [r for r in recs if all(r.get(k) is not None for k in ("max_abs_p_minus_pd", "min_tau_dot", "max_tau_dot"))]
+    out = []
+    for r in recs:
+        why = trials.out_of_range(r, fam.p_min, fam.p_max, tdm)
+        if why and r in known:
+            out.append({k: r[k] for k in ("mode", "direction", "phase", "duration", "force")} | {"why": why})
+    return {"p_min": fam.p_min, "p_max": fam.p_max, "p_d": fam.p_d, "tau_dot_min": tdm,
+            "max_abs_p_minus_pd": max((r["max_abs_p_minus_pd"] for r in known), default=None),
+            "min_tau_dot": min((r["min_tau_dot"] for r in known), default=None),
+            "max_tau_dot": max((r["max_tau_dot"] for r in known), default=None),
+            "trials_out_of_range": out, "trials_not_recorded": len(recs) - len(known)}
+
+
 def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
     """The summary JSON: the map, the robot's mass and weight, what the run did, every boundary, the
     findings and the figures."""
@@ -184,5 +204,6 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
         "incomplete_cells": [asdict(c) for c in run.missing],
         "boundaries": bs,
         "findings": findings(bs, s.search.resolution),
+        "parameter_range": parameter_range(run),
         "figures": [str(p) for p in figures],
     }

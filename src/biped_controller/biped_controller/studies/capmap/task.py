@@ -1,6 +1,7 @@
 """What one simulation of the map is (the pure task function every executor runs) and its record."""
 from __future__ import annotations
 
+import math
 from typing import Callable, Mapping, Sequence
 
 from biped_sim.plant.push import Push
@@ -9,6 +10,9 @@ from biped_controller.studies.capmap.spec import DIRECTIONS, MapError, SimSpec, 
 from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
+
+#: the parameter excursion each record carries (``trials.parameter_excursion``)
+EXCURSION_FIELDS = ("max_abs_p_minus_pd", "min_p", "max_p", "min_tau_dot", "max_tau_dot")
 
 
 def worker_init() -> None:
@@ -48,7 +52,15 @@ def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: fl
         "survived": bool(trial["survived"]), "reason": trial["reason"], "cause": failure_cause(trial),
         "fall_time": trial["fall_time"], "steps_walked": int(trial["steps_walked"]),
         "decided_at_step": trial.get("decided_at_step"),
+        # the controller's parameter excursion over the trial (``trials.parameter_excursion``); null when the
+        # trial function does not report it or it was NaN (the store is strict JSON), which
+        # ``trials.out_of_range`` reports as not recorded
+        **{k: _finite_or_none(trial.get(k)) for k in EXCURSION_FIELDS},
     }
+
+
+def _finite_or_none(v) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
 
 
 def simulate_batch(batch: Sequence[SimSpec], settings: RunSettings = DEFAULT_SETTINGS,

@@ -64,4 +64,40 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
         ok, why = survival(res, end, noisy=noisy_sensing(settings), p_ref=p_reference(mode, push, settings))
     return {"force": float(push.force), "mode": mode, "survived": ok, "reason": why,
             "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
-            "steps_walked": int(res.steps_walked), "decided_at_step": int(res.steps_walked) if decided else None}
+            "steps_walked": int(res.steps_walked), "decided_at_step": int(res.steps_walked) if decided else None,
+            **parameter_excursion(res)}
+
+
+def parameter_excursion(res: runner.RunResult) -> dict:
+    """The run's parameter excursion (JSON-ready): ``max_abs_p_minus_pd`` [m], the largest |p - p_d| of the
+    controller's committed p, ``min_p``, ``max_p`` [m] its extremes, and ``min_tau_dot``, ``max_tau_dot`` [-],
+    the extremes of its tau' (at every decision from t = 0 to the run's end, early stop included; NaN when
+    one was NaN). The valid range: p in the family's [p_min, p_max], tau' >= tau_dot_min
+    (``config/controller.yaml``; :func:`out_of_range`)."""
+    p_lo, p_hi, td_lo, td_hi = res.param_range
+    p_d = context().family.p_d
+    return {"max_abs_p_minus_pd": max(abs(p_hi - p_d), abs(p_lo - p_d)), "min_p": p_lo, "max_p": p_hi,
+            "min_tau_dot": td_lo, "max_tau_dot": td_hi}
+
+
+#: [m for p, - for tau'] how far past a bound a committed value may lie and still be on it: an active range row
+#: (the QP's or the hold's) puts p + p' dt + p'' dt^2 / 2 on the bound up to the rounding of that sum
+#: (measured: up to 2.9e-15 past tau_dot_min in results/parameter_range/mujoco_slice.json)
+RANGE_TOL = 1e-12
+
+
+def out_of_range(rec: dict, p_min: float, p_max: float, tau_dot_min: float) -> str:
+    """What of a record's parameter excursion (:func:`parameter_excursion`'s fields) leaves the valid range
+    p in [p_min, p_max] [m], tau' >= tau_dot_min [-], each to :data:`RANGE_TOL` ("" when nothing; a NaN counts as
+    leaving it; a record without them, or with null ones, says so)."""
+    if any(rec.get(k) is None for k in ("min_p", "max_p", "min_tau_dot")):
+        return "parameter excursion not recorded"
+    bad = []
+    lo, hi, td = rec.get("min_p", math.nan), rec.get("max_p", math.nan), rec.get("min_tau_dot", math.nan)
+    if not lo >= p_min - RANGE_TOL:
+        bad.append(f"p = {lo!r} < p_min = {p_min!r}")
+    if not hi <= p_max + RANGE_TOL:
+        bad.append(f"p = {hi!r} > p_max = {p_max!r}")
+    if not td >= tau_dot_min - RANGE_TOL:
+        bad.append(f"tau' = {td!r} < tau_dot_min = {tau_dot_min!r}")
+    return "; ".join(bad)

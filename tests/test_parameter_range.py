@@ -1,0 +1,150 @@
+"""The trajectory parameters stay in their valid range (p in the family's [p_min, p_max], tau' >= tau_dot_min)
+in every mode, including when the p/tau QP has no feasible answer and mode hybrid's whole-body stage takes the
+period (core/control/controller.py ``_hold_ranges``); the runs' and the capability map's records of the
+parameters' excursion (studies/trial/trials.py ``parameter_excursion``)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from biped_sim.plant.push import Push
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.controller_layout import R_, RES
+from biped_controller.core.qp.problem import INFEASIBLE_FALLBACK
+from biped_controller.core.control.wbc import NOT_RUN
+from biped_controller.studies.capmap.spec import Cell, SimSpec, onset_time
+from biped_controller.studies.capmap.task import simulate
+from biped_controller.studies.trial import runs, trials
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.settings import run_settings
+from biped_controller.core.control.controller import MODES
+
+HELD = "held to the parameters' ranges"
+
+
+def _in_range(statuses, fam, tau_dot_min):
+    p = np.array([s.p for s in statuses])
+    td = np.array([s.tau_dot for s in statuses])
+    tol = trials.RANGE_TOL
+    return p, td, bool(np.all(p >= fam.p_min - tol) and np.all(p <= fam.p_max + tol)
+                       and np.all(td >= tau_dot_min - tol))
+
+
+def test_hold_puts_the_next_parameters_on_the_range_bounds():
+    """A least-violation answer far outside the range rows (p'' = +-1e6 m/s^2, tau'' = -1e6 1/s): held so that
+    p after one period and after a second one at the new p' (no acceleration) are in range, one of them on the
+    bound, and tau' lands on tau_dot_min; an answer inside the rows is not touched; a mode that does not
+    adapt p keeps p'' (its x*); from a state whose second period cannot be held (p' dt beyond the range)
+    p after one period is still held."""
+    ctrl = AdaptiveController(load_controller_config(mode="hybrid"))
+    fam, dt, tdm = ctrl.family, ctrl.cfg.period, ctrl.cfg.tau_dot_min
+    res = np.zeros(RES.size)
+    res[R_.p], res[R_.p_dot], res[R_.tau_dot] = 0.60, 0.8, 0.4
+    for p_dd, bound in ((1e6, fam.p_max), (-1e6, fam.p_min)):
+        x = np.array([p_dd, -1e6])
+        msg = ctrl._hold_ranges(x, res, None)
+        assert HELD in msg and "p''" in msg and "tau''" in msg
+        p1, pd1, _, td1 = ctrl.ck.advance(0.60, 0.8, 0.0, 0.4, x[0], x[1], dt)
+        p2 = p1 + pd1 * dt
+        tol = 1e-12
+        assert fam.p_min - tol <= p1 <= fam.p_max + tol and fam.p_min - tol <= p2 <= fam.p_max + tol
+        assert min(abs(p1 - bound), abs(p2 - bound)) < tol
+        assert td1 == pytest.approx(tdm, abs=1e-12)
+    fast = res.copy()
+    fast[R_.p_dot] = -1000.0            # p' dt = -1 m: no p'' keeps the second period in range
+    x = np.array([-1e6, 0.0])
+    ctrl._hold_ranges(x, fast, None)
+    assert ctrl.ck.advance(0.60, -1000.0, 0.0, 0.4, x[0], 0.0, dt)[0] == pytest.approx(fam.p_min, abs=1e-12)
+    x = np.array([-50.0, 2.0])
+    assert ctrl._hold_ranges(x, res, None) == "" and list(x) == [-50.0, 2.0]
+    tau_only = AdaptiveController(load_controller_config(mode="tau"))
+    x = np.array([1e6, -1e6])
+    tau_only._hold_ranges(x, res, None)
+    assert x[0] == 1e6 and x[1] == pytest.approx((tdm - 0.4) / dt)
+
+
+@pytest.fixture(scope="module")
+def mujoco_700():
+    """Mode hybrid, 700 N for 25 ms at phase 0.55 of the first step, on the MuJoCo plant (deterministic), and
+    the settings."""
+    settings = run_settings(None, ["plant=mujoco"])
+    fam = context().family
+    push = Push(onset_time(0.55, fam.T), 0.025, 700.0, None)
+    return runs.push_run(push, "hybrid", steps_after=3, settings=settings), settings
+
+
+def test_hybrid_700n_on_mujoco_stays_in_range_and_ends_physically(mujoco_700):
+    """The p/tau QP is infeasible and the whole-body stage takes periods, the hold acts, yet every period's p
+    and tau' are finite and in range; the run walks or ends in one of the plant's physical falls; the run's
+    recorded excursion equals its periods' extremes."""
+    r, settings = mujoco_700
+    fam, tdm = context().family, settings.ctrl_config("hybrid").tau_dot_min
+    p, td, ok = _in_range(r.statuses, fam, tdm)
+    assert np.all(np.isfinite(p)) and np.all(np.isfinite(td))
+    assert ok, (p.min(), p.max(), td.min())
+    assert sum(s.qp_status == INFEASIBLE_FALLBACK for s in r.statuses) >= 5
+    assert sum(s.wbc_status != NOT_RUN for s in r.statuses) >= 5
+    assert any(HELD in s.qp_message for s in r.statuses), "the hold never acted: the test checks little"
+    assert not r.fallen or r.fall_cause in ("body_contact", "hip_low", "foot_rotated"), r.fall_cause
+    assert r.param_range == (p.min(), p.max(), td.min(), td.max())
+
+
+def test_python_steps_equal_the_compiled_period_where_the_hold_acts(mujoco_700):
+    """The states of that run fed to a controller on its compiled period and to one on its Python steps (with
+    the Python whole-body stage): the same QP and stage statuses and the same periods held, decisions (p'',
+    tau'') and parameters equal to round-off carried through the loop (the observer and the two stages reach
+    the same answers by different arithmetic, test_wbc_kernels) up to 20 ms before the fall, where the
+    robot's state is chaotic and the round-off grows (measured there: tau' 0.3 relative apart; the statuses
+    and held periods still the same)."""
+    run = mujoco_700[0]
+    recs = run.records
+    settled = run.fall_time - 0.02 if run.fallen else math.inf   # the last 20 ms before a fall: chaotic
+
+    def replay(compiled):
+        ctrl = AdaptiveController(load_controller_config(mode="hybrid"))
+        if not compiled:
+            ctrl._kernel = None
+        ctrl.reset(recs[0].stance)
+        return [ctrl.compute(x.t, x.q, x.qd, x.stance).status for x in recs]
+    a, b = replay(True), replay(False)
+    held = 0
+    for k, (sa, sb) in enumerate(zip(a, b)):
+        assert (sa.qp_status, sa.wbc_status, HELD in sa.qp_message) == \
+            (sb.qp_status, sb.wbc_status, HELD in sb.qp_message), (k, sa.t)
+        for f, tol in (("p", 1e-4), ("tau_dot", 1e-4), ("p_ddot", 1e-2), ("tau_ddot", 1e-2)):
+            if sa.t < settled:
+                assert getattr(sa, f) == pytest.approx(getattr(sb, f), rel=tol, abs=tol), (k, sa.t, f)
+        held += HELD in sa.qp_message
+    assert held >= 1, "no period where the hold acted: the comparison checks little"
+
+
+def test_every_mode_of_a_small_map_slice_stays_in_range():
+    """A small capability-map slice (phase 0.55, 25 ms, forward, 300 and 900 N) in every mode: each record
+    carries the trial's excursion, and no trial leaves the range."""
+    ctrl_cfg = load_controller_config()
+    fam = context().family
+    for mode in MODES:
+        for force in (300.0, 900.0):
+            rec = simulate(SimSpec(Cell(mode, "forward", 0.55, 0.025), force))
+            for k in ("max_abs_p_minus_pd", "min_p", "max_p", "min_tau_dot", "max_tau_dot"):
+                assert math.isfinite(rec[k]), (mode, force, k)
+            assert rec["max_abs_p_minus_pd"] == max(rec["max_p"] - fam.p_d, fam.p_d - rec["min_p"])
+            why = trials.out_of_range(rec, fam.p_min, fam.p_max, ctrl_cfg.tau_dot_min)
+            assert why == "", (mode, force, why)
+
+
+def test_out_of_range_names_what_leaves():
+    """Negative control of the range check: each bound broken alone is named; NaN and a record from before the
+    fields existed are not passed."""
+    ok = {"min_p": 0.40, "max_p": 0.60, "min_tau_dot": 0.5}
+    assert trials.out_of_range(ok, 0.35, 0.65, 0.05) == ""
+    assert "p_min" in trials.out_of_range({**ok, "min_p": 0.30}, 0.35, 0.65, 0.05)
+    assert "p_max" in trials.out_of_range({**ok, "max_p": 1e13}, 0.35, 0.65, 0.05)
+    assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": -3e13}, 0.35, 0.65, 0.05)
+    assert trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-16}, 0.35, 0.65, 0.05) == ""   # on the bound
+    assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-9}, 0.35, 0.65, 0.05)
+    assert trials.out_of_range({**ok, "max_p": math.nan}, 0.35, 0.65, 0.05) != ""
+    assert trials.out_of_range({"mode": "both"}, 0.35, 0.65, 0.05) == "parameter excursion not recorded"
+    assert trials.out_of_range({**ok, "min_p": None}, 0.35, 0.65, 0.05) == "parameter excursion not recorded"
