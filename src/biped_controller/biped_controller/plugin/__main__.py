@@ -1,0 +1,45 @@
+"""``python -m biped_controller.plugin list``: the registered controllers, one a line
+(name, where it comes from, ``module:Class``, what it does). ``check NAME``: load one and report."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from biped_controller.plugin.interface import InterfaceError
+from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller, registered,
+                                              summary)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m biped_controller.plugin",
+                                 description="Controllers behind the controller interface.")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("list", help="the registered controllers, one a line")
+    chk = sub.add_parser("check", help="load one controller and check it against the interface")
+    chk.add_argument("name")
+    args = ap.parse_args(argv)
+    if args.cmd == "list":
+        for r in registered():
+            try:
+                text = summary(load_controller(r.name) if r.source == "builtin" else _load_entry(r.target))
+            except (ControllerLoadError, InterfaceError) as exc:
+                text = f"BROKEN: {exc}"
+            print(f"{r.name:<16} {r.source:<24} {r.target:<56} {text}")
+        return 0
+    try:
+        cls = load_controller(args.name)
+    except (UnknownControllerError, ControllerLoadError, InterfaceError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
+    return 0
+
+
+def _load_entry(target: str) -> type:
+    from biped_controller.plugin.interface import check_controller_class
+    from biped_controller.plugin.registry import _import_target
+    return check_controller_class(_import_target(target, f"entry point {target!r}"))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
