@@ -21,13 +21,15 @@ next foot where the same offset from the new stance ankle is restored:
 
     u(T_r) = p_d + xi e^{omega T_r} - c(tau)           (the step location law)
 
-and takes T_r = (T - tau) (the preferred timing, tau' = 1) unless u leaves the family's range
-[p_min, p_max]; then, as the step-timing adapters do, it solves u(T_r) = the violated bound for T_r,
-T_r = ln((bound - p_d + c) / xi) / omega, bounded to [max(T_min - t_s, dt_min), T_max - t_s]
-(t_s [s] the time since the touchdown, T_min, T_max the step-time bounds; of the candidates {preferred,
-solved, bounds} the one whose u is closest to the range, then the one closest to the preferred timing).
-The stride target is p* = clip(u(T_r), p_min, p_max) with a dead band: deviations |u - p_d| below
-``dead_band`` [m] (what the tracking error alone produces) give p* = p_d. The time-scaling target is
+and picks the timing as the DCM step-timing adapters do, over sigma = e^{omega T_r} (u is linear in
+sigma): min w_u (u - p_d)^2 + w_t (sigma - sigma_n)^2, sigma_n = e^{omega (T - tau)} the preferred
+timing, i.e. sigma = (w_u xi c + w_t sigma_n) / (w_u xi^2 + w_t), bounded to the step-time range
+T_r in [max(T_min - t_s, dt_min), T_max - t_s] (t_s [s] the time since the touchdown, T_min, T_max the
+step-time bounds). When u then leaves the family's range [p_min, p_max], the range wins: sigma solves
+u = the violated bound, sigma = (bound - p_d + c) / xi, within the same bounds, and p* = clip(u, p_min,
+p_max). A dead band keeps the preferred gait exact: a DCM error |xi - xi_n(tau)| below ``dead_band`` [m]
+(what the tracking error alone produces) counts as none, a larger one is reduced by it. The time-scaling
+target is
 tau'* = (T - tau) / T_r (tau reaches T when the foot should land), bounded to [tau_dot_min, tau_dot_max].
 After ``freeze_phase`` T of the step the targets are held (the swing foot is landing).
 
@@ -66,16 +68,18 @@ class StepperSettings:
 
     Kp: float                 # [1/s^2] joint PD stiffness (eq. 16); default: config/controller.yaml's
     Kv: float                 # [1/s] joint PD damping; default: config/controller.yaml's
-    kp: float = 400.0         # [1/s^2] p -> p* (omega_n = 20 rad/s: within the half step left after a mid-step push)
-    kv: float = 40.0          # [1/s] critical damping for kp
-    k_tau: float = 40.0       # [1/s] tau' -> tau'*
+    kp: float = 25.0          # [1/s^2] p -> p*: the paper's second-task gain for p -> p_d (omega_n = 5 rad/s)
+    kv: float = 10.0          # [1/s] critical damping for kp (the paper's k_v)
+    k_tau: float = 10.0       # [1/s] tau' -> tau'*: the paper's k_v for tau' -> 1
     step_time_min: float = 0.6    # [T] shortest step, as a fraction of the preferred step time T
     step_time_max: float = 1.5    # [T] longest step
     min_time_left: float = 0.05   # [s] the earliest the foot may land from now
     tau_dot_min: float = 0.3      # [-] bounds of tau'*
     tau_dot_max: float = 2.5
     freeze_phase: float = 0.85    # [-] fraction of T after which p*, tau'* are held
-    dead_band: float = 0.01       # [m] |u - p_d| below this: p* = p_d
+    dead_band: float = 0.002      # [m] DCM errors |xi - xi_n| below this are none (the undisturbed walk's: < 7e-4 m)
+    weight_step: float = 400.0    # [1/m^2] cost of (u - p_d)^2: 5 cm of stride ...
+    weight_time: float = 1.0      # [-] ... cost as much as 0.1 of sigma = e^{omega T_r} (about 5 % of its mid-step value)
 
     def validate(self) -> "StepperSettings":
         for f in fields(self):
@@ -192,25 +196,23 @@ class CapturePointStepper:
     def _targets(self, xi: float, tau: float, since_touchdown: float) -> tuple[float, float, bool]:
         """(p* [m], T_r [s], timing adapted) for the DCM ``xi`` [m] at phase ``tau`` [s] (module docstring)."""
         s, om = self.s, self.omega
-        t_nom = max(self.T - tau, s.min_time_left)
+        xi_n = float(np.interp(tau, self._taus, self._xi_n))
+        e = xi - xi_n
+        xi = xi_n + math.copysign(max(abs(e) - s.dead_band, 0.0), e)      # the dead band on the DCM error
+        c = float(np.interp(tau, self._taus, self._offset))
         lo = max(s.step_time_min * self.T - since_touchdown, s.min_time_left)
         hi = max(s.step_time_max * self.T - since_touchdown, lo)
-        t_nom = min(max(t_nom, lo), hi)
-        u = self.stride_at(xi, tau, t_nom)
-        best = t_nom
-        if not self.p_min <= u <= self.p_max:
+        t_nom = min(max(self.T - tau, lo), hi)
+        sig_nom, sig_lo, sig_hi = math.exp(om * t_nom), math.exp(om * lo), math.exp(om * hi)
+        wu, wt = s.weight_step, s.weight_time
+        sig = (wu * xi * c + wt * sig_nom) / (wu * xi * xi + wt)        # argmin of the weighted cost
+        sig = min(max(sig, sig_lo), sig_hi)
+        u = self.p_d + xi * sig - c
+        if not self.p_min <= u <= self.p_max and xi != 0.0:             # the range first: the timing takes the rest
             bound = self.p_max if u > self.p_max else self.p_min
-            c = float(np.interp(tau, self._taus, self._offset))
-            cands = [t_nom, lo, hi]
-            r = bound - self.p_d + c
-            if xi != 0.0 and r / xi > 0.0:
-                cands.append(min(max(math.log(r / xi) / om, lo), hi))
-
-            def cost(tr: float) -> tuple[float, float]:
-                v = self.stride_at(xi, tau, tr)
-                return (max(self.p_min - v, v - self.p_max, 0.0), abs(tr - t_nom))
-            best = min(cands, key=cost)
-            u = self.stride_at(xi, tau, best)
-        dev = u - self.p_d
-        dev = math.copysign(max(abs(dev) - s.dead_band, 0.0), dev)
-        return min(max(self.p_d + dev, self.p_min), self.p_max), best, best != t_nom
+            r = (bound - self.p_d + c) / xi
+            if r > 0.0:
+                sig = min(max(r, sig_lo), sig_hi)
+                u = self.p_d + xi * sig - c
+        t_r = math.log(sig) / om
+        return min(max(u, self.p_min), self.p_max), t_r, abs(t_r - t_nom) > 1e-12

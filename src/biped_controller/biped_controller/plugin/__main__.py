@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from biped_controller.plugin.interface import InterfaceError
-from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller, registered,
-                                              summary)
+from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
+                                              load_registration, registered, summary)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,7 +21,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "list":
         for r in registered():
             try:
-                text = summary(load_controller(r.name) if r.source == "builtin" else _load_entry(r.target))
+                text = summary(load_registration(r))
             except (ControllerLoadError, InterfaceError) as exc:
                 text = f"BROKEN: {exc}"
             print(f"{r.name:<16} {r.source:<24} {r.target:<56} {text}")
@@ -33,12 +33,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
     return 0
-
-
-def _load_entry(target: str) -> type:
-    from biped_controller.plugin.interface import check_controller_class
-    from biped_controller.plugin.registry import _import_target
-    return check_controller_class(_import_target(target, f"entry point {target!r}"))
 
 
 if __name__ == "__main__":

@@ -50,7 +50,8 @@ class ModeController:
         """Nothing to do: the controller sees the stance change in the next observation."""
 
     def compute(self, obs: Observation) -> ControlResult:
-        out = self.ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
+        # writable copies: the compiled period takes writable arrays, the observation's are read-only
+        out = self.ctrl.compute(obs.t, np.array(obs.q), np.array(obs.qd), obs.stance, obs.pitch, obs.pitch_rate)
         return ControlResult(np.asarray(out.torque, dtype=float), status_mapping(out.status))
 
 

@@ -94,6 +94,11 @@ def load_controller(name: str) -> type:
                                  f"(or give 'module:Class'; entry-point group {ENTRY_POINT_GROUP!r})")
 
 
+def load_registration(r: Registration) -> type:
+    """The class of one :func:`registered` entry, checked against the interface."""
+    return check_controller_class(_import_target(r.target, f"controller {r.name!r} ({r.source})"))
+
+
 def make_controller(name: str, setup: ControllerSetup) -> GuardedController:
     """The controller ``name`` built from ``setup``, its results checked (``GuardedController``)."""
     return GuardedController(load_controller(name)(setup), name)
