@@ -300,3 +300,20 @@ def test_guard_passes_a_good_result_and_converts_numpy_status():
     bad = GuardedController(NaNTorque(lp.setup), "nan-one")
     with pytest.raises(ControllerFault, match="nan-one"):
         bad.compute(Observation.frozen(1.0, 1000, 0, q0, qd0, np.nan, np.nan, np.zeros(6), 0))
+
+
+def test_cli_max_push_runs_the_search(tmp_path):
+    """A coarse search (50 N steps to 100 N, 25 N resolution) of the written controller: 25 N survives,
+    50 N does not (mode none: 43.75 N)."""
+    import json
+    import os
+    out = tmp_path / "mp.json"
+    env = dict(os.environ, PYTHONPATH=str(helpers.ROOT / "tests"))
+    run = subprocess.run([sys.executable, "-m", "biped_controller.plugin", "max-push",
+                          "test_plugin:ClassicalComputedTorque", "--max", "100", "--coarse", "50", "--resolution", "25",
+                          "--json", str(out)], capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stderr
+    r = json.loads(out.read_text())
+    assert (r["max_force"], r["first_failure"], r["plant"]) == (25.0, 50.0, "rigid")
+    assert [t["force"] for t in r["trials"]] == [25.0, 50.0, 100.0]
+    assert "max push 25 N" in run.stdout
