@@ -177,6 +177,23 @@ def test_observation_carries_the_last_applied_torque_and_touchdowns():
         spy.seen[0].q[0] = 1.0
 
 
+def test_observation_is_the_sensor_model_output_not_the_truth():
+    """With a delayed, noisy sensor the controller sees the plant's sensor reading (the same seed gives the
+    same reading), never the true state of the record."""
+    from biped_sim.plant.perturbation import PlantPerturbation
+    pert = PlantPerturbation(noise_q=1e-3, delay=2, seed=7)
+    lp = plugin_loop.PluginLoop("none", perturbation=pert)
+    spy = _Spy(lp.setup)
+    res = plugin_loop.run(spy, steps=1, perturbation=pert, limit=0.05)
+    twin = plugin_loop.PluginLoop("none", perturbation=pert).sim      # the same plant, its own sensor
+    q0, qd0 = lp.family.initial_state()
+    twin.reset(q0, qd0, 0)
+    for obs, rec in zip(spy.seen, res.records):
+        reading = twin.observe()
+        assert np.array_equal(obs.q, reading.q) and not np.array_equal(obs.q, rec.q)
+        twin.step(rec.torque)
+
+
 # ------------------------------------------------------------------------------------------ registry
 def test_unknown_name_lists_the_registered_controllers():
     with pytest.raises(UnknownControllerError) as e:
