@@ -332,5 +332,6 @@ def test_cli_max_push_runs_the_search(tmp_path):
     assert run.returncode == 0, run.stderr
     r = json.loads(out.read_text())
     assert (r["max_force"], r["first_failure"], r["plant"]) == (25.0, 50.0, "rigid")
+    assert (r["first_fall"], r["no_fall_edge"]) == (50.0, 25.0)
     assert [t["force"] for t in r["trials"]] == [25.0, 50.0, 100.0]
     assert "max push 25 N" in run.stdout

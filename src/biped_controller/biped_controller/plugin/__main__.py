@@ -68,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     r = trials.max_push(args.resolution, args.max, args.coarse)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"
     print(f"{args.name} on {args.plant}: max push {r['max_force']:g} N (first failure {ff}: "
-          f"{r['failure_cause'] or '-'}; islands {r['islands'] or '-'}; {trials.trials} trials)")
+          f"{r['failure_cause'] or '-'}; islands {r['islands'] or '-'}; no-fall edge {r['no_fall_edge']:g} N, "
+          f"first fall {'none' if r['first_fall'] is None else format(r['first_fall'], 'g') + ' N'}; "
+          f"{trials.trials} trials)")
     if args.json is not None:
         args.json.write_text(json.dumps(r, indent=1))
     return 0

@@ -10,7 +10,9 @@ without a stride or a time scaling is judged by the fall and the step count alon
 
 The search (``experiment.max_push_modes``'s): forces ``coarse, 2 coarse, ..., fmax`` [N]; the last
 survivable force below the first failure, then the edge bisected to ``resolution`` [N]; survivable
-coarse forces above the first failure are reported as islands. One process.
+coarse forces above the first failure are reported as islands, and beside this strict boundary the no-fall
+edge (the largest force tried below the lowest one that fell, ``first_fall``: the plant comparison's second
+figure). One process.
 """
 from __future__ import annotations
 
@@ -89,7 +91,11 @@ class PushTrials:
                 hi = mid
         trials.sort(key=lambda r: r["force"])
         first = next((r for r in trials if r["force"] == hi), None) if hi is not None else None
+        fell = [r["force"] for r in trials if r["fall_cause"]]
+        first_fall = min(fell) if fell else None
+        below = [r["force"] for r in trials if first_fall is None or r["force"] < first_fall]
         return {"controller": self.loop.name, "plant": self.loop.scfg.plant, "max_force": lo, "first_failure": hi,
-                "failure_cause": first["reason"] if first else None, "islands": islands, "resolution": resolution,
+                "failure_cause": first["reason"] if first else None, "islands": islands,
+                "first_fall": first_fall, "no_fall_edge": max(below) if below else 0.0, "resolution": resolution,
                 "coarse_step": coarse, "scan_max": fmax, "duration": duration, "start": start, "height": height,
                 "direction": "forward" if sign > 0 else "backward", "trials": trials}
