@@ -98,14 +98,16 @@ def test_builtin_mode_on_mujoco_is_the_runner_bit_for_bit():
 
 
 # ------------------------------------------------------------------------------------------ a written controller
-def _close_to_mode_none(got, ref, tol_q=1e-8, tol_torque=1e-5):
+def _close_to_mode_none(got, ref, tol_q=1e-12, tol_torque=1e-8):
+    """Round-off apart (Pinocchio here, the compiled model terms in mode none; measured: 3e-15 rad, 9e-11 N m on
+    the rigid plant, 1e-11 rad, 5e-9 N m on MuJoCo)."""
     assert got.fault is None
     assert len(got.records) == len(ref.records)
     a, b = _records(got.records), _records(ref.records)
     assert np.array_equal(a["stance"], b["stance"])
     helpers.assert_close(a["t"], b["t"], 1e-9, "period start times")
     helpers.assert_close(a["q"], b["q"], tol_q, "q")
-    helpers.assert_close(a["qd"], b["qd"], 100 * tol_q, "q'")
+    helpers.assert_close(a["qd"], b["qd"], 1000 * tol_q, "q'")
     helpers.assert_close(a["torque"], b["torque"], tol_torque, "torque")
     helpers.assert_close([i.t for i in got.impacts], [i.t for i in ref.impacts], 1e-9, "touchdown times")
 
@@ -141,7 +143,7 @@ def test_interface_computed_torque_equals_mode_none_on_mujoco():
     mj = load_sim_config(plant="mujoco")
     ref = runner.run(steps=2, mode="none", sim_config=mj)
     got = plugin_loop.run(f"{__name__}:ClassicalComputedTorque", steps=2, sim_config=mj)
-    _close_to_mode_none(got, ref)
+    _close_to_mode_none(got, ref, tol_q=1e-9, tol_torque=1e-6)
     assert (got.steps_walked, got.fallen, got.fall_cause) == (ref.steps_walked, ref.fallen, ref.fall_cause)
     assert got.fall_time == ref.fall_time or (np.isnan(got.fall_time) and np.isnan(ref.fall_time))
 
