@@ -1,6 +1,6 @@
 """Foxglove bridge: publish-to-WebSocket-frame latency and the lockstep rate with the bridge on and off.
 
-    .venv/bin/python -m benchmarks.bridge_bench     # = --pairs 0 --latency-pairs 3 --live-steps 4 --json benchmarks/bridge_results.json
+    .venv/bin/python -m benchmarks.bridge_bench     # = --pairs 0 --latency-pairs 3 --live-steps 4 --json results/benchmarks/bridge.json
     .venv/bin/python -m benchmarks.bridge_bench [--pairs N] [--steps 2] [--latency-pairs 3] [--live-steps 4] [--before SETTING] [--json FILE]
 
 Every run is the whole graph from ``biped_sim.graph.launch`` (recorder included) in its own ROS domain
@@ -52,7 +52,7 @@ receive and a timestamp; frames are parsed after the run).
 
 Issue 20 part 3's before/after (the command the lead re-runs)::
 
-    .venv/bin/python -m benchmarks.bridge_bench --before main --latency-pairs 3 --json benchmarks/bridge_results_part3.json
+    .venv/bin/python -m benchmarks.bridge_bench --before main --latency-pairs 3 --json results/benchmarks/bridge.json
 
 Percentiles: numpy ``percentile`` (linear). Nothing is asserted; figures are printed (and --json).
 """
@@ -82,6 +82,8 @@ if str(ROOT) not in sys.path:  # `python benchmarks/bridge_bench.py`
 
 from benchmarks.lockstep import _LINE  # noqa: E402  the simulator's "run over: ..." line
 from benchmarks.proc_cpu import TreeCpu  # noqa: E402
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
 LAYOUT_TOPICS = ('/sim/state', '/joint_states', '/tf')
@@ -512,9 +514,10 @@ def main(argv=None) -> int:
                          "worktree, with --before's setting applied to that tree's config/graph.yaml")
     ap.add_argument('--layout-only', action='store_true',
                     help="real-time runs with the layout's client only (no client on every channel)")
-    ap.add_argument('--json', type=Path, default=ROOT / 'benchmarks' / 'bridge_results.json',
-                    help='results file (default benchmarks/bridge_results.json)')
+    ap.add_argument('--json', type=Path, default=RESULTS_DIR / 'bridge.json',
+                    help='results file (default results/benchmarks/bridge.json)')
     a = ap.parse_args(argv)
+    provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
     t0 = time.monotonic()
     runs = []
     with tempfile.TemporaryDirectory() as tmp, Domain() as dom:

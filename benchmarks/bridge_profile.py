@@ -37,6 +37,7 @@ if str(ROOT) not in sys.path:
 
 from benchmarks import bridge_bench as bb  # noqa: E402
 from benchmarks.proc_cpu import descendants  # noqa: E402
+from biped_controller.studies import provenance
 
 PHASES = (   # (phase, substring of a frame) checked from the leaf up: the first phase that matches a frame wins
     ('sdk log (Channel.log)', 'log (foxglove/channel.py'),
@@ -156,6 +157,7 @@ def main(argv=None) -> int:
     ap.add_argument('--rtf', type=float, default=1.0, help="the simulator's real_time_factor (0 = as fast as possible)")
     ap.add_argument('--json', type=Path, default=None)
     a = ap.parse_args(argv)
+    provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
     spy = shutil.which(a.py_spy) if a.py_spy else None
     a.spy_nodes = set(a.spy_nodes.split(','))
     a.kinds = set(a.kinds.split(','))

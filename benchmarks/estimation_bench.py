@@ -5,7 +5,7 @@ real-sensor profile, estimator + momentum observer, under noise 5e-4 rad, 5e-2 r
 momentum observer alone on perfect sensors; the observer and the predictor for a delay of 2 periods; the
 real-sensor profile with the gyro fused, ``_estimation_gyro``; and with the predictor for a delay of 2 periods,
 the touchdown delayed, and the touchdown band, ``_estimation_predictor_d2_band``), and
-the Python pipeline with the Python steps (the oracle). Writes ``benchmarks/estimation_results.json``; targets are printed,
+the Python pipeline with the Python steps (the oracle). Writes ``results/benchmarks/estimation.json``; targets are printed,
 never asserted.
 
     .venv/bin/python -m benchmarks.estimation_bench [--seconds 1.0] [--rounds 3]
@@ -29,8 +29,10 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.estimation import Estimate
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.sensing.estimation import Estimate
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
 
 REAL = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
             sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)
@@ -113,8 +115,9 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated time per case [s]")
     ap.add_argument("--rounds", type=int, default=3, help="rounds of all the cases, interleaved; times pooled")
-    ap.add_argument("--json", type=Path, default=Path(__file__).with_name("estimation_results.json"))
+    ap.add_argument("--json", type=Path, default=RESULTS_DIR / "estimation.json")
     args = ap.parse_args(argv)
+    provenance.track(args.json, argv=argv)   # record of each file written (results/README.md)
     res = {"when": time.strftime("%Y-%m-%d %H:%M:%S"), "cpus": os.cpu_count(), "machine": platform.machine(),
            "seconds": args.seconds, "keys": {}}
     times = {key: [] for key in CASES}

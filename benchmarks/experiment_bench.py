@@ -1,4 +1,4 @@
-"""Wall time of the four-mode max-push table (biped_controller.studies.experiment.max_push_modes), serial
+"""Wall time of the four-mode max-push table (biped_controller.studies.trial.search.max_push_modes), serial
 and over a process pool of os.cpu_count() workers, same settings, side by side in one run."""
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import time
 
 
 def time_table(quick: bool) -> dict:
-    from biped_controller.studies import experiment as ex
-    from biped_controller.core.controller import MODES
+    from biped_controller.studies.trial import search as ex
+    from biped_controller.core.control.controller import MODES
 
     if quick:
         kw = dict(resolution=25.0, fmax=100.0, coarse=50.0)

@@ -38,6 +38,7 @@ from biped_sim.robot.fixed_foot import FixedFootModel  # noqa: E402
 from biped_sim.robot.description import load_description  # noqa: E402
 from biped_sim.robot.fast_engine import FastFixedFootModel, FastFloatingModel  # noqa: E402
 from biped_sim.robot.floating import FloatingModel  # noqa: E402
+from biped_controller.studies import provenance
 
 H_SUB = 5e-4          # substep [s]: control period 1 ms, 2 substeps
 PUSH = ((60.0, 0.3125),)  # one push acting over the whole period (force [N], height [m])
@@ -164,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--json", type=Path, default=None, help="also write the results to this file")
     args = ap.parse_args(argv)
+    provenance.track(args.json, argv=argv)   # record of each file written (results/README.md)
     res = run(args.states, args.rounds)
     print(f"{'variant':40s} {'p50 [us]':>10s} {'p99 [us]':>10s}")
     for name, r in res["per_call_us"].items():

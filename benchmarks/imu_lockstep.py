@@ -2,7 +2,7 @@
 the controller node answers a state only once it holds the ``/imu`` of its stamp (``use_imu: true``, the
 default) or ignores the IMU (``use_imu: false``). Runs ``lockstep.measure`` (simulator + controller, no
 recorder, isolated domain) alternately with the two settings, ``--pairs`` times, and writes the rates with
-the machine's load average to ``benchmarks/imu_lockstep_results.json``. Nothing is asserted.
+the machine's load average to ``results/benchmarks/imu_lockstep.json``. Nothing is asserted.
 
     .venv/bin/python -m benchmarks.imu_lockstep [--pairs 3] [--seconds 2.0]
 """
@@ -19,8 +19,10 @@ from pathlib import Path
 
 from benchmarks.lockstep import measure
 from benchmarks.run import Domain
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
 
-OUT = Path(__file__).resolve().parent / "imu_lockstep_results.json"
+OUT = RESULTS_DIR / "imu_lockstep.json"
 
 
 def main(argv=None) -> int:
@@ -29,6 +31,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=2.0, help="sim seconds per run")
     ap.add_argument("--json", type=Path, default=OUT)
     args = ap.parse_args(argv)
+    provenance.track(args.json, argv=argv)   # record of each file written (results/README.md)
     runs = {"use_imu_true": [], "use_imu_false": []}
     load = [os.getloadavg()[0]]
     for _ in range(args.pairs):

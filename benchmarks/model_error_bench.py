@@ -1,4 +1,4 @@
-"""Cost of the legs' model-error estimator (issue 22, ``core/model_error.py``): ``AdaptiveController.compute``
+"""Cost of the legs' model-error estimator (issue 22, ``core/sensing/model_error.py``): ``AdaptiveController.compute``
 per call, the compiled step with the compiled sensing pipeline, p50/p99 after the first 50 periods, side by
 side in one run. Each case's observations come from its own closed loop on the rigid plant (1 s); they are
 then replayed through a fresh controller of every case, the cases in turn by blocks of ``BLOCK`` periods
@@ -20,7 +20,7 @@ of the ratio of the two p50 in the same round (the machine is shared: a round's 
 Also the three regressors' calls alone (p50 over the loop's states, a seeded acceleration): the RNEA
 differences (``RneaLegRegressor``), Pinocchio's joint torque regressor (``LegRegressor``), the closed form
 (``CompiledLegRegressor``, from Python: the call's dispatch included). Written to
-``benchmarks/model_error_results.json`` and the keys merged into ``--results`` (``keys``, section
+``results/benchmarks/model_error.json`` and the keys merged into ``--results`` (``keys``, section
 ``model_error_step``); targets printed, never asserted.
 
     .venv/bin/python -m benchmarks.model_error_bench [--seconds 1.0] [--rounds 9] [--out PATH] [--results PATH]
@@ -42,11 +42,13 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.model_error import CompiledLegRegressor, LegRegressor, RneaLegRegressor
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.sensing.model_error import CompiledLegRegressor, LegRegressor, RneaLegRegressor
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
 
-OUT = Path(__file__).with_name("model_error_results.json")
-RESULTS = Path(__file__).with_name("results.json")
+OUT = RESULTS_DIR / "model_error.json"
+RESULTS = RESULTS_DIR / "results.json"
 PERFECT = dict(momentum_observer=True)
 REAL = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
             sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)
@@ -129,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--out", type=Path, default=OUT)
     a.add_argument("--results", type=Path, default=RESULTS, help="merge the keys here (skipped if missing)")
     args = a.parse_args(argv)
+    provenance.track(args.out, args.results, argv=argv)   # record of each file written (results/README.md)
     fam, desc = GaitFamily.load(), load_description()
     obs = {c: _observations(fam, desc, args.seconds, c) for c in CASES}    # also compiles / loads the kernels
     load0 = os.getloadavg()[0]

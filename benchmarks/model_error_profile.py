@@ -6,7 +6,7 @@ over ``--rounds`` closed loops of 1 s on the rigid plant (perfect sensors, momen
   code before the estimator went into the kernel): ``CompiledSensing._model_error`` and inside it
   ``LegModelError.update`` (Pinocchio's model matrices, the joint torque regressor, the combine kernel's
   call), the torso point's Jacobian, the observer's wrench, then ``into_res``;
-* ``--path kernel``: the estimator inside ``estimation_kernels.sense`` (the default);
+* ``--path kernel``: the estimator inside ``pipeline_kernels.sense`` (the default);
 * ``--path off``: the observer alone.
 
     .venv/bin/python -m benchmarks.model_error_profile [--path python|kernel|off] [--rounds 3]
@@ -26,7 +26,7 @@ from biped_sim.robot.description import LEFT, load_description
 from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
 
 
 def _wrap(obj, name: str, label: str, times: dict) -> None:
@@ -43,13 +43,13 @@ def _wrap(obj, name: str, label: str, times: dict) -> None:
 
 
 class _Kernels:
-    """``estimation_kernels`` with ``sense`` timed (a module's attribute cannot be wrapped in place: it is
+    """``pipeline_kernels`` with ``sense`` timed (a module's attribute cannot be wrapped in place: it is
     shared by every pipeline)."""
 
     def __init__(self, ek, times: dict):
         self._ek = ek
         self.sense = ek.sense
-        _wrap(self, "sense", "estimation_kernels.sense (compiled call)", times)
+        _wrap(self, "sense", "pipeline_kernels.sense (compiled call)", times)
 
     def __getattr__(self, name):
         return getattr(self._ek, name)

@@ -1,7 +1,7 @@
 """CPU per ``Publisher.publish`` of each per-step message: the message object built as the nodes build it vs.
 pre-serialised bytes from ``biped_sim.graph.cdr`` (issue 20 part 3).
 
-    .venv/bin/python -m benchmarks.publish_cost [--n 2000] [--pairs 3] [--lockstep-pairs 0] [--json benchmarks/publish_cost_results.json]
+    .venv/bin/python -m benchmarks.publish_cost [--n 2000] [--pairs 3] [--lockstep-pairs 0] [--json results/benchmarks/publish_cost.json]
 
 For each message type the simulator and the controller publish every control step (/clock, /imu, /sim/state,
 /tf, /stance, /joint_states, /ground_reaction, /ground_reaction/cop, /sim/push; /controller/torque,
@@ -37,6 +37,9 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 20_3
@@ -94,7 +97,6 @@ def _makers(rng: random.Random):
     x = [rng.uniform(-1, 1) for _ in range(9)]
     q6 = [rng.uniform(-1, 1) for _ in range(6)]
     sec, ns = 3, 141_000_000
-    stamp = Time(sec=sec, nanosec=ns)
     ss_enc, js_enc, st_enc = cdr.SimState(), cdr.JointState(), cdr.ControllerStatus()
     wr_enc, pt_enc = cdr.Stamped('WrenchStamped', 6), cdr.Stamped('PointStamped', 3)
     imu_enc = cdr.Imu('torso')
@@ -207,8 +209,9 @@ def main(argv=None) -> int:
     ap.add_argument('--pairs', type=int, default=3)
     ap.add_argument('--lockstep-pairs', type=int, default=0)
     ap.add_argument('--lockstep-only', action='store_true', help='skip the per-type publish figures')
-    ap.add_argument('--json', default=str(ROOT / 'benchmarks' / 'publish_cost_results.json'), help="'' = no file")
+    ap.add_argument('--json', default=str(RESULTS_DIR / 'publish_cost.json'), help="'' = no file")
     a = ap.parse_args(argv)
+    provenance.track(a.json or None, argv=argv)   # record of each file written (results/README.md)
     summary: dict = {'n': a.n, 'pairs': a.pairs}
     if not a.lockstep_only:
         _per_type(a, summary)

@@ -21,18 +21,18 @@ solver, p50 over p50 within one run. Runs:
 Solvers (all on the instances where x* is infeasible, except ``early_out``):
 
 * ``early_out``          AdaptationQP.solve (production object) on the instances with x* feasible.
-* ``early_out_numpy``    qp_exact.solve_exact on the same instances (numpy validation, G x* - h,
+* ``early_out_numpy``    exact.solve_exact on the same instances (numpy validation, G x* - h,
                          result): the cost of the early-out before the compiled kernel.
 * ``piqp_held``          AdaptationQP(solver="piqp").solve, the controller's path.
 * ``piqp_held_tight``    AdaptationQP(polish=False): PIQP to 1e-10 only, no screening/polish.
 * ``piqp_core``          a held PIQP DenseSolver, update + solve only (tight settings), no wrapping.
 * ``exact_numba``        AdaptationQP(solver="exact").solve.
-* ``exact_numpy``        qp_exact.solve_exact (the reference).
+* ``exact_numpy``        exact.solve_exact (the reference).
 * ``quadprog`` / ``daqp``  the solvers' own Python calls with the QP built from (G, h, x*, W).
-* ``quadprog_qpsolvers`` / ``daqp_qpsolvers``  through ``qp.solve_with_qpsolvers`` (as
+* ``quadprog_qpsolvers`` / ``daqp_qpsolvers``  through ``solver.solve_with_qpsolvers`` (as
                          benchmarks/run.py measures them).
 
-Every answer is compared with qp_exact's (|x - x_exact|_inf <= 1e-6 max(1, |x_exact|_inf)); a
+Every answer is compared with exact's (|x - x_exact|_inf <= 1e-6 max(1, |x_exact|_inf)); a
 solver's timings only count on the instances all solvers answered correctly (failures listed).
 Top-level keys for scripts/bench: ``early_out_p50_us``, ``piqp_ratio_to_fastest`` (piqp_held p50 /
 the faster of quadprog and daqp direct p50, head to head), ``piqp_ratio_to_fastest_qpsolvers`` and
@@ -50,6 +50,8 @@ from pathlib import Path
 from time import perf_counter_ns
 
 import numpy as np
+
+from biped_controller.studies import provenance
 
 ROOT = Path(__file__).resolve().parents[1]
 PUSH_START, PUSH_DURATION = 0.2315, 0.025
@@ -108,7 +110,7 @@ def load_instances(path: Path) -> list[dict]:
 
 def controller_weights(mode: str) -> np.ndarray:
     """W of the controller's QP in this mode (config/controller.yaml weights of the adapted parameters)."""
-    from biped_controller.core.controller import load_controller_config
+    from biped_controller.core.control.controller import load_controller_config
 
     cfg = load_controller_config()
     idx = {"tau": [1], "p": [0], "both": [0, 1]}[mode]
@@ -126,9 +128,9 @@ def make_solvers(n: int, m: int, W: np.ndarray) -> dict:
     import piqp
     import quadprog
 
-    from biped_controller.core.qp import AdaptationQP, solve_with_qpsolvers
-    from biped_controller.core.qp_exact import solve_exact
-    from biped_controller.core.qp import configure_piqp
+    from biped_controller.core.qp.solver import AdaptationQP, solve_with_qpsolvers
+    from biped_controller.core.qp.exact import solve_exact
+    from biped_controller.core.qp.solver import configure_piqp
 
     held = AdaptationQP(n, m, W)
     tight = AdaptationQP(n, m, W, polish=False)
@@ -200,7 +202,7 @@ def profile_held_path(held, instances, repeats) -> dict:
     head-to-head run. Reads the solver's internals (a profiling tool, not an API)."""
     import daqp
 
-    from biped_controller.core.qp_types import ACTIVE, DEFAULT_FEAS_RTOL, make_result
+    from biped_controller.core.qp.problem import ACTIVE, DEFAULT_FEAS_RTOL, make_result
 
     k_mod, W, m, n = held._k, held.W, held.m, held.n
     H = np.diag(W)
@@ -250,8 +252,8 @@ def profile_held_path(held, instances, repeats) -> dict:
 
 def bench_group(inst: list[dict], W: np.ndarray, repeats: int) -> dict:
     """All solvers on one group of instances of equal (m, n)."""
-    from biped_controller.core.qp_exact import solve_exact
-    from biped_controller.core.qp_types import constraint_values
+    from biped_controller.core.qp.exact import solve_exact
+    from biped_controller.core.qp.problem import constraint_values
 
     n = inst[0]["G"].shape[1]
     m = inst[0]["G"].shape[0]
@@ -328,8 +330,8 @@ def ratios(group: dict) -> dict:
 
 
 def run_bench(forces=(250.0, 600.0), modes=("both",), repeats: int = 30, instances: Path | None = None) -> dict:
-    from biped_controller.core.qp import load_qp_fast
-    load_qp_fast()   # compiles or loads the kernels before any timing
+    from biped_controller.core.qp.solver import load_exact_kernels
+    load_exact_kernels()   # compiles or loads the kernels before any timing
     if instances is not None and Path(instances).exists():
         inst = load_instances(Path(instances))
         log(f"loaded {len(inst)} instances from {instances}")
@@ -395,6 +397,7 @@ def main(argv=None) -> int:
     ap.add_argument("--instances", type=Path, default=None, help="npz cache of the instances (read, or written)")
     ap.add_argument("--quick", action="store_true", help="one force, 5 repeats")
     a = ap.parse_args(argv)
+    provenance.track(a.out, argv=argv)   # record of each file written (results/README.md)
     if a.quick:
         a.forces, a.repeats = a.forces[:1], 5
     res = run_bench(tuple(a.forces), tuple(a.modes), a.repeats, a.instances)

@@ -48,6 +48,7 @@ if str(ROOT) not in sys.path:  # `python benchmarks/recorder_durability.py`
     sys.path.insert(0, str(ROOT))
 
 from benchmarks.bridge_bench import Domain  # noqa: E402
+from biped_controller.studies import provenance
 
 
 class ClockProbe:
@@ -223,6 +224,7 @@ def main(argv=None) -> int:
     ap.add_argument('--sync-reps', type=int, default=3)
     ap.add_argument('--json', type=Path, default=None)
     a = ap.parse_args(argv)
+    provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
     rng = random.Random(a.seed)
     t0 = time.monotonic()
     plan = ['after'] * a.kills

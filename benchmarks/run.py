@@ -1,9 +1,12 @@
 """Benchmarks of the controller, the adaptation QP, the DDS lockstep and the in-process loop.
 
-    python -m benchmarks.run [--quick] [--json FILE] [--md FILE] [--no-readme]
+    python -m benchmarks.run [--quick] [--json FILE] [--md FILE]
 
-Writes benchmarks/results.json (or --json), benchmarks/results.md and refreshes the README section
-between ``<!-- bench:start -->`` and ``<!-- bench:end -->``. Every timing is a median (p50) and a
+Writes results/benchmarks/results.json (or --json) and results/benchmarks/results.md (or beside --json),
+each with its provenance record (results/README.md). ``keys`` holds the stable dotted keys of this run's
+sections and, merged from the sub-benchmarks' own files (:data:`SUB_BENCHMARKS`, read from
+``--sub-results``), the keys those separate runs produced; ``merged`` names each such file with its date.
+Every timing is a median (p50) and a
 99th percentile (p99) of per-call times measured with time.perf_counter_ns; the ratios compare
 figures measured side by side in this one run (the machine is shared and noisy). Targets are
 printed beside the results, never asserted. ``--quick``: a few hundred steps / instances (tests).
@@ -20,17 +23,18 @@ import platform
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from time import perf_counter_ns
 
 import numpy as np
 
-from biped_controller.core.controller import QP_ROWS
+from biped_controller.core.control.controller import QP_ROWS
+from biped_controller.studies import provenance
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python benchmarks/run.py`
     sys.path.insert(0, str(ROOT))
+from benchmarks import RESULTS_DIR  # noqa: E402  (after the path above)
 
 PUSH_START, PUSH_DURATION = 0.2315, 0.025
 MATCH_TOL = 1e-6
@@ -127,7 +131,7 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     now inside those (reported as 0).
     Passes repeat the recording until >= min_steps steps each.
     """
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     from biped_sim.robot.gait_family import GaitFamily
     from biped_sim.robot.description import LEFT, load_description
     from biped_sim.plant.config import load_sim_config
@@ -244,8 +248,8 @@ SOLVER_KW = {
 
 
 def _solvers(W):
-    from biped_controller.core.qp import AdaptationQP, solve_with_qpsolvers
-    from biped_controller.core.qp_exact import solve_exact
+    from biped_controller.core.qp.solver import AdaptationQP, solve_with_qpsolvers
+    from biped_controller.core.qp.exact import solve_exact
 
     held = AdaptationQP(len(W), QP_ROWS, W)   # the controller's production object
     out = {
@@ -259,7 +263,7 @@ def _solvers(W):
 
 
 def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
-    from biped_controller.core.qp_exact import solve_exact
+    from biped_controller.core.qp.exact import solve_exact
 
     constrained, unconstrained, forces = [], 0, set()
     for F, (G, h, xs, _status) in instances:
@@ -314,7 +318,7 @@ def bench_solvers(instances, W, min_samples: int, max_repeats: int) -> dict:
         p = table[n]["p50"]
         table[n]["ratio_to_fastest"] = (p / table[fastest]["p50"]) if (fastest and p) else None
     # unconstrained instances: what the production object costs when x* is feasible (no solver call)
-    from biped_controller.core.qp import AdaptationQP
+    from biped_controller.core.qp.solver import AdaptationQP
     held = AdaptationQP(len(W), QP_ROWS, W)
     un_t = []
     k = 0
@@ -412,7 +416,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     """In-process closed loop (runner.run), sim time / wall time, per engine and mode, the engines
     interleaved in the same run (the machine's speed varies: compare ratios). The first fast run of a
     process loads the compiled kernels: a warm-up run of each engine comes first and is not timed."""
-    from biped_controller.core.controller import load_controller_config
+    from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies.runner import run
     from biped_sim.plant.config import load_sim_config
 
@@ -486,8 +490,8 @@ def bench_experiment(quick: bool) -> dict:
     from benchmarks.experiment_bench import time_table
     if quick:   # the table takes minutes even with coarse settings: only check the API is there
         import inspect
-        from biped_controller.studies import experiment
-        sig = inspect.signature(experiment.max_push_modes)
+        from biped_controller.studies.trial import search
+        sig = inspect.signature(search.max_push_modes)
         missing = [k for k in ("resolution", "fmax", "coarse", "workers", "progress") if k not in sig.parameters]
         return {"available": False, "reason": "skipped in --quick" + (f" (API changed: {missing})" if missing else "")}
     try:
@@ -630,19 +634,28 @@ def markdown(R: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-def update_readme(md: str, path: Path) -> None:
-    start, end = "<!-- bench:start -->", "<!-- bench:end -->"
-    text = path.read_text(encoding="utf-8")
-    block = f"{start}\n{md}{end}"
-    if start in text and end in text:
-        a = text.index(start)
-        b = text.index(end) + len(end)
-        new = text[:a] + block + text[b:]
-    else:
-        new = text.rstrip("\n") + "\n\n## Benchmarks\n\n`scripts/bench [--quick] [--json FILE]` " \
-              "(benchmarks/run.py) refreshes this section.\n\n" + block + "\n"
-    if new != text:
-        path.write_text(new, encoding="utf-8")
+SUB_BENCHMARKS = ("wbc_step.json", "model_error.json", "estimation.json", "torso_step.json")
+
+
+def merge_sub_benchmarks(R: dict, directory: Path) -> dict:
+    """Merge into ``R["keys"]`` the ``keys`` of each sub-benchmark file of :data:`SUB_BENCHMARKS` found in
+    ``directory`` (separate runs: benchmarks/wbc_step.py, model_error_bench.py, estimation_bench.py,
+    torso_step.py); a key this run produced itself is never replaced. Returns ``R["merged"]``: file name ->
+    its path, date and the keys taken from it."""
+    merged = {}
+    keys = R.setdefault("keys", {})
+    for name in SUB_BENCHMARKS:
+        p = Path(directory) / name
+        if not p.is_file():
+            continue
+        sub = json.loads(p.read_text(encoding="utf-8"))
+        taken = {k: v for k, v in (sub.get("keys") or {}).items() if k not in keys}
+        keys.update(taken)
+        meta = sub.get("meta") if isinstance(sub.get("meta"), dict) else {}
+        merged[name] = {"path": str(p), "date": meta.get("date") or sub.get("when") or sub.get("date"),
+                        "keys": sorted(taken)}
+    R["merged"] = merged
+    return merged
 
 
 def stable_keys(R: dict) -> dict:
@@ -661,6 +674,9 @@ def stable_keys(R: dict) -> dict:
         "inprocess.reference.realtime_factor": get("inprocess", "reference", "realtime_factor"),
         "inprocess.fast_outcome_only.realtime_factor": get("inprocess", "fast_outcome_only", "realtime_factor"),
         "inprocess.mujoco.realtime_factor": get("inprocess", "mujoco", "realtime_factor"),
+        "inprocess.mujoco.realtime_factor_cpu": get("inprocess", "mujoco", "both", "realtime_factor_cpu"),
+        "inprocess.mujoco_over_fast_objects": get("inprocess", "mujoco_over_fast_objects"),
+        "inprocess.mujoco_over_fast_objects_cpu": get("inprocess", "mujoco_over_fast_objects_cpu"),
         "controller.step_p50_us_reference_engine": get("controller", "pieces_us", "total_reference_engine", "p50"),
         "controller.step_p50_us": get("controller", "pieces_us", "total", "p50"),
         "qp.early_out_p50_us": get("qp_bench", "early_out_p50_us"),
@@ -711,26 +727,26 @@ def inprocess_only(json_path: Path, steps: int = 5, repeats: int = 3) -> int:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="biped benchmarks")
     ap.add_argument("--quick", action="store_true", help="a few hundred steps / instances")
-    ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results.json"))
+    ap.add_argument("--json", default=str(RESULTS_DIR / "results.json"))
     ap.add_argument("--md", default=None, help="Markdown table (default: results.md beside the JSON)")
-    ap.add_argument("--readme", default=None, help="README to refresh (default: the repository's, "
-                    "full runs writing the default JSON only)")
-    ap.add_argument("--no-readme", action="store_true")
+    ap.add_argument("--sub-results", type=Path, default=RESULTS_DIR,
+                    help="directory of the sub-benchmarks' files whose keys are merged (default: %(default)s)")
     ap.add_argument("--inprocess-only", action="store_true",
                     help="section 4 alone (the MuJoCo plant beside the rigid one, issue 24): merged into the JSON as "
                          "'inprocess_side_by_side' with its own date and load average, with the keys "
-                         "inprocess.mujoco.*; the rest of the JSON and the README block are left as they are")
+                         "inprocess.mujoco.*; the rest of the JSON is left as it is")
     a = ap.parse_args(argv)
     json_path = Path(a.json)
+    md_path = Path(a.md) if a.md else json_path.with_suffix(".md")
+    provenance.track(json_path, None if a.inprocess_only else md_path, argv=argv, plant="rigid,mujoco")
     if a.inprocess_only:
         return inprocess_only(json_path)
-    md_path = Path(a.md) if a.md else json_path.with_suffix(".md")
     T0 = time.perf_counter()
     quick = a.quick
     R = {"meta": {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "quick": quick, "cpus": os.cpu_count(),
                   "machine": platform.processor() or platform.machine(), "python": platform.python_version()},
          "targets": TARGETS}
-    from biped_controller.core.controller import load_controller_config
+    from biped_controller.core.control.controller import load_controller_config
     log("0. searching the hard run (largest surviving push, mode both)")
     hard = find_hard_run(quick)
     steps = 1 if quick else 22
@@ -778,6 +794,7 @@ def main(argv=None) -> int:
     R["sweep"] = bench_sweep(quick)
     R["meta"]["wall_s"] = time.perf_counter() - T0
     R["keys"] = stable_keys(R)
+    merge_sub_benchmarks(R, a.sub_results)
     p50 = c["pieces_us"]["total"]["p50"]
     prod = R["solvers"]["table_us"]["PIQP held (AdaptationQP)"]["ratio_to_fastest"]
     ls = R["dds"]["lockstep"]
@@ -798,12 +815,6 @@ def main(argv=None) -> int:
     json_path.write_text(json.dumps(R, indent=1, default=float) + "\n", encoding="utf-8")
     md = markdown(R)
     md_path.write_text(md, encoding="utf-8")
-    readme = Path(a.readme) if a.readme else None
-    if readme is None and not a.no_readme and not quick and json_path == ROOT / "benchmarks" / "results.json":
-        readme = ROOT / "README.md"
-    if readme is not None and not a.no_readme:
-        update_readme(md, readme)
-        log(f"refreshed {readme}")
     print(md)
     log(f"wrote {json_path} and {md_path} [{R['meta']['wall_s']:.0f} s]")
     return 0

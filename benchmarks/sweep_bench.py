@@ -3,7 +3,7 @@ durations = 480 cells) with the early stop and the bracketed search, on os.cpu_c
 from an empty store. Keys ``sweep.map_full_wall_s`` (wall time [s]) and ``sweep.sims_per_s``
 (simulations per second of wall time); ``--quick``: a 2-phase, 1-mode map (no ``map_full_wall_s``).
 
-    python -m benchmarks.sweep_bench [--quick] [--json benchmarks/results.json]
+    python -m benchmarks.sweep_bench [--quick] [--json results/benchmarks/results.json]
     python -m benchmarks.sweep_bench --from-summary SUMMARY.json [--worker-cpu-s S] [--load L1 L5 L15] [--note TEXT]
 
 Standalone, the figures are merged into ``--json`` (section ``sweep`` and its ``keys``) without touching
@@ -21,7 +21,9 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
+
 
 
 def bench_sweep(quick: bool) -> dict:
@@ -69,13 +71,14 @@ def keys(s: dict) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results.json")
+    ap.add_argument("--json", type=Path, default=RESULTS_DIR / "results.json")
     ap.add_argument("--from-summary", type=Path, default=None,
                     help="record a map already run (its --json summary) instead of running one")
     ap.add_argument("--worker-cpu-s", type=float, default=None, help="with --from-summary: its CPU time [s]")
     ap.add_argument("--load", type=float, nargs=3, default=None, help="with --from-summary: load average at its start")
     ap.add_argument("--note", default="", help="with --from-summary: how it was run")
     a = ap.parse_args(argv)
+    provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
     s = (from_summary(a.from_summary, a.worker_cpu_s, a.load, a.note) if a.from_summary is not None
          else bench_sweep(a.quick))
     print(json.dumps(s, indent=1))

@@ -23,8 +23,9 @@ from pathlib import Path
 
 def profile(phases: int) -> dict:
     from biped_sim.plant import rigid
-    from biped_controller.core import controller as C
-    from biped_controller.studies import capability_map as cm, experiment, runner, segment
+    from biped_controller.core.control import controller as C
+    from biped_controller.studies import capability_map as cm, runner, segment
+    from biped_controller.studies.trial import runs, trials
 
     acc: dict[str, list] = {}
 
@@ -43,7 +44,7 @@ def profile(phases: int) -> dict:
                 e[1] += 1
         setattr(owner, name, timed)
 
-    experiment.survives(100.0, "both", 0.025, 0.1)        # compile and load outside the timed part
+    trials.survives(runs.paper_push(100.0, start=0.1), "both")   # compile and load outside the timed part
     for owner, name, key in ((segment.Segment, "run", "compiled loop (Segment.run)"),
                              (segment.Segment, "decide", "QP decisions in the loop (Segment.decide)"),
                              (C.AdaptiveController, "compute", "objects: controller period"),

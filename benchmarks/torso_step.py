@@ -1,6 +1,6 @@
 """Controller step of modes lambda and all (issue 21, the torso parameter) beside both, on the same states.
 
-``.venv/bin/python -m benchmarks.torso_step [--force 553.125] [--steps 4] [--json benchmarks/torso_step_results.json]``
+``.venv/bin/python -m benchmarks.torso_step [--force 553.125] [--steps 4] [--json results/benchmarks/torso_step.json]``
 
 Records one push run (mode ``both``, the paper's cell) and replays its states (t, q, q', stance) through a
 fresh controller of each mode, timing ``AdaptiveController.compute`` (time.perf_counter_ns), in one run:
@@ -26,6 +26,9 @@ from time import perf_counter_ns
 
 import numpy as np
 
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
+
 # (label, mode, compiled period)
 MODES = (("both", "both", True), ("lambda", "lambda", True), ("all", "all", True),
          ("lambda_python", "lambda", False), ("all_python", "all", False), ("lambda_own", "lambda", True))
@@ -38,9 +41,10 @@ def main(argv=None) -> int:
     ap.add_argument("--replays", type=int, default=3)
     ap.add_argument("--own-force", type=float, default=62.5,
                     help="[N] the push of mode lambda's own run (lambda_own); default its boundary at the paper's cell")
-    ap.add_argument("--json", type=Path, default=Path(__file__).with_name("torso_step_results.json"))
+    ap.add_argument("--json", type=Path, default=RESULTS_DIR / "torso_step.json")
     a = ap.parse_args(argv)
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
+    provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
     from biped_sim.robot.description import LEFT, load_description

@@ -1,10 +1,10 @@
-"""The touchdown band's spread against the truth (issue 22, ``core/touchdown_band.py``): on a noisy walk with
+"""The touchdown band's spread against the truth (issue 22, ``core/sensing/touchdown_band.py``): on a noisy walk with
 the issue's delay row (real-sensor profile, predictor d, the touchdown delayed, noise 5e-4 rad, 5e-2 rad/s,
 14 bits, seed 0), every period where the compiled pipeline evaluated the band (the swing sole descending),
 the predicted sole height without a touchdown z, its standard deviation sigma_z, and the true sole height of
 the plant at that instant (same stance): the error's rms [m], and the error over sigma_z (rms, quantiles,
 maximum): is sigma_z an honest statement of the height error, to the tails the band's k must cover? Writes
-``benchmarks/touchdown_band_results.json``; nothing is asserted.
+``results/benchmarks/touchdown_band.json``; nothing is asserted.
 
     .venv/bin/python -m benchmarks.touchdown_band_bench [--steps 20] [--delay 2] [--seed 0]
 """
@@ -22,7 +22,9 @@ from biped_sim.plant.rigid import Simulator
 from biped_sim.robot.description import LEFT, load_description
 from biped_sim.robot.gait_family import GaitFamily
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
 
 REAL = dict(momentum_observer=True, state_estimator=True, sensor_noise_q=5e-4, sensor_encoder_bits=14,
             sensor_noise_qd=5e-2, sensor_noise_pitch=1e-3, momentum_observer_gain=50.0)
@@ -66,8 +68,9 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--delay", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--json", type=Path, default=Path(__file__).with_name("touchdown_band_results.json"))
+    ap.add_argument("--json", type=Path, default=RESULTS_DIR / "touchdown_band.json")
     args = ap.parse_args(argv)
+    provenance.track(args.json, argv=argv)   # record of each file written (results/README.md)
     res = {"when": time.strftime("%Y-%m-%d %H:%M:%S"), "delay": args.delay, "seed": args.seed,
            **heights(args.steps, args.delay, args.seed)}
     for k, v in res.items():

@@ -1,7 +1,7 @@
 """Controller step of modes wbc and hybrid (issue 26) beside none and both, side by side in one run.
 
 ``.venv/bin/python -m benchmarks.wbc_step [--force 553.125] [--wbc-force 240] [--steps 4] [--replays 3]
-[--json benchmarks/wbc_step_results.json] [--results benchmarks/results.json]``
+[--json results/benchmarks/wbc_step.json] [--results results/benchmarks/results.json]``
 
 Records two push runs at the paper's cell (25 ms from t = 0.2315 s): mode ``both`` at ``--force`` (the hard
 run of ``scripts/bench``) and mode ``wbc`` at ``--wbc-force`` (a push it survives, near its limit), and replays
@@ -31,6 +31,9 @@ from time import perf_counter_ns
 
 import numpy as np
 
+from biped_controller.studies import provenance
+from benchmarks import RESULTS_DIR
+
 MODES = ("none", "both", "wbc", "hybrid")
 
 
@@ -40,11 +43,12 @@ def main(argv=None) -> int:
     ap.add_argument("--wbc-force", type=float, default=230.0)
     ap.add_argument("--steps", type=int, default=4)
     ap.add_argument("--replays", type=int, default=3)
-    ap.add_argument("--json", type=Path, default=Path(__file__).with_name("wbc_step_results.json"))
-    ap.add_argument("--results", type=Path, default=Path(__file__).with_name("results.json"))
+    ap.add_argument("--json", type=Path, default=RESULTS_DIR / "wbc_step.json")
+    ap.add_argument("--results", type=Path, default=RESULTS_DIR / "results.json")
     a = ap.parse_args(argv)
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
-    from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
+    provenance.track(a.json, a.results, argv=argv)   # record of each file written (results/README.md)
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
     from biped_sim.robot.description import load_description

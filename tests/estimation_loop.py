@@ -11,7 +11,7 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
 
 
 @dataclass

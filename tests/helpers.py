@@ -189,7 +189,7 @@ def count_compiled_periods(patch) -> list:
     """Wrap the controller's compiled period (``controller._FastPeriod.compute``) through ``patch`` (a pytest
     ``monkeypatch`` or one of its contexts) so that every call appends whether the compiled period served
     it (True) or handed it back to the Python steps (False); returns that list."""
-    from biped_controller.core import controller as C
+    from biped_controller.core.control import controller as C
     used: list = []
     orig = C._FastPeriod.compute
 

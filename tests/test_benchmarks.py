@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biped_controller.core.qp import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, AdaptationQP
-from biped_controller.core.qp_exact import solve_exact
+from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, AdaptationQP
+from biped_controller.core.qp.exact import solve_exact
 
 ROOT = Path(__file__).resolve().parents[1]
-from biped_controller.core.controller import QP_ROWS
+from biped_controller.core.control.controller import QP_ROWS
 
 M = QP_ROWS  # rows of the controller's QP (17 with and 17 without the push estimate + 3 range rows)
 
@@ -26,7 +26,11 @@ M = QP_ROWS  # rows of the controller's QP (17 with and 17 without the push esti
 @pytest.mark.ros
 def test_quick_benchmark_writes_json(tmp_path, ros_env):
     out = tmp_path / "results.json"
-    p = subprocess.run([sys.executable, "-m", "benchmarks.run", "--quick", "--json", str(out), "--no-readme"],
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    (sub / "wbc_step.json").write_text(json.dumps({"meta": {"date": "d0"}, "keys": {
+        "controller.step_p50_us_wbc": 1.5, "controller.step_p50_us": -1.0}}))
+    p = subprocess.run([sys.executable, "-m", "benchmarks.run", "--quick", "--json", str(out), "--sub-results", str(sub)],
                        cwd=ROOT, env=ros_env, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
     R = json.loads(out.read_text())
@@ -49,21 +53,34 @@ def test_quick_benchmark_writes_json(tmp_path, ros_env):
         for mode in ("none", "both"):
             assert R["inprocess"][engine][mode]["realtime_factor"] > 0
     keys = R["keys"]
-    assert set(keys) == {"inprocess.fast.realtime_factor", "inprocess.reference.realtime_factor",
+    # a sub-benchmark's key is merged in, never over a key of this run
+    assert keys["controller.step_p50_us_wbc"] == 1.5 and keys["controller.step_p50_us"] > 0
+    assert R["merged"] == {"wbc_step.json": {"path": str(sub / "wbc_step.json"), "date": "d0",
+                                             "keys": ["controller.step_p50_us_wbc"]}}
+    assert set(keys) == {"controller.step_p50_us_wbc", "inprocess.fast.realtime_factor", "inprocess.reference.realtime_factor",
                          "inprocess.fast_outcome_only.realtime_factor", "controller.step_p50_us_reference_engine",
                          "controller.step_p50_us", "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest",
                          "dds.lockstep_steps_per_s", "dds.pingpong_steps_per_s", "table.parallel_wall_s",
                          "dds.lockstep_with_recorder_steps_per_s", "sweep.map_full_wall_s", "sweep.sims_per_s",
-                         "inprocess.mujoco.realtime_factor"}
+                         "inprocess.mujoco.realtime_factor", "inprocess.mujoco.realtime_factor_cpu",
+                         "inprocess.mujoco_over_fast_objects", "inprocess.mujoco_over_fast_objects_cpu"}
     for k in ("inprocess.fast.realtime_factor", "inprocess.reference.realtime_factor", "controller.step_p50_us",
               "inprocess.fast_outcome_only.realtime_factor", "controller.step_p50_us_reference_engine",
-              "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest", "sweep.sims_per_s", "inprocess.mujoco.realtime_factor"):
+              "qp.early_out_p50_us", "qp.piqp_ratio_to_fastest", "sweep.sims_per_s", "inprocess.mujoco.realtime_factor",
+              "inprocess.mujoco.realtime_factor_cpu", "inprocess.mujoco_over_fast_objects"):
         assert isinstance(keys[k], float) and keys[k] > 0, (k, keys[k])
     assert "available" in R["experiment"]
     assert keys["sweep.map_full_wall_s"] is None and R["sweep"]["quick"]       # --quick: a 2-phase map only
     assert R["sweep"]["simulations"] > 0
     md = (tmp_path / "results.md").read_text()
     assert "| solver |" in md and "| piece |" in md
+    from biped_controller.studies.provenance import FIELDS, read_records
+    recs = read_records(tmp_path)
+    assert set(recs) == {"results.json", "results.md"}
+    for rec in recs.values():
+        assert set(FIELDS) <= set(rec) and rec["reconstructed"] is False
+        assert rec["command"].startswith("python -m benchmarks.run --quick --json ")
+        assert rec["duration_s"] > 0 and len(rec["load_average"]) == 3
 
 
 # ------------------------------------------------------------------------------------------------
@@ -138,7 +155,7 @@ def test_exact_agrees_with_piqp_on_random_degenerate_instances(feasible):
 
 def test_exact_agrees_with_piqp_on_recorded_controller_instances():
     """QPs the controller built in a run pushed past the `both`-mode limit (falls): real scaling."""
-    from biped_controller.core.controller import load_controller_config
+    from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
 

@@ -18,8 +18,13 @@ import pytest
 from helpers import assert_close, central_diff
 
 from biped_controller.studies import capability_map as cm
-from biped_controller.studies import experiment
-from biped_controller.core.period_layout import M_, MEMORY
+from biped_controller.studies.trial import context as tcontext
+from biped_controller.studies.trial import runs, stop, trials
+from biped_controller.studies.trial import search as tsearch
+from biped_controller.studies.trial import settings as ts
+from biped_controller.studies.trial import survival as tsurv
+from biped_sim.robot.settings import default_config_dir
+from biped_controller.core.control.controller_layout import M_, MEMORY
 from biped_sim.robot.description import load_description
 from biped_sim.robot.floating import FloatingModel
 
@@ -30,7 +35,7 @@ class Interrupted(RuntimeError):
 
 
 class FakeSurvives:
-    """Stands in for ``experiment.survives`` (same signature and result keys): survival is a known
+    """Stands in for ``trials.survives`` (same signature and result keys): survival is a known
     function of (signed force, mode, start, duration) with a lowest failing edge and islands above it.
     Counts every call by its key; raises :class:`Interrupted` once ``stop_after`` calls were made."""
 
@@ -52,8 +57,8 @@ class FakeSurvives:
         # a phase/duration dependence, so cells differ: weaker late in the step and for long pushes
         return e * (1.0 - 0.3 * start) * (0.025 / duration) ** 0.5, isl
 
-    def __call__(self, force, mode, duration=experiment.DEFAULT_DURATION, start=experiment.DEFAULT_START,
-                 height=None, settings=experiment.DEFAULT_SETTINGS):
+    def __call__(self, push, mode, settings=ts.DEFAULT_SETTINGS, pool=True):
+        force, start, duration = push.force, push.start, push.duration
         if self.stop_after is not None and sum(self.calls.values()) >= self.stop_after:
             raise Interrupted("stopped")
         direction = "forward" if force > 0 else "backward"
@@ -73,13 +78,13 @@ SYN_SPEC = cm.MapSpec(modes=("tau", "p"), directions=("forward", "backward"), ph
 @pytest.fixture
 def fake(monkeypatch):
     f = FakeSurvives()
-    monkeypatch.setattr(experiment, "survives", f)
+    monkeypatch.setattr(trials, "survives", f)
     return f
 
 
 def test_search_edges_and_islands_on_a_synthetic_survival_function(fake):
     run = cm.run_map(SYN_SPEC)
-    T = experiment.context().family.T
+    T = tcontext.context().family.T
     assert len(run.boundaries) == 8
     for cell, b in run.boundaries.items():
         e, isl = fake.edge(cell.mode, cell.direction, cm.onset_time(cell.phase, T), cell.duration)
@@ -104,7 +109,7 @@ def test_search_edges_and_islands_on_a_synthetic_survival_function(fake):
 
 def test_censored_cell_and_island_ranges(monkeypatch):
     fake = FakeSurvives()
-    monkeypatch.setattr(experiment, "survives", fake)
+    monkeypatch.setattr(trials, "survives", fake)
     spec = cm.MapSpec(modes=("both",), directions=("forward",), phases=(0.25,), durations=(0.1,),
                       search=cm.Search(coarse=100.0, fmax=300.0, resolution=5.0))
     run = cm.run_map(spec)
@@ -118,14 +123,14 @@ def test_censored_cell_and_island_ranges(monkeypatch):
 
 @pytest.mark.parametrize("mode,direction,phase", [("p", "forward", 0.5), ("p", "backward", 0.0), ("tau", "backward", 0.5)])
 def test_search_equals_experiment_max_push(fake, mode, direction, phase):
-    """The same synthetic function through experiment.max_push (coarse scan + bisect_edge) and through
+    """The same synthetic function through tsearch.max_push (coarse scan + bisect_edge) and through
     the map: the same edge, first failure and islands, to the last bit (same midpoints)."""
     spec = cm.MapSpec(modes=(mode,), directions=(direction,), phases=(phase,), durations=(0.025,),
                       search=cm.Search(coarse=50.0, fmax=500.0, resolution=5.0))
     run = cm.run_map(spec)
     b = run.boundaries[cm.Cell(mode, direction, phase, 0.025)]
-    start = cm.onset_time(phase, experiment.context().family.T)
-    ref = experiment.max_push(mode, 5.0, 500.0, 50.0, duration=0.025, start=start, workers=1, progress=False,
+    start = cm.onset_time(phase, tcontext.context().family.T)
+    ref = tsearch.max_push(mode, 5.0, 500.0, 50.0, duration=0.025, start=start, workers=1, progress=False,
                               sign=cm.DIRECTIONS[direction])
     assert (b.lo, b.hi, list(b.islands)) == (ref["max_force"], ref["first_failure"], ref["islands"])
     assert sorted(r["force"] for r in ref["trials"]) == sorted(run.records[cm.Cell(mode, direction, phase, 0.025)])
@@ -133,20 +138,20 @@ def test_search_equals_experiment_max_push(fake, mode, direction, phase):
 
 def test_resume_after_an_interruption_does_no_simulation_twice(monkeypatch, tmp_path):
     ref_fake = FakeSurvives()
-    monkeypatch.setattr(experiment, "survives", ref_fake)
+    monkeypatch.setattr(trials, "survives", ref_fake)
     ref = cm.run_map(SYN_SPEC)
     n_total = ref.simulated
     k = 23
     store = cm.RecordStore(tmp_path / "records.jsonl")
     first = FakeSurvives(stop_after=k)
-    monkeypatch.setattr(experiment, "survives", first)
+    monkeypatch.setattr(trials, "survives", first)
     with pytest.raises(Interrupted):
         cm.run_map(SYN_SPEC, store=store)
     assert len(store.load()) == k                      # every completed simulation was stored at once
     with open(store.path, "a") as fh:                  # and a record torn by the kill
         fh.write('{"mode": "p", "direction": "forw')
     second = FakeSurvives()
-    monkeypatch.setattr(experiment, "survives", second)
+    monkeypatch.setattr(trials, "survives", second)
     run = cm.run_map(SYN_SPEC, store=store)
     assert store.repaired_bytes > 0
     assert run.resumed == k and run.simulated == n_total - k
@@ -158,18 +163,18 @@ def test_resume_after_an_interruption_does_no_simulation_twice(monkeypatch, tmp_
     assert len({cm.record_key(r) for r in recs}) == n_total
     # a third run finds everything
     third = FakeSurvives()
-    monkeypatch.setattr(experiment, "survives", third)
+    monkeypatch.setattr(trials, "survives", third)
     again = cm.run_map(SYN_SPEC, store=store)
     assert again.simulated == 0 and sum(third.calls.values()) == 0 and again.boundaries == ref.boundaries
 
 
 def test_report_only_runs_nothing_and_leaves_incomplete_cells_out(monkeypatch, tmp_path):
     store = cm.RecordStore(tmp_path / "records.jsonl")
-    monkeypatch.setattr(experiment, "survives", FakeSurvives(stop_after=30))
+    monkeypatch.setattr(trials, "survives", FakeSurvives(stop_after=30))
     with pytest.raises(Interrupted):
         cm.run_map(SYN_SPEC, store=store)
     counting = FakeSurvives()
-    monkeypatch.setattr(experiment, "survives", counting)
+    monkeypatch.setattr(trials, "survives", counting)
     part = cm.run_map(SYN_SPEC, store=store, simulate=False)
     assert sum(counting.calls.values()) == 0 and part.simulated == 0 and part.resumed == 30
     assert part.missing and part.boundaries and set(part.missing) | set(part.boundaries) == set(SYN_SPEC.cells())
@@ -185,7 +190,7 @@ def test_records_of_another_fingerprint_are_ignored(fake, tmp_path):
     spec = cm.MapSpec(modes=("tau",), directions=("forward",), phases=(0.5,), durations=(0.025,),
                       search=cm.Search(coarse=100.0, fmax=400.0, resolution=25.0))
     run = cm.run_map(spec, store=store)
-    other = cm.MapSpec(**{**spec.__dict__, "settings": experiment.parse_overrides(["Kp=900"])})
+    other = cm.MapSpec(**{**spec.__dict__, "settings": ts.parse_overrides(["Kp=900"])})
     assert cm.fingerprint(other) != run.fingerprint
     before = sum(fake.calls.values())
     run2 = cm.run_map(other, store=store)
@@ -201,10 +206,10 @@ def test_the_early_stop_settings_are_in_the_store_fingerprint(monkeypatch):
     spec = cm.MapSpec(modes=("lambda",), directions=("forward",), phases=(0.5,), durations=(0.025,),
                       search=cm.Search(coarse=100.0, fmax=400.0, resolution=25.0))
     base = cm.fingerprint(spec)
-    es = experiment.early_stop()
-    monkeypatch.setattr(experiment, "early_stop", lambda: dataclasses.replace(es))
+    es = stop.early_stop()
+    monkeypatch.setattr(stop, "early_stop", lambda: dataclasses.replace(es))
     assert cm.fingerprint(spec) == base                       # the same tolerances: the same store
-    monkeypatch.setattr(experiment, "early_stop", lambda: dataclasses.replace(es, lam=2 * es.lam))
+    monkeypatch.setattr(stop, "early_stop", lambda: dataclasses.replace(es, lam=2 * es.lam))
     assert cm.fingerprint(spec) != base
 
 
@@ -222,13 +227,13 @@ def test_store_rejects_a_malformed_middle_line(tmp_path):
 
 
 def test_failure_cause_from_experiment_survival_reasons():
-    fam = experiment.context().family
-    imp = [SimpleNamespace(t=1.0 + i) for i in range(experiment.SURVIVAL_STEPS)]
+    fam = tcontext.context().family
+    imp = [SimpleNamespace(t=1.0 + i) for i in range(tsurv.SURVIVAL_STEPS)]
 
     def reason(**kw):
         st = SimpleNamespace(p=kw.get("p", fam.p_d), tau_dot=kw.get("tau_dot", 1.0))
         res = SimpleNamespace(fallen=False, impacts=kw.get("impacts", imp), statuses=[st])
-        ok, why = experiment.survival(res, 0.5)
+        ok, why = tsurv.survival(res, 0.5)
         return {"survived": ok, "reason": why, "fall_cause": ""}
 
     assert cm.failure_cause(reason()) == ""
@@ -270,7 +275,7 @@ def test_spec_validation():
         assert short == s.coarse_forces()[:len(short)]
     assert cm.Search(max_impulse=math.inf).for_duration(0.2).fmax == 2000.0
     assert cm.phases_of(4) == (0.0, 0.25, 0.5, 0.75)
-    assert cm.phases_of(20)[10] == 0.5 and cm.onset_time(0.5, 0.463) == experiment.DEFAULT_START
+    assert cm.phases_of(20)[10] == 0.5 and cm.onset_time(0.5, 0.463) == runs.DEFAULT_START
     assert set(cm.phases_of(10)) <= set(cm.phases_of(20))   # a 10-phase map's records serve the 20-phase map
 
 
@@ -407,9 +412,9 @@ class HoleySurvives(FakeSurvives):
 
     HOLES = {("tau", "forward"): [(140.0, 160.0)]}
 
-    def __call__(self, force, mode, duration=experiment.DEFAULT_DURATION, start=experiment.DEFAULT_START,
-                 height=None, settings=experiment.DEFAULT_SETTINGS):
-        r = super().__call__(force, mode, duration, start, height, settings)
+    def __call__(self, push, mode, settings=ts.DEFAULT_SETTINGS, pool=True):
+        r = super().__call__(push, mode, settings, pool)
+        force, start = push.force, push.start
         direction = "forward" if force > 0 else "backward"
         if start > 0.05 and any(a <= abs(force) <= b for a, b in self.HOLES.get((mode, direction), [])):
             r.update(survived=False, reason="fell: tip_heel", fall_cause="tip_heel", fall_time=start + 0.01, steps_walked=0)
@@ -422,7 +427,7 @@ class SteepSurvives(FakeSurvives):
 
     def edge(self, mode, direction, start, duration):
         e, isl = self.TABLE[(mode, direction)]
-        T = experiment.context().family.T
+        T = tcontext.context().family.T
         return e * (0.6 + 0.4 * math.cos(4.0 * math.pi * start / T)) * (0.025 / duration) ** 0.5, isl
 
 
@@ -441,9 +446,9 @@ def test_neighbour_search_finds_the_full_searchs_edges_with_fewer_simulations(mo
     first run of 2 failing coarse forces above the edge (the island window; the first phase of each row
     is searched in full and keeps them all), and it needs fewer simulations."""
     full_fake, nb_fake = SteepSurvives(), SteepSurvives()
-    monkeypatch.setattr(experiment, "survives", full_fake)
+    monkeypatch.setattr(trials, "survives", full_fake)
     full = cm.run_map(cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": False}))
-    monkeypatch.setattr(experiment, "survives", nb_fake)
+    monkeypatch.setattr(trials, "survives", nb_fake)
     nb = cm.run_map(cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": True, "island_window": 2}))
     assert len(full.boundaries) == len(nb.boundaries) == len(NB_SPEC.cells())
     assert _edges(nb) == _edges(full)
@@ -485,7 +490,7 @@ def test_neighbour_search_finds_the_full_searchs_edges_with_fewer_simulations(mo
 def test_island_window_zero_misses_islands_the_full_search_finds(monkeypatch):
     """Negative control of the island comparison: with no window above the edge the bracketed search
     reports no island where the full search finds some (the comparison above can fail)."""
-    monkeypatch.setattr(experiment, "survives", FakeSurvives())
+    monkeypatch.setattr(trials, "survives", FakeSurvives())
     full = cm.run_map(cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": False}))
     nb = cm.run_map(cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": True, "island_window": 0}))
     assert _edges(nb) == _edges(full)
@@ -497,7 +502,7 @@ def test_a_hole_below_the_bracket_is_what_the_bracket_assumes_away(monkeypatch):
     """The bracket does not simulate the coarse forces below it: a failing force there (a hole below the
     edge, absent from the default map: docs/capability_map.md) gives another first failure than the full
     search -- the assumption, shown; the full search finds the hole."""
-    monkeypatch.setattr(experiment, "survives", HoleySurvives())
+    monkeypatch.setattr(trials, "survives", HoleySurvives())
     spec = cm.MapSpec(modes=("tau",), directions=("forward",), phases=cm.phases_of(4), durations=(0.025,),
                       search=cm.Search(coarse=50.0, fmax=600.0, resolution=5.0))
     full = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": False}))
@@ -546,10 +551,10 @@ def test_bracket_moves_up_down_and_censors():
 def test_run_maps_serves_several_maps_as_their_own_runs(monkeypatch, tmp_path):
     """Two one-cell maps of different settings at once on one store: the boundaries and records of
     run_map on each, each under its own fingerprint."""
-    monkeypatch.setattr(experiment, "survives", FakeSurvives())
+    monkeypatch.setattr(trials, "survives", FakeSurvives())
     a = cm.MapSpec(modes=("tau",), directions=("forward",), phases=(0.5,), durations=(0.025,),
                    search=cm.Search(coarse=40.0, fmax=800.0, resolution=20.0))
-    b = cm.MapSpec(**{**a.__dict__, "modes": ("p",), "settings": experiment.parse_overrides(["Kp=900"])})
+    b = cm.MapSpec(**{**a.__dict__, "modes": ("p",), "settings": ts.parse_overrides(["Kp=900"])})
     store = cm.RecordStore(tmp_path / "r.jsonl")
     ra, rb = cm.run_maps([a, b], store=store)
     assert ra.fingerprint != rb.fingerprint
@@ -581,12 +586,12 @@ EARLY_FORCES = {"both": (40.0, 300.0, 550.0, 700.0), "tau": (100.0, 300.0, 400.0
 def test_early_stop_gives_the_full_trials_outcome():
     """A trial stopped at its decided impact has the outcome of the same trial run in full (survived,
     reason, cause, fall time), for survivals and failures of every mode; the survivals stop earlier."""
-    full = experiment.RunSettings(full_trials=True)
+    full = ts.RunSettings(full_trials=True)
     stopped = 0
     for mode, forces in EARLY_FORCES.items():
         for F in forces:
-            a = experiment.survives(F, mode)
-            b = experiment.survives(F, mode, settings=full)
+            a = trials.survives(runs.paper_push(F), mode)
+            b = trials.survives(runs.paper_push(F), mode, settings=full)
             assert (a["survived"], a["reason"], a["fall_cause"], a["fall_time"]) == \
                    (b["survived"], b["reason"], b["fall_cause"], b["fall_time"]), (mode, F)
             assert b["decided_at_step"] is None
@@ -596,10 +601,10 @@ def test_early_stop_gives_the_full_trials_outcome():
             else:
                 assert a["decided_at_step"] is None and a["steps_walked"] == b["steps_walked"]
     assert stopped >= 6
-    T = experiment.context().family.T
+    T = tcontext.context().family.T
     for F, mode, d, ph in EARLY_CASES:
-        a = experiment.survives(F, mode, d, ph * T)
-        b = experiment.survives(F, mode, d, ph * T, settings=full)
+        a = trials.survives(runs.paper_push(F, start=ph * T, duration=d), mode)
+        b = trials.survives(runs.paper_push(F, start=ph * T, duration=d), mode, settings=full)
         assert not b["survived"] and b["fall_time"] < 0.5                      # falls just after the first impact
         assert (a["survived"], a["reason"], a["fall_cause"]) == (b["survived"], b["reason"], b["fall_cause"])
 
@@ -610,13 +615,13 @@ def test_loose_early_stop_tolerances_would_change_an_outcome(monkeypatch):
     after the push, and a push after which the robot falls a step later (mode both, 1293.75 N backward at
     phase 0.9: one impact, then a take-off at t = 1.556 s) would be reported survived -- the comparison
     above can fail, the tolerances matter."""
-    T = experiment.context().family.T
-    args = (-1293.75, "both", 0.025, 0.9 * T)
-    full = experiment.survives(*args, settings=experiment.RunSettings(full_trials=True))
+    T = tcontext.context().family.T
+    args = (runs.paper_push(-1293.75, start=0.9 * T, duration=0.025), "both")
+    full = trials.survives(*args, settings=ts.RunSettings(full_trials=True))
     assert not full["survived"] and full["fall_cause"] and full["steps_walked"] >= 1
     inf = math.inf
-    monkeypatch.setattr(experiment, "early_stop", lambda: experiment.EarlyStop(True, inf, inf, inf, inf, inf, inf, inf, inf))
-    loose = experiment.survives(*args)
+    monkeypatch.setattr(stop, "early_stop", lambda: stop.EarlyStop(True, inf, inf, inf, inf, inf, inf, inf, inf))
+    loose = trials.survives(*args)
     assert loose["survived"] and loose["decided_at_step"] == full["steps_walked"]
 
 
@@ -625,8 +630,8 @@ def test_early_stop_criterion_checks_every_tolerance_and_the_push_end():
     quantity just outside its tolerance (and an impact before the push's end) makes it fail."""
     from biped_sim.robot.description import LEFT
     from biped_sim.robot.floating import FloatingModel, urdf_from_paper
-    fam = experiment.context().family
-    es = experiment.early_stop()
+    fam = tcontext.context().family
+    es = stop.early_stop()
     g = fam.evaluate(fam.p_d, 0.0007)
 
     def state(dq=0.0, dqd=0.0, dp=0.0, dpd=0.0, dtd=0.0, F=0.0, t_imp=1.0, lam=0.0, lam_dot=0.0):
@@ -653,15 +658,15 @@ def test_early_stop_criterion_checks_every_tolerance_and_the_push_end():
 
 
 def test_early_stop_settings_are_checked_naming_the_key(tmp_path):
-    src = (Path(experiment.default_config_dir()) / "studies.yaml").read_text()
+    src = (Path(default_config_dir()) / "studies.yaml").read_text()
     p = tmp_path / "studies.yaml"
     p.write_text(src.replace("early_stop_qd: {value: 1.0e-1", "early_stop_qd: {value: -1.0"))
-    with pytest.raises(experiment.StudySettingsError, match="early_stop_qd"):
-        experiment.EarlyStop.load(p)
+    with pytest.raises(stop.StudySettingsError, match="early_stop_qd"):
+        stop.EarlyStop.load(p)
     p.write_text(src.replace("early_stop: {value: true", "early_stop: {value: 3"))
-    with pytest.raises(experiment.StudySettingsError, match="'early_stop'"):
-        experiment.EarlyStop.load(p)
-    assert experiment.EarlyStop.load() == experiment.early_stop()
+    with pytest.raises(stop.StudySettingsError, match="'early_stop'"):
+        stop.EarlyStop.load(p)
+    assert stop.EarlyStop.load() == stop.early_stop()
 
 
 SMALL_SPEC = cm.MapSpec(modes=("tau", "p"), directions=("backward",), phases=cm.phases_of(4), durations=(0.1,),
@@ -673,7 +678,7 @@ def test_fast_map_gives_the_full_maps_answers_on_a_small_real_map():
     """Both speed-ups (early stop, bracketed search) against the full search with full-length trials on
     a small real map: the same boundary, first failure and cause in every cell, fewer simulations."""
     full = cm.run_map(cm.MapSpec(**{**SMALL_SPEC.__dict__, "neighbours": False,
-                                    "settings": experiment.RunSettings(full_trials=True)}))
+                                    "settings": ts.RunSettings(full_trials=True)}))
     fast = cm.run_map(cm.MapSpec(**{**SMALL_SPEC.__dict__, "neighbours": True}))
     assert len(full.boundaries) == len(fast.boundaries) == 8
     for c, b in full.boundaries.items():
@@ -692,7 +697,7 @@ def test_coarse_edge_is_known_before_the_cell_ends_and_equals_its_final_edge(mon
     without one of the bracket's two forces it is not (None)."""
     from biped_controller.studies.capmap.search import coarse_edge, edge_index
     fake = SteepSurvives()
-    monkeypatch.setattr(experiment, "survives", fake)
+    monkeypatch.setattr(trials, "survives", fake)
     spec = cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": True, "island_window": 2})
     run = cm.run_map(spec)
     ph = sorted(spec.phases)

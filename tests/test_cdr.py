@@ -142,7 +142,6 @@ def _cases(rng: random.Random):
 
 def _wire_bytes(context, cases) -> dict[str, list[bytes]]:
     """Publish every case's message object (in order) and take what raw subscriptions of the same process receive."""
-    import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy

@@ -7,7 +7,6 @@ checked on a copy with one byte changed (negative control). Waits are bounded by
 """
 from __future__ import annotations
 
-import os
 import subprocess
 from pathlib import Path
 

@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
 from biped_sim.robot.gait_family import GaitFamily
 
 

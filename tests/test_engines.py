@@ -7,7 +7,7 @@ import pytest
 
 from helpers import assert_same_fields, assert_same_run, count_compiled_periods
 from biped_controller.studies import runner
-from biped_controller.core.controller import load_controller_config
+from biped_controller.core.control.controller import load_controller_config
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import load_sim_config
 
@@ -56,7 +56,7 @@ def _without(monkeypatch, cls, name):
 def test_compiled_controller_period_matches_its_python_steps(monkeypatch, mode):
     """control_kernels.step (one compiled call per period, fast engine) against the controller's own
     Python steps on the same compiled model terms: same run to 1e-9, QP decisions included."""
-    from biped_controller.core import controller as C
+    from biped_controller.core.control import controller as C
     push = (Push(0.2003217, 0.025, 400.0),)
     used = count_compiled_periods(monkeypatch)
     fast = runner.run(steps=2, mode=mode, pushes=push, compiled_loop=False)
@@ -129,7 +129,7 @@ def test_compiled_loop_is_the_objects_period_by_period(monkeypatch, mode, push, 
 def test_compiled_loop_is_off_where_python_must_see_every_period():
     """Perturbed sensors, a torque function (integration rate), the reference engine: no compiled loop."""
     from biped_controller.studies.segment import Segment
-    from biped_controller.core.controller import AdaptiveController
+    from biped_controller.core.control.controller import AdaptiveController
     from biped_sim.plant.perturbation import PlantPerturbation
     from biped_sim.plant.rigid import Simulator
     ctrl = AdaptiveController(load_controller_config(mode="both"))

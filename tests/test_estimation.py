@@ -23,9 +23,9 @@ from biped_sim.robot.description import load_description
 from biped_sim.robot.fixed_foot import FixedFootModel
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation, SensorModel
 
-from biped_controller.core import momentum_observer as mom
-from biped_controller.core.controller import ControllerConfigError, load_controller_config
-from biped_controller.core.estimation import EstimatorConfig, EstimatorConfigError, JointStateEstimator
+from biped_controller.core.sensing import momentum_observer as mom
+from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.sensing.estimation import EstimatorConfig, EstimatorConfigError, JointStateEstimator
 
 from estimation_loop import closed_loop
 
@@ -270,9 +270,9 @@ def test_predictor_reconciles_a_touchdown_sensed_at_once(undelayed, engine):
     (reference engine, against its own undelayed run). Negative controls: the same plant with the old
     assumption (every sample 2 periods old) falls at the first touchdown; so does the setting on a plant whose
     touchdown is delayed (a mismatch: no touchdown is predicted, none is reported for 2 periods)."""
-    from biped_controller.core.controller import AdaptiveController
-    from biped_controller.core.estimation_compiled import CompiledSensing
-    from biped_controller.core.sensing import SensingPipeline
+    from biped_controller.core.control.controller import AdaptiveController
+    from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
+    from biped_controller.core.sensing.pipeline import SensingPipeline
     from biped_controller.studies import runner
     at_once = PlantPerturbation(delay=2, touchdown_delayed=False)
     cfg = load_controller_config(mode="both", engine=engine, delay_compensation=2, predictor_touchdown_at_once=True)
@@ -326,7 +326,7 @@ def test_no_touchdown_is_predicted_when_it_is_reported_at_once(engine):
 def test_predictor_sample_age_checked():
     """``DelayPredictor.predict``'s ``periods`` (the sample's age): 0 returns the sample; an age beyond the
     decisions recorded is refused naming it."""
-    from biped_controller.core.predictor import DelayPredictor, PredictorError
+    from biped_controller.core.sensing.predictor import DelayPredictor, PredictorError
     from biped_sim.robot.description import load_description
     dp = DelayPredictor(load_description(), 2, 2, 1e-3, 1e-8, 1e-4, 1e-9)
     q, qd = np.array([0.15, 0.3, -0.4, -0.2, 0.6, -0.3]), np.array([0.5, -0.2, 0.1, 0.3, -0.4, 0.2])
@@ -352,13 +352,13 @@ def test_controller_settings_rejected_by_name():
 
 
 def test_experiment_perturb_option():
-    from biped_controller.studies import experiment as ex
-    p = ex.parse_perturbation(["noise_q=5e-4", "encoder_bits=14", "delay=2", "touchdown_delayed=false"])
+    from biped_controller.studies.trial import settings as ts
+    p = ts.parse_perturbation(["noise_q=5e-4", "encoder_bits=14", "delay=2", "touchdown_delayed=false"])
     assert p == PlantPerturbation(noise_q=5e-4, encoder_bits=14, delay=2, touchdown_delayed=False)
     with pytest.raises(PerturbationError, match="torso_mas"):
-        ex.parse_perturbation(["torso_mas_scale=0.8"])
-    with pytest.raises(ex.OverrideError, match="twice"):
-        ex.parse_perturbation(["delay=1", "delay=2"])
+        ts.parse_perturbation(["torso_mas_scale=0.8"])
+    with pytest.raises(ts.OverrideError, match="twice"):
+        ts.parse_perturbation(["delay=1", "delay=2"])
     out = subprocess.run([sys.executable, "-m", "biped_controller.studies.experiment", "walk", "--steps", "1",
                           "--perturb", "torso_mass_scale=0.8", "--perturb", "noise_q=1e-4", "--perturb", "encoder_bits=16"],
                          capture_output=True, text=True, cwd=ROOT, timeout=600)
@@ -387,7 +387,7 @@ def test_qp_rows_carry_the_wrench_and_its_spread():
     ones; the matrix G is the same for both sets (checked against the rows built with no estimate)."""
     from biped_sim.robot.fixed_foot import contact_rows
     from biped_sim.robot.gait_family import GaitFamily
-    from biped_controller.core.controller import AdaptiveController
+    from biped_controller.core.control.controller import AdaptiveController
     fam = GaitFamily.load()
     q0, qd0 = fam.initial_state()
     cfg = load_controller_config(mode="both", momentum_observer=True, engine="reference")

@@ -1,7 +1,7 @@
-"""The compiled sensing pipeline (issue 22): ``estimation_kernels`` against the Python cores and Pinocchio.
+"""The compiled sensing pipeline (issue 22): ``pipeline_kernels`` against the Python cores and Pinocchio.
 
 Oracles: Pinocchio's A(q), B, g(q) - C(q, q')^T q' (``momentum_observer.MomentumTerms``) and torso Jacobian
-for the observer's model terms; the Python pipeline (``sensing.SensingPipeline``: ``JointStateEstimator``,
+for the observer's model terms; the Python pipeline (``pipeline.SensingPipeline``: ``JointStateEstimator``,
 ``MomentumObserver``, Pinocchio) fed the same seeded noisy run, period by period (estimate, covariance,
 wrench, its covariance, the QP rows' widening); the controller on the reference engine with the Python
 pipeline and Python steps, fed the same observations (torque and status of every period). A negative
@@ -18,11 +18,11 @@ from biped_sim.robot.fast_engine import FastFixedFootModel
 from biped_sim.robot.fixed_foot import contact_rows
 from biped_sim.plant.perturbation import PlantPerturbation
 
-from biped_controller.core import momentum_observer as mom
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.estimation_compiled import CompiledSensing, load_estimation_kernels
-from biped_controller.core.estimation_layout import SENS
-from biped_controller.core.period_layout import G_
+from biped_controller.core.sensing import momentum_observer as mom
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.sensing.pipeline_compiled import CompiledSensing, load_pipeline_kernels
+from biped_controller.core.sensing.pipeline_layout import SENS
+from biped_controller.core.control.controller_layout import G_
 
 from estimation_loop import closed_loop
 
@@ -44,7 +44,7 @@ def test_momentum_terms_against_pinocchio():
     """A, B, H, beta = g - C^T q' (g and the kinetic energy's gradient in closed form) and the torso wrench Jacobian
     against Pinocchio at seeded random states; negative control: g - C q' (Coriolis matrix not transposed)
     is a different vector at the same states."""
-    ek = load_estimation_kernels()
+    ek = load_pipeline_kernels()
     fast = FastFixedFootModel(DESC)
     terms = mom.MomentumTerms(DESC)
     rng = np.random.default_rng(7)
@@ -162,8 +162,8 @@ def test_predictor_pieces_against_python():
     relabelling without laying the landing foot flat differs."""
     from biped_sim.robot.floating import FloatingModel
     from biped_sim.robot.fixed_foot import relabel
-    from biped_controller.core.predictor import DelayPredictor, flat_foot_impact
-    ek = load_estimation_kernels()
+    from biped_controller.core.sensing.predictor import DelayPredictor, flat_foot_impact
+    ek = load_pipeline_kernels()
     fast = FastFixedFootModel(DESC)
     fm = FloatingModel(DESC)
     dp = DelayPredictor(DESC, 2, 2, 1e-3, 1e-8, 1e-4, 1e-9)

@@ -19,12 +19,16 @@ import pytest
 
 import helpers
 from biped_controller.studies import experiment as ex
+from biped_controller.studies import single_runs
+from biped_controller.studies.trial import context as tcontext
+from biped_controller.studies.trial import runs, trials
+from biped_controller.studies.trial import settings as ts
 from biped_controller.studies import runner
-from biped_controller.core.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfigError, load_sim_config
 
-START, DURATION, FORCE = ex.DEFAULT_START, ex.DEFAULT_DURATION, 250.0
+START, DURATION, FORCE = runs.DEFAULT_START, runs.DEFAULT_DURATION, 250.0
 
 
 def _in_push(t: float) -> bool:
@@ -33,11 +37,11 @@ def _in_push(t: float) -> bool:
 
 # ------------------------------------------------------------------------------------------ parsing
 def test_overrides_reach_both_configs_and_leave_the_rest_as_the_files():
-    s = ex.parse_overrides(["Kp=900", "margin_zmp=0.0", "push_height=0.0", "disturbance_observer=true"])
+    s = ts.parse_overrides(["Kp=900", "margin_zmp=0.0", "push_height=0.0", "disturbance_observer=true"])
     c = s.ctrl_config("p")
     file_c = load_controller_config(mode="p")
     assert (c.Kp, c.margin_zmp, c.disturbance_observer, c.mode) == (900, 0.0, True, "p")
-    for k in ex.CONTROLLER_KEYS:
+    for k in ts.CONTROLLER_KEYS:
         if k not in ("Kp", "margin_zmp", "disturbance_observer"):
             assert getattr(c, k) == getattr(file_c, k), k
     sim, file_s = s.sim_config(), load_sim_config()
@@ -46,9 +50,9 @@ def test_overrides_reach_both_configs_and_leave_the_rest_as_the_files():
     d = s.describe()
     assert d["overrides"] == {"Kp": 900, "margin_zmp": 0.0, "push_height": 0.0, "disturbance_observer": True}
     assert d["controller"]["Kp"] == 900 and d["simulator"]["push_height"] == 0.0
-    assert ex.parse_overrides([], "off").ctrl_config("both").disturbance_observer is False
-    assert ex.parse_overrides([], "on").ctrl_config("both").disturbance_observer is True
-    assert ex.parse_overrides([], None) == ex.DEFAULT_SETTINGS
+    assert ts.parse_overrides([], "off").ctrl_config("both").disturbance_observer is False
+    assert ts.parse_overrides([], "on").ctrl_config("both").disturbance_observer is True
+    assert ts.parse_overrides([], None) == ts.DEFAULT_SETTINGS
 
 
 @pytest.mark.parametrize("item, observer, needle", [
@@ -61,17 +65,17 @@ def test_overrides_reach_both_configs_and_leave_the_rest_as_the_files():
     ([], "maybe", "--observer"),
 ])
 def test_bad_overrides_are_rejected_naming_the_key(item, observer, needle):
-    with pytest.raises(ex.OverrideError, match=needle):
-        ex.parse_overrides(item, observer)
+    with pytest.raises(ts.OverrideError, match=needle):
+        ts.parse_overrides(item, observer)
 
 
 def test_out_of_range_values_are_rejected_by_the_configs_naming_the_key():
     with pytest.raises(ControllerConfigError, match="Kp"):
-        ex.check_settings(ex.parse_overrides(["Kp=-1"]))
+        ts.check_settings(ts.parse_overrides(["Kp=-1"]))
     with pytest.raises(SimConfigError, match="substeps"):
-        ex.check_settings(ex.parse_overrides(["substeps=0"]))
+        ts.check_settings(ts.parse_overrides(["substeps=0"]))
     with pytest.raises(SimConfigError, match="push_height"):
-        ex.check_settings(ex.parse_overrides(["push_height=abc"]))
+        ts.check_settings(ts.parse_overrides(["push_height=abc"]))
 
 
 def test_cli_rejects_an_unknown_key_with_its_name(capsys):
@@ -83,11 +87,11 @@ def test_cli_rejects_an_unknown_key_with_its_name(capsys):
 
 # ------------------------------------------------------------------------------------------ closed loop
 def test_probe_loop_is_the_runner_loop():
-    s = ex.parse_overrides([], "on")
+    s = ts.parse_overrides([], "on")
     until = START + DURATION + 0.005
-    pr = ex.probe_run(FORCE, "both", settings=s, until=until)
+    pr = single_runs.probe_run(runs.paper_push(FORCE), "both", settings=s, until=until)
     ref = runner.run(steps=11, mode="both", pushes=(Push(START, DURATION, FORCE),), sim_config=s.sim_config(),
-                     ctrl_config=s.ctrl_config("both"), family=ex.context().family, desc=ex.context().desc,
+                     ctrl_config=s.ctrl_config("both"), family=tcontext.context().family, desc=tcontext.context().desc,
                      max_time=until)
     helpers.assert_same_run(pr.result, ref)
     assert len(pr.force_estimate) == len(pr.result.records)
@@ -98,8 +102,8 @@ def test_observer_switch_reaches_the_controller():
     misses the simulator's by more than 5 N. On: after the first period of the push (one period of lag)
     the estimate is within 10 % of the push and the prediction within 1 N of the simulator's reaction."""
     until = START + DURATION
-    off = ex.probe_run(FORCE, "both", settings=ex.parse_overrides([], "off"), until=until)
-    on = ex.probe_run(FORCE, "both", settings=ex.parse_overrides([], "on"), until=until)
+    off = single_runs.probe_run(runs.paper_push(FORCE), "both", settings=ts.parse_overrides([], "off"), until=until)
+    on = single_runs.probe_run(runs.paper_push(FORCE), "both", settings=ts.parse_overrides([], "on"), until=until)
     for pr, label in ((off, "off"), (on, "on")):
         t = np.array([r.t for r in pr.result.records])
         assert np.count_nonzero([_in_push(x) for x in t]) >= 15, f"observer {label}: the push must be observed"
@@ -125,9 +129,9 @@ def test_simulator_override_is_the_same_as_the_explicit_value():
     """--set push_height=0.0 (push at the hip) gives the run with the push height given explicitly, and a
     different run from the default height (the override is not ignored)."""
     until = START + 0.010
-    over = ex.probe_run(FORCE, "both", settings=ex.parse_overrides(["push_height=0.0"]), until=until)
-    explicit = ex.probe_run(FORCE, "both", height=0.0, until=until)
-    default = ex.probe_run(FORCE, "both", until=until)
+    over = single_runs.probe_run(runs.paper_push(FORCE), "both", settings=ts.parse_overrides(["push_height=0.0"]), until=until)
+    explicit = single_runs.probe_run(runs.paper_push(FORCE, height=0.0), "both", until=until)
+    default = single_runs.probe_run(runs.paper_push(FORCE), "both", until=until)
     helpers.assert_same_run(over.result, explicit.result)
     diff = max(float(np.max(np.abs(a.q - b.q))) for a, b in zip(over.result.records, default.result.records))
     assert diff > 1e-6
@@ -142,25 +146,25 @@ def test_cheap_search_is_consistent_and_says_what_it_ran(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "Kp=900" in printed and "disturbance_observer=False" in printed
     data = json.loads(out.read_text())
-    assert data["settings"]["overrides"] == {"Kp": 900, "Kv": 60, "disturbance_observer": False}
+    assert data["settings"] == {"profile": "default", "differs": {"Kp": 900, "Kv": 60, "disturbance_observer": False}}
     r = data["modes"]["none"]
-    assert r["settings"]["controller"]["Kp"] == 900 and r["settings"]["controller"]["disturbance_observer"] is False
-    trials = r["trials"]
-    assert trials and [x["force"] for x in trials] == sorted(x["force"] for x in trials)
-    by_force = {x["force"]: x for x in trials}
+    assert r["settings"]["differs"]["Kp"] == 900 and r["settings"]["differs"]["disturbance_observer"] is False
+    tried = r["trials"]
+    assert tried and [x["force"] for x in tried] == sorted(x["force"] for x in tried)
+    by_force = {x["force"]: x for x in tried}
     assert set(by_force) >= {50.0}
     if r["first_failure"] is None:           # survived everything scanned
-        assert all(x["survived"] for x in trials) and r["max_force"] == 50.0
+        assert all(x["survived"] for x in tried) and r["max_force"] == 50.0
     else:
         assert not by_force[r["first_failure"]]["survived"]
         assert 0 < r["first_failure"] - r["max_force"] <= 25.0
         assert r["max_force"] == 0.0 or by_force[r["max_force"]]["survived"]
-    for x in trials:
+    for x in tried:
         assert x["survived"] == (x["reason"] == "survived")
         assert x["survived"] or x["reason"]
     # a trial recomputed here with the same settings gives the same verdict (the settings reached the workers)
-    s = ex.parse_overrides(["Kp=900", "Kv=60"], "off")
-    again = ex.survives(50.0, "none", settings=s)
+    s = ts.parse_overrides(["Kp=900", "Kv=60"], "off")
+    again = trials.survives(runs.paper_push(50.0), "none", settings=s)
     assert (again["survived"], again["reason"]) == (by_force[50.0]["survived"], by_force[50.0]["reason"])
 
 
@@ -170,10 +174,10 @@ def test_probe_shows_the_paper_controller_tipping_on_its_reaction_prediction():
     the QP holds the predicted l at l_M - margin_zmp (ZMP row active) while the applied ankle torque is the
     same for both l's (l_act F_z = Gamma_1 = l_pred R_y,pred: the foot's weight acts at the ankle), so the
     robot tips at the toe once R_y,pred / F_z reaches l_M / (l_M - margin_zmp)."""
-    s = ex.parse_overrides([], "off")
+    s = ts.parse_overrides([], "off")
     c = s.ctrl_config("both")
-    l_max = ex.context().desc.foot.l_max
-    r = ex.probe(300.0, "both", settings=s, after=0.0)
+    l_max = tcontext.context().desc.foot.l_max
+    r = single_runs.probe(runs.paper_push(300.0), "both", settings=s, after=0.0)
     assert not r["survived"] and r["fall_cause"] == "tip_toe"
     during = [x for x in r["periods"] if _in_push(x["t"])]
     assert len(during) >= 10

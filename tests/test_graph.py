@@ -280,7 +280,7 @@ def test_f_bag_passes_an_independent_physics_check(walk):
     rb = bp.momentum_residuals(bad, model)
     assert np.max(np.abs(rb[:, 2])) > 0.1
     # the soak's checks (bag_summary) agree: nothing outside the window, F x duration applied
-    from biped_sim.graph.bag_summary import analyze_bag
+    from biped_sim.recording.bag_summary import analyze_bag
     a = analyze_bag(walk['bag'])
     assert a['problems'] == [] and a['applied_impulse_outside_windows'] == 0, a['problems']
     assert a['push_effects'][0]['applied_impulse'] == pytest.approx(p['total'], rel=1e-12)

@@ -24,7 +24,6 @@ import json
 import os
 import shutil
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +83,7 @@ def test_imu_over_dds_with_real_sensing_equals_the_in_process_loop(ros_domain, t
     from biped_sim.graph.imu import imu_reading
     from biped_sim.plant.perturbation import PlantPerturbation
     from biped_sim.recording.bag_reader import read_bag
-    from biped_controller.core.controller import load_controller_config
+    from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies import runner
 
     bag, ready = tmp_path / 'bag', tmp_path / 'ready'

@@ -1,5 +1,5 @@
 """Issue 22, model error: the momentum observer against the true generalized force of an inertia error, and the
-legs' model-error estimator (``core/model_error.py``): its regressor against the plant's own dynamics, its
+legs' model-error estimator (``core/sensing/model_error.py``): its regressor against the plant's own dynamics, its
 identification in noise-free closed loops, its compiled-pipeline twin, its settings."""
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from biped_sim.robot.description import load_description
 from biped_sim.robot.fixed_foot import FixedFootModel
 from biped_sim.plant.perturbation import PlantPerturbation
 
-from biped_controller.core.controller import ControllerConfigError, load_controller_config
-from biped_controller.core.model_error import (LEG_PARAMETERS, LINK_JOINTS, LegModelError, LegRegressor,
+from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.sensing.model_error import (LEG_PARAMETERS, LINK_JOINTS, LegModelError, LegRegressor,
                                                 ModelErrorConfigError, RneaLegRegressor, _bumped,
                                                 load_model_error_kernels, parameter_bumps, prior_std)
 from biped_sim.robot.fixed_foot import relabel
@@ -307,24 +307,27 @@ def test_settings_rejected_by_name():
 
 # ------------------------------------------------------------------------------ survival under model error
 def test_survival_under_model_error_compares_p_with_the_unpushed_walk():
-    """The criterion (experiment module docstring): with ``p_ref`` the unpushed walk's p, a run 1.3 mm short
+    """The survival rule (trial.survival): with ``p_ref`` the unpushed walk's p, a run 1.3 mm short
     of p_d is back when the unpushed walk is 1.2 mm short (and not when it is at p_d: negative control); the
     reference applies under model error only (not friction or noise)."""
     from types import SimpleNamespace
-    from biped_controller.studies import experiment as ex
+    from biped_controller.studies.trial import context as tcontext
+    from biped_controller.studies.trial import runs, trials
+    from biped_controller.studies.trial import settings as ts
+    from biped_controller.studies.trial import survival as surv
     from biped_controller.studies.runner import RunResult
-    p_d = ex.context().family.p_d
+    p_d = tcontext.context().family.p_d
     res = RunResult(records=[], statuses=[SimpleNamespace(p=p_d - 1.3e-3, tau_dot=1.0)], steps_walked=11,
                     fallen=False, fall_cause="", fall_detail="", fall_time=float("nan"),
                     impacts=[SimpleNamespace(t=0.3 + 0.46 * k) for k in range(11)])
-    assert not ex.survival(res, 0.2565)[0]
-    assert ex.survival(res, 0.2565, p_ref=p_d - 1.2e-3) == (True, "survived")
-    assert not ex.survival(res, 0.2565, p_ref=p_d)[0]
-    settings = ex.RunSettings()
-    assert not ex.model_error(settings)
-    assert ex.model_error(dataclasses.replace(settings, perturbation=INERTIAS))
-    assert not ex.model_error(dataclasses.replace(settings, perturbation=PlantPerturbation(mu=0.5, noise_q=1e-4)))
-    assert ex._p_ref("both", ex.DEFAULT_START, ex.DEFAULT_DURATION, settings) is None
+    assert not surv.survival(res, 0.2565)[0]
+    assert surv.survival(res, 0.2565, p_ref=p_d - 1.2e-3) == (True, "survived")
+    assert not surv.survival(res, 0.2565, p_ref=p_d)[0]
+    settings = ts.RunSettings()
+    assert not surv.model_error(settings)
+    assert surv.model_error(dataclasses.replace(settings, perturbation=INERTIAS))
+    assert not surv.model_error(dataclasses.replace(settings, perturbation=PlantPerturbation(mu=0.5, noise_q=1e-4)))
+    assert trials.p_reference("both", runs.paper_push(100.0), settings) is None
 
 
 # ------------------------------------------------------------------------------ under sensor noise (issue 22, mebias)
@@ -337,7 +340,7 @@ def _theta_track(monkeypatch, t_end, perturbation, **extra):
     """A closed loop (compiled pipeline) keeping the estimator's (theta, P) after every sample: from
     ``LegModelError.update`` when the estimator runs in Python after the compiled call (the reference
     regressor), from the pipeline's state after each sample when it runs inside the call (the measured one)."""
-    from biped_controller.core.estimation_compiled import CompiledSensing
+    from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
     hist = []
     orig, orig_sense = LegModelError.update, CompiledSensing.sense
 
@@ -383,7 +386,7 @@ def test_theta_unbiased_under_noise_on_the_nominal_plant(monkeypatch):
 def test_a_held_sample_leaves_theta_and_P_unchanged():
     """Within the settling time the RLS gets a residual variance of HOLD_VARIANCE: theta and P stay bit for bit
     while the filtered regressor still runs; the first sample after it updates them (negative control)."""
-    from biped_controller.core.momentum_observer import Wrench
+    from biped_controller.core.sensing.momentum_observer import Wrench
     me = LegModelError(DESC, 50.0, 0.2, 0.2, 0.5, regressor_input="measured", settle=3.0)
     rng = np.random.default_rng(7)
     q, qd, a = next(_states(1, 5))
@@ -416,7 +419,7 @@ def test_reference_at_is_the_controllers_reference():
     assert np.abs((hi[1] - lo[1]) / (2 * h) - qd_d[2]).max() < 1e-4 * np.abs(qd_d[2]).max()
     # the live run: the sample's instant against the true state (the log keeps the last decisions only, so
     # replay a fresh controller step by step)
-    from biped_controller.core.controller import AdaptiveController
+    from biped_controller.core.control.controller import AdaptiveController
     from biped_sim.robot.gait_family import GaitFamily
     from biped_sim.plant.rigid import Simulator
     from biped_sim.robot.description import LEFT

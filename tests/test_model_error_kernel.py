@@ -1,7 +1,7 @@
 """Issue 22, cost: the legs' model-error estimator inside the compiled sensing call. Its closed-form regressor
 (``model_error_kernels.regressor_into`` through ``CompiledLegRegressor``) against Pinocchio's joint torque
 regressor (``LegRegressor``) and the RNEA differences of seven models (``RneaLegRegressor``); the whole
-estimator in the kernel (``model_error_kernels.update`` from ``estimation_kernels.sense_finish``) against
+estimator in the kernel (``model_error_kernels.update`` from ``pipeline_kernels.sense_finish``) against
 ``LegModelError`` run in Python after the compiled call, period by period in a closed loop."""
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.estimation_layout import SC_
-from biped_controller.core.model_error import (LEG_PARAMETERS, CompiledLegRegressor, LegRegressor,
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.sensing.pipeline_layout import SC_
+from biped_controller.core.sensing.model_error import (LEG_PARAMETERS, CompiledLegRegressor, LegRegressor,
                                                 RneaLegRegressor, body_combination)
 
 DESC = load_description()

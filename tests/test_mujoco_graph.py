@@ -6,7 +6,6 @@ the recorded ground wrench, push and impact impulses; ``/sim/state`` reports q1 
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import subprocess
@@ -66,7 +65,7 @@ def test_graph_runs_on_mujoco_and_the_bag_decodes(mujoco_bag):
         assert len(B[topic]) == n - 1, topic
     assert not any(s.fallen for s in states)
     # the recorder's own summary (the soak's checks) finds nothing wrong
-    from biped_sim.graph.bag_summary import analyze_bag
+    from biped_sim.recording.bag_summary import analyze_bag
     a = analyze_bag(bag)
     assert a["problems"] == [], a["problems"]
     if shutil.which("node") is None or not (JS_DIR / "node_modules" / "@mcap" / "core").is_dir():

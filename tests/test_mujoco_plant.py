@@ -74,7 +74,7 @@ def test_model_check_catches_a_different_robot():
 # ------------------------------------------------------------------------------------------ switch
 def test_the_switch_and_its_errors():
     from biped_sim.plant.protocol import PLANTS, Plant, PlantError, make_plant
-    from biped_controller.studies import experiment
+    from biped_controller.studies.trial import settings as ts
     assert PLANTS == ("rigid", "mujoco")
     assert load_sim_config().plant == "rigid"          # the rigid plant stays the default
     p = make_plant("mujoco", config=MJ)
@@ -90,7 +90,7 @@ def test_the_switch_and_its_errors():
         load_sim_config(mujoco_cone="round")
     with pytest.raises(SimConfigError, match="mujoco_touch_threshold"):
         load_sim_config(mujoco_touch_threshold=-1.0)
-    st = experiment.parse_overrides(["plant=mujoco"])
+    st = ts.parse_overrides(["plant=mujoco"])
     assert st.sim_config().plant == "mujoco"
 
 

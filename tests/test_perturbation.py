@@ -255,7 +255,7 @@ def test_delay_controller_sees_the_state_of_d_periods_ago(family, d, touchdown_d
     torque is applied to the legs the controller meant (mapped with the stance it was told), and the true
     record carries that torque in the true stance's paper order. With ``touchdown_delayed`` False the
     source is max(k - d, the first record of the current stance): the touchdown is told at once."""
-    from biped_controller.core.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     cfg = load_sim_config()
     sim = Simulator(DESC, cfg, perturbation=PlantPerturbation(delay=d, touchdown_delayed=touchdown_delayed))
     ctrl = AdaptiveController(load_controller_config(mode="both", period=cfg.control_period), family, DESC)
@@ -326,7 +326,7 @@ def test_experiment_settings_carry_the_perturbation():
     """The experiments' RunSettings pass it to the simulator and into the capability map's fingerprint;
     the nominal settings' description (and so every existing store) is unchanged."""
     from biped_controller.studies import capability_map as cmap
-    from biped_controller.studies.experiment import RunSettings
+    from biped_controller.studies.trial.settings import RunSettings
     p = PlantPerturbation(delay=1)
     assert "perturbation" not in RunSettings().describe()
     assert "perturbation" not in RunSettings(perturbation=ZERO).describe()

@@ -17,10 +17,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog, minimize
 
-from biped_controller.core import qp
-from biped_controller.core import qp_exact
-from biped_controller.core import qp_types
-from biped_controller.core.qp import (
+from biped_controller.core.qp import solver as qp
+from biped_controller.core.qp import exact as qp_exact
+from biped_controller.core.qp import problem as qp_types
+from biped_controller.core.qp.solver import (
     ACTIVE,
     INFEASIBLE_FALLBACK,
     SOLVER_ERROR,
@@ -31,7 +31,7 @@ from biped_controller.core.qp import (
     kkt_residuals,
     solve_with_qpsolvers,
 )
-from biped_controller.core.qp_exact import least_violation_exact, min_piecewise_quadratic_1d, solve_exact
+from biped_controller.core.qp.exact import least_violation_exact, min_piecewise_quadratic_1d, solve_exact
 
 M = 17
 KKT_TOL = 1e-6
@@ -629,15 +629,15 @@ def test_status_constants_equal_the_message_constants():
 
 
 def _imported_modules(path: Path) -> set:
-    """Modules a source file imports (relative imports resolved inside biped_controller.core; ``from
+    """Modules a source file imports (relative imports resolved inside biped_controller.core.qp; ``from
     package import module`` counts the module)."""
     out = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
-            base = "biped_controller.core." if node.level else ""
-            if node.module and node.module not in ("biped_controller.core",):
+            base = "biped_controller.core.qp." if node.level else ""
+            if node.module and node.module not in ("biped_controller.core.qp",):
                 out.add(base + node.module)
             else:
                 pkg = base.rstrip(".") if not node.module else node.module
@@ -646,19 +646,19 @@ def _imported_modules(path: Path) -> set:
 
 
 def test_qp_modules_import_in_one_direction(tmp_path):
-    """qp_types <- qp_exact <- qp, qp_types <- qp_fast (loaded by qp through numba_cache, by name): no module
-    imports one that imports it back."""
+    """problem <- exact <- solver, problem <- exact_kernels (loaded by solver through numba_cache, by name): no
+    module imports one that imports it back, and none imports another room of the core."""
     pkg = Path(qp.__file__).parent
-    deps = {name: {m for m in _imported_modules(pkg / f"{name}.py") if m.startswith("biped_controller.core.qp")}
-            for name in ("qp_types", "qp_exact", "qp_fast", "qp")}
-    assert deps["qp_types"] == set()
-    assert deps["qp_exact"] == {"biped_controller.core.qp_types"}
-    assert deps["qp_fast"] == {"biped_controller.core.qp_types"}
-    assert deps["qp"] == {"biped_controller.core.qp_types", "biped_controller.core.qp_exact"}
-    # negative control: the checker sees the import at the bottom of the former qp.py
+    deps = {name: {m for m in _imported_modules(pkg / f"{name}.py") if m.startswith("biped_controller.core")}
+            for name in ("problem", "exact", "exact_kernels", "solver")}
+    assert deps["problem"] == set()
+    assert deps["exact"] == {"biped_controller.core.qp.problem"}
+    assert deps["exact_kernels"] == {"biped_controller.core.qp.problem"}
+    assert deps["solver"] == {"biped_controller.core.qp.problem", "biped_controller.core.qp.exact"}
+    # negative control: the checker sees a relative import at the bottom of a module
     probe = tmp_path / "probe.py"
-    probe.write_text("import numpy as np\n\n\ndef f():\n    pass\n\n\nfrom . import qp_exact as _exact  # noqa\n")
-    assert _imported_modules(probe) == {"numpy", "biped_controller.core.qp_exact"}
+    probe.write_text("import numpy as np\n\n\ndef f():\n    pass\n\n\nfrom . import exact as _exact  # noqa\n")
+    assert _imported_modules(probe) == {"numpy", "biped_controller.core.qp.exact"}
 
 
 def test_fast_result_constructor_equals_the_dataclass():

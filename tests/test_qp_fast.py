@@ -1,6 +1,6 @@
-"""Tests of the compiled QP kernels (qp_fast) and of AdaptationQP's paths through them.
+"""Tests of the compiled QP kernels (``qp.exact_kernels``, here ``qp_fast``) and of AdaptationQP's paths through them.
 
-References: the numpy exact solver qp_exact (the oracle the kernels must reproduce), KKT residuals
+References: the numpy exact solver ``qp.exact`` (the oracle the kernels must reproduce), KKT residuals
 (qp_types.kkt_residuals, scipy NNLS for multipliers), exact rational arithmetic (fractions) for the
 feasibility decision, numpy.linalg.lstsq. Instances: seeded random ones (17 and 37 rows, feasible,
 infeasible, degenerate) and the controller's own, recorded from short pushed runs (37 rows).
@@ -15,17 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biped_controller.core import qp_exact
-from biped_controller.core.qp import load_qp_fast
-from biped_controller.core import qp_types
-from biped_controller.core.controller import QP_ROWS
+from biped_controller.core.qp import exact as qp_exact
+from biped_controller.core.qp.solver import load_exact_kernels
+from biped_controller.core.qp import problem as qp_types
+from biped_controller.core.control.controller import QP_ROWS
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS
-from biped_controller.core.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
-from biped_controller.core.qp_types import constraint_values, kkt_residuals
+from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
+from biped_controller.core.qp.problem import constraint_values, kkt_residuals
 
 from test_qp import rand_feasible, rand_infeasible, rand_W, scale
 
-qp_fast = load_qp_fast()   # the compiled kernels, loaded explicitly (numba_cache)
+qp_fast = load_exact_kernels()   # the compiled kernels, loaded explicitly (numba_cache)
 
 ROOT = Path(__file__).resolve().parents[1]
 TOL = qp_types.DEFAULT_ACTIVE_TOL
@@ -460,15 +460,15 @@ def test_adaptation_qp_solvers_on_real_instances(real_instances):
 # ----------------------------------------------------------------------------------------
 
 
-def _import_qp_fast(env):
-    code = ("import numba; from biped_controller.core.qp import load_qp_fast; load_qp_fast(); "
+def _import_exact_kernels(env):
+    code = ("import numba; from biped_controller.core.qp.solver import load_exact_kernels; load_exact_kernels(); "
             "print(numba.config.CACHE_DIR)")
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
 
 
 def test_cache_lives_in_the_build_area():
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    out = _import_qp_fast(env)
+    out = _import_exact_kernels(env)
     assert out.returncode == 0, out.stderr
     assert Path(out.stdout.strip()) == ROOT / "build" / "numba-cache"
 
@@ -476,11 +476,11 @@ def test_cache_lives_in_the_build_area():
 @pytest.mark.slow
 def test_first_import_says_it_compiles_then_loads_silently(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    first = _import_qp_fast(env)
+    first = _import_exact_kernels(env)
     assert first.returncode == 0, first.stderr
     from biped_sim.robot.numba_cache import COMPILE_NOTICE
     assert COMPILE_NOTICE in first.stderr and "compiled in" in first.stderr
-    assert list(tmp_path.rglob("qp_fast.early_out-*.nbi"))
-    second = _import_qp_fast(env)
+    assert list(tmp_path.rglob("exact_kernels.early_out-*.nbi"))
+    second = _import_exact_kernels(env)
     assert second.returncode == 0, second.stderr
     assert "compiling" not in second.stderr

@@ -24,10 +24,10 @@ from biped_sim.plant.push import Rejected
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_controller.studies import runner
-from biped_controller.core.controller import load_controller_config
+from biped_controller.core.control.controller import load_controller_config
 from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.robot.fixed_foot import relabel
-from biped_controller.core.qp import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals
+from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals
 from biped_sim.plant.push import Push
 
 FAM = GaitFamily.load()

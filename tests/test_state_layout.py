@@ -1,6 +1,6 @@
 """One state layout (issue 23): the controller's and the simulator's per-period state are array-backed records
 declared once (``robot.layout.Layout``), the objects keep their state in them and the compiled kernels take
-the same arrays; the one home of the parameter advance and the observer's mode (``control_kernels.begin``)
+the same arrays; the one home of the parameter advance and the observer's mode (``controller_kernels.begin``)
 against closed forms; the mends (reset clears the decision, the torque within a period before any decision);
 the typed floating-base model; kernel modules import without side effects."""
 from __future__ import annotations
@@ -23,8 +23,8 @@ from biped_sim.robot.layout import Layout, LayoutError
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_sim.plant.rigid_layout import S_, SIM_STATE
-from biped_controller.core.controller import AdaptiveController, load_control_kernels, load_controller_config
-from biped_controller.core.period_layout import (
+from biped_controller.core.control.controller import AdaptiveController, load_controller_kernels, load_controller_config
+from biped_controller.core.control.controller_layout import (
     CONS, GAINS, M_, MEMORY, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, R_, RES, WORK)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,7 +52,7 @@ def test_every_layout_tiles_its_array(layout):
 
 def test_numba_reads_the_offsets_as_the_python_side_does():
     """The compiled commit writes the memory fields where the Python properties read them."""
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     mem, res, work, qd = MEMORY.new(), np.arange(RES.size, dtype=float) + 0.5, np.zeros((WORK.size, 6)), np.arange(6.0)
     work[WORK.at.w] = 7.0
     work[WORK.at.A:WORK.at.A + 6] = np.arange(36.0).reshape(6, 6)
@@ -75,7 +75,7 @@ def _memory(decided: bool, stance: int) -> np.ndarray:
 def test_begin_is_the_exact_advance_over_the_elapsed_nanoseconds():
     """p(h) = p + p' h + p'' h^2 / 2, p'(h) = p' + p'' h (tau likewise) with h from integer nanoseconds,
     against exact rational arithmetic; the memory is not changed."""
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     t = 1.0 + 1234567e-9
     mem = _memory(True, LEFT)
     before = mem.copy()
@@ -93,7 +93,7 @@ def test_begin_is_the_exact_advance_over_the_elapsed_nanoseconds():
 
 
 def test_begin_restarts_the_phase_at_an_impact_and_keeps_the_estimate():
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     res_same, res_new = np.empty(RES.size), np.empty(RES.size)
     ck.begin(_memory(True, LEFT), 1.001, LEFT, res_same)
     ck.begin(_memory(True, LEFT), 1.001, RIGHT, res_new)
@@ -103,7 +103,7 @@ def test_begin_restarts_the_phase_at_an_impact_and_keeps_the_estimate():
 
 
 def test_begin_before_any_decision_leaves_the_parameters():
-    ck = load_control_kernels()
+    ck = load_controller_kernels()
     mem = _memory(False, LEFT)
     res = np.empty(RES.size)
     ck.begin(mem, 5.0, LEFT, res)
@@ -250,18 +250,18 @@ def test_kernel_modules_import_without_side_effects(tmp_path):
     imported directly (not through numba_cache.load) refuses instead of caching in a stray place."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     code = ("import os, sys, numba\n"
-            "import biped_sim.robot.fast_engine, biped_sim.plant.rigid, biped_controller.core.controller\n"
-            "import biped_controller.core.qp, biped_controller.studies.segment, biped_controller.studies.runner\n"
-            "import biped_controller.core.model_error\n"
-            "kern = [m for m in ('biped_sim.robot.planar_kernels', 'biped_controller.core.qp_fast',\n"
-            "        'biped_controller.core.control_kernels', 'biped_controller.core.wbc_kernels',\n"
-            "        'biped_controller.studies.loop_kernels', 'biped_controller.core.model_error_kernels')\n"
+            "import biped_sim.robot.fast_engine, biped_sim.plant.rigid, biped_controller.core.control.controller\n"
+            "import biped_controller.core.qp.solver, biped_controller.studies.segment, biped_controller.studies.runner\n"
+            "import biped_controller.core.sensing.model_error\n"
+            "kern = [m for m in ('biped_sim.robot.planar_kernels', 'biped_controller.core.qp.exact_kernels',\n"
+            "        'biped_controller.core.control.controller_kernels', 'biped_controller.core.control.wbc_kernels',\n"
+            "        'biped_controller.studies.loop_kernels', 'biped_controller.core.sensing.model_error_kernels')\n"
             "        if m in sys.modules]\n"
             "print(kern, 'NUMBA_CACHE_DIR' in os.environ, repr(numba.config.CACHE_DIR))\n")
     out = _python(code, env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[] False ''" and out.stderr == ""
-    for mod in ("biped_sim.robot.planar_kernels", "biped_controller.core.model_error_kernels"):
+    for mod in ("biped_sim.robot.planar_kernels", "biped_controller.core.sensing.model_error_kernels"):
         direct = _python(f"import {mod}", env)
         assert direct.returncode != 0 and "CacheNotConfigured" in direct.stderr and "numba_cache.load" in direct.stderr
     # through load: the repository's cache, nothing printed when it is warm (setup compiled it)

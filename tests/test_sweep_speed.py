@@ -8,13 +8,15 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 
-import numpy as np
 import pytest
 
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 
-from biped_controller.studies import experiment, runner
+from biped_controller.studies import runner
+from biped_controller.studies.trial import context as tcontext
+from biped_controller.studies.trial import runs, trials
+from biped_controller.studies.trial import settings as ts
 from biped_controller.studies.fingerprint import feed
 
 # (mode, signed force [N], duration [s], onset phase): survivals and falls, QP-heavy pushes, both directions
@@ -34,10 +36,10 @@ def digest(records, statuses, impacts, res: runner.RunResult) -> str:
 
 
 def _trial(mode, force, duration, phase, pool=None, steps=None):
-    ctx = experiment.context()
+    ctx = tcontext.context()
     start = phase * ctx.family.T
-    settings = experiment.DEFAULT_SETTINGS
-    n = steps if steps is not None else experiment.push_step_index(start, duration, ctx.family.T) + 3
+    settings = ts.DEFAULT_SETTINGS
+    n = steps if steps is not None else runs.push_step_index(Push(start, duration, force), ctx.family.T) + 3
     return runner.run(n, mode, (Push(start, duration, force),), sim_config=settings.sim_config(),
                       ctrl_config=settings.ctrl_config(mode), family=ctx.family, desc=ctx.desc, pool=pool), start
 
@@ -57,7 +59,7 @@ def test_restored_trial_on_a_reused_loop_equals_the_fresh_trial(mode, force, dur
     restored, _ = _trial(mode, force, duration, phase, pool)
     assert pool.walks == 1                                            # the walk to the onset was shared
     k = restored.records[0].step
-    dt = experiment.context().sim_config.control_period
+    dt = tcontext.context().sim_config.control_period
     # the snapshot is the last control instant whose period the push does not change
     assert k > 0 or phase == 0.0
     assert fresh.records[k - 1].t_end <= start < runner.grid_end(fresh.records[k].t, dt)
@@ -74,8 +76,8 @@ def test_a_snapshot_one_period_late_changes_the_trial():
     push gives other records (the test above can fail)."""
     mode, force, duration, phase = "both", 700.0, 0.025, 0.35
     fresh, start = _trial(mode, force, duration, phase)
-    ctx = experiment.context()
-    s = experiment.DEFAULT_SETTINGS
+    ctx = tcontext.context()
+    s = ts.DEFAULT_SETTINGS
     loop = runner.ClosedLoop(s.sim_config(), s.ctrl_config(mode), ctx.family, ctx.desc)
     loop.reset()
     late = loop.walk_to(start + ctx.sim_config.control_period)
@@ -87,28 +89,29 @@ def test_a_snapshot_one_period_late_changes_the_trial():
 
 
 def test_survival_outcomes_with_and_without_the_pool_are_identical():
-    T = experiment.context().family.T
+    T = tcontext.context().family.T
     pool = runner.LoopPool()
     for mode, force, duration, phase in CASES[:5] + [("both", -2000.0, 0.025, 0.25), ("p", 40.0, 0.1, 0.0)]:
-        a = experiment.survives(force, mode, duration, phase * T, pool=False)
-        b = experiment.survives(force, mode, duration, phase * T, pool=pool)
+        push = runs.paper_push(force, start=phase * T, duration=duration)
+        a = trials.survives(push, mode, pool=False)
+        b = trials.survives(push, mode, pool=pool)
         assert a == b, (mode, force)
 
 
 def test_no_snapshot_with_a_sensor_model_the_trial_runs_from_the_start():
     pert = PlantPerturbation(noise_q=1e-4, seed=3)
-    settings = experiment.RunSettings(perturbation=pert)
-    ctx = experiment.context()
+    settings = ts.RunSettings(perturbation=pert)
+    ctx = tcontext.context()
     pool = runner.LoopPool()
     loop = pool.loop(settings.sim_config(), settings.ctrl_config("both"), ctx.family, ctx.desc, pert)
     assert not loop.snapshots and pool.snapshot_at(loop, 0.2) is None and pool.walks == 0
-    args = (150.0, "both", 0.025, 0.2315, None, settings)
-    assert experiment.survives(*args, pool=pool) == experiment.survives(*args, pool=False)
+    args = (runs.paper_push(150.0, start=0.2315, duration=0.025), "both", settings)
+    assert trials.survives(*args, pool=pool) == trials.survives(*args, pool=False)
 
 
 def test_walk_to_refuses_scheduled_pushes():
-    ctx = experiment.context()
-    s = experiment.DEFAULT_SETTINGS
+    ctx = tcontext.context()
+    s = ts.DEFAULT_SETTINGS
     loop = runner.ClosedLoop(s.sim_config(), s.ctrl_config("none"), ctx.family, ctx.desc)
     loop.reset()
     loop.sim.schedule_push(0.1, 0.025, 100.0)
@@ -122,8 +125,8 @@ def test_the_compiled_loop_takes_the_qp_periods_bit_for_bit(monkeypatch, mode, f
     run by it: records, statuses (QP status and message included) and impacts are the objects' bit for bit;
     hybrid's whole-body stage keeps them with the objects (decide answers None)."""
     from biped_controller.studies import segment
-    from biped_controller.core.qp_types import UNCONSTRAINED
-    from biped_controller.core.controller import NO_ADAPTATION
+    from biped_controller.core.qp.problem import UNCONSTRAINED
+    from biped_controller.core.control.controller import NO_ADAPTATION
     answers = []
     orig = segment.Segment.decide
 
@@ -148,8 +151,8 @@ def test_the_compiled_loop_takes_the_qp_periods_bit_for_bit(monkeypatch, mode, f
 
 
 def test_the_pool_keeps_at_most_max_loops_and_drops_their_snapshots():
-    ctx = experiment.context()
-    s = experiment.DEFAULT_SETTINGS
+    ctx = tcontext.context()
+    s = ts.DEFAULT_SETTINGS
     pool = runner.LoopPool(max_loops=2)
     loops = [pool.loop(s.sim_config(), s.ctrl_config(m), ctx.family, ctx.desc) for m in ("none", "tau")]
     for lp in loops:
@@ -165,12 +168,12 @@ def test_the_pool_keeps_at_most_max_loops_and_drops_their_snapshots():
 
 
 def test_the_mujoco_plant_takes_no_snapshot_and_a_reused_loop_gives_the_fresh_outcome():
-    settings = experiment.parse_overrides(["plant=mujoco"])
-    T = experiment.context().family.T
+    settings = ts.parse_overrides(["plant=mujoco"])
+    T = tcontext.context().family.T
     pool = runner.LoopPool()
-    args = (100.0, "both", 0.025, 0.5 * T, None, settings)
-    first = experiment.survives(*args, pool=pool)
-    again = experiment.survives(*args, pool=pool)              # the same MuJoCo plant, reset
-    assert first == again == experiment.survives(*args, pool=False)
+    args = (runs.paper_push(100.0, start=0.5 * T, duration=0.025), "both", settings)
+    first = trials.survives(*args, pool=pool)
+    again = trials.survives(*args, pool=pool)              # the same MuJoCo plant, reset
+    assert first == again == trials.survives(*args, pool=False)
     assert pool.walks == 0 and not any(lp.snapshots for lp in pool._loops.values())
     assert first["steps_walked"] >= 1

@@ -1,5 +1,5 @@
 """The torso parameter lambda (issue 21) on the compiled paths: the compiled controller period
-(``control_kernels``, modes lambda and all) against the controller's own Python steps, and the compiled
+(``controller_kernels``, modes lambda and all) against the controller's own Python steps, and the compiled
 closed loop (``segment`` + ``loop_kernels``) against the objects, over a walk, pushes that make the QP
 active (and one whose QP has no answer: the least-violation answer and the torso's hold) and a fall."""
 from __future__ import annotations
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from helpers import assert_same_fields, assert_same_run, count_compiled_periods
-from biped_controller.core import controller as C
-from biped_controller.core.controller import AdaptiveController, load_controller_config
-from biped_controller.core.period_layout import G_, TORSO_QP_ROWS
-from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
+from biped_controller.core.control import controller as C
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.controller_layout import G_, TORSO_QP_ROWS
+from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.studies import runner, segment
 from biped_sim.plant.push import Push
 from biped_sim.robot.gait_family import torso_profile
@@ -37,7 +37,7 @@ def _compiled(monkeypatch, **kw):
 
 
 def test_compiled_torso_profile_is_the_gait_familys():
-    ck = C.load_control_kernels()
+    ck = C.load_controller_kernels()
     for s in (-0.1, 0.0, 1e-9, 0.13, 0.5, 0.77, 1.0 - 1e-12, 1.0, 1.4):
         assert ck.torso_profile(s) == torso_profile(s), s
 
@@ -63,7 +63,7 @@ def test_torso_modes_have_a_compiled_period_and_the_compiled_loop():
 @pytest.mark.parametrize("mode", ["all", "lambda"])
 @pytest.mark.parametrize("case", list(CASES))
 def test_compiled_torso_period_matches_its_python_steps(monkeypatch, mode, case):
-    """control_kernels.step with the third column against the Python steps on the same compiled model
+    """controller_kernels.step with the third column against the Python steps on the same compiled model
     terms: the same QP status every period and the same run to 1e-9 (relative), lambda fields included."""
     kw = dict(steps=2, mode=mode, pushes=CASES[case])
     fast = _compiled(monkeypatch, **kw)
@@ -160,8 +160,8 @@ def test_begin_advances_lambda_exactly_and_commit_keeps_it():
     lambda does not); lambda'' and lambda''* of the new period start at 0; period_commit stores lambda, lambda'
     and the period's lambda''. Negative control: before any decision nothing advances."""
     from fractions import Fraction
-    from biped_controller.core.period_layout import M_, MEMORY, R_, RES, WORK
-    ck = C.load_control_kernels()
+    from biped_controller.core.control.controller_layout import M_, MEMORY, R_, RES, WORK
+    ck = C.load_controller_kernels()
     mem = MEMORY.new()
     mem[M_.p:M_.p + 6] = (0.4, 0.0, 0.2, 1.0, 0.0, 0.0)
     mem[M_.lam], mem[M_.lam_dot], mem[M_.lam_ddot] = 0.0123, -0.456, 7.89

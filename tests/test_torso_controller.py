@@ -8,7 +8,6 @@ column of D breaks the row check; mode both's answer violates what mode all's ho
 """
 from __future__ import annotations
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,10 +15,10 @@ from scipy.optimize import minimize
 
 from biped_sim.plant.push import Push
 from biped_sim.robot.gait_family import GaitFamily
-from biped_controller.core.controller import (ADAPTED, MODES, TORSO_MODES, TORSO_ROWS, AdaptiveController,
+from biped_controller.core.control.controller import (ADAPTED, MODES, TORSO_MODES, TORSO_ROWS, AdaptiveController,
                                               ControllerConfigError, load_controller_config)
-from biped_controller.core.period_layout import M_, QP_ROWS
-from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, kkt_residuals
+from biped_controller.core.control.controller_layout import M_, QP_ROWS
+from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, kkt_residuals
 from biped_controller.studies.runner import run
 
 FAM = GaitFamily.load()
@@ -142,7 +141,7 @@ def test_qp_instances_of_a_push_against_independent_solvers(pushed_all):
             # negative control: x* itself (infeasible here) fails primal feasibility
             assert kkt_residuals(G, h, xs, W, xs)["primal"] > tol
         else:
-            from biped_controller.core.qp_exact import reg_weight
+            from biped_controller.core.qp.exact import reg_weight
             eps = reg_weight(G, W, 1e-9)
             f = _lv_objective(G, h, xs, W, eps)
             ref = minimize(f, out.x + 1e-3, method="BFGS", options={"gtol": 1e-12, "maxiter": 2000})
@@ -199,7 +198,7 @@ def test_foxglove_layout_plots_lambda_from_real_status_fields():
     import json
     import re
     from helpers import ROOT
-    from biped_controller.core.controller import ControllerStatusData
+    from biped_controller.core.control.controller import ControllerStatusData
     import dataclasses
     fields = _msg_fields(ROOT / "src" / "biped_msgs_py" / "msg" / "ControllerStatus.msg")
     layout = json.loads((ROOT / "config" / "foxglove_layout.json").read_text(encoding="utf-8"))
@@ -236,7 +235,7 @@ def test_node_message_carries_lambda():
 def test_studies_accept_the_torso_modes():
     from biped_controller.studies.capmap.spec import MapError, MapSpec
     from biped_controller.studies.robustness import SEARCHES
-    from biped_controller.studies.experiment import _modes_arg
+    from biped_controller.studies.trial.args import modes_arg as _modes_arg
     import argparse
     assert MapSpec(modes=("lambda", "all", "both")).modes == ("lambda", "all", "both")
     with pytest.raises(MapError, match="torso"):

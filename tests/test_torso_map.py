@@ -61,15 +61,17 @@ def test_early_stop_sees_the_torso_offset(monkeypatch):
     gives the full trial's outcome; negative control: with the lambda tolerances unbounded it would report
     the trial survived."""
     import math
-    from biped_controller.studies import experiment
-    T = experiment.context().family.T
-    args = (71.875, "lambda", 0.025, 0.9 * T)
-    full = experiment.survives(*args, settings=experiment.RunSettings(full_trials=True), pool=False)
-    stopped = experiment.survives(*args, pool=False)
+    from biped_controller.studies.trial import context as tcontext
+    from biped_controller.studies.trial import runs, stop, trials
+    from biped_controller.studies.trial import settings as ts
+    T = tcontext.context().family.T
+    args = (runs.paper_push(71.875, start=0.9 * T, duration=0.025), "lambda")
+    full = trials.survives(*args, settings=ts.RunSettings(full_trials=True), pool=False)
+    stopped = trials.survives(*args, pool=False)
     assert not full["survived"] and full["fall_cause"] == "tip_heel"
     assert (stopped["survived"], stopped["reason"], stopped["fall_time"]) == \
            (full["survived"], full["reason"], full["fall_time"])
-    es = experiment.early_stop()
-    loose = experiment.EarlyStop(es.enabled, es.q, es.qd, es.p, es.p_dot, es.tau_dot, es.force, math.inf, math.inf)
-    monkeypatch.setattr(experiment, "early_stop", lambda: loose)
-    assert experiment.survives(*args, pool=False)["survived"]
+    es = stop.early_stop()
+    loose = stop.EarlyStop(es.enabled, es.q, es.qd, es.p, es.p_dot, es.tau_dot, es.force, math.inf, math.inf)
+    monkeypatch.setattr(stop, "early_stop", lambda: loose)
+    assert trials.survives(*args, pool=False)["survived"]

@@ -1,5 +1,5 @@
 """The predicted touchdown's k-sigma band and the torque admissible in both stances (issue 22,
-``core/touchdown_band.py``).
+``core/sensing/touchdown_band.py``).
 
 Oracles: the sole height's standard deviation against a seeded Monte Carlo of the swing sole over
 q ~ N(q0, P); the propagated covariance against the estimator's own time update; the lift-off rows'
@@ -23,10 +23,10 @@ from biped_sim.robot.description import load_description
 from biped_sim.robot.fixed_foot import FixedFootModel, relabel
 from biped_sim.robot.floating import FloatingModel
 
-from biped_controller.core.controller import load_controller_config
-from biped_controller.core.estimation import EstimatorConfig, JointStateEstimator
-from biped_controller.core.predictor import flat_foot_impact
-from biped_controller.core.touchdown_band import (BothStancesTorque, TouchdownBand, in_band,
+from biped_controller.core.control.controller import load_controller_config
+from biped_controller.core.sensing.estimation import EstimatorConfig, JointStateEstimator
+from biped_controller.core.sensing.predictor import flat_foot_impact
+from biped_controller.core.sensing.touchdown_band import (BothStancesTorque, TouchdownBand, in_band,
                                                   propagated_position_cov, sole_height_std, sole_rate)
 
 DESC = load_description()
@@ -82,7 +82,7 @@ def test_sigma_bound_is_an_upper_bound():
     """The prefilter's bound R sqrt(6 trace P) (``sigma_bound``, R = ``lever_bound``) is never below sigma_z, and
     every |dz_s/dq_i| is at most R, over seeded random states and covariances; the bound is not vacuous either
     (within a factor 100 of sigma_z for an isotropic P)."""
-    from biped_controller.core.touchdown_band import lever_bound, sigma_bound
+    from biped_controller.core.sensing.touchdown_band import lever_bound, sigma_bound
     z = _lowest_sole(FixedFootModel(DESC))
     R = lever_bound(DESC)
     rng = np.random.default_rng(9)
@@ -193,9 +193,9 @@ def test_delayed_touchdown_walks_with_real_sensors(engine):
     compiled pipeline, the first on the Python cores), with band periods at each. Negative control: the same
     loop without the band (k = 0) falls at the first touchdown (take_off at 0.465 s, the controller in the
     new stance before the impact, docs/robustness.md)."""
-    from biped_controller.core.controller import AdaptiveController
-    from biped_controller.core.estimation_compiled import CompiledSensing
-    from biped_controller.core.sensing import SensingPipeline
+    from biped_controller.core.control.controller import AdaptiveController
+    from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
+    from biped_controller.core.sensing.pipeline import SensingPipeline
     from biped_controller.studies import runner
     steps = 3 if engine == "fast" else 1
     cfg = load_controller_config(mode="both", engine=engine, delay_compensation=2, **REAL)
@@ -222,7 +222,7 @@ def test_compiled_band_equals_the_python_band():
     from dataclasses import replace
     from biped_sim.robot.fast_engine import FastFixedFootModel
     from biped_sim.robot.fixed_foot import contact_rows
-    from biped_controller.core.estimation_compiled import CompiledSensing
+    from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
     from estimation_loop import closed_loop
     tr = closed_loop(0.5, DELAY_ROW, python_sensing=True, engine="reference", delay_compensation=2, **REAL)
     assert tr.fall is None and tr.records[-1].impacts == 1

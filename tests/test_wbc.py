@@ -1,4 +1,4 @@
-"""Whole-body QP (core/wbc.py) and the modes `wbc` and `hybrid` of the controller (issue 26).
+"""Whole-body QP (core/control/wbc.py) and the modes `wbc` and `hybrid` of the controller (issue 26).
 
 References independent of the code under test: quadprog and DAQP through qpsolvers (other solvers than
 the PIQP the product holds), scipy's minimiser for the least-violation answer, KKT residuals with the full
@@ -14,9 +14,9 @@ from scipy.optimize import minimize, nnls
 from biped_sim.robot.description import load_description
 from biped_sim.robot.fixed_foot import N_CONSTRAINTS, FixedFootModel, contact_rows
 from biped_sim.robot.gait_family import GaitFamily
-from biped_controller.core.controller import load_controller_config
-from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, QPShapeError
-from biped_controller.core.wbc import (
+from biped_controller.core.control.controller import load_controller_config
+from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, QPShapeError
+from biped_controller.core.control.wbc import (
     TORSO_PITCH_ROW,
     WBC_ROWS,
     WBCError,
@@ -240,10 +240,10 @@ def test_negative_control_a_wbc_that_ignores_a_row_fails_the_row_check(setting):
 # ----------------------------------------------------------------------------------------
 # the modes in closed loop (rigid plant, in process)
 # ----------------------------------------------------------------------------------------
-from biped_controller.core.wbc import NOT_RUN  # noqa: E402
+from biped_controller.core.control.wbc import NOT_RUN  # noqa: E402
 from biped_controller.studies import runner  # noqa: E402
 from biped_sim.plant.push import Push  # noqa: E402
-from biped_controller.core.qp_types import SOLVER_ERROR  # noqa: E402
+from biped_controller.core.qp.problem import SOLVER_ERROR  # noqa: E402
 
 MID_STEP = 0.2315   # the paper's cell: mid first step, 25 ms
 
@@ -334,7 +334,7 @@ def test_status_message_carries_the_whole_body_fields():
     import dataclasses
     from biped_msgs_py.msg import ControllerStatus
     from builtin_interfaces.msg import Time
-    from biped_controller.core.controller import ControllerStatusData
+    from biped_controller.core.control.controller import ControllerStatusData
     from biped_controller.graph.controller_node import status_message
     fields = set(ControllerStatus.get_fields_and_field_types())
     data_fields = {f.name for f in dataclasses.fields(ControllerStatusData)} - {"t"}
@@ -351,7 +351,8 @@ def test_table_modes_option():
     """``scripts/experiment table --modes``: any distinct known modes; unknown, repeated or empty -> the
     option's error (argparse names it)."""
     import argparse
-    from biped_controller.studies.experiment import TABLE_MODES, _modes_arg
+    from biped_controller.studies.experiment import TABLE_MODES
+    from biped_controller.studies.trial.args import modes_arg as _modes_arg
     assert _modes_arg("none,wbc,both,hybrid") == ("none", "wbc", "both", "hybrid")
     assert TABLE_MODES == ("none", "tau", "p", "both")
     for bad in ("none,bogus", "wbc,wbc", ",", ""):

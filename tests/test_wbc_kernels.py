@@ -1,4 +1,4 @@
-"""The compiled whole-body stage (core/wbc_kernels.py) against the Python stage (core/wbc.py) and against
+"""The compiled whole-body stage (core/control/wbc_kernels.py) against the Python stage (core/control/wbc.py) and against
 independent solvers (issue 26).
 
 References: the Python stage's rows (``wbc.rows_on_w``) and its held PIQP (``wbc.WholeBodyQP``), quadprog
@@ -12,10 +12,10 @@ import pytest
 import qpsolvers
 
 from biped_sim.plant.push import Push
-from biped_controller.core.controller import AdaptiveController, load_controller_config, load_wbc_kernels
-from biped_controller.core.period_layout import MEMORY, R_, RES, W_, WORK
-from biped_controller.core.qp_types import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
-from biped_controller.core.wbc import NOT_RUN, WBC_ROWS, WholeBodyQP, rows_on_w, weight_matrix
+from biped_controller.core.control.controller import AdaptiveController, load_controller_config, load_wbc_kernels
+from biped_controller.core.control.controller_layout import MEMORY, R_, RES, W_, WORK
+from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
+from biped_controller.core.control.wbc import NOT_RUN, WBC_ROWS, WholeBodyQP, rows_on_w, weight_matrix
 from biped_controller.studies import runner
 
 from helpers import assert_close
@@ -41,7 +41,7 @@ def period_arrays(dyn, dync):
     return work, res
 
 
-def test_compiled_rows_are_the_python_rows_bit_for_bit(setting, wk):
+def test_compiled_rows_are_the_python_rows_bit_for_bit(setting, wk):  # noqa: F811  (the imported fixture)
     """wbc_kernels.rows (from the controller's CONS array and the period's WORK/RES rows) gives the very bits
     of wbc.rows_on_w, with and without an estimated force, so the two stages take the same early-out
     decision; and both equal the rows written from the Pinocchio model (test_wbc.real_rows) to 1e-9."""
@@ -62,7 +62,7 @@ def test_compiled_rows_are_the_python_rows_bit_for_bit(setting, wk):
 
 
 @pytest.mark.parametrize("torso", [0.0, 1000.0])
-def test_active_set_answer_is_the_qp_optimum(setting, wk, torso):
+def test_active_set_answer_is_the_qp_optimum(setting, wk, torso):  # noqa: F811  (the imported fixture)
     """On 40 real 34-row instances (states near the gait, w* off, seeded): whenever the compiled active-set
     iteration settles, its answer has KKT residuals <= 1e-9 with the full M (multipliers by NNLS) and equals
     the held PIQP's (the Python stage) and quadprog's to 1e-7 relative, with non-negative multipliers on the
@@ -212,7 +212,7 @@ def test_piqp_answers_when_no_w_holds_every_row():
     def shrunk(python_stage):
         ctrl = AdaptiveController(load_controller_config(mode="wbc"))
         ctrl.compiled_period.python_stage = python_stage
-        from biped_controller.core.period_layout import CONS
+        from biped_controller.core.control.controller_layout import CONS
         ctrl.cons[CONS.slice("torque_min")] = -5.0
         ctrl.cons[CONS.slice("torque_max")] = 5.0
         ctrl.whole_body.torque_min = np.full(6, -5.0)

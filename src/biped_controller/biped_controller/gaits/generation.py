@@ -165,19 +165,6 @@ def held_out_strides(opt: StepOptimizer, fam: GaitFamily, ps: list[float], weigh
     return out
 
 
-def valid_range(sols: dict[float, StepSolution], p_d: float) -> tuple[float, float]:
-    """Largest interval of consecutive successful strides containing p_d."""
-    ps = sorted(sols)
-    i = ps.index(p_d)
-    lo = i
-    while lo - 1 >= 0 and sols[ps[lo - 1]].success:
-        lo -= 1
-    hi = i
-    while hi + 1 < len(ps) and sols[ps[hi + 1]].success:
-        hi += 1
-    return ps[lo], ps[hi]
-
-
 def _fit_errors(fam: GaitFamily, records: list[dict], phi: np.ndarray, dphi: np.ndarray, tt: np.ndarray) -> list[dict]:
     """|q_fam - q_opt| and |q'_fam - q'_opt| (max over the step) for each record inside the range."""
     out = []

@@ -1,11 +1,14 @@
 """ROS 2 node ``controller``: the p/tau-adaptive controller answering the simulator's lockstep.
 
-Owns an :class:`biped_controller.core.controller.AdaptiveController`; its configuration comes from the
+Owns an :class:`biped_controller.core.control.controller.AdaptiveController`; its configuration comes from the
 parameters, which have the keys of ``config/controller.yaml`` (defaults from that file) plus
 ``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
 ``mode`` is validated against none | tau | p | both | wbc | hybrid | lambda | all (``controller.MODES``).
+``profile`` (default ``config/graph.yaml``: ``default``) names a profile of ``config/profiles/``: its controller
+settings replace the file's as the parameters' defaults (a parameter given explicitly still wins; the
+profile's simulator settings and plant perturbation are the simulator node's).
 
-IMU (issue 22): with ``use_imu`` (default ``config/graph.yaml``) the node also subscribes to ``/imu``
+IMU: with ``use_imu`` (default ``config/graph.yaml``) the node also subscribes to ``/imu``
 (``sensor_msgs/msg/Imu``, ``biped_sim.graph.imu``; its reader is created before the ``/sim/state`` reader,
 which the simulator's start relies on) and answers a state only once it holds the IMU message of the same
 stamp, whichever of the two arrives first (exact-stamp pairing: the lockstep stays deterministic, nothing
@@ -49,10 +52,11 @@ from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.graph.imu import ImuMessageError, imu_reading
 from biped_sim.graph.sim_clock import SimClock
-from biped_sim.robot.description import PAPER_JOINTS, load_description
+from biped_sim.robot.description import PAPER_JOINTS
 from biped_sim.graph.params import (
     ParameterError,
     declare_executor,
+    get_profile,
     get_bool,
     get_float,
     get_str,
@@ -61,8 +65,7 @@ from biped_sim.graph.params import (
 )
 from biped_sim.robot.loop import ENGINES, load_loop_settings
 
-from biped_controller.core.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
-from biped_sim.robot.gait_family import GaitFamily
+from biped_controller.core.control.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
 
 
 #: the controller's settings that take one of a few names, with those names
@@ -71,9 +74,14 @@ CHOICES = {'mode': MODES, 'engine': ENGINES, 'qp_solver': QP_SOLVERS, 'model_err
 
 def read_controller_config(node: Node) -> ControllerConfig:
     """ControllerConfig from the parameters (one per field, defaults config/controller.yaml; ``control_period``
-    from config/simulator.yaml): a name from ``CHOICES``, a bool, or a number; a bad one raises ParameterError
-    naming it."""
-    base = load_controller_config()
+    from config/simulator.yaml), over the controller settings of the profile of parameter ``profile``: a name
+    from ``CHOICES``, a bool, or a number; a bad one (or an unknown profile) raises ParameterError naming it."""
+    profile = get_profile(node)
+    fields = ControllerConfig.__dataclass_fields__
+    try:
+        base = load_controller_config(**{k: v for k, v in profile.settings if k in fields and k != 'period'})
+    except ControllerConfigError as exc:
+        raise ParameterError('profile', f"profile {profile.name}: {exc}") from exc
     kw = {}
     for name in ControllerConfig.__dataclass_fields__:
         if name == 'period':
@@ -138,7 +146,7 @@ class ControllerNode(Node):
         self.state_timeout = get_float(self, 'state_timeout', lo=0.0, lo_open=True)
         self.wait_for_recorder = get_bool(self, 'wait_for_recorder')
         self.use_imu = get_bool(self, 'use_imu')
-        # /controller/torque and /controller/status as CDR bytes (biped_sim.graph.cdr): issue 20 part 3
+        # /controller/torque and /controller/status as CDR bytes (biped_sim.graph.cdr), as the simulator's
         self.publish_cdr = get_bool(self, 'publish_cdr')
         self._cdr_torque, self._cdr_status = cdr.JointState(), cdr.ControllerStatus()
         desc, family = load_robot_files(self)
@@ -161,7 +169,8 @@ class ControllerNode(Node):
         # wall-clock timer: with use_sim_time a ROS-time timer would stop with /clock, i.e. exactly when
         # the simulator is gone or not started yet
         self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s, publishing '
+        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s, profile '
+                               f'{self.get_parameter("profile").value}, publishing '
                                f'{"CDR bytes" if self.publish_cdr else "message objects"}')
 
     def _subscribe(self):

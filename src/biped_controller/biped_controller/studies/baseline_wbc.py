@@ -1,15 +1,15 @@
-"""The whole-body QP baseline against the paper's adaptation (issue 26): one push, seen period by period.
+"""The whole-body QP baseline against the paper's adaptation: one push, seen period by period.
 
-``python -m biped_controller.studies.baseline_wbc [--force 300] [--out docs/baseline_wbc] [--set K=V]``
+``python -m biped_controller.studies.baseline_wbc [--force 300] [--out results/baseline_wbc] [--set K=V]``
 runs the same push (forward, 25 ms at mid first step, the paper's cell) in modes none, wbc, both and
 hybrid on the rigid plant, writes ``findings.json`` (per mode: outcome, fall instant and cause, impact
 instants, periods where the whole-body QP was active and its rows, the state at the fall) and the
 figure ``push_<F>N.png``: p, tau', the whole-body QP's active rows, |w - w*| and the impact instants
-over time. ``--set`` takes the keys of ``scripts/experiment`` (e.g. the plant rule
+over time. ``--profile`` and ``--set`` take the names and keys of ``scripts/experiment`` (e.g. the plant rule
 ``liftoff_penetration``, or ``plant=mujoco``).
 
 ``python -m biped_controller.studies.baseline_wbc --slice-rigid SUMMARY [--slice-mujoco STORE --coarse 100]
-[--json F]`` prints the capability-map slice of issue 26 per (mode, direction, onset phase) and checks the
+[--json F]`` prints the 25 ms capability-map slice per (mode, direction, onset phase) and checks the
 goal hybrid >= max(both, wbc) cell by cell: on the rigid plant the map's boundary (``scripts/capability_map
 --json`` summary: the largest survived force below the lowest failing one, bisected); on MuJoCo, whose strict
 survival test collapses for the adaptive modes (tau' stays 0.997-0.999 in the contact chatter,
@@ -30,8 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
-from biped_controller.studies.experiment import (DEFAULT_DURATION, DEFAULT_START, OverrideError, RunSettings,
-                                                 parse_overrides, push_run)
+from biped_sim.plant.push import Push
+
+from biped_controller.studies.trial import trials
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float,
+                                                 nonnegative_float, positive_float, settings_from_args)
+from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push, push_run
+from biped_controller.studies.trial.settings import RunSettings
+from biped_controller.studies import provenance
 
 MODES = ("none", "wbc", "both", "hybrid")
 
@@ -76,7 +82,10 @@ def summarise(mode: str, res) -> dict:
     return out
 
 
-def figure(runs: dict, force: float, path: Path, plant: str = "rigid", start: float = DEFAULT_START) -> None:
+def figure(runs: dict, push: Push, path: Path, plant: str = "rigid") -> None:
+    """p, tau', the whole-body QP's active rows, |w - w*| and the impacts over time, one line per mode, for
+    the runs of ``push``."""
+    force, start, duration = push.force, push.start, push.duration
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -109,9 +118,9 @@ def figure(runs: dict, force: float, path: Path, plant: str = "rigid", start: fl
     ax[4].set_xlabel("t [s] (dotted: impacts; x: fall)")
     ax[0].legend(fontsize=8)
     ax[4].set_xlim(0.0, min(1.5, max(float(r.statuses[-1].t) for r in runs.values()) + 0.05))
-    ax[0].set_title(f"{force:g} N forward for {DEFAULT_DURATION * 1e3:g} ms at t = {start:g} s ({plant} plant)")
+    ax[0].set_title(f"{force:g} N forward for {duration * 1e3:g} ms at t = {start:g} s ({plant} plant)")
     for a in ax:
-        a.axvspan(start, start + DEFAULT_DURATION, color="0.9")
+        a.axvspan(start, start + duration, color="0.9")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -198,13 +207,11 @@ def slice_report(cells: dict, title: str) -> tuple[list[str], dict]:
                "cells": {f"{k[0]}/{k[1]}/{k[2]:g}": v for k, v in sorted(cells.items())}}
 
 
-def refine(records: list[dict], coarse: float, step: float, out: Path, overrides: list[str]) -> list[dict]:
+def refine(records: list[dict], coarse: float, step: float, out: Path, settings: RunSettings) -> list[dict]:
     """Bisect the no-fall edge of ``hybrid`` (and of ``both`` when its edge is on the coarse grid) in the cells
     the goal check left unresolved, between the edge and the first fall, down to ``step`` [N]: survival
-    trials (``experiment.survives``, the map's trial, ``--set`` settings) appended to ``out`` (JSON Lines, the
+    trials (``trials.survives``, the map's trial, with ``settings``) appended to ``out`` (JSON Lines, the
     store's fields). Returns the new records."""
-    from biped_controller.studies.experiment import survives
-    settings = parse_overrides(overrides, None)
     cells = no_fall_slice(records, coarse)
     _, rep_ = slice_report(cells, "")
     new = []
@@ -215,7 +222,8 @@ def refine(records: list[dict], coarse: float, step: float, out: Path, overrides
             src = next(r for r in records if (r["mode"], r["direction"], float(r["phase"])) == (mode, d, p))
             while hi is not None and hi - lo > step:
                 f = 0.5 * (lo + hi)
-                t = survives(f if d == "forward" else -f, mode, src["duration"], src["start"], None, settings)
+                push = paper_push(f if d == "forward" else -f, start=src["start"], duration=src["duration"])
+                t = trials.survives(push, mode, settings)
                 r = {"mode": mode, "direction": d, "phase": p, "duration": src["duration"], "start": src["start"],
                      "force": f, "fall_time": t["fall_time"], "cause": t["fall_cause"], "survived": t["survived"],
                      "reason": t["reason"], "refined": True}
@@ -255,7 +263,7 @@ def slice_figure(cells: dict, title: str, path: Path) -> None:
     plt.close(fig)
 
 
-def slice_main(args) -> int:
+def slice_main(args, settings: RunSettings) -> int:
     out, lines = {}, []
     if args.slice_rigid is not None:
         cells = rigid_slice(json.loads(args.slice_rigid.read_text()))
@@ -268,7 +276,7 @@ def slice_main(args) -> int:
         text = lambda f: gzip.open(f, "rt").read() if f.suffix == ".gz" else f.read_text()   # noqa: E731
         recs = [json.loads(x) for f in args.slice_mujoco for x in text(f).splitlines() if x.strip()]
         if args.refine is not None:
-            recs += refine(recs, args.coarse, args.refine_step, args.refine, args.overrides)
+            recs += refine(recs, args.coarse, args.refine_step, args.refine, settings)
         cells = no_fall_slice(recs, args.coarse)
         if args.figure is not None:
             slice_figure(cells, "MuJoCo: no-fall edge", args.figure)
@@ -282,34 +290,32 @@ def slice_main(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.baseline_wbc", description=__doc__,
+    ap = StudyArgumentParser(prog="python -m biped_controller.studies.baseline_wbc", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--force", type=float, default=300.0, help="[N], + forward (on the back)")
-    ap.add_argument("--out", type=Path, default=Path("docs/baseline_wbc"))
-    ap.add_argument("--start", type=float, default=DEFAULT_START, help="[s] onset of the push (default mid first step)")
-    ap.add_argument("--observer", choices=("on", "off"), default=None)
-    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--force", type=finite_float, default=300.0, help="[N], + forward (on the back)")
+    ap.add_argument("--out", type=Path, default=Path("results/baseline_wbc"))
+    ap.add_argument("--start", type=nonnegative_float, default=DEFAULT_START, help="[s] onset of the push (default mid first step)")
+    add_settings_args(ap, perturb=False, full_trials=False)
     ap.add_argument("--no-figure", action="store_true")
     ap.add_argument("--slice-rigid", type=Path, default=None, help="capability-map summary JSON (rigid plant)")
     ap.add_argument("--slice-mujoco", type=Path, nargs="+", default=None,
                     help="capability-map store(s) (JSON Lines, MuJoCo; refinements from --refine included)")
     ap.add_argument("--refine", type=Path, default=None,
                     help="with --slice-mujoco: bisect hybrid's/both's no-fall edge in unresolved cells, append to this file")
-    ap.add_argument("--refine-step", type=float, default=12.5, help="[N] bisection step of --refine")
-    ap.add_argument("--coarse", type=float, default=100.0, help="[N] the MuJoCo map's coarse step")
+    ap.add_argument("--refine-step", type=positive_float, default=12.5, help="[N] bisection step of --refine")
+    ap.add_argument("--coarse", type=positive_float, default=100.0, help="[N] the MuJoCo map's coarse step")
     ap.add_argument("--json", type=Path, default=None, help="with --slice-*: the slice as JSON")
     ap.add_argument("--figure", type=Path, default=None, help="with --slice-*: PNG of the edges by phase")
     args = ap.parse_args(argv)
+    provenance.track(args.json, args.figure, args.refine, args.out if args.slice_rigid is None and args.slice_mujoco is None else None, args=args, argv=argv)   # record of each file written (results/README.md)
+    settings = settings_from_args(ap, args)
     if args.slice_rigid is not None or args.slice_mujoco is not None:
-        return slice_main(args)
-    try:
-        settings: RunSettings = parse_overrides(args.overrides, args.observer)
-    except OverrideError as exc:
-        ap.error(str(exc))
+        return slice_main(args, settings)
     args.out.mkdir(parents=True, exist_ok=True)
-    runs = {m: push_run(args.force, DEFAULT_DURATION, args.start, m, None, settings=settings) for m in MODES}
+    push = paper_push(args.force, start=args.start)
+    runs = {m: push_run(push, m, settings=settings) for m in MODES}
     out = {"force": args.force, "duration": DEFAULT_DURATION, "start": args.start,
-           "overrides": args.overrides, "observer": args.observer,
+           "overrides": args.overrides, "observer": args.observer, "profile": settings.profile,
            "argv": list(sys.argv[1:] if argv is None else argv),
            "modes": {m: summarise(m, r) for m, r in runs.items()}}
     tag = f"push_{args.force:g}N" + (f"_at_{args.start:g}s" if args.start != DEFAULT_START else "") + "".join("_" + o.replace("=", "_") for o in args.overrides)
@@ -318,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{m:<7} fallen={s['fallen']} {s['fall_cause'] or '-'} t={s['fall_time']} impacts={s['impacts']} "
               f"wbc active={s['wbc_periods_active']} infeasible={s['wbc_periods_infeasible']} rows={s['wbc_rows_active_periods']}")
     if not args.no_figure:
-        figure(runs, args.force, args.out / f"{tag}.png", settings.sim_config().plant, args.start)
+        figure(runs, push, args.out / f"{tag}.png", settings.sim_config().plant)
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Push-recovery capability map (issue 12): the public API of ``studies.capmap`` in one namespace, and
+"""Push-recovery capability map: the public API of ``studies.capmap`` in one namespace, and
 ``python -m biped_controller.studies.capability_map`` (``scripts/capability_map --help``). Everything is
 defined once, in the modules of ``studies.capmap`` (its docstring describes the map)."""
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The studies' one executor and progress bar: the capability map, the robustness table and experiment's
-max-push search run their simulations through these (issue 23).
+"""The studies' one executor and progress bar: the capability map, the robustness table and the
+max-push search (``trial.search``) run their simulations through these.
 
 An executor runs picklable module-level functions on batches of work and hands back each result as it
 completes:

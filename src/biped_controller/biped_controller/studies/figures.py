@@ -1,6 +1,6 @@
 """Figures of the reference gait family (config/gait_family.json), written as PNG files.
 
-Run through ``scripts/figures [--out docs/figures] [--family FILE]``:
+Run through ``scripts/figures [--out results/gait_family] [--family FILE]``:
 
   gait_stick_diagram.png   the preferred step (paper's Fig. 2): the links at 11 instants, stance foot
                            fixed at the origin, with the swing ankle's (and heel's and toe's) path
@@ -15,7 +15,6 @@ Pure Python (matplotlib with the Agg backend, Pinocchio through ``FixedFootModel
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -27,6 +26,7 @@ from biped_sim.robot.settings import default_config_dir, repo_root
 
 from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_controller.studies import provenance
 
 
 def posture_points(model: FixedFootModel, q: np.ndarray) -> dict[str, np.ndarray]:
@@ -187,9 +187,10 @@ def make_all(out: Path, family: Path | None = None) -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="scripts/figures", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=repo_root() / "docs" / "figures")
+    ap.add_argument("--out", type=Path, default=repo_root() / "results" / "gait_family")
     ap.add_argument("--family", type=Path, default=default_config_dir() / "gait_family.json")
     args = ap.parse_args(argv)
+    provenance.track(args.out, args=args, argv=argv)   # record of each file written (results/README.md)
     for p in make_all(args.out, args.family):
         print(p)
     return 0

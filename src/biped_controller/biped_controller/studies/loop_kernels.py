@@ -1,4 +1,4 @@
-"""Compiled closed loop (numba): many control periods of controller + simulator in one call (issue 11).
+"""Compiled closed loop (numba): many control periods of controller + simulator in one call.
 
 Pure numerics, no ROS, no side effects on import (load it with ``segment.load_loop_kernels``). The
 in-process runner (``runner.run``) hands a *segment* of periods to :func:`run_segment` while nothing in
@@ -6,16 +6,16 @@ them needs Python: each period is exactly what the objects do one call at a time
 with the same kernels --
 
   1. the sensors: paper (q, q') of the stance from the floating state (``paper_from_urdf``);
-  2. the controller: ``control_kernels.period_start`` (the parameter advance and the observer's mode, the one
-     home of both) and ``control_kernels.period_step``; a period that needs the QP ends the segment before it
-     (its rows handed back), and the next call takes it with the caller's decision (issue 19:
-     ``control_kernels.period_outputs``, the controller's ``finish`` without the commit of step 5);
+  2. the controller: ``controller_kernels.period_start`` (the parameter advance and the observer's mode, the one
+     home of both) and ``controller_kernels.period_step``; a period that needs the QP ends the segment before it
+     (its rows handed back), and the next call takes it with the caller's decision
+     (``controller_kernels.period_outputs``, the controller's ``finish`` without the commit of step 5);
   3. the torque: clipped to the limits, mapped to the URDF joints of the stance;
   4. the simulator: the period's intervals (RK4 substeps, split at push starts and ends, as
      ``Simulator.step``) and ``planar_kernels.period`` (an event -- touchdown candidate, failed wrench
      check, sinking foot, singular state -- ends the segment before the period);
   5. the period is recorded (row k of ``rec`` and ``sta``) and both states are committed
-     (``control_kernels.period_commit`` for the controller).
+     (``controller_kernels.period_commit`` for the controller).
 
 A segment also ends after the period whose end reaches ``t_stop`` and when the record arrays are full
 (``ring`` False) or after ``max_periods``. Whatever ended it, the state arrays passed in hold the state
@@ -23,7 +23,7 @@ after the last committed period: they are the objects' own arrays (the controlle
 simulator's ``sim_state``), so the objects go on from there (the QP, the impact, the fall) for the next
 period. Records are bit-identical to the objects' (tested).
 
-Arrays (float64, C order; fields declared once): ``gains``, ``cons``, ``mem`` (``period_layout`` GAINS,
+Arrays (float64, C order; fields declared once): ``gains``, ``cons``, ``mem`` (``controller_layout`` GAINS,
 CONS, MEMORY), ``sst`` and ``slim`` (``biped_sim.plant.rigid_layout`` SIM_STATE, SIM_LIMITS),
 pushes (n, 4): start, end, force, height of every scheduled push, perm (2, 6, 6): PAPER_FROM_URDF of each
 stance, rec (cap, REC.size): the simulator's StepRecord of a period (``REC`` below), sta (cap, RES.size):
@@ -40,9 +40,9 @@ from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_kernels as pk
 from biped_sim.robot.layout import Layout
 from biped_sim.plant.rigid_layout import L_, S_
-from biped_controller.core import control_kernels as ck
-from biped_controller.core import wbc_kernels as wk
-from biped_controller.core.period_layout import QP_ROWS, R_, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.control import controller_kernels as ck
+from biped_controller.core.control import wbc_kernels as wk
+from biped_controller.core.control.controller_layout import R_, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -64,8 +64,10 @@ _B = numba.types.boolean
 
 @numba.njit(cache=True)
 def _knots(t_start, dt_nom, substeps, pushes, knots):
-    """The period's integration intervals as ``Simulator.step`` builds them; returns (count of knots,
-    t at the period's grid end)."""
+    """The compiled twin of ``biped_sim.plant.period_grid``: the period's grid end (``grid_end``) and its
+    integration knots (``period_knots`` with the rigid plant's substep count ceil(substeps dt / dt_nom)) into
+    ``knots``, the push starts and ends of ``pushes`` (rows: start, end, ...) as cuts; returns (count of
+    knots, the grid end), count -1 when ``knots`` is too short (tested equal to the Python home)."""
     t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
     dt = t_grid_end - t_start
     n_sub = max(1, int(math.ceil(substeps * dt / dt_nom - 1e-9)))
@@ -107,7 +109,7 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
     ``G`` (QP_ROWS, 2; modes lambda and all: TORSO_QP_ROWS, 3), ``h``, its ``res`` row (x*, the parameters) and ``work`` (WORK rows); the caller
     solves it and calls again, those arrays untouched, with the decision in ``qp_x`` and ``qp_given`` True:
     the first period (the same one: the state has not moved) then takes x = qp_x
-    (``control_kernels.period_outputs``, as the controller's ``finish`` does) and the segment goes on."""
+    (``controller_kernels.period_outputs``, as the controller's ``finish`` does) and the segment goes on."""
     cap = rec.shape[0]
     q = np.empty(6)
     qd = np.empty(6)

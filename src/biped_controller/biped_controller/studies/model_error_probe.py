@@ -1,4 +1,4 @@
-"""The momentum observer under model error, period by period (issue 22's diagnosis, docs/robustness.md "Model
+"""The momentum observer under model error, period by period (docs/robustness.md "Model
 error"): one pushed run with the Python sensing pipeline, printing per period the ground force the QP
 needed (the plant's actual minus the controller's prediction without the estimate), the estimate it used
 (dR), the reading of the observer's whole r through the joint accelerations alone (B A^-1 r), and the
@@ -11,8 +11,6 @@ torques [N m], l [m]; with the legs' model-error estimator, its theta divided by
 """
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import sys
 
 import numpy as np
@@ -20,15 +18,20 @@ import numpy as np
 from biped_sim.robot.description import LEFT
 from biped_sim.robot.fixed_foot import FixedFootModel
 from biped_sim.plant.protocol import make_plant
+from biped_sim.plant.push import Push
 
-from biped_controller.core.controller import AdaptiveController
-from biped_controller.studies import experiment as ex
+from biped_controller.core.control.controller import AdaptiveController
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float, positive_int,
+                                                 settings_from_args)
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.runs import paper_push
+from biped_controller.studies.trial.settings import OverrideError, RunSettings
 
 
-def probe_rows(force: float, settings: ex.RunSettings, start: float = ex.DEFAULT_START,
-               duration: float = ex.DEFAULT_DURATION, steps: int = 2) -> tuple[list[dict], str]:
-    """The rows of the module docstring for every period until ``steps`` impacts or a fall, and the outcome."""
-    ctx = ex.context()
+def probe_rows(push: Push, settings: RunSettings, steps: int = 2) -> tuple[list[dict], str]:
+    """The rows of the module docstring for every period until ``steps`` impacts or a fall, and the outcome
+    (``push`` with a zero force: none)."""
+    ctx = context()
     scfg, ccfg = settings.sim_config(), settings.ctrl_config("both")
     P = settings.perturbation
     sim = make_plant(scfg.plant, ctx.desc, scfg, P)
@@ -37,14 +40,14 @@ def probe_rows(force: float, settings: ex.RunSettings, start: float = ex.DEFAULT
     me = ctrl._sensing.me if ctrl._sensing is not None else None
     sd0 = np.sqrt(np.diag(me.P0)) if me is not None else None
     if mo is None:
-        raise ex.OverrideError("the probe needs --set momentum_observer=true")
+        raise OverrideError("the probe needs --set momentum_observer=true")
     plant = FixedFootModel(P.apply(ctx.desc) if P is not None else ctx.desc)
     model = FixedFootModel(ctx.desc)
     q0, qd0 = ctx.family.initial_state()
     sim.reset(q0, qd0, LEFT)
     ctrl.reset(LEFT)
-    if force:
-        sim.schedule_push(start, duration, float(force), None)
+    if push.force:
+        sim.schedule_push(push.start, push.duration, float(push.force), push.height)
     rows = []
     while True:
         obs = sim.observe()
@@ -70,17 +73,21 @@ def probe_rows(force: float, settings: ex.RunSettings, start: float = ex.DEFAULT
 
 
 def main(argv: list[str] | None = None) -> int:
-    a = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    a.add_argument("--force", type=float, default=0.0)
-    a.add_argument("--from", dest="t0", type=float, default=0.0)
-    a.add_argument("--to", dest="t1", type=float, default=1.0)
-    a.add_argument("--every", type=int, default=3, help="print every n-th period (and every period after an impact)")
-    a.add_argument("--steps", type=int, default=2)
-    a.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
-    a.add_argument("--perturb", action="append", default=[], metavar="FIELD=VALUE")
+    a = StudyArgumentParser(prog="python -m biped_controller.studies.model_error_probe",
+                            description=__doc__.split("\n\n")[0])
+    a.add_argument("--force", type=finite_float, default=0.0, help="[N] of the paper's push (0: none)")
+    a.add_argument("--from", dest="t0", type=finite_float, default=0.0)
+    a.add_argument("--to", dest="t1", type=finite_float, default=1.0)
+    a.add_argument("--every", type=positive_int, default=3,
+                   help="print every n-th period (and every period after an impact)")
+    a.add_argument("--steps", type=positive_int, default=2)
+    add_settings_args(a, observer=False, full_trials=False)
     args = a.parse_args(argv)
-    settings = dataclasses.replace(ex.parse_overrides(args.overrides), perturbation=ex.parse_perturbation(args.perturb))
-    rows, outcome = probe_rows(args.force, settings, steps=args.steps)
+    settings = settings_from_args(a, args)
+    try:
+        rows, outcome = probe_rows(paper_push(args.force), settings, steps=args.steps)
+    except OverrideError as exc:
+        a.error(str(exc))
     f = lambda v: f"({v[0]:7.1f},{v[1]:7.1f})"   # noqa: E731
     print("t [s]   imp push qp  l_pred   l_act   needed dR (x,y)   used dR (x,y)   B A^-1 r (x,y)   r | true tau_d"
           " [| legs' theta / its prior std, with the model-error estimator]")

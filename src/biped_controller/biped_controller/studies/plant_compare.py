@@ -1,10 +1,10 @@
-"""Rigid vs MuJoCo plant side by side (issue 24): the tables of ``docs/mujoco_plant.md`` that no other study
+"""Rigid vs MuJoCo plant side by side: the tables of ``docs/mujoco_plant.md`` that no other study
 prints. Pure Python on ``runner.run`` (no ROS). Usage::
 
-    python -m biped_controller.studies.plant_compare walk  [--steps 20] [--modes both tau p none] [--json F]
+    python -m biped_controller.studies.plant_compare walk  [--steps 20] [--modes both tau p none] [--profile P] [--json F]
     python -m biped_controller.studies.plant_compare falls [--json F]
-    python -m biped_controller.studies.plant_compare pushes [--dir docs/mujoco_runs] [--reuse]
-    python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off]
+    python -m biped_controller.studies.plant_compare pushes [--dir results/mujoco_plant] [--reuse] [--profile P]
+    python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off] [--profile P]
     python -m biped_controller.studies.plant_compare cmap --rigid STORE --mujoco STORE
     python -m biped_controller.studies.plant_compare fingerprint
     python -m biped_controller.studies.plant_compare robustness --rigid JSON ... --mujoco JSON ...
@@ -37,6 +37,9 @@ lowest one that fell, at the scan's coarse step; the first falling force and its
 ``scripts/experiment table --workers 2 --observer O --set plant=P --json DIR/table_P_observer_O.json`` for
 each (P, O), or with ``--reuse`` reads those files.
 
+``walk``, ``push`` and ``pushes`` take ``--profile NAME`` (config/profiles/); the plant (and in ``push`` and
+``pushes`` the observer) is set over it.
+
 ``walk``: per plant and mode, an undisturbed walk of ``--steps`` steps: outcome, max tracking error [rad],
 step times [s] (mean, min, max over the steps walked), energy per step: the motors' absolute work
 sum_k sum_i |Gamma_i q'_i| dt [J] and the paper's criterion C = (1/p) int Gamma^T Gamma dt [N^2 m^2 s / m] per
@@ -62,7 +65,12 @@ import numpy as np
 
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
+from biped_controller.core.control.controller import MODES
 from biped_controller.studies import runner
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, finite_float,
+                                                 nonnegative_float, positive_int, profile_arg)
+from biped_controller.studies.trial.settings import DEFAULT_PROFILE, RunSettings, parse_overrides
+from biped_controller.studies import provenance
 
 PLANTS = ("rigid", "mujoco")
 
@@ -73,8 +81,16 @@ def _stance_pitch(records) -> np.ndarray:
     return np.where(st == 0, X[:, 2] + X[:, 3:6].sum(1), X[:, 2] + X[:, 6:9].sum(1))
 
 
-def walk_row(plant: str, mode: str, steps: int) -> dict:
-    """One undisturbed walk on ``plant`` (JSON-ready row, see the module docstring)."""
+def _on_plant(settings: RunSettings, plant: str):
+    """The simulator settings of ``settings`` with the plant ``plant``."""
+    return load_sim_config(**{**dict(settings.simulator), "plant": plant})
+
+
+def walk_row(plant: str, mode: str, steps: int, settings: RunSettings | None = None) -> dict:
+    """One undisturbed walk on ``plant`` with ``settings`` (None: the configuration files; JSON-ready row, see
+    the module docstring)."""
+    kw = {} if settings is None else {"ctrl_config": settings.ctrl_config(mode),
+                                      "perturbation": settings.perturbation}
     from biped_sim.plant import mujoco as pm
     plants = []
     orig = pm.MujocoPlant.reset
@@ -84,7 +100,7 @@ def walk_row(plant: str, mode: str, steps: int) -> dict:
         return orig(self, *a, **k)
     pm.MujocoPlant.reset = grab
     try:
-        r = runner.run(steps=steps, mode=mode, sim_config=load_sim_config(plant=plant))
+        r = runner.run(steps=steps, mode=mode, sim_config=_on_plant(settings or RunSettings(), plant), **kw)
     finally:
         pm.MujocoPlant.reset = orig
     ti = [0.0] + [i.t for i in r.impacts]
@@ -159,14 +175,15 @@ def no_fall_edge(trials: list[dict]) -> tuple[float, float | None, str]:
     return lo, hi, cause
 
 
-def pushes_table(directory: Path, reuse: bool) -> tuple[str, dict]:
+def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE) -> tuple[str, dict]:
     from biped_controller.studies import experiment
     data = {}
     for obs in ("on", "off"):
         for plant in PLANTS:
             f = directory / f"table_{plant}_observer_{obs}.json"
             if not (reuse and f.is_file()):
-                experiment.main(["table", "--workers", "2", "--observer", obs, "--set", f"plant={plant}", "--json", str(f)])
+                experiment.main(["table", "--workers", "2", "--profile", profile, "--observer", obs,
+                                 "--set", f"plant={plant}", "--json", str(f)])
             data[(plant, obs)] = json.loads(f.read_text(encoding="utf-8"))["modes"]
     L = ["| observer | mode | paper [N] | rigid: max push [N] (first failure) | MuJoCo: max push, strict [N] (first failure) | "
          "rigid: no-fall edge [N], first fall | MuJoCo: no-fall edge [N], first fall |",
@@ -186,10 +203,13 @@ def pushes_table(directory: Path, reuse: bool) -> tuple[str, dict]:
     return "\n".join(L), out
 
 
-def push_pair(force: float, mode: str, observer: bool, start: float = 0.2315) -> list[dict]:
+def push_pair(push: Push, mode: str, observer: bool | None = None, profile: str = DEFAULT_PROFILE) -> list[dict]:
+    """``push`` and 5 steps after it in ``mode`` on both plants (the profile's settings, the observer on or
+    off, None: the profile's): the outcome and on MuJoCo the contact diagnostics (module docstring)."""
     from biped_sim.plant import mujoco as pm
-    from biped_controller.studies.experiment import RunSettings
-    st = RunSettings(controller=(("disturbance_observer", observer),))
+    st = parse_overrides((), observer, profile=profile)
+    observer = st.ctrl_config(mode).disturbance_observer
+    force, start = push.force, push.start
     out = []
     for plant in PLANTS:
         plants = []
@@ -200,8 +220,8 @@ def push_pair(force: float, mode: str, observer: bool, start: float = 0.2315) ->
             return orig(self, *a, **k)
         pm.MujocoPlant.reset = grab
         try:
-            r = runner.run(steps=6, mode=mode, pushes=(Push(start, 0.025, float(force)),),
-                           sim_config=load_sim_config(plant=plant), ctrl_config=st.ctrl_config(mode))
+            r = runner.run(steps=6, mode=mode, pushes=(push,), sim_config=_on_plant(st, plant),
+                           ctrl_config=st.ctrl_config(mode), perturbation=st.perturbation)
         finally:
             pm.MujocoPlant.reset = orig
         row = dict(plant=plant, mode=mode, observer=observer, force=force, start=start, steps_walked=r.steps_walked,
@@ -379,24 +399,28 @@ def cmap_table(rigid: Path, mujoco: Path) -> tuple[str, dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.plant_compare", description=__doc__,
+    ap = StudyArgumentParser(prog="python -m biped_controller.studies.plant_compare", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     w = sub.add_parser("walk")
-    w.add_argument("--steps", type=int, default=20)
-    w.add_argument("--modes", nargs="+", default=["both", "tau", "p", "none"])
+    w.add_argument("--steps", type=positive_int, default=20)
+    w.add_argument("--modes", nargs="+", choices=MODES, default=["both", "tau", "p", "none"])
     w.add_argument("--json", type=Path, default=None)
     fl = sub.add_parser("falls")
     fl.add_argument("--json", type=Path, default=None)
     pu = sub.add_parser("pushes")
-    pu.add_argument("--dir", type=Path, default=Path("docs/mujoco_runs"))
+    pu.add_argument("--dir", type=Path, default=Path("results/mujoco_plant"))
     pu.add_argument("--reuse", action="store_true")
+    for p_ in (w, pu):
+        p_.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE, help="config/profiles/ NAME")
     pu.add_argument("--json", type=Path, default=None)
     po = sub.add_parser("push")
-    po.add_argument("--force", type=float, required=True)
-    po.add_argument("--mode", default="both")
-    po.add_argument("--observer", choices=("on", "off"), default="on")
-    po.add_argument("--start", type=float, default=0.2315, help="push onset [s] (default 0.2315 s, phase 0.5; "
+    po.add_argument("--force", type=finite_float, required=True)
+    po.add_argument("--mode", choices=MODES, default="both")
+    po.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE, help="config/profiles/ NAME")
+    po.add_argument("--observer", choices=("on", "off"), default=None,
+                    help="the disturbance observer (default: the profile's; on in the default profile)")
+    po.add_argument("--start", type=nonnegative_float, default=0.2315, help="push onset [s] (default 0.2315 s, phase 0.5; "
                     "onset phase k/20 of the capability map: k/20 x 0.463 s; negative --force: backward)")
     po.add_argument("--json", type=Path, default=None)
     cm = sub.add_parser("cmap")
@@ -409,6 +433,8 @@ def main(argv: list[str] | None = None) -> int:
     rb.add_argument("--mujoco", type=Path, nargs="+", required=True)
     rb.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
+    provenance.track(getattr(a, "json", None), getattr(a, "dir", None) if a.cmd == "pushes" else None, argv=argv,
+                     plant=None if a.cmd in ("fingerprint",) else "rigid,mujoco")   # record of each file written (results/README.md)
     if a.cmd == "fingerprint":
         mujoco_fingerprint()
         return 0
@@ -419,12 +445,17 @@ def main(argv: list[str] | None = None) -> int:
         table, rows = robustness_table(a.rigid, a.mujoco)
         print(table)
     elif a.cmd == "push":
-        rows = push_pair(a.force, a.mode, a.observer == "on", a.start)
+        rows = push_pair(Push(a.start, 0.025, float(a.force)), a.mode,
+                         None if a.observer is None else a.observer == "on", a.profile)
     elif a.cmd == "pushes":
-        table, rows = pushes_table(a.dir, a.reuse)
+        table, rows = pushes_table(a.dir, a.reuse, a.profile)
         print(table)
     elif a.cmd == "walk":
-        rows = [walk_row(pl, m, a.steps) for m in a.modes for pl in PLANTS]
+        try:
+            settings = parse_overrides((), profile=a.profile)
+        except SETTINGS_ERRORS as exc:
+            ap.error(str(exc))
+        rows = [walk_row(pl, m, a.steps, settings) for m in a.modes for pl in PLANTS]
         print(walk_table(rows))
     else:
         rows = falls_rows()

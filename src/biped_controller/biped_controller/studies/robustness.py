@@ -1,4 +1,4 @@
-"""Robustness table (issue 14): undisturbed walking and the largest survivable push per adaptation mode,
+"""Robustness table: undisturbed walking and the largest survivable push per adaptation mode,
 observer on and off, for each perturbation of the plant (``biped_sim.plant.perturbation``).
 
 Run through ``scripts/robustness [options]`` (``--help``), e.g. the priority part on two processes::
@@ -6,7 +6,7 @@ Run through ``scripts/robustness [options]`` (``--help``), e.g. the priority par
     scripts/robustness --workers 2 --modes both none --observer on
 
 Pure Python (no ROS). The controller always keeps the nominal description; each *level* is a
-``PlantPerturbation`` given to the simulator only (``experiment.RunSettings.perturbation`` ->
+``PlantPerturbation`` given to the simulator only (``trial.settings.RunSettings.perturbation`` ->
 ``runner.run`` -> ``Simulator``).
 
 Per level:
@@ -17,16 +17,20 @@ Per level:
   is a fictitious force explaining the model's residual);
 * max push: the capability map's search (``capability_map.run_maps``, one one-cell map per (level,
   mode, observer), all at once on the capability map's workers, after the walks: phase 0.5 of the
-  first step = ``experiment.DEFAULT_START``, forward, 0.025 s; coarse scan then bisection, survival =
-  ``experiment.survival``) with a coarse, per-mode search (:data:`SEARCHES`): the boundary is known to
+  first step = ``trial.runs.DEFAULT_START``, forward, 0.025 s; coarse scan then bisection, survival =
+  ``trial.survival``) with a coarse, per-mode search (:data:`SEARCHES`): the boundary is known to
   within the resolution only, and islands above the lowest failing edge are listed.
 
 Records: the walk records in ``<store>/walks.jsonl`` and the push simulations in ``<store>/push.jsonl``
 (JSON Lines, resumable: a rerun skips every walk and simulation already stored; push records are keyed
 by the capability map's fingerprint, which contains the perturbation through the run settings).
 Noise is one realisation (seed 0): a boundary under noise is that realisation's. The early stop of
-``experiment.EarlyStop`` shortens the nominal rows' survival trials only (it was measured on the nominal
+``trial.stop.EarlyStop`` shortens the nominal rows' survival trials only (it was measured on the nominal
 plant); ``--full-trials`` turns it off there too.
+
+``--profile NAME`` (config/profiles/) sets the controller's and the simulator's settings of every row (the
+observer is the table's own column; a profile with a plant perturbation is refused: the rows are the
+perturbations); ``--set`` adds simulator settings over it.
 """
 from __future__ import annotations
 
@@ -45,27 +49,29 @@ import numpy as np
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 
 from biped_controller.studies import capability_map as cmap
-from biped_controller.studies import experiment
 from biped_controller.studies import runner
-from biped_controller.core.controller import MODES
+from biped_controller.core.control.controller import MODES
 from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
-from biped_controller.studies.experiment import RunSettings
-from biped_sim.plant.config import SimConfigError
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, positive_int, profile_arg)
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.settings import (DEFAULT_PROFILE, RunSettings, differences, parse_overrides,
+                                                     print_settings)
+from biped_controller.studies import provenance
 
 WALK_STEPS = 20
 PUSH_CELL = dict(direction="forward", phase=0.5, duration=0.025)
-#: per-mode force search (coarse step, largest force, bisection resolution) [N]: coarse on purpose (2 shared
-#: cores); the nominal boundaries are 44 (none), 362 (tau), 269 (p), 534 (both) N at 5 N resolution
+#: per-mode force search of the max-push cell (coarse step, largest force scanned, bisection resolution) [N]:
+#: coarse steps of 20-40 N up to a force above the mode's nominal boundary, the lowest failing edge bisected to
+#: half a coarse step, so every boundary of the table is known to within that resolution only
 SEARCHES: dict[str, cmap.Search] = {
     "none": cmap.Search(coarse=20.0, fmax=200.0, resolution=10.0),
     "tau": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
     "p": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
     "both": cmap.Search(coarse=40.0, fmax=960.0, resolution=20.0),
-    # issue 26 (5 N table at the paper's cell, observer on): wbc 112.5 N, hybrid 771.9 N
     "wbc": cmap.Search(coarse=20.0, fmax=400.0, resolution=10.0),
     "hybrid": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
-    # issue 21 (the torso parameter; docs/torso_parameter.md has the 5 N table): searched like tau and hybrid
+    # the torso parameter's modes: searched like tau and hybrid
     "lambda": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
     "all": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
 }
@@ -126,28 +132,38 @@ def combos(modes, observers) -> list[tuple[str, bool]]:
     return [(m, obs) for obs in observers for m in modes if m != "none"] + ([("none", False)] if "none" in modes else [])
 
 
-#: simulator overrides of ``--set KEY=VALUE`` (issue 24: ``--set plant=mujoco``); set by :func:`main`, passed
-#: explicitly to every walk task and carried by every push spec's settings; part of every settings fingerprint,
-#: so stored records of another plant are never reused
+#: simulator overrides of the profile and ``--set KEY=VALUE`` (e.g. ``--set plant=mujoco``); set by :func:`main`,
+#: passed explicitly to every walk task and carried by every push spec's settings; part of every settings
+#: fingerprint, so stored records of another plant are never reused
 SIMULATOR_OVERRIDES: tuple[tuple[str, object], ...] = ()
+#: controller overrides of the profile (the observer excepted: the table's column), set by :func:`main` like
+#: :data:`SIMULATOR_OVERRIDES`
+CONTROLLER_OVERRIDES: tuple[tuple[str, object], ...] = ()
+#: the profile's name (recorded in the settings; its entries are the overrides above)
+PROFILE: str = DEFAULT_PROFILE
 
 
 def settings_for(perturbation: PlantPerturbation, observer: bool, full_trials: bool = False,
-                 simulator: tuple[tuple[str, object], ...] | None = None) -> RunSettings:
-    """Run settings: the config files, the observer switch, the plant's perturbation, ``simulator`` overrides
-    (None: ``--set``'s, :data:`SIMULATOR_OVERRIDES`)."""
+                 simulator: tuple[tuple[str, object], ...] | None = None,
+                 controller: tuple[tuple[str, object], ...] | None = None) -> RunSettings:
+    """Run settings: the config files, the profile's controller overrides (``controller``, None:
+    :data:`CONTROLLER_OVERRIDES`) with the observer switch, the plant's perturbation, ``simulator`` overrides
+    (None: :data:`SIMULATOR_OVERRIDES`)."""
     sim = SIMULATOR_OVERRIDES if simulator is None else tuple(simulator)
-    return RunSettings(controller=(("disturbance_observer", bool(observer)),), simulator=sim,
-                       perturbation=perturbation, full_trials=full_trials)
+    ctrl = dict(CONTROLLER_OVERRIDES if controller is None else controller)
+    ctrl["disturbance_observer"] = bool(observer)
+    return RunSettings(controller=tuple(sorted(ctrl.items())), simulator=sim,
+                       perturbation=perturbation, full_trials=full_trials, profile=PROFILE)
 
 
 # ------------------------------------------------------------------------------------------ walk
 def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, steps: int = WALK_STEPS,
-                simulator: tuple[tuple[str, object], ...] | None = None) -> dict:
-    """One undisturbed walk of ``steps`` impacts (the pure task of a worker: ``simulator`` overrides passed
-    with it, never read from a global in a spawned worker); JSON-ready record."""
-    ctx = experiment.context()
-    st = settings_for(perturbation, observer, simulator=simulator)
+                simulator: tuple[tuple[str, object], ...] | None = None,
+                controller: tuple[tuple[str, object], ...] | None = None) -> dict:
+    """One undisturbed walk of ``steps`` impacts (the pure task of a worker: ``simulator`` and ``controller``
+    overrides passed with it, never read from a global in a spawned worker); JSON-ready record."""
+    ctx = context()
+    st = settings_for(perturbation, observer, simulator=simulator, controller=controller)
     t0 = time.perf_counter()
     res = runner.run(steps=steps, mode=mode, sim_config=st.sim_config(), ctrl_config=st.ctrl_config(mode),
                      family=ctx.family, desc=ctx.desc, perturbation=perturbation)
@@ -156,7 +172,7 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     est = [abs(s.force_estimate) for s in res.statuses]
     return {
         "kind": "walk", "perturbation": perturbation.as_dict(), "mode": mode, "observer": bool(observer),
-        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer, simulator), "survived": (not res.fallen) and res.steps_walked >= steps,
+        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer, simulator, controller), "survived": (not res.fallen) and res.steps_walked >= steps,
         "steps_walked": int(res.steps_walked), "fall_cause": res.fall_cause or None,
         "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
         "fall_detail": res.fall_detail or None,
@@ -169,10 +185,12 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
 
 
 def walk_fingerprint(perturbation: PlantPerturbation, observer: bool,
-                     simulator: tuple[tuple[str, object], ...] | None = None) -> str:
+                     simulator: tuple[tuple[str, object], ...] | None = None,
+                     controller: tuple[tuple[str, object], ...] | None = None) -> str:
     """The capability map's fingerprint of the walk's settings (controller and simulator settings with the
     perturbation, robot description, gait family file): a walk record is reused only while it matches."""
-    return cmap.fingerprint(cmap.MapSpec(settings=settings_for(perturbation, observer, simulator=simulator)))
+    return cmap.fingerprint(cmap.MapSpec(settings=settings_for(perturbation, observer, simulator=simulator,
+                                                               controller=controller)))
 
 
 def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool, steps: int,
@@ -200,7 +218,7 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers, log=pr
             for obs in ((False,) if m == "none" else observers):
                 k = _walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs))
                 if k not in done:
-                    tasks.append((lv.perturbation, m, obs, WALK_STEPS, SIMULATOR_OVERRIDES))
+                    tasks.append((lv.perturbation, m, obs, WALK_STEPS, SIMULATOR_OVERRIDES, CONTROLLER_OVERRIDES))
     log(f"walks: {len(tasks)} to run, {len(done)} stored")
 
     def keep(r: dict) -> None:
@@ -211,7 +229,7 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers, log=pr
             f"{r['steps_walked']} steps {r['fall_cause'] or ''} ({r['wall_time']:.0f} s)")
     if tasks:
         if isinstance(workers, int):
-            with make_executor(workers, initializer=experiment.context) as ex:
+            with make_executor(workers, initializer=context) as ex:
                 ex.map(walk_record, tasks, on_result=keep)
         else:
             workers.map(walk_record, tasks, on_result=keep)
@@ -231,7 +249,7 @@ def no_fall_edge(records: dict[float, dict]) -> tuple[float, float | None]:
     """(largest simulated force below the lowest one that fell, that lowest falling force or None) over the
     records of one cell (force -> record): the boundary when only a fall counts as a failure, at the
     resolution of the simulated forces (the coarse step away from the bisected edge). Under sensor noise
-    p and tau' never settle within experiment's tolerances, so the strict boundary is 0 N there."""
+    p and tau' never settle within the survival rule's tolerances, so the strict boundary is 0 N there."""
     lo, hi = 0.0, None
     for f in sorted(records):
         if records[f].get("fall_time") is not None:
@@ -276,7 +294,7 @@ def run_pushes(levels, modes, observers, store: cmap.RecordStore, executor, log=
     one-cell map per row: every worker stays busy; resumable from ``store``); returns {(level name, mode,
     observer): record}. Mode ``none`` runs with the observer off only (its torque never uses the
     estimate). ``executor`` None: only what the store holds (no simulation). ``full_trials``: no early
-    stop (it applies to the nominal plant only in any case: ``experiment.EarlyStop``)."""
+    stop (it applies to the nominal plant only in any case: ``trial.stop.EarlyStop``)."""
     out = {}
     keys = [(lv, m, obs) for m, obs in combos(modes, observers) for lv in levels]
     specs = [push_spec(lv.perturbation, m, obs, full_trials) for lv, m, obs in keys]
@@ -403,14 +421,14 @@ def _terminate(signum, frame):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="scripts/robustness", description=__doc__,
+    ap = StudyArgumentParser(prog="scripts/robustness", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--levels", nargs="+", default=None, metavar="KEY",
                     help="level keys (default all): " + " ".join(LEVELS_BY_KEY))
-    ap.add_argument("--modes", nargs="+", default=["both", "none"], help=f"any of {' '.join(MODES)}")
+    ap.add_argument("--modes", nargs="+", choices=MODES, default=["both", "none"], help=f"any of {' '.join(MODES)}")
     ap.add_argument("--observer", nargs="+", choices=("on", "off"), default=["on", "off"])
     ap.add_argument("--what", choices=("walk", "push", "both"), default="both")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=positive_int, default=2)
     ap.add_argument("--store", type=Path, default=Path("build/robustness"), help="directory of the records")
     ap.add_argument("--json", type=Path, default=None, help="summary JSON")
     ap.add_argument("--table", type=Path, default=None, help="write the markdown table here")
@@ -419,26 +437,31 @@ def main(argv: list[str] | None = None) -> int:
                     help="run every survival trial in full (no early stop; it applies to the nominal plant only)")
     ap.add_argument("--report-only", action="store_true",
                     help="no simulation: the table, figure and JSON of what the store holds")
+    ap.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE,
+                    help="config/profiles/ NAME: the controller and simulator settings of every row (the observer "
+                         "is the table's column)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="a config/simulator.yaml setting for every run, e.g. --set plant=mujoco (repeatable)")
     args = ap.parse_args(argv)
-    global SIMULATOR_OVERRIDES
+    provenance.track(args.json, args.table, args.figures, args=args, argv=argv)   # record of each file written (results/README.md)
+    global SIMULATOR_OVERRIDES, CONTROLLER_OVERRIDES, PROFILE
     try:
-        st = experiment.parse_overrides(args.overrides)
-        if st.controller:
+        given = parse_overrides(args.overrides)
+        if given.controller:
             raise RobustnessError("--set: only config/simulator.yaml keys here (the table sets the controller's "
-                                  f"observer itself), got {', '.join(k for k, _ in st.controller)}")
+                                  f"observer itself), got {', '.join(k for k, _ in given.controller)}")
+        st = parse_overrides(args.overrides, profile=args.profile)
+        if st.perturbation is not None:
+            raise RobustnessError(f"--profile {args.profile}: sets a plant perturbation; the table's rows are the "
+                                  "perturbations (choose a profile without one)")
         SIMULATOR_OVERRIDES = st.simulator
-        experiment.check_settings(st)
-    except (experiment.OverrideError, SimConfigError, RobustnessError) as exc:
+        CONTROLLER_OVERRIDES = tuple((k, v) for k, v in st.controller if k != "disturbance_observer")
+        PROFILE = args.profile
+        print_settings(st)
+    except (*SETTINGS_ERRORS, RobustnessError) as exc:
         ap.error(str(exc))
     try:
         levels = _levels(args.levels)
-        for m in args.modes:
-            if m not in MODES:
-                raise RobustnessError(f"--modes: unknown mode {m!r}; choose from {', '.join(MODES)}")
-        if args.workers < 1:
-            raise RobustnessError(f"--workers must be >= 1, got {args.workers}")
     except (RobustnessError, PerturbationError) as exc:
         ap.error(str(exc))
     modes = tuple(args.modes)
@@ -478,7 +501,10 @@ def main(argv: list[str] | None = None) -> int:
             "searches": {m: {"coarse": s.coarse, "max": s.fmax, "resolution": s.resolution} for m, s in SEARCHES.items()},
             "push_cell": PUSH_CELL, "walk_steps": WALK_STEPS, "figures": figs,
             "git": git_state(), "wall_time": wall, "workers": args.workers,
-            "full_trials": args.full_trials}, indent=1), encoding="utf-8")
+            "full_trials": args.full_trials,
+            # the profile and what differs from the configuration files in every row (the observer: per row)
+            "settings": differences(RunSettings(CONTROLLER_OVERRIDES, SIMULATOR_OVERRIDES, profile=PROFILE))},
+            indent=1), encoding="utf-8")
     return 0
 
 

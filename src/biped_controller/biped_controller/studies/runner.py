@@ -13,14 +13,15 @@ from typing import Callable
 
 import numpy as np
 
+from biped_sim.plant.period_grid import grid_end, last_grid_before
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.records import ImpactRecord, StepRecord
-from biped_sim.plant.protocol import make_plant
+from biped_sim.plant.protocol import Plant, make_plant
 
-from biped_controller.core.controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
 from biped_controller.studies.segment import Segment
 from biped_sim.robot.gait_family import GaitFamily
 
@@ -48,10 +49,10 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
         integration_rate: bool = False, keep_qp: bool = False, max_time: float | None = None,
         extra_time_after_steps: float = 0.0, perturbation: PlantPerturbation | None = None,
         compiled_loop: bool = True, keep_records: bool = True,
-        on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None,
+        on_impact: Callable[[Plant, AdaptiveController], bool] | None = None,
         pool: "LoopPool | None" = None) -> RunResult:
     """Walk ``steps`` steps (impacts) or until a fall. ``integration_rate``: the controller's torque law is
-    evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` (issue 14) goes to the
+    evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` goes to the
     simulator only: the plant and the sensors differ, the controller keeps ``desc``.
 
     ``compiled_loop`` (fast engine, ideal sensors, held torques, no ``keep_qp``): the periods where nothing
@@ -60,18 +61,18 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
     objects ran and the run's last period -- the run's outcome (fall, impacts, the last status) is the
     same, the time series is not there. The compiled loop also takes the periods that need the QP: the
-    controller decides them between two calls (``Segment.decide``, issue 19), the objects take the impacts,
+    controller decides them between two calls (``Segment.decide``), the objects take the impacts,
     the falls and the modes whose whole-body stage follows a QP.
 
-    ``on_impact(sim, ctrl)`` (the sweeps' early stop, issue 19) is called once per impact, one control
+    ``on_impact(sim, ctrl)`` (the sweeps' early stop) is called once per impact, one control
     period after it, once that period has completed without a fall (the controller's own post-impact torque
     has acted and passed the plant's checks; ``sim.impact_log[-1]`` the impact, ``sim.t`` the control
     instant one period after it; the compiled loop hands that period back on its own), and, with the
     compiled loop, once more at the end of the compiled segment that follows (the next QP or the next
-    touchdown; the only check before issue 19's second part, so no trial is decided later than then);
+    touchdown, so no trial is decided later than then);
     True ends the run there (``steps_walked`` then counts the impacts so far).
 
-    ``pool`` (the sweeps, issue 19): the plant and the controller come from the pool, reused from an earlier
+    ``pool`` (the sweeps): the plant and the controller come from the pool, reused from an earlier
     run with the same settings (reset, bit-identical to new ones: tested), and when the run's first push is
     the same as other runs' (same onset), the walk up to it is simulated once and restored
     (:meth:`LoopPool.snapshot_at`; records before the push are then not in ``records``, the outcome is the
@@ -101,20 +102,6 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
                     keep_records=keep_records, on_impact=on_impact,
                     seen=snap.impact_count if snap is not None else 0,
                     pending=snap.pending if snap is not None else False)
-
-
-def grid_end(t: float, dt: float) -> float:
-    """The end [s] of the control period that starts at ``t`` (``Simulator.step``'s grid: the next
-    k * dt, k integer, after ``t``; a period cut short by an impact starts off the grid)."""
-    return (math.floor(t / dt + 1e-6) + 1) * dt
-
-
-def last_grid_before(t: float, dt: float) -> float:
-    """The largest grid instant k * dt <= ``t`` (k integer >= 0), computed as the simulator computes its grid."""
-    k = max(0, math.floor(t / dt + 1e-6))
-    while k > 0 and k * dt > t:
-        k -= 1
-    return k * dt
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,7 +191,7 @@ class ClosedLoop:
 
     def run(self, steps: int, pushes: tuple[Push, ...] = (), *, limit: float, integration_rate: bool = False,
             extra_time_after_steps: float = 0.0, compiled_loop: bool = True, keep_records: bool = True,
-            on_impact: Callable[[Simulator, AdaptiveController], bool] | None = None, seen: int = 0,
+            on_impact: Callable[[Plant, AdaptiveController], bool] | None = None, seen: int = 0,
             pending: bool = False) -> RunResult:
         """``run``'s loop from the current state (after :meth:`reset` or :meth:`restore`): schedules
         ``pushes`` and walks until ``steps`` impacts, a fall, ``limit`` [s] or ``on_impact`` says stop.
@@ -243,7 +230,7 @@ class ClosedLoop:
                         again = True
                         if on_impact(sim, ctrl):
                             break
-                # a period that needs the QP: decided here, taken by the next call (issue 19); the objects
+                # a period that needs the QP: decided here, taken by the next call; the objects
                 # take it where the compiled loop cannot (and whenever that call hands it back unrun)
                 decision = seg.decide() if not (decision is not None and not ran) else None
                 if decision is not None:
@@ -284,7 +271,7 @@ class ClosedLoop:
 
 
 class LoopPool:
-    """Closed loops kept for reuse within one process (the sweeps' worker processes, issue 19): one
+    """Closed loops kept for reuse within one process (the sweeps' worker processes): one
     :class:`ClosedLoop` per settings (plant and controller configuration, perturbation, robot, family), and
     per loop the snapshots at the push onsets asked for (:meth:`snapshot_at`), at most ``max_snapshots``
     (the oldest dropped first; each holds two small arrays). At most ``max_loops`` loops are kept (the least

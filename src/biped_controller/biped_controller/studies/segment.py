@@ -17,23 +17,23 @@ from biped_sim.robot.floating import PAPER_FROM_URDF
 from biped_sim.plant.records import StepRecord
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.controller import (
-    CONTROL_KERNELS, CONTROL_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
+from biped_controller.core.control.controller import (
+    CONTROLLER_KERNELS, CONTROLLER_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
     WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
-from biped_controller.core.period_layout import RES, WORK
-from biped_controller.core.qp_types import UNCONSTRAINED
+from biped_controller.core.control.controller_layout import RES, WORK
+from biped_controller.core.qp.problem import UNCONSTRAINED
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 
 LOOP_KERNELS = "biped_controller.studies.loop_kernels"
 # what the compiled loop is compiled against besides its own source
-LOOP_KERNELS_SOURCES = CONTROL_KERNELS_SOURCES + (CONTROL_KERNELS, WBC_KERNELS, "biped_sim.plant.rigid_layout")
+LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, "biped_sim.plant.rigid_layout")
 
 
 def load_loop_kernels():
     """The compiled closed loop (``loop_kernels``) through ``numba_cache.load`` (cache kept with its
     dependencies: the planar kernels, the compiled period, the layouts)."""
-    numba_cache.load(CONTROL_KERNELS, sources=CONTROL_KERNELS_SOURCES)
+    numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
     numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
     return numba_cache.load(LOOP_KERNELS, sources=LOOP_KERNELS_SOURCES)
 
@@ -56,7 +56,7 @@ class Segment:
         self.n = 0
         self._last = None
         # the QP period handed back (END_QP): its rows and RES row; the decision given with the next call
-        # (modes lambda and all, issue 21: the torso rows and the column of lambda'', as the compiled period's)
+        # (modes lambda and all: the torso rows and the column of lambda'', as the compiled period's)
         self.G = np.zeros_like(self.fp.G)
         self.h = np.zeros_like(self.fp.h)
         self.res = np.zeros(RES.size)
@@ -73,8 +73,8 @@ class Segment:
         # modes wbc, hybrid: the compiled whole-body stage runs in the loop (wbc_kernels); a period where it
         # needs PIQP, or where hybrid's p/tau QP runs, goes to the objects; the Python stage (the tests'
         # oracle, ``python_stage``) never runs in the loop
-        # (real sensing, issue 22: the compiled loop has no sensing pipeline; the controller's compiled step has;
-        # modes lambda and all, issue 21: the compiled period takes lambda, the QP periods are decided as the others')
+        # (real sensing: the compiled loop has no sensing pipeline; the controller's compiled step has;
+        # modes lambda and all: the compiled period takes lambda, the QP periods are decided as the others')
         fp = getattr(ctrl, "compiled_period", None)
         return bool(sim.compiled and fp is not None and sim.sensor.identity and not fp.python_stage
                     and not ctrl.cfg.real_sensing)

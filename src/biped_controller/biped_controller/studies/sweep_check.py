@@ -1,4 +1,4 @@
-"""Checks of the sweeps' speed-ups (issue 19), run once and reported in docs/capability_map.md.
+"""Checks of the sweeps' speed-ups, run once and reported in docs/capability_map.md.
 
 ``python -m biped_controller.studies.sweep_check compare FAST_SUMMARY FULL_SUMMARY [--stores FAST FULL]``
     every cell of two capability-map summaries (``--json`` of ``scripts/capability_map``): boundary,
@@ -25,10 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_controller.studies import experiment
+from biped_sim.plant.push import Push
+
+from biped_controller.studies.trial import runs, stop
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.settings import RunSettings
+from biped_controller.studies.trial.survival import P_TOL, TAU_DOT_TOL, survival
 from biped_controller.studies.capmap.spec import DIRECTIONS, onset_time
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.studies.executor import make_executor
+from biped_controller.studies import provenance
 
 
 def _cells(summary: dict) -> dict:
@@ -64,10 +70,10 @@ def compare(fast: dict, full: dict, fast_records: list[dict] | None = None,
     return out
 
 
-def _impact_log(rec: dict, settings: experiment.RunSettings) -> dict:
+def _impact_log(rec: dict, settings: RunSettings) -> dict:
     """One record's trial again in full, with the early-stop quantities at every impact."""
-    ctx = experiment.context()
-    fam, es = ctx.family, experiment.early_stop()
+    ctx = context()
+    fam, es = ctx.family, stop.early_stop()
     start = onset_time(float(rec["phase"]), fam.T)
     end = start + float(rec["duration"])
     rows = []
@@ -85,9 +91,9 @@ def _impact_log(rec: dict, settings: experiment.RunSettings) -> dict:
                      "force": abs(ctrl.force_estimate)})
         return False
     signed = DIRECTIONS[rec["direction"]] * float(rec["force"])
-    res = experiment.push_run(signed, float(rec["duration"]), start, rec["mode"], rec.get("height"),
-                              settings=settings, keep_records=False, on_impact=log)
-    ok, why = experiment.survival(res, end)
+    push = Push(start, float(rec["duration"]), float(signed), rec.get("height"))
+    res = runs.push_run(push, rec["mode"], settings=settings, keep_records=False, on_impact=log)
+    ok, why = survival(res, end)
     last = res.statuses[-1]
     return {"key": [rec["mode"], rec["direction"], rec["phase"], rec["duration"], rec["force"]],
             "survived_full": ok, "reason_full": why, "impacts": rows,
@@ -99,10 +105,10 @@ def margins(records: list[dict], sample: int, seed: int, workers: int) -> dict:
     stopped = [r for r in records if r.get("decided_at_step") is not None]
     rng = random.Random(seed)
     pick = rng.sample(stopped, min(sample, len(stopped)))
-    settings = experiment.RunSettings(full_trials=True)
-    with make_executor(workers, initializer=experiment.context) as ex:
+    settings = RunSettings(full_trials=True)
+    with make_executor(workers, initializer=context) as ex:
         logs = ex.map(_impact_log, [(r, settings) for r in pick])
-    es = experiment.early_stop()
+    es = stop.early_stop()
     tol = {"q": es.q, "qd": es.qd, "p": es.p, "p_dot": es.p_dot, "tau_dot": es.tau_dot, "force": es.force}
     worst = {k: 0.0 for k in tol}
     worst_end = {"p": 0.0, "tau_dot": 0.0}
@@ -116,8 +122,8 @@ def margins(records: list[dict], sample: int, seed: int, workers: int) -> dict:
             for name in tol:
                 worst[name] = max(worst[name], row[name] / tol[name])
             all_later_inside &= row["decided"]
-        worst_end["p"] = max(worst_end["p"], lg["end"]["p"] / experiment.P_TOL)
-        worst_end["tau_dot"] = max(worst_end["tau_dot"], lg["end"]["tau_dot"] / experiment.TAU_DOT_TOL)
+        worst_end["p"] = max(worst_end["p"], lg["end"]["p"] / P_TOL)
+        worst_end["tau_dot"] = max(worst_end["tau_dot"], lg["end"]["tau_dot"] / TAU_DOT_TOL)
     return {"early_stopped_in_store": len(stopped), "sample": len(pick), "seed": seed,
             "survived_in_full": sum(1 for lg in logs if lg["survived_full"]),
             "decided_at_the_same_impact": decided_where_stopped,
@@ -143,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--workers", type=int, default=2)
     m.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    provenance.track(args.json, args=args, argv=argv)   # record of each file written (results/README.md)
     if args.cmd == "compare":
         fast, full = (json.loads(p.read_text()) for p in (args.fast, args.full))
         recs = [RecordStore(p).load() for p in args.stores] if args.stores else [None, None]

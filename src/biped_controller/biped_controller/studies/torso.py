@@ -1,4 +1,4 @@
-"""The torso parameter's results (issue 21): cost in tracking and energy, and the p / tau / lambda figure.
+"""The torso parameter's results: cost in tracking and energy, and the p / tau / lambda figure.
 
     python -m biped_controller.studies.torso cost [--force 500] [--start 0.2315] [--duration 0.025]
         [--modes both,lambda,all] [--backward] [--steps 12] [--json FILE]
@@ -6,7 +6,7 @@
         [--modes both,all] --out FILE.png [--json FILE]
 
 ``cost``: one push (or none, ``--force 0``) per mode, the in-process closed loop on the rigid plant
-(``runner.run``, ``steps`` impacts), and per mode: survival (``experiment.survival``), the largest and the
+(``runner.run``, ``steps`` impacts), and per mode: survival (``trial.survival``), the largest and the
 rms tracking error max_i |q_d,i - q_i| [rad] over the run (q_d = q_d(p, tau, lambda), the controller's own
 reference), the actuators' absolute work sum_k sum_i |Gamma_i q'_i| dt_k [J] and the torque-squared
 integral sum_k |Gamma|^2 dt_k [N^2 m^2 s] (a Joule-loss proxy), both over the same time span for every
@@ -34,22 +34,18 @@ from pathlib import Path
 import numpy as np
 
 from biped_sim.plant.push import Push
-from biped_controller.core.controller import MODES
-from biped_controller.studies import experiment
+from biped_controller.studies.trial.args import (StudyArgumentParser, modes_arg, nonnegative_float,
+                                                 positive_float, positive_int)
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
+from biped_controller.studies.trial.survival import survival
 from biped_controller.studies.runner import RunResult, run
+from biped_controller.studies import provenance
 
 
-def _modes(text: str) -> tuple[str, ...]:
-    modes = tuple(m.strip() for m in text.split(",") if m.strip())
-    bad = [m for m in modes if m not in MODES]
-    if not modes or bad or len(set(modes)) != len(modes):
-        raise argparse.ArgumentTypeError(f"--modes: expected distinct modes out of {','.join(MODES)}, got {text!r}")
-    return modes
-
-
-def push_runs(force: float, start: float, duration: float, modes, steps: int) -> dict[str, RunResult]:
-    """One run per mode (force [N], + forward; 0: no push)."""
-    pushes = (Push(start, duration, force),) if force != 0 else ()
+def push_runs(push: Push, modes, steps: int) -> dict[str, RunResult]:
+    """One run of ``steps`` impacts per mode with ``push`` (a zero force: no push)."""
+    pushes = (push,) if push.force != 0 else ()
     return {m: run(steps, m, pushes) for m in modes}
 
 
@@ -59,7 +55,7 @@ def costs(runs: dict[str, RunResult], push_end: float) -> dict:
     horizon = min(r.records[-1].t_end for r in runs.values())
     out = {"horizon_s": horizon, "modes": {}}
     for m, r in runs.items():
-        ok, why = experiment.survival(r, push_end)
+        ok, why = survival(r, push_end)
         keep = [k for k, rec in enumerate(r.records) if rec.t < horizon]
         dt = np.array([min(r.records[k].t_end, horizon) - r.records[k].t for k in keep])
         tq = np.array([r.records[k].torque for k in keep])
@@ -75,12 +71,12 @@ def costs(runs: dict[str, RunResult], push_end: float) -> dict:
     return out
 
 
-def figure(runs: dict[str, RunResult], start: float, duration: float, title: str, path: Path) -> Path:
+def figure(runs: dict[str, RunResult], push: Push, title: str, path: Path) -> Path:
     """p, tau' and lambda against t for each mode's run (three panels)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fam = experiment.context().family
+    fam = context().family
     fig, ax = plt.subplots(3, 1, figsize=(7.5, 7.5), sharex=True)
     for m, r in runs.items():
         t = np.array([s.t for s in r.statuses])
@@ -93,7 +89,7 @@ def figure(runs: dict[str, RunResult], start: float, duration: float, title: str
     ax[1].axhline(1.0, color="k", ls=":", lw=0.8)
     ax[2].axhline(0.0, color="k", ls=":", lw=0.8)
     for a, lab in zip(ax, ("p [m]", "tau' [-]", "lambda [rad] (+ leans back)")):
-        a.axvspan(start, start + duration, color="tab:red", alpha=0.15)
+        a.axvspan(push.start, push.end, color="tab:red", alpha=0.15)
         a.set_ylabel(lab)
         a.grid(alpha=0.3)
     ax[0].set_title(title, fontsize=9)
@@ -166,26 +162,27 @@ def _print_comparison(cmp: dict) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.torso", description=__doc__,
+    ap = StudyArgumentParser(prog="python -m biped_controller.studies.torso", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("compare")
     c.add_argument("summary", type=Path, help="a capability map's summary JSON")
     c.add_argument("--base", default="both")
-    c.add_argument("--modes", type=_modes, default=("lambda", "all"))
+    c.add_argument("--modes", type=modes_arg, default=("lambda", "all"))
     c.add_argument("--json", type=Path)
     for name in ("cost", "figure"):
         a = sub.add_parser(name)
-        a.add_argument("--force", type=float, default=500.0, required=name == "figure", help="[N], + forward")
-        a.add_argument("--start", type=float, default=experiment.DEFAULT_START, help="[s]")
-        a.add_argument("--duration", type=float, default=experiment.DEFAULT_DURATION, help="[s]")
+        a.add_argument("--force", type=nonnegative_float, default=500.0, required=name == "figure", help="[N], + forward")
+        a.add_argument("--start", type=nonnegative_float, default=DEFAULT_START, help="[s]")
+        a.add_argument("--duration", type=positive_float, default=DEFAULT_DURATION, help="[s]")
         a.add_argument("--backward", action="store_true", help="push on the chest (negative force)")
-        a.add_argument("--modes", type=_modes, default=("both", "lambda", "all") if name == "cost" else ("both", "all"))
-        a.add_argument("--steps", type=int, default=12, help="impacts to walk")
+        a.add_argument("--modes", type=modes_arg, default=("both", "lambda", "all") if name == "cost" else ("both", "all"))
+        a.add_argument("--steps", type=positive_int, default=12, help="impacts to walk")
         a.add_argument("--json", type=Path)
         if name == "figure":
             a.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
+    provenance.track(getattr(args, "json", None), getattr(args, "out", None), args=args, argv=argv)   # record of each file written (results/README.md)
     if args.cmd == "compare":
         try:
             summary = json.loads(args.summary.read_text(encoding="utf-8"))
@@ -202,7 +199,8 @@ def main(argv=None) -> int:
     if not (math.isfinite(args.force) and args.force >= 0):
         ap.error(f"--force must be a finite number >= 0 (use --backward for the sign), got {args.force}")
     force = -args.force if args.backward else args.force
-    runs = push_runs(force, args.start, args.duration, args.modes, args.steps)
+    push = Push(args.start, args.duration, force)
+    runs = push_runs(push, args.modes, args.steps)
     push_end = args.start + args.duration
     res = {"argv": list(sys.argv[1:] if argv is None else argv), "force": force, "start": args.start,
            "duration": args.duration, **costs(runs, push_end)}
@@ -213,7 +211,7 @@ def main(argv=None) -> int:
               f"{c['abs_work_J']:9.2f} {c['torque_sq_integral']:10.1f} {c['max_abs_lambda_rad']:9.4f}  {c['reason']}")
     if args.cmd == "figure":
         title = f"{force:g} N, {args.duration * 1e3:g} ms at t = {args.start:g} s"
-        res["figure"] = str(figure(runs, args.start, args.duration, title, args.out))
+        res["figure"] = str(figure(runs, push, title, args.out))
         print(f"figure: {res['figure']}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

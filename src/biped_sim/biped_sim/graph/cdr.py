@@ -1,6 +1,6 @@
 """Hand-written CDR encoders of the messages the simulator and the controller publish every control step (pure:
 imports no ROS), for ``Publisher.publish(bytes)`` (rclpy then hands the bytes to the middleware as they are:
-no Python message object, no Python -> C conversion, no serialisation; issue 20 part 3).
+no Python message object, no Python -> C conversion, no serialisation).
 
 Format: what rclpy + Fast DDS (rmw_fastrtps_cpp, ROS 2 Jazzy) put on the wire and the recorder stores,
 i.e. plain CDR version 1 (XCDR1), little-endian:

@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from biped_sim.graph.bag_summary import summarize_bag
+from biped_sim.recording.bag_summary import summarize_bag
 
 
 def print_summary(s: dict) -> None:

@@ -25,7 +25,7 @@ time, default 3600: the latest start accepted; the launcher sets it to the simul
 one is given), ``push_height`` (m, default config/simulator.yaml), the schedule arrays, ``executor``
 (``events`` | ``single_threaded``, default config/graph.yaml: ``events``; the 1 kHz ``/clock`` of ``use_sim_time``
 cost a wait-set round each under rclpy's Python ``SingleThreadedExecutor``, 0.3-0.5 ms of CPU per control step,
-and still ~0.13 ms as the ``EventsExecutor``'s callback, issue 20: the sim time is now read only at a request,
+and still ~0.13 ms as the ``EventsExecutor``'s callback, so the sim time is read only at a request,
 from a ``/clock`` reader that no executor dispatches, :class:`biped_sim.graph.sim_clock.SimClock`), ``wait_for_recorder`` (default config/graph.yaml:
 true; ``/apply_push`` is served only once the writers of ``/push_events`` and ``/push_requests`` are matched
 with every subscription the graph knows on them, the recorder's among them: :meth:`DisturbanceNode.events_matched`);
@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import Optional
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node

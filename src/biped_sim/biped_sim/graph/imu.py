@@ -30,6 +30,7 @@ from sensor_msgs.msg import Imu
 
 from biped_sim.graph import cdr
 from biped_sim.graph.names import IMU_FRAME
+from biped_sim.robot.finite import finite_number
 
 #: the largest out-of-plane quaternion component or unit-norm error a reader accepts (round-off is ~1e-16)
 PLANAR_TOLERANCE = 1e-9
@@ -44,8 +45,8 @@ class ImuBuilder:
 
     def __init__(self, noise_pitch: float, noise_pitch_rate: float) -> None:
         for name, v in (('noise_pitch', noise_pitch), ('noise_pitch_rate', noise_pitch_rate)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0.0):
-                raise ValueError(f'ImuBuilder: {name} must be a finite standard deviation >= 0, got {v!r}')
+            finite_number(v, name, at_least=0.0,
+                          message=f'ImuBuilder: {name} must be a finite standard deviation >= 0, got {v!r}')
         m = Imu()
         m.header.frame_id = IMU_FRAME
         m.orientation_covariance[4] = float(noise_pitch) ** 2
@@ -90,8 +91,7 @@ def imu_reading(msg: Imu) -> tuple[float, float]:
     values = {'orientation.x': o.x, 'orientation.y': o.y, 'orientation.z': o.z, 'orientation.w': o.w,
               'angular_velocity.x': w.x, 'angular_velocity.y': w.y, 'angular_velocity.z': w.z}
     for name, v in values.items():
-        if not math.isfinite(v):
-            raise ImuMessageError(f'{name} must be finite, got {v}')
+        finite_number(v, name, error=ImuMessageError, message=f'{name} must be finite, got {v}')
     for name in ('orientation.x', 'orientation.z', 'angular_velocity.x', 'angular_velocity.z'):
         if abs(values[name]) > PLANAR_TOLERANCE:
             raise ImuMessageError(f'{name} must be 0 (a planar robot turns about y only), got {values[name]}')

@@ -13,13 +13,23 @@ of the package's ament-index prefix), each with ``--ros-args --params-file FILE`
 Then it waits for the simulator to finish and stops the others (SIGINT; SIGTERM after
 ``--stop-timeout`` s; SIGKILL after as long again), the recorder last so that it gets the last
 messages: every node waits (at most 5 s: Fast DDS re-sends a lost sample after its next heartbeat,
-every 3 s) for its reliable subscribers to acknowledge what it published before it exits, and the
-recorder, once no publisher is left, takes everything still queued before it finishes the bag
-(``--recorder-stop-timeout``, 30 s, between its SIGINT and SIGTERM).
+every 0.1 s with ``config/fastdds.xml``) for its reliable subscribers to acknowledge what it published
+before it exits, and the recorder, once no publisher is left, takes everything still queued before it
+finishes the bag (``--recorder-stop-timeout``, 30 s, between its SIGINT and SIGTERM).
 It isolates nothing (children inherit ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE).
 
-- A node that exits before the simulator finished: "launch: node 'X' died unexpectedly (exit code
-  N)", every other node is stopped, exit status 1.
+Waiting: the launcher sleeps until a child exits (one pidfd per child, readable once that process has
+exited) or a signal arrives (``signal.set_wakeup_fd``), so a dead node is seen within milliseconds.
+
+- A node that exits before the simulator finished (the simulator itself killed by a signal, or any other
+  node exiting while the run goes on): "launch: node 'X' died unexpectedly (exit code N | killed by SIG...)",
+  then every other node is stopped at once: SIGINT, SIGTERM ``--fault-stop-timeout`` s (0.5) later, SIGKILL
+  as long again after that (this cuts short a survivor's wait for the acknowledgements of the dead node's
+  readers: they stay matched after its death, and without the SIGTERM a survivor of a killed recorder
+  lingered the whole 5 s of that wait), the recorder last and as at a normal end (it drains
+  and finishes the bag). A killed recorder leaves its file without a summary: the launcher names the
+  ``scripts/bag recover`` command that rewrites its complete chunks into a finished bag. Exit status 1, after
+  "launch: graph stopped T s after node 'X' died".
 - SIGINT / SIGTERM to the launcher: forwarded (the simulator first, the recorder last), exit 130/143.
 - Exit status otherwise: the simulator's (0 when the run ended by steps, time or fall).
 - Children get PR_SET_PDEATHSIG(SIGTERM): they do not outlive a killed launcher.
@@ -45,7 +55,9 @@ from __future__ import annotations
 import argparse
 import ctypes
 import datetime as _dt
+import math
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -83,11 +95,29 @@ def _pdeathsig():
         pass
 
 
+def describe_exit(code: int) -> str:
+    """``exit code N`` for a process that exited, ``killed by SIGNAME`` for one a signal ended
+    (``Popen.returncode`` -N)."""
+    if code >= 0:
+        return f'exit code {code}'
+    try:
+        return f'killed by {signal.Signals(-code).name}'
+    except ValueError:
+        return f'killed by signal {-code}'
+
+
 class Child:
+    """A node's process (own session, PR_SET_PDEATHSIG) and a pidfd on it (None where the kernel has no
+    ``pidfd_open``): readable once the process has exited."""
+
     def __init__(self, name: str, cmd: list[str]):
         self.name = name
         self.cmd = cmd
         self.proc = subprocess.Popen(cmd, preexec_fn=_pdeathsig, start_new_session=True)
+        try:
+            self.pidfd: Optional[int] = os.pidfd_open(self.proc.pid)
+        except (AttributeError, OSError):   # Python < 3.9 or Linux < 5.3: Waiter polls instead
+            self.pidfd = None
 
     def poll(self) -> Optional[int]:
         return self.proc.poll()
@@ -99,26 +129,89 @@ class Child:
             except ProcessLookupError:
                 pass
 
+    def close(self) -> None:
+        if self.pidfd is not None:
+            os.close(self.pidfd)
+            self.pidfd = None
+
+
+class Waiter:
+    """Sleeps until a child exits or a signal with a Python handler arrives, at most a given time.
+
+    Signals: ``signal.set_wakeup_fd`` on a non-blocking pipe (the C-level handler writes a byte, so the poll
+    below wakes even though Python runs its handler only afterwards); restored by :meth:`close`. Must be
+    created in the main thread. Children: their pidfds. A child without one makes every wait at most
+    ``FALLBACK_POLL`` s."""
+
+    FALLBACK_POLL = 0.05   # s
+
+    def __init__(self):
+        self._r, self._w = os.pipe()
+        os.set_blocking(self._r, False)
+        os.set_blocking(self._w, False)
+        self._previous = signal.set_wakeup_fd(self._w)
+
+    def wait(self, children, timeout: float) -> None:
+        """Return once one of ``children`` has exited (at once if one already has), a signal arrived, or
+        ``timeout`` s passed."""
+        alive = [c for c in children if c.poll() is None]
+        if len(alive) < len(children):
+            return
+        poller = select.poll()
+        poller.register(self._r, select.POLLIN)
+        for c in alive:
+            if c.pidfd is not None:
+                poller.register(c.pidfd, select.POLLIN)
+            else:
+                timeout = min(timeout, self.FALLBACK_POLL)
+        poller.poll(max(0.0, timeout) * 1000.0)
+        try:
+            while os.read(self._r, 512):
+                pass
+        except BlockingIOError:
+            pass
+
+    def close(self) -> None:
+        signal.set_wakeup_fd(self._previous)
+        os.close(self._r)
+        os.close(self._w)
+
 
 def log(msg: str) -> None:
     print(f'launch: {msg}', file=sys.stderr, flush=True)
 
 
-def stop_children(children: list[Child], timeout: float) -> None:
-    """SIGINT, then SIGTERM after ``timeout``, then SIGKILL after ``timeout`` more; waits for all."""
+def stop_children(children: list[Child], timeout: float, waiter: Optional[Waiter] = None) -> None:
+    """SIGINT, then SIGTERM after ``timeout`` s, then SIGKILL after ``timeout`` s more; waits for all.
+    Without a ``waiter`` it polls every 20 ms."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         alive = [c for c in children if c.poll() is None]
         if not alive:
-            return
+            break
         if sig != signal.SIGINT:
             log(f'{", ".join(c.name for c in alive)} still running: {sig.name}')
         for c in alive:
             c.signal(sig)
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and any(c.poll() is None for c in alive):
-            time.sleep(0.02)
+        while True:
+            alive = [c for c in alive if c.poll() is None]
+            left = deadline - time.monotonic()
+            if not alive or left <= 0:
+                break
+            if waiter is not None:
+                waiter.wait(alive, left)
+            else:
+                time.sleep(min(left, 0.02))
     for c in children:
         c.proc.wait()
+
+
+class NodeDied(RuntimeError):
+    """A node of the graph exited while the launcher waited for the graph to come up."""
+
+    def __init__(self, child: Child):
+        self.child = child
+        super().__init__(f"node '{child.name}' died unexpectedly ({describe_exit(child.poll())})")
 
 
 BRIDGE = ('bridge', 'biped_sim', 'bridge')   # --live only, host_process own
@@ -147,7 +240,7 @@ def wait_recorder_subscribed(timeout: float, watch: list[Child], stop: dict, nod
                 return
             for c in watch:
                 if c.poll() is not None:
-                    raise RuntimeError(f"node '{c.name}' died unexpectedly (exit code {c.poll()})")
+                    raise NodeDied(c)
             if stop['signal'] is not None:
                 return
             if time.monotonic() > deadline:
@@ -201,8 +294,9 @@ def parse_args(argv=None):
                     help='s the recorder gets between SIGINT and SIGTERM (it drains its queues, then finishes the '
                          'bag: done as soon as they are empty; its own limit is 25 s)')
     ap.add_argument('--start-timeout', type=float, default=60.0, help='s to wait for the recorder')
-    ap.add_argument('--grace', type=float, default=7.0,
-                    help='s the survivors get after a node died (the simulator detects a dead controller)')
+    ap.add_argument('--fault-stop-timeout', type=float, default=0.5,
+                    help='after a node died: s between SIGINT, SIGTERM and SIGKILL to the others (the recorder: '
+                         'as at a normal stop)')
     ap.add_argument('--ready-file', type=Path, default=None, help='written once every node is started')
     ap.add_argument('--live', action='store_true',
                     help='start the Foxglove WebSocket bridge; simulator paced at real_time_factor 1.0')
@@ -222,6 +316,11 @@ def main(argv=None) -> int:
     if args.steps is not None and args.steps < 0:
         log('--steps must be >= 0')
         return 2
+    for opt in ('start_timeout', 'stop_timeout', 'recorder_stop_timeout', 'fault_stop_timeout'):
+        value = getattr(args, opt)
+        if not (math.isfinite(value) and value >= 0):
+            log(f'--{opt.replace("_", "-")} must be a finite number >= 0, got {value}')
+            return 2
     if args.port is not None and not (args.live and 0 <= args.port <= 65535):
         log('--port needs --live and a port in [0, 65535]')
         return 2
@@ -267,8 +366,10 @@ def main(argv=None) -> int:
             stop['signal'] = signum
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    waiter = Waiter()
     children: dict[str, Child] = {}
     status = 0
+    dead: Optional[Child] = None   # the node whose exit ended the run
     bridge_reported = False   # a dead bridge is reported once and does not stop the run
     t0 = time.monotonic()
     try:
@@ -299,50 +400,74 @@ def main(argv=None) -> int:
             if sim is not None and sim.poll() is not None:
                 status = sim.poll()
                 if status < 0:
-                    log(f"node 'simulator' died unexpectedly (killed by {signal.Signals(-status).name})")
-                    status = 1
-                    deadline = time.monotonic() + min(args.grace, 3.0)   # the controller reports the silence
-                    while time.monotonic() < deadline and stop['signal'] is None:
-                        time.sleep(0.05)
+                    dead = sim
                 else:
                     log(f'simulator finished (exit code {status}) after {time.monotonic() - t0:.2f} s')
                 break
             bridge = children.get('bridge')
             if bridge is not None and not bridge_reported and bridge.poll() is not None:
-                log(f"node 'bridge' died unexpectedly (exit code {bridge.poll()}): the run goes on without the live view")
+                log(f"node 'bridge' died unexpectedly ({describe_exit(bridge.poll())}): "
+                    'the run goes on without the live view')
                 bridge_reported = True
-            dead = [c for n, c in children.items() if n not in ('simulator', 'bridge') and c.poll() is not None]
-            if dead:
-                c = dead[0]
-                log(f"node '{c.name}' died unexpectedly (exit code {c.poll()})")
-                status = 1
-                # let the survivors notice (the simulator's command timeout ends its run with a final
-                # state and /fall) before stopping them
-                deadline = time.monotonic() + args.grace
-                while sim is not None and sim.poll() is None and time.monotonic() < deadline \
-                        and stop['signal'] is None:
-                    time.sleep(0.05)
+            exited = [c for n, c in children.items() if n not in ('simulator', 'bridge') and c.poll() is not None]
+            if exited:
+                dead = exited[0]
                 break
-            time.sleep(0.05)
+            waiter.wait([c for c in children.values() if c.poll() is None], 1.0)
+    except NodeDied as exc:
+        dead = exc.child
     except RuntimeError as exc:
         log(str(exc))
         status = 1
     finally:
-        if stop['signal'] is not None:
+        t_dead = time.monotonic()
+        if dead is not None:
+            log(f"node '{dead.name}' died unexpectedly ({describe_exit(dead.poll())}): stopping the graph")
+            status = 1
+        elif stop['signal'] is not None:
             log(f'got {signal.Signals(stop["signal"]).name}: stopping the graph')
             status = 128 + stop['signal']
         # simulator first, the recorder last
         order = [children[n] for n in ('simulator', 'controller', 'disturbance', 'bridge') if n in children]
-        stop_children(order, args.stop_timeout)
+        stop_children(order, args.fault_stop_timeout if dead is not None else args.stop_timeout, waiter)
         if 'recorder' in children:
-            stop_children([children['recorder']], args.recorder_stop_timeout)
+            stop_children([children['recorder']], args.recorder_stop_timeout, waiter)
             rc = children['recorder'].poll()
             if rc not in (0, None) and status == 0:
                 log(f'recorder exited with {rc}')
                 status = 1
+        if dead is not None:
+            log(f"graph stopped {time.monotonic() - t_dead:.2f} s after node '{dead.name}' died")
+            hint = unfinished_bag_hint(bag) if dead.name == 'recorder' else None
+            if hint is not None:
+                log(hint)
+        for c in children.values():
+            c.close()
+        waiter.close()
         for s, h in previous.items():
             signal.signal(s, h)
     return status
+
+
+MCAP_MAGIC = b'\x89MCAP0\r\n'   # the last 8 bytes of a finished MCAP file (after its footer)
+
+
+def unfinished_bag_hint(bag: Path) -> Optional[str]:
+    """For the bag of a recorder that died: None when its file is finished (ends with the MCAP magic after
+    the footer), else the ``scripts/bag recover`` command that rewrites the file's complete chunks (the
+    recorder writes a chunk out at least every ``chunk_time`` s) into a finished bag."""
+    files = sorted(bag.glob('*.mcap')) if bag.is_dir() else []
+    if not files:
+        return f'the recorder left no bag file under {bag}'
+    try:
+        with open(files[0], 'rb') as fh:
+            fh.seek(max(0, files[0].stat().st_size - len(MCAP_MAGIC)))
+            if fh.read() == MCAP_MAGIC:
+                return None
+    except OSError as exc:
+        return f'the bag file {files[0]} cannot be read: {exc}'
+    return (f'the bag file {files[0]} is unfinished (no summary): scripts/bag recover {bag} {bag}_recovered '
+            'rewrites its complete chunks into a finished bag')
 
 
 if __name__ == '__main__':

@@ -60,24 +60,12 @@ from rclpy.qos import (
 )
 
 # --------------------------------------------------------------------------- names
-CLOCK = '/clock'
-SIM_STATE = '/sim/state'
-IMU = '/imu'
+# the topic names live in a pure module (bag readers use them without ROS); re-exported here
+from biped_sim.recording.topics import (  # noqa: E402, F401
+    CLOCK, CONTROLLER_STATUS, CONTROLLER_TORQUE, FALL, GROUND_REACTION, GROUND_REACTION_COP, IMU, JOINT_STATES,
+    PUSH_EVENTS, PUSH_REQUESTS, ROBOT_DESCRIPTION, SIM_IMPACTS, SIM_PLANT, SIM_PUSH, SIM_STATE, STANCE, TF)
+
 IMU_FRAME = 'torso'                 # the IMU is on the torso link (URDF root)
-JOINT_STATES = '/joint_states'
-GROUND_REACTION = '/ground_reaction'
-GROUND_REACTION_COP = '/ground_reaction/cop'
-STANCE = '/stance'
-TF = '/tf'
-ROBOT_DESCRIPTION = '/robot_description'
-FALL = '/fall'
-SIM_IMPACTS = '/sim/impacts'
-SIM_PUSH = '/sim/push'
-SIM_PLANT = '/sim/plant'
-CONTROLLER_TORQUE = '/controller/torque'
-CONTROLLER_STATUS = '/controller/status'
-PUSH_EVENTS = '/push_events'
-PUSH_REQUESTS = '/push_requests'
 
 APPLY_PUSH = '/apply_push'          # service
 APPLY_PUSH_TYPE = 'biped_msgs_py/srv/ApplyPush'

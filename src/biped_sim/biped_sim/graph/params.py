@@ -19,12 +19,14 @@ import signal
 import time
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, Iterable, Optional, Sequence
+from typing import Any, Callable, Sequence
 
 import yaml
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
+
+from biped_sim.robot.finite import finite_number
 
 EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
@@ -87,8 +89,7 @@ def get_float(node: Node, name: str, default: float | None = None, *, lo: float 
     v = float(v)
     if math.isnan(v) and allow_nan:
         return v
-    if not math.isfinite(v):
-        raise ParameterError(name, f"must be finite, got {v}")
+    finite_number(v, name, error=lambda m: ParameterError(name, m), message=f"must be finite, got {v}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
         raise ParameterError(name, f"must be {'>' if lo_open else '>='} {lo}, got {v}")
     if hi is not None and v > hi:
@@ -121,6 +122,19 @@ def get_str(node: Node, name: str, default: str | None = None, *, choices: Seque
     if choices is not None and v not in choices:
         raise ParameterError(name, f"must be one of {' | '.join(choices)}, got {v!r}")
     return v
+
+
+def get_profile(node: Node):
+    """The named profile of parameter ``profile`` (``config/profiles/NAME.yaml``,
+    :mod:`biped_sim.robot.profiles`; default ``config/graph.yaml``); an unknown name or a malformed file
+    raises ParameterError naming ``profile`` and the known profiles."""
+    from biped_sim.robot.profiles import ProfileError, load_profile
+    # declared once (the simulator reads it for its settings and for its perturbation)
+    name = node.get_parameter('profile').value if node.has_parameter('profile') else get_str(node, 'profile')
+    try:
+        return load_profile(name)
+    except ProfileError as exc:
+        raise ParameterError('profile', str(exc)) from exc
 
 
 def get_float_list(node: Node, name: str) -> list[float]:
@@ -212,8 +226,8 @@ def _spinner(executor) -> Callable[[], None]:
     at most SPIN_SLICE s of waiting). The EventsExecutor: every event for SPIN_SLICE s, through its
     ``spin_until_future_complete`` on a future that never completes (this rclpy's ``spin`` takes no timeout):
     its ``spin_once`` returns after each callback, and the loop's own checks around it (``rclpy.ok``: the
-    context's lock) took 15-20 % of the bridge's thread at 10 messages per millisecond (issue 20 part 3,
-    py-spy). A signal or ``node.done`` is then seen within SPIN_SLICE s."""
+    context's lock) took 15-20 % of the bridge's thread at 10 messages per millisecond (py-spy).
+    A signal or ``node.done`` is then seen within SPIN_SLICE s."""
     from rclpy.executors import SingleThreadedExecutor
     if isinstance(executor, SingleThreadedExecutor):
         return lambda: executor.spin_once(timeout_sec=SPIN_SLICE)

@@ -10,7 +10,7 @@ For each message:
   Each topic keeps its order in DDS, topics among themselves need not: a message repaired after a loss (a frozen
   or starved recorder's full shared-memory queue) can arrive after many later ``/clock``; taken in order it got the
   newest of them (0-10 of 928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``; 8-250 of 300
-  in a loaded run of the frozen-recorder test), looked up it gets its own (issue 20). A ``/clock`` that itself
+  in a loaded run of the frozen-recorder test), looked up it gets its own. A ``/clock`` that itself
   arrives late still cannot serve the messages recorded before it: they get the latest earlier one. What one take
   holds is also recorded in publication order. Before the first ``/clock`` (or for a message older than every
   ``/clock`` kept), the newest ``/clock`` received, else the node's clock (``use_sim_time`` is forced on: 0 until a
@@ -33,8 +33,8 @@ Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad o
 - ``batch_wait``  (float s, 0 .. 0.1; default: ``config/graph.yaml``): after each executor callback (the message
   and what waited on every subscription) the recorder's thread sleeps this long, so a real-time graph's
   messages are taken in batches of a step or more instead of one rclpy wait-set round (Python: every
-  subscription, task, callback; ~0.1-0.3 ms of CPU) for every few messages (issue 20: the recorder spent 97 %
-  of its thread in those rounds at real time). It adds at most ``batch_wait`` to a message's time in the
+  subscription, task, callback; ~0.1-0.3 ms of CPU) for every few messages (one round per
+  message took 97 % of the recorder's thread at real time). It adds at most ``batch_wait`` to a message's time in the
   recorder's DDS queue (deep enough: ``STREAM_DEPTH``) and to what a SIGKILL loses. 0 = no wait.
 - ``executor`` (``wait_set`` | ``single_threaded``; default: ``config/graph.yaml``): how the recorder's thread
   waits for messages. ``single_threaded``: rclpy's Python ``SingleThreadedExecutor`` (each round rebuilds a wait
@@ -309,7 +309,7 @@ class RecorderNode(Node):
         directly (:meth:`_take_waiting`, at most DRAIN_BATCH), all recorded in the order they were published.
         The executor's round per message (Python wait set over every subscription, task, callback) costs more
         than writing the message: at 1 kHz x 15 topics, taking only the subscription that fired left the
-        recorder ~0.3-0.5 s behind a real-time graph on a loaded 2-core machine (issue 20), and what DDS still
+        recorder ~0.3-0.5 s behind a real-time graph on a loaded 2-core machine, and what DDS still
         holds for the recorder dies with it on SIGKILL. Then the thread sleeps ``batch_wait`` s, so that the
         next round finds a control step's messages (and more) waiting instead of waking for each (module
         docstring)."""
@@ -428,7 +428,8 @@ class RecorderNode(Node):
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
             self._writer.write(spec.name, spec.type, msg, log_time, publish_time)
             if spec.name == graph_names.SIM_PLANT:
-                # the plant's true parameters (issue 14) also as the bag's metadata record 'biped_plant'
+                # the plant's true parameters (biped_sim.plant.perturbation) also as the bag's metadata
+                # record 'biped_plant'
                 from std_msgs.msg import String
                 self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
         except RecorderError as exc:

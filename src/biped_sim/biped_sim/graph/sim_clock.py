@@ -1,4 +1,4 @@
-"""A node's sim-time clock without rclpy's per-message ``/clock`` callback (issue 20 part 3).
+"""A node's sim-time clock without rclpy's per-message ``/clock`` callback.
 
 With ``use_sim_time`` true, rclpy's ``TimeSource`` gives a node a ``/clock`` reader whose Python callback runs on
 every message: at 1 kHz that is a DDS delivery, an executor dispatch, a deserialisation and a ``Time`` per control

@@ -35,7 +35,7 @@ on a fall), then the node lingers ``linger`` seconds (default 0.5) so that the r
 the last messages, and exits 0 (steps, time, fall) or 1 (controller timeout). SIGINT/SIGTERM end it
 cleanly (status 0).
 
-IMU (issue 22, ``biped_sim.graph.imu``): ``/imu`` (``sensor_msgs/msg/Imu``, frame ``torso``) carries the
+IMU (``biped_sim.graph.imu``): ``/imu`` (``sensor_msgs/msg/Imu``, frame ``torso``) carries the
 torso pitch and pitch rate of the same sensor sample as ``/sim/state``'s q (its noise ``perturbation.noise_pitch``
 and ``perturbation.noise_pitch_rate``, its delay), stamped with the state's stamp, published just before it;
 not sent again with a fallen state at the instant already published (as ``/clock``). The controller pairs
@@ -51,7 +51,7 @@ missing, exit 1.
 Pushes: ``/push_events`` (PushEvent, transient local) are scheduled with ``sim.schedule_push`` with
 the event's id; a repeated id is ignored.
 
-Perturbations (issue 14, ``biped_sim.plant.perturbation``): the parameters ``perturbation.<field>`` for every
+Perturbations (``biped_sim.plant.perturbation``): the parameters ``perturbation.<field>`` for every
 field of ``PlantPerturbation`` (``perturbation.torso_mass_scale``, ``perturbation.torso_com_shift``,
 ``perturbation.noise_qd``, ``perturbation.delay``, ...; defaults: none; ``perturbation.mu`` 0 = the
 description's mu) make the simulated plant differ from ``config/biped.yaml``, which the controller keeps.
@@ -64,7 +64,7 @@ Publishing (``publish_cdr``, default ``config/graph.yaml``: true): the per-step 
 ``/sim/state``, ``/tf``, ``/stance``, ``/joint_states``, ``/ground_reaction``, ``/ground_reaction/cop``,
 ``/sim/push``) go out as CDR bytes encoded by ``biped_sim.graph.cdr`` (``Publisher.publish(bytes)``), the same
 bytes as the message objects (false) produce: rclpy then skips building, converting and serialising a Python
-message (issue 20 part 3). The latched and event topics are always message objects.
+message. The latched and event topics are always message objects.
 
 Parameters are validated at start; a bad one is logged naming it and the node exits 2 before
 anything is published.
@@ -91,16 +91,16 @@ from tf2_msgs.msg import TFMessage
 from biped_msgs_py.msg import AppliedPush, Impact, PushEvent, SimState
 from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
-from biped_sim.robot.description import LEFT, PAPER_JOINTS, URDF_JOINTS, load_description, make_urdf
+from biped_sim.robot.description import LEFT, URDF_JOINTS, make_urdf
 from biped_sim.robot.floating import urdf_from_paper
 from biped_sim.graph.params import (
-    EXIT_BAD_PARAMETER,
     ParameterError,
     declare_executor,
     wait_all_acked,
     get_bool,
     get_float,
     get_int,
+    get_profile,
     get_str,
     load_robot_files,
     run_node,
@@ -193,8 +193,14 @@ class TransformBuilder:
 
 
 def read_sim_config(node: Node) -> SimConfig:
-    """SimConfig from the parameters (defaults: config/simulator.yaml)."""
-    base = load_sim_config()
+    """SimConfig from the parameters (defaults: config/simulator.yaml with the simulator settings of the
+    profile of parameter ``profile``, config/profiles/; an unknown profile raises ParameterError naming
+    ``profile`` and the known ones)."""
+    profile = get_profile(node)
+    try:
+        base = load_sim_config(**{k: v for k, v in profile.settings if k in SimConfig.__dataclass_fields__})
+    except SimConfigError as exc:
+        raise ParameterError('profile', f"profile {profile.name}: {exc}") from exc
     kw = {}
     for name in SimConfig.__dataclass_fields__:
         default = getattr(base, name)
@@ -218,10 +224,13 @@ def read_sim_config(node: Node) -> SimConfig:
 
 
 def read_perturbation(node: Node, desc) -> PlantPerturbation:
-    """The plant's perturbation from the parameters ``perturbation.<field>`` (defaults: none;
-    ``perturbation.mu`` 0 = the description's friction), validated against ``desc``: a bad value raises
-    ``ParameterError`` naming ``perturbation.<field>``."""
-    zero = PlantPerturbation()
+    """The plant's perturbation from the parameters ``perturbation.<field>`` (defaults: the profile's
+    perturbation, else none; ``perturbation.mu`` 0 = the description's friction), validated against ``desc``:
+    a bad value raises ``ParameterError`` naming ``perturbation.<field>``."""
+    try:
+        zero = PlantPerturbation.from_dict(dict(get_profile(node).perturbation))
+    except PerturbationError as exc:
+        raise ParameterError('profile', f"perturbation: {exc}") from exc
     kw = {}
     for name in PlantPerturbation.__dataclass_fields__:
         key = f'perturbation.{name}'
@@ -230,7 +239,7 @@ def read_perturbation(node: Node, desc) -> PlantPerturbation:
         elif name == 'touchdown_delayed':
             kw[name] = get_bool(node, key, getattr(zero, name))
         elif name == 'mu':
-            mu = get_float(node, key, 0.0, lo=0.0)
+            mu = get_float(node, key, zero.mu or 0.0, lo=0.0)
             kw[name] = None if mu == 0.0 else mu
         else:
             kw[name] = get_float(node, key, getattr(zero, name))
@@ -339,7 +348,7 @@ class SimulatorNode(Node):
         # the lockstep allows (experiments), r = r x real time
         self.real_time_factor = get_float(self, 'real_time_factor', lo=0.0, hi=1000.0)
         # the per-step topics as CDR bytes encoded here (biped_sim.graph.cdr) instead of message objects:
-        # the same bytes on the wire, a fraction of rclpy's publish cost (issue 20 part 3)
+        # the same bytes on the wire, a fraction of rclpy's publish cost
         self.publish_cdr = get_bool(self, 'publish_cdr')
 
     # ------------------------------------------------------------------ start

@@ -42,7 +42,7 @@ import time
 from pathlib import Path
 
 
-from biped_sim.graph.bag_summary import analyze_bag
+from biped_sim.recording.bag_summary import analyze_bag
 
 PUSH_DURATION = 0.025
 # [s] between one push's end and the next one's onset when the requester fell behind: one control period,

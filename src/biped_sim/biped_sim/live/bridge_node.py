@@ -40,8 +40,8 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
 - ``executor`` (``events`` | ``single_threaded``; ``config/graph.yaml``: ``events``): rclpy's C++
-  ``EventsExecutor`` or its Python ``SingleThreadedExecutor``. Issue 20 part 3 (``benchmarks/bridge_profile``,
-  py-spy at real time): on the ``SingleThreadedExecutor`` 86-90 % of the bridge's Python thread went to the
+  ``EventsExecutor`` or its Python ``SingleThreadedExecutor``. Measured (``benchmarks/bridge_profile``, py-spy at
+  real time): on the ``SingleThreadedExecutor`` 86-90 % of the bridge's Python thread went to the
   executor's rounds (wait set rebuilt over every subscription, timer and service entity, task, callback), 9-19 %
   to ``Channel.log`` and 1-2 % to the bridge's own code; the bridge cost 0.9-1.7 ms of CPU per control step,
   as much as the simulator. The ``EventsExecutor`` takes each message in C++ and calls the handler directly
@@ -49,7 +49,7 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
 - ``drain_batch`` (int 0..100000; ``config/graph.yaml``: 0): with ``single_threaded``, after the message the
   executor handed over, at most this many more are taken directly, in the same callback, from *every*
   subscription (passes over them until one takes nothing; each topic's messages in their order; ``/clock``
-  first in each pass, so the log time is the newest sim time), as the recorder does (issue 20 part 2: 64);
+  first in each pass, so the log time is the newest sim time), as the recorder does;
   0 = the handler is the subscription's callback (one message per callback: the ``EventsExecutor``'s way,
   where a drain would only add empty takes).
 - ``host_process`` (``recorder`` | ``own``; ``config/graph.yaml``): read by the launcher (``scripts/launch --live``):
@@ -59,7 +59,7 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
   looks at which streams the clients watch (the SDK's threads only mark a change).
 - ``tcp_nodelay`` (bool; ``config/graph.yaml``: true): set ``TCP_NODELAY`` on the server's listening socket
   right after it started (accepted client sockets inherit it): the SDK leaves Nagle's algorithm on, and a frame
-  then waits for the client's delayed ACK, up to 40 ms (:mod:`biped_sim.live.sockets`; issue 20 part 3).
+  then waits for the client's delayed ACK, up to 40 ms (:mod:`biped_sim.live.sockets`).
   Not found or not set: a warning, the server runs with Nagle's algorithm.
 
 Exit status: 0 on SIGINT/SIGTERM, 2 for a bad parameter or a server that cannot start (port in use).
@@ -332,10 +332,6 @@ class BridgeNode(Node):
                 self._subscribe(topic)
             elif topic not in wanted and topic in self._ros_subs:
                 self.destroy_subscription(self._ros_subs.pop(topic))
-
-    def subscribed_topics(self) -> set[str]:
-        """The topics the bridge is subscribed to on the ROS side now."""
-        return set(self._ros_subs)
 
     def on_client_subscribe(self, client_id: int, topic: str) -> None:
         """(SDK thread) A client subscribed: log it; a stream is subscribed on the ROS side (on the executor's

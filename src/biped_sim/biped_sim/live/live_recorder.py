@@ -10,13 +10,13 @@ chunk compressed meanwhile does not delay its frames), so one reader per topic s
 WebSocket. ROS 2's composition (several nodes in one process) is the
 precedent.
 
-Why (issue 20 part 3, docs/live_view.md): with the bridge in its own process, every per-step topic had one more
+Why (docs/live_view.md): with the bridge in its own process, every per-step topic has one more
 reader, and each reader costs the simulator and the controller a write (Fast DDS's per-reader cost dominated what
 remained of their publish), plus the bridge process's own take of every message (Python thread, Fast DDS's
 receive thread). Co-hosted, the bridge's work per message is ``Channel.log`` only.
 
-Failure isolation is the price: the live view is no longer a separate process that may die while the run goes
-on. A server that cannot start (port in use) is reported and the recorder records without the live view
+Failure isolation is the price: the live view is not a separate process that may die while the run goes on.
+A server that cannot start (port in use) is reported and the recorder records without the live view
 (exit status as the recorder's); a bridge parameter that is invalid exits 2 naming it, as the bridge's own
 executable does, before any file is created.
 """
@@ -25,7 +25,7 @@ from __future__ import annotations
 import sys
 from typing import List, Optional
 
-from biped_sim.graph.params import ParameterError, run_node
+from biped_sim.graph.params import run_node
 from biped_sim.graph.recorder_node import RecorderNode
 from biped_sim.live.bridge_node import BridgeNode, BridgeStartError
 from biped_sim.recording.mcap_recorder import RecorderError

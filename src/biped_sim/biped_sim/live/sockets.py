@@ -4,7 +4,7 @@ Why. foxglove-sdk's WebSocket server (Rust, tokio; 0.30.3 and its main branch as
 ``TCP_NODELAY`` on the sockets it accepts, so Nagle's algorithm is on: a small frame written while an earlier one
 is not yet acknowledged waits in the kernel until that acknowledgement comes or a full segment (~64 KiB on the
 loopback) is queued. A client that only reads (Foxglove, the benchmark's client) acknowledges with Linux's
-delayed ACK, up to 40 ms later. Result at real time (issue 20 part 3, ``benchmarks/bridge_bench``): stalls of
+delayed ACK, up to 40 ms later. Result at real time (``benchmarks/bridge_bench``): stalls of
 ~40-50 ms every few hundred milliseconds on the WebSocket path, each holding back 20-40 frames, while the frames
 had left the recorder's thread within ~1 ms (traced per message: take -> client p99 33.6 ms, DDS -> take p99
 13.5 ms).

@@ -5,10 +5,10 @@ loading a simulator.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from biped_sim.robot.finite import finite_number
 from biped_sim.robot.loop import LoopSettings, LoopSettingsError
 from biped_sim.robot.settings import SettingsError, default_config_dir, read_settings
 
@@ -68,10 +68,8 @@ class SimConfig:
             raise SimConfigError(f"substeps must be an integer in [1, 1000], got {self.substeps}")
         for name in ("touchdown_tolerance", "clearance_before_touchdown", "liftoff_penetration", "event_time_tolerance"):
             v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise SimConfigError(f"{name} must be finite and > 0, got {v}")
-        if not math.isfinite(self.push_height):
-            raise SimConfigError("push_height must be finite")
+            finite_number(v, name, above=0, error=SimConfigError, message=f"{name} must be finite and > 0, got {v}")
+        finite_number(self.push_height, "push_height", error=SimConfigError, message="push_height must be finite")
         if self.plant not in PLANT_NAMES:
             raise SimConfigError(f"plant must be one of {PLANT_NAMES}, got {self.plant!r}")
         if self.mujoco_integrator not in MUJOCO_INTEGRATORS:
@@ -83,8 +81,7 @@ class SimConfig:
                      "mujoco_shin_capsule_gap", "mujoco_touch_threshold", "mujoco_swing_debounce",
                      "mujoco_fall_hip_height", "mujoco_fall_foot_tilt"):
             v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise SimConfigError(f"{name} must be finite and > 0, got {v}")
+            finite_number(v, name, above=0, error=SimConfigError, message=f"{name} must be finite and > 0, got {v}")
         n = self.control_period / self.mujoco_timestep
         if self.plant == "mujoco" and (abs(n - round(n)) > 1e-9 * n or round(n) < 1):
             raise SimConfigError(f"mujoco_timestep must divide control_period ({self.control_period} s), "
@@ -111,8 +108,7 @@ def load_sim_config(path: str | Path | None = None, **overrides) -> SimConfig:
             if not isinstance(v, str):
                 raise SimConfigError(f"{k} must be a word, got {v!r} ({p})")
             continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-            raise SimConfigError(f"{k} must be a finite number, got {v!r} ({p})")
+        finite_number(v, k, error=SimConfigError, message=f"{k} must be a finite number, got {v!r} ({p})")
     if float(kw["substeps"]) != int(kw["substeps"]):
         raise SimConfigError(f"substeps must be an integer, got {kw['substeps']!r} ({p})")
     kw["substeps"] = int(kw["substeps"])

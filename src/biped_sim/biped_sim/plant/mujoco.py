@@ -15,7 +15,7 @@ same clipping as the rigid plant). After ``mj_step`` from t0 to t1 the contact l
 forces are those MuJoCo computed at t0 and applied over [t0, t1] (semi-implicit Euler), so the ground's
 impulse over the step is exactly h x force.
 
-What differs from the rigid plant, by design (issue 24):
+What differs from the rigid plant, by design:
 
 * **Sensed, not declared.** A foot is *loaded* when the normal force of its contacts exceeds
   ``mujoco_touch_threshold``. The swing foot is *armed* once it has stayed unloaded for
@@ -63,11 +63,12 @@ import numpy as np
 
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
+from biped_sim.plant.period_grid import grid_end, period_knots
 from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
 from biped_sim.robot import numba_cache
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, paper_from_urdf, urdf_from_paper
+from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, urdf_from_paper
 from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, FOOT_GEOMS, MjcfContact, make_mjcf
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
@@ -279,7 +280,7 @@ class MujocoPlant(ScheduledPushes):
 
     def observe(self) -> Observation:
         q, qd = self.measured(self.x, self.v, self.stance)
-        pitch = float(self.x[2])          # the IMU (issue 22): the torso's pitch in the world, = q1 + q2 + q3 here
+        pitch = float(self.x[2])          # the IMU: the torso's pitch in the world, = q1 + q2 + q3 here
         rate = float(self.v[2])           # and its gyro's pitch rate
         if self.sensor.identity:
             obs = object.__new__(Observation)     # the fields at once (as StepRecord's)
@@ -431,7 +432,7 @@ class MujocoPlant(ScheduledPushes):
         m, d, k = self.model, self.data, self._k
         dt_nom = self.cfg.control_period
         t_start = self.t
-        t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+        t_grid_end = grid_end(t_start, dt_nom)
         obs_stance = self.stance
         if not self.sensor.identity:
             if callable(torque):
@@ -446,13 +447,9 @@ class MujocoPlant(ScheduledPushes):
         else:
             fn = None
         n_sub = max(1, int(math.ceil((t_grid_end - t_start) / self._h - 1e-9)))
-        hh = (t_grid_end - t_start) / n_sub
-        knots = [t_start + i * hh for i in range(n_sub)]
-        knots.append(t_grid_end)
         has_pushes = bool(self.book.pushes)
-        if has_pushes:
-            cuts = {c for p in self.book.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
-            knots = sorted(set(knots) | cuts)
+        knots = period_knots(t_start, t_grid_end, n_sub,
+                             (c for p in self.book.pushes for c in (p.start, p.end)) if has_pushes else ())
         first = self.interval_pushes(knots[0], knots[1]) if has_pushes else ()
         impacts0 = self.impact_count
         acc = self._acc

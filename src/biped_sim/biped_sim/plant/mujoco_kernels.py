@@ -1,4 +1,4 @@
-"""Compiled (numba) bookkeeping of one MuJoCo step of the MuJoCo plant (issue 24): what
+"""Compiled (numba) bookkeeping of one MuJoCo step of the MuJoCo plant: what
 ``biped_sim.plant.mujoco.MujocoPlant.step`` does after each ``mj_step`` + ``mj_rnePostConstraint``.
 
 Pure numerics, no MuJoCo calls, no side effects on import (load it through ``numba_cache.load``, as

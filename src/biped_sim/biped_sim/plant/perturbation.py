@@ -1,4 +1,4 @@
-"""Plant perturbations (issue 14): the simulated robot differs from the controller's model.
+"""Plant perturbations: the simulated robot differs from the controller's model.
 
 Pure Python (NumPy, PyYAML), no ROS. Perturbations live in the simulator only: the controller keeps
 the nominal :class:`~biped_sim.robot.description.RobotDescription` (``config/biped.yaml``), while
@@ -64,6 +64,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from biped_sim.robot.description import RobotDescription
+from biped_sim.robot.finite import finite_number
 
 #: the link kinds of the description that may be perturbed
 LINKS: tuple[str, ...] = ("torso", "thigh", "shin", "foot")
@@ -131,9 +132,8 @@ class PlantPerturbation:
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
                 raise PerturbationError(f.name, f"must be a number, got {v!r}")
-            v = float(v)
-            if not math.isfinite(v):
-                raise PerturbationError(f.name, f"must be finite, got {v}")
+            v = finite_number(float(v), f.name, error=lambda m, name=f.name: PerturbationError(name, m),
+                              message=f"must be finite, got {float(v)}")
             if f.name.endswith("_scale") and v <= 0.0:
                 raise PerturbationError(f.name, f"a scale must be > 0, got {v}")
             if f.name == "mu" and v <= 0.0:

@@ -33,6 +33,8 @@ import math
 from dataclasses import dataclass, replace
 from typing import Iterable
 
+from biped_sim.robot.finite import finite_number
+
 __all__ = ['Push', 'Rejected', 'PushLimits', 'validate_push', 'PushBook']
 
 
@@ -73,11 +75,10 @@ class PushLimits:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v) and v > 0):
                 raise ValueError(f'{name} must be a number > 0, got {v!r}')
-        if not math.isfinite(self.torso_length):
-            raise ValueError(f'torso_length must be finite, got {self.torso_length!r}')
+        finite_number(self.torso_length, 'torso_length', message=f'torso_length must be finite, got {self.torso_length!r}')
         h = self.default_height
-        if not (isinstance(h, (int, float)) and math.isfinite(h) and 0.0 <= h <= self.torso_length):
-            raise ValueError(f'default_height must be within [0, {self.torso_length}] m, got {h!r}')
+        finite_number(h, 'default_height', at_least=0.0, at_most=self.torso_length,
+                      message=f'default_height must be within [0, {self.torso_length}] m, got {h!r}')
 
 
 def _is_number(v) -> bool:
@@ -89,8 +90,8 @@ def validate_push(force: float, duration: float, start: float, height: float, *,
                   delay: float = 0.0) -> Push:
     """Check one request; return the resolved :class:`Push` (id 0) or raise :class:`Rejected`."""
     if use_delay:
-        if not _is_number(delay) or not math.isfinite(delay):
-            raise Rejected('delay', f'delay must be a finite number in [0, inf) s, got {delay}')
+        finite_number(delay, 'delay', error=lambda m: Rejected('delay', m),
+                      message=f'delay must be a finite number in [0, inf) s, got {delay}')
         if delay < 0:
             raise Rejected('delay', f'delay must be in [0, inf) s, got {delay}')
         start = (0.0 if now is None else now) + delay
@@ -98,8 +99,8 @@ def validate_push(force: float, duration: float, start: float, height: float, *,
     ranges = {'force': f'[-{limits.max_force}, {limits.max_force}] N', 'duration': f'(0, {limits.max_duration}] s',
               'start': f'[{lo:.6f}, {limits.horizon}] s'}
     for name, v in (('force', force), ('duration', duration), ('start', start)):
-        if not _is_number(v) or not math.isfinite(v):
-            raise Rejected(name, f'{name} must be a finite number in {ranges[name]}, got {v}')
+        finite_number(v, name, error=lambda m, name=name: Rejected(name, m),
+                      message=f'{name} must be a finite number in {ranges[name]}, got {v}')
     if not 0.0 < duration <= limits.max_duration:
         raise Rejected('duration', f'duration must be in (0, {limits.max_duration}] s, got {duration}')
     if abs(force) > limits.max_force:

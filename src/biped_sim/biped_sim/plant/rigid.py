@@ -38,6 +38,7 @@ from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
 from biped_sim.robot.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
 from biped_sim.robot.layout import SnapshotUnsupported
+from biped_sim.plant.period_grid import grid_end, period_knots
 from biped_sim.plant.push import Push, ScheduledPushes
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel
 from biped_sim.plant.config import SimConfig, load_sim_config
@@ -63,7 +64,7 @@ def _state_field(name: str, kind):
 
 @dataclass(frozen=True, eq=False)
 class SimSnapshot:
-    """Everything :class:`Simulator` carries from one period to the next (issue 19): a copy of its
+    """Everything :class:`Simulator` carries from one period to the next: a copy of its
     ``sim_state`` array (t, period index, stance, clearance, anchor, x, v), the impacts so far, the fall
     (None while walking) and the push schedule. Impact records are immutable and shared, not copied."""
 
@@ -83,7 +84,7 @@ class Simulator(ScheduledPushes):
     copy them to keep a value); its fixed limits are ``limits`` (``SIM_LIMITS``). The compiled closed loop
     takes the same arrays.
 
-    ``perturbation`` (issue 14, ``biped_sim.plant.perturbation``; None = none): the simulated plant is
+    ``perturbation`` (``biped_sim.plant.perturbation``; None = none): the simulated plant is
     ``perturbation.apply(desc)`` (``self.desc``: masses, centres of mass, inertias, friction of the fall
     checks), ``self.nominal_desc`` is ``desc`` as given (the controller's model); :meth:`observe` returns
     what the sensors report (noise, delay: ``self.sensor``) while every record keeps the true state."""
@@ -386,7 +387,7 @@ class Simulator(ScheduledPushes):
         dt_nom = self.cfg.control_period
         t_start = self.t
         # periods end on the grid k * control_period, except a period cut short by an impact
-        t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+        t_grid_end = grid_end(t_start, dt_nom)
         dt = t_grid_end - t_start
         obs_stance = self.stance
         if not self.sensor.identity:
@@ -416,10 +417,7 @@ class Simulator(ScheduledPushes):
                 return tj
         # the period's integration intervals: RK4 substeps, split exactly at every push start and end
         n_sub = max(1, int(math.ceil(self.cfg.substeps * dt / dt_nom - 1e-9)))
-        h = dt / n_sub
-        knots = [t_start + i * h for i in range(n_sub)] + [t_grid_end]
-        cuts = {c for p in self.pushes for c in (p.start, p.end) if t_start < c < t_grid_end}
-        knots = sorted(set(knots) | cuts)
+        knots = period_knots(t_start, t_grid_end, n_sub, (c for p in self.pushes for c in (p.start, p.end)))
         if self._fast and self._tau_const is not None:
             rec = self._fast_period(knots, t_start, t_grid_end, applied, obs_stance)
             if rec is not None:

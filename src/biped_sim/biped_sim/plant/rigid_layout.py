@@ -1,4 +1,4 @@
-"""The rigid simulator's per-period state and limits, declared once (issue 23).
+"""The rigid simulator's per-period state and limits, declared once.
 
 Pure Python + NumPy, no ROS, no Pinocchio. :class:`biped_sim.plant.rigid.Simulator` keeps its state in a
 ``SIM_STATE`` array (properties over it) and its fixed limits in a ``SIM_LIMITS`` array; the compiled

@@ -39,7 +39,6 @@ from __future__ import annotations
 import dataclasses
 import errno
 import json
-import math
 import os
 import re
 import time
@@ -48,6 +47,8 @@ from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
 import yaml
 from mcap.writer import CompressionType, IndexType, Writer
+
+from biped_sim.robot.finite import finite_number
 
 try:  # optional compressors; the choice is reported by Rosbag2McapWriter.compression
     import zstandard as _zstandard
@@ -398,9 +399,9 @@ class Rosbag2McapWriter:
             raise RecorderError("compression 'lz4' requested but the lz4 module is missing")
         if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
             raise RecorderError(f"chunk_size must be a positive integer; got {chunk_size!r}")
-        if chunk_time is not None and (isinstance(chunk_time, bool) or not isinstance(chunk_time, (int, float))
-                                       or not math.isfinite(chunk_time) or chunk_time <= 0):
-            raise RecorderError(f"chunk_time must be a finite number of seconds > 0 (or None); got {chunk_time!r}")
+        if chunk_time is not None:
+            finite_number(chunk_time, "chunk_time", above=0, error=RecorderError,
+                          message=f"chunk_time must be a finite number of seconds > 0 (or None); got {chunk_time!r}")
         if not isinstance(sync, bool):
             raise RecorderError(f"sync must be a bool; got {sync!r}")
         self.chunk_time = None if chunk_time is None else float(chunk_time)

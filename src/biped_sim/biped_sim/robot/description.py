@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from biped_sim.robot.finite import finite_number
 from biped_sim.robot.settings import SettingsError, default_config_dir, load_yaml_tree
 
 JOINT_AXIS = (0.0, -1.0, 0.0)
@@ -96,9 +97,8 @@ def _value(tree: dict[str, Any], *keys: str) -> float:
     if not str(node["reason"]).strip():
         raise DescriptionError(f"biped description: '{path}' has an empty reason")
     v = node["value"]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-        raise DescriptionError(f"biped description: '{path}' must be a finite number, got {v!r}")
-    return float(v)
+    return finite_number(v, path, error=DescriptionError,
+                         message=f"biped description: '{path}' must be a finite number, got {v!r}")
 
 
 def _positive(name: str, v: float) -> float:

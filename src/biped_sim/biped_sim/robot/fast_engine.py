@@ -1,4 +1,4 @@
-"""Fast engine (issue 11): the compiled planar kernels behind the simulator's and the controller's models.
+"""Fast engine: the compiled planar kernels behind the simulator's and the controller's models.
 
 Pure Python + NumPy around ``planar_kernels`` (numba), no ROS. The Pinocchio models
 (``floating.FloatingModel``, ``biped_sim.robot.fixed_foot.FixedFootModel``) stay the reference engine and
@@ -17,7 +17,6 @@ says so on stderr. Importing this module compiles nothing.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -26,6 +25,7 @@ import numpy as np
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_abi as abi
 from biped_sim.robot.description import RobotDescription, load_description
+from biped_sim.robot.finite import finite_array, finite_number
 from biped_sim.robot.floating import ContactSolution, FloatingModel, ImpactResult, SimulationError
 
 PX, PZ, REV = abi.PX, abi.PZ, abi.REV
@@ -89,24 +89,28 @@ class PlanarTree:
                 raise TreeError(f"joint {k} '{j.name}': kind must be PX, PZ or REV, got {j.kind!r}")
             if not -1 <= j.parent < k:
                 raise TreeError(f"joint {k} '{j.name}': parent must be in [-1, {k - 1}], got {j.parent}")
-            if len(j.offset) != 2 or not all(math.isfinite(o) for o in j.offset):
-                raise TreeError(f"joint {k} '{j.name}': offset must be two finite numbers, got {j.offset!r}")
+            message = f"joint {k} '{j.name}': offset must be two finite numbers, got {j.offset!r}"
+            if len(j.offset) != 2:
+                raise TreeError(message)
+            finite_array(j.offset, "offset", error=TreeError, message=message)
         if not self.bodies:
             raise TreeError("tree has no body")
         for b in self.bodies:
             if not 0 <= b.joint < nj:
                 raise TreeError(f"body '{b.name}': joint must be in [0, {nj - 1}], got {b.joint}")
-            if not (math.isfinite(b.mass) and b.mass > 0):
-                raise TreeError(f"body '{b.name}': mass must be > 0 kg, got {b.mass}")
-            if not (math.isfinite(b.inertia) and b.inertia >= 0):
-                raise TreeError(f"body '{b.name}': inertia must be >= 0 kg m^2, got {b.inertia}")
-            if len(b.com) != 2 or not all(math.isfinite(c) for c in b.com):
-                raise TreeError(f"body '{b.name}': com must be two finite numbers, got {b.com!r}")
+            finite_number(b.mass, "mass", above=0, error=TreeError,
+                          message=f"body '{b.name}': mass must be > 0 kg, got {b.mass}")
+            finite_number(b.inertia, "inertia", at_least=0, error=TreeError,
+                          message=f"body '{b.name}': inertia must be >= 0 kg m^2, got {b.inertia}")
+            message = f"body '{b.name}': com must be two finite numbers, got {b.com!r}"
+            if len(b.com) != 2:
+                raise TreeError(message)
+            finite_array(b.com, "com", error=TreeError, message=message)
         for what, k in (("push_joint", self.push_joint), ("feet[0]", self.feet[0]), ("feet[1]", self.feet[1])):
             if not 0 <= k < nj:
                 raise TreeError(f"{what} must be a joint index in [0, {nj - 1}], got {k}")
-        if not (math.isfinite(self.gravity) and self.gravity > 0):
-            raise TreeError(f"gravity must be > 0 m/s^2, got {self.gravity}")
+        finite_number(self.gravity, "gravity", above=0, error=TreeError,
+                      message=f"gravity must be > 0 m/s^2, got {self.gravity}")
         if not self.sole[0] < self.sole[1]:
             raise TreeError(f"sole must satisfy l_min < l_max, got {self.sole}")
         if floating_root:
@@ -273,9 +277,6 @@ class FastFloatingModel:
 
     def mass_matrix(self, x: np.ndarray) -> np.ndarray:
         return self.mass_bias(x, self._zero)[0]
-
-    def nonlinear_effects(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return self.mass_bias(x, v)[1]
 
     def inverse_mass_matrix(self, x: np.ndarray) -> np.ndarray:
         return np.linalg.inv(self.mass_matrix(x))

@@ -1,4 +1,4 @@
-"""The simulator's floating-base model, typed: one Protocol both engines satisfy (issue 23).
+"""The simulator's floating-base model, typed: one Protocol both engines satisfy.
 
 Pure Python, no ROS. ``floating.FloatingModel`` (Pinocchio, the reference engine and the tests' oracle)
 and ``fast_engine.FastFloatingModel`` (the compiled planar kernels) compute the same quantities with the

@@ -1,5 +1,5 @@
 """The family of reference trajectories q_d(p, tau) (paper eqs. 12-14) and its partial derivatives,
-and its extension by a third parameter, the torso offset lambda (issue 21: ``with_torso``, ``eq11_torso``).
+and its extension by a third parameter, the torso offset lambda (``with_torso``, ``eq11_torso``).
 
 Pure Python (NumPy), no ROS. An asset of the robot that both sides use: the simulator takes its initial
 state from it, the controller its reference (hence it lives in ``biped_sim``, which the controller
@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from biped_sim.robot.finite import finite_array
 from biped_sim.robot.settings import default_config_dir
 
 SPLINE = "cubic_spline_in_p"
@@ -70,7 +71,7 @@ def eq11(g: GaitSample, p_dot: float, tau_dot: float, p_ddot: float = 0.0, tau_d
     return g.q, qd, qdd
 
 
-# ---------------------------------------------------------------------- the torso parameter lambda (issue 21)
+# ---------------------------------------------------------------------- the torso parameter lambda
 #: dq/dlambda per unit profile: the torso's absolute pitch q1 + q2 + q3 changes by lambda phi, the stance
 #: thigh's (q1 + q2) and the swing thigh's (q1 + q2 + q3 + q4) absolute angles do not: q3 += lambda phi
 #: (torso w.r.t. stance thigh), q4 -= lambda phi (swing thigh w.r.t. torso). Paper order q1..q6.
@@ -163,8 +164,8 @@ class GaitFamily:
 
     def _setup(self, representation: str, coef: np.ndarray, centers: np.ndarray, inner: list[float], T: float,
                p_d: float, p_min: float, p_max: float, meta: dict | None) -> None:
-        if not np.all(np.isfinite(coef)):
-            raise GaitFamilyError("gait family: coefficients contain non-finite values")
+        finite_array(coef, "coefficients", error=GaitFamilyError,
+                     message="gait family: coefficients contain non-finite values")
         if not (p_min <= p_d <= p_max) or not T > 0:
             raise GaitFamilyError(f"gait family: need p_min <= p_d <= p_max and T > 0 (got {p_min}, {p_d}, {p_max}, {T})")
         self.representation = representation

@@ -6,10 +6,10 @@ controller reads them here, so the controller side never imports the plant to le
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from biped_sim.robot.finite import finite_number
 from biped_sim.robot.settings import SettingsError, default_config_dir, read_settings
 
 ENGINES = ("fast", "reference")   # "fast": compiled kernels (fast_engine); "reference": Pinocchio
@@ -27,8 +27,8 @@ class LoopSettings:
     def validate(self) -> "LoopSettings":
         if self.engine not in ENGINES:
             raise LoopSettingsError(f"engine must be one of {ENGINES}, got {self.engine!r}")
-        if not (math.isfinite(self.control_period) and 0 < self.control_period <= 0.05):
-            raise LoopSettingsError(f"control_period must be in (0, 0.05] s, got {self.control_period}")
+        finite_number(self.control_period, "control_period", above=0, at_most=0.05, error=LoopSettingsError,
+                      message=f"control_period must be in (0, 0.05] s, got {self.control_period}")
         return self
 
 

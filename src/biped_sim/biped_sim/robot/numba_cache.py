@@ -1,9 +1,9 @@
 """Where the compiled (numba) kernels are cached, and loading them: run explicitly, never on import.
 
 Pure Python, no ROS. The kernel modules (``biped_sim.robot.planar_kernels``,
-``biped_sim.plant.mujoco_kernels``, ``biped_controller.core.qp_fast``, ``biped_controller.core.control_kernels``,
-``biped_controller.core.wbc_kernels``, ``biped_controller.core.estimation_kernels``,
-``biped_controller.core.model_error_kernels``, ``biped_controller.studies.loop_kernels``) only define kernels; they are imported through :func:`load`,
+``biped_sim.plant.mujoco_kernels``, ``biped_controller.core.qp.exact_kernels``, ``biped_controller.core.control.controller_kernels``,
+``biped_controller.core.control.wbc_kernels``, ``biped_controller.core.sensing.pipeline_kernels``,
+``biped_controller.core.sensing.model_error_kernels``, ``biped_controller.studies.loop_kernels``) only define kernels; they are imported through :func:`load`,
 which
 
 1. points numba's on-disk cache at ``<repo>/build/numba-cache`` (``NUMBA_CACHE_DIR`` when set), before the

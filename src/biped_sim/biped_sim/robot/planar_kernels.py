@@ -1,4 +1,4 @@
-"""Compiled dynamics of a planar rigid-body tree (numba), for the fast engine (issue 11).
+"""Compiled dynamics of a planar rigid-body tree (numba), for the fast engine.
 
 Pure numerics: NumPy + numba, no ROS, no Pinocchio. ``fast_engine`` builds the parameter arrays from
 a ``RobotDescription``; nothing about the biped is typed here.
@@ -25,6 +25,14 @@ Jacobian ``J_b`` (2 x nj), angular Jacobian ``w_b`` (1 x nj), entries 1 on its h
 ``Jdot_b v`` (the point's acceleration at ``a = 0``, "drift") comes from one forward recursion: for
 a frame origin ``a_k = a_par - om_par^2 r_k`` (``+ 2 om_par perp(e) v_k`` for a prism), for a point
 ``r`` fixed in frame j ``a_j - om_j^2 r``; ``perp(x, z) = (-z, x)``, ``r`` in world axes.
+
+The building blocks that other kernel modules compose (the controller's sensing and model-error kernels)
+are public: the kinematics array ``K`` (rows ``K_TH``, ``K_C``, ``K_S`` angle and its cos, sin; ``K_PX``,
+``K_PZ`` origin; ``K_OM`` angular velocity; ``K_VX``, ``K_VZ`` origin velocity; ``K_AX``, ``K_AZ`` origin
+drift acceleration; ``K_ROWS`` rows) filled by :func:`kinematics`, the scratch of :func:`workspace`, the tree
+accessors :func:`parent` and :func:`joint_type`, :func:`frame_point`, :func:`jacobian_column`,
+:func:`point_jacobian` and :func:`composite_mass_bias` (M, h from a filled K). ``_``-prefixed names are this
+module's own.
 
 Parameter arrays (built and checked by ``fast_engine.tree_arrays``):
 
@@ -58,8 +66,8 @@ from biped_sim.robot.planar_abi import (  # noqa: F401  (the kernels' constants,
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
 # rows of the kinematics array K (10, nj)
-_TH, _C, _S, _PX, _PZ, _OM, _VX, _VZ, _AX, _AZ = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
-_KROWS = 10
+K_TH, K_C, K_S, K_PX, K_PZ, K_OM, K_VX, K_VZ, K_AX, K_AZ = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
+K_ROWS = 10
 
 # numba types of the public kernels' arguments (explicit signatures: compiled once, all together; a
 # wrong dtype or layout raises TypeError instead of compiling a slow variant)
@@ -72,12 +80,12 @@ def _sig(*args: str) -> str:
 
 # ------------------------------------------------------------------------------------------ layout
 @njit(cache=True)
-def _parent(ti, k):
+def parent(ti, k):
     return ti[HEADER_I + k]
 
 
 @njit(cache=True)
-def _jtype(ti, k):
+def joint_type(ti, k):
     return ti[HEADER_I + ti[0] + k]
 
 
@@ -88,11 +96,11 @@ def _foot_joint(ti, foot):
 
 # ------------------------------------------------------------------------------------------ workspace
 @njit(cache=True)
-def _workspace(nj):
+def workspace(nj):
     """Scratch for one top-level call: K (10, nj) kinematics; M, L (nj, nj); R (10, nj) rows: contact
     Jacobian J (0-2), Y = (M^-1 J^T)^T (3-5) followed by one more solved vector (6), point Jacobian
     (7-9); U (8, nj) vectors; Cm (7, nj) composite-body sums."""
-    K = np.empty((_KROWS, nj))
+    K = np.empty((K_ROWS, nj))
     M = np.empty((nj, nj))
     L = np.empty((nj, nj))
     R = np.empty((10, nj))
@@ -103,7 +111,7 @@ def _workspace(nj):
 
 # ------------------------------------------------------------------------------------------ kinematics
 @njit(cache=True)
-def _kinematics(ti, tf, q, v, K):
+def kinematics(ti, tf, q, v, K):
     """Forward recursion over the joint frames: absolute angle (and its cos, sin), origin position,
     angular velocity, origin velocity and origin drift acceleration."""
     nj = ti[0]
@@ -113,9 +121,9 @@ def _kinematics(ti, tf, q, v, K):
         if p < 0:
             thp, cp, sp, pxp, pzp, omp, vxp, vzp, axp, azp = 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         else:
-            thp, cp, sp = K[_TH, p], K[_C, p], K[_S, p]
-            pxp, pzp, omp = K[_PX, p], K[_PZ, p], K[_OM, p]
-            vxp, vzp, axp, azp = K[_VX, p], K[_VZ, p], K[_AX, p], K[_AZ, p]
+            thp, cp, sp = K[K_TH, p], K[K_C, p], K[K_S, p]
+            pxp, pzp, omp = K[K_PX, p], K[K_PZ, p], K[K_OM, p]
+            vxp, vzp, axp, azp = K[K_VX, p], K[K_VZ, p], K[K_AX, p], K[K_AZ, p]
         dx = tf[HEADER_F + k]
         dz = tf[HEADER_F + nj + k]
         if typ == PX:
@@ -124,71 +132,71 @@ def _kinematics(ti, tf, q, v, K):
             dz += q[k]
         rx = cp * dx - sp * dz
         rz = sp * dx + cp * dz
-        K[_PX, k] = pxp + rx
-        K[_PZ, k] = pzp + rz
-        K[_VX, k] = vxp - omp * rz
-        K[_VZ, k] = vzp + omp * rx
+        K[K_PX, k] = pxp + rx
+        K[K_PZ, k] = pzp + rz
+        K[K_VX, k] = vxp - omp * rz
+        K[K_VZ, k] = vzp + omp * rx
         w2 = omp * omp
-        K[_AX, k] = axp - w2 * rx
-        K[_AZ, k] = azp - w2 * rz
+        K[K_AX, k] = axp - w2 * rx
+        K[K_AZ, k] = azp - w2 * rz
         if typ == REV:
             t = thp + q[k]
-            K[_TH, k] = t
-            K[_C, k] = math.cos(t)
-            K[_S, k] = math.sin(t)
-            K[_OM, k] = omp + v[k]
+            K[K_TH, k] = t
+            K[K_C, k] = math.cos(t)
+            K[K_S, k] = math.sin(t)
+            K[K_OM, k] = omp + v[k]
         else:
-            K[_TH, k] = thp
-            K[_C, k] = cp
-            K[_S, k] = sp
-            K[_OM, k] = omp
+            K[K_TH, k] = thp
+            K[K_C, k] = cp
+            K[K_S, k] = sp
+            K[K_OM, k] = omp
             if typ == PX:
                 ex, ez = cp, sp
             else:
                 ex, ez = -sp, cp
-            K[_VX, k] += ex * v[k]
-            K[_VZ, k] += ez * v[k]
-            K[_AX, k] += -2.0 * omp * ez * v[k]
-            K[_AZ, k] += 2.0 * omp * ex * v[k]
+            K[K_VX, k] += ex * v[k]
+            K[K_VZ, k] += ez * v[k]
+            K[K_AX, k] += -2.0 * omp * ez * v[k]
+            K[K_AZ, k] += 2.0 * omp * ex * v[k]
 
 
 @njit(cache=True)
-def _column(ti, K, k, Px, Pz):
+def jacobian_column(ti, K, k, Px, Pz):
     """Column k of the (x, z, angle) Jacobian of the world point (Px, Pz) moving with a descendant of k."""
-    typ = _jtype(ti, k)
+    typ = joint_type(ti, k)
     if typ == REV:
-        return -(Pz - K[_PZ, k]), Px - K[_PX, k], 1.0
+        return -(Pz - K[K_PZ, k]), Px - K[K_PX, k], 1.0
     if typ == PX:
-        return K[_C, k], K[_S, k], 0.0
-    return -K[_S, k], K[_C, k], 0.0
+        return K[K_C, k], K[K_S, k], 0.0
+    return -K[K_S, k], K[K_C, k], 0.0
 
 
 @njit(cache=True)
-def _point(K, j, lx, lz):
+def frame_point(K, j, lx, lz):
     """World (x, z) of the point (lx, lz) of frame j and its offset r from the frame origin."""
-    rx = K[_C, j] * lx - K[_S, j] * lz
-    rz = K[_S, j] * lx + K[_C, j] * lz
-    return K[_PX, j] + rx, K[_PZ, j] + rz, rx, rz
+    rx = K[K_C, j] * lx - K[K_S, j] * lz
+    rz = K[K_S, j] * lx + K[K_C, j] * lz
+    return K[K_PX, j] + rx, K[K_PZ, j] + rz, rx, rz
 
 
 @njit(cache=True)
-def _point_jacobian(ti, K, j, lx, lz, J):
+def point_jacobian(ti, K, j, lx, lz, J):
     """J (3, nj) <- rows (x, z, angle) of the velocity of the point (lx, lz) of frame j. Returns its
     world position."""
     J[:, :] = 0.0
-    Px, Pz, _, _ = _point(K, j, lx, lz)
+    Px, Pz, _, _ = frame_point(K, j, lx, lz)
     k = j
     while k >= 0:
-        jx, jz, jw = _column(ti, K, k, Px, Pz)
+        jx, jz, jw = jacobian_column(ti, K, k, Px, Pz)
         J[0, k] = jx
         J[1, k] = jz
         J[2, k] = jw
-        k = _parent(ti, k)
+        k = parent(ti, k)
     return Px, Pz
 
 
 @njit(cache=True)
-def _mass_bias(ti, tf, K, M, h, Cm):
+def composite_mass_bias(ti, tf, K, M, h, Cm):
     """M (nj, nj) and h (nj,) = Coriolis + centrifugal + gravity forces, by composite bodies.
 
     For the subtree of joint j (bodies on j and its descendants), with positions relative to the
@@ -204,18 +212,18 @@ def _mass_bias(ti, tf, K, M, h, Cm):
     nj, nb = ti[0], ti[1]
     g = tf[0]
     ob = HEADER_F + 2 * nj
-    ox = K[_PX, 0]
-    oz = K[_PZ, 0]
+    ox = K[K_PX, 0]
+    oz = K[K_PZ, 0]
     Cm[:, :] = 0.0
     for b in range(nb):
         j = ti[HEADER_I + 2 * nj + b]
         m = tf[ob + b]
-        Px, Pz, rx, rz = _point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
+        Px, Pz, rx, rz = frame_point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
         Px -= ox
         Pz -= oz
-        w2 = K[_OM, j] * K[_OM, j]
-        fx = m * (K[_AX, j] - w2 * rx)
-        fz = m * (K[_AZ, j] - w2 * rz + g)
+        w2 = K[K_OM, j] * K[K_OM, j]
+        fx = m * (K[K_AX, j] - w2 * rx)
+        fz = m * (K[K_AZ, j] - w2 * rz + g)
         Cm[0, j] += m
         Cm[1, j] += m * Px
         Cm[2, j] += m * Pz
@@ -231,9 +239,9 @@ def _mass_bias(ti, tf, K, M, h, Cm):
     M[:, :] = 0.0
     for j in range(nj):
         mj, sx, sz, qj = Cm[0, j], Cm[1, j], Cm[2, j], Cm[3, j]
-        pjx = K[_PX, j] - ox
-        pjz = K[_PZ, j] - oz
-        tj = _jtype(ti, j)
+        pjx = K[K_PX, j] - ox
+        pjz = K[K_PZ, j] - oz
+        tj = joint_type(ti, j)
         ux = uz = ejx = ejz = 0.0
         if tj == REV:
             h[j] = Cm[6, j] - (pjx * Cm[5, j] - pjz * Cm[4, j])
@@ -242,25 +250,25 @@ def _mass_bias(ti, tf, K, M, h, Cm):
             uz = sx - mj * pjx
         else:
             if tj == PX:
-                ejx, ejz = K[_C, j], K[_S, j]
+                ejx, ejz = K[K_C, j], K[K_S, j]
             else:
-                ejx, ejz = -K[_S, j], K[_C, j]
+                ejx, ejz = -K[K_S, j], K[K_C, j]
             h[j] = ejx * Cm[4, j] + ejz * Cm[5, j]
         i = j
         while i >= 0:
-            typ_i = _jtype(ti, i)
+            typ_i = joint_type(ti, i)
             if typ_i == REV:
-                pix = K[_PX, i] - ox
-                piz = K[_PZ, i] - oz
+                pix = K[K_PX, i] - ox
+                piz = K[K_PZ, i] - oz
                 if tj == REV:
                     val = qj - ((pix + pjx) * sx + (piz + pjz) * sz) + mj * (pix * pjx + piz * pjz)
                 else:
                     val = ejx * (-(sz - mj * piz)) + ejz * (sx - mj * pix)
             else:
                 if typ_i == PX:
-                    eix, eiz = K[_C, i], K[_S, i]
+                    eix, eiz = K[K_C, i], K[K_S, i]
                 else:
-                    eix, eiz = -K[_S, i], K[_C, i]
+                    eix, eiz = -K[K_S, i], K[K_C, i]
                 if tj == REV:
                     val = eix * ux + eiz * uz
                 else:
@@ -285,10 +293,10 @@ def _energy(ti, tf, K, out):
         j = ti[HEADER_I + 2 * nj + b]
         m = tf[ob + b]
         inert = tf[ob + 3 * nb + b]
-        Px, Pz, rx, rz = _point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
-        om = K[_OM, j]
-        vx = K[_VX, j] - om * rz
-        vz = K[_VZ, j] + om * rx
+        Px, Pz, rx, rz = frame_point(K, j, tf[ob + nb + b], tf[ob + 2 * nb + b])
+        om = K[K_OM, j]
+        vx = K[K_VX, j] - om * rz
+        vz = K[K_VZ, j] + om * rx
         ke += 0.5 * m * (vx * vx + vz * vz) + 0.5 * inert * om * om
         pe += m * g * Pz
         mx += m * Px
@@ -389,7 +397,7 @@ def _schur3(J, Y, rhs, lam):
 def _contact_rows(ti, K, L, fj, J, Y):
     """J <- contact rows (x, z, pitch) of frame fj; Y <- (M^-1 J^T)^T using the factor L of M (Y may
     carry extra rows, already filled, solved along)."""
-    _point_jacobian(ti, K, fj, 0.0, 0.0, J)
+    point_jacobian(ti, K, fj, 0.0, 0.0, J)
     for i in range(3):
         Y[i, :] = J[i, :]
     chol_solve_rows(L, Y)
@@ -406,7 +414,7 @@ def _generalized_force(ti, K, tau_j, forces, heights, Jp, tau):
     for i in range(nj - 3):
         tau[3 + i] = tau_j[i]
     for i in range(forces.shape[0]):
-        _point_jacobian(ti, K, ti[2], 0.0, heights[i], Jp)
+        point_jacobian(ti, K, ti[2], 0.0, heights[i], Jp)
         for k in range(nj):
             tau[k] += Jp[0, k] * forces[i]
 
@@ -420,15 +428,15 @@ def _contact_accel(ti, tf, x, v, tau, fj, a, lam, W):
     rhs = U[1]
     J = R[0:3]
     Y = R[3:7]  # (M^-1 J^T)^T and, in row 3, a_free = M^-1 (tau - h)
-    _mass_bias(ti, tf, K, M, h, Cm)
+    composite_mass_bias(ti, tf, K, M, h, Cm)
     if not cholesky(M, L):
         return False
     for k in range(a.shape[0]):
         Y[3, k] = tau[k] - h[k]
     _contact_rows(ti, K, L, fj, J, Y)
     af = Y[3]
-    rhs[0] = -K[_AX, fj] - _dot(J[0], af)
-    rhs[1] = -K[_AZ, fj] - _dot(J[1], af)
+    rhs[0] = -K[K_AX, fj] - _dot(J[0], af)
+    rhs[1] = -K[K_AZ, fj] - _dot(J[1], af)
     rhs[2] = -_dot(J[2], af)
     if not _schur3(J, Y, rhs, lam):
         return False
@@ -443,7 +451,7 @@ def _stage(ti, tf, x, v, tau_j, forces, heights, fj, a, lam, W):
     K = W[0]
     tau = W[4][2]
     Jp = W[3][7:10]
-    _kinematics(ti, tf, x, v, K)
+    kinematics(ti, tf, x, v, K)
     _generalized_force(ti, K, tau_j, forces, heights, Jp, tau)
     return _contact_accel(ti, tf, x, v, tau, fj, a, lam, W)
 
@@ -454,13 +462,13 @@ def _project(ti, tf, x, v, fj, anchor, W):
     position through x[0], x[1]) and remove the velocity normal to the contact manifold:
     v <- v - M^-1 J^T (J M^-1 J^T)^-1 J v (the M-orthogonal projection onto J v = 0)."""
     K, M, L, R, U, Cm = W
-    _kinematics(ti, tf, x, v, K)
-    x[2] += anchor[2] - K[_TH, fj]
-    _kinematics(ti, tf, x, v, K)
-    x[0] += anchor[0] - K[_PX, fj]
-    x[1] += anchor[1] - K[_PZ, fj]
-    _kinematics(ti, tf, x, v, K)
-    _mass_bias(ti, tf, K, M, U[0], Cm)
+    kinematics(ti, tf, x, v, K)
+    x[2] += anchor[2] - K[K_TH, fj]
+    kinematics(ti, tf, x, v, K)
+    x[0] += anchor[0] - K[K_PX, fj]
+    x[1] += anchor[1] - K[K_PZ, fj]
+    kinematics(ti, tf, x, v, K)
+    composite_mass_bias(ti, tf, K, M, U[0], Cm)
     if not cholesky(M, L):
         return False
     J = R[0:3]
@@ -518,14 +526,14 @@ def _probe(ti, tf, x, v, foot, out, W):
     l_min, toe at l_max along its frame x; the heel wins a tie)."""
     K = W[0]
     J = W[3][7:10]
-    _kinematics(ti, tf, x, v, K)
+    kinematics(ti, tf, x, v, K)
     fj = _foot_joint(ti, foot)
-    _point_jacobian(ti, K, fj, 0.0, 0.0, J)
-    th = K[_TH, fj]
+    point_jacobian(ti, K, fj, 0.0, 0.0, J)
+    th = K[K_TH, fj]
     l_min = tf[1]
     l_max = tf[2]
-    z_heel = K[_PZ, fj] + l_min * math.sin(th)
-    z_toe = K[_PZ, fj] + l_max * math.sin(th)
+    z_heel = K[K_PZ, fj] + l_min * math.sin(th)
+    z_toe = K[K_PZ, fj] + l_max * math.sin(th)
     if z_toe < z_heel:
         z, l = z_toe, l_max
     else:
@@ -541,9 +549,9 @@ def _probe(ti, tf, x, v, foot, out, W):
 @njit(_sig(_VI, _V, _V, _V, _MAT, _V), cache=True)
 def mass_bias(ti, tf, q, v, M, h):
     """M <- M(q) (nj, nj); h <- h(q, v) (nj,) (Coriolis, centrifugal and gravity generalized forces)."""
-    W = _workspace(ti[0])
-    _kinematics(ti, tf, q, v, W[0])
-    _mass_bias(ti, tf, W[0], M, h, W[5])
+    W = workspace(ti[0])
+    kinematics(ti, tf, q, v, W[0])
+    composite_mass_bias(ti, tf, W[0], M, h, W[5])
     return STATUS_OK
 
 
@@ -552,28 +560,28 @@ def point_state(ti, tf, q, v, joint, lx, lz, J, out):
     """Point (lx, lz) [m] of frame ``joint``: J (3, nj) <- rows (x, z, angle) of its velocity (world
     axes); out (8,) <- [x, z, angle, vx, vz, omega, drift_x, drift_z] (world position [m], absolute
     frame angle [rad], velocity J v, drift = acceleration at a = 0 [m/s^2]; the angular drift is 0)."""
-    W = _workspace(ti[0])
+    W = workspace(ti[0])
     K = W[0]
-    _kinematics(ti, tf, q, v, K)
-    Px, Pz = _point_jacobian(ti, K, joint, lx, lz, J)
-    _, _, rx, rz = _point(K, joint, lx, lz)
-    w2 = K[_OM, joint] * K[_OM, joint]
+    kinematics(ti, tf, q, v, K)
+    Px, Pz = point_jacobian(ti, K, joint, lx, lz, J)
+    _, _, rx, rz = frame_point(K, joint, lx, lz)
+    w2 = K[K_OM, joint] * K[K_OM, joint]
     out[0] = Px
     out[1] = Pz
-    out[2] = K[_TH, joint]
+    out[2] = K[K_TH, joint]
     out[3] = _dot(J[0], v)
     out[4] = _dot(J[1], v)
     out[5] = _dot(J[2], v)
-    out[6] = K[_AX, joint] - w2 * rx
-    out[7] = K[_AZ, joint] - w2 * rz
+    out[6] = K[K_AX, joint] - w2 * rx
+    out[7] = K[K_AZ, joint] - w2 * rz
     return STATUS_OK
 
 
 @njit(_sig(_VI, _V, _V, _V, _V), cache=True)
 def energy(ti, tf, q, v, out):
     """out (5,) <- [kinetic [J], potential m g z [J], centre of mass x, z [m], total mass [kg]]."""
-    W = _workspace(ti[0])
-    _kinematics(ti, tf, q, v, W[0])
+    W = workspace(ti[0])
+    kinematics(ti, tf, q, v, W[0])
     _energy(ti, tf, W[0], out)
     return STATUS_OK
 
@@ -581,9 +589,9 @@ def energy(ti, tf, q, v, out):
 @njit(_sig(_VI, _V, _V, _V, _V, _V), cache=True)
 def free_dynamics(ti, tf, q, v, tau, a):
     """a <- M^-1 (tau - h): acceleration with no contact (flight)."""
-    K, M, L, R, U, Cm = _workspace(ti[0])
-    _kinematics(ti, tf, q, v, K)
-    _mass_bias(ti, tf, K, M, U[0], Cm)
+    K, M, L, R, U, Cm = workspace(ti[0])
+    kinematics(ti, tf, q, v, K)
+    composite_mass_bias(ti, tf, K, M, U[0], Cm)
     if not cholesky(M, L):
         return STATUS_SINGULAR
     for k in range(a.shape[0]):
@@ -597,8 +605,8 @@ def contact_dynamics(ti, tf, x, v, tau, foot, a, lam):
     """a (nj,), lam (3,) <- solution of M a + h = tau + J_c^T lam, J_c a + Jdot_c v = 0 for the held
     foot ``foot`` (0/1) under the generalized force tau (nj,), by the Schur complement
     lam = (J M^-1 J^T)^-1 (-Jdot v - J M^-1 (tau - h)), a = M^-1 (tau - h + J^T lam)."""
-    W = _workspace(ti[0])
-    _kinematics(ti, tf, x, v, W[0])
+    W = workspace(ti[0])
+    kinematics(ti, tf, x, v, W[0])
     if not _contact_accel(ti, tf, x, v, tau, _foot_joint(ti, foot), a, lam, W):
         return STATUS_SINGULAR
     return STATUS_OK
@@ -610,10 +618,10 @@ def impact(ti, tf, x, v, new_foot, v_plus, out):
     Lambda = -(J M^-1 J^T)^-1 J v-, v+ = v- + M^-1 J^T Lambda.
     v_plus (nj,) <- v+; out (7,) <- [Lambda (3) [N s, N s, N m s], velocity (x, z, pitch) of the
     other foot after the impact (3), kinetic energy lost 0.5 (v-^T M v- - v+^T M v+) [J]]."""
-    K, M, L, R, U, Cm = _workspace(ti[0])
+    K, M, L, R, U, Cm = workspace(ti[0])
     n = ti[0]
-    _kinematics(ti, tf, x, v, K)
-    _mass_bias(ti, tf, K, M, U[0], Cm)
+    kinematics(ti, tf, x, v, K)
+    composite_mass_bias(ti, tf, K, M, U[0], Cm)
     if not cholesky(M, L):
         return STATUS_SINGULAR
     J = R[0:3]
@@ -628,7 +636,7 @@ def impact(ti, tf, x, v, new_foot, v_plus, out):
     for k in range(n):
         v_plus[k] = v[k] + Y[0, k] * lam[0] + Y[1, k] * lam[1] + Y[2, k] * lam[2]
     Jo = R[7:10]
-    _point_jacobian(ti, K, _foot_joint(ti, 1 - new_foot), 0.0, 0.0, Jo)
+    point_jacobian(ti, K, _foot_joint(ti, 1 - new_foot), 0.0, 0.0, Jo)
     for i in range(3):
         out[i] = lam[i]
         out[3 + i] = _dot(Jo[i], v_plus)
@@ -651,7 +659,7 @@ def project(ti, tf, x, v, foot, anchor, x_out, v_out):
     """x_out, v_out <- the state put back on the contact manifold of ``foot`` at ``anchor`` (x, z,
     pitch): pitch fixed through x[2], then position through x[0], x[1] (joints 0-2 = the planar root);
     v_out = v - M^-1 J^T (J M^-1 J^T)^-1 J v at the corrected x."""
-    W = _workspace(ti[0])
+    W = workspace(ti[0])
     x_out[:] = x
     v_out[:] = v
     if not _project(ti, tf, x_out, v_out, _foot_joint(ti, foot), anchor, W):
@@ -666,7 +674,7 @@ def rk4_step(ti, tf, x, v, tau_j, forces, heights, foot, anchor, h, x_out, v_out
     at the points (0, ``heights[i]``) [m] of the push frame (empty arrays: no push), all constant over
     the step; then ``project`` onto the anchor. x_out, v_out <- the new state; wrench (3,) <- lambda = [F_x, F_z, m] at the step start."""
     n = ti[0]
-    W = _workspace(n)
+    W = workspace(n)
     S = np.empty((9, n))
     if not _rk4(ti, tf, x, v, tau_j, forces, heights, foot, anchor, h, x_out, v_out, wrench, W, S):
         return STATUS_SINGULAR
@@ -680,7 +688,7 @@ def rk4_steps(ti, tf, x, v, tau_j, forces, heights, foot, anchor, h, X, V, Wr, P
     (swing) foot after step i: [lowest sole z [m], ankle z rate [m/s], z rate of that sole point
     [m/s]]. Returns the number of steps completed (X.shape[0] unless a step was singular)."""
     n = ti[0]
-    W = _workspace(n)
+    W = workspace(n)
     S = np.empty((9, n))
     for i in range(X.shape[0]):
         xi = x if i == 0 else X[i - 1]
@@ -695,7 +703,7 @@ def rk4_steps(ti, tf, x, v, tau_j, forces, heights, foot, anchor, h, X, V, Wr, P
 def swing_probe(ti, tf, x, v, foot, out):
     """out (3,) <- [lowest sole z [m], ankle z rate [m/s], z rate of that lowest sole point [m/s]] of
     foot ``foot``: the quantities of the simulator's touchdown test."""
-    W = _workspace(ti[0])
+    W = workspace(ti[0])
     _probe(ti, tf, x, v, foot, out, W)
     return STATUS_OK
 
@@ -708,7 +716,7 @@ def fixed_root_terms(ti, tf, q, qd, height, A, H, B, hb, jp):
     root body, B w + hb); jp (nj,) <- x row of the Jacobian of the point (0, height) of the push
     frame w.r.t. all nj coordinates (root included)."""
     n = ti[0]
-    K, M, L, R, U, Cm = _workspace(n)
+    K, M, L, R, U, Cm = workspace(n)
     qf = U[4]
     vf = U[5]
     h = U[0]
@@ -716,8 +724,8 @@ def fixed_root_terms(ti, tf, q, qd, height, A, H, B, hb, jp):
     vf[:3] = 0.0
     qf[3:] = q
     vf[3:] = qd
-    _kinematics(ti, tf, qf, vf, K)
-    _mass_bias(ti, tf, K, M, h, Cm)
+    kinematics(ti, tf, qf, vf, K)
+    composite_mass_bias(ti, tf, K, M, h, Cm)
     m = n - 3
     for i in range(m):
         H[i] = h[3 + i]
@@ -728,7 +736,7 @@ def fixed_root_terms(ti, tf, q, qd, height, A, H, B, hb, jp):
         for k in range(m):
             B[i, k] = M[i, 3 + k]
     Jp = R[7:10]
-    _point_jacobian(ti, K, ti[2], 0.0, height, Jp)
+    point_jacobian(ti, K, ti[2], 0.0, height, Jp)
     jp[:] = Jp[0]
     return STATUS_OK
 
@@ -753,7 +761,7 @@ def period(ti, tf, x, v, tau_j, knots, forces, heights, foot, anchor, lim, x_out
     state on interval out[3]: the caller integrates the whole period again on its event path (x, v are
     never modified; x_out, v_out, w0 are then undefined)."""
     n = ti[0]
-    W = _workspace(n)
+    W = workspace(n)
     S = np.empty((9, n))
     P = np.empty(PROBE_SIZE)
     xa = np.empty(n)

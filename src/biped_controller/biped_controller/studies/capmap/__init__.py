@@ -1,14 +1,14 @@
 """Push-recovery capability map: the survival boundary in force over onset phase x direction x duration,
-for each adaptation mode, on a local process pool or a Ray cluster (issue 12).
+for each adaptation mode, on a local process pool or a Ray cluster.
 
 Run through ``scripts/capability_map [options]`` (``--help``); e.g. the default full map (4 modes x 2
 directions x 20 phases x 3 durations) on two processes, resumable, with figures and a summary::
 
     scripts/capability_map --workers 2 --store build/capability_map/records.jsonl \\
-        --out docs/figures/capability_map --json build/capability_map/summary.json
+        --out results/capability_map --json build/capability_map/summary.json
 
 What one simulation is (:func:`simulate`, the pure task function every executor runs): the in-process
-closed loop of ``experiment.survives`` (``runner.run``: Simulator + AdaptiveController, no ROS) with one
+closed loop of ``trial.trials.survives`` (``runner.run``: Simulator + AdaptiveController, no ROS) with one
 push of magnitude ``force`` [N] on the torso (``push_height`` of config/simulator.yaml unless
 ``--height``), horizontal, ``+`` forward (on the back) for direction ``forward`` and ``-`` for
 ``backward``, acting over [start, start + duration) [s] of simulated time.
@@ -17,30 +17,30 @@ Onset phase: a fraction ``phase`` in [0, 1) of the *first* step, ``start = phase
 period of the preferred gait (``GaitFamily.T``, 0.463 s); the walk starts at t = 0 from the family's
 initial state, the beginning of that first step (just after an impact). ``--phases N`` samples
 ``phase = k / N``, k = 0 .. N-1, so phase 0.5 is the paper's "middle of the first step"
-(``experiment.DEFAULT_START``) whenever N is even. A long push may end after the first impact; survival
-then counts the steps after the push's end. With the early stop (``experiment.EarlyStop``,
+(``trial.runs.DEFAULT_START``) whenever N is even. A long push may end after the first impact; survival
+then counts the steps after the push's end. With the early stop (``trial.stop.EarlyStop``,
 config/studies.yaml; ``--full-trials`` turns it off) a trial back on the preferred gait one period after
 an impact after the push is decided there: survived, the outcome of the full trial (measured).
 
-Survival is ``experiment``'s criterion (``experiment.survival``): no fall until ``SURVIVAL_STEPS``
+Survival is the studies' rule (``trial.survival``): no fall until ``SURVIVAL_STEPS``
 impacts after the end of the push, and p back within ``P_TOL`` of p_d and tau' within ``TAU_DOT_TOL``
-of 1 at the end. With the early stop (``experiment.EarlyStop``, config/studies.yaml; ``--full-trials``
+of 1 at the end. With the early stop (``trial.stop.EarlyStop``, config/studies.yaml; ``--full-trials``
 turns it off) a trial back on the preferred gait one control period after an impact after the push ends
 there, survived: the outcome of the full trial (measured: docs/capability_map.md).
 
-Search per cell (mode, direction, phase, duration), as ``experiment.max_push_modes`` does it for one
-cell: the coarse forces ``experiment.coarse_forces(max, coarse)`` (coarse, 2 coarse, ... <= max) are all
+Search per cell (mode, direction, phase, duration), as ``trial.search.max_push_modes`` does it for one
+cell: the coarse forces ``trial.search.coarse_forces(max, coarse)`` (coarse, 2 coarse, ... <= max) are all
 simulated, with ``max`` lowered to ``max_impulse / duration`` for long pushes (default 50 N s = 2000 N x
-0.025 s: the same impulse range for every duration, 500 N at 0.1 s, 250 N at 0.2 s); ``experiment.analyse_coarse`` gives the last survivable force below the first failing one
+0.025 s: the same impulse range for every duration, 500 N at 0.1 s, 250 N at 0.2 s); ``trial.search.analyse_coarse`` gives the last survivable force below the first failing one
 (lo, 0 when the first fails), the first failing coarse force (hi) and the survivable coarse forces above
 it (the islands: survival is not monotone in the force); then [lo, hi] is bisected at midpoints down to
-``resolution`` [N] (the midpoints of ``experiment.bisect_edge``; tested equal). The boundary is the
+``resolution`` [N] (the midpoints of ``trial.search.bisect_edge``; tested equal). The boundary is the
 largest survivable force below the lowest failing edge, known to within ``resolution``; a cell whose
 coarse scan never fails is *censored* (boundary >= max). The search is a pure function of the records
 of the cell (:func:`plan_cell`): it names the simulations still needed, so simulations of many cells run
 in parallel and an interrupted map resumes from the records it stored.
 
-Bracketed search (issue 19; ``search_from_neighbours`` of config/studies.yaml, ``--search
+Bracketed search (``search_from_neighbours`` of config/studies.yaml, ``--search
 neighbours|full``): the first phase of each (mode, direction, duration) row is searched as above; every
 other cell starts once its lower-phase neighbour is done, from that neighbour's lowest failing coarse
 force k c: the pair ((k - 1) c, k c) is simulated and moved one coarse step at a time until the lower

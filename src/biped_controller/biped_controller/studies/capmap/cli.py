@@ -9,10 +9,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from biped_sim.plant.config import SimConfigError
-
-from biped_controller.core.controller import MODES, PAPER_MODES, ControllerConfigError
-from biped_controller.studies import capmap, experiment
+from biped_controller.core.control.controller import MODES, PAPER_MODES
+from biped_controller.studies import capmap
 from biped_controller.studies.capmap.driver import run_map
 from biped_controller.studies.capmap.executors import DEFAULT_BATCH, SerialExecutor, make_executor
 from biped_controller.studies.capmap.figures import figures
@@ -22,8 +20,11 @@ from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATI
                                                   MapSpec, Search, phases_of)
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.studies.executor import ProgressBar
-from biped_controller.studies.experiment import OverrideError
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float, positive_float,
+                                                 positive_int, settings_from_args)
+from biped_controller.studies.trial.settings import print_settings
 from biped_controller.studies.provenance import git_state
+from biped_controller.studies import provenance
 
 
 def _split(values: Sequence[str]) -> list[str]:
@@ -41,28 +42,28 @@ def _terminate(signum, frame):
 
 def main(argv: list[str] | None = None) -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    ap = argparse.ArgumentParser(prog="scripts/capability_map", description=capmap.__doc__,
+    ap = StudyArgumentParser(prog="scripts/capability_map", description=capmap.__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--modes", nargs="+", default=list(PAPER_MODES),
                     help=f"any of {' '.join(MODES)} (default the paper's {' '.join(PAPER_MODES)})")
     ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
-    ap.add_argument("--phases", type=int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
-    ap.add_argument("--durations", nargs="+", type=float, default=list(DEFAULT_DURATIONS), help="push durations [s]")
-    ap.add_argument("--resolution", type=float, default=DEFAULT_RESOLUTION, help="bisection resolution [N]")
-    ap.add_argument("--coarse", type=float, default=DEFAULT_COARSE, help="coarse scan step [N]")
-    ap.add_argument("--max", type=float, default=DEFAULT_MAX, help="largest force scanned [N]")
+    ap.add_argument("--phases", type=positive_int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
+    ap.add_argument("--durations", nargs="+", type=positive_float, default=list(DEFAULT_DURATIONS), help="push durations [s]")
+    ap.add_argument("--resolution", type=positive_float, default=DEFAULT_RESOLUTION, help="bisection resolution [N]")
+    ap.add_argument("--coarse", type=positive_float, default=DEFAULT_COARSE, help="coarse scan step [N]")
+    ap.add_argument("--max", type=positive_float, default=DEFAULT_MAX, help="largest force scanned [N]")
     ap.add_argument("--max-impulse", type=float, default=DEFAULT_MAX_IMPULSE,
                     help="largest impulse scanned [N s] (inf: none): long pushes scan up to this / duration")
     ap.add_argument("--search", choices=("neighbours", "full"), default=None,
                     help="neighbours: bracket each cell's edge from its lower-phase neighbour's (islands within "
                          "island_window coarse steps above the edge); full: every coarse force of every cell "
                          "(default: config/studies.yaml search_from_neighbours)")
-    ap.add_argument("--height", type=float, default=None,
+    ap.add_argument("--height", type=finite_float, default=None,
                     help="push point above the hip [m] (default: push_height of config/simulator.yaml)")
-    ap.add_argument("--workers", type=int, default=cores, help=f"processes (default: all cores, {cores}); 1 = in process")
+    ap.add_argument("--workers", type=positive_int, default=cores, help=f"processes (default: all cores, {cores}); 1 = in process")
     ap.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                     help="run on Ray: a local instance (num_cpus = --workers) or the cluster at ADDRESS")
-    ap.add_argument("--batch", type=int, default=None, help="simulations per task (default 1, 4 on Ray)")
+    ap.add_argument("--batch", type=positive_int, default=None, help="simulations per task (default 1, 4 on Ray)")
     ap.add_argument("--store", type=Path, default=Path("build/capability_map/records.jsonl"),
                     help="per-simulation records (JSON Lines), resumed by a rerun")
     ap.add_argument("--out", type=Path, default=None, help="directory for the PNG figures")
@@ -70,20 +71,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--report-only", action="store_true",
                     help="run nothing: summary and figures from the store (incomplete cells are left out)")
-    experiment._add_settings_args(ap)
+    add_settings_args(ap)
     args = ap.parse_args(argv)
+    provenance.track(args.json, args.out, args=args, argv=argv)   # record of each file written (results/README.md)
+    settings = settings_from_args(ap, args)
     try:
-        settings = experiment.parse_overrides(args.overrides, args.observer, args.full_trials)
-        experiment.check_settings(settings)
-        if args.workers < 1:
-            raise MapError(f"--workers must be >= 1, got {args.workers}")
         spec = MapSpec(tuple(_split(args.modes)), tuple(_split(args.directions)), phases_of(args.phases),
                        tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
                        args.height, settings, None if args.search is None else args.search == "neighbours")
-    except (MapError, OverrideError, ControllerConfigError, SimConfigError) as exc:
+    except MapError as exc:
         ap.error(str(exc))
     batch = args.batch if args.batch is not None else DEFAULT_BATCH["ray" if args.ray else "pool"]
     print(f"scripts/capability_map {' '.join(sys.argv[1:] if argv is None else argv)}")
+    print_settings(settings)
     print(f"{len(spec.cells())} cells: modes {','.join(spec.modes)} x directions {','.join(spec.directions)} x "
           f"{len(spec.phases)} phases x durations {','.join(f'{d:g}' for d in spec.durations)} s; coarse "
           f"{spec.search.coarse:g} N to " + ", ".join(f"{spec.search.for_duration(d).fmax:g} N ({d:g} s)" for d in spec.durations)

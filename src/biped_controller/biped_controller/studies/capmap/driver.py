@@ -6,7 +6,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
-from biped_controller.studies import experiment
+from biped_controller.studies.trial.settings import check_settings
 from biped_controller.studies.capmap.search import Boundary, coarse_edge, edge_index, plan_cell, remaining_estimate
 from biped_controller.studies.capmap.spec import Cell, MapError, MapSpec, SimSpec
 from biped_controller.studies.capmap.store import RecordStore, fingerprint
@@ -52,7 +52,7 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
     if not (isinstance(batch, int) and batch >= 1):
         raise MapError(f"batch must be an integer >= 1, got {batch!r}")
     for spec in specs:
-        experiment.check_settings(spec.settings)     # a bad override fails here, before any simulation
+        check_settings(spec.settings)     # a bad override fails here, before any simulation
     ex = executor if executor is not None else SerialExecutor(simulate_batch)
     fps = [fingerprint(spec) for spec in specs]
     t0 = time.perf_counter()
@@ -178,7 +178,7 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
     if progress is not None:
         progress.update(sum(simulated), sum(resumed), 0, force=True)
         progress.close()
-    # experiment reads config/controller.yaml at every simulation: a file edited during the run would
+    # a trial reads config/controller.yaml at every simulation: a file edited during the run would
     # mix settings under one fingerprint, so the fingerprint is taken again and reported
     wall = time.perf_counter() - t0
     runs = []

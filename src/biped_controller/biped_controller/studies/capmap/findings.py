@@ -7,8 +7,12 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
 
-from biped_controller.core.controller import MODES
-from biped_controller.studies import experiment
+from biped_controller.core.control.controller import MODES
+from biped_controller.studies.trial import stop, survival
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.runs import DEFAULT_DURATION
+from biped_controller.studies.trial.search import PAPER_MAX_PUSH
+from biped_controller.studies.trial.settings import differences
 from biped_controller.studies.capmap.driver import MapRun
 from biped_controller.studies.capmap.metrics import body_weight_fraction, com_velocity_change, impulse
 from biped_controller.studies.capmap.search import island_ranges
@@ -17,7 +21,7 @@ from biped_controller.studies.capmap.spec import Cell, onset_time
 
 def cell_summary(run: MapRun, cell: Cell) -> dict:
     """One boundary, JSON-ready, with its conversions, failure cause and islands."""
-    ctx = experiment.context()
+    ctx = context()
     M, g = ctx.desc.total_mass, ctx.desc.gravity
     b = run.boundaries[cell]
     d = cell.duration
@@ -106,9 +110,9 @@ def findings(boundaries: Sequence[dict], resolution: float) -> dict:
             causes[k] = causes.get(k, 0) + 1
         out["causes"][m] = causes
     for b in boundaries:
-        if b["phase"] == 0.5 and b["direction"] == "forward" and b["duration"] == experiment.DEFAULT_DURATION:
+        if b["phase"] == 0.5 and b["direction"] == "forward" and b["duration"] == DEFAULT_DURATION:
             out["paper_cell"].append({"mode": b["mode"], "force": b["force"],
-                                      "paper": experiment.PAPER_MAX_PUSH.get(b["mode"])})
+                                      "paper": PAPER_MAX_PUSH.get(b["mode"])})
     return out
 
 
@@ -150,7 +154,7 @@ def findings_text(f: dict) -> list[str]:
 def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
     """The summary JSON: the map, the robot's mass and weight, what the run did, every boundary, the
     findings and the figures."""
-    ctx = experiment.context()
+    ctx = context()
     M, g = ctx.desc.total_mass, ctx.desc.gravity
     s = run.spec
     bs = [cell_summary(run, c) for c in s.cells() if c in run.boundaries]
@@ -162,13 +166,13 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
                 "scan_max_per_duration": {f"{d:g}": s.search.for_duration(d).fmax for d in s.durations},
                 "resolution": s.search.resolution, "height": s.height,
                 "search": "neighbours" if s.neighbours else "full", "island_window": s.island_window,
-                "early_stop": (not s.settings.full_trials) and experiment.early_stop().enabled,
+                "early_stop": (not s.settings.full_trials) and stop.early_stop().enabled,
                 "onset": f"start = phase * T of the first step, T = {ctx.family.T:g} s (walk starts at t = 0)",
                 "direction_sign": "forward = + force (on the back), backward = - force",
-                "survival": f"no fall for {experiment.SURVIVAL_STEPS} steps after the push end, "
-                            f"|p - p_d| <= {experiment.P_TOL} m and |tau' - 1| <= {experiment.TAU_DOT_TOL} at the end"},
+                "survival": f"no fall for {survival.SURVIVAL_STEPS} steps after the push end, "
+                            f"|p - p_d| <= {survival.P_TOL} m and |tau' - 1| <= {survival.TAU_DOT_TOL} at the end"},
         "fingerprint": run.fingerprint,
-        "settings": experiment.check_settings(s.settings),
+        "settings": differences(s.settings),
         "robot": {"mass": M, "gravity": g, "weight": M * g},
         "units": {"force": "N", "impulse": "N s", "delta_v_com": "m/s", "body_weight_fraction": "-",
                   "phase": "fraction of the step", "start": "s", "duration": "s"},

@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
-from biped_controller.studies import experiment
+from biped_controller.studies.trial.search import analyse_coarse
 from biped_controller.studies.capmap.spec import Search
 
 
@@ -42,7 +42,7 @@ def _search_state(search: Search, survived: Mapping[float, bool]):
     missing = [f for f in coarse if f not in survived]
     if missing:
         return ("coarse", missing)
-    lo, hi, islands = experiment.analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
+    lo, hi, islands = analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
     if hi is None:
         return ("done", Boundary(lo, None, tuple(islands)))
     return _bisect(search, survived, lo, hi, tuple(islands), True)
@@ -110,7 +110,7 @@ def coarse_edge(search: Search, survived: Mapping[float, bool], hint: float | No
         coarse = search.coarse_forces()
         if any(f not in survived for f in coarse):
             return None
-        _, hi, _ = experiment.analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
+        _, hi, _ = analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
         return math.inf if hi is None else float(math.ceil(hi / c - 1e-9))
     n = len(search.coarse_forces())
     k = int(min(max(hint, 1), n))

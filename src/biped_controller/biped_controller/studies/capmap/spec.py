@@ -9,9 +9,9 @@ from pathlib import Path
 
 from biped_sim.robot.settings import default_config_dir, read_settings
 
-from biped_controller.core.controller import MODES, PAPER_MODES
-from biped_controller.studies import experiment
-from biped_controller.studies.experiment import DEFAULT_SETTINGS, RunSettings
+from biped_controller.core.control.controller import MODES, PAPER_MODES
+from biped_controller.studies.trial.search import coarse_forces
+from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
 
 #: direction name -> sign of the force (+ forward: on the back)
 DIRECTIONS: dict[str, float] = {"forward": 1.0, "backward": -1.0}
@@ -73,7 +73,7 @@ class Search:
             raise MapError(f"max_impulse must be > 0 [N s] (inf: no bound), got {self.max_impulse!r}")
 
     def coarse_forces(self) -> tuple[float, ...]:
-        return tuple(experiment.coarse_forces(self.fmax, self.coarse))
+        return tuple(coarse_forces(self.fmax, self.coarse))
 
     def for_duration(self, duration: float) -> "Search":
         """The search of a push of ``duration`` [s]: largest force min(max, max_impulse / duration), at

@@ -11,7 +11,9 @@ from typing import Iterable
 
 from biped_sim.robot.settings import default_config_dir
 
-from biped_controller.studies import experiment
+from biped_controller.studies.trial import stop, survival
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.settings import check_settings
 from biped_controller.studies.capmap.spec import MapError, MapSpec
 
 RECORD_VERSION = 1
@@ -28,17 +30,17 @@ def fingerprint(spec: MapSpec) -> str:
     survival criterion, the early stop's settings (``config/studies.yaml``) and the push height. The code is not in it (the tree is edited by many hands, and
     a comment must not void a map): after a change of the controller or the simulator that changes
     results, use a new store; every summary records the git commit and the modified files."""
-    ctx = experiment.context()
+    ctx = context()
     h = hashlib.sha256()
     inputs = {
         "version": RECORD_VERSION,
-        "settings": experiment.check_settings(spec.settings),
+        "settings": check_settings(spec.settings),
         "description": {k: v for k, v in asdict(ctx.desc).items() if k != "source"},
-        "survival": {"steps": experiment.SURVIVAL_STEPS, "p_tol": experiment.P_TOL,
-                     "tau_dot_tol": experiment.TAU_DOT_TOL, "tau_dot_tol_noise": experiment.TAU_DOT_TOL_NOISE},
+        "survival": {"steps": survival.SURVIVAL_STEPS, "p_tol": survival.P_TOL,
+                     "tau_dot_tol": survival.TAU_DOT_TOL, "tau_dot_tol_noise": survival.TAU_DOT_TOL_NOISE},
         # the early stop decides outcomes too (a trial it ends is counted survived): a store made under other
         # tolerances (e.g. before early_stop_lambda existed, when mode lambda's cells were wrong) is not resumed
-        "early_stop": asdict(experiment.early_stop()),
+        "early_stop": asdict(stop.early_stop()),
         "height": spec.height,
     }
     h.update(json.dumps(inputs, sort_keys=True, default=str).encode())

@@ -3,19 +3,22 @@ from __future__ import annotations
 
 from typing import Callable, Mapping, Sequence
 
-from biped_controller.studies import experiment
+from biped_sim.plant.push import Push
+
 from biped_controller.studies.capmap.spec import DIRECTIONS, MapError, SimSpec, onset_time
-from biped_controller.studies.experiment import DEFAULT_SETTINGS, RunSettings
+from biped_controller.studies.trial import trials
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
 
 
 def worker_init() -> None:
     """Run once in each worker process: load the description, family and settings once."""
-    experiment.context()
+    context()
 
 
 def failure_cause(trial: Mapping) -> str:
-    """The cause of a failed trial of ``experiment.survives``: the simulator's fall cause when it fell,
-    otherwise which part of ``experiment.survival`` failed (``p_not_back``, ``tau_dot_not_back``,
+    """The cause of a failed trial of ``trials.survives``: the simulator's fall cause when it fell,
+    otherwise which part of the survival rule (``trial.survival``) failed (``p_not_back``, ``tau_dot_not_back``,
     ``time_limit``); ``""`` when it survived."""
     if trial["survived"]:
         return ""
@@ -28,17 +31,17 @@ def failure_cause(trial: Mapping) -> str:
         return "tau_dot_not_back"
     if reason.startswith("only"):
         return "time_limit"
-    raise MapError(f"unrecognised failure reason from experiment.survival: {reason!r}")
+    raise MapError(f"unrecognised failure reason from the survival rule: {reason!r}")
 
 
 def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: float | None = None) -> dict:
-    """One simulation (the pure task function): ``experiment.survives`` with the push of ``spec``; the
+    """One simulation (the pure task function): ``trials.survives`` with the push of ``spec``; the
     record (JSON-ready, deterministic: the same spec gives the same record in any process)."""
     c = spec.cell
-    T = experiment.context().family.T
+    T = context().family.T
     start = onset_time(c.phase, T)
     signed = DIRECTIONS[c.direction] * spec.force
-    trial = experiment.survives(signed, c.mode, c.duration, start, height, settings)
+    trial = trials.survives(Push(start, c.duration, float(signed), height), c.mode, settings)
     return {
         "mode": c.mode, "direction": c.direction, "phase": c.phase, "duration": c.duration,
         "force": spec.force, "start": start, "signed_force": signed, "height": height,

@@ -1,0 +1,317 @@
+"""Single closed-loop runs of the paper's section 6 and what they print: an undisturbed walk (controller at
+the integration rate and at the control period), one push with figures like the paper's Figs. 3-7, and the
+probe of one push (the controller's view period by period while it acts)."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from biped_sim.plant.protocol import make_plant
+from biped_sim.plant.push import Push
+from biped_sim.robot.description import LEFT
+from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
+
+from biped_controller.core.control.controller import NO_ADAPTATION, TORSO_MODES, AdaptiveController
+from biped_controller.core.qp.solver import STATUS_NAMES
+from biped_controller.studies.runner import RunResult
+from biped_controller.studies.trial import runs
+from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, differences
+from biped_controller.studies.trial.summary import joint_errors, summarize
+from biped_controller.studies.trial.survival import noisy_sensing, survival
+from biped_controller.studies.trial.trials import p_reference
+
+ZOH_EXPLANATION = (
+    "cause of the ZOH error: the torque is computed at each control instant and held for the period "
+    "(1 ms) while the reference acceleration q_d'' (and the state) keep changing, an O(dt) acceleration "
+    "error every period; and the touchdown falls between two control instants, so the torque held since "
+    "the last instant acts up to the impact and the step starts from a slightly different post-impact "
+    "state. The integration-rate controller (torque law evaluated at every RK4 stage) has neither error "
+    "source except the last fraction of a period before each impact."
+)
+
+
+def walk(steps: int = 10, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS) -> dict:
+    """Undisturbed walking for ``steps`` impacts, controller at the integration rate and at the control
+    period (ZOH); with a sensor model only the latter (a torque function sees the true state)."""
+    out = {"steps": steps, "mode": mode, "explanation": ZOH_EXPLANATION}
+    pert = settings.perturbation
+    for key, ir in (("integration_rate", True), ("zoh", False)):
+        if ir and pert is not None and not pert.sensing_is_perfect:
+            out[key] = None      # a torque function sees the true state at every RK4 stage: no sensor model
+            continue
+        t0 = time.perf_counter()
+        res = runs.run(steps, mode, integration_rate=ir, settings=settings)
+        s = summarize(res)
+        s["wall_time"] = time.perf_counter() - t0
+        out[key] = s
+    return out
+
+
+def print_walk(r: dict) -> None:
+    print(f"walk: {r['steps']} steps, mode {r['mode']}")
+    print(f"{'controller':<18} {'steps':>5} {'fallen':>6} {'max err [rad]':>13} {'1st step':>10} {'after impact':>12} "
+          f"{'p range [m]':>17} {'tau_dot range':>17} {'wall [s]':>8}")
+    for key, label in (("integration_rate", "integration rate"), ("zoh", "ZOH 1 ms")):
+        s = r[key]
+        if s is None:
+            print(f"{label:<18} (not run: the sensor model needs held torques)")
+            continue
+        if s["fallen"]:
+            print(f"{label:<18} fall: {s['fall_cause']} at t = {s['fall_time']:.4f} s: {s['fall_detail']}")
+        print(f"{label:<18} {s['steps_walked']:>5} {str(s['fallen']):>6} {s['max_tracking_error']:13.3e} "
+              f"{s['max_tracking_error_before_first_impact']:10.2e} {s['max_tracking_error_after_first_impact']:12.2e} "
+              f"{s['p_min']:8.5f}-{s['p_max']:8.5f} {s['tau_dot_min']:8.5f}-{s['tau_dot_max']:8.5f} {s['wall_time']:8.2f}")
+    for key, label in (("integration_rate", "integration rate"), ("zoh", "ZOH 1 ms")):
+        if r[key] is None:
+            continue
+        print(f"impact times ({label}): " + ", ".join(f"{x:.6f}" for x in r[key]["impact_times"]))
+        s = r[key]
+        print(f"force estimate |F| ({label}): p50 {s['force_estimate_abs_p50']:.1f} N, p95 "
+              f"{s['force_estimate_abs_p95']:.1f} N, max {s['force_estimate_abs_max']:.1f} N")
+    print(r["explanation"])
+
+
+def push_experiment(push: Push, mode: str = "both", figures: str | Path | None = None,
+                    settings: RunSettings = DEFAULT_SETTINGS) -> dict:
+    """One ``push`` and ``SURVIVAL_STEPS`` steps after it: the survival verdict and the run's summary;
+    with ``figures`` a directory, the paper-like PNG figures written there."""
+    force, duration, start, height = push.force, push.duration, push.start, push.height
+    res = runs.push_run(push, mode, settings=settings)
+    ok, why = survival(res, push.end, noisy=noisy_sensing(settings), p_ref=p_reference(mode, push, settings))
+    s = summarize(res, push_end=push.end)
+    out = {"force": force, "duration": duration, "start": start, "mode": mode, "height": height,
+           "survived": ok, "reason": why, **s}
+    if figures is not None:
+        out["figures"] = [str(p) for p in push_figures(res, Path(figures), push,
+                                                       title=f"{force:g} N, {duration * 1e3:g} ms at t = {start:g} s, mode {mode}")]
+    return out
+
+
+def print_push(r: dict) -> None:
+    print(f"push {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s (+ forward, on the back), mode {r['mode']}")
+    print(f"  result: {'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
+    if r["fallen"]:
+        print(f"  fall: {r['fall_cause']} at t = {r['fall_time']:.4f} s: {r['fall_detail']}")
+    print(f"  steps walked {r['steps_walked']} ({r.get('impacts_after_push', 0)} after the push)")
+    print(f"  max |l| = {r['max_abs_l']:.4f} m (limits +-0.1 m)")
+    print(f"  p in [{r['p_min']:.5f}, {r['p_max']:.5f}] m, max |p - p_d| = {r['max_p_excursion']:.5f} m, final p = {r['final_p']:.6f}")
+    print(f"  tau' in [{r['tau_dot_min']:.5f}, {r['tau_dot_max']:.5f}], max |tau' - 1| = {r['max_tau_dot_excursion']:.5f}, "
+          f"final tau' = {r['final_tau_dot']:.6f}")
+    if r["mode"] in TORSO_MODES:
+        print(f"  max |lambda| = {r['max_abs_lambda']:.5f} rad, final lambda = {r['final_lambda']:.6f} rad")
+    print(f"  max tracking error {r['max_tracking_error']:.4e} rad; QP statuses {r['qp_status_counts']}")
+    for f in r.get("figures", []):
+        print(f"  figure: {f}")
+
+
+def push_figures(result: RunResult, outdir: Path, push: Push, joint: int | None = None,
+                 title: str = "") -> list[Path]:
+    """PNG figures like the paper's Figs. 3-7 of a run with ``push``. ``joint`` (0-based) for Figs. 6-7;
+    default: the joint with the largest tracking error."""
+    start, duration = push.start, push.duration
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fam = context().family
+    desc = context().desc
+    outdir.mkdir(parents=True, exist_ok=True)
+    t = np.array([r.t for r in result.records])
+    st = result.statuses
+    E = joint_errors(result, fam)
+    j = int(np.argmax(np.max(np.abs(E), axis=0))) if joint is None else joint
+    impacts = [i.t for i in result.impacts]
+    paths = []
+
+    def decorate(ax):
+        ax.axvspan(start, start + duration, color="tab:red", alpha=0.15, label="push")
+        for x in impacts:
+            ax.axvline(x, color="0.6", lw=0.6, ls=":")
+        ax.set_xlabel("t [s]")
+        ax.grid(alpha=0.3)
+
+    def save(fig, name):
+        p = outdir / name
+        fig.tight_layout()
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    ax.plot(t, [r.cop for r in result.records], lw=1.0, label="l (simulator)")
+    ax.plot(t, [s.zmp for s in st], lw=0.8, ls="--", label="l (controller prediction)")
+    ax.axhline(desc.foot.l_max, color="k", ls="--", lw=0.8)
+    ax.axhline(desc.foot.l_min, color="k", ls="--", lw=0.8, label="limits")
+    ax.set_ylim(1.3 * desc.foot.l_min, 1.3 * desc.foot.l_max)
+    ax.set_ylabel("l [m]")
+    ax.set_title(f"Fig. 3: centre of pressure l(t). {title}", fontsize=9)
+    decorate(ax)
+    ax.legend(fontsize=8, loc="lower right")
+    save(fig, "fig3_l.png")
+
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    ax.plot(t, [s.p for s in st], lw=1.0)
+    ax.axhline(fam.p_d, color="k", ls="--", lw=0.8, label="p_d")
+    ax.set_ylabel("p [m]")
+    ax.set_title(f"Fig. 4: stride parameter p(t). {title}", fontsize=9)
+    decorate(ax)
+    ax.legend(fontsize=8)
+    save(fig, "fig4_p.png")
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    a1.plot(t, [s.tau for s in st], lw=1.0)
+    a1.set_ylabel("tau [s]")
+    a1.set_title(f"Fig. 5: phase tau(t) and its rate tau'(t). {title}", fontsize=9)
+    decorate(a1)
+    a1.set_xlabel("")
+    a2.plot(t, [s.tau_dot for s in st], lw=1.0)
+    a2.axhline(1.0, color="k", ls="--", lw=0.8)
+    a2.set_ylabel("tau' [-]")
+    decorate(a2)
+    save(fig, "fig5_tau.png")
+
+    if result.statuses and result.statuses[0].mode in TORSO_MODES:      # the torso parameter
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+        a1.plot(t, [s.lam for s in st], lw=1.0)
+        a1.axhline(0.0, color="k", ls="--", lw=0.8)
+        a1.set_ylabel("lambda [rad]")
+        a1.set_title(f"torso offset lambda(t) (+ leans back) and lambda'(t). {title}", fontsize=9)
+        decorate(a1)
+        a1.set_xlabel("")
+        a2.plot(t, [s.lam_dot for s in st], lw=1.0)
+        a2.set_ylabel("lambda' [rad/s]")
+        decorate(a2)
+        save(fig, "fig5b_lambda.png")
+
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    ax.plot(t, E[:, j], lw=1.0)
+    ax.set_ylabel(f"q{j + 1}_d - q{j + 1} [rad]")
+    ax.set_title(f"Fig. 6: tracking error of q{j + 1}. {title}", fontsize=9)
+    decorate(ax)
+    save(fig, "fig6_tracking_error.png")
+
+    q = np.array([r.q[j] for r in result.records])
+    qd = np.array([r.qd[j] for r in result.records])
+    stance = np.array([r.stance for r in result.records])
+    brk = np.flatnonzero(np.diff(stance) != 0) + 1   # do not join the points across an impact
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    ax.plot(np.insert(q, brk, np.nan), np.insert(qd, brk, np.nan), lw=0.8, label="measured")
+    ref = [fam.reference(fam.p_d, 0.0, x, 1.0) for x in np.linspace(0, fam.T, 200)]
+    ax.plot([r[0][j] for r in ref], [r[1][j] for r in ref], "k--", lw=0.8, label="preferred gait")
+    during = (t >= start) & (t < start + duration)
+    ax.plot(q[during], qd[during], color="tab:red", lw=2, label="during the push")
+    ax.set_xlabel(f"q{j + 1} [rad]")
+    ax.set_ylabel(f"q{j + 1}' [rad/s]")
+    ax.set_title(f"Fig. 7: q{j + 1} in its phase plane", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    save(fig, "fig7_phase_plane.png")
+    return paths
+
+
+@dataclass(frozen=True)
+class ProbeResult:
+    """A closed-loop run plus what ``runner.run`` does not return: the controller's force estimate."""
+
+    result: RunResult
+    force_estimate: np.ndarray    # (N,) the observer's horizontal torso force at each period [N] (0 when off)
+
+
+def probe_run(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS,
+              until: float | None = None, steps: int | None = None) -> ProbeResult:
+    """The closed loop of ``runner.run`` (same order of calls, so bit-identical records; tested) with one
+    push, also recording ``AdaptiveController.force_estimate`` after each decision. Stops at a fall, after
+    ``steps`` impacts (default: as ``push_run``), or once the simulated time reaches ``until`` [s]."""
+    ctx = context()
+    scfg = settings.sim_config()
+    ccfg = settings.ctrl_config(mode)
+    n_steps = steps if steps is not None else runs.trial_steps(push)
+    sim = make_plant(scfg.plant, ctx.desc, scfg, settings.perturbation)   # rigid or MuJoCo (--set plant=...)
+    ctrl = AdaptiveController(ccfg, ctx.family, ctx.desc)
+    q0, qd0 = ctx.family.initial_state()
+    sim.reset(q0, qd0, LEFT)
+    ctrl.reset(LEFT)
+    sim.schedule_push(push.start, push.duration, float(push.force), push.height)
+    limit = until if until is not None else (n_steps + 3) * ctx.family.T * 3
+    records, statuses, est = [], [], []
+    while True:
+        obs = sim.observe()
+        out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
+        statuses.append(out.status)
+        est.append(ctrl.force_estimate)
+        rec = sim.step(out.torque)
+        records.append(rec)
+        if rec.fallen or sim.fall is not None or sim.impact_count >= n_steps or sim.t >= limit:
+            break
+    fall = sim.fall
+    res = RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count, fallen=fall is not None,
+                    fall_cause=fall.cause if fall else "", fall_detail=fall.detail if fall else "",
+                    fall_time=fall.t if fall else math.nan, impacts=list(sim.impact_log))
+    return ProbeResult(res, np.array(est))
+
+
+def _status_name(code: int) -> str:
+    return STATUS_NAMES.get(code, "NO_ADAPTATION" if code == NO_ADAPTATION else str(code))
+
+
+def probe(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS, before: float = 0.002,
+          after: float = 0.010) -> dict:
+    """One push seen from the controller, period by period over [start - before, end + after] (or to the
+    fall). Per period (values at its start t): the true push and the observer's estimate [N]; the QP
+    status; the tightest of the 17 true rows (margins scaled by the model's row scales, evaluated with the
+    controller's predicted reaction) and its margin; the predicted ground reaction R (the controller's
+    B w + h_b, with the estimate when the observer is on) against the simulator's actual wrench (F_x, F_z)
+    under the same torque and push [N]; l predicted (Gamma_1 / R_y predicted) and actual (m / F_z) [m];
+    p'' [m/s^2] and tau'' [1/s]. Plus the survival verdict of the full run (up to SURVIVAL_STEPS after)."""
+    pr = probe_run(push, mode, settings)
+    res = pr.result
+    force, duration, start, height = push.force, push.duration, push.start, push.height
+    end = push.end
+    ok, why = survival(res, end)
+    rows = []
+    for k, (rec, st) in enumerate(zip(res.records, res.statuses)):
+        if rec.t < start - before - 1e-12 or rec.t > end + after + 1e-12:
+            continue
+        i = int(st.tightest)
+        rows.append({
+            "t": float(rec.t), "stance": int(rec.stance), "impacts": int(rec.impacts), "push": float(rec.push_force),
+            "estimate": float(pr.force_estimate[k]),
+            "qp_status": _status_name(st.qp_status), "tightest": CONSTRAINT_NAMES[i],
+            "tightest_margin": float(st.margins[i]),
+            "R_pred": [float(st.predicted_reaction[0]), float(st.predicted_reaction[1])],
+            "R_act": [float(rec.wrench[0]), float(rec.wrench[1])],
+            "l_pred": float(st.zmp), "l_act": float(rec.cop),
+            "p_ddot": float(st.p_ddot), "tau_ddot": float(st.tau_ddot), "p": float(st.p), "tau_dot": float(st.tau_dot),
+        })
+    during = [r for r in rows if start <= r["t"] < end]
+    return {
+        "force": float(force), "mode": mode, "duration": duration, "start": start, "height": height,
+        "settings": differences(settings), "survived": ok, "reason": why,
+        "fall_cause": res.fall_cause or None, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+        "fall_detail": res.fall_detail or None,
+        "max_l_error_during_push": max((abs(r["l_act"] - r["l_pred"]) for r in during), default=None),
+        "periods": rows,
+    }
+
+
+def print_probe(r: dict) -> None:
+    print(f"probe: {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s, mode {r['mode']}: "
+          f"{'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
+    if r["fall_detail"]:
+        print(f"  fall: {r['fall_detail']}")
+    print(f"{'t [s]':>7} {'imp':>3} {'push':>6} {'F_est':>7} {'QP':>13} {'tightest':>15} {'margin':>8} {'Rx pred':>8} {'Rx act':>8} "
+          f"{'Ry pred':>8} {'Ry act':>8} {'l pred':>7} {'l act':>7} {'p_dd':>8} {'tau_dd':>8} {'p':>7} {'tau_d':>6}")
+    for x in r["periods"]:
+        print(f"{x['t']:7.4f} {x['impacts']:3d} {x['push']:6.1f} {x['estimate']:7.1f} {x['qp_status']:>13} {x['tightest']:>15} "
+              f"{x['tightest_margin']:8.2f} {x['R_pred'][0]:8.1f} {x['R_act'][0]:8.1f} {x['R_pred'][1]:8.1f} "
+              f"{x['R_act'][1]:8.1f} {x['l_pred']:7.4f} {x['l_act']:7.4f} {x['p_ddot']:8.3f} {x['tau_ddot']:8.3f} "
+              f"{x['p']:7.4f} {x['tau_dot']:6.3f}")
+    if r["max_l_error_during_push"] is not None:
+        print(f"max |l act - l pred| during the push: {r['max_l_error_during_push']:.4f} m")
+
+

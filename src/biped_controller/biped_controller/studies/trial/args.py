@@ -1,0 +1,131 @@
+"""Command-line pieces every study's CLI shares: the settings flags (``--profile``, ``--set``,
+``--observer``, ``--perturb``, ``--full-trials``), the parser whose errors are one line with exit status
+2, and argparse type functions that check a value where it is read (the message names the value; argparse
+adds the option's name)."""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from biped_sim.plant.config import SimConfigError
+from biped_sim.plant.perturbation import PerturbationError
+from biped_sim.robot.profiles import DEFAULT_PROFILE, ProfileError, profile_names
+from biped_sim.robot.settings import SettingsError
+
+from biped_controller.core.control.controller import MODES, ControllerConfigError
+from biped_controller.studies.trial.settings import OverrideError, RunSettings, run_settings
+
+__all__ = ["StudyArgumentParser", "add_settings_args", "settings_from_args", "SETTINGS_ERRORS", "finite_float",
+           "positive_float", "nonnegative_float", "positive_int", "nonnegative_int", "profile_arg", "modes_arg"]
+
+#: the errors a bad settings flag raises (each names the key or the profile)
+SETTINGS_ERRORS = (OverrideError, ProfileError, ControllerConfigError, SimConfigError, PerturbationError, SettingsError)
+
+
+class StudyArgumentParser(argparse.ArgumentParser):
+    """An ArgumentParser whose error is one line on stderr (``prog: error: message``) and exit status 2."""
+
+    def error(self, message: str):
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        sys.exit(2)
+
+
+def finite_float(text: str) -> float:
+    """A finite number (no nan, no inf)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    v = finite_float(text)
+    if not v > 0.0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return v
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0."""
+    v = finite_float(text)
+    if v < 0.0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def _int(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    v = _int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return v
+
+
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0."""
+    v = _int(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return v
+
+
+def profile_arg(text: str) -> str:
+    """The name of a profile of ``config/profiles/``."""
+    known = profile_names()
+    if text not in known:
+        raise argparse.ArgumentTypeError(f"unknown profile {text!r}; known profiles: {', '.join(known)}")
+    return text
+
+
+def modes_arg(text: str) -> tuple[str, ...]:
+    """``--modes none,wbc,...``: known modes, each once, at least one."""
+    modes = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in modes if m not in MODES]
+    if not modes or bad or len(set(modes)) != len(modes):
+        raise argparse.ArgumentTypeError(f"expected distinct modes out of {','.join(MODES)}, got {text!r}")
+    return modes
+
+
+def add_settings_args(a: argparse.ArgumentParser, *, observer: bool = True, perturb: bool = True,
+                      full_trials: bool = True) -> None:
+    """The settings flags: ``--profile``, ``--set`` and, unless switched off, ``--observer``, ``--perturb``
+    and ``--full-trials`` (read them back with :func:`settings_from_args`)."""
+    a.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE,
+                   help=f"named settings of config/profiles/ (one of {', '.join(profile_names())}; default "
+                        f"{DEFAULT_PROFILE}); --set and --observer override it")
+    if observer:
+        a.add_argument("--observer", choices=("on", "off"), default=None,
+                       help="the controller's disturbance observer (default: the profile's, else "
+                            "config/controller.yaml); off = the paper's controller as published")
+    a.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a key of config/controller.yaml or config/simulator.yaml (repeatable)")
+    if full_trials:
+        a.add_argument("--full-trials", action="store_true",
+                       help="run every survival trial in full (no early stop: config/studies.yaml early_stop)")
+    if perturb:
+        a.add_argument("--perturb", dest="perturb", action="append", default=[], metavar="FIELD=VALUE",
+                       help="a field of the plant's PlantPerturbation, e.g. torso_mass_scale=0.8, noise_q=5e-4, "
+                            "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation)")
+
+
+def settings_from_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> RunSettings:
+    """The :class:`RunSettings` of the flags of :func:`add_settings_args`; a bad one is ``ap.error`` (exit
+    status 2) with the message naming the key or the profile."""
+    try:
+        return run_settings(getattr(args, "profile", None), getattr(args, "overrides", ()),
+                            getattr(args, "observer", None), getattr(args, "perturb", ()),
+                            getattr(args, "full_trials", False))
+    except SETTINGS_ERRORS as exc:
+        ap.error(str(exc))
