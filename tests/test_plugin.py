@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import helpers
-from biped_controller.core.controller import MODES, load_controller_config
+from biped_controller.core.control.controller import MODES, load_controller_config
 from biped_controller.plugin import loop as plugin_loop
 from biped_controller.plugin.builtin import BUILTIN, ModeNone
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, ControlResult, GuardedController,
@@ -27,13 +27,13 @@ from biped_controller.plugin.interface import (ControllerFault, ControllerSetup,
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               registered)
 from biped_controller.plugin.study import PushTrials
-from biped_controller.studies import experiment as ex
+from biped_controller.studies.trial import runs as trial_runs, trials as trial_trials
 from biped_controller.studies import runner
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
 from biped_sim.robot.fixed_foot import FixedFootModel
 
-START, DURATION = ex.DEFAULT_START, ex.DEFAULT_DURATION
+START, DURATION = trial_runs.DEFAULT_START, trial_runs.DEFAULT_DURATION
 
 
 class ClassicalComputedTorque:
@@ -134,7 +134,8 @@ def test_interface_computed_torque_has_mode_none_max_push_at_the_paper_cell():
     bad = trials.survives(46.875)
     assert ok["survived"], ok
     assert not bad["survived"] and bad["reason"].startswith("fell"), bad
-    assert ex.survives(43.75, "none", pool=False)["survived"] and not ex.survives(46.875, "none", pool=False)["survived"]
+    assert trial_trials.survives(trial_runs.paper_push(43.75), "none", pool=False)["survived"]
+    assert not trial_trials.survives(trial_runs.paper_push(46.875), "none", pool=False)["survived"]
 
 
 def test_interface_computed_torque_equals_mode_none_on_mujoco():

@@ -52,7 +52,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from biped_controller.core.controller import load_controller_config
+from biped_controller.core.control.controller import load_controller_config
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
 from biped_sim.robot.fixed_foot import FixedFootModel
 from biped_sim.robot.gait_family import eq11

@@ -1,4 +1,4 @@
-"""The built-in modes of :class:`biped_controller.core.controller.AdaptiveController` behind the controller
+"""The built-in modes of :class:`biped_controller.core.control.controller.AdaptiveController` behind the controller
 interface (``plugin.interface``): one adapter class per mode, each a thin wrapper over the existing
 controller (its compiled period included), registered under the mode's name.
 
@@ -16,7 +16,7 @@ from dataclasses import fields
 
 import numpy as np
 
-from biped_controller.core.controller import (MODES, AdaptiveController, ControllerConfigError, ControllerStatusData,
+from biped_controller.core.control.controller import (MODES, AdaptiveController, ControllerConfigError, ControllerStatusData,
                                               load_controller_config)
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
 

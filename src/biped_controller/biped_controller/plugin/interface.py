@@ -57,12 +57,21 @@ class ControllerSetup:
     options: Mapping[str, object] = field(default_factory=dict)
 
 
+def stamp_time(t: float) -> float:
+    """Sim time ``t`` [s] as a ROS stamp carries it: rounded to the nanosecond (``biped_sim.graph.cdr.stamp_parts``)
+    and read back as sec + 1e-9 nanosec, the controller node's time of a state. The in-process loop gives
+    the controller this time too, so a controller sees the same ``t`` in process and over DDS."""
+    ns = int(round(t * 1e9))
+    sec, nsec = divmod(ns, 1_000_000_000)
+    return sec + 1e-9 * nsec
+
+
 @dataclass(frozen=True, eq=False)
 class Observation:
     """What a controller receives at the start of a control period.
 
-    * ``t`` [s]: the period's start (simulated time; a period that follows a touchdown starts at the
-      touchdown instant, off the control grid);
+    * ``t`` [s]: the period's start (simulated time rounded to the nanosecond, :func:`stamp_time`; a
+      period that follows a touchdown starts at the touchdown instant, off the control grid);
     * ``step``: index of the period since the run's start;
     * ``stance``: the sensed stance foot (0 = LEFT, 1 = RIGHT);
     * ``q`` (6,) [rad], ``qd`` (6,) [rad/s]: the sensed joint state in paper coordinates of ``stance``
@@ -126,7 +135,8 @@ class InterfaceError(TypeError):
 
 class ControllerFault(RuntimeError):
     """A controller returned something the plant cannot apply: a non-finite torque, a torque of the wrong
-    shape, or a malformed status (the message names the controller, the period and the fault).
+    shape, a malformed status, or it raised an exception in ``reset``, ``on_touchdown`` or ``compute``
+    (the message names the controller, the period and the fault).
     ``controller`` the controller's name, ``t`` [s] the period, ``kind`` one of :data:`FAULT_KINDS`."""
 
     def __init__(self, controller: str, t: float, kind: str, detail: str):
@@ -134,7 +144,7 @@ class ControllerFault(RuntimeError):
         self.controller, self.t, self.kind, self.detail = controller, t, kind, detail
 
 
-FAULT_KINDS = ("wrong result type", "wrong torque shape", "non-finite torque", "malformed status")
+FAULT_KINDS = ("wrong result type", "wrong torque shape", "non-finite torque", "malformed status", "raised")
 
 #: method -> the positional parameters it takes after ``self``
 _METHODS = {"reset": ("stance", "t"), "on_touchdown": ("t", "stance"), "compute": ("obs",)}
@@ -179,19 +189,28 @@ class GuardedController:
     """An interface controller whose every result is checked before the plant gets it: ``compute`` returns
     a :class:`ControlResult` whose torque is a float array of shape (6,) (a copy) with finite entries and
     whose status maps ``str`` to ``bool``, ``int`` or ``float`` (NumPy scalars converted); anything else
-    raises :class:`ControllerFault` naming ``name``. ``reset`` and ``on_touchdown`` pass through."""
+    raises :class:`ControllerFault` naming ``name``, as does an exception raised by the controller's
+    ``reset``, ``on_touchdown`` or ``compute`` (kind ``raised``, the original chained)."""
 
     def __init__(self, inner: Controller, name: str):
         self.inner, self.name = inner, name
 
+    def _call(self, what: str, t: float, f, *args):
+        try:
+            return f(*args)
+        except ControllerFault:
+            raise
+        except Exception as exc:     # the controller's own code failed: a fault of this controller, not of the study
+            raise ControllerFault(self.name, t, FAULT_KINDS[4], f"{what} raised {type(exc).__name__}: {exc}") from exc
+
     def reset(self, stance: int, t: float) -> None:
-        self.inner.reset(stance, t)
+        self._call("reset", t, self.inner.reset, stance, t)
 
     def on_touchdown(self, t: float, stance: int) -> None:
-        self.inner.on_touchdown(t, stance)
+        self._call("on_touchdown", t, self.inner.on_touchdown, t, stance)
 
     def compute(self, obs: Observation) -> ControlResult:
-        out = self.inner.compute(obs)
+        out = self._call("compute", obs.t, self.inner.compute, obs)
         if not isinstance(out, ControlResult):
             raise ControllerFault(self.name, obs.t, FAULT_KINDS[0],
                                   f"compute returned {type(out).__name__}, not a ControlResult")

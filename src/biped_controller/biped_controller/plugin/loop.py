@@ -27,7 +27,8 @@ from biped_sim.plant.records import ImpactRecord, StepRecord
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.gait_family import GaitFamily
 
-from biped_controller.plugin.interface import ControllerFault, ControllerSetup, GuardedController, Observation
+from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, Observation,
+                                               stamp_time)
 from biped_controller.plugin.registry import make_controller
 
 
@@ -86,7 +87,6 @@ class PluginLoop:
         limit = limit if limit is not None else (steps + 3) * fam.T * 3
         q0, qd0 = fam.initial_state()
         sim.reset(q0, qd0, LEFT)
-        ctrl.reset(LEFT, sim.t)
         for p in pushes:
             sim.schedule_push(p.start, p.duration, p.force, p.height)
         records, statuses = [], []
@@ -94,18 +94,23 @@ class PluginLoop:
         last_torque, last_stance, prev = np.zeros(6), None, None
         status: Mapping = {}
         n = 0
-        while True:
+        try:
+            ctrl.reset(LEFT, sim.t)
+        except ControllerFault as exc:
+            fault = exc
+        while fault is None:
             raw = sim.observe()
-            if prev is not None and raw.stance != prev:
-                ctrl.on_touchdown(raw.t, raw.stance)
-            prev = raw.stance
-            obs = Observation.frozen(raw.t, raw.step, raw.stance, raw.q, raw.qd, raw.pitch, raw.pitch_rate,
+            t = stamp_time(raw.t)
+            obs = Observation.frozen(t, raw.step, raw.stance, raw.q, raw.qd, raw.pitch, raw.pitch_rate,
                                      last_torque, raw.stance if last_stance is None else last_stance)
             try:
+                if prev is not None and raw.stance != prev:
+                    ctrl.on_touchdown(t, raw.stance)
                 out = ctrl.compute(obs)
             except ControllerFault as exc:
                 fault = exc
                 break
+            prev = raw.stance
             status = out.status
             rec = sim.step(out.torque)
             n += 1

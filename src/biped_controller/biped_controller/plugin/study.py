@@ -1,14 +1,14 @@
 """The largest survivable push of any interface controller, by the studies' search and survival rule.
 
 A trial: the push (``Push(start, duration, force)``, + forward, on the back) then ``SURVIVAL_STEPS``
-touchdowns after its end (``experiment.push_step_index`` + 1 + SURVIVAL_STEPS steps in all, time limit
+touchdowns after its end (``trial.runs.push_step_index`` + 1 + SURVIVAL_STEPS steps in all, time limit
 (steps + 3) 3 T), run in full (no early stop: the studies' early stop reads the adaptive controller's
 parameters). Survived: no fall, no controller fault, SURVIVAL_STEPS touchdowns at or after the push's
 end, and, where the controller's last status reports them, |p - p_d| <= P_TOL [m] and
-|tau_dot - 1| <= TAU_DOT_TOL (the return to the preferred gait of ``experiment.survival``; a controller
+|tau_dot - 1| <= TAU_DOT_TOL (the return to the preferred gait of ``trial.survival``; a controller
 without a stride or a time scaling is judged by the fall and the step count alone).
 
-The search (``experiment.max_push_modes``'s): forces ``coarse, 2 coarse, ..., fmax`` [N]; the last
+The search (``trial.search.max_push_modes``'s): forces ``coarse, 2 coarse, ..., fmax`` [N]; the last
 survivable force below the first failure, then the edge bisected to ``resolution`` [N]; survivable
 coarse forces above the first failure are reported as islands, and beside this strict boundary the no-fall
 edge (the largest force tried below the lowest one that fell, ``first_fall``: the plant comparison's second
@@ -16,6 +16,7 @@ figure). One process.
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Mapping
 
@@ -26,13 +27,21 @@ from biped_sim.robot.description import RobotDescription, load_description
 from biped_sim.robot.gait_family import GaitFamily
 
 from biped_controller.plugin.loop import PluginLoop, PluginRunResult
-from biped_controller.studies.experiment import (DEFAULT_DURATION, DEFAULT_START, P_TOL, SURVIVAL_STEPS, TAU_DOT_TOL,
-                                                 analyse_coarse, coarse_forces, push_step_index)
+from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, push_step_index
+from biped_controller.studies.trial.search import analyse_coarse, coarse_forces
+from biped_controller.studies.trial.settings import RunSettings
+from biped_controller.studies.trial.survival import (P_TOL, SURVIVAL_STEPS, TAU_DOT_TOL, TAU_DOT_TOL_NOISE, model_error,
+                                                     noisy_sensing)
 
 
-def survival(result: PluginRunResult, push_end: float, p_d: float, steps_after: int = SURVIVAL_STEPS
-             ) -> tuple[bool, str]:
-    """(survived, reason) by the rule of the module docstring."""
+def survival(result: PluginRunResult, push_end: float, p_d: float, steps_after: int = SURVIVAL_STEPS,
+             noisy: bool = False, p_ref: float | None = None) -> tuple[bool, str]:
+    """(survived, reason) by the rule of the module docstring (``noisy``: |tau' - 1| within
+    ``TAU_DOT_TOL_NOISE``; ``p_ref`` [m]: the unpushed walk's p under model error in place of p_d, as
+    ``trial.survival.survival``)."""
+    tau_tol = TAU_DOT_TOL_NOISE if noisy else TAU_DOT_TOL
+    if p_ref is not None:
+        p_d = p_ref
     if result.fault is not None:
         return False, f"controller fault: {result.fault}"
     if result.fallen:
@@ -43,8 +52,8 @@ def survival(result: PluginRunResult, push_end: float, p_d: float, steps_after: 
     last = result.last_status
     if "p" in last and not abs(float(last["p"]) - p_d) <= P_TOL:
         return False, f"p = {float(last['p']):.5f} m not back to p_d (|p - p_d| > {P_TOL})"
-    if "tau_dot" in last and not abs(float(last["tau_dot"]) - 1.0) <= TAU_DOT_TOL:
-        return False, f"tau' = {float(last['tau_dot']):.5f} not back to 1 (> {TAU_DOT_TOL})"
+    if "tau_dot" in last and not abs(float(last["tau_dot"]) - 1.0) <= tau_tol:
+        return False, f"tau' = {float(last['tau_dot']):.5f} not back to 1 (> {tau_tol})"
     return True, "survived"
 
 
@@ -63,7 +72,7 @@ class PushTrials:
     def survives(self, force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
                  height: float | None = None) -> dict:
         """One trial (JSON-ready): force [N], survived, reason, fall cause and time, steps walked, fault."""
-        steps = push_step_index(start, duration, self.family.T) + 1 + SURVIVAL_STEPS
+        steps = push_step_index(Push(start, duration, 0.0), self.family.T) + 1 + SURVIVAL_STEPS
         res = self.loop.run(steps, (Push(start, duration, float(force), height),), keep_records=False)
         self.trials += 1
         ok, why = survival(res, start + duration, self.family.p_d)
@@ -99,3 +108,41 @@ class PushTrials:
                 "first_fall": first_fall, "no_fall_edge": max(below) if below else 0.0, "resolution": resolution,
                 "coarse_step": coarse, "scan_max": fmax, "duration": duration, "start": start, "height": height,
                 "direction": "forward" if sign > 0 else "backward", "trials": trials}
+
+
+@functools.lru_cache(maxsize=8)
+def trials_for(controller: str, settings: RunSettings) -> PushTrials:
+    """This process's :class:`PushTrials` of ``controller`` (a registered name, resolved here: in a sweep's
+    worker process or Ray task) on the plant of ``settings`` (its simulator settings and perturbation)."""
+    from biped_controller.studies.trial.context import context
+    ctx = context()
+    return PushTrials(controller, sim_config=settings.sim_config(), family=ctx.family, desc=ctx.desc,
+                      perturbation=settings.perturbation)
+
+
+@functools.lru_cache(maxsize=32)
+def reference_p(controller: str, steps: int, settings: RunSettings) -> float:
+    """p [m] of the controller's last status after an unpushed walk of ``steps`` touchdowns with
+    ``settings`` (the survival rule's reference under model error); NaN when it falls, faults or reports
+    no ``p``."""
+    res = trials_for(controller, settings).loop.run(steps, (), keep_records=False)
+    if res.fallen or res.fault is not None or "p" not in res.last_status:
+        return math.nan
+    return float(res.last_status["p"])
+
+
+def survives_push(push: Push, controller: str, settings: RunSettings) -> dict:
+    """One survival trial of a plug-in controller in the shape of ``trial.trials.survives``'s record
+    (force, mode = the controller's name, survived, reason, fall cause and time, steps walked,
+    ``decided_at_step`` None: run in full) plus ``fault`` (the fault's kind, None without one). The
+    rule is :func:`survival` with the noise band and the model-error reference of ``settings``."""
+    tr = trials_for(controller, settings)
+    steps = push_step_index(push, tr.family.T) + 1 + SURVIVAL_STEPS
+    res = tr.loop.run(steps, (push,), keep_records=False)
+    tr.trials += 1
+    p_ref = reference_p(controller, steps, settings) if model_error(settings) else None
+    ok, why = survival(res, push.start + push.duration, tr.family.p_d, noisy=noisy_sensing(settings), p_ref=p_ref)
+    return {"force": float(push.force), "mode": controller, "survived": ok, "reason": why,
+            "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+            "steps_walked": int(res.steps_walked), "decided_at_step": None,
+            "fault": None if res.fault is None else res.fault.kind}
