@@ -23,7 +23,8 @@ from biped_controller.core.control.controller import MODES, load_controller_conf
 from biped_controller.plugin import loop as plugin_loop
 from biped_controller.plugin.builtin import BUILTIN, ModeNone
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, ControlResult, GuardedController,
-                                               InterfaceError, Observation, check_controller_class)
+                                               InterfaceError, Observation, check_controller_class,
+                                               stamp_time)
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               registered)
 from biped_controller.plugin.study import PushTrials
@@ -169,9 +170,11 @@ def test_observation_carries_the_last_applied_torque_and_touchdowns():
     spy = _Spy(lp.setup)
     res = plugin_loop.run(spy, steps=2)
     assert res.steps_walked == 2
-    # every touchdown followed by a period is told, before that period (the run stops at the second one)
-    assert spy.touchdowns == [(i.t, i.new_stance) for i in res.impacts[:1]]
-    assert [o.t for o in spy.seen if o.stance != o.last_stance] == [res.impacts[0].t]
+    # every touchdown followed by a period is told, before that period (the run stops at the second one), at
+    # the touchdown instant as a stamp carries it (rounded to the nanosecond)
+    assert spy.touchdowns == [(stamp_time(i.t), i.new_stance) for i in res.impacts[:1]]
+    assert [o.t for o in spy.seen if o.stance != o.last_stance] == [stamp_time(res.impacts[0].t)]
+    assert abs(stamp_time(res.impacts[0].t) - res.impacts[0].t) <= 0.5e-9
     assert np.array_equal(spy.seen[0].last_torque, np.zeros(6))
     for obs, prev in zip(spy.seen[1:], res.records[:-1]):
         assert np.array_equal(obs.last_torque, prev.torque) and obs.last_stance == prev.stance
