@@ -3,13 +3,14 @@
 The launcher starts the whole graph (Fast DDS on loopback, isolated domain: ``ros_domain``) with the
 controller node's ``controller`` parameter naming the example package's capture-point step adjuster
 (``capture_point``, registered through its entry point) and one push scheduled by the disturbance node
-(150 N on the back for 25 ms from t = 0.2315 s: the adjuster moves its stride and its step time). The bag,
+(40 N on the back for 25 ms from t = 0.2315 s, below its 50 N boundary: the adjuster speeds up its step). The bag,
 read back by ``bag_reader``, is compared with ``plugin.loop.run`` of the same controller, push and steps:
 
 - the states (q, q', stance, step) are the same, bit for bit, as in ``tests/test_graph.py`` (the controller
   sees the same observation: its time is the stamp's, ``interface.stamp_time``, in both);
 - the torques, clipped to the torque limits the simulator applies, agree to 1e-4 N m as there;
-- the status carries the controller's name and its stride p and time scaling tau' of the in-process run;
+- the status carries the controller's name and its stride p and time scaling tau' of the in-process run
+  (tau' leaves 1 by more than 1e-3 after the push: the run compared is an adapting one);
 - a negative control: the in-process run without the push is another run, far from the bag, so the
   comparison can fail.
 """
@@ -28,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PY = ROOT / '.venv' / 'bin' / 'python'
 STEPS = 2
 NAME = 'capture_point'
-PUSH = dict(force=150.0, duration=0.025, start=0.2315)
+PUSH = dict(force=40.0, duration=0.025, start=0.2315)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -72,7 +73,7 @@ def test_plugin_in_graph_equals_in_process(ros_env, tmp_path):
     torques = [m for t, _, _, m in d['messages'] if t == '/controller/torque']
     status = [m for t, _, _, m in d['messages'] if t == '/controller/status']
     assert len(states) == len(ref.records) + 1        # + the final state
-    assert len(torques) == len(status) == len(ref.records)
+    assert len(torques) == len(status) >= len(ref.records)   # (the final state may be answered too)
     lo, hi = -150.0, 150.0
     for k, rec in enumerate(ref.records):
         s = states[k]
@@ -84,8 +85,8 @@ def test_plugin_in_graph_equals_in_process(ros_env, tmp_path):
         assert np.max(np.abs(np.clip(np.array(torques[k].effort), lo, hi) - rec.torque)) < 1e-4, k
         assert status[k].mode == NAME
         assert status[k].p == ref.statuses[k]['p'] and status[k].tau_dot == ref.statuses[k]['tau_dot'], k
-    # the push made the adjuster move its stride: the comparison above covers an adapting run
-    assert np.max(np.abs(ref.series('p') - ref.series('p')[0])) > 1e-3
+    # the push made the adjuster change its timing: the comparison above covers an adapting run
+    assert np.max(np.abs(ref.series('tau_dot') - 1.0)) > 1e-3
     # negative control: without the push the in-process run is another run
     other = plugin_loop.run(NAME, steps=STEPS)
     n = min(len(other.records), len(ref.records))
