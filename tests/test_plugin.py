@@ -238,7 +238,7 @@ class NoCompute:
 
 
 class BadTouchdown(ClassicalComputedTorque):
-    def on_touchdown(self):          # noqa: the wrong signature on purpose
+    def on_touchdown(self):          # the wrong signature, on purpose
         pass
 
 

@@ -16,9 +16,7 @@ read back by ``bag_reader``, is compared with ``plugin.loop.run`` of the same co
 """
 from __future__ import annotations
 
-import os
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
