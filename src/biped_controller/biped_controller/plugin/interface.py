@@ -231,6 +231,10 @@ class GuardedController:
             raise ControllerFault(self.name, t, FAULT_KINDS[3], f"status is {type(status).__name__}, not a mapping")
         clean: dict[str, StatusValue] = {}
         for k, v in status.items():
+            tv = type(v)
+            if (tv is float or tv is int or tv is bool) and type(k) is str:     # the common case, kept as it is
+                clean[k] = v
+                continue
             if not isinstance(k, str):
                 raise ControllerFault(self.name, t, FAULT_KINDS[3], f"status key {k!r} is not a str")
             if isinstance(v, (bool, np.bool_)):
