@@ -89,3 +89,11 @@ def test_plugin_in_graph_equals_in_process(ros_env, tmp_path):
     other = plugin_loop.run(NAME, steps=STEPS)
     n = min(len(other.records), len(ref.records))
     assert max(np.max(np.abs(other.records[k].q - ref.records[k].q)) for k in range(n)) > 1e-3
+
+
+def test_controller_node_refuses_an_unknown_controller_naming_it(ros_env):
+    p = subprocess.run([str(PY), '-m', 'biped_controller.graph.controller_node', '--ros-args', '-p',
+                        'controller:=no_such_controller'], env=ros_env, cwd=ROOT, capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 2, (p.stdout[-2000:], p.stderr[-2000:])
+    assert "'controller'" in p.stdout + p.stderr and 'no_such_controller' in p.stdout + p.stderr
