@@ -157,8 +157,8 @@ class CapturePointStepper:
             self.tau, self._touched = 0.0, False
         self.t_last = obs.t
         q, qd = obs.q, obs.qd
-        c, J, _ = self.model.com_terms(q, qd)
-        xi = float(c[0] + (J @ qd)[0] / self.omega)
+        c, v = self.model.com_velocity(q, qd)
+        xi = float(c[0] + v[0] / self.omega)
         tau_c = min(max(self.tau, 0.0), self.T)
         xi_n = float(np.interp(tau_c, self._taus, self._xi_n))
         adapted = False
