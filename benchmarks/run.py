@@ -652,7 +652,7 @@ def markdown(R: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-SUB_BENCHMARKS = ("wbc_step.json", "model_error.json", "estimation.json", "torso_step.json")
+SUB_BENCHMARKS = ("wbc_step.json", "model_error.json", "estimation.json", "torso_step.json", "plugin.json")
 
 
 def merge_sub_benchmarks(R: dict, directory: Path) -> dict:

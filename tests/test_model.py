@@ -186,6 +186,11 @@ def test_com_jacobian_and_drift(fm):
         c = lambda t: hand_com(desc, q + t * qd + 0.5 * t * t * w)  # noqa: E731
         acc = (c(h) - 2 * c(0.0) + c(-h)) / h**2
         assert_close(JG @ w + drift, acc, 1e-5, "J_G w + drift vs CoM second difference", rel=True)
+        # the cheap pair (x_G, x_G'): the hand CoM and its directional derivative along q'
+        xc, vc = fm.com_velocity(q, qd)
+        assert_close(xc, hand_com(desc, q), 1e-12, "x_G from com_velocity vs hand")
+        assert_close(vc, directional_diff(lambda t: hand_com(desc, q + t * qd), 1e-6), 1e-7,
+                     "x_G' from com_velocity vs FD of hand com along q'", rel=True)
 
 
 # ------------------------------------------------------------------------------------- energy

@@ -32,11 +32,25 @@ answered. If no state arrives for ``state_timeout`` seconds (wall) after the fir
 logs once that ``/sim/state`` is silent and idles (the simulator ended or died; the launcher stops
 the controller); it exits 0 on SIGINT / SIGTERM.
 
+Any registered controller (``controller`` parameter; default ``config/graph.yaml``: ``''`` = the adaptive
+controller in ``mode``): a built-in mode's name sets ``mode``, any other name (a ``biped.controllers``
+entry point or ``module:Class``, ``biped_controller.plugin.registry``) runs that controller behind the
+controller interface (``biped_controller.plugin.interface``, built from the description, the gait family
+and ``control_period``). Each state becomes its ``Observation``: t = the stamp [s], step = the state's step,
+the sensed q, q', stance, the IMU's pitch and rate (NaN without ``use_imu``), and the previous period's torque
+clipped to the description's torque limits (what the nominal plant applies); a stance change is announced
+by ``on_touchdown`` before ``compute``. Its torque is published as above; its status keys that name a
+numeric field of ControllerStatus (p, tau_dot, ...) fill that field, ``mode`` carries the controller's name,
+the other fields keep their defaults. A controller fault (``ControllerFault``: a non-finite or wrongly shaped
+torque, a malformed status, an exception) is logged naming the controller and the period, and that state
+and every later one is left unanswered (the simulator reports the missing torque and stops).
+
 Bad parameters: logged naming the parameter, exit status 2, nothing published.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -52,7 +66,7 @@ from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.graph.imu import ImuMessageError, imu_reading
 from biped_sim.graph.sim_clock import SimClock
-from biped_sim.robot.description import PAPER_JOINTS
+from biped_sim.robot.description import LEFT, PAPER_JOINTS
 from biped_sim.graph.params import (
     ParameterError,
     declare_executor,
@@ -66,6 +80,9 @@ from biped_sim.graph.params import (
 from biped_sim.robot.loop import ENGINES, load_loop_settings
 
 from biped_controller.core.control.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
+from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, InterfaceError,
+                                               Observation, stamp_time)
+from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, make_controller
 
 
 #: the controller's settings that take one of a few names, with those names
@@ -135,6 +152,22 @@ def status_cdr(enc: cdr.ControllerStatus, s, sec: int, nanosec: int) -> bytes:
                       (v['wbc_deviation'], v['lam'], v['lam_dot'], v['lam_ddot'], v['lam_ddot_star']))
 
 
+#: the ControllerStatus fields a plug-in's status may fill (a number each), with their conversion
+PLUGIN_STATUS_FIELDS: dict[str, object] = {name: conv for name, conv in STATUS_FIELDS
+                                           if conv in (int, float) and name not in ('step', 'stance')}
+
+
+def _make_plugin(name: str, desc, family, period: float) -> GuardedController:
+    """The registered controller ``name`` built and reset for a run starting in LEFT stance at t = 0;
+    ParameterError naming ``controller`` when it cannot be found, loaded, or fails its reset."""
+    try:
+        ctrl = make_controller(name, ControllerSetup(desc, family, period))
+        ctrl.reset(LEFT, 0.0)
+    except (UnknownControllerError, ControllerLoadError, InterfaceError, ControllerFault) as exc:
+        raise ParameterError('controller', str(exc)) from exc
+    return ctrl
+
+
 class ControllerNode(Node):
 
     def __init__(self, **kwargs):
@@ -150,6 +183,14 @@ class ControllerNode(Node):
         self.publish_cdr = get_bool(self, 'publish_cdr')
         self._cdr_torque, self._cdr_status = cdr.JointState(), cdr.ControllerStatus()
         desc, family = load_robot_files(self)
+        self.controller_name = get_str(self, 'controller')
+        self.plugin = None
+        if self.controller_name in MODES:
+            self.cfg = dataclasses.replace(self.cfg, mode=self.controller_name).validate()
+        elif self.controller_name:
+            self.plugin = _make_plugin(self.controller_name, desc, family, self.cfg.period)
+            self._torque_limits = desc.torque_limits()
+            self._last_torque, self._last_stance, self._faulted = np.zeros(6), None, False
         self.ctrl = AdaptiveController(self.cfg, family, desc)
         self.ctrl.reset()
         self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
@@ -169,7 +210,8 @@ class ControllerNode(Node):
         # wall-clock timer: with use_sim_time a ROS-time timer would stop with /clock, i.e. exactly when
         # the simulator is gone or not started yet
         self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f'controller ready: mode {self.cfg.mode}, period {self.cfg.period} s, profile '
+        what = f'controller {self.controller_name!r}' if self.plugin is not None else f'mode {self.cfg.mode}'
+        self.get_logger().info(f'controller ready: {what}, period {self.cfg.period} s, profile '
                                f'{self.get_parameter("profile").value}, publishing '
                                f'{"CDR bytes" if self.publish_cdr else "message objects"}')
 
@@ -235,6 +277,9 @@ class ControllerNode(Node):
             self.imu_pitch = {k: v for k, v in self.imu_pitch.items() if k > key}
         t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
         self.sim_clock.set(self._stamp_ns(msg.stamp))
+        if self.plugin is not None:
+            self._answer_plugin(msg, stamp_time(t), pitch, rate)
+            return
         out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
                                 int(msg.stance), pitch, rate)
         if self.publish_cdr:
@@ -251,6 +296,47 @@ class ControllerNode(Node):
         self.pub_torque.publish(js)
         self.last_reply = js
         self.pub_status.publish(status)
+        self.steps += 1
+
+    def _answer_plugin(self, msg: SimState, t: float, pitch: float, rate: float):
+        """:meth:`_answer` with the plug-in controller (module docstring)."""
+        if self._faulted:
+            return
+        stance = int(msg.stance)
+        obs = Observation.frozen(t, int(msg.step), stance, np.asarray(msg.q, dtype=float),
+                                 np.asarray(msg.q_dot, dtype=float), pitch, rate, self._last_torque,
+                                 stance if self._last_stance is None else self._last_stance)
+        try:
+            if self._last_stance is not None and stance != self._last_stance:
+                self.plugin.on_touchdown(t, stance)
+            res = self.plugin.compute(obs)
+        except ControllerFault as exc:
+            self._faulted = True
+            self.get_logger().error(f'{exc}: no torque for this state or any later one')
+            return
+        torque = res.torque.tolist()
+        self._last_torque = np.clip(res.torque, *self._torque_limits)
+        self._last_stance = stance
+        sec, nsec = msg.stamp.sec, msg.stamp.nanosec
+        m = ControllerStatus()
+        m.stamp = msg.stamp
+        m.mode = self.controller_name
+        m.stance = stance
+        m.step = self.steps
+        for k, v in res.status.items():
+            conv = PLUGIN_STATUS_FIELDS.get(k)
+            if conv is not None:
+                setattr(m, k, conv(v))
+        if self.publish_cdr:
+            js = self._cdr_torque.encode(sec, nsec, '', PAPER_JOINTS, (), (), torque)
+        else:
+            js = JointState()
+            js.header.stamp = msg.stamp
+            js.name = list(PAPER_JOINTS)
+            js.effort = torque
+        self.pub_torque.publish(js)
+        self.last_reply = js
+        self.pub_status.publish(m)
         self.steps += 1
 
     def _on_timer(self):

@@ -8,10 +8,13 @@ no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
   push      --force 250 --duration 0.025 [--start 0.2315] [--mode both] [--figures DIR]
                                                one push (+ forward, on the back); figures like the
                                                paper's Figs. 3-7
-  max-push  --mode M [--resolution 5] [--max 2000] [--coarse 50]
-                                               largest survivable push force
-  table     [--workers N] [--modes M,M,...]    max-push for the four modes (or the modes named, e.g.
-                                               none,tau,p,both,wbc,hybrid) next to the paper's values
+  max-push  --mode M | --controller NAME [--resolution 5] [--max 2000] [--coarse 50]
+                                               largest survivable push force (of a mode or of any
+                                               registered controller: docs/controllers.md)
+  table     [--workers N] [--modes M,M,...] [--controller NAME ...]
+                                               max-push for the four modes (or the modes named, e.g.
+                                               none,tau,p,both,wbc,hybrid, and the controllers named)
+                                               next to the paper's values
   probe     --force F [--mode M] [--start S]   one push, the controller's view period by period while
                                                it acts: true push vs the observer's estimate, predicted
                                                vs actual ground reaction and l, QP status, tightest row
@@ -42,8 +45,8 @@ import numpy as np
 
 from biped_controller.core.control.controller import MODES
 from biped_controller.studies import single_runs
-from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float, modes_arg,
-                                                 nonnegative_float, positive_float, positive_int, settings_from_args)
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, controller_arg, finite_float,
+                                                 modes_arg, nonnegative_float, positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.search import max_push_modes, ordering_finding, print_max_push
 from biped_controller.studies.trial.settings import differences, print_settings
@@ -104,9 +107,13 @@ def parser() -> StudyArgumentParser:
         a = sub.add_parser(name, help=hlp)
         if name == "max-push":
             a.add_argument("--mode", choices=MODES, default="both")
+            a.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
+                           help="any registered controller (python -m biped_controller.plugin list) in place of --mode")
         else:
             a.add_argument("--modes", type=modes_arg, default=TABLE_MODES,
                            help=f"comma-separated modes (default {','.join(TABLE_MODES)}; any of {','.join(MODES)})")
+            a.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
+                           help="a registered controller added to the table (repeatable)")
         a.add_argument("--resolution", type=positive_float, default=5.0, help="bisection resolution [N]")
         a.add_argument("--max", type=positive_float, default=2000.0, help="largest force scanned [N]")
         a.add_argument("--coarse", type=positive_float, default=50.0, help="coarse scan step [N]")
@@ -138,7 +145,10 @@ def main(argv: list[str] | None = None) -> int:
         r = single_runs.probe(push, args.mode, settings, after=args.after)
         single_runs.print_probe(r)
     else:
-        modes = (args.mode,) if args.cmd == "max-push" else args.modes
+        if args.cmd == "max-push":
+            modes = (args.controller or args.mode,)
+        else:
+            modes = tuple(dict.fromkeys(tuple(args.modes) + tuple(args.controller)))
         t0 = time.perf_counter()
         res = max_push_modes(modes, args.resolution, args.max, args.coarse, duration=args.duration, start=args.start,
                              height=args.height, workers=args.workers, sign=-1.0 if args.backward else 1.0,

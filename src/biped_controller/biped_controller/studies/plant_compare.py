@@ -1,7 +1,8 @@
 """Rigid vs MuJoCo plant side by side: the tables of ``docs/mujoco_plant.md`` that no other study
 prints. Pure Python on ``runner.run`` (no ROS). Usage::
 
-    python -m biped_controller.studies.plant_compare walk  [--steps 20] [--modes both tau p none] [--profile P] [--json F]
+    python -m biped_controller.studies.plant_compare walk  [--steps 20] [--modes both tau p none] [--controller NAME]
+                                                        [--profile P] [--json F]
     python -m biped_controller.studies.plant_compare falls [--json F]
     python -m biped_controller.studies.plant_compare pushes [--dir results/mujoco_plant] [--reuse] [--profile P]
     python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off] [--profile P]
@@ -67,7 +68,7 @@ from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
 from biped_controller.core.control.controller import MODES
 from biped_controller.studies import runner
-from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, finite_float,
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, finite_float,
                                                  nonnegative_float, positive_int, profile_arg)
 from biped_controller.studies.trial.settings import DEFAULT_PROFILE, RunSettings, parse_overrides
 from biped_controller.studies import provenance
@@ -99,10 +100,24 @@ def walk_row(plant: str, mode: str, steps: int, settings: RunSettings | None = N
         plants.append(self)
         return orig(self, *a, **k)
     pm.MujocoPlant.reset = grab
+    plugin = mode not in MODES
     try:
-        r = runner.run(steps=steps, mode=mode, sim_config=_on_plant(settings or RunSettings(), plant), **kw)
+        if plugin:      # any registered controller (plugin.loop), the settings' plant perturbation
+            from biped_controller.plugin.loop import run as plugin_run
+            r = plugin_run(mode, steps, sim_config=_on_plant(settings or RunSettings(), plant),
+                           perturbation=None if settings is None else settings.perturbation)
+        else:
+            r = runner.run(steps=steps, mode=mode, sim_config=_on_plant(settings or RunSettings(), plant), **kw)
     finally:
         pm.MujocoPlant.reset = orig
+    if plugin:
+        last = r.last_status
+        track = [abs(float(x["max_tracking_error"])) for x in r.statuses if "max_tracking_error" in x]
+        tracking = float(max(track)) if track else None
+        final = {k: (float(last[k]) if k in last else None) for k in ("tau_dot", "p")}
+    else:
+        tracking = runner.tracking_error(r)
+        final = {"tau_dot": float(r.statuses[-1].tau_dot), "p": float(r.statuses[-1].p)}
     ti = [0.0] + [i.t for i in r.impacts]
     st = np.diff(ti)
     work, crit = [], []
@@ -114,12 +129,12 @@ def walk_row(plant: str, mode: str, steps: int, settings: RunSettings | None = N
     p = float(np.mean(lengths)) if lengths else math.nan
     row = {"plant": plant, "mode": mode, "steps_walked": r.steps_walked, "fallen": r.fallen,
            "fall_cause": r.fall_cause, "fall_time": None if math.isnan(r.fall_time) else r.fall_time,
-           "max_tracking_error": runner.tracking_error(r),
+           "max_tracking_error": tracking,
            "step_time_mean": float(np.mean(st)) if len(st) else None,
            "step_time_min": float(np.min(st)) if len(st) else None, "step_time_max": float(np.max(st)) if len(st) else None,
            "step_length_mean": p, "work_per_step": float(np.mean(work)) if work else None,
            "criterion_per_step": float(np.mean(crit) / p) if crit and p == p else None,
-           "final_tau_dot": float(r.statuses[-1].tau_dot), "final_p": float(r.statuses[-1].p),
+           "final_tau_dot": final["tau_dot"], "final_p": final["p"],
            "max_stance_pitch": float(np.max(np.abs(_stance_pitch(r.records))))}
     if plants:
         row["contact"] = plants[-1].diagnostics.as_dict()
@@ -404,7 +419,10 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     w = sub.add_parser("walk")
     w.add_argument("--steps", type=positive_int, default=20)
-    w.add_argument("--modes", nargs="+", choices=MODES, default=["both", "tau", "p", "none"])
+    w.add_argument("--modes", nargs="+", choices=MODES, default=None,
+                   help="default both tau p none, or none with --controller")
+    w.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
+                   help="a registered controller's walk on both plants (repeatable), beside the --modes given")
     w.add_argument("--json", type=Path, default=None)
     fl = sub.add_parser("falls")
     fl.add_argument("--json", type=Path, default=None)
@@ -455,7 +473,10 @@ def main(argv: list[str] | None = None) -> int:
             settings = parse_overrides((), profile=a.profile)
         except SETTINGS_ERRORS as exc:
             ap.error(str(exc))
-        rows = [walk_row(pl, m, a.steps, settings) for m in a.modes for pl in PLANTS]
+        modes = list(dict.fromkeys((a.modes if a.modes is not None else ([] if a.controller else
+                                                                          ["both", "tau", "p", "none"]))
+                                   + list(a.controller)))
+        rows = [walk_row(pl, m, a.steps, settings) for m in modes for pl in PLANTS]
         print(walk_table(rows))
     else:
         rows = falls_rows()

@@ -53,7 +53,8 @@ from biped_controller.studies import runner
 from biped_controller.core.control.controller import MODES
 from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
-from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, positive_int, profile_arg)
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, positive_int,
+                                                 profile_arg)
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import (DEFAULT_PROFILE, RunSettings, differences, parse_overrides,
                                                      print_settings)
@@ -75,7 +76,21 @@ SEARCHES: dict[str, cmap.Search] = {
     "lambda": cmap.Search(coarse=40.0, fmax=800.0, resolution=20.0),
     "all": cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0),
 }
+#: the search of a plug-in controller's row (any registered controller, ``--controller``): coarse 40 N up to
+#: 1200 N, bisected to 20 N (the widest of the built-in modes' searches)
+PLUGIN_SEARCH = cmap.Search(coarse=40.0, fmax=1200.0, resolution=20.0)
 ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
+
+
+def search_for(mode: str) -> cmap.Search:
+    """The max-push search of a row: :data:`SEARCHES` for a built-in mode, :data:`PLUGIN_SEARCH` otherwise."""
+    return SEARCHES.get(mode, PLUGIN_SEARCH)
+
+
+def single_observer(mode: str) -> bool:
+    """The row runs once, observer off: mode none (its torque never uses the estimate) and any plug-in
+    controller (the observer setting is the adaptive controller's)."""
+    return mode == "none" or mode not in MODES
 
 
 @dataclass(frozen=True)
@@ -129,7 +144,8 @@ class RobustnessError(ValueError):
 def combos(modes, observers) -> list[tuple[str, bool]]:
     """(mode, observer) pairs to run: every adaptive mode with each observer setting, then ``none`` once
     with the observer off (no QP: its torque never uses the estimate, so the observer changes nothing)."""
-    return [(m, obs) for obs in observers for m in modes if m != "none"] + ([("none", False)] if "none" in modes else [])
+    return ([(m, obs) for obs in observers for m in modes if not single_observer(m)]
+            + [(m, False) for m in modes if single_observer(m)])
 
 
 #: simulator overrides of the profile and ``--set KEY=VALUE`` (e.g. ``--set plant=mujoco``); set by :func:`main`,
@@ -165,6 +181,9 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     ctx = context()
     st = settings_for(perturbation, observer, simulator=simulator, controller=controller)
     t0 = time.perf_counter()
+    if mode not in MODES:
+        return _plugin_walk_record(perturbation, mode, steps, st, walk_fingerprint(perturbation, observer, simulator,
+                                                                                   controller), t0)
     res = runner.run(steps=steps, mode=mode, sim_config=st.sim_config(), ctrl_config=st.ctrl_config(mode),
                      family=ctx.family, desc=ctx.desc, perturbation=perturbation)
     err = [s.max_tracking_error for s in res.statuses]
@@ -180,6 +199,35 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
         "max_abs_l": float(max(cop)) if cop else None,
         "max_force_estimate": float(max(est)) if est else None,
         "final_p": float(res.statuses[-1].p), "final_tau_dot": float(res.statuses[-1].tau_dot),
+        "wall_time": time.perf_counter() - t0,
+    }
+
+
+def _plugin_walk_record(perturbation: PlantPerturbation, name: str, steps: int, st: RunSettings, fingerprint: str,
+                        t0: float) -> dict:
+    """:func:`walk_record` of a plug-in controller (``plugin.loop``): the same fields; the tracking error, p and
+    tau' from its status keys ``max_tracking_error``, ``p``, ``tau_dot`` when it reports them (None otherwise),
+    no force estimate; a controller fault is a failed walk whose cause is the fault."""
+    from biped_controller.plugin.study import trials_for
+    res = trials_for(name, st).loop.run(steps, ())
+    last = res.last_status
+
+    def top(key):
+        v = [abs(float(x[key])) for x in res.statuses if key in x]
+        return float(max(v)) if v else None
+    cop = [abs(r.cop) for r in res.records if math.isfinite(r.cop) and not r.fallen]
+    cause = res.fall_cause or (f"controller fault: {res.fault.kind}" if res.fault is not None else None)
+    return {
+        "kind": "walk", "perturbation": perturbation.as_dict(), "mode": name, "observer": False,
+        "steps": steps, "fingerprint": fingerprint,
+        "survived": (not res.fallen) and res.fault is None and res.steps_walked >= steps,
+        "steps_walked": int(res.steps_walked), "fall_cause": cause,
+        "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+        "fall_detail": res.fall_detail or (str(res.fault) if res.fault is not None else None),
+        "max_tracking_error": top("max_tracking_error"), "max_abs_l": float(max(cop)) if cop else None,
+        "max_force_estimate": None,
+        "final_p": float(last["p"]) if "p" in last else None,
+        "final_tau_dot": float(last["tau_dot"]) if "tau_dot" in last else None,
         "wall_time": time.perf_counter() - t0,
     }
 
@@ -215,7 +263,7 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers, log=pr
     tasks = []
     for lv in levels:
         for m in modes:
-            for obs in ((False,) if m == "none" else observers):
+            for obs in ((False,) if single_observer(m) else observers):
                 k = _walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs))
                 if k not in done:
                     tasks.append((lv.perturbation, m, obs, WALK_STEPS, SIMULATOR_OVERRIDES, CONTROLLER_OVERRIDES))
@@ -241,7 +289,7 @@ def push_spec(perturbation: PlantPerturbation, mode: str, observer: bool, full_t
     """The capability map of one mode on the max-push cell, with the level's perturbation (one cell: the
     full search, no neighbour)."""
     return cmap.MapSpec(modes=(mode,), directions=(PUSH_CELL["direction"],), phases=(PUSH_CELL["phase"],),
-                        durations=(PUSH_CELL["duration"],), search=SEARCHES[mode],
+                        durations=(PUSH_CELL["duration"],), search=search_for(mode),
                         settings=settings_for(perturbation, observer, full_trials))
 
 
@@ -348,9 +396,9 @@ def table_markdown(levels, modes, observers, walks: dict, pushes: dict) -> str:
         return walks.get(_walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs)))
     pairs = combos(modes, observers)
     walk_cols = [(m, obs) for m, obs in pairs if any(walk(lv, m, obs) is not None for lv in levels)]
-    cols = ["perturbation"] + [f"walk {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}")
+    cols = ["perturbation"] + [f"walk {m}" + ("" if single_observer(m) else f" obs {'on' if obs else 'off'}")
                                for m, obs in walk_cols]
-    cols += [f"max push {m}" + ("" if m == "none" else f" obs {'on' if obs else 'off'}") + " [N]" for m, obs in pairs]
+    cols += [f"max push {m}" + ("" if single_observer(m) else f" obs {'on' if obs else 'off'}") + " [N]" for m, obs in pairs]
     lines = ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
     for lv in levels:
         row = [lv.name] + [_walk_cell(walk(lv, m, obs)) for m, obs in walk_cols]
@@ -425,7 +473,11 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--levels", nargs="+", default=None, metavar="KEY",
                     help="level keys (default all): " + " ".join(LEVELS_BY_KEY))
-    ap.add_argument("--modes", nargs="+", choices=MODES, default=["both", "none"], help=f"any of {' '.join(MODES)}")
+    ap.add_argument("--modes", nargs="+", choices=MODES, default=None,
+                    help=f"any of {' '.join(MODES)} (default both none, or none with --controller)")
+    ap.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
+                    help="a registered controller's rows (repeatable; observer off: it is the adaptive "
+                         "controller's), beside the --modes given")
     ap.add_argument("--observer", nargs="+", choices=("on", "off"), default=["on", "off"])
     ap.add_argument("--what", choices=("walk", "push", "both"), default="both")
     ap.add_argument("--workers", type=positive_int, default=2)
@@ -464,7 +516,8 @@ def main(argv: list[str] | None = None) -> int:
         levels = _levels(args.levels)
     except (RobustnessError, PerturbationError) as exc:
         ap.error(str(exc))
-    modes = tuple(args.modes)
+    modes = tuple(dict.fromkeys((args.modes if args.modes is not None else ([] if args.controller else ["both", "none"]))
+                                + list(args.controller)))
     observers = tuple(o == "on" for o in args.observer)
     signal.signal(signal.SIGTERM, _terminate)
     walks_store = cmap.RecordStore(args.store / "walks.jsonl")
@@ -498,7 +551,8 @@ def main(argv: list[str] | None = None) -> int:
             "levels": [{"name": lv.name, "group": lv.group, "perturbation": lv.perturbation.as_dict()} for lv in levels],
             "walks": [walks[k] for k in sorted(walks)],
             "pushes": [dict(v, key=list(map(str, k))) for k, v in sorted(pushes.items(), key=str)],
-            "searches": {m: {"coarse": s.coarse, "max": s.fmax, "resolution": s.resolution} for m, s in SEARCHES.items()},
+            "searches": {m: {"coarse": s.coarse, "max": s.fmax, "resolution": s.resolution}
+                         for m, s in {**SEARCHES, **{m: search_for(m) for m in modes}}.items()},
             "push_cell": PUSH_CELL, "walk_steps": WALK_STEPS, "figures": figs,
             "git": git_state(), "wall_time": wall, "workers": args.workers,
             "full_trials": args.full_trials,

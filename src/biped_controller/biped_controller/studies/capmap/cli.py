@@ -20,8 +20,8 @@ from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATI
                                                   MapSpec, Search, phases_of)
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.studies.executor import ProgressBar
-from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float, positive_float,
-                                                 positive_int, settings_from_args)
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, controller_arg, finite_float,
+                                                 positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.settings import print_settings
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies import provenance
@@ -44,8 +44,12 @@ def main(argv: list[str] | None = None) -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     ap = StudyArgumentParser(prog="scripts/capability_map", description=capmap.__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--modes", nargs="+", default=list(PAPER_MODES),
-                    help=f"any of {' '.join(MODES)} (default the paper's {' '.join(PAPER_MODES)})")
+    ap.add_argument("--modes", nargs="+", default=None,
+                    help=f"any of {' '.join(MODES)} (default the paper's {' '.join(PAPER_MODES)}, or none with "
+                         f"--controller)")
+    ap.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
+                    help="a registered controller to map (repeatable; python -m biped_controller.plugin list), "
+                         "beside the --modes given")
     ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
     ap.add_argument("--phases", type=positive_int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
     ap.add_argument("--durations", nargs="+", type=positive_float, default=list(DEFAULT_DURATIONS), help="push durations [s]")
@@ -76,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     provenance.track(args.json, args.out, args=args, argv=argv)   # record of each file written (results/README.md)
     settings = settings_from_args(ap, args)
     try:
-        spec = MapSpec(tuple(_split(args.modes)), tuple(_split(args.directions)), phases_of(args.phases),
+        names = _split(args.modes) if args.modes is not None else ([] if args.controller else list(PAPER_MODES))
+        spec = MapSpec(tuple(dict.fromkeys(names + list(args.controller))), tuple(_split(args.directions)), phases_of(args.phases),
                        tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
                        args.height, settings, None if args.search is None else args.search == "neighbours")
     except MapError as exc:

@@ -13,6 +13,16 @@ from biped_controller.studies.capmap.spec import Cell
 _DIR_STYLE = {"forward": "-", "backward": "--"}
 _MODE_COLOR = {"none": "0.4", "tau": "tab:blue", "p": "tab:orange", "both": "tab:green", "wbc": "tab:purple",
                "hybrid": "tab:red", "lambda": "tab:brown", "all": "tab:cyan"}
+#: plug-in controllers (any other name): these colours in the order the map lists them
+_PLUGIN_COLORS = ("tab:olive", "tab:pink", "black", "goldenrod", "teal")
+
+
+def _color(m: str, modes) -> str:
+    """The colour of mode or controller ``m`` among the map's ``modes``."""
+    if m in _MODE_COLOR:
+        return _MODE_COLOR[m]
+    others = [x for x in modes if x not in _MODE_COLOR]
+    return _PLUGIN_COLORS[others.index(m) % len(_PLUGIN_COLORS)]
 
 
 def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
@@ -105,7 +115,7 @@ def figures(run: MapRun, outdir: str | os.PathLike) -> list[Path]:
             ax = axes[i][j]
             for m in s.modes:
                 ph, f, _ = series(m, dr, du)
-                ax.plot(ph, f, marker="o", ms=3, color=_MODE_COLOR[m], label=m)
+                ax.plot(ph, f, marker="o", ms=3, color=_color(m, run.spec.modes), label=m)
             ax.set_title(f"{dr}, {du:g} s", fontsize=9)
             ax.set_xlabel("onset phase")
             ax.set_ylabel("largest survivable force [N]")

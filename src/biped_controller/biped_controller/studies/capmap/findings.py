@@ -71,6 +71,7 @@ def findings(boundaries: Sequence[dict], resolution: float) -> dict:
     dirs = sorted({b["direction"] for b in boundaries})
     durs = sorted({b["duration"] for b in boundaries})
     modes = [m for m in MODES if any(b["mode"] == m for b in boundaries)]
+    modes += sorted({b["mode"] for b in boundaries} - set(MODES))     # plug-in controllers, after the modes
     if "p" in modes and "tau" in modes:
         for dr in dirs:
             for du in durs:

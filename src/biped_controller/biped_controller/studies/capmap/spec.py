@@ -117,7 +117,7 @@ class MapSpec:
             nonempty_unique(name, getattr(self, name))
         for m in self.modes:
             if m not in MODES:
-                raise MapError(f"modes: unknown mode {m!r}; choose from {', '.join(MODES)}")
+                _check_controller(m)
         for d in self.directions:
             if d not in DIRECTIONS:
                 raise MapError(f"directions: unknown direction {d!r}; choose from {', '.join(DIRECTIONS)}")
@@ -159,3 +159,14 @@ def onset_time(phase: float, T: float) -> float:
     """Push start [s] for an onset ``phase`` of the first step of period ``T`` [s]: ``phase * T``."""
     return phase * T
 
+
+
+def _check_controller(name: str) -> None:
+    """A map's "mode" that is not a built-in mode must name a registered controller
+    (``plugin.registry``: an entry point or ``module:Class``) satisfying the interface; MapError otherwise."""
+    from biped_controller.plugin.interface import InterfaceError
+    from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, load_controller
+    try:
+        load_controller(name)
+    except (UnknownControllerError, ControllerLoadError, InterfaceError) as exc:
+        raise MapError(f"modes: {name!r} is neither a mode ({', '.join(MODES)}) nor a usable controller: {exc}") from None

@@ -23,7 +23,7 @@ def worker_init() -> None:
 def failure_cause(trial: Mapping) -> str:
     """The cause of a failed trial of ``trials.survives``: the simulator's fall cause when it fell,
     otherwise which part of the survival rule (``trial.survival``) failed (``p_not_back``, ``tau_dot_not_back``,
-    ``time_limit``); ``""`` when it survived."""
+    ``time_limit``) or ``controller_fault`` (a plug-in controller's result the plant cannot apply); ``""`` when it survived."""
     if trial["survived"]:
         return ""
     if trial.get("fall_cause"):
@@ -35,6 +35,8 @@ def failure_cause(trial: Mapping) -> str:
         return "tau_dot_not_back"
     if reason.startswith("only"):
         return "time_limit"
+    if reason.startswith("controller fault"):
+        return "controller_fault"
     raise MapError(f"unrecognised failure reason from the survival rule: {reason!r}")
 
 

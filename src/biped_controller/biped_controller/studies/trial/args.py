@@ -98,6 +98,19 @@ def modes_arg(text: str) -> tuple[str, ...]:
     return modes
 
 
+def controller_arg(text: str) -> str:
+    """``--controller NAME``: a built-in mode, a ``biped.controllers`` entry point or ``module:Class``
+    satisfying the controller interface (``plugin.registry.load_controller``, resolved again by name in
+    each worker process)."""
+    from biped_controller.plugin.interface import InterfaceError
+    from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, load_controller
+    try:
+        load_controller(text)
+    except (UnknownControllerError, ControllerLoadError, InterfaceError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def add_settings_args(a: argparse.ArgumentParser, *, observer: bool = True, perturb: bool = True,
                       full_trials: bool = True) -> None:
     """The settings flags: ``--profile``, ``--set`` and, unless switched off, ``--observer``, ``--perturb``

@@ -7,6 +7,7 @@ import math
 
 from biped_sim.plant.push import Push
 
+from biped_controller.core.control.controller import MODES
 from biped_controller.studies import runner
 from biped_controller.studies.trial import runs, stop
 from biped_controller.studies.trial.context import context
@@ -27,6 +28,9 @@ def p_reference(mode: str, push: Push, settings: RunSettings) -> float | None:
     same number of impacts) under model error, None (p_d) otherwise."""
     if not model_error(settings):
         return None
+    if mode not in MODES:
+        from biped_controller.plugin.study import reference_p as plugin_reference_p
+        return plugin_reference_p(mode, runs.trial_steps(push), settings)
     return reference_p(mode, runs.trial_steps(push), settings)
 
 
@@ -38,7 +42,14 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
     ``decided_at_step`` = the impacts walked by then; otherwise ``decided_at_step`` is None (the trial ran
     in full). Under sensor noise survival uses the noise band. ``pool`` True: this process's
     ``runs.loop_pool`` (the loop and the walk up to the push reused, the outcome bit-identical); a
-    ``runner.LoopPool``; None or False: a new plant and controller, walked from t = 0."""
+    ``runner.LoopPool``; None or False: a new plant and controller, walked from t = 0.
+
+    A ``mode`` that is not one of the adaptive controller's modes names a plug-in controller
+    (``plugin.registry``, resolved in this process): its trial is ``plugin.study.survives_push`` (run in
+    full, the same rule; a controller fault is that trial's outcome)."""
+    if mode not in MODES:
+        from biped_controller.plugin.study import survives_push
+        return survives_push(push, mode, settings)
     end = push.start + push.duration
     if pool is True:
         pool = runs.loop_pool()

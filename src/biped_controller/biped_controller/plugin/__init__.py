@@ -1,0 +1,5 @@
+"""Bring your own controller: the controller interface (``interface``), the registry of controllers by
+name (``registry``: built-in modes, ``biped.controllers`` entry points, ``module:Class``), the built-in
+modes as interface controllers (``builtin``), the in-process closed loop that drives any of them on the
+rigid or the MuJoCo plant (``loop``) and its push trials and max-push search (``study``).
+``python -m biped_controller.plugin list | check NAME | max-push NAME``. Pure Python, no ROS."""

@@ -1,0 +1,80 @@
+"""Controllers behind the controller interface, from the command line:
+
+  python -m biped_controller.plugin list                 the registered controllers, one a line (name, where
+                                                          it comes from, module:Class, what it does)
+  python -m biped_controller.plugin check NAME           load one and check it against the interface
+  python -m biped_controller.plugin max-push NAME [--plant rigid|mujoco] [--option KEY=VALUE ...]
+        [--resolution 5] [--max 2000] [--coarse 50] [--json FILE]
+                                                          its largest survivable push at the paper's cell
+                                                          (25 ms on the back at t = 0.2315 s; plugin.study)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from biped_controller.plugin.interface import InterfaceError
+from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
+                                              load_registration, registered, summary)
+
+
+def _option(text: str) -> tuple[str, float]:
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"--option takes KEY=VALUE, got {text!r}")
+    try:
+        return key, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--option {key}: {value!r} is not a number") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m biped_controller.plugin",
+                                 description="Controllers behind the controller interface.")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("list", help="the registered controllers, one a line")
+    chk = sub.add_parser("check", help="load one controller and check it against the interface")
+    chk.add_argument("name")
+    mp = sub.add_parser("max-push", help="largest survivable push at the paper's cell")
+    mp.add_argument("name")
+    mp.add_argument("--plant", choices=("rigid", "mujoco"), default="rigid")
+    mp.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE")
+    mp.add_argument("--resolution", type=float, default=5.0, help="bisection resolution [N]")
+    mp.add_argument("--max", type=float, default=2000.0, help="largest force scanned [N]")
+    mp.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
+    mp.add_argument("--json", type=Path)
+    args = ap.parse_args(argv)
+    if args.cmd == "list":
+        for r in registered():
+            try:
+                text = summary(load_registration(r))
+            except (ControllerLoadError, InterfaceError) as exc:
+                text = f"BROKEN: {exc}"
+            print(f"{r.name:<16} {r.source:<24} {r.target:<56} {text}")
+        return 0
+    try:
+        cls = load_controller(args.name)
+    except (UnknownControllerError, ControllerLoadError, InterfaceError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.cmd == "check":
+        print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
+        return 0
+    from biped_sim.plant.config import load_sim_config      # the plant and the studies only for a run
+    from biped_controller.plugin.study import PushTrials
+    trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option))
+    r = trials.max_push(args.resolution, args.max, args.coarse)
+    ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"
+    print(f"{args.name} on {args.plant}: max push {r['max_force']:g} N (first failure {ff}: "
+          f"{r['failure_cause'] or '-'}; islands {r['islands'] or '-'}; no-fall edge {r['no_fall_edge']:g} N, "
+          f"first fall {'none' if r['first_fall'] is None else format(r['first_fall'], 'g') + ' N'}; "
+          f"{trials.trials} trials)")
+    if args.json is not None:
+        args.json.write_text(json.dumps(r, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""The largest survivable push of any interface controller, by the studies' search and survival rule.
+
+A trial: the push (``Push(start, duration, force)``, + forward, on the back) then ``SURVIVAL_STEPS``
+touchdowns after its end (``trial.runs.push_step_index`` + 1 + SURVIVAL_STEPS steps in all, time limit
+(steps + 3) 3 T), run in full (no early stop: the studies' early stop reads the adaptive controller's
+parameters). Survived: no fall, no controller fault, SURVIVAL_STEPS touchdowns at or after the push's
+end, and, where the controller's last status reports them, |p - p_d| <= P_TOL [m] and
+|tau_dot - 1| <= TAU_DOT_TOL (the return to the preferred gait of ``trial.survival``; a controller
+without a stride or a time scaling is judged by the fall and the step count alone).
+
+The search (``trial.search.max_push_modes``'s): forces ``coarse, 2 coarse, ..., fmax`` [N]; the last
+survivable force below the first failure, then the edge bisected to ``resolution`` [N]; survivable
+coarse forces above the first failure are reported as islands, and beside this strict boundary the no-fall
+edge (the largest force tried below the lowest one that fell, ``first_fall``: the plant comparison's second
+figure). One process.
+"""
+from __future__ import annotations
+
+import functools
+import math
+from typing import Mapping
+
+from biped_sim.plant.config import SimConfig, load_sim_config
+from biped_sim.plant.perturbation import PlantPerturbation
+from biped_sim.plant.push import Push
+from biped_sim.robot.description import RobotDescription, load_description
+from biped_sim.robot.gait_family import GaitFamily
+
+from biped_controller.plugin.loop import PluginLoop, PluginRunResult
+from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, push_step_index
+from biped_controller.studies.trial.search import analyse_coarse, coarse_forces
+from biped_controller.studies.trial.settings import RunSettings
+from biped_controller.studies.trial.survival import (P_TOL, SURVIVAL_STEPS, TAU_DOT_TOL, TAU_DOT_TOL_NOISE, model_error,
+                                                     noisy_sensing)
+
+
+def survival(result: PluginRunResult, push_end: float, p_d: float, steps_after: int = SURVIVAL_STEPS,
+             noisy: bool = False, p_ref: float | None = None) -> tuple[bool, str]:
+    """(survived, reason) by the rule of the module docstring (``noisy``: |tau' - 1| within
+    ``TAU_DOT_TOL_NOISE``; ``p_ref`` [m]: the unpushed walk's p under model error in place of p_d, as
+    ``trial.survival.survival``)."""
+    tau_tol = TAU_DOT_TOL_NOISE if noisy else TAU_DOT_TOL
+    if p_ref is not None:
+        p_d = p_ref
+    if result.fault is not None:
+        return False, f"controller fault: {result.fault}"
+    if result.fallen:
+        return False, f"fell: {result.fall_cause} at t = {result.fall_time:.4f} s"
+    after = sum(1 for i in result.impacts if i.t >= push_end)
+    if after < steps_after:
+        return False, f"only {after} steps after the push (time limit)"
+    last = result.last_status
+    if "p" in last and not abs(float(last["p"]) - p_d) <= P_TOL:
+        return False, f"p = {float(last['p']):.5f} m not back to p_d (|p - p_d| > {P_TOL})"
+    if "tau_dot" in last and not abs(float(last["tau_dot"]) - 1.0) <= tau_tol:
+        return False, f"tau' = {float(last['tau_dot']):.5f} not back to 1 (> {tau_tol})"
+    return True, "survived"
+
+
+class PushTrials:
+    """Survival trials of one controller on one plant (one :class:`PluginLoop`, reused)."""
+
+    def __init__(self, controller: str | object, *, sim_config: SimConfig | None = None,
+                 family: GaitFamily | None = None, desc: RobotDescription | None = None,
+                 perturbation: PlantPerturbation | None = None, options: Mapping[str, object] | None = None):
+        self.family = family if family is not None else GaitFamily.load()
+        self.loop = PluginLoop(controller, sim_config=sim_config if sim_config is not None else load_sim_config(),
+                               family=self.family, desc=desc if desc is not None else load_description(),
+                               perturbation=perturbation, options=options)
+        self.trials = 0
+
+    def survives(self, force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
+                 height: float | None = None) -> dict:
+        """One trial (JSON-ready): force [N], survived, reason, fall cause and time, steps walked, fault."""
+        steps = push_step_index(Push(start, duration, 0.0), self.family.T) + 1 + SURVIVAL_STEPS
+        res = self.loop.run(steps, (Push(start, duration, float(force), height),), keep_records=False)
+        self.trials += 1
+        ok, why = survival(res, start + duration, self.family.p_d)
+        return {"force": float(force), "controller": self.loop.name, "survived": ok, "reason": why,
+                "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+                "steps_walked": int(res.steps_walked),
+                "fault": None if res.fault is None else res.fault.kind}
+
+    def max_push(self, resolution: float = 5.0, fmax: float = 2000.0, coarse: float = 50.0,
+                 duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, height: float | None = None,
+                 sign: float = 1.0) -> dict:
+        """The largest survivable push [N] (module docstring): ``max_force``, ``first_failure``, the
+        ``islands`` and every trial."""
+        trials = []
+        for f in coarse_forces(fmax, coarse):
+            trials.append(dict(self.survives(sign * f, duration, start, height), force=f))
+        lo, hi, islands = analyse_coarse(trials)
+        while hi is not None and hi - lo > resolution:
+            mid = 0.5 * (lo + hi)
+            r = dict(self.survives(sign * mid, duration, start, height), force=mid)
+            trials.append(r)
+            if r["survived"]:
+                lo = mid
+            else:
+                hi = mid
+        trials.sort(key=lambda r: r["force"])
+        first = next((r for r in trials if r["force"] == hi), None) if hi is not None else None
+        fell = [r["force"] for r in trials if r["fall_cause"]]
+        first_fall = min(fell) if fell else None
+        below = [r["force"] for r in trials if first_fall is None or r["force"] < first_fall]
+        return {"controller": self.loop.name, "plant": self.loop.scfg.plant, "max_force": lo, "first_failure": hi,
+                "failure_cause": first["reason"] if first else None, "islands": islands,
+                "first_fall": first_fall, "no_fall_edge": max(below) if below else 0.0, "resolution": resolution,
+                "coarse_step": coarse, "scan_max": fmax, "duration": duration, "start": start, "height": height,
+                "direction": "forward" if sign > 0 else "backward", "trials": trials}
+
+
+@functools.lru_cache(maxsize=8)
+def trials_for(controller: str, settings: RunSettings) -> PushTrials:
+    """This process's :class:`PushTrials` of ``controller`` (a registered name, resolved here: in a sweep's
+    worker process or Ray task) on the plant of ``settings`` (its simulator settings and perturbation)."""
+    from biped_controller.studies.trial.context import context
+    ctx = context()
+    return PushTrials(controller, sim_config=settings.sim_config(), family=ctx.family, desc=ctx.desc,
+                      perturbation=settings.perturbation)
+
+
+@functools.lru_cache(maxsize=32)
+def reference_p(controller: str, steps: int, settings: RunSettings) -> float:
+    """p [m] of the controller's last status after an unpushed walk of ``steps`` touchdowns with
+    ``settings`` (the survival rule's reference under model error); NaN when it falls, faults or reports
+    no ``p``."""
+    res = trials_for(controller, settings).loop.run(steps, (), keep_records=False)
+    if res.fallen or res.fault is not None or "p" not in res.last_status:
+        return math.nan
+    return float(res.last_status["p"])
+
+
+def survives_push(push: Push, controller: str, settings: RunSettings) -> dict:
+    """One survival trial of a plug-in controller in the shape of ``trial.trials.survives``'s record
+    (force, mode = the controller's name, survived, reason, fall cause and time, steps walked,
+    ``decided_at_step`` None: run in full) plus ``fault`` (the fault's kind, None without one). The
+    rule is :func:`survival` with the noise band and the model-error reference of ``settings``."""
+    tr = trials_for(controller, settings)
+    steps = push_step_index(push, tr.family.T) + 1 + SURVIVAL_STEPS
+    res = tr.loop.run(steps, (push,), keep_records=False)
+    tr.trials += 1
+    p_ref = reference_p(controller, steps, settings) if model_error(settings) else None
+    ok, why = survival(res, push.start + push.duration, tr.family.p_d, noisy=noisy_sensing(settings), p_ref=p_ref)
+    return {"force": float(push.force), "mode": controller, "survived": ok, "reason": why,
+            "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+            "steps_walked": int(res.steps_walked), "decided_at_step": None,
+            "fault": None if res.fault is None else res.fault.kind}
