@@ -22,8 +22,8 @@ from biped_controller.studies.trial import runs
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, differences
 from biped_controller.studies.trial.summary import joint_errors, summarize
-from biped_controller.studies.trial.survival import noisy_sensing, survival
-from biped_controller.studies.trial.trials import p_reference
+from biped_controller.studies.trial.survival import survival_rule
+from biped_controller.studies.trial.trials import band as trial_band
 
 ZOH_EXPLANATION = (
     "cause of the ZOH error: the torque is computed at each control instant and held for the period "
@@ -82,19 +82,25 @@ def push_experiment(push: Push, mode: str = "both", figures: str | Path | None =
     with ``figures`` a directory, the paper-like PNG figures written there."""
     force, duration, start, height = push.force, push.duration, push.start, push.height
     res = runs.push_run(push, mode, settings=settings)
-    ok, why = survival(res, push.end, noisy=noisy_sensing(settings), p_ref=p_reference(mode, push, settings))
+    rule, band = survival_rule(), trial_band(mode, push, settings)
+    v = rule.verdict(res, push.end, band)
     s = summarize(res, push_end=push.end)
     out = {"force": force, "duration": duration, "start": start, "mode": mode, "height": height,
-           "survived": ok, "reason": why, **s}
+           "survived": v.survived, "reason": v.reason, "band": band.as_dict(), "survival": rule.text(band), **s}
     if figures is not None:
         out["figures"] = [str(p) for p in push_figures(res, Path(figures), push,
                                                        title=f"{force:g} N, {duration * 1e3:g} ms at t = {start:g} s, mode {mode}")]
     return out
 
 
+def _verdict_word(r: dict) -> str:
+    return "SURVIVED" if r["survived"] else "FELL" if r["fallen"] else "FAILED (no fall, not back on the gait)"
+
+
 def print_push(r: dict) -> None:
     print(f"push {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s (+ forward, on the back), mode {r['mode']}")
-    print(f"  result: {'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
+    print(f"  result: {_verdict_word(r)} ({r['reason']})")
+    print(f"  survival: {r['survival']}")
     if r["fallen"]:
         print(f"  fall: {r['fall_cause']} at t = {r['fall_time']:.4f} s: {r['fall_detail']}")
     print(f"  steps walked {r['steps_walked']} ({r.get('impacts_after_push', 0)} after the push)")
@@ -272,7 +278,8 @@ def probe(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTIN
     res = pr.result
     force, duration, start, height = push.force, push.duration, push.start, push.height
     end = push.end
-    ok, why = survival(res, end)
+    v = survival_rule().verdict(res, end, trial_band(mode, push, settings))
+    ok, why = v.survived, v.reason
     rows = []
     for k, (rec, st) in enumerate(zip(res.records, res.statuses)):
         if rec.t < start - before - 1e-12 or rec.t > end + after + 1e-12:
