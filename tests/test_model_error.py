@@ -3,7 +3,6 @@ legs' model-error estimator (``core/sensing/model_error.py``): its regressor aga
 identification in noise-free closed loops, its compiled-pipeline twin, its settings."""
 from __future__ import annotations
 
-import dataclasses
 import itertools
 
 import numpy as np

@@ -93,6 +93,45 @@ def push_experiment(push: Push, mode: str = "both", figures: str | Path | None =
     return out
 
 
+def band_walk(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS) -> dict:
+    """The survival rule's band for trials of ``push``'s window (its force is not used) in ``mode``: the
+    unpushed walk of the trial's impacts (``runs.trial_steps``), per step its largest |p - p_d| [m] and
+    |tau' - 1| [-], the largest of each over every window of ``band_window`` consecutive steps, and the band."""
+    rule = survival_rule()
+    steps = runs.trial_steps(push)
+    res = runs.run(steps, mode, (), settings=settings, keep_records=True)
+    p_d = context().family.p_d
+    bounds = [0.0] + [float(i.t) for i in res.impacts]
+    per_step = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        w = [s for s in res.statuses if a <= s.t < b]
+        if w:
+            per_step.append({"p": max(abs(s.p - p_d) for s in w), "tau_dot": max(abs(s.tau_dot - 1.0) for s in w)})
+    W = rule.band_window
+    windows = [{"steps": [k + 1, k + W], "p": max(x["p"] for x in per_step[k:k + W]),
+                "tau_dot": max(x["tau_dot"] for x in per_step[k:k + W])} for k in range(len(per_step) - W + 1)]
+    band = rule.band_from_walk(res)
+    last = res.statuses[-1]
+    return {"mode": mode, "steps": steps, "fallen": bool(res.fallen), "fall_cause": res.fall_cause or None,
+            "settings": differences(settings), "rule": rule.identity(), "per_step": per_step, "windows": windows,
+            "end": {"p": float(last.p - p_d), "tau_dot": float(last.tau_dot - 1.0)},
+            "band": band.as_dict(), "survival": rule.text(band)}
+
+
+def print_band_walk(r: dict) -> None:
+    print(f"unpushed walk, mode {r['mode']}, {r['steps']} impacts" + (f": FELL ({r['fall_cause']})" if r["fallen"] else ""))
+    print("step  max|p - p_d| [m]  max|tau' - 1|")
+    for k, x in enumerate(r["per_step"], 1):
+        print(f"{k:4d}  {x['p']:16.3e}  {x['tau_dot']:13.3e}")
+    if r["windows"]:
+        ws = r["windows"]
+        print(f"windows of {r['rule']['band_window']} steps: max|p - p_d| {min(w['p'] for w in ws):.3e} .. "
+              f"{max(w['p'] for w in ws):.3e} m, max|tau' - 1| {min(w['tau_dot'] for w in ws):.3e} .. "
+              f"{max(w['tau_dot'] for w in ws):.3e}")
+    print(f"end: p - p_d {r['end']['p']:.3e} m, tau' - 1 {r['end']['tau_dot']:.3e}")
+    print(f"survival: {r['survival']}")
+
+
 def _verdict_word(r: dict) -> str:
     return "SURVIVED" if r["survived"] else "FELL" if r["fallen"] else "FAILED (no fall, not back on the gait)"
 
