@@ -165,3 +165,17 @@ def test_capability_map_cell_bisects_both_edges(hint):
             survived[f] = f < 230.0
             fell[f] = not survived[f]
     assert (b.no_fall_lo, b.no_fall_hi) == (b.lo, b.hi) and n == 0
+
+
+def test_a_bad_rule_setting_stops_a_study_command_in_one_line(tmp_path, monkeypatch, capsys):
+    """A command line (``scripts/experiment``) with a bad rule setting in studies.yaml: exit status 2 and
+    one line naming the key, before any simulation."""
+    from biped_controller.studies import experiment
+    (tmp_path / "studies.yaml").write_text('survival_band_factor: {value: 0.5, reason: "r"}\n'
+                                           'survival_band_window: {value: 10, reason: "r"}\n', encoding="utf-8")
+    monkeypatch.setattr(surv, "default_config_dir", lambda: tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        experiment.main(["push", "--force", "100"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "survival_band_factor" in err[0]
