@@ -99,7 +99,9 @@ def _qp_counts(res) -> dict:
 
 
 def find_hard_run(quick: bool) -> dict:
-    """Largest forward push (start 0.2315 s, 25 ms, mode both) the robot survives, by bisection.
+    """Largest forward push (start 0.2315 s, 25 ms, mode both) that does not fall within ``steps`` impacts,
+    by bisection: a QP workload for the solver comparison, not a survival trial (``info["survived"]`` is
+    "did not fall"; the survival rule of the studies is ``trial.survival``).
 
     Each probe runs with keep_qp=True; the QP instances of every probe (surviving or not) are
     kept for the solver comparison, tagged with their force.

@@ -4,9 +4,10 @@ A trial: the push (``Push(start, duration, force)``, + forward, on the back) the
 touchdowns after its end (``trial.runs.push_step_index`` + 1 + SURVIVAL_STEPS steps in all, time limit
 (steps + 3) 3 T), run in full (no early stop: the studies' early stop reads the adaptive controller's
 parameters). Survived: no fall, no controller fault, SURVIVAL_STEPS touchdowns at or after the push's
-end, and, where the controller's last status reports them, |p - p_d| <= P_TOL [m] and
-|tau_dot - 1| <= TAU_DOT_TOL (the return to the preferred gait of ``trial.survival``; a controller
-without a stride or a time scaling is judged by the fall and the step count alone).
+end, and, where the controller's last status reports them, p and tau_dot back within the band of the
+one survival rule (``trial.survival``: the floors 1 mm / 1e-3 or k times the controller's own unpushed
+walk's excursion); a controller without a stride or a time scaling is judged by the fall and the step
+count alone.
 
 The search (``trial.search.max_push_modes``'s): forces ``coarse, 2 coarse, ..., fmax`` [N]; the last
 survivable force below the first failure, then the edge bisected to ``resolution`` [N]; survivable
@@ -17,6 +18,7 @@ figure). One process.
 from __future__ import annotations
 
 import functools
+from dataclasses import replace
 import math
 from typing import Mapping
 
@@ -30,31 +32,45 @@ from biped_controller.plugin.loop import PluginLoop, PluginRunResult
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, push_step_index
 from biped_controller.studies.trial.search import analyse_coarse, coarse_forces
 from biped_controller.studies.trial.settings import RunSettings
-from biped_controller.studies.trial.survival import (P_TOL, SURVIVAL_STEPS, TAU_DOT_TOL, TAU_DOT_TOL_NOISE, model_error,
-                                                     noisy_sensing)
+from biped_controller.studies.trial.survival import FLOOR_BAND, SURVIVAL_STEPS, Band, SurvivalRule, survival_rule
 
 
-def survival(result: PluginRunResult, push_end: float, p_d: float, steps_after: int = SURVIVAL_STEPS,
-             noisy: bool = False, p_ref: float | None = None) -> tuple[bool, str]:
-    """(survived, reason) by the rule of the module docstring (``noisy``: |tau' - 1| within
-    ``TAU_DOT_TOL_NOISE``; ``p_ref`` [m]: the unpushed walk's p under model error in place of p_d, as
-    ``trial.survival.survival``)."""
-    tau_tol = TAU_DOT_TOL_NOISE if noisy else TAU_DOT_TOL
-    if p_ref is not None:
-        p_d = p_ref
+def plugin_band(controller: str, settings: RunSettings, steps: int) -> Band:
+    """The survival rule's band (``trial.survival``) for a plug-in's trial of ``steps`` touchdowns with
+    ``settings``: its own unpushed walk's excursion of the ``p`` and ``tau_dot`` it reports (none reported:
+    the floors), run once per process."""
+    return _plugin_band(controller, settings, int(steps), survival_rule())
+
+
+@functools.lru_cache(maxsize=64)
+def _plugin_band(controller: str, settings: RunSettings, steps: int, rule: SurvivalRule) -> Band:
+    return walk_band(trials_for(controller, settings).loop, steps, rule)
+
+
+def walk_band(loop: PluginLoop, steps: int, rule: SurvivalRule) -> Band:
+    """The band of ``loop``'s controller from its unpushed walk of ``steps`` touchdowns (the floors when it
+    falls or faults)."""
+    res = loop.run(steps, (), keep_records=True)
+    if res.fault is not None or res.fallen:
+        why = f"controller fault: {res.fault}" if res.fault is not None else f"{res.fall_cause} at t = {res.fall_time:.4f} s"
+        return replace(FLOOR_BAND, unpushed_fall=why)
+    t0 = rule.window_start(res.impacts)
+    win = [st for rec, st in zip(res.records, res.statuses) if rec.t >= t0]
+    return rule.band_from_series([float(st["p"]) for st in win if "p" in st],
+                                 [float(st["tau_dot"]) for st in win if "tau_dot" in st])
+
+
+def survival(result: PluginRunResult, push_end: float, band: Band = FLOOR_BAND) -> tuple[bool, bool, str]:
+    """(survived, fell, reason): the one survival rule (``trial.survival.SurvivalRule.judge``) on a plug-in's
+    run, its last status's ``p`` and ``tau_dot`` checked where it reports them; a controller fault is a
+    failure that is not a fall."""
     if result.fault is not None:
-        return False, f"controller fault: {result.fault}"
-    if result.fallen:
-        return False, f"fell: {result.fall_cause} at t = {result.fall_time:.4f} s"
-    after = sum(1 for i in result.impacts if i.t >= push_end)
-    if after < steps_after:
-        return False, f"only {after} steps after the push (time limit)"
+        return False, False, f"controller fault: {result.fault}"
     last = result.last_status
-    if "p" in last and not abs(float(last["p"]) - p_d) <= P_TOL:
-        return False, f"p = {float(last['p']):.5f} m not back to p_d (|p - p_d| > {P_TOL})"
-    if "tau_dot" in last and not abs(float(last["tau_dot"]) - 1.0) <= tau_tol:
-        return False, f"tau' = {float(last['tau_dot']):.5f} not back to 1 (> {tau_tol})"
-    return True, "survived"
+    v = survival_rule().judge(result.fallen, f"{result.fall_cause} at t = {result.fall_time:.4f} s", result.impacts,
+                              push_end, float(last["p"]) if "p" in last else None,
+                              float(last["tau_dot"]) if "tau_dot" in last else None, band)
+    return v.survived, v.fell, v.reason
 
 
 class PushTrials:
@@ -68,6 +84,14 @@ class PushTrials:
                                family=self.family, desc=desc if desc is not None else load_description(),
                                perturbation=perturbation, options=options)
         self.trials = 0
+        self._bands: dict[tuple[int, SurvivalRule], Band] = {}
+
+    def _band(self, steps: int) -> Band:
+        """The survival band of a trial of ``steps`` touchdowns: this controller's unpushed walk, once."""
+        rule = survival_rule()
+        if (steps, rule) not in self._bands:
+            self._bands[(steps, rule)] = walk_band(self.loop, steps, rule)
+        return self._bands[(steps, rule)]
 
     def survives(self, force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
                  height: float | None = None) -> dict:
@@ -75,8 +99,8 @@ class PushTrials:
         steps = push_step_index(Push(start, duration, 0.0), self.family.T) + 1 + SURVIVAL_STEPS
         res = self.loop.run(steps, (Push(start, duration, float(force), height),), keep_records=False)
         self.trials += 1
-        ok, why = survival(res, start + duration, self.family.p_d)
-        return {"force": float(force), "controller": self.loop.name, "survived": ok, "reason": why,
+        ok, fell, why = survival(res, start + duration, self._band(steps))
+        return {"force": float(force), "controller": self.loop.name, "survived": ok, "fell": fell, "reason": why,
                 "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
                 "steps_walked": int(res.steps_walked),
                 "fault": None if res.fault is None else res.fault.kind}
@@ -120,29 +144,17 @@ def trials_for(controller: str, settings: RunSettings) -> PushTrials:
                       perturbation=settings.perturbation)
 
 
-@functools.lru_cache(maxsize=32)
-def reference_p(controller: str, steps: int, settings: RunSettings) -> float:
-    """p [m] of the controller's last status after an unpushed walk of ``steps`` touchdowns with
-    ``settings`` (the survival rule's reference under model error); NaN when it falls, faults or reports
-    no ``p``."""
-    res = trials_for(controller, settings).loop.run(steps, (), keep_records=False)
-    if res.fallen or res.fault is not None or "p" not in res.last_status:
-        return math.nan
-    return float(res.last_status["p"])
-
-
 def survives_push(push: Push, controller: str, settings: RunSettings) -> dict:
     """One survival trial of a plug-in controller in the shape of ``trial.trials.survives``'s record
     (force, mode = the controller's name, survived, reason, fall cause and time, steps walked,
     ``decided_at_step`` None: run in full) plus ``fault`` (the fault's kind, None without one). The
-    rule is :func:`survival` with the noise band and the model-error reference of ``settings``."""
+    rule is :func:`survival` with the band of the controller's own unpushed walk (:func:`plugin_band`)."""
     tr = trials_for(controller, settings)
     steps = push_step_index(push, tr.family.T) + 1 + SURVIVAL_STEPS
     res = tr.loop.run(steps, (push,), keep_records=False)
     tr.trials += 1
-    p_ref = reference_p(controller, steps, settings) if model_error(settings) else None
-    ok, why = survival(res, push.start + push.duration, tr.family.p_d, noisy=noisy_sensing(settings), p_ref=p_ref)
-    return {"force": float(push.force), "mode": controller, "survived": ok, "reason": why,
+    ok, fell, why = survival(res, push.start + push.duration, plugin_band(controller, settings, steps))
+    return {"force": float(push.force), "mode": controller, "survived": ok, "fell": fell, "reason": why,
             "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
             "steps_walked": int(res.steps_walked), "decided_at_step": None,
             "fault": None if res.fault is None else res.fault.kind}
