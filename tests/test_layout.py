@@ -40,8 +40,10 @@ ROOMS = {
     "biped_controller.core.sensing": {"biped_sim.robot", "biped_controller.core.qp"},
     "biped_controller.core.control": {"biped_sim.robot", "biped_controller.core.qp", "biped_controller.core.sensing"},
     "biped_controller.gaits": {"biped_sim.robot", "biped_controller.core"},
-    "biped_controller.studies": {"biped_sim.robot", "biped_sim.plant", "biped_controller.core", "biped_controller.gaits"},
-    "biped_controller.graph": {"biped_sim.robot", "biped_sim.graph", "biped_controller.core"},
+    "biped_controller.plugin": {"biped_sim.robot", "biped_sim.plant", "biped_controller.core"},
+    "biped_controller.studies": {"biped_sim.robot", "biped_sim.plant", "biped_controller.core", "biped_controller.gaits",
+                                 "biped_controller.plugin"},
+    "biped_controller.graph": {"biped_sim.robot", "biped_sim.graph", "biped_controller.core", "biped_controller.plugin"},
 }
 ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",
              "builtin_interfaces", "tf2_msgs", "biped_msgs_py", "std_srvs", "ament_index_python"}

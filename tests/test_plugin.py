@@ -27,7 +27,7 @@ from biped_controller.plugin.interface import (ControllerFault, ControllerSetup,
                                                stamp_time)
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               registered)
-from biped_controller.plugin.study import PushTrials
+from biped_controller.studies.trial.plugin_trials import PushTrials
 from biped_controller.studies.trial import runs as trial_runs, trials as trial_trials
 from biped_controller.studies import runner
 from biped_sim.plant.config import load_sim_config
@@ -261,12 +261,12 @@ def test_a_class_that_does_not_satisfy_the_interface_is_named(cls, needle):
 
 
 def test_cli_lists_one_line_per_controller():
-    out = subprocess.run([sys.executable, "-m", "biped_controller.plugin", "list"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "biped_controller.studies.controllers", "list"], capture_output=True, text=True,
                          check=True).stdout.splitlines()
     names = [line.split()[0] for line in out]
     assert names == [r.name for r in registered()]
     assert names[:len(MODES)] == list(MODES)
-    bad = subprocess.run([sys.executable, "-m", "biped_controller.plugin", "check", "no_such_controller"],
+    bad = subprocess.run([sys.executable, "-m", "biped_controller.studies.controllers", "check", "no_such_controller"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "no_such_controller" in bad.stderr and "both" in bad.stderr
 
@@ -332,7 +332,7 @@ def test_cli_max_push_runs_the_search(tmp_path):
     import os
     out = tmp_path / "mp.json"
     env = dict(os.environ, PYTHONPATH=str(helpers.ROOT / "tests"))
-    run = subprocess.run([sys.executable, "-m", "biped_controller.plugin", "max-push",
+    run = subprocess.run([sys.executable, "-m", "biped_controller.studies.controllers", "max-push",
                           "test_plugin:ClassicalComputedTorque", "--max", "100", "--coarse", "50", "--resolution", "25",
                           "--json", str(out)], capture_output=True, text=True, env=env, timeout=600)
     assert run.returncode == 0, run.stderr

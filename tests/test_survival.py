@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from biped_controller.studies.runner import RunResult
-from biped_controller.studies.trial import runs
+from biped_controller.studies.trial import runs, trials
 from biped_controller.studies.trial import search as tsearch
 from biped_controller.studies.trial import survival as surv
 from biped_controller.studies.trial.context import context
@@ -52,9 +52,9 @@ def test_band_of_the_rigid_nominal_walk_is_the_floors_and_never_tighter_anywhere
     rule = surv.survival_rule()
     steps = runs.trial_steps(runs.paper_push(0.0))
     for mode in ("none", "tau", "p", "both"):
-        assert rule.band(mode, RIGID, steps).is_floor, mode
+        assert trials.walk_band(mode, RIGID, steps).is_floor, mode
     noisy = run_settings(profile="real-sensors", perturb=["noise_q=5e-4", "noise_qd=5e-2", "encoder_bits=14"])
-    b = rule.band("both", noisy, steps)
+    b = trials.walk_band("both", noisy, steps)
     assert b.tau_dot_tol > surv.TAU_DOT_FLOOR and b.p_tol >= surv.P_FLOOR
     assert b.tau_dot_tol == pytest.approx(rule.band_factor * b.tau_dot_excursion)
 
@@ -89,11 +89,11 @@ def _verdicts(settings, forces, steps_short):
         if name == "unsettled":
             short = surv.SurvivalRule(steps_short, rule.band_factor, rule.band_window)
             res = runs.push_run(push, "both", steps_after=steps_short, settings=settings, keep_records=False)
-            band = short.band("both", settings, runs.trial_steps(push, steps_short))
+            band = short.band_from_walk(runs.run(runs.trial_steps(push, steps_short), "both", (), settings=settings, keep_records=True))
             out[name] = short.verdict(res, push.end, band)
         else:
             res = runs.push_run(push, "both", settings=settings, keep_records=False)
-            band = rule.band("both", settings, runs.trial_steps(push))
+            band = trials.walk_band("both", settings, runs.trial_steps(push))
             out[name] = rule.verdict(res, push.end, band)
     return out
 

@@ -14,7 +14,7 @@ import pytest
 
 from biped_controller.plugin import loop as plugin_loop
 from biped_controller.plugin.registry import ENTRY_POINT_GROUP, load_controller
-from biped_controller.plugin.study import PushTrials
+from biped_controller.studies.trial.plugin_trials import PushTrials
 from biped_sim.plant.push import Push
 
 from capture_point_stepper import CapturePointStepper

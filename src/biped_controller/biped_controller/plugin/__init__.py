@@ -2,4 +2,4 @@
 name (``registry``: built-in modes, ``biped.controllers`` entry points, ``module:Class``), the built-in
 modes as interface controllers (``builtin``), the in-process closed loop that drives any of them on the
 rigid or the MuJoCo plant (``loop``) and its push trials and max-push search (``study``).
-``python -m biped_controller.plugin list | check NAME | max-push NAME``. Pure Python, no ROS."""
+``python -m biped_controller.studies.controllers list | check NAME | max-push NAME`` (the CLI lives with the studies). Pure Python, no ROS."""

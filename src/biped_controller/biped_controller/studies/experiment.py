@@ -116,7 +116,7 @@ def parser() -> StudyArgumentParser:
         if name == "max-push":
             a.add_argument("--mode", choices=MODES, default="both")
             a.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
-                           help="any registered controller (python -m biped_controller.plugin list) in place of --mode")
+                           help="any registered controller (python -m biped_controller.studies.controllers list) in place of --mode")
         else:
             a.add_argument("--modes", type=modes_arg, default=TABLE_MODES,
                            help=f"comma-separated modes (default {','.join(TABLE_MODES)}; any of {','.join(MODES)})")

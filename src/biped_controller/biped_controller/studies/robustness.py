@@ -209,7 +209,7 @@ def _plugin_walk_record(perturbation: PlantPerturbation, name: str, steps: int, 
     """:func:`walk_record` of a plug-in controller (``plugin.loop``): the same fields; the tracking error, p and
     tau' from its status keys ``max_tracking_error``, ``p``, ``tau_dot`` when it reports them (None otherwise),
     no force estimate; a controller fault is a failed walk whose cause is the fault."""
-    from biped_controller.plugin.study import trials_for
+    from biped_controller.studies.trial.plugin_trials import trials_for
     res = trials_for(name, st).loop.run(steps, ())
     last = res.last_status
 

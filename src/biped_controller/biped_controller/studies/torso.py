@@ -39,6 +39,7 @@ from biped_controller.studies.trial.args import (StudyArgumentParser, modes_arg,
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS
+from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.survival import FLOOR_BAND, survival_rule
 from biped_controller.studies.runner import RunResult, run
 from biped_controller.studies import provenance
@@ -56,7 +57,7 @@ def costs(runs: dict[str, RunResult], push_end: float) -> dict:
     horizon = min(r.records[-1].t_end for r in runs.values())
     out = {"horizon_s": horizon, "modes": {}}
     for m, r in runs.items():
-        band = FLOOR_BAND if r.fallen else survival_rule().band(m, DEFAULT_SETTINGS, r.steps_walked)
+        band = FLOOR_BAND if r.fallen else trials.walk_band(m, DEFAULT_SETTINGS, r.steps_walked)
         v = survival_rule().verdict(r, push_end, band)
         ok, why = v.survived, v.reason
         keep = [k for k, rec in enumerate(r.records) if rec.t < horizon]

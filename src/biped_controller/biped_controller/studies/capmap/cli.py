@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"any of {' '.join(MODES)} (default the paper's {' '.join(PAPER_MODES)}, or none with "
                          f"--controller)")
     ap.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
-                    help="a registered controller to map (repeatable; python -m biped_controller.plugin list), "
+                    help="a registered controller to map (repeatable; python -m biped_controller.studies.controllers list), "
                          "beside the --modes given")
     ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
     ap.add_argument("--phases", type=positive_int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")

@@ -185,7 +185,7 @@ def parameter_range(run: MapRun) -> dict:
     [p_min, p_max] [m], tau' >= tau_dot_min): the range, the largest |p - p_d| [m] and the extremes of tau' [-]
     over the recorded trials, the trials that leave the range (key and what leaves) and how many records
     carry no excursion (stored before it was recorded)."""
-    fam, tdm = context().family, run.spec.settings.ctrl_config(run.spec.modes[0]).tau_dot_min
+    fam, tdm = context().family, run.spec.settings.ctrl_config(MODES[0]).tau_dot_min   # a setting of every mode
     recs = [r for by_force in run.records.values() for r in by_force.values()]
     known = [r for r in recs if all(r.get(k) is not None for k in ("max_abs_p_minus_pd", "min_tau_dot", "max_tau_dot"))]
     out = []
@@ -204,8 +204,7 @@ def survival_bands(spec: MapSpec) -> dict:
     """{mode: {trial impacts: the survival rule's band}} of the map's cells (``trial.survival``)."""
     T = context().family.T
     steps = sorted({trial_steps(Push(onset_time(c.phase, T), c.duration, 0.0)) for c in spec.cells()})
-    rule = survival.survival_rule()
-    return {m: {str(n): rule.band(m, spec.settings, n).as_dict() for n in steps} for m in spec.modes}
+    return {m: {str(n): trials.walk_band(m, spec.settings, n).as_dict() for n in steps} for m in spec.modes}
 
 
 def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:

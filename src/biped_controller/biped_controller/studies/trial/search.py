@@ -13,6 +13,7 @@ import sys
 
 from biped_controller.studies.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.trial import trials
+from biped_controller.studies.trial.scan import analyse_coarse, coarse_forces, outcome  # noqa: F401 (the search API)
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, check_settings, differences
@@ -26,35 +27,6 @@ PAPER_MAX_PUSH: dict[str, float | None] = {"both": 650.0, "tau": 455.0, "p": 320
 def _trial(args: tuple) -> dict:
     push, mode, settings = args
     return trials.survives(push, mode, settings)
-
-
-def coarse_forces(fmax: float, coarse: float) -> list[float]:
-    """The coarse scan's forces [N]: coarse, 2 coarse, ... <= fmax."""
-    n = int(math.floor(fmax / coarse + 1e-9))
-    return [coarse * k for k in range(1, n + 1)]
-
-def outcome(trial: dict, edge: str) -> bool:
-    """A trial's outcome for ``edge``: "survival" (the survival rule met) or "no_fall" (no fall)."""
-    if edge == "survival":
-        return bool(trial["survived"])
-    if edge == "no_fall":
-        return not trial["fell"]
-    raise ValueError(f"edge must be 'survival' or 'no_fall', got {edge!r}")
-
-
-def analyse_coarse(trials: list[dict], edge: str = "survival") -> tuple[float, float | None, list[float]]:
-    """For ``edge`` (:func:`outcome`): (last passing force below the first failure (0 if the first fails),
-    first failing force or None, passing coarse forces above the first failure)."""
-    trials = sorted(trials, key=lambda r: r["force"])
-    lo, hi = 0.0, None
-    for r in trials:
-        if outcome(r, edge):
-            lo = r["force"]
-        else:
-            hi = r["force"]
-            break
-    islands = [r["force"] for r in trials if hi is not None and r["force"] > hi and outcome(r, edge)]
-    return lo, hi, islands
 
 
 def bisect_edge(mode: str, lo: float, hi: float, resolution: float, *, duration: float = DEFAULT_DURATION,

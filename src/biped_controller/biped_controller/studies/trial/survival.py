@@ -40,7 +40,6 @@ from biped_sim.robot.settings import default_config_dir, read_settings
 
 from biped_controller.studies.runner import RunResult
 from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.settings import RunSettings, _config_stamp
 from biped_controller.studies.trial.stop import StudySettingsError
 
 SURVIVAL_STEPS = 10             # impacts that must follow the end of the push
@@ -153,11 +152,6 @@ class SurvivalRule:
         e_tau = max((abs(x - 1.0) for x in tau_dot), default=0.0)
         return Band(max(P_FLOOR, self.band_factor * e_p), max(TAU_DOT_FLOOR, self.band_factor * e_tau), e_p, e_tau)
 
-    def band(self, mode: str, settings: RunSettings, steps: int) -> Band:
-        """The band of a trial of ``steps`` impacts in ``mode`` with ``settings`` (plant, profile,
-        perturbation): its unpushed walk run once per process (cached)."""
-        return _band(self, mode, replace(settings, full_trials=False), int(steps), _config_stamp())
-
     # ------------------------------------------------------------------------------------------ verdict
     def verdict(self, result: RunResult, push_end: float, band: Band = FLOOR_BAND) -> Verdict:
         """The verdict on ``result``, a run pushed until ``push_end`` [s], with ``band``."""
@@ -192,12 +186,6 @@ class SurvivalRule:
                else "the floors" if band.is_floor
                else f"{self.band_factor:g} x the unpushed walk's excursion over its last {self.band_window} steps")
         return head + f"|p - p_d| <= {band.p_tol:.3g} m and |tau' - 1| <= {band.tau_dot_tol:.3g} ({src})"
-
-
-@functools.lru_cache(maxsize=256)
-def _band(rule: SurvivalRule, mode: str, settings: RunSettings, steps: int, stamp: tuple) -> Band:
-    from biped_controller.studies.trial import runs      # runs imports this module's SURVIVAL_STEPS
-    return rule.band_from_walk(runs.run(steps, mode, (), settings=settings, keep_records=True))
 
 
 @functools.lru_cache(maxsize=4)

@@ -2,22 +2,38 @@
 (:mod:`.survival`) with the band of its unpushed walk."""
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import replace
 
 from biped_sim.plant.push import Push
 
 from biped_controller.core.control.controller import MODES
 from biped_controller.studies import runner
-from biped_controller.studies.trial import runs, stop
+from biped_controller.studies.trial import plugin_trials, runs, stop
 from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
-from biped_controller.studies.trial.survival import Band, survival_rule
+from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, _config_stamp
+from biped_controller.studies.trial.survival import Band, SurvivalRule, survival_rule
 
 
 def band(mode: str, push: Push, settings: RunSettings) -> Band:
     """The survival rule's band for a trial of ``push`` in ``mode`` with ``settings``: the unpushed walk's of
     the same impacts (``runs.trial_steps``), computed once per process."""
-    return survival_rule().band(mode, settings, runs.trial_steps(push))
+    return walk_band(mode, settings, runs.trial_steps(push))
+
+
+def walk_band(mode: str, settings: RunSettings, steps: int) -> Band:
+    """The band of a trial of ``steps`` impacts in ``mode`` (a built-in mode or a plug-in controller's name)
+    with ``settings`` (plant, profile, perturbation): its unpushed walk, run once per process
+    (``SurvivalRule.band_from_walk``; a plug-in's: ``plugin_trials.plugin_band``)."""
+    if mode not in MODES:
+        return plugin_trials.plugin_band(mode, settings, int(steps))
+    return _walk_band(survival_rule(), mode, replace(settings, full_trials=False), int(steps), _config_stamp())
+
+
+@functools.lru_cache(maxsize=256)
+def _walk_band(rule: SurvivalRule, mode: str, settings: RunSettings, steps: int, stamp: tuple) -> Band:
+    return rule.band_from_walk(runs.run(steps, mode, (), settings=settings, keep_records=True))
 
 
 def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
@@ -31,11 +47,10 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
     ``runner.LoopPool``; None or False: a new plant and controller, walked from t = 0.
 
     A ``mode`` that is not one of the adaptive controller's modes names a plug-in controller
-    (``plugin.registry``, resolved in this process): its trial is ``plugin.study.survives_push`` (run in
+    (``plugin.registry``, resolved in this process): its trial is ``trial.plugin_trials.survives_push`` (run in
     full, the same rule; a controller fault is that trial's outcome)."""
     if mode not in MODES:
-        from biped_controller.plugin.study import survives_push
-        return survives_push(push, mode, settings)
+        return plugin_trials.survives_push(push, mode, settings)
     end = push.start + push.duration
     if pool is True:
         pool = runs.loop_pool()

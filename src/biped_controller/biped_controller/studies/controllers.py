@@ -1,12 +1,12 @@
 """Controllers behind the controller interface, from the command line:
 
-  python -m biped_controller.plugin list                 the registered controllers, one a line (name, where
+  python -m biped_controller.studies.controllers list                 the registered controllers, one a line (name, where
                                                           it comes from, module:Class, what it does)
-  python -m biped_controller.plugin check NAME           load one and check it against the interface
-  python -m biped_controller.plugin max-push NAME [--plant rigid|mujoco] [--option KEY=VALUE ...]
+  python -m biped_controller.studies.controllers check NAME           load one and check it against the interface
+  python -m biped_controller.studies.controllers max-push NAME [--plant rigid|mujoco] [--option KEY=VALUE ...]
         [--resolution 5] [--max 2000] [--coarse 50] [--json FILE]
                                                           its largest survivable push at the paper's cell
-                                                          (25 ms on the back at t = 0.2315 s; plugin.study)
+                                                          (25 ms on the back at t = 0.2315 s; trial.plugin_trials)
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def _option(text: str) -> tuple[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m biped_controller.plugin",
+    ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.controllers",
                                  description="Controllers behind the controller interface.")
     sub = ap.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="the registered controllers, one a line")
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
         return 0
     from biped_sim.plant.config import load_sim_config      # the plant and the studies only for a run
-    from biped_controller.plugin.study import PushTrials
+    from biped_controller.studies.trial.plugin_trials import PushTrials
     trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option))
     r = trials.max_push(args.resolution, args.max, args.coarse)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"

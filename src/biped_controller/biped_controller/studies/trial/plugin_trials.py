@@ -30,7 +30,7 @@ from biped_sim.robot.gait_family import GaitFamily
 
 from biped_controller.plugin.loop import PluginLoop, PluginRunResult
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, push_step_index
-from biped_controller.studies.trial.search import analyse_coarse, coarse_forces
+from biped_controller.studies.trial.scan import analyse_coarse, coarse_forces
 from biped_controller.studies.trial.settings import RunSettings
 from biped_controller.studies.trial.survival import FLOOR_BAND, SURVIVAL_STEPS, Band, SurvivalRule, survival_rule
 
