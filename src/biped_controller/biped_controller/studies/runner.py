@@ -118,8 +118,8 @@ class LoopSnapshot:
 
 class ClosedLoop:
     """One plant and one controller in lockstep (``run``'s loop), built once and reusable: :meth:`reset` to
-    the family's initial state, :meth:`snapshot` / :meth:`restore` between periods (the rigid plant and a
-    controller without real sensing; :attr:`snapshots` False otherwise), :meth:`walk_to` the last control
+    the family's initial state, :meth:`snapshot` / :meth:`restore` between periods (either plant with ideal
+    sensors and a controller without real sensing; :attr:`snapshots` False otherwise), :meth:`walk_to` the last control
     instant before a push, :meth:`run` the loop."""
 
     def __init__(self, sim_config: SimConfig, ctrl_config: ControllerConfig, family: GaitFamily,
@@ -302,8 +302,8 @@ class LoopPool:
 
     def snapshot_at(self, loop: ClosedLoop, t_push: float) -> LoopSnapshot | None:
         """The loop's state at the last control instant before a push starting at ``t_push`` [s] (walked
-        once from the initial state, then kept), or None where the loop takes no snapshot (MuJoCo, a sensor
-        model, real sensing: the caller runs from the start)."""
+        once from the initial state, then kept), or None where the loop takes no snapshot (a sensor model,
+        real sensing: the caller runs from the start)."""
         if not loop.snapshots:
             return None
         key = (loop, float(t_push))
