@@ -333,7 +333,6 @@ class MujocoPlant(ScheduledPushes):
         self.book = self._new_book()
         self.book.pushes.extend(snap.pushes)
         self.book.next_id = snap.next_push_id
-        self.sensor.reset()
 
     # ------------------------------------------------------------ queries
     @staticmethod

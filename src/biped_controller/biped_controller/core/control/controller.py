@@ -947,7 +947,8 @@ class _FastPeriod:
         if not ctrl.adapted:
             status, msg = NO_ADAPTATION, MSG_FIXED_REFERENCE[ctrl.cfg.mode]
         elif code == ck.FEASIBLE:
-            Gr, hr, xs = self.reduced(G, h, res)
+            if ctrl.keep_qp:                  # the instance is only handed out when kept
+                Gr, hr, xs = self.reduced(G, h, res)
             status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
         else:
             answer = self.solve_qp(G, h, res)
