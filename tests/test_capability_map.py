@@ -66,7 +66,8 @@ class FakeSurvives:
         e, isl = self.edge(mode, direction, start, duration)
         f = abs(force)
         ok = f < e or any(a <= f <= b for a, b in isl)
-        return {"force": float(force), "mode": mode, "survived": ok, "reason": "survived" if ok else "fell: tip_toe",
+        return {"force": float(force), "mode": mode, "survived": ok, "fell": not ok,
+                "reason": "survived" if ok else "fell: tip_toe",
                 "fall_cause": "" if ok else "tip_toe", "fall_time": None if ok else start + 0.01,
                 "steps_walked": 11 if ok else 0}
 

@@ -3,7 +3,6 @@ legs' model-error estimator (``core/sensing/model_error.py``): its regressor aga
 identification in noise-free closed loops, its compiled-pipeline twin, its settings."""
 from __future__ import annotations
 
-import dataclasses
 import itertools
 
 import numpy as np
@@ -306,28 +305,26 @@ def test_settings_rejected_by_name():
 
 
 # ------------------------------------------------------------------------------ survival under model error
-def test_survival_under_model_error_compares_p_with_the_unpushed_walk():
-    """The survival rule (trial.survival): with ``p_ref`` the unpushed walk's p, a run 1.3 mm short
-    of p_d is back when the unpushed walk is 1.2 mm short (and not when it is at p_d: negative control); the
-    reference applies under model error only (not friction or noise)."""
+def test_survival_under_model_error_takes_the_band_of_the_unpushed_walk():
+    """The survival rule (trial.survival): a run ending 1.3 mm short of p_d is back when the unpushed walk
+    of the same settings settles 1.2 mm short (its band: k x 1.2 mm), and not when the unpushed walk
+    settles at p_d (the floors: negative control). No rule of its own for model error."""
     from types import SimpleNamespace
     from biped_controller.studies.trial import context as tcontext
-    from biped_controller.studies.trial import runs, trials
-    from biped_controller.studies.trial import settings as ts
     from biped_controller.studies.trial import survival as surv
     from biped_controller.studies.runner import RunResult
     p_d = tcontext.context().family.p_d
-    res = RunResult(records=[], statuses=[SimpleNamespace(p=p_d - 1.3e-3, tau_dot=1.0)], steps_walked=11,
-                    fallen=False, fall_cause="", fall_detail="", fall_time=float("nan"),
-                    impacts=[SimpleNamespace(t=0.3 + 0.46 * k) for k in range(11)])
-    assert not surv.survival(res, 0.2565)[0]
-    assert surv.survival(res, 0.2565, p_ref=p_d - 1.2e-3) == (True, "survived")
-    assert not surv.survival(res, 0.2565, p_ref=p_d)[0]
-    settings = ts.RunSettings()
-    assert not surv.model_error(settings)
-    assert surv.model_error(dataclasses.replace(settings, perturbation=INERTIAS))
-    assert not surv.model_error(dataclasses.replace(settings, perturbation=PlantPerturbation(mu=0.5, noise_q=1e-4)))
-    assert trials.p_reference("both", runs.paper_push(100.0), settings) is None
+    impacts = [SimpleNamespace(t=0.3 + 0.46 * k) for k in range(11)]
+
+    def result(dp):
+        return RunResult(records=[], statuses=[SimpleNamespace(t=5.0, p=p_d + dp, tau_dot=1.0)], steps_walked=11,
+                         fallen=False, fall_cause="", fall_detail="", fall_time=float("nan"), impacts=impacts)
+    rule = surv.SurvivalRule.of(2.0, 3)
+    short = rule.band_from_walk(result(-1.2e-3))
+    assert rule.verdict(result(-1.3e-3), 0.2565, short) == surv.Verdict(True, False, "survived")
+    at_p_d = rule.band_from_walk(result(0.0))
+    v = rule.verdict(result(-1.3e-3), 0.2565, at_p_d)
+    assert not v.survived and not v.fell and v.reason.startswith("p =")
 
 
 # ------------------------------------------------------------------------------ under sensor noise (issue 22, mebias)

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import sys
 
-from biped_controller.studies.capmap.driver import MapRun, run_map, run_maps
+from biped_controller.studies.capmap.driver import MapRun, record_fell, run_map, run_maps
 from biped_controller.studies.capmap.executors import (DEFAULT_BATCH, PoolExecutor, RayExecutor, SerialExecutor,
                                                        make_executor)
 from biped_controller.studies.capmap.figures import figures
 from biped_controller.studies.capmap.findings import cell_summary, findings, findings_text, summary
 from biped_controller.studies.capmap.metrics import body_weight_fraction, com_velocity_change, impulse
 from biped_controller.studies.capmap.search import (Boundary, bisection_steps, edge_index, island_ranges, plan_cell,
-                                                    remaining_estimate)
+                                                    plan_no_fall, remaining_estimate)
 from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATIONS, DEFAULT_MAX, DEFAULT_MAX_IMPULSE,
                                                   DEFAULT_PHASES, DEFAULT_RESOLUTION, DIRECTIONS, Cell, MapError,
                                                   MapSpec, Search, SimSpec, onset_time, phases_of,
@@ -24,7 +24,7 @@ from biped_controller.studies.executor import ProgressBar
 from biped_controller.studies.provenance import git_state
 
 __all__ = [
-    "MapRun", "run_map", "run_maps", "edge_index", "search_settings", "DEFAULT_BATCH", "PoolExecutor", "RayExecutor", "SerialExecutor", "make_executor",
+    "MapRun", "record_fell", "plan_no_fall", "run_map", "run_maps", "edge_index", "search_settings", "DEFAULT_BATCH", "PoolExecutor", "RayExecutor", "SerialExecutor", "make_executor",
     "figures", "cell_summary", "findings", "findings_text", "summary", "body_weight_fraction",
     "com_velocity_change", "impulse", "Boundary", "bisection_steps", "island_ranges", "plan_cell",
     "remaining_estimate", "DEFAULT_COARSE", "DEFAULT_DURATIONS", "DEFAULT_MAX", "DEFAULT_MAX_IMPULSE",

@@ -12,6 +12,9 @@ no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
                                                largest survivable push force
   table     [--workers N] [--modes M,M,...]    max-push for the four modes (or the modes named, e.g.
                                                none,tau,p,both,wbc,hybrid) next to the paper's values
+  band      [--mode M] [--duration D] [--start S]
+                                               the survival rule's band: the unpushed walk of a trial's
+                                               impacts, its excursions step by step, the band
   probe     --force F [--mode M] [--start S]   one push, the controller's view period by period while
                                                it acts: true push vs the observer's estimate, predicted
                                                vs actual ground reaction and l, QP status, tightest row
@@ -99,6 +102,11 @@ def parser() -> StudyArgumentParser:
                            help="print this long after the push end [s]")
         a.add_argument("--json", type=Path)
         add_settings_args(a)
+    a = sub.add_parser("band", help="the survival rule's band: the unpushed walk's excursions step by step")
+    _push_window_args(a, with_force=False)
+    a.add_argument("--mode", choices=MODES, default="both")
+    a.add_argument("--json", type=Path)
+    add_settings_args(a, full_trials=False)
     for name, hlp in (("max-push", "largest survivable push for one mode"),
                       ("table", "max-push for the four modes, or for --modes")):
         a = sub.add_parser(name, help=hlp)
@@ -133,6 +141,10 @@ def main(argv: list[str] | None = None) -> int:
         push = paper_push(args.force, start=args.start, duration=args.duration, height=args.height)
         r = single_runs.push_experiment(push, args.mode, args.figures, settings)
         single_runs.print_push(r)
+    elif args.cmd == "band":
+        push = paper_push(0.0, start=args.start, duration=args.duration, height=args.height)
+        r = single_runs.band_walk(push, args.mode, settings)
+        single_runs.print_band_walk(r)
     elif args.cmd == "probe":
         push = paper_push(args.force, start=args.start, duration=args.duration, height=args.height)
         r = single_runs.probe(push, args.mode, settings, after=args.after)

@@ -10,9 +10,10 @@ prints. Pure Python on ``runner.run`` (no ROS). Usage::
     python -m biped_controller.studies.plant_compare robustness --rigid JSON ... --mujoco JSON ...
 
 ``robustness``: the max-push rows of ``scripts/robustness`` side by side from its summary JSONs (``--json``, one or
-more per plant; a row found in several files is taken from the last): per perturbation and observer, the strict
+more per plant; a row found in several files is taken from the last): per perturbation and observer, the survival
 boundary (largest survived force below the first failure, the first failure and its cause) and the no-fall
-edge (largest force below the first fall, the first fall; "no fall to F" when the scan never fell).
+edge (largest force below the first fall, the first fall; "no fall to F" when the scan never fell), both
+bisected to the same resolution. Survival is the studies' one rule (``trial.survival``).
 
 ``fingerprint``: one sha256 over everything the MuJoCo plant records in a fixed set of runs (walks, pushes in
 three modes, a backward push, a fall, the classical controller's fall, sensor noise and delay, a torque law
@@ -22,18 +23,19 @@ evaluated at every MuJoCo step): every field of every ``StepRecord``, ``ImpactRe
 prints the same last line before and after, on the same machine.
 
 ``cmap``: the capability-map slice side by side from two stores of ``scripts/capability_map`` (one per plant,
-``--set plant=P --store STORE``): per cell (mode, direction, onset phase, duration), the strict boundary (the
-largest simulated force below the lowest one that failed the experiment's survival test) and the no-fall edge
-(the largest simulated force below the lowest one that fell), at the resolution of the simulated forces.
+``--set plant=P --store STORE``): per cell (mode, direction, onset phase, duration), the survival boundary (the
+largest simulated force below the lowest one that failed the survival rule, ``trial.survival``) and the no-fall
+edge (the largest simulated force below the lowest one that fell), at the resolution of the simulated forces
+(the map bisects both).
 
 ``push``: one push (25 ms at t = 0.2315 s or ``--start``, 5 steps after it) on both plants: the outcome, and on MuJoCo the
 contact diagnostics over the run: what the rigid plant would have declared a fall (the friction cone, the
 centre of pressure at an edge, an unloaded stance foot) and how far the foot rolled and slid.
 
 ``pushes``: the four-mode max-push table (``scripts/experiment table``: forward, 25 ms at t = 0.2315 s) for
-both plants, observer on and off, side by side: the experiment's strict boundary (no fall for 10 steps and
-|p - p_d|, |tau' - 1| <= 1e-3 at the end) and the *no-fall edge* (the largest scanned force below the
-lowest one that fell, at the scan's coarse step; the first falling force and its cause). Runs
+both plants, observer on and off, side by side: the survival boundary (``trial.survival``: no fall for 10
+steps, then p and tau' within the band of the unpushed walk) and the *no-fall edge* (the largest force below
+the lowest one that fell; the first falling force and its cause), both bisected to the table's resolution. Runs
 ``scripts/experiment table --workers 2 --observer O --set plant=P --json DIR/table_P_observer_O.json`` for
 each (P, O), or with ``--reuse`` reads those files.
 
@@ -185,7 +187,7 @@ def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE) -
                 experiment.main(["table", "--workers", "2", "--profile", profile, "--observer", obs,
                                  "--set", f"plant={plant}", "--json", str(f)])
             data[(plant, obs)] = json.loads(f.read_text(encoding="utf-8"))["modes"]
-    L = ["| observer | mode | paper [N] | rigid: max push [N] (first failure) | MuJoCo: max push, strict [N] (first failure) | "
+    L = ["| observer | mode | paper [N] | rigid: max push [N] (first failure) | MuJoCo: max push [N] (first failure) | "
          "rigid: no-fall edge [N], first fall | MuJoCo: no-fall edge [N], first fall |",
          "| --- | --- | ---: | --- | --- | --- | --- |"]
     out = {}
@@ -194,7 +196,8 @@ def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE) -
             cells = []
             for plant in PLANTS:
                 m = data[(plant, obs)][mode]
-                lo, hi, cause = no_fall_edge(m["trials"])
+                lo, hi, cause = ((m["no_fall_edge"], m["first_fall"], m["fall_cause"] or "") if "no_fall_edge" in m
+                                 else no_fall_edge(m["trials"]))     # a table of the coarse-only search
                 out[f"{plant}/{obs}/{mode}"] = dict(max_force=m["max_force"], failure=m["failure_cause"], no_fall=lo,
                                                     first_fall=hi, fall_cause=cause, islands=m["islands"])
                 cells.append((f"{m['max_force']:g} ({m['failure_cause']})", f"{lo:g}, {hi:g} N {cause}" if hi else f"> {lo:g}"))
@@ -312,7 +315,7 @@ def robustness_table(rigid: list[Path], mujoco: list[Path]) -> tuple[str, dict]:
         return (f"{r['max_force_no_fall']:g} ({r['first_fall']:g})" if r.get("first_fall") is not None
                 else f"no fall to {r['max_force_no_fall']:g}")
     L = ["| perturbation | mode | observer | rigid: max push [N] (first failure) | rigid: no-fall edge [N] (first fall) | "
-         "MuJoCo: max push, strict [N] (first failure) | MuJoCo: no-fall edge [N] (first fall) |",
+         "MuJoCo: max push [N] (first failure) | MuJoCo: no-fall edge [N] (first fall) |",
          "| --- | --- | --- | --- | --- | --- | --- |"]
     out = {}
     order = ("nominal", "torso mass +20 %", "inertias +30 %", "noise 1e-4 rad, 1e-2 rad/s", "delay 1 period",
@@ -371,7 +374,7 @@ def cmap_table(rigid: Path, mujoco: Path) -> tuple[str, dict]:
     done = lambda c: bool(c["first_fall"]) or c.get("censored", False)   # noqa: E731
     keys = sorted(k for k in set(R) & set(M) if done(R[k]) and done(M[k]))
     missing = sorted(k for k in set(R) | set(M) if k not in keys)
-    L = ["| mode | direction | phase | rigid: strict [N] | rigid: no-fall edge [N] (first fall) | MuJoCo: strict [N] | "
+    L = ["| mode | direction | phase | rigid: survival [N] | rigid: no-fall edge [N] (first fall) | MuJoCo: survival [N] | "
          "MuJoCo: no-fall edge [N] (first fall) |", "| --- | --- | ---: | ---: | --- | ---: | --- |"]
     for k in keys:
         r, m = R[k], M[k]
@@ -379,7 +382,7 @@ def cmap_table(rigid: Path, mujoco: Path) -> tuple[str, dict]:
                         else f">= {c['no_fall']:g} (no fall)")
         L.append(f"| {k[0]} | {k[1]} | {k[2]:g} | {r['strict']:g} | {ff(r)} | {m['strict']:g} | {ff(m)} |")
     groups = sorted({(k[0], k[1]) for k in keys})
-    L += ["", "| mode | direction | cells | mean rigid strict [N] | mean rigid no-fall [N] | mean MuJoCo strict [N] | "
+    L += ["", "| mode | direction | cells | mean rigid survival [N] | mean rigid no-fall [N] | mean MuJoCo survival [N] | "
           "mean MuJoCo no-fall [N] | cells MuJoCo no-fall > rigid no-fall |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     summary = {}
     for g in groups:

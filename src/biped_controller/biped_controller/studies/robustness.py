@@ -245,26 +245,11 @@ def push_spec(perturbation: PlantPerturbation, mode: str, observer: bool, full_t
                         settings=settings_for(perturbation, observer, full_trials))
 
 
-def no_fall_edge(records: dict[float, dict]) -> tuple[float, float | None]:
-    """(largest simulated force below the lowest one that fell, that lowest falling force or None) over the
-    records of one cell (force -> record): the boundary when only a fall counts as a failure, at the
-    resolution of the simulated forces (the coarse step away from the bisected edge). Under sensor noise
-    p and tau' never settle within the survival rule's tolerances, so the strict boundary is 0 N there."""
-    lo, hi = 0.0, None
-    for f in sorted(records):
-        if records[f].get("fall_time") is not None:
-            hi = f
-            break
-        lo = f
-    return lo, hi
-
-
 def max_push_record(run: cmap.MapRun) -> dict:
     """The boundary of the one cell of ``run`` (JSON-ready): force, first failure, cause, islands."""
     (cell,) = run.spec.cells()
     b = cmap.cell_summary(run, cell)
-    nf_lo, nf_hi = no_fall_edge(run.records[cell])
-    return {"max_force": b["force"], "max_force_no_fall": nf_lo, "first_fall": nf_hi, "first_failure": b["first_failure"], "censored": b["censored"],
+    return {"max_force": b["force"], "max_force_no_fall": b["no_fall_edge"], "first_fall": b["first_fall"], "first_failure": b["first_failure"], "censored": b["censored"],
             "cause": b["cause"], "reason": b["reason"], "islands": b["islands"], "simulations": b["simulations"],
             "resolution": run.spec.search.resolution, "coarse": run.spec.search.coarse, "scan_max": run.spec.search.fmax}
 
@@ -280,9 +265,11 @@ def stored_max_push(spec: cmap.MapSpec, records: list[dict]) -> dict | None:
     forces, b = cmap.plan_cell(spec.search, {f: bool(r["survived"]) for f, r in recs.items()})
     if b is None:
         return None
+    forces, b = cmap.plan_no_fall(spec.search, {f: cmap.record_fell(r) for f, r in recs.items()}, b)
+    if b is None:
+        return None
     first = recs.get(b.hi) if b.hi is not None else None
-    nf_lo, nf_hi = no_fall_edge(recs)
-    return {"max_force": b.lo, "max_force_no_fall": nf_lo, "first_fall": nf_hi, "first_failure": b.hi, "censored": b.hi is None,
+    return {"max_force": b.lo, "max_force_no_fall": b.no_fall_lo, "first_fall": b.no_fall_hi, "first_failure": b.hi, "censored": b.hi is None,
             "cause": first["cause"] if first else None, "reason": first["reason"] if first else None,
             "islands": list(b.islands), "simulations": len(recs), "resolution": spec.search.resolution,
             "coarse": spec.search.coarse, "scan_max": spec.search.fmax}
@@ -335,8 +322,9 @@ def _push_cell(r: dict | None) -> str:
     s = f"{r['max_force']:g}" if not r["censored"] else f">= {r['max_force']:g}"
     if r["islands"]:
         s += " (isl. " + ", ".join(f"{x:g}" for x in r["islands"]) + ")"
-    if r.get("max_force_no_fall", r["max_force"]) > r["max_force"]:
-        s += f" [no fall to {r['max_force_no_fall']:g}]"
+    nf = r.get("max_force_no_fall")
+    if nf is not None:
+        s += f" [no fall to {nf:g}]" if r.get("first_fall") is None else f" [no-fall edge {nf:g}]"
     return s
 
 
@@ -381,7 +369,7 @@ def figure(levels, modes, observers, pushes: dict, out: Path) -> Path:
         vals = [pushes[(lv.name, m, obs)]["max_force"] if (lv.name, m, obs) in pushes else np.nan for lv in levels]
         ax.barh(y - 0.4 + (i + 0.5) * hgt, vals, height=hgt, color=colors[m], alpha=1.0 if obs else 0.45,
                 hatch=None if obs else "//", label=f"{m}, observer {'on' if obs else 'off'}")
-        # where only a fall counts (under noise p and tau' never settle): the no-fall edge, if larger
+        # the no-fall edge where it lies above the survival boundary
         nf = [(pushes[(lv.name, m, obs)]["max_force_no_fall"], k) for k, lv in enumerate(levels)
               if (lv.name, m, obs) in pushes
               and pushes[(lv.name, m, obs)].get("max_force_no_fall", 0.0) > pushes[(lv.name, m, obs)]["max_force"]]

@@ -22,8 +22,8 @@ from biped_controller.studies.trial import runs
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, differences
 from biped_controller.studies.trial.summary import joint_errors, summarize
-from biped_controller.studies.trial.survival import noisy_sensing, survival
-from biped_controller.studies.trial.trials import p_reference
+from biped_controller.studies.trial.survival import survival_rule
+from biped_controller.studies.trial.trials import band as trial_band
 
 ZOH_EXPLANATION = (
     "cause of the ZOH error: the torque is computed at each control instant and held for the period "
@@ -82,19 +82,64 @@ def push_experiment(push: Push, mode: str = "both", figures: str | Path | None =
     with ``figures`` a directory, the paper-like PNG figures written there."""
     force, duration, start, height = push.force, push.duration, push.start, push.height
     res = runs.push_run(push, mode, settings=settings)
-    ok, why = survival(res, push.end, noisy=noisy_sensing(settings), p_ref=p_reference(mode, push, settings))
+    rule, band = survival_rule(), trial_band(mode, push, settings)
+    v = rule.verdict(res, push.end, band)
     s = summarize(res, push_end=push.end)
     out = {"force": force, "duration": duration, "start": start, "mode": mode, "height": height,
-           "survived": ok, "reason": why, **s}
+           "survived": v.survived, "reason": v.reason, "band": band.as_dict(), "survival": rule.text(band), **s}
     if figures is not None:
         out["figures"] = [str(p) for p in push_figures(res, Path(figures), push,
                                                        title=f"{force:g} N, {duration * 1e3:g} ms at t = {start:g} s, mode {mode}")]
     return out
 
 
+def band_walk(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS) -> dict:
+    """The survival rule's band for trials of ``push``'s window (its force is not used) in ``mode``: the
+    unpushed walk of the trial's impacts (``runs.trial_steps``), per step its largest |p - p_d| [m] and
+    |tau' - 1| [-], the largest of each over every window of ``band_window`` consecutive steps, and the band."""
+    rule = survival_rule()
+    steps = runs.trial_steps(push)
+    res = runs.run(steps, mode, (), settings=settings, keep_records=True)
+    p_d = context().family.p_d
+    bounds = [0.0] + [float(i.t) for i in res.impacts]
+    per_step = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        w = [s for s in res.statuses if a <= s.t < b]
+        if w:
+            per_step.append({"p": max(abs(s.p - p_d) for s in w), "tau_dot": max(abs(s.tau_dot - 1.0) for s in w)})
+    W = rule.band_window
+    windows = [{"steps": [k + 1, k + W], "p": max(x["p"] for x in per_step[k:k + W]),
+                "tau_dot": max(x["tau_dot"] for x in per_step[k:k + W])} for k in range(len(per_step) - W + 1)]
+    band = rule.band_from_walk(res)
+    last = res.statuses[-1]
+    return {"mode": mode, "steps": steps, "fallen": bool(res.fallen), "fall_cause": res.fall_cause or None,
+            "settings": differences(settings), "rule": rule.identity(), "per_step": per_step, "windows": windows,
+            "end": {"p": float(last.p - p_d), "tau_dot": float(last.tau_dot - 1.0)},
+            "band": band.as_dict(), "survival": rule.text(band)}
+
+
+def print_band_walk(r: dict) -> None:
+    print(f"unpushed walk, mode {r['mode']}, {r['steps']} impacts" + (f": FELL ({r['fall_cause']})" if r["fallen"] else ""))
+    print("step  max|p - p_d| [m]  max|tau' - 1|")
+    for k, x in enumerate(r["per_step"], 1):
+        print(f"{k:4d}  {x['p']:16.3e}  {x['tau_dot']:13.3e}")
+    if r["windows"]:
+        ws = r["windows"]
+        print(f"windows of {r['rule']['band_window']} steps: max|p - p_d| {min(w['p'] for w in ws):.3e} .. "
+              f"{max(w['p'] for w in ws):.3e} m, max|tau' - 1| {min(w['tau_dot'] for w in ws):.3e} .. "
+              f"{max(w['tau_dot'] for w in ws):.3e}")
+    print(f"end: p - p_d {r['end']['p']:.3e} m, tau' - 1 {r['end']['tau_dot']:.3e}")
+    print(f"survival: {r['survival']}")
+
+
+def _verdict_word(r: dict) -> str:
+    return "SURVIVED" if r["survived"] else "FELL" if r["fallen"] else "FAILED (no fall, not back on the gait)"
+
+
 def print_push(r: dict) -> None:
     print(f"push {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s (+ forward, on the back), mode {r['mode']}")
-    print(f"  result: {'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
+    print(f"  result: {_verdict_word(r)} ({r['reason']})")
+    print(f"  survival: {r['survival']}")
     if r["fallen"]:
         print(f"  fall: {r['fall_cause']} at t = {r['fall_time']:.4f} s: {r['fall_detail']}")
     print(f"  steps walked {r['steps_walked']} ({r.get('impacts_after_push', 0)} after the push)")
@@ -272,7 +317,8 @@ def probe(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTIN
     res = pr.result
     force, duration, start, height = push.force, push.duration, push.start, push.height
     end = push.end
-    ok, why = survival(res, end)
+    v = survival_rule().verdict(res, end, trial_band(mode, push, settings))
+    ok, why = v.survived, v.reason
     rows = []
     for k, (rec, st) in enumerate(zip(res.records, res.statuses)):
         if rec.t < start - before - 1e-12 or rec.t > end + after + 1e-12:

@@ -11,7 +11,7 @@
     again in full, recording at every check after an impact the plant's distance to the gait's fixed point and the
     controller's p, p', tau', force estimate; per trial the impact where ``EarlyStop.decided`` first
     holds, whether the full trial survives, and the largest distances at the later impacts and at the
-    end, relative to the early-stop tolerances and to the survival criterion's P_TOL and TAU_DOT_TOL.
+    end, relative to the early-stop tolerances and to the survival rule's floors P_FLOOR and TAU_DOT_FLOOR (its band is never tighter).
 
 Pure: no ROS import.
 """
@@ -27,10 +27,10 @@ import numpy as np
 
 from biped_sim.plant.push import Push
 
-from biped_controller.studies.trial import runs, stop
+from biped_controller.studies.trial import runs, stop, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import RunSettings
-from biped_controller.studies.trial.survival import P_TOL, TAU_DOT_TOL, survival
+from biped_controller.studies.trial.survival import P_FLOOR, TAU_DOT_FLOOR, survival_rule
 from biped_controller.studies.capmap.spec import DIRECTIONS, onset_time
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.studies.executor import make_executor
@@ -93,7 +93,8 @@ def _impact_log(rec: dict, settings: RunSettings) -> dict:
     signed = DIRECTIONS[rec["direction"]] * float(rec["force"])
     push = Push(start, float(rec["duration"]), float(signed), rec.get("height"))
     res = runs.push_run(push, rec["mode"], settings=settings, keep_records=False, on_impact=log)
-    ok, why = survival(res, end)
+    v = survival_rule().verdict(res, end, trials.band(rec["mode"], push, settings))
+    ok, why = v.survived, v.reason
     last = res.statuses[-1]
     return {"key": [rec["mode"], rec["direction"], rec["phase"], rec["duration"], rec["force"]],
             "survived_full": ok, "reason_full": why, "impacts": rows,
@@ -122,8 +123,8 @@ def margins(records: list[dict], sample: int, seed: int, workers: int) -> dict:
             for name in tol:
                 worst[name] = max(worst[name], row[name] / tol[name])
             all_later_inside &= row["decided"]
-        worst_end["p"] = max(worst_end["p"], lg["end"]["p"] / P_TOL)
-        worst_end["tau_dot"] = max(worst_end["tau_dot"], lg["end"]["tau_dot"] / TAU_DOT_TOL)
+        worst_end["p"] = max(worst_end["p"], lg["end"]["p"] / P_FLOOR)
+        worst_end["tau_dot"] = max(worst_end["tau_dot"], lg["end"]["tau_dot"] / TAU_DOT_FLOOR)
     return {"early_stopped_in_store": len(stopped), "sample": len(pick), "seed": seed,
             "survived_in_full": sum(1 for lg in logs if lg["survived_full"]),
             "decided_at_the_same_impact": decided_where_stopped,

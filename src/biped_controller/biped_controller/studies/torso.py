@@ -38,7 +38,8 @@ from biped_controller.studies.trial.args import (StudyArgumentParser, modes_arg,
                                                  positive_float, positive_int)
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
-from biped_controller.studies.trial.survival import survival
+from biped_controller.studies.trial.settings import DEFAULT_SETTINGS
+from biped_controller.studies.trial.survival import FLOOR_BAND, survival_rule
 from biped_controller.studies.runner import RunResult, run
 from biped_controller.studies import provenance
 
@@ -55,7 +56,9 @@ def costs(runs: dict[str, RunResult], push_end: float) -> dict:
     horizon = min(r.records[-1].t_end for r in runs.values())
     out = {"horizon_s": horizon, "modes": {}}
     for m, r in runs.items():
-        ok, why = survival(r, push_end)
+        band = FLOOR_BAND if r.fallen else survival_rule().band(m, DEFAULT_SETTINGS, r.steps_walked)
+        v = survival_rule().verdict(r, push_end, band)
+        ok, why = v.survived, v.reason
         keep = [k for k, rec in enumerate(r.records) if rec.t < horizon]
         dt = np.array([min(r.records[k].t_end, horizon) - r.records[k].t for k in keep])
         tq = np.array([r.records[k].torque for k in keep])

@@ -22,11 +22,11 @@ then counts the steps after the push's end. With the early stop (``trial.stop.Ea
 config/studies.yaml; ``--full-trials`` turns it off) a trial back on the preferred gait one period after
 an impact after the push is decided there: survived, the outcome of the full trial (measured).
 
-Survival is the studies' rule (``trial.survival``): no fall until ``SURVIVAL_STEPS``
-impacts after the end of the push, and p back within ``P_TOL`` of p_d and tau' within ``TAU_DOT_TOL``
-of 1 at the end. With the early stop (``trial.stop.EarlyStop``, config/studies.yaml; ``--full-trials``
-turns it off) a trial back on the preferred gait one control period after an impact after the push ends
-there, survived: the outcome of the full trial (measured: docs/capability_map.md).
+Survival is the studies' one rule (``trial.survival``): no fall until ``SURVIVAL_STEPS`` impacts after
+the end of the push, and p and tau' back within the band of the same settings' unpushed walk at the end
+(never tighter than 1 mm and 1e-3). With the early stop (``trial.stop.EarlyStop``, config/studies.yaml;
+``--full-trials`` turns it off) a trial back on the preferred gait one control period after an impact
+after the push ends there, survived: the outcome of the full trial (measured: docs/capability_map.md).
 
 Search per cell (mode, direction, phase, duration), as ``trial.search.max_push_modes`` does it for one
 cell: the coarse forces ``trial.search.coarse_forces(max, coarse)`` (coarse, 2 coarse, ... <= max) are all
@@ -38,7 +38,10 @@ it (the islands: survival is not monotone in the force); then [lo, hi] is bisect
 largest survivable force below the lowest failing edge, known to within ``resolution``; a cell whose
 coarse scan never fails is *censored* (boundary >= max). The search is a pure function of the records
 of the cell (:func:`plan_cell`): it names the simulations still needed, so simulations of many cells run
-in parallel and an interrupted map resumes from the records it stored.
+in parallel and an interrupted map resumes from the records it stored. Once the boundary is known the
+cell's *no-fall edge* (the largest force without a fall below the first fall) is searched to the same
+resolution (:func:`~.search.plan_no_fall`: coarse forces upward from the first failing one to the first
+fall, then the bisection).
 
 Bracketed search (``search_from_neighbours`` of config/studies.yaml, ``--search
 neighbours|full``): the first phase of each (mode, direction, duration) row is searched as above; every
@@ -66,7 +69,7 @@ fall, ``p_not_back`` / ``tau_dot_not_back`` (not back on the preferred gait) or 
 Records: one JSON object per simulation, one per line (JSON Lines), appended as each simulation
 completes (:class:`RecordStore`); a rerun with the same store skips every simulation already stored for
 the same *fingerprint* (sha256 of the controller and simulator settings, the robot description, the gait
-family file, the survival criterion and the push height; records of another fingerprint stay in the file
+family file, the survival rule (floors, band factor and window), the early stop and the push height; records of another fingerprint stay in the file
 and are ignored). The code is not fingerprinted: after a change of the controller or the simulator that
 changes results, start a new store (the summary records the git commit and the modified files). A torn last line (a run killed while writing) is cut
 off. A notebook loads the file with ``load_records(path)`` or ``pandas.read_json(path, lines=True)``.

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 from biped_controller.studies.trial.settings import check_settings
-from biped_controller.studies.capmap.search import Boundary, coarse_edge, edge_index, plan_cell, remaining_estimate
+from biped_controller.studies.capmap.search import (Boundary, coarse_edge, edge_index, plan_cell, plan_no_fall,
+                                                    remaining_estimate)
 from biped_controller.studies.capmap.spec import Cell, MapError, MapSpec, SimSpec
 from biped_controller.studies.capmap.store import RecordStore, fingerprint
 from biped_controller.studies.capmap.task import record_key, simulate_batch
@@ -31,6 +32,11 @@ class MapRun:
     missing: list[Cell] = field(default_factory=list)   # cells whose search is incomplete (report only)
 
 
+def record_fell(rec: dict) -> bool:
+    """A record's trial fell (the plant's fall; a trial that did not settle did not fall)."""
+    return rec.get("fall_time") is not None
+
+
 def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batch: int = 1,
             progress: ProgressBar | None = None, simulate: bool = True) -> MapRun:
     """Find the boundary of every cell of ``spec``: simulations not yet in ``store`` (same fingerprint)
@@ -39,7 +45,7 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
     are known, at most two batches per executor slot in flight. With ``spec.neighbours`` a cell's search
     starts once its lower-phase neighbour's coarse edge is known (its islands and bisection may go on),
     bracketed from that edge
-    (``search.plan_cell``); the first phase of each (mode, direction, duration) row is searched in full.
+    (``search.plan_cell``), then its no-fall edge (``search.plan_no_fall``); the first phase of each (mode, direction, duration) row is searched in full.
     ``simulate=False``: nothing is run, the boundaries are those the store completes (the other cells are
     listed in ``MapRun.missing``). One map of :func:`run_maps`."""
     return run_maps([spec], executor, store, batch, progress, simulate)[0]
@@ -85,6 +91,7 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                 ignored[i] += 1
     resumed = [sum(len(recs[(j, c)]) for j, c in cells if j == i) for i in range(len(specs))]
     survived = {ic: {f: bool(r["survived"]) for f, r in recs[ic].items()} for ic in cells}
+    fell = {ic: {f: record_fell(r) for f, r in recs[ic].items()} for ic in cells}
     needs: dict[tuple, list[float]] = {}
     bounds: dict[tuple, Boundary] = {}
     dirty = set(cells)
@@ -123,6 +130,8 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                         edges[ic] = e
                         if ic in right:
                             dirty.add(right[ic])
+                if b is not None:          # the survival boundary found: then the no-fall edge
+                    forces, b = plan_no_fall(search, fell[ic], b)
                 if b is not None:
                     bounds[ic] = b
                     needs.pop(ic, None)
@@ -170,6 +179,7 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                     pending.discard((ic[0],) + s.key())
                     recs[ic][s.force] = r
                     survived[ic][s.force] = bool(r["survived"])
+                    fell[ic][s.force] = record_fell(r)
                     dirty.add(ic)
                 simulated[i] += len(out)
     finally:

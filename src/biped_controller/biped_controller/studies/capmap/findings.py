@@ -7,25 +7,29 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
 
+from biped_sim.plant.push import Push
+
 from biped_controller.core.control.controller import MODES
 from biped_controller.studies.trial import stop, survival
 from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.runs import DEFAULT_DURATION
+from biped_controller.studies.trial.runs import DEFAULT_DURATION, trial_steps
 from biped_controller.studies.trial.search import PAPER_MAX_PUSH
 from biped_controller.studies.trial.settings import differences
 from biped_controller.studies.capmap.driver import MapRun
 from biped_controller.studies.capmap.metrics import body_weight_fraction, com_velocity_change, impulse
 from biped_controller.studies.capmap.search import island_ranges
-from biped_controller.studies.capmap.spec import Cell, onset_time
+from biped_controller.studies.capmap.spec import Cell, MapSpec, onset_time
 
 
 def cell_summary(run: MapRun, cell: Cell) -> dict:
-    """One boundary, JSON-ready, with its conversions, failure cause and islands."""
+    """One boundary, JSON-ready, with its conversions, failure cause and islands, and the no-fall edge
+    (``no_fall_edge``, ``first_fall``: None censored, and its cause) at the same resolution."""
     ctx = context()
     M, g = ctx.desc.total_mass, ctx.desc.gravity
     b = run.boundaries[cell]
     d = cell.duration
     first = run.records[cell].get(b.hi) if b.hi is not None else None
+    first_fall = run.records[cell].get(b.no_fall_hi) if b.no_fall_hi is not None else None
     return {
         "mode": cell.mode, "direction": cell.direction, "phase": cell.phase,
         "start": onset_time(cell.phase, ctx.family.T), "duration": d,
@@ -38,12 +42,31 @@ def cell_summary(run: MapRun, cell: Cell) -> dict:
         "islands": list(b.islands), "islands_complete": b.full,
         "island_ranges": island_ranges(b.islands, run.spec.search.coarse),
         "island_impulses": [impulse(f, d) for f in b.islands],
+        "no_fall_edge": b.no_fall_lo, "first_fall": b.no_fall_hi,
+        "fall_cause": first_fall["cause"] if first_fall else None,
         "simulations": len(run.records[cell]),
     }
 
 
 def _fmt_phases(phases: Sequence[float]) -> str:
     return ", ".join(f"{p:g}" for p in phases) if phases else "none"
+
+
+def no_fall_agreement(bs: Sequence[dict], resolution: float) -> dict:
+    """Over cells ``bs``: the mean no-fall edge and the cells whose survival boundary is within one
+    ``resolution`` [N] of the no-fall edge (a censored no-fall edge counts when the boundary is censored
+    too), with the phases of the others."""
+    nf = [b for b in bs if b.get("no_fall_edge") is not None]
+    if not nf:
+        return {}
+    def close(b):
+        if b["first_fall"] is None:
+            return b["censored"]
+        return b["no_fall_edge"] - b["force"] <= resolution
+    return {"mean_no_fall_edge": sum(b["no_fall_edge"] for b in nf) / len(nf),
+            "cells_with_no_fall_edge": len(nf),
+            "cells_boundary_within_resolution_of_no_fall": sum(1 for b in nf if close(b)),
+            "phases_boundary_below_no_fall": [b["phase"] for b in nf if not close(b)]}
 
 
 def findings(boundaries: Sequence[dict], resolution: float) -> dict:
@@ -67,7 +90,8 @@ def findings(boundaries: Sequence[dict], resolution: float) -> dict:
             "max_force": hi, "weakest_phases": [b["phase"] for b in bs if b["force"] == lo],
             "strongest_phases": [b["phase"] for b in bs if b["force"] == hi],
             "censored_phases": [b["phase"] for b in bs if b["censored"]],
-            "min_impulse": impulse(lo, du), "min_delta_v_com": bs[fs.index(lo)]["delta_v_com"]})
+            "min_impulse": impulse(lo, du), "min_delta_v_com": bs[fs.index(lo)]["delta_v_com"],
+            **no_fall_agreement(bs, resolution)})
     dirs = sorted({b["direction"] for b in boundaries})
     durs = sorted({b["duration"] for b in boundaries})
     modes = [m for m in MODES if any(b["mode"] == m for b in boundaries)]
@@ -123,6 +147,10 @@ def findings_text(f: dict) -> list[str]:
         lines.append(f"  {w['mode']:<4} {w['direction']:<8} {w['duration']:g} s: min {w['min_force']:g} N at phase "
                      f"{_fmt_phases(w['weakest_phases'])} ({w['min_impulse']:.3g} N s, dv_com {w['min_delta_v_com']:.3g} m/s), "
                      f"mean {w['mean_force']:.1f}, max {w['max_force']:g} at {_fmt_phases(w['strongest_phases'])}{cens}")
+        if "mean_no_fall_edge" in w:
+            lines.append(f"       no-fall edge: mean {w['mean_no_fall_edge']:.1f} N; boundary within one resolution step "
+                         f"of it in {w['cells_boundary_within_resolution_of_no_fall']} of {w['cells_with_no_fall_edge']} "
+                         f"cells (below it at {_fmt_phases(w['phases_boundary_below_no_fall'])})")
     if f["p_vs_tau"]:
         lines.append("p vs tau (difference > resolution):")
         for x in f["p_vs_tau"]:
@@ -151,6 +179,14 @@ def findings_text(f: dict) -> list[str]:
     return lines
 
 
+def survival_bands(spec: MapSpec) -> dict:
+    """{mode: {trial impacts: the survival rule's band}} of the map's cells (``trial.survival``)."""
+    T = context().family.T
+    steps = sorted({trial_steps(Push(onset_time(c.phase, T), c.duration, 0.0)) for c in spec.cells()})
+    rule = survival.survival_rule()
+    return {m: {str(n): rule.band(m, spec.settings, n).as_dict() for n in steps} for m in spec.modes}
+
+
 def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
     """The summary JSON: the map, the robot's mass and weight, what the run did, every boundary, the
     findings and the figures."""
@@ -169,8 +205,8 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
                 "early_stop": (not s.settings.full_trials) and stop.early_stop().enabled,
                 "onset": f"start = phase * T of the first step, T = {ctx.family.T:g} s (walk starts at t = 0)",
                 "direction_sign": "forward = + force (on the back), backward = - force",
-                "survival": f"no fall for {survival.SURVIVAL_STEPS} steps after the push end, "
-                            f"|p - p_d| <= {survival.P_TOL} m and |tau' - 1| <= {survival.TAU_DOT_TOL} at the end"},
+                "survival": survival.rule_text(),
+                "survival_bands": survival_bands(s)},
         "fingerprint": run.fingerprint,
         "settings": differences(s.settings),
         "robot": {"mass": M, "gravity": g, "weight": M * g},

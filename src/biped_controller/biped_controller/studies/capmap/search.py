@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 from biped_controller.studies.trial.search import analyse_coarse
@@ -19,6 +19,8 @@ class Boundary:
     hi: float | None          # lowest failing force found (after bisection); None: censored
     islands: tuple[float, ...]
     full: bool = True
+    no_fall_lo: float | None = None    # the no-fall edge: largest force without a fall below the first fall
+    no_fall_hi: float | None = None    # the first fall found (after bisection); None: no fall up to the scan's top
 
 
 def _bisect(search: Search, survived: Mapping[float, bool], lo: float, hi: float, islands: tuple, full: bool):
@@ -140,6 +142,42 @@ def plan_cell(search: Search, survived: Mapping[float, bool], hint: float | None
     if st[0] == "bisect":
         return [0.5 * (st[1] + st[2])], None
     return [], st[1]
+
+
+def plan_no_fall(search: Search, fell: Mapping[float, bool], b: Boundary) -> tuple[list[float], Boundary | None]:
+    """The no-fall edge of a cell whose survival search ended in ``b``, as a pure function of its trials
+    (force [N] -> fell): either the forces still to simulate and None, or [] and ``b`` with the edge.
+
+    A fall fails the survival rule, so no force below the survival boundary's first failing coarse force
+    k0 c fell (the coarse scan or the bracket found them survived). From k0 c upward the coarse forces are
+    simulated until the first that fell, k c (none up to the scan's top: the edge is censored there,
+    ``no_fall_hi`` None); then [(k - 1) c (or 0), k c] is bisected at midpoints to the resolution, as the
+    survival boundary is: where the first failure is a fall the two bisections share their trials."""
+    if b.hi is None:                      # nothing failed: nothing fell either
+        return [], replace(b, no_fall_lo=b.lo, no_fall_hi=None)
+    coarse = search.coarse_forces()
+    c = search.coarse
+    k0 = int(edge_index(b, c))
+    lo = (k0 - 1) * c if k0 > 1 else 0.0
+    hi = None
+    for f in coarse[k0 - 1:]:
+        if f not in fell:
+            return [f], None
+        if fell[f]:
+            hi = f
+            break
+        lo = f
+    if hi is None:
+        return [], replace(b, no_fall_lo=lo, no_fall_hi=None)
+    while hi - lo > search.resolution:
+        mid = 0.5 * (lo + hi)
+        if mid not in fell:
+            return [mid], None
+        if fell[mid]:
+            hi = mid
+        else:
+            lo = mid
+    return [], replace(b, no_fall_lo=lo, no_fall_hi=hi)
 
 
 def bisection_steps(width: float, resolution: float) -> int:

@@ -27,7 +27,7 @@ class StoreError(MapError):
 def fingerprint(spec: MapSpec) -> str:
     """sha256 (16 hex digits) of everything a record depends on besides its own key and the code: the
     effective controller and simulator settings, the robot description, the gait family file, the
-    survival criterion, the early stop's settings (``config/studies.yaml``) and the push height. The code is not in it (the tree is edited by many hands, and
+    survival rule (its floors, band factor and window), the early stop's settings (``config/studies.yaml``) and the push height. The code is not in it (the tree is edited by many hands, and
     a comment must not void a map): after a change of the controller or the simulator that changes
     results, use a new store; every summary records the git commit and the modified files."""
     ctx = context()
@@ -36,8 +36,9 @@ def fingerprint(spec: MapSpec) -> str:
         "version": RECORD_VERSION,
         "settings": check_settings(spec.settings),
         "description": {k: v for k, v in asdict(ctx.desc).items() if k != "source"},
-        "survival": {"steps": survival.SURVIVAL_STEPS, "p_tol": survival.P_TOL,
-                     "tau_dot_tol": survival.TAU_DOT_TOL, "tau_dot_tol_noise": survival.TAU_DOT_TOL_NOISE},
+        # the rule's verdicts depend on its band's factor and window (config/studies.yaml) besides the settings
+        # hashed above (the band's unpushed walk is a function of those): a store is not resumed across them
+        "survival": survival.survival_rule().identity(),
         # the early stop decides outcomes too (a trial it ends is counted survived): a store made under other
         # tolerances (e.g. before early_stop_lambda existed, when mode lambda's cells were wrong) is not resumed
         "early_stop": asdict(stop.early_stop()),

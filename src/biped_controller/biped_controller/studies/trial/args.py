@@ -15,12 +15,15 @@ from biped_sim.robot.settings import SettingsError
 
 from biped_controller.core.control.controller import MODES, ControllerConfigError
 from biped_controller.studies.trial.settings import OverrideError, RunSettings, run_settings
+from biped_controller.studies.trial.stop import StudySettingsError
+from biped_controller.studies.trial.survival import survival_rule
 
 __all__ = ["StudyArgumentParser", "add_settings_args", "settings_from_args", "SETTINGS_ERRORS", "finite_float",
            "positive_float", "nonnegative_float", "positive_int", "nonnegative_int", "profile_arg", "modes_arg"]
 
 #: the errors a bad settings flag raises (each names the key or the profile)
-SETTINGS_ERRORS = (OverrideError, ProfileError, ControllerConfigError, SimConfigError, PerturbationError, SettingsError)
+SETTINGS_ERRORS = (OverrideError, ProfileError, ControllerConfigError, SimConfigError, PerturbationError, SettingsError,
+                   StudySettingsError)
 
 
 class StudyArgumentParser(argparse.ArgumentParser):
@@ -122,8 +125,10 @@ def add_settings_args(a: argparse.ArgumentParser, *, observer: bool = True, pert
 
 def settings_from_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> RunSettings:
     """The :class:`RunSettings` of the flags of :func:`add_settings_args`; a bad one is ``ap.error`` (exit
-    status 2) with the message naming the key or the profile."""
+    status 2) with the message naming the key or the profile; the survival rule's settings
+    (``config/studies.yaml``) are checked here too."""
     try:
+        survival_rule()
         return run_settings(getattr(args, "profile", None), getattr(args, "overrides", ()),
                             getattr(args, "observer", None), getattr(args, "perturb", ()),
                             getattr(args, "full_trials", False))

@@ -2,7 +2,9 @@
 one push window (start, duration, height, direction) and one or more modes; the table of the results.
 
 Survival need not be monotone in the force, so the search scans coarsely first, bisects the lowest
-failing edge, and reports every survivable coarse force above that edge ("islands").
+failing edge, and reports every survivable coarse force above that edge ("islands"). Two edges are
+searched at the same resolution: the survival boundary (the survival rule, :mod:`.survival`) and the
+no-fall edge (no fall, settled or not).
 """
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, check_settings, differences
-from biped_controller.studies.trial.survival import noisy_sensing, rule_text
+from biped_controller.studies.trial.survival import survival_rule
 
 #: The paper's largest survivable push [N] (250 N-class push on the back during 0.025 s at mid-step);
 #: mode "none" (classical computed torque) has no number in the paper.
@@ -31,57 +33,93 @@ def coarse_forces(fmax: float, coarse: float) -> list[float]:
     n = int(math.floor(fmax / coarse + 1e-9))
     return [coarse * k for k in range(1, n + 1)]
 
-def analyse_coarse(trials: list[dict]) -> tuple[float, float | None, list[float]]:
-    """(last survivable force below the first failure (0 if the first fails), first failing force or None,
-    survivable coarse forces above the first failure)."""
+def outcome(trial: dict, edge: str) -> bool:
+    """A trial's outcome for ``edge``: "survival" (the survival rule met) or "no_fall" (no fall)."""
+    if edge == "survival":
+        return bool(trial["survived"])
+    if edge == "no_fall":
+        return not trial["fell"]
+    raise ValueError(f"edge must be 'survival' or 'no_fall', got {edge!r}")
+
+
+def analyse_coarse(trials: list[dict], edge: str = "survival") -> tuple[float, float | None, list[float]]:
+    """For ``edge`` (:func:`outcome`): (last passing force below the first failure (0 if the first fails),
+    first failing force or None, passing coarse forces above the first failure)."""
     trials = sorted(trials, key=lambda r: r["force"])
     lo, hi = 0.0, None
     for r in trials:
-        if r["survived"]:
+        if outcome(r, edge):
             lo = r["force"]
         else:
             hi = r["force"]
             break
-    islands = [r["force"] for r in trials if hi is not None and r["force"] > hi and r["survived"]]
+    islands = [r["force"] for r in trials if hi is not None and r["force"] > hi and outcome(r, edge)]
     return lo, hi, islands
 
 
 def bisect_edge(mode: str, lo: float, hi: float, resolution: float, *, duration: float = DEFAULT_DURATION,
                 start: float = DEFAULT_START, height: float | None = None, progress=None,
-                sign: float = 1.0, settings: RunSettings = DEFAULT_SETTINGS) -> tuple[float, float, list[dict]]:
-    """Bisect the force magnitudes [lo (survives), hi (fails)] [N] down to ``resolution`` [N] for pushes over
-    [start, start + duration) [s] at ``height`` [m] (None: the simulator's), applied with ``sign`` (+1
-    forward). Returns (lo, hi, trials)."""
+                sign: float = 1.0, settings: RunSettings = DEFAULT_SETTINGS, edge: str = "survival",
+                known: dict[float, dict] | None = None) -> tuple[float, float, list[dict]]:
+    """Bisect the force magnitudes [lo (passes), hi (fails)] [N] of ``edge`` (:func:`outcome`) down to
+    ``resolution`` [N] for pushes over [start, start + duration) [s] at ``height`` [m] (None: the
+    simulator's), applied with ``sign`` (+1 forward). ``known``: trials already simulated, by force
+    magnitude (reused, and the new ones added). Returns (lo, hi, the trials simulated here)."""
     done = []
+    known = {} if known is None else known
     while hi - lo > resolution:
         mid = 0.5 * (lo + hi)
-        push = paper_push(sign * mid, start=start, duration=duration, height=height)
-        r = dict(trials.survives(push, mode, settings), force=mid)
-        done.append(r)
-        if progress:
-            progress()
-        if r["survived"]:
+        r = known.get(mid)
+        if r is None:
+            push = paper_push(sign * mid, start=start, duration=duration, height=height)
+            r = known[mid] = dict(trials.survives(push, mode, settings), force=mid)
+            done.append(r)
+            if progress:
+                progress()
+        if outcome(r, edge):
             lo = mid
         else:
             hi = mid
     return lo, hi, done
 
 
-def _bisect_task(args: tuple) -> tuple[str, float, float, list[dict]]:
-    mode, lo, hi, resolution, duration, start, height, sign, settings = args
-    a, b, tr = bisect_edge(mode, lo, hi, resolution, duration=duration, start=start, height=height, sign=sign,
-                           settings=settings)
-    return mode, a, b, tr
+def bisect_both(mode: str, coarse_trials: list[dict], resolution: float, *, duration: float = DEFAULT_DURATION,
+                start: float = DEFAULT_START, height: float | None = None, progress=None, sign: float = 1.0,
+                settings: RunSettings = DEFAULT_SETTINGS) -> dict:
+    """Both edges of one mode from its coarse trials (force magnitudes), each bisected to ``resolution``
+    [N]: the survival boundary and the no-fall edge (the bisections share their trials at equal forces).
+    Returns {edge: (lo, hi or None, islands)} and "trials": every bisection trial."""
+    known = {r["force"]: r for r in coarse_trials}
+    out: dict = {"trials": []}
+    for edge in ("survival", "no_fall"):
+        lo, hi, isl = analyse_coarse(coarse_trials, edge)
+        if hi is not None:
+            lo, hi, tr = bisect_edge(mode, lo, hi, resolution, duration=duration, start=start, height=height,
+                                     progress=progress, sign=sign, settings=settings, edge=edge, known=known)
+            out["trials"] += tr
+        out[edge] = (lo, hi, isl)
+    return out
 
 
-def _result_for(mode: str, coarse_trials: list[dict], lo: float, hi: float | None, bis: list[dict],
-                islands: list[float], fmax: float, resolution: float, coarse: float) -> dict:
-    trials = sorted(coarse_trials + bis, key=lambda r: r["force"])
+def _bisect_task(args: tuple) -> tuple[str, dict]:
+    mode, coarse_trials, resolution, duration, start, height, sign, settings = args
+    return mode, bisect_both(mode, coarse_trials, resolution, duration=duration, start=start, height=height,
+                             sign=sign, settings=settings)
+
+
+def _result_for(mode: str, coarse_trials: list[dict], edges: dict, fmax: float, resolution: float,
+                coarse: float) -> dict:
+    trials = sorted(coarse_trials + edges["trials"], key=lambda r: r["force"])
+    lo, hi, islands = edges["survival"]
+    nf_lo, nf_hi, nf_isl = edges["no_fall"]
     first_fail = next((r for r in trials if r["force"] == hi), None) if hi is not None else None
+    first_fall = next((r for r in trials if r["force"] == nf_hi), None) if nf_hi is not None else None
     return {
         "mode": mode, "max_force": lo, "first_failure": hi, "resolution": resolution, "coarse_step": coarse,
         "scan_max": fmax, "islands": islands, "paper": PAPER_MAX_PUSH.get(mode),
         "failure_cause": first_fail["reason"] if first_fail else None,
+        "no_fall_edge": nf_lo, "first_fall": nf_hi, "no_fall_islands": nf_isl,
+        "fall_cause": first_fall["reason"] if first_fall else None,
         "trials": trials,
     }
 
@@ -100,45 +138,31 @@ def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float 
     forces = coarse_forces(fmax, coarse)
     tasks = [(paper_push(sign * f, start=start, duration=duration, height=height), m, settings)
              for m in modes for f in forces]
-    bis_est = len(modes) * max(0, math.ceil(math.log2(max(coarse / resolution, 1.0))))
+    bis_est = 2 * len(modes) * max(0, math.ceil(math.log2(max(coarse / resolution, 1.0))))
     bar = CountingBar(len(tasks) + bis_est, ProgressBar(sys.stderr if progress else None,
                                                         label="max-push " + ",".join(modes)))
     ex = make_executor(workers, initializer=context)
     try:
         coarse_res = ex.map(_trial, [(t,) for t in tasks], on_result=lambda r: bar())
-        per_mode = {}
-        bis_tasks = []
-        for m in modes:
-            tr = [dict(r, force=abs(r["force"])) for r in coarse_res if r["mode"] == m]
-            lo, hi, isl = analyse_coarse(tr)
-            per_mode[m] = (tr, lo, hi, isl)
-            if hi is not None:
-                bis_tasks.append((m, lo, hi, resolution, duration, start, height, sign, settings))
-        bis_out = {}
+        per_mode = {m: [dict(r, force=abs(r["force"])) for r in coarse_res if r["mode"] == m] for m in modes}
+        bis_tasks = [(m, per_mode[m], resolution, duration, start, height, sign, settings) for m in modes]
         if workers > 1 and len(bis_tasks) > 1:
-            for mode, lo, hi, tr in ex.map(_bisect_task, [(t,) for t in bis_tasks], on_result=lambda r: bar(len(r[3]))):
-                bis_out[mode] = (lo, hi, tr)
+            edges = dict(ex.map(_bisect_task, [(t,) for t in bis_tasks], on_result=lambda r: bar(len(r[1]["trials"]))))
         else:
-            for (m, lo, hi, res_, d, s0, h, sg, st) in bis_tasks:
-                bis_out[m] = bisect_edge(m, lo, hi, res_, duration=d, start=s0, height=h, progress=bar, sign=sg,
-                                         settings=st)
+            edges = {m: bisect_both(m, per_mode[m], resolution, duration=duration, start=start, height=height,
+                                    progress=bar, sign=sign, settings=settings) for m in modes}
     finally:
         ex.close()
     bar.close()
+    rule = survival_rule()
     results = {}
     for m in modes:
-        tr, lo, hi, isl = per_mode[m]
-        if m in bis_out:
-            lo, hi, bt = bis_out[m]
-        else:
-            bt = []
-        results[m] = _result_for(m, tr, lo, hi, bt, isl, fmax, resolution, coarse)
+        results[m] = _result_for(m, per_mode[m], edges[m], fmax, resolution, coarse)
         results[m]["direction"] = "forward" if sign > 0 else "backward"
+        band = trials.band(m, paper_push(0.0, start=start, duration=duration, height=height), settings)
         results[m].update(duration=duration, start=start, height=height, settings=differences(settings),
                           push_height=settings.sim_config().push_height if height is None else height,
-                          noisy_sensing=noisy_sensing(settings),
-                          p_reference=trials.p_reference(m, paper_push(0.0, start=start, duration=duration,
-                                                                       height=height), settings))
+                          band=band.as_dict(), survival=rule.text(band))
     return results
 
 
@@ -163,16 +187,20 @@ def ordering_finding(results: dict[str, dict]) -> str:
 
 
 def print_max_push(results: dict[str, dict]) -> None:
-    """The table of :func:`max_push_modes`'s results, with the push, the search and the survival rule."""
-    print(f"{'mode':<6} {'max force [N]':>13} {'first fail [N]':>14} {'paper [N]':>9} {'islands (coarse) [N]':<24} cause of the first failure")
+    """The table of :func:`max_push_modes`'s results: per mode the survival boundary and the no-fall edge
+    (both bisected to the same resolution), with the push, the search and the survival rule's band."""
+    print(f"{'mode':<6} {'max force [N]':>13} {'first fail [N]':>14} {'no-fall edge [N]':>16} {'first fall [N]':>14} "
+          f"{'paper [N]':>9} {'islands (coarse) [N]':<22} cause of the first failure")
     for m, r in results.items():
         paper = "-" if r["paper"] is None else f"{r['paper']:g}"
         ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g}"
+        fl = "none" if r["first_fall"] is None else f"{r['first_fall']:g}"
         isl = ", ".join(f"{x:g}" for x in r["islands"]) or "-"
-        print(f"{m:<6} {r['max_force']:13g} {ff:>14} {paper:>9} {isl:<24} {r['failure_cause'] or '-'}")
+        print(f"{m:<6} {r['max_force']:13g} {ff:>14} {r['no_fall_edge']:16g} {fl:>14} {paper:>9} {isl:<22} "
+              f"{r['failure_cause'] or '-'}")
     r0 = next(iter(results.values()))
     print(f"(push {r0['direction']} for {r0['duration']:g} s from t = {r0['start']:g} s at {r0['push_height']:g} m "
-          f"above the hip; coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, edge bisected to "
-          f"{r0['resolution']:g} N; survival = {rule_text(bool(r0.get('noisy_sensing')), r0.get('p_reference'))})")
-
-
+          f"above the hip; coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, both edges bisected to "
+          f"{r0['resolution']:g} N)")
+    for m, r in results.items():
+        print(f"survival, {m}: {r['survival']}")

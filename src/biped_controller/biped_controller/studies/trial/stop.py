@@ -34,8 +34,9 @@ class EarlyStop:
     ``force`` [N] of 0, and its torso offset (modes lambda and all; 0 in the others) within ``lam``
     [rad] and ``lam_dot`` [rad/s] of 0: the offset's profile phi vanishes at the impact, so q and q' do not
     show lambda there, and in mode lambda p and tau' never leave the gait's. The rest of the trial would be the undisturbed walk from such a state, which walks
-    on and ends with p, tau' inside ``survival.P_TOL``, ``survival.TAU_DOT_TOL`` (measured: docs/capability_map.md,
-    "Early stop"). Applied to the nominal plant with ideal sensors only (the measurement's plant): a
+    on and ends with p, tau' inside the survival rule's floors ``survival.P_FLOOR``, ``survival.TAU_DOT_FLOOR``,
+    hence inside every band of the rule (measured: docs/capability_map.md, "Early stop"); ``p`` and ``tau_dot``
+    are half the floors. Applied to the nominal plant with ideal sensors only (the measurement's plant): a
     perturbed plant's trial runs in full."""
 
     enabled: bool

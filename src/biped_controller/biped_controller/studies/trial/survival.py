@@ -1,70 +1,205 @@
-"""The survival rule of a pushed run (pure: it judges a finished ``RunResult``, it runs nothing).
+"""The survival rule of a pushed run: the one rule of every study, on both plants and every profile.
 
-A pushed run survives when it does not fall until ``SURVIVAL_STEPS`` impacts after the end of the push,
-and at the end of the run p is within ``P_TOL`` [m] of its reference and tau' within ``TAU_DOT_TOL`` of 1
-(the robot is back on its preferred gait). The p reference is p_d, or under model error (a plant whose
-masses, centres of mass or inertias differ from the controller's description) the p of the unpushed walk
-with the same settings at the same instant (``trials.p_reference``): on MuJoCo with the inertias 30 %
-larger the unpushed robot walks with p 1.2-1.4 mm short of p_d after 11 steps. With noisy or quantised
-sensors tau' is compared with the band ``TAU_DOT_TOL_NOISE`` instead: the controller's tau' follows its
-estimate of the state and never settles exactly (an undisturbed walk under the design-point noise leaves
-1 by up to 0.018, docs/robustness.md), so a pushed robot is back when it is as close to the gait as an
-unpushed one under the same noise.
+A pushed run *survives* when
+
+1. it does not fall (the plant's own fall definition: ``RunResult.fallen``) until ``SURVIVAL_STEPS``
+   impacts after the end of the push, and
+2. at the end of the run it is back on the preferred gait: |p - p_d| <= ``band.p_tol`` [m] and
+   |tau' - 1| <= ``band.tau_dot_tol`` [-], on the controller's last decided p and tau'.
+
+The *band* is the one of the same plant, profile, settings, mode and perturbation without the push: the
+unpushed walk of the same number of impacts is run once, and over its last ``band_window`` steps (every
+control period from impact N - W to the end, N the trial's impacts) its excursions e_p = max |p - p_d| and
+e_tau = max |tau' - 1| are taken; then
+
+    p_tol = max(P_FLOOR, k e_p),   tau_dot_tol = max(TAU_DOT_FLOOR, k e_tau)
+
+with k = ``band_factor`` and W = ``band_window`` from ``config/studies.yaml`` (argued there). The floors,
+1 mm and 1e-3, are the strict rule's tolerances: a band is never tighter. Where the unpushed walk settles
+exactly (the rigid plant, ideal sensors, nominal model) the band is the floors and the rule is the strict
+one; under sensor noise, model error (p settles off p_d) or MuJoCo's contact the band is as wide as the
+unpushed robot's own wander, so none of them needs a rule of its own. When the unpushed walk itself falls,
+no band can be measured and the floors are used (``Band.unpushed_fall`` says so).
+
+A run that does not fall but is not back within the band *survived without settling*: ``Verdict.fell``
+False, ``Verdict.survived`` False. The *no-fall edge* of a search counts such runs as not fallen; the
+*survival boundary* counts them as failures (``trial.search``).
+
+The early stop (:mod:`.stop`) declares a trial survived only within tolerances below the floors, hence
+within every band.
 """
 from __future__ import annotations
 
-from dataclasses import replace
+import functools
+import math
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from biped_sim.robot.settings import default_config_dir, read_settings
 
 from biped_controller.studies.runner import RunResult
 from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.settings import RunSettings
+from biped_controller.studies.trial.settings import RunSettings, _config_stamp
+from biped_controller.studies.trial.stop import StudySettingsError
 
 SURVIVAL_STEPS = 10             # impacts that must follow the end of the push
-P_TOL = 1e-3                    # |p - p_ref| at the end of a survived run [m]
-TAU_DOT_TOL = 1e-3              # |tau' - 1| at the end of a survived run [-]
-TAU_DOT_TOL_NOISE = 0.02        # |tau' - 1| at the end of a survived run with noisy sensors [-]
+P_FLOOR = 1e-3                  # the band's smallest |p - p_d| at the end of a survived run [m]
+TAU_DOT_FLOOR = 1e-3            # the band's smallest |tau' - 1| at the end of a survived run [-]
+
+# the names the studies used before the band (the floors are those tolerances)
+P_TOL = P_FLOOR
+TAU_DOT_TOL = TAU_DOT_FLOOR
 
 
-def noisy_sensing(settings: RunSettings) -> bool:
-    """The run's sensors are noisy or quantised (survival then uses the noise band for tau')."""
-    p = settings.perturbation
-    return p is not None and bool(p.noise_q or p.noise_qd or p.encoder_bits or p.noise_pitch)
+class SurvivalSettingsError(StudySettingsError):
+    """``config/studies.yaml``'s survival band settings are out of range (the message names the key)."""
 
 
-def model_error(settings: RunSettings) -> bool:
-    """The run's plant differs from the controller's description in its masses, centres of mass or inertias
-    (friction, sensing and delay are not model error here)."""
-    p = settings.perturbation
-    return p is not None and not replace(p, mu=None).model_is_nominal
+@dataclass(frozen=True)
+class Band:
+    """The end tolerances of a survival trial: |p - p_d| <= ``p_tol`` [m], |tau' - 1| <= ``tau_dot_tol``;
+    ``p_excursion`` [m] and ``tau_dot_excursion`` the unpushed walk's over the window (NaN when it fell);
+    ``unpushed_fall`` the unpushed walk's fall ("" when it walked)."""
+
+    p_tol: float
+    tau_dot_tol: float
+    p_excursion: float
+    tau_dot_excursion: float
+    unpushed_fall: str = ""
+
+    @property
+    def is_floor(self) -> bool:
+        """The band is the floors (the strict rule)."""
+        return self.p_tol == P_FLOOR and self.tau_dot_tol == TAU_DOT_FLOOR
+
+    def as_dict(self) -> dict:
+        def f(x):
+            return None if not math.isfinite(x) else float(x)
+        return {"p_tol": self.p_tol, "tau_dot_tol": self.tau_dot_tol, "p_excursion": f(self.p_excursion),
+                "tau_dot_excursion": f(self.tau_dot_excursion), "unpushed_fall": self.unpushed_fall}
 
 
-def survival(result: RunResult, push_end: float, steps_after: int = SURVIVAL_STEPS, noisy: bool = False,
-             p_ref: float | None = None) -> tuple[bool, str]:
-    """(survived, reason) by the rule of the module docstring for a push that ended at ``push_end`` [s]
-    (``noisy``: the band for noisy sensors; ``p_ref`` [m]: the unpushed walk's p under model error, None:
-    p_d)."""
-    fam = context().family
-    tau_tol = TAU_DOT_TOL_NOISE if noisy else TAU_DOT_TOL
-    if result.fallen:
-        return False, f"fell: {result.fall_cause} at t = {result.fall_time:.4f} s"
-    after = sum(1 for i in result.impacts if i.t >= push_end)
-    if after < steps_after:
-        return False, f"only {after} steps after the push (time limit)"
-    last = result.statuses[-1]
-    if p_ref is not None:
-        if not abs(last.p - p_ref) <= P_TOL:
-            return False, f"p = {last.p:.5f} m not back to the unpushed walk's {p_ref:.5f} m (> {P_TOL})"
-    elif abs(last.p - fam.p_d) > P_TOL:
-        return False, f"p = {last.p:.5f} m not back to p_d (|p - p_d| > {P_TOL})"
-    if abs(last.tau_dot - 1.0) > tau_tol:
-        return False, f"tau' = {last.tau_dot:.5f} not back to 1 (> {tau_tol})"
-    return True, "survived"
+FLOOR_BAND = Band(P_FLOOR, TAU_DOT_FLOOR, math.nan, math.nan)
 
 
-def rule_text(noisy: bool = False, p_reference: float | None = None) -> str:
-    """The rule in words, with its tolerances (for tables)."""
-    p = (f"|p - p_d| <= {P_TOL} m" if p_reference is None
-         else f"|p - p_ref| <= {P_TOL} m (p_ref = {p_reference:.5f} m: the unpushed walk's, model error)")
-    tau = (f"|tau' - 1| <= {TAU_DOT_TOL_NOISE} at the end, the band for noisy sensors" if noisy
-           else f"|tau' - 1| <= {TAU_DOT_TOL} at the end")
-    return f"no fall for {SURVIVAL_STEPS} steps after the push, {p} and {tau}"
+@dataclass(frozen=True)
+class Verdict:
+    """A survival trial's outcome: ``survived`` (rule met), ``fell`` (the plant's fall before the run's
+    end), ``reason`` in words ("survived", "fell: ...", "only N steps ...", "p = ... not back ...",
+    "tau' = ... not back ...")."""
+
+    survived: bool
+    fell: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class SurvivalRule:
+    """The rule of the module docstring: ``steps`` impacts after the push, the band's factor k
+    (``band_factor``) and window W [steps] (``band_window``)."""
+
+    steps: int
+    band_factor: float
+    band_window: int
+
+    KEYS = ("survival_band_factor", "survival_band_window")
+
+    @classmethod
+    def load(cls, path: str | os.PathLike | None = None) -> "SurvivalRule":
+        """The rule with ``config/studies.yaml``'s band settings (``path``: another file); a value out of
+        range raises :class:`SurvivalSettingsError` naming the key."""
+        p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
+        v = read_settings(p, cls.KEYS)
+        return cls.of(v["survival_band_factor"], v["survival_band_window"], source=str(p))
+
+    @classmethod
+    def of(cls, band_factor: object, band_window: object, source: str = "survival rule") -> "SurvivalRule":
+        """The rule with these band settings, checked: k a finite number >= 1 (a band narrower than the
+        unpushed walk's own excursion would fail the unpushed walk), W an integer in [1, SURVIVAL_STEPS]."""
+        k, w = band_factor, band_window
+        if isinstance(k, bool) or not isinstance(k, (int, float)) or not (math.isfinite(k) and k >= 1.0):
+            raise SurvivalSettingsError(f"{source}: 'survival_band_factor' must be a finite number >= 1, got {k!r}")
+        if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= SURVIVAL_STEPS:
+            raise SurvivalSettingsError(
+                f"{source}: 'survival_band_window' must be an integer in [1, {SURVIVAL_STEPS}], got {w!r}")
+        return cls(SURVIVAL_STEPS, float(k), int(w))
+
+    def identity(self) -> dict:
+        """JSON-ready: what the rule's verdicts depend on besides the band's unpushed walk."""
+        return {"steps": self.steps, "p_floor": P_FLOOR, "tau_dot_floor": TAU_DOT_FLOOR,
+                "band_factor": self.band_factor, "band_window": self.band_window}
+
+    # ------------------------------------------------------------------------------------------ band
+    def band_from_walk(self, walk: RunResult) -> Band:
+        """The band of an unpushed walk (records kept): the floors or k times its excursion over the last
+        ``band_window`` steps, whichever is wider."""
+        if walk.fallen:
+            return replace(FLOOR_BAND, unpushed_fall=f"{walk.fall_cause} at t = {walk.fall_time:.4f} s")
+        p_d = context().family.p_d
+        imps = walk.impacts
+        t0 = imps[len(imps) - self.band_window - 1].t if len(imps) > self.band_window else -math.inf
+        win = [s for s in walk.statuses if s.t >= t0]
+        e_p = max(abs(s.p - p_d) for s in win)
+        e_tau = max(abs(s.tau_dot - 1.0) for s in win)
+        return Band(max(P_FLOOR, self.band_factor * e_p), max(TAU_DOT_FLOOR, self.band_factor * e_tau), e_p, e_tau)
+
+    def band(self, mode: str, settings: RunSettings, steps: int) -> Band:
+        """The band of a trial of ``steps`` impacts in ``mode`` with ``settings`` (plant, profile,
+        perturbation): its unpushed walk run once per process (cached)."""
+        return _band(self, mode, replace(settings, full_trials=False), int(steps), _config_stamp())
+
+    # ------------------------------------------------------------------------------------------ verdict
+    def verdict(self, result: RunResult, push_end: float, band: Band = FLOOR_BAND) -> Verdict:
+        """The verdict on ``result``, a run pushed until ``push_end`` [s], with ``band``."""
+        fam = context().family
+        if result.fallen:
+            return Verdict(False, True, f"fell: {result.fall_cause} at t = {result.fall_time:.4f} s")
+        after = sum(1 for i in result.impacts if i.t >= push_end)
+        if after < self.steps:
+            return Verdict(False, False, f"only {after} steps after the push (time limit)")
+        last = result.statuses[-1]
+        if not abs(last.p - fam.p_d) <= band.p_tol:
+            return Verdict(False, False, f"p = {last.p:.5f} m not back to p_d (|p - p_d| > {band.p_tol:.3g} m)")
+        if not abs(last.tau_dot - 1.0) <= band.tau_dot_tol:
+            return Verdict(False, False, f"tau' = {last.tau_dot:.5f} not back to 1 (> {band.tau_dot_tol:.3g})")
+        return Verdict(True, False, "survived")
+
+    def text(self, band: Band | None = None) -> str:
+        """The rule in words, with a trial's band (None: the band's definition)."""
+        head = f"no fall for {self.steps} steps after the push, then "
+        if band is None:
+            return (head + f"|p - p_d| <= max({P_FLOOR:g} m, {self.band_factor:g} e_p) and |tau' - 1| <= "
+                    f"max({TAU_DOT_FLOOR:g}, {self.band_factor:g} e_tau), e = the unpushed walk's largest "
+                    f"excursion over its last {self.band_window} steps")
+        src = ("the floors: the unpushed walk fell (" + band.unpushed_fall + ")" if band.unpushed_fall
+               else "the floors" if band.is_floor
+               else f"{self.band_factor:g} x the unpushed walk's excursion over its last {self.band_window} steps")
+        return head + f"|p - p_d| <= {band.p_tol:.3g} m and |tau' - 1| <= {band.tau_dot_tol:.3g} ({src})"
+
+
+@functools.lru_cache(maxsize=256)
+def _band(rule: SurvivalRule, mode: str, settings: RunSettings, steps: int, stamp: tuple) -> Band:
+    from biped_controller.studies.trial import runs      # runs imports this module's SURVIVAL_STEPS
+    return rule.band_from_walk(runs.run(steps, mode, (), settings=settings, keep_records=True))
+
+
+@functools.lru_cache(maxsize=4)
+def _rule(stamp: int) -> SurvivalRule:
+    return SurvivalRule.load()
+
+
+def survival_rule() -> SurvivalRule:
+    """``config/studies.yaml``'s survival rule, read again whenever the file changed."""
+    return _rule(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
+
+
+def survival(result: RunResult, push_end: float, band: Band = FLOOR_BAND) -> tuple[bool, str]:
+    """(survived, reason): :meth:`SurvivalRule.verdict` of this process's rule."""
+    v = survival_rule().verdict(result, push_end, band)
+    return v.survived, v.reason
+
+
+def rule_text(band: Band | None = None) -> str:
+    """:meth:`SurvivalRule.text` of this process's rule."""
+    return survival_rule().text(band)

@@ -1,8 +1,7 @@
 """One survival trial: a pushed run, ended early once decided (:mod:`.stop`), judged by the survival rule
-(:mod:`.survival`)."""
+(:mod:`.survival`) with the band of its unpushed walk."""
 from __future__ import annotations
 
-import functools
 import math
 
 from biped_sim.plant.push import Push
@@ -11,23 +10,13 @@ from biped_controller.studies import runner
 from biped_controller.studies.trial import runs, stop
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
-from biped_controller.studies.trial.survival import model_error, noisy_sensing, survival
+from biped_controller.studies.trial.survival import Band, survival_rule
 
 
-@functools.lru_cache(maxsize=32)
-def reference_p(mode: str, steps: int, settings: RunSettings) -> float:
-    """p [m] at the end of the unpushed walk of ``steps`` impacts with ``settings`` (the survival rule's
-    reference under model error); NaN when that walk falls."""
-    res = runs.run(steps, mode, (), settings=settings, keep_records=False)
-    return math.nan if res.fallen else float(res.statuses[-1].p)
-
-
-def p_reference(mode: str, push: Push, settings: RunSettings) -> float | None:
-    """The survival rule's p reference for a trial of ``push``: the unpushed walk's (:func:`reference_p`,
-    same number of impacts) under model error, None (p_d) otherwise."""
-    if not model_error(settings):
-        return None
-    return reference_p(mode, runs.trial_steps(push), settings)
+def band(mode: str, push: Push, settings: RunSettings) -> Band:
+    """The survival rule's band for a trial of ``push`` in ``mode`` with ``settings``: the unpushed walk's of
+    the same impacts (``runs.trial_steps``), computed once per process."""
+    return survival_rule().band(mode, settings, runs.trial_steps(push))
 
 
 def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
@@ -36,7 +25,7 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
     early stop (``config/studies.yaml``, unless ``settings.full_trials`` or a perturbed plant) the trial
     ends at the first impact where its outcome is decided (``stop.EarlyStop``): survived,
     ``decided_at_step`` = the impacts walked by then; otherwise ``decided_at_step`` is None (the trial ran
-    in full). Under sensor noise survival uses the noise band. ``pool`` True: this process's
+    in full). ``fell``: the plant's fall before the end (the no-fall edge's outcome). ``pool`` True: this process's
     ``runs.loop_pool`` (the loop and the walk up to the push reused, the outcome bit-identical); a
     ``runner.LoopPool``; None or False: a new plant and controller, walked from t = 0."""
     end = push.start + push.duration
@@ -59,9 +48,10 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
     res = runs.push_run(push, mode, settings=settings, keep_records=False, on_impact=on_impact, pool=pool)
     decided = bool(fired) and not res.fallen
     if decided:
-        ok, why = True, "survived"
+        ok, fell, why = True, False, "survived"
     else:
-        ok, why = survival(res, end, noisy=noisy_sensing(settings), p_ref=p_reference(mode, push, settings))
-    return {"force": float(push.force), "mode": mode, "survived": ok, "reason": why,
+        v = survival_rule().verdict(res, end, band(mode, push, settings))
+        ok, fell, why = v.survived, v.fell, v.reason
+    return {"force": float(push.force), "mode": mode, "survived": ok, "fell": fell, "reason": why,
             "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
             "steps_walked": int(res.steps_walked), "decided_at_step": int(res.steps_walked) if decided else None}
