@@ -98,3 +98,18 @@ def test_no_mujoco_snapshot_with_a_sensor_model_or_a_trace():
     loop.sim.trace = []
     with pytest.raises(SnapshotUnsupported, match="trace"):
         loop.sim.snapshot()
+
+
+@pytest.mark.parametrize("mode,force", [("both", 300.0), ("both", 1500.0), ("hybrid", 300.0)])
+def test_outcome_only_mujoco_run_keeps_the_last_record_and_status_of_the_full_run(mode, force):
+    """Without the compiled loop an outcome-only run keeps the last period's record and status (the status
+    built once at the end): the same objects, hash for hash, as the last ones of the run that keeps every
+    period; the impacts and the outcome are the same."""
+    ctx = tcontext.context()
+    push = (Push(0.5 * ctx.family.T, 0.025, force),)
+    kw = dict(sim_config=MUJOCO.sim_config(), ctrl_config=MUJOCO.ctrl_config(mode), family=ctx.family, desc=ctx.desc)
+    full = runner.run(4, mode, push, **kw)
+    lean = runner.run(4, mode, push, keep_records=False, **kw)
+    assert len(lean.records) == len(lean.statuses) == 1 and len(full.records) > 200
+    assert digest(full.records[-1:], full.statuses[-1:], full.impacts, full) == \
+        digest(lean.records, lean.statuses, lean.impacts, lean)

@@ -60,7 +60,8 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     period by period (tested); the objects take every period with a QP, an impact or a fall.
     ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
     objects ran and the run's last period -- the run's outcome (fall, impacts, the last status) is the
-    same, the time series is not there. The compiled loop also takes the periods that need the QP: the
+    same, the time series is not there; without the compiled loop (the MuJoCo plant) they keep the run's last
+    period only, its status built once at the end. The compiled loop also takes the periods that need the QP: the
     controller decides them between two calls (``Segment.decide``), the objects take the impacts,
     the falls and the modes whose whole-body stage follows a QP.
 
@@ -169,6 +170,19 @@ class ClosedLoop:
         g = last_grid_before(t_push, dt)
         seg = self._segment(compiled_loop, False, False)
         seen, pending = sim.impact_count, False
+        ctrl.build_status = False          # the walk's statuses are not kept
+        try:
+            pending = self._walk(t_push, g, seg, seen, pending)
+        finally:
+            ctrl.build_status, ctrl._pending_status = True, None
+        if sim.fall is not None:
+            raise RuntimeError(f"walk_to({t_push}): the undisturbed walk fell at t = {sim.fall.t} s ({sim.fall.cause})")
+        return self.snapshot(pending)
+
+    def _walk(self, t_push: float, g: float, seg: Segment | None, seen: int, pending: bool) -> bool:
+        """:meth:`walk_to`'s loop; returns the early-stop bookkeeping's ``pending`` at its end."""
+        sim, ctrl = self.sim, self.ctrl
+        dt = self.scfg.control_period
         while grid_end(sim.t, dt) <= t_push and sim.fall is None:
             if seg is not None:
                 recs, _ = seg.run(g)
@@ -185,9 +199,7 @@ class ClosedLoop:
                 pending = False
             if sim.impact_count > seen:
                 seen, pending = sim.impact_count, True
-        if sim.fall is not None:
-            raise RuntimeError(f"walk_to({t_push}): the undisturbed walk fell at t = {sim.fall.t} s ({sim.fall.cause})")
-        return self.snapshot(pending)
+        return pending
 
     def run(self, steps: int, pushes: tuple[Push, ...] = (), *, limit: float, integration_rate: bool = False,
             extra_time_after_steps: float = 0.0, compiled_loop: bool = True, keep_records: bool = True,
@@ -202,6 +214,32 @@ class ClosedLoop:
         records, statuses, qps = [], [], []
         keep_qp = self.keep_qp
         seg = self._segment(compiled_loop, keep_records, integration_rate)
+        # outcome only without the compiled loop (the MuJoCo plant's sweeps): the objects keep the last
+        # period's record and status only, and the controller builds that status once, at the end
+        lean = seg is None and not keep_records and not keep_qp
+        if lean:
+            ctrl.build_status, ctrl._pending_status = False, None
+        try:
+            self._run_periods(steps, limit, integration_rate, extra_time_after_steps, on_impact, seen, pending,
+                              seg, lean, keep_records, records, statuses, qps)
+        finally:
+            ctrl.build_status = True
+        if lean:
+            last = ctrl.last_status()
+            ctrl._pending_status = None
+            statuses += [last] if last is not None else []
+        fall = sim.fall
+        return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
+                         fallen=fall is not None, fall_cause=fall.cause if fall else "",
+                         fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
+                         impacts=list(sim.impact_log), qp_instances=qps)
+
+    def _run_periods(self, steps, limit, integration_rate, extra_time_after_steps, on_impact, seen, pending, seg,
+                     lean, keep_records, records, statuses, qps) -> None:
+        """:meth:`run`'s loop (its arguments; ``lean``: keep only the last record, statuses left to the
+        controller's ``last_status``), filling ``records``, ``statuses``, ``qps``."""
+        sim, ctrl = self.sim, self.ctrl
+        keep_qp = self.keep_qp
         again = False
         decision = None
         last_in_seg = False       # the last period run so far was the compiled loop's
@@ -238,14 +276,18 @@ class ClosedLoop:
             last_in_seg = False
             obs = sim.observe()
             out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
-            statuses.append(out.status)
+            if not lean:
+                statuses.append(out.status)
             if keep_qp and out.G is not None:
                 qps.append((out.G, out.h, out.x_star, out.status.qp_status))
             if integration_rate:
                 rec = sim.step(lambda s, q, qd, st: ctrl.torque_within_period(s, q, qd, st))
             else:
                 rec = sim.step(out.torque)
-            records.append(rec)
+            if lean:
+                records[:] = (rec,)
+            else:
+                records.append(rec)
             if rec.fallen or sim.fall is not None:
                 break
             if pending and sim.impact_count == seen:
@@ -263,11 +305,6 @@ class ClosedLoop:
             recs, stats = seg.last()
             records += recs
             statuses += stats
-        fall = sim.fall
-        return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
-                         fallen=fall is not None, fall_cause=fall.cause if fall else "",
-                         fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
-                         impacts=list(sim.impact_log), qp_instances=qps)
 
 
 class LoopPool:

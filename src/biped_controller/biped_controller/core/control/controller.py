@@ -430,6 +430,11 @@ class AdaptiveController:
             from biped_sim.robot.fast_engine import FastFixedFootModel   # compiled kernels only when used
             self._fast = FastFixedFootModel(self.desc)
         self.keep_qp = keep_qp
+        # False: compute() leaves ControlOutput.status None and keeps what builds it (last_status()): a run
+        # that keeps only its outcome saves the status object of every period (the torque and the memory are
+        # the same); ignored with real sensing (its touchdown band reads the status)
+        self.build_status = True
+        self._pending_status: tuple | None = None
         c = self.cfg
         # constraint margins (subtracted from the right-hand side), in the row order of CONSTRAINT_NAMES
         self.margin = np.concatenate([
@@ -798,6 +803,11 @@ class AdaptiveController:
         if wb is not False and self.whole_body is not None:   # the Python stage's (False: the compiled one wrote res)
             for k, v in WholeBodyStage.status_fields(wb).items():
                 res[getattr(R_, k)] = v
+        if not self.build_status and self._sensing is None:
+            self._pending_status = (res, int(self.memory[M_.step]) - 1, t, int(stance), int(status), msg)
+            keep = self.keep_qp
+            return ControlOutput(torque=torque, status=None, G=G if keep else None, h=h if keep else None,
+                                 x_star=xs if keep else None)
         rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
                              self.cfg.mode, int(stance), int(status), msg)[0]
         keep = self.keep_qp
@@ -871,6 +881,14 @@ class AdaptiveController:
                                          record=t)
             self._sensing.record(t, torque, told)
         return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
+
+    def last_status(self) -> ControllerStatusData | None:
+        """The status of the last period computed with ``build_status`` False (None: none since), the object
+        ``compute`` would have returned then."""
+        if self._pending_status is None:
+            return None
+        res, step, t, stance, status, msg = self._pending_status
+        return status_records(res[None], range(step, step + 1), [t], self.cfg.mode, stance, status, msg)[0]
 
     def _band_torque(self, out: ControlOutput, told: int, record: float | None = None) -> ControlOutput:
         """A period inside the predicted touchdown's band (``touchdown_band``): the torque (told stance's
