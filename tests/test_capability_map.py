@@ -115,7 +115,7 @@ def test_censored_cell_and_island_ranges(monkeypatch):
                       search=cm.Search(coarse=100.0, fmax=300.0, resolution=5.0))
     run = cm.run_map(spec)
     b = run.boundaries[cm.Cell("both", "forward", 0.25, 0.1)]
-    assert b == cm.Boundary(300.0, None, ())
+    assert b == cm.Boundary(300.0, None, (), no_fall_lo=300.0)
     s = cm.cell_summary(run, cm.Cell("both", "forward", 0.25, 0.1))
     assert s["censored"] and s["cause"] is None and s["simulations"] == 3
     assert cm.island_ranges([100.0, 150.0, 200.0, 400.0], 50.0) == [[100.0, 200.0], [400.0, 400.0]]

@@ -53,7 +53,7 @@ def test_band_of_the_rigid_nominal_walk_is_the_floors_and_never_tighter_anywhere
     steps = runs.trial_steps(runs.paper_push(0.0))
     for mode in ("none", "tau", "p", "both"):
         assert rule.band(mode, RIGID, steps).is_floor, mode
-    noisy = run_settings(perturb=["noise_q=5e-4", "noise_qd=5e-2", "seed=0"])
+    noisy = run_settings(profile="real-sensors", perturb=["noise_q=5e-4", "noise_qd=5e-2", "encoder_bits=14"])
     b = rule.band("both", noisy, steps)
     assert b.tau_dot_tol > surv.TAU_DOT_FLOOR and b.p_tol >= surv.P_FLOOR
     assert b.tau_dot_tol == pytest.approx(rule.band_factor * b.tau_dot_excursion)
@@ -133,3 +133,49 @@ def test_search_bisects_the_survival_boundary_and_the_no_fall_edge_to_the_same_r
     assert r["first_fall"] - r["no_fall_edge"] <= 5.0 and r["no_fall_edge"] < 410.0 <= r["first_fall"]
     assert r["fall_cause"].startswith("fell:") and "not back" in r["failure_cause"]
     assert len(calls) == len(set(calls))          # no force simulated twice
+
+
+@pytest.mark.parametrize("hint", [None, 3.0])
+def test_capability_map_cell_bisects_both_edges(hint):
+    """The map's cell search (``capmap.search``): the survival boundary, then the no-fall edge from the
+    first failing coarse force upward, both to the resolution; full and neighbour-bracketed searches."""
+    from biped_controller.studies.capmap.search import plan_cell, plan_no_fall
+    from biped_controller.studies.capmap.spec import Search
+    search = Search(coarse=50.0, fmax=600.0, resolution=5.0)
+    survived, fell = {}, {}
+    b = None
+    while b is None:
+        forces, b = plan_cell(search, survived, hint, 2)
+        if b is not None:
+            forces, b = plan_no_fall(search, fell, b)
+        for f in forces:
+            survived[f], fell[f] = f < 230.0, f >= 410.0
+    assert b.lo < 230.0 <= b.hi and b.hi - b.lo <= 5.0
+    assert b.no_fall_lo < 410.0 <= b.no_fall_hi and b.no_fall_hi - b.no_fall_lo <= 5.0
+    # a cell whose first failure is a fall: the no-fall edge is the boundary, no extra simulation
+    survived, fell = {}, {}
+    b = None
+    n = 0
+    while b is None:
+        forces, b = plan_cell(search, survived, hint, 2)
+        if b is not None:
+            forces, b = plan_no_fall(search, fell, b)
+            n += len(forces)            # simulations the no-fall search asks for beyond the boundary's
+        for f in forces:
+            survived[f] = f < 230.0
+            fell[f] = not survived[f]
+    assert (b.no_fall_lo, b.no_fall_hi) == (b.lo, b.hi) and n == 0
+
+
+def test_a_bad_rule_setting_stops_a_study_command_in_one_line(tmp_path, monkeypatch, capsys):
+    """A command line (``scripts/experiment``) with a bad rule setting in studies.yaml: exit status 2 and
+    one line naming the key, before any simulation."""
+    from biped_controller.studies import experiment
+    (tmp_path / "studies.yaml").write_text('survival_band_factor: {value: 0.5, reason: "r"}\n'
+                                           'survival_band_window: {value: 10, reason: "r"}\n', encoding="utf-8")
+    monkeypatch.setattr(surv, "default_config_dir", lambda: tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        experiment.main(["push", "--force", "100"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "survival_band_factor" in err[0]

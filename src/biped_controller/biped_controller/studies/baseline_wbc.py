@@ -11,12 +11,10 @@ over time. ``--profile`` and ``--set`` take the names and keys of ``scripts/expe
 ``python -m biped_controller.studies.baseline_wbc --slice-rigid SUMMARY [--slice-mujoco STORE --coarse 100]
 [--json F]`` prints the 25 ms capability-map slice per (mode, direction, onset phase) and checks the
 goal hybrid >= max(both, wbc) cell by cell: on the rigid plant the map's boundary (``scripts/capability_map
---json`` summary: the largest survived force below the lowest failing one, bisected); on MuJoCo, whose strict
-survival test collapses for the adaptive modes (tau' stays 0.997-0.999 in the contact chatter,
-``docs/mujoco_plant.md``), the *no-fall edge* from the map's store: the largest simulated force that did not
-fall below the lowest one that fell, counted when every coarse force (``--coarse``) below that one was
-simulated (``--search full``) or the two are within half a coarse step (bisected: mode wbc, whose strict test
-is the no-fall test since p and tau' stay fixed). A cell where hybrid's edge is below the others' but its
+--json`` summary: the largest survived force below the lowest failing one, bisected); on MuJoCo the
+*no-fall edge* from the map's store (``trial.survival``: the largest simulated force that did not fall below
+the lowest one that fell), counted when every coarse force (``--coarse``) below that one was simulated
+(``--search full``) or the two are within half a coarse step (bisected). A cell where hybrid's edge is below the others' but its
 first fall above them is reported as not resolved at the scan's step.
 """
 from __future__ import annotations

@@ -53,6 +53,7 @@ from biped_controller.studies import runner
 from biped_controller.core.control.controller import MODES
 from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
+from biped_controller.studies.trial.survival import survival_rule
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, positive_int, profile_arg)
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import (DEFAULT_PROFILE, RunSettings, differences, parse_overrides,
@@ -445,6 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         SIMULATOR_OVERRIDES = st.simulator
         CONTROLLER_OVERRIDES = tuple((k, v) for k, v in st.controller if k != "disturbance_observer")
         PROFILE = args.profile
+        survival_rule()          # config/studies.yaml's rule settings, checked before any simulation
         print_settings(st)
     except (*SETTINGS_ERRORS, RobustnessError) as exc:
         ap.error(str(exc))

@@ -24,9 +24,7 @@ an impact after the push is decided there: survived, the outcome of the full tri
 
 Survival is the studies' one rule (``trial.survival``): no fall until ``SURVIVAL_STEPS`` impacts after
 the end of the push, and p and tau' back within the band of the same settings' unpushed walk at the end
-(never tighter than 1 mm and 1e-3). With the early stop (``trial.stop.EarlyStop``, config/studies.yaml;
-``--full-trials`` turns it off) a trial back on the preferred gait one control period after an impact
-after the push ends there, survived: the outcome of the full trial (measured: docs/capability_map.md).
+(never tighter than 1 mm and 1e-3; docs/experiments.md, "Survival").
 
 Search per cell (mode, direction, phase, duration), as ``trial.search.max_push_modes`` does it for one
 cell: the coarse forces ``trial.search.coarse_forces(max, coarse)`` (coarse, 2 coarse, ... <= max) are all
