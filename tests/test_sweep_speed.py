@@ -165,15 +165,3 @@ def test_the_pool_keeps_at_most_max_loops_and_drops_their_snapshots():
     assert p_loop is not loops[0]
     with pytest.raises(ValueError, match="max_loops"):
         runner.LoopPool(max_loops=0)
-
-
-def test_the_mujoco_plant_takes_no_snapshot_and_a_reused_loop_gives_the_fresh_outcome():
-    settings = ts.parse_overrides(["plant=mujoco"])
-    T = tcontext.context().family.T
-    pool = runner.LoopPool()
-    args = (runs.paper_push(100.0, start=0.5 * T, duration=0.025), "both", settings)
-    first = trials.survives(*args, pool=pool)
-    again = trials.survives(*args, pool=pool)              # the same MuJoCo plant, reset
-    assert first == again == trials.survives(*args, pool=False)
-    assert pool.walks == 0 and not any(lp.snapshots for lp in pool._loops.values())
-    assert first["steps_walked"] >= 1

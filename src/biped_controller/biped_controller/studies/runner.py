@@ -64,7 +64,8 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     period by period (tested); the objects take every period with a QP, an impact or a fall.
     ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
     objects ran and the run's last period -- the run's outcome (fall, impacts, the last status) is the
-    same, the time series is not there. The compiled loop also takes the periods that need the QP: the
+    same, the time series is not there; without the compiled loop (the MuJoCo plant) they keep the run's last
+    period only, its status built once at the end. The compiled loop also takes the periods that need the QP: the
     controller decides them between two calls (``Segment.decide``), the objects take the impacts,
     the falls and the modes whose whole-body stage follows a QP.
 
@@ -122,8 +123,8 @@ class LoopSnapshot:
 
 class ClosedLoop:
     """One plant and one controller in lockstep (``run``'s loop), built once and reusable: :meth:`reset` to
-    the family's initial state, :meth:`snapshot` / :meth:`restore` between periods (the rigid plant and a
-    controller without real sensing; :attr:`snapshots` False otherwise), :meth:`walk_to` the last control
+    the family's initial state, :meth:`snapshot` / :meth:`restore` between periods (either plant with ideal
+    sensors and a controller without real sensing; :attr:`snapshots` False otherwise), :meth:`walk_to` the last control
     instant before a push, :meth:`run` the loop."""
 
     def __init__(self, sim_config: SimConfig, ctrl_config: ControllerConfig, family: GaitFamily,
@@ -173,6 +174,19 @@ class ClosedLoop:
         g = last_grid_before(t_push, dt)
         seg = self._segment(compiled_loop, False, False)
         seen, pending = sim.impact_count, False
+        ctrl.build_status = False          # the walk's statuses are not kept
+        try:
+            pending = self._walk(t_push, g, seg, seen, pending)
+        finally:
+            ctrl.build_status, ctrl._pending_status = True, None
+        if sim.fall is not None:
+            raise RuntimeError(f"walk_to({t_push}): the undisturbed walk fell at t = {sim.fall.t} s ({sim.fall.cause})")
+        return self.snapshot(pending)
+
+    def _walk(self, t_push: float, g: float, seg: Segment | None, seen: int, pending: bool) -> bool:
+        """:meth:`walk_to`'s loop; returns the early-stop bookkeeping's ``pending`` at its end."""
+        sim, ctrl = self.sim, self.ctrl
+        dt = self.scfg.control_period
         while grid_end(sim.t, dt) <= t_push and sim.fall is None:
             if seg is not None:
                 recs, _ = seg.run(g)
@@ -189,9 +203,7 @@ class ClosedLoop:
                 pending = False
             if sim.impact_count > seen:
                 seen, pending = sim.impact_count, True
-        if sim.fall is not None:
-            raise RuntimeError(f"walk_to({t_push}): the undisturbed walk fell at t = {sim.fall.t} s ({sim.fall.cause})")
-        return self.snapshot(pending)
+        return pending
 
     def run(self, steps: int, pushes: tuple[Push, ...] = (), *, limit: float, integration_rate: bool = False,
             extra_time_after_steps: float = 0.0, compiled_loop: bool = True, keep_records: bool = True,
@@ -206,6 +218,34 @@ class ClosedLoop:
         records, statuses, qps = [], [], []
         keep_qp = self.keep_qp
         seg = self._segment(compiled_loop, keep_records, integration_rate)
+        # outcome only without the compiled loop (the MuJoCo plant's sweeps): the objects keep the last
+        # period's record and status only, and the controller builds that status once, at the end
+        lean = seg is None and not keep_records and not keep_qp
+        if lean:
+            ctrl.build_status, ctrl._pending_status = False, None
+        try:
+            self._run_periods(steps, limit, integration_rate, extra_time_after_steps, on_impact, seen, pending,
+                              seg, lean, keep_records, records, statuses, qps)
+        finally:
+            ctrl.build_status = True
+        if lean:
+            last = ctrl.last_status()
+            ctrl._pending_status = None
+            statuses += [last] if last is not None else []
+        fall = sim.fall
+        return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
+                         fallen=fall is not None, fall_cause=fall.cause if fall else "",
+                         fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
+                         impacts=list(sim.impact_log), qp_instances=qps,
+                         param_range=tuple(float(ctrl.memory[o]) for o in (M_.p_lo, M_.p_hi, M_.tau_dot_lo,
+                                                                           M_.tau_dot_hi)))
+
+    def _run_periods(self, steps, limit, integration_rate, extra_time_after_steps, on_impact, seen, pending, seg,
+                     lean, keep_records, records, statuses, qps) -> None:
+        """:meth:`run`'s loop (its arguments; ``lean``: keep only the last record, statuses left to the
+        controller's ``last_status``), filling ``records``, ``statuses``, ``qps``."""
+        sim, ctrl = self.sim, self.ctrl
+        keep_qp = self.keep_qp
         again = False
         decision = None
         last_in_seg = False       # the last period run so far was the compiled loop's
@@ -242,14 +282,18 @@ class ClosedLoop:
             last_in_seg = False
             obs = sim.observe()
             out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
-            statuses.append(out.status)
+            if not lean:
+                statuses.append(out.status)
             if keep_qp and out.G is not None:
                 qps.append((out.G, out.h, out.x_star, out.status.qp_status))
             if integration_rate:
                 rec = sim.step(lambda s, q, qd, st: ctrl.torque_within_period(s, q, qd, st))
             else:
                 rec = sim.step(out.torque)
-            records.append(rec)
+            if lean:
+                records[:] = (rec,)
+            else:
+                records.append(rec)
             if rec.fallen or sim.fall is not None:
                 break
             if pending and sim.impact_count == seen:
@@ -267,13 +311,6 @@ class ClosedLoop:
             recs, stats = seg.last()
             records += recs
             statuses += stats
-        fall = sim.fall
-        return RunResult(records=records, statuses=statuses, steps_walked=sim.impact_count,
-                         fallen=fall is not None, fall_cause=fall.cause if fall else "",
-                         fall_detail=fall.detail if fall else "", fall_time=fall.t if fall else math.nan,
-                         impacts=list(sim.impact_log), qp_instances=qps,
-                         param_range=tuple(float(ctrl.memory[o]) for o in (M_.p_lo, M_.p_hi, M_.tau_dot_lo,
-                                                                           M_.tau_dot_hi)))
 
 
 class LoopPool:
@@ -308,8 +345,8 @@ class LoopPool:
 
     def snapshot_at(self, loop: ClosedLoop, t_push: float) -> LoopSnapshot | None:
         """The loop's state at the last control instant before a push starting at ``t_push`` [s] (walked
-        once from the initial state, then kept), or None where the loop takes no snapshot (MuJoCo, a sensor
-        model, real sensing: the caller runs from the start)."""
+        once from the initial state, then kept), or None where the loop takes no snapshot (a sensor model,
+        real sensing: the caller runs from the start)."""
         if not loop.snapshots:
             return None
         key = (loop, float(t_push))

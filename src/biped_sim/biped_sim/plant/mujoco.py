@@ -69,6 +69,7 @@ from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRec
 from biped_sim.robot import numba_cache
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, urdf_from_paper
+from biped_sim.robot.layout import SnapshotUnsupported
 from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, MjcfContact, foot_geom_names, make_mjcf
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
@@ -97,6 +98,37 @@ def contact_settings(cfg: SimConfig) -> MjcfContact:
                        foot_thickness=cfg.mujoco_foot_thickness, foot_width=cfg.mujoco_foot_width,
                        body_radius=cfg.mujoco_body_radius, shin_gap=cfg.mujoco_shin_capsule_gap,
                        sole_points=cfg.mujoco_sole_points)
+
+
+# MuJoCo's integration state: time, qpos, qvel, act, qacc_warmstart, ctrl, the applied forces, equality flags,
+# mocap, user data and plugin state -- all that mj_step reads from one call to the next
+MJ_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+@dataclass(frozen=True, eq=False)
+class MujocoSnapshot:
+    """Everything :class:`MujocoPlant` carries from one period to the next: MuJoCo's integration state
+    (``mj_getState`` with ``MJ_STATE``), the plant's own floating state, stance, anchor, time and period
+    index, the compiled bookkeeping's arrays (accumulators, sensing state, diagnostics; stance indices;
+    constants with the stance anchor), the impacts so far (immutable, shared), the touchdown forces, the
+    fall (None while walking) and the push schedule."""
+
+    mj_state: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    stance: int
+    anchor: np.ndarray
+    t: float
+    step_index: int
+    impact_count: int
+    impact_log: tuple[ImpactRecord, ...]
+    touchdown_forces: tuple[float, ...]
+    acc: np.ndarray
+    ip: np.ndarray
+    fp: np.ndarray
+    fall: FallInfo | None
+    pushes: tuple
+    next_push_id: int
 
 
 @dataclass
@@ -263,6 +295,46 @@ class MujocoPlant(ScheduledPushes):
         self._new_stance(stance, self.anchor[0])
         if self.trace is not None:
             self.trace = [(0.0, self.x.copy())]
+
+    def snapshot(self) -> MujocoSnapshot:
+        """The state between two periods (:class:`MujocoSnapshot`); :meth:`restore` brings it back, after
+        which every period is bit-identical to the one that followed the snapshot (tested). Raises
+        :class:`SnapshotUnsupported` with a sensor model (its noise generator and delay line are not part of
+        the state) or while a step trace is kept."""
+        if not self.sensor.identity:
+            raise SnapshotUnsupported("MujocoPlant.snapshot: a sensor model (noise, quantisation, delay) carries "
+                                      "state outside the plant's arrays")
+        if self.trace is not None:
+            raise SnapshotUnsupported("MujocoPlant.snapshot: a step trace is being kept")
+        st = np.empty(mujoco.mj_stateSize(self.model, MJ_STATE))
+        mujoco.mj_getState(self.model, self.data, st, MJ_STATE)
+        return MujocoSnapshot(st, self.x.copy(), self.v.copy(), self.stance, self.anchor.copy(), self.t,
+                              self.step_index, self.impact_count, tuple(self.impact_log),
+                              tuple(self._touchdown_forces), self._acc.copy(), self._ip.copy(), self._fp.copy(),
+                              None if self.fall is None else FallInfo(**self.fall.__dict__),
+                              tuple(self.book.pushes), self.book.next_id)
+
+    def restore(self, snap: MujocoSnapshot) -> None:
+        """Back to the state of :meth:`snapshot`: MuJoCo's data reset (its warning counters and derived
+        quantities cleared, as :meth:`reset` leaves them) and its integration state set (``mj_setState``); the
+        plant's arrays copied in (the same objects go on: the compiled bookkeeping holds views of them)."""
+        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_setState(self.model, self.data, snap.mj_state, MJ_STATE)
+        self.x, self.v = snap.x.copy(), snap.v.copy()
+        self.stance = snap.stance
+        self.anchor = snap.anchor.copy()
+        self.t = snap.t
+        self.step_index = snap.step_index
+        self.impact_count = snap.impact_count
+        self.impact_log = list(snap.impact_log)
+        self._touchdown_forces = list(snap.touchdown_forces)
+        self._acc[:] = snap.acc
+        self._ip[:] = snap.ip
+        self._fp[:] = snap.fp
+        self.fall = None if snap.fall is None else FallInfo(**snap.fall.__dict__)
+        self.book = self._new_book()
+        self.book.pushes.extend(snap.pushes)
+        self.book.next_id = snap.next_push_id
 
     # ------------------------------------------------------------ queries
     @staticmethod

@@ -433,6 +433,11 @@ class AdaptiveController:
             from biped_sim.robot.fast_engine import FastFixedFootModel   # compiled kernels only when used
             self._fast = FastFixedFootModel(self.desc)
         self.keep_qp = keep_qp
+        # False: compute() leaves ControlOutput.status None and keeps what builds it (last_status()): a run
+        # that keeps only its outcome saves the status object of every period (the torque and the memory are
+        # the same); ignored with real sensing (its touchdown band reads the status)
+        self.build_status = True
+        self._pending_status: tuple | None = None
         c = self.cfg
         # constraint margins (subtracted from the right-hand side), in the row order of CONSTRAINT_NAMES
         self.margin = np.concatenate([
@@ -844,11 +849,17 @@ class AdaptiveController:
         if wb is not False and self.whole_body is not None:   # the Python stage's (False: the compiled one wrote res)
             for k, v in WholeBodyStage.status_fields(wb).items():
                 res[getattr(R_, k)] = v
-        rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
-                             self.cfg.mode, int(stance), int(status), msg)[0]
+        if not self.build_status and self._sensing is None:
+            self._pending_status = (res, int(self.memory[M_.step]) - 1, t, int(stance), int(status), msg)
+            rec = None
+        else:
+            rec = status_records(res[None], range(int(self.memory[M_.step]) - 1, int(self.memory[M_.step])), [t],
+                                 self.cfg.mode, int(stance), int(status), msg)[0]
         keep = self.keep_qp
-        return ControlOutput(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
-                             x_star=xs if keep else None)
+        out = _NEW(ControlOutput)     # the fields at once (the frozen dataclass's __init__ costs ~1.5 us a period)
+        out.__dict__.update(torque=torque, status=rec, G=G if keep else None, h=h if keep else None,
+                            x_star=xs if keep else None)
+        return out
 
     def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int, pitch: float = math.nan,
                 pitch_rate: float = math.nan) -> ControlOutput:
@@ -917,6 +928,14 @@ class AdaptiveController:
                                          record=t)
             self._sensing.record(t, torque, told)
         return self._output(res, torque, t, stance, status, msg, G, h, xs, wb)
+
+    def last_status(self) -> ControllerStatusData | None:
+        """The status of the last period computed with ``build_status`` False (None: none since), the object
+        ``compute`` would have returned then."""
+        if self._pending_status is None:
+            return None
+        res, step, t, stance, status, msg = self._pending_status
+        return status_records(res[None], range(step, step + 1), [t], self.cfg.mode, stance, status, msg)[0]
 
     def _band_torque(self, out: ControlOutput, told: int, record: float | None = None) -> ControlOutput:
         """A period inside the predicted touchdown's band (``touchdown_band``): the torque (told stance's
@@ -993,7 +1012,8 @@ class _FastPeriod:
         if not ctrl.adapted:
             status, msg = NO_ADAPTATION, MSG_FIXED_REFERENCE[ctrl.cfg.mode]
         elif code == ck.FEASIBLE:
-            Gr, hr, xs = self.reduced(G, h, res)
+            if ctrl.keep_qp:                  # the instance is only handed out when kept
+                Gr, hr, xs = self.reduced(G, h, res)
             status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
         else:
             answer = self.solve_qp(G, h, res)

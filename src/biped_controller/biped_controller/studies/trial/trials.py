@@ -59,7 +59,7 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
     on_impact = None
     fired: list[int] = []
     es = None if settings.full_trials else stop.early_stop()
-    if es is not None and es.enabled and (settings.perturbation is None or settings.perturbation.is_zero):
+    if es is not None and es.enabled and stop.applies(settings):
         fam = context().family
 
         def stop_if_decided(sim, ctrl) -> bool:
