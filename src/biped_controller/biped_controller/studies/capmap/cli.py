@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="run nothing: summary and figures from the store (incomplete cells are left out)")
     add_settings_args(ap)
     args = ap.parse_args(argv)
-    provenance.track(args.json, args.out, args=args, argv=argv)   # record of each file written (results/README.md)
+    provenance.track(args.json, args.out, args.store, args=args, argv=argv)   # record of each file written (results/README.md)
     settings = settings_from_args(ap, args)
     try:
         names = _split(args.modes) if args.modes is not None else ([] if args.controller else list(PAPER_MODES))
