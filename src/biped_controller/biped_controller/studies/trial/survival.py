@@ -156,7 +156,8 @@ class SurvivalRule:
     def verdict(self, result: RunResult, push_end: float, band: Band = FLOOR_BAND) -> Verdict:
         """The verdict on ``result``, a run pushed until ``push_end`` [s], with ``band``."""
         last = result.statuses[-1] if result.statuses else None
-        return self.judge(result.fallen, f"{result.fall_cause} at t = {result.fall_time:.4f} s", result.impacts,
+        fall = f"{result.fall_cause} at t = {result.fall_time:.4f} s" if result.fallen else ""
+        return self.judge(result.fallen, fall, result.impacts,
                           push_end, None if last is None else last.p, None if last is None else last.tau_dot, band)
 
     def judge(self, fallen: bool, fall: str, impacts, push_end: float, p: float | None, tau_dot: float | None,
