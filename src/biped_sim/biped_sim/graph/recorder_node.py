@@ -5,16 +5,15 @@ Node ``recorder``. Every topic of :data:`biped_sim.graph.names.TOPICS` is subscr
 For each message:
 
 - ``log_time``  = the sim time of the latest ``/clock`` *published* before this message among those the recorder
-  has received: looked up by DDS source timestamp in the ``/clock`` messages of the last ``CLOCK_HISTORY``
-  received (so a ``/sim/state``'s log time is its own stamp, and a controller message's the step it answers).
-  Each topic keeps its order in DDS, topics among themselves need not: a message repaired after a loss (a frozen
-  or starved recorder's full shared-memory queue) can arrive after many later ``/clock``; taken in order it got the
-  newest of them (0-10 of 928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``; 8-250 of 300
-  in a loaded run of the frozen-recorder test), looked up it gets its own. A ``/clock`` that itself
-  arrives late still cannot serve the messages recorded before it: they get the latest earlier one. What one take
-  holds is also recorded in publication order. Before the first ``/clock`` (or for a message older than every
-  ``/clock`` kept), the newest ``/clock`` received, else the node's clock (``use_sim_time`` is forced on: 0 until a
-  ``/clock`` arrives);
+  has received, looked up by DDS source timestamp (:mod:`biped_sim.recording.log_time`, ``LogTimeQueue``), so a
+  ``/sim/state``'s log time is its own stamp and a controller message's the step it answers. Each topic keeps its
+  order in DDS, topics among themselves need not: a message repaired after a loss (a frozen or starved recorder's
+  full shared-memory queue) can arrive after many later ``/clock``; taken in order it got the newest of them (0-10
+  of 928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``; 8-250 of 300 in a loaded run of the
+  frozen-recorder test). A ``/clock`` can be repaired late too (1 of 300 states got the step before's in a CI run
+  of that test): a message is held until a ``/clock`` published at or after it has been received, at most
+  ``log_time.CLOCK_WAIT`` s of wall time, then written; the bag is written in publication order. Before the first
+  ``/clock``, the node's clock (``use_sim_time`` is forced on: 0 until a ``/clock`` arrives);
 - ``publish_time`` = the source timestamp DDS hands over in the message info.
 
 Parameters (``recorder: {ros__parameters: {...}}``), validated at start; a bad one makes
@@ -52,7 +51,6 @@ Exit status: 0 clean finish, 1 I/O error while recording, 2 bad parameter / cann
 
 from __future__ import annotations
 
-import bisect
 import functools
 import time
 import sys
@@ -72,6 +70,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, Reliabi
 from biped_sim.graph.sim_clock import SimClock
 from biped_sim.graph import names as graph_names
 from biped_sim.graph.params import ParameterError, graph_default, run_node
+from biped_sim.recording.log_time import LogTimeQueue
 from biped_sim.recording.mcap_recorder import (
     DEFAULT_CHUNK_SIZE,
     INFINITE_DURATION,
@@ -143,7 +142,6 @@ def qos_from_rclpy(profile) -> QosProfile:
 
 
 PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
-CLOCK_HISTORY = 5000   # /clock messages kept for the log-time lookup at least (5 s at 1 kHz, the topics' DDS depth)
 DRAIN_BATCH = 256  # messages taken at most per executor callback, from every subscription (see _on_message)
 DRAIN_PER_TOPIC = 16  # messages taken at most from one subscription per pass (no topic starves another)
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request (publishers left)
@@ -206,10 +204,9 @@ class RecorderNode(Node):
         self.wakeups = 0   # wait-set wake-ups that found a message (logged at the end: messages per wake-up)
 
         self.failure: Optional[RecorderError] = None
-        self._sim_ns: Optional[int] = None   # sim time [ns] of the newest /clock recorded
-        # the /clock messages received: DDS source timestamps [ns] (sorted) and their sim times [ns], for log times
-        self._clock_src: List[int] = []
-        self._clock_sim: List[int] = []
+        # the log time of each message taken, held until it is known (biped_sim.recording.log_time)
+        self._log_times = LogTimeQueue()
+        self.taken = 0   # messages taken from DDS (written or held)
         self.done = False   # run_node leaves its loop (then drains and finishes) once set
         self._prefixes = self._prefixes_list()
         self._specs = self._recordable_topics()
@@ -323,7 +320,11 @@ class RecorderNode(Node):
         (module docstring), plus one non-blocking executor round every ``SERVICE_PERIOD`` s."""
         from biped_sim.graph.params import SPIN_SLICE
         if self.loop == "single_threaded":
-            return lambda: executor.spin_once(timeout_sec=SPIN_SLICE)
+            def spin_executor() -> None:
+                executor.spin_once(timeout_sec=SPIN_SLICE)
+                if self.failure is None and not self._writer.finished:
+                    self._release_held(time.monotonic())
+            return spin_executor
         from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
         subs = [(spec, self._subscriptions_by_topic[spec.name]) for spec in self._specs
                 if spec.name in self._subscriptions_by_topic]
@@ -400,29 +401,40 @@ class RecorderNode(Node):
             for spec, msg, _info in batch:
                 for tap in self.taps:
                     tap(spec.name, msg)
+        now = time.monotonic()
         for spec, msg, info in batch:
-            self._record(spec, msg, info)
+            clock_ns = self._clock_of(msg) if spec.name == graph_names.CLOCK else None
+            source_ns = int(info["source_timestamp"]) if info else 0
+            self._log_times.push(now, (spec, msg, info), source_ns, clock_ns)
+        self.taken += len(batch)
+        self._release_held(now)
         return taken_total
+
+    def _clock_of(self, msg: bytes) -> int:
+        """A ``/clock`` taken: its sim time [ns], which the node's clock follows from now on."""
+        from rosgraph_msgs.msg import Clock
+        clock = deserialize_message(msg, Clock).clock
+        sim_ns = clock.sec * 1_000_000_000 + clock.nanosec
+        self.sim_clock.set(sim_ns)
+        return sim_ns
+
+    def _release_held(self, now: float, flush: bool = False) -> None:
+        """Write the messages whose log time is known or whose wait is over (all with ``flush``: the bag is being
+        finished), in the order taken (``LogTimeQueue.release``)."""
+        for (spec, msg, info), log_time in self._log_times.release(now, flush):
+            self._record(spec, msg, info, log_time)
 
     def _publishers_left(self) -> int:
         """Publishers the graph still has on the recorded topics (0 once every other node has exited)."""
         return sum(self.count_publishers(spec.name) for spec in self._specs)
 
-    def _record(self, spec, msg: bytes, info) -> None:
+    def _record(self, spec, msg: bytes, info, log_time: Optional[int]) -> None:
+        """Write one message at ``log_time`` [ns of sim time] (None: the node's clock, before any ``/clock``)."""
         if self.failure is not None or self._writer.finished:
             return
-        if spec.name == graph_names.CLOCK:
-            from rosgraph_msgs.msg import Clock
-            clock = deserialize_message(msg, Clock).clock
-            self._sim_ns = clock.sec * 1_000_000_000 + clock.nanosec
-            self.sim_clock.set(self._sim_ns)
         publish_time = int(info["source_timestamp"]) if info else 0
-        if spec.name == graph_names.CLOCK:
-            log_time = self._sim_ns
-            if publish_time:
-                self._remember_clock(publish_time, self._sim_ns)
-        else:
-            log_time = self._log_time(publish_time)
+        if log_time is None:
+            log_time = self.get_clock().now().nanoseconds
         try:
             if not self._writer.has_topic(spec.name):
                 self._writer.register_topic(spec.name, spec.type, self._offered_profiles(spec))
@@ -437,33 +449,12 @@ class RecorderNode(Node):
             self.get_logger().error(f"recording stopped: {exc}")
             self.done = True
 
-    def _remember_clock(self, source_ns: int, sim_ns: int) -> None:
-        """Keep ``/clock``'s (source timestamp, sim time), sorted by the timestamp (a repaired one may come late),
-        at most ``CLOCK_HISTORY`` of them."""
-        src = self._clock_src
-        if not src or source_ns >= src[-1]:
-            src.append(source_ns)
-            self._clock_sim.append(sim_ns)
-        else:
-            i = bisect.bisect_right(src, source_ns)
-            src.insert(i, source_ns)
-            self._clock_sim.insert(i, sim_ns)
-        if len(src) > 2 * CLOCK_HISTORY:
-            del src[:CLOCK_HISTORY]
-            del self._clock_sim[:CLOCK_HISTORY]
-
-    def _log_time(self, source_ns: int) -> int:
-        """The sim time of the latest ``/clock`` published at or before ``source_ns`` among those kept (module
-        docstring); without one, the newest ``/clock`` received, else the node's clock."""
-        i = bisect.bisect_right(self._clock_src, source_ns) if source_ns else 0
-        if i:
-            return self._clock_sim[i - 1]
-        return self._sim_ns if self._sim_ns is not None else self.get_clock().now().nanoseconds
-
     def _poll_chunk(self) -> None:
-        """(steady timer) Write the open chunk out once it is ``chunk_time`` old."""
+        """(steady timer; the wait-set loop after every wait) Write the held messages whose wait is over, and the
+        open chunk out once it is ``chunk_time`` old."""
         if self.failure is not None or self._writer.finished:
             return
+        self._release_held(time.monotonic())
         try:
             self._writer.poll()
         except RecorderError as exc:
@@ -476,7 +467,8 @@ class RecorderNode(Node):
         return self._writer.counts
 
     def finish(self):
-        """Finish the bag (idempotent); returns its :class:`BagSummary`."""
+        """Write what is held, then finish the bag (idempotent); returns its :class:`BagSummary`."""
+        self._release_held(time.monotonic(), flush=True)
         summary = self._writer.finish()
         self.get_logger().info(
             f"bag {summary.bag_dir}: {summary.message_count} messages "
@@ -498,9 +490,7 @@ class RecorderNode(Node):
             t_end = t0 + DRAIN_MAX
             last_change = time.monotonic()
             while rclpy.ok(context=self.context) and time.monotonic() < t_end and self.failure is None:
-                before = sum(self.counts.values())
-                self._take_waiting(DRAIN_BATCH)
-                taken = sum(self.counts.values()) - before
+                taken = self._take_waiting(DRAIN_BATCH)
                 drained += taken
                 now = time.monotonic()
                 if taken:
@@ -512,10 +502,10 @@ class RecorderNode(Node):
                 if now - last_change >= DRAIN_IDLE:
                     why = f"queues empty, nothing new for {DRAIN_IDLE} s"
                     break
-                before = sum(self.counts.values())
+                before = self.taken
                 executor.spin_once(timeout_sec=0.02)   # timers; a new message wakes it (and is recorded)
-                if sum(self.counts.values()) != before:
-                    drained += sum(self.counts.values()) - before
+                if self.taken != before:
+                    drained += self.taken - before
                     last_change = time.monotonic()
         except ExternalShutdownException:
             why = "context shut down"   # finish the bag below
