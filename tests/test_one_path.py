@@ -208,3 +208,13 @@ def test_bench_unknown_controller_is_an_error_naming_it(capsys):
 def test_resolve_refuses_a_non_string():
     with pytest.raises(UnknownControllerError):
         resolve(None)
+
+
+def test_one_result_type_reads_a_status_key_of_either_loop():
+    a = resolve("both").walk(1, DEFAULT_SETTINGS)
+    b = resolve("capture_point").walk(1, DEFAULT_SETTINGS)
+    assert type(a) is type(b) is runner.RunResult
+    assert np.array_equal(a.series("p"), np.array([s.p for s in a.statuses]))
+    assert np.array_equal(b.series("p"), np.array([s["p"] for s in b.statuses]))
+    assert np.all(np.isnan(b.series("no_such_key"))) and len(b.series("no_such_key")) == len(b.statuses) > 0
+    assert b.controller == "capture_point" and b.fault is None and b.periods == len(b.records)

@@ -251,7 +251,7 @@ def push_pair(push: Push, mode: str, observer: bool | None = None, profile: str 
         row = dict(plant=plant, mode=mode, observer=observer, force=force, start=start, steps_walked=r.steps_walked,
                    fall=r.fall_cause or None, fall_time=None if math.isnan(r.fall_time) else r.fall_time,
                    detail=r.fall_detail or None, final_p=final["p"], final_tau_dot=final["tau_dot"])
-        if getattr(r, "fault", None) is not None:
+        if r.fault is not None:
             row["fault"] = str(r.fault)
         if plants:
             row["contact"] = plants[-1].diagnostics.as_dict()

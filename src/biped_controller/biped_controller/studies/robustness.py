@@ -187,7 +187,7 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     t0 = time.perf_counter()
     ctl = resolve(mode)
     res = ctl.walk(steps, st)
-    fault = getattr(res, "fault", None)
+    fault = res.fault
 
     def top(key):
         v = [abs(float(x)) for x in res.series(key) if not math.isnan(x)] if res.statuses else []

@@ -278,7 +278,7 @@ def push_figures(result: RunResult, outdir: Path, push: Push, joint: int | None 
 
 def reported_figures(result, outdir: Path, push: Push, title: str = "") -> list[Path]:
     """The PNG figures of :func:`push_figures` that a run of any interface controller
-    (``plugin.loop.PluginRunResult``) has the data for: Fig. 3, the centre of pressure l(t) [m] (and the
+    (``plugin.result.RunResult``) has the data for: Fig. 3, the centre of pressure l(t) [m] (and the
     controller's prediction where it reports ``zmp``), Fig. 4, p(t) [m], and Fig. 5, tau'(t) [-], where it
     reports ``p`` and ``tau_dot``; the tracking error needs q_d(p, tau), the adaptive controller's."""
     import matplotlib

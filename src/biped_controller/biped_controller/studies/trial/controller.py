@@ -34,7 +34,7 @@ from biped_sim.plant.push import Push
 
 from biped_controller.core.control.controller import MODES
 from biped_controller.plugin.interface import InterfaceError
-from biped_controller.plugin.loop import PluginRunResult
+from biped_controller.plugin.result import RunResult
 from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, load_controller
 from biped_controller.studies import runner
 from biped_controller.studies.trial import plugin_trials, runs, stop
@@ -71,7 +71,7 @@ class TrialController(ABC):
 
     @abstractmethod
     def walk(self, steps: int, settings: RunSettings = DEFAULT_SETTINGS, pushes: tuple[Push, ...] = (), *,
-             keep_records: bool = True, integration_rate: bool = False) -> runner.RunResult | PluginRunResult:
+             keep_records: bool = True, integration_rate: bool = False) -> RunResult:
         """One run of ``steps`` impacts with ``settings`` and ``pushes`` (``keep_records`` False: the outcome
         and the last period only)."""
 
@@ -177,7 +177,7 @@ class PluginController(TrialController):
         self.name = name
 
     def walk(self, steps: int, settings: RunSettings = DEFAULT_SETTINGS, pushes: tuple[Push, ...] = (), *,
-             keep_records: bool = True, integration_rate: bool = False) -> PluginRunResult:
+             keep_records: bool = True, integration_rate: bool = False) -> RunResult:
         """``PluginLoop.run`` of this process's loop for ``settings`` (``plugin_trials.trials_for``). The
         loop holds torques over the control period: ``integration_rate`` is the adaptive controller's."""
         if integration_rate:
@@ -189,7 +189,7 @@ class PluginController(TrialController):
     def band(self, settings: RunSettings, steps: int) -> Band:
         return plugin_trials.plugin_band(self.name, settings, int(steps))
 
-    def verdict(self, result: PluginRunResult, push_end: float, band: Band) -> Verdict:
+    def verdict(self, result: RunResult, push_end: float, band: Band) -> Verdict:
         return Verdict(*plugin_trials.survival(result, push_end, band))
 
     def survives(self, push: Push, settings: RunSettings = DEFAULT_SETTINGS,
@@ -197,7 +197,7 @@ class PluginController(TrialController):
         """``plugin_trials.survives_push`` (the loop of this process reused; ``pool`` is the compiled path's)."""
         return plugin_trials.survives_push(push, self.name, settings)
 
-    def summary(self, result: PluginRunResult, push_end: float | None = None) -> dict:
+    def summary(self, result: RunResult, push_end: float | None = None) -> dict:
         return summarize_reported(result, push_end=push_end)
 
 

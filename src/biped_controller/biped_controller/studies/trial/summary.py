@@ -77,7 +77,7 @@ def _reduce(f, x: np.ndarray) -> float:
 
 
 def summarize_reported(result, family: GaitFamily | None = None, push_end: float | None = None) -> dict:
-    """:func:`summarize`'s numbers of a run of any interface controller (``plugin.loop.PluginRunResult``):
+    """:func:`summarize`'s numbers of a run of any interface controller (``plugin.result.RunResult``):
     the plant's (steps, fall, sim time, CoP l [m], impact times, step durations [s]) and, from the status keys
     the controller reports, ``max_tracking_error`` [rad], ``p`` [m], ``tau`` [s], ``tau_dot`` [-],
     ``force_estimate`` [N] and ``lam`` [rad]; a key it does not report is NaN (null in JSON). ``fault``: the
