@@ -218,3 +218,16 @@ def test_one_result_type_reads_a_status_key_of_either_loop():
     assert np.array_equal(b.series("p"), np.array([s["p"] for s in b.statuses]))
     assert np.all(np.isnan(b.series("no_such_key"))) and len(b.series("no_such_key")) == len(b.statuses) > 0
     assert b.controller == "capture_point" and b.fault is None and b.periods == len(b.records)
+
+
+def test_experiment_walk_of_a_faulting_plugin_prints_the_fault(tmp_path, capsys):
+    r, text = _experiment(["walk", "--controller", f"{__name__}:NaNTorque", "--steps", "1"], tmp_path, capsys)
+    assert r["zoh"]["fault"] and "non-finite torque" in r["zoh"]["fault"] and r["zoh"]["steps_walked"] == 0
+    assert "controller fault (ZOH 1 ms)" in text and "force estimate" not in text
+
+
+class NaNTorque(ZeroTorque):
+    """A NaN torque (a controller fault in the first period)."""
+
+    def compute(self, obs: Observation) -> ControlResult:
+        return ControlResult(np.full(6, np.nan), {})

@@ -80,10 +80,11 @@ def print_walk(r: dict) -> None:
             continue
         print(f"impact times ({label}): " + ", ".join(f"{x:.6f}" for x in r[key]["impact_times"]))
         s = r[key]
-        print(f"force estimate |F| ({label}): p50 {s['force_estimate_abs_p50']:.1f} N, p95 "
-              f"{s['force_estimate_abs_p95']:.1f} N, max {s['force_estimate_abs_max']:.1f} N")
         if s.get("fault"):
             print(f"controller fault ({label}): {s['fault']}")
+        if math.isfinite(s["force_estimate_abs_max"]):      # NaN: the controller reports no force estimate
+            print(f"force estimate |F| ({label}): p50 {s['force_estimate_abs_p50']:.1f} N, p95 "
+                  f"{s['force_estimate_abs_p95']:.1f} N, max {s['force_estimate_abs_max']:.1f} N")
     if r["explanation"]:
         print(r["explanation"])
 
