@@ -11,7 +11,8 @@ repeat by repeat (the machine is shared: compare figures of the same run):
 * ``builtin_<mode>_objects``: ``runner.run`` with the compiled period but a Python object per period;
 * ``adapter_none``: mode none through the plug-in loop (``plugin.loop``: the built-in adapter);
 * ``plugin_<name>``: each ``--controller`` through the plug-in loop (default the example
-  ``capture_point``, pure Python).
+  ``capture_point``, pure Python; a built-in mode's name times its adapter there, its compiled path being
+  ``builtin_<mode>_compiled``). ``scripts/bench --controller NAME`` runs this bench.
 
 The plug-in loop's time is split (one extra instrumented run per plug-in, not the timed one) into the
 controller's ``compute`` (guard included), the plant's ``step`` and ``observe``, and the rest of the loop
@@ -32,6 +33,7 @@ from pathlib import Path
 from time import perf_counter_ns
 
 from biped_controller.studies import provenance
+from biped_controller.studies.trial.args import controller_arg
 from benchmarks import RESULTS_DIR
 
 TARGET_REALTIME = 5.0
@@ -68,8 +70,9 @@ def _split(name: str, steps: int) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--controller", action="append", default=None, metavar="NAME",
-                    help="plug-in controllers to time (repeatable; default capture_point)")
+    ap.add_argument("--controller", type=controller_arg, action="append", default=None, metavar="NAME",
+                    help="controllers to time through the plug-in loop (repeatable; default capture_point; an "
+                         "unknown name is an error naming it, before any run)")
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--json", type=Path, default=RESULTS_DIR / "plugin.json")
@@ -78,16 +81,13 @@ def main(argv=None) -> int:
         ap.error("--steps and --repeats must be >= 1")
     provenance.track(a.json, argv=argv, plant="rigid")
     from biped_controller.plugin.loop import PluginLoop
-    from biped_controller.plugin.registry import load_controller
     from biped_controller.studies.runner import run
     from biped_sim.plant.config import load_sim_config
     from biped_sim.robot.description import load_description
     from biped_sim.robot.gait_family import GaitFamily
     from biped_controller.core.control.controller import load_controller_config
 
-    names = a.controller or ["capture_point"]
-    for n in names:
-        load_controller(n)           # an unknown name stops here, naming it
+    names = list(dict.fromkeys(a.controller or ["capture_point"]))
     desc, family, scfg = load_description(), GaitFamily.load(), load_sim_config()
     ccfg = {m: load_controller_config(mode=m) for m in ("none", "both")}
     loops = {"adapter_none": PluginLoop("none", sim_config=scfg, family=family, desc=desc)}

@@ -30,6 +30,7 @@ import numpy as np
 
 from biped_controller.core.control.controller import QP_ROWS
 from biped_controller.studies import provenance
+from biped_controller.studies.trial.args import controller_arg
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -747,7 +748,8 @@ def inprocess_only(json_path: Path, steps: int = 5, repeats: int = 3) -> int:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="biped benchmarks")
     ap.add_argument("--quick", action="store_true", help="a few hundred steps / instances")
-    ap.add_argument("--json", default=str(RESULTS_DIR / "results.json"))
+    ap.add_argument("--json", default=None,
+                    help="default results/benchmarks/results.json (with --controller: results/benchmarks/plugin.json)")
     ap.add_argument("--md", default=None, help="Markdown table (default: results.md beside the JSON)")
     ap.add_argument("--sub-results", type=Path, default=RESULTS_DIR,
                     help="directory of the sub-benchmarks' files whose keys are merged (default: %(default)s)")
@@ -758,7 +760,22 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", default=None, metavar="NAME",
                     help="a named profile of config/profiles/ for every controller and plant the bench builds "
                          "(default: the configuration files); a profile with a plant perturbation is refused")
+    ap.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
+                    help="instead of the bench's sections: the in-process speed of the named controller "
+                         "(repeatable; a built-in mode, a registered controller or module:Class) walking on the "
+                         "rigid plant beside the built-in modes (benchmarks/plugin_bench.py; --quick: 1 step, "
+                         "1 repeat)")
     a = ap.parse_args(argv)
+    if a.controller:
+        if a.profile is not None or a.inprocess_only:
+            ap.error("--controller times the configuration files' settings alone (no --profile, "
+                     "no --inprocess-only)")
+        from benchmarks import plugin_bench
+        return plugin_bench.main(["--json", a.json or str(RESULTS_DIR / "plugin.json")]
+                                 + [x for n in a.controller for x in ("--controller", n)]
+                                 + (["--steps", "1", "--repeats", "1"] if a.quick else []))
+    if a.json is None:
+        a.json = str(RESULTS_DIR / "results.json")
     global _SETTINGS
     from biped_controller.studies.trial.settings import OverrideError, differences, run_settings
     try:

@@ -1,5 +1,6 @@
 """Bring your own controller: the controller interface (``interface``), the registry of controllers by
 name (``registry``: built-in modes, ``biped.controllers`` entry points, ``module:Class``), the built-in
 modes as interface controllers (``builtin``), the in-process closed loop that drives any of them on the
-rigid or the MuJoCo plant (``loop``) and its push trials and max-push search (``study``).
+rigid or the MuJoCo plant (``loop``) and the run's result, the same type as the studies' ``runner.run``'s
+(``result``); the push trials and the max-push search are the studies' (``studies.trial.plugin_trials``).
 ``python -m biped_controller.studies.controllers list | check NAME | max-push NAME`` (the CLI lives with the studies). Pure Python, no ROS."""

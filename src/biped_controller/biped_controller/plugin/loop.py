@@ -14,7 +14,6 @@ The controller never gets the plant: only observations.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
@@ -23,37 +22,13 @@ from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.protocol import make_plant
 from biped_sim.plant.push import Push
-from biped_sim.plant.records import ImpactRecord, StepRecord
 from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.robot.gait_family import GaitFamily
 
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, Observation,
                                                stamp_time)
 from biped_controller.plugin.registry import make_controller
-
-
-@dataclass
-class PluginRunResult:
-    """One run: the plant's records (one ``StepRecord`` a period), the controller's status mapping of each
-    period, the touchdowns, the fall (cause, detail, time [s]; empty / NaN without one) and the controller
-    fault that ended the run (None without one)."""
-
-    controller: str
-    records: list[StepRecord]
-    statuses: list[Mapping[str, float | int | bool]]
-    steps_walked: int
-    fallen: bool
-    fall_cause: str
-    fall_detail: str
-    fall_time: float
-    impacts: list[ImpactRecord]
-    fault: ControllerFault | None = None
-    periods: int = 0             # periods simulated (also when records are not kept)
-    last_status: Mapping[str, float | int | bool] = field(default_factory=dict)
-
-    def series(self, key: str) -> np.ndarray:
-        """One status key over the kept periods (NaN where a period's status lacks it)."""
-        return np.array([float(s.get(key, math.nan)) for s in self.statuses])
+from biped_controller.plugin.result import RunResult
 
 
 class PluginLoop:
@@ -79,7 +54,7 @@ class PluginLoop:
         self.sim = make_plant(self.scfg.plant, self.desc, self.scfg, perturbation)
 
     def run(self, steps: int, pushes: tuple[Push, ...] = (), *, limit: float | None = None,
-            extra_time_after_steps: float = 0.0, keep_records: bool = True) -> PluginRunResult:
+            extra_time_after_steps: float = 0.0, keep_records: bool = True) -> RunResult:
         """Reset plant and controller to the family's initial state (LEFT stance, t = 0), schedule
         ``pushes`` and walk (module docstring). ``limit`` [s] defaults to ``runner.run``'s,
         (steps + 3) 3 T. ``keep_records`` False: the outcome and the last status only."""
@@ -126,7 +101,7 @@ class PluginLoop:
             if sim.t >= limit:
                 break
         fall = sim.fall
-        return PluginRunResult(controller=self.name, records=records, statuses=statuses,
+        return RunResult(controller=self.name, records=records, statuses=statuses,
                                steps_walked=sim.impact_count, fallen=fall is not None,
                                fall_cause=fall.cause if fall else "", fall_detail=fall.detail if fall else "",
                                fall_time=fall.t if fall else math.nan, impacts=list(sim.impact_log), fault=fault,
@@ -137,7 +112,7 @@ def run(controller: str | object, steps: int = 10, pushes: tuple[Push, ...] = ()
         sim_config: SimConfig | None = None, family: GaitFamily | None = None, desc: RobotDescription | None = None,
         perturbation: PlantPerturbation | None = None, options: Mapping[str, object] | None = None,
         limit: float | None = None, extra_time_after_steps: float = 0.0, keep_records: bool = True
-        ) -> PluginRunResult:
+        ) -> RunResult:
     """One run of ``controller`` (a registered name or a built controller) on the plant of ``sim_config``
     (``plant: rigid`` or ``mujoco``): :class:`PluginLoop` built for it, then :meth:`PluginLoop.run`."""
     return PluginLoop(controller, sim_config=sim_config, family=family, desc=desc, perturbation=perturbation,

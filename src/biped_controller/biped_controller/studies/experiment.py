@@ -3,9 +3,10 @@
 Pure Python on top of the in-process closed loop (``runner.run``: plant + AdaptiveController in lockstep,
 no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
 
-  walk      --steps 10 [--mode M]              tracking with the controller at the integration rate
+  walk      --steps 10 [--mode M | --controller NAME]
+                                               tracking with the controller at the integration rate
                                                and at the control period (zero-order hold)
-  push      --force 250 --duration 0.025 [--start 0.2315] [--mode both] [--figures DIR]
+  push      --force 250 --duration 0.025 [--start 0.2315] [--mode both | --controller NAME] [--figures DIR]
                                                one push (+ forward, on the back); figures like the
                                                paper's Figs. 3-7
   max-push  --mode M | --controller NAME [--resolution 5] [--max 2000] [--coarse 50]
@@ -18,9 +19,17 @@ no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
   band      [--mode M] [--duration D] [--start S]
                                                the survival rule's band: the unpushed walk of a trial's
                                                impacts, its excursions step by step, the band
-  probe     --force F [--mode M] [--start S]   one push, the controller's view period by period while
+  probe     --force F [--mode M | --controller NAME] [--start S]
+                                               one push, the controller's view period by period while
                                                it acts: true push vs the observer's estimate, predicted
                                                vs actual ground reaction and l, QP status, tightest row
+                                               (a plug-in: the actual reaction and l beside the status
+                                               it reports)
+
+``--controller NAME`` (walk, push, probe, max-push, table): a built-in mode, a registered controller
+(``python -m biped_controller.studies.controllers list``) or ``module:Class``, run through the studies' one
+resolution step (``trial.controller.resolve``: built-in modes on the compiled path, any other controller
+through the generic loop; docs/controllers.md). An unknown name is an error naming it, before any run.
 
 Settings of every subcommand: ``--profile NAME`` (config/profiles/: paper, default, real-sensors, ...),
 ``--observer on|off`` (the controller's disturbance observer) and ``--set KEY=VALUE`` (repeatable) for any
@@ -71,7 +80,15 @@ def _dump(path: Path | None, data: dict) -> None:
         if isinstance(o, float) and not math.isfinite(o):
             return None
         raise TypeError(type(o))
-    path.write_text(json.dumps(data, indent=1, default=conv) + "\n", encoding="utf-8")
+    def finite(o):              # json writes a float NaN as NaN (not JSON): null, as conv does for NumPy's
+        if isinstance(o, float) and not math.isfinite(o):
+            return None
+        if isinstance(o, dict):
+            return {k: finite(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [finite(v) for v in o]
+        return o
+    path.write_text(json.dumps(finite(data), indent=1, default=conv) + "\n", encoding="utf-8")
 
 
 def _push_window_args(a, with_force: bool) -> None:
@@ -83,6 +100,12 @@ def _push_window_args(a, with_force: bool) -> None:
                    help="above the hip [m] (default: push_height of config/simulator.yaml)")
 
 
+def _controller_arg(a: argparse.ArgumentParser) -> None:
+    a.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
+                   help="any registered controller (python -m biped_controller.studies.controllers list) in place "
+                        "of --mode")
+
+
 def parser() -> StudyArgumentParser:
     """The command line of ``scripts/experiment``."""
     ap = StudyArgumentParser(prog="scripts/experiment", description=__doc__,
@@ -91,6 +114,7 @@ def parser() -> StudyArgumentParser:
     a = sub.add_parser("walk", help="undisturbed walk: integration-rate vs ZOH controller")
     a.add_argument("--steps", type=positive_int, default=10)
     a.add_argument("--mode", choices=MODES, default="both")
+    _controller_arg(a)
     a.add_argument("--json", type=Path)
     add_settings_args(a)
     for name, hlp in (("push", "one push, with figures like the paper's Figs. 3-7"),
@@ -98,6 +122,7 @@ def parser() -> StudyArgumentParser:
         a = sub.add_parser(name, help=hlp)
         _push_window_args(a, with_force=True)
         a.add_argument("--mode", choices=MODES, default="both")
+        _controller_arg(a)
         if name == "push":
             a.add_argument("--figures", type=Path, help="directory for the PNG figures")
         else:
@@ -115,8 +140,7 @@ def parser() -> StudyArgumentParser:
         a = sub.add_parser(name, help=hlp)
         if name == "max-push":
             a.add_argument("--mode", choices=MODES, default="both")
-            a.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
-                           help="any registered controller (python -m biped_controller.studies.controllers list) in place of --mode")
+            _controller_arg(a)
         else:
             a.add_argument("--modes", type=modes_arg, default=TABLE_MODES,
                            help=f"comma-separated modes (default {','.join(TABLE_MODES)}; any of {','.join(MODES)})")
@@ -142,11 +166,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"scripts/experiment {' '.join(given)}")
     print_settings(settings)
     if args.cmd == "walk":
-        r = single_runs.walk(args.steps, args.mode, settings)
+        r = single_runs.walk(args.steps, args.controller or args.mode, settings)
         single_runs.print_walk(r)
     elif args.cmd == "push":
         push = paper_push(args.force, start=args.start, duration=args.duration, height=args.height)
-        r = single_runs.push_experiment(push, args.mode, args.figures, settings)
+        r = single_runs.push_experiment(push, args.controller or args.mode, args.figures, settings)
         single_runs.print_push(r)
     elif args.cmd == "band":
         push = paper_push(0.0, start=args.start, duration=args.duration, height=args.height)
@@ -154,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         single_runs.print_band_walk(r)
     elif args.cmd == "probe":
         push = paper_push(args.force, start=args.start, duration=args.duration, height=args.height)
-        r = single_runs.probe(push, args.mode, settings, after=args.after)
+        r = single_runs.probe(push, args.controller or args.mode, settings, after=args.after)
         single_runs.print_probe(r)
     else:
         if args.cmd == "max-push":

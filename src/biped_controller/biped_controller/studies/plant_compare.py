@@ -5,7 +5,9 @@ prints. Pure Python on ``runner.run`` (no ROS). Usage::
                                                         [--profile P] [--json F]
     python -m biped_controller.studies.plant_compare falls [--json F]
     python -m biped_controller.studies.plant_compare pushes [--dir results/mujoco_plant] [--reuse] [--profile P]
-    python -m biped_controller.studies.plant_compare push --force 600 [--mode both] [--observer on|off] [--profile P]
+                                                        [--controller NAME ...]
+    python -m biped_controller.studies.plant_compare push --force 600 [--mode both | --controller NAME]
+                                                       [--observer on|off] [--profile P]
     python -m biped_controller.studies.plant_compare cmap --rigid STORE --mujoco STORE
     python -m biped_controller.studies.plant_compare fingerprint
     python -m biped_controller.studies.plant_compare robustness --rigid JSON ... --mujoco JSON ...
@@ -62,6 +64,7 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +75,7 @@ from biped_controller.core.control.controller import MODES
 from biped_controller.studies import runner
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, finite_float,
                                                  nonnegative_float, positive_int, profile_arg)
+from biped_controller.studies.trial.controller import resolve
 from biped_controller.studies.trial.settings import DEFAULT_PROFILE, RunSettings, parse_overrides
 from biped_controller.studies import provenance
 
@@ -84,16 +88,17 @@ def _stance_pitch(records) -> np.ndarray:
     return np.where(st == 0, X[:, 2] + X[:, 3:6].sum(1), X[:, 2] + X[:, 6:9].sum(1))
 
 
-def _on_plant(settings: RunSettings, plant: str):
-    """The simulator settings of ``settings`` with the plant ``plant``."""
-    return load_sim_config(**{**dict(settings.simulator), "plant": plant})
+def _with_plant(settings: RunSettings, plant: str) -> RunSettings:
+    """``settings`` with the simulator setting ``plant`` (rigid or mujoco)."""
+    return replace(settings, simulator=tuple(sorted({**dict(settings.simulator), "plant": plant}.items())))
 
 
 def walk_row(plant: str, mode: str, steps: int, settings: RunSettings | None = None) -> dict:
-    """One undisturbed walk on ``plant`` with ``settings`` (None: the configuration files; JSON-ready row, see
-    the module docstring)."""
-    kw = {} if settings is None else {"ctrl_config": settings.ctrl_config(mode),
-                                      "perturbation": settings.perturbation}
+    """One undisturbed walk of the controller ``mode`` on ``plant`` with ``settings`` (None: the configuration
+    files; ``TrialController.walk``; JSON-ready row, see the module docstring). The tracking error [rad] and
+    the final p [m] and tau' [-] are the status keys ``max_tracking_error``, ``p``, ``tau_dot`` (None where
+    the controller does not report them)."""
+    on_plant = _with_plant(settings if settings is not None else RunSettings(), plant)
     from biped_sim.plant import mujoco as pm
     plants = []
     orig = pm.MujocoPlant.reset
@@ -102,24 +107,14 @@ def walk_row(plant: str, mode: str, steps: int, settings: RunSettings | None = N
         plants.append(self)
         return orig(self, *a, **k)
     pm.MujocoPlant.reset = grab
-    plugin = mode not in MODES
     try:
-        if plugin:      # any registered controller (plugin.loop), the settings' plant perturbation
-            from biped_controller.plugin.loop import run as plugin_run
-            r = plugin_run(mode, steps, sim_config=_on_plant(settings or RunSettings(), plant),
-                           perturbation=None if settings is None else settings.perturbation)
-        else:
-            r = runner.run(steps=steps, mode=mode, sim_config=_on_plant(settings or RunSettings(), plant), **kw)
+        r = resolve(mode).walk(steps, on_plant)
     finally:
         pm.MujocoPlant.reset = orig
-    if plugin:
-        last = r.last_status
-        track = [abs(float(x["max_tracking_error"])) for x in r.statuses if "max_tracking_error" in x]
-        tracking = float(max(track)) if track else None
-        final = {k: (float(last[k]) if k in last else None) for k in ("tau_dot", "p")}
-    else:
-        tracking = runner.tracking_error(r)
-        final = {"tau_dot": float(r.statuses[-1].tau_dot), "p": float(r.statuses[-1].p)}
+    track = [abs(float(x)) for x in r.series("max_tracking_error") if not math.isnan(x)]
+    tracking = float(max(track)) if track else None
+    final = {k: (float(r.series(k)[-1]) if r.statuses and not math.isnan(r.series(k)[-1]) else None)
+             for k in ("tau_dot", "p")}
     ti = [0.0] + [i.t for i in r.impacts]
     st = np.diff(ti)
     work, crit = [], []
@@ -192,22 +187,28 @@ def no_fall_edge(trials: list[dict]) -> tuple[float, float | None, str]:
     return lo, hi, cause
 
 
-def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE) -> tuple[str, dict]:
+def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE,
+                 controllers: tuple[str, ...] = ()) -> tuple[str, dict]:
+    """The max-push table of the four modes and of the ``controllers`` named (registered controllers'
+    names, ``trial.controller.resolve``) on both plants, observer on and off (module docstring, ``pushes``).
+    ``reuse``: a table file that holds every row asked for is read, not run again."""
     from biped_controller.studies import experiment
+    names = tuple(dict.fromkeys(("none", "tau", "p", "both") + tuple(controllers)))
     data = {}
     for obs in ("on", "off"):
         for plant in PLANTS:
             f = directory / f"table_{plant}_observer_{obs}.json"
-            if not (reuse and f.is_file()):
+            if not (reuse and f.is_file() and set(names) <= set(json.loads(f.read_text(encoding="utf-8"))["modes"])):
                 experiment.main(["table", "--workers", "2", "--profile", profile, "--observer", obs,
-                                 "--set", f"plant={plant}", "--json", str(f)])
+                                 "--set", f"plant={plant}", "--json", str(f)]
+                                + [x for c in controllers for x in ("--controller", c)])
             data[(plant, obs)] = json.loads(f.read_text(encoding="utf-8"))["modes"]
     L = ["| observer | mode | paper [N] | rigid: max push [N] (first failure) | MuJoCo: max push [N] (first failure) | "
          "rigid: no-fall edge [N], first fall | MuJoCo: no-fall edge [N], first fall |",
          "| --- | --- | ---: | --- | --- | --- | --- |"]
     out = {}
     for obs in ("on", "off"):
-        for mode in ("none", "tau", "p", "both"):
+        for mode in names:
             cells = []
             for plant in PLANTS:
                 m = data[(plant, obs)][mode]
@@ -222,11 +223,15 @@ def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE) -
 
 
 def push_pair(push: Push, mode: str, observer: bool | None = None, profile: str = DEFAULT_PROFILE) -> list[dict]:
-    """``push`` and 5 steps after it in ``mode`` on both plants (the profile's settings, the observer on or
-    off, None: the profile's): the outcome and on MuJoCo the contact diagnostics (module docstring)."""
+    """``push`` and 5 steps after it by the controller ``mode`` (a built-in mode or a registered controller,
+    ``TrialController.walk``) on both plants (the profile's settings, the observer on or off, None: the
+    profile's; the observer is the adaptive controller's): the outcome and on MuJoCo the contact diagnostics
+    (module docstring). ``final_p`` [m] and ``final_tau_dot`` [-] are None for a controller that does not
+    report them."""
     from biped_sim.plant import mujoco as pm
+    ctl = resolve(mode)
     st = parse_overrides((), observer, profile=profile)
-    observer = st.ctrl_config(mode).disturbance_observer
+    observer = st.ctrl_config(mode).disturbance_observer if ctl.adaptive else False
     force, start = push.force, push.start
     out = []
     for plant in PLANTS:
@@ -238,13 +243,16 @@ def push_pair(push: Push, mode: str, observer: bool | None = None, profile: str 
             return orig(self, *a, **k)
         pm.MujocoPlant.reset = grab
         try:
-            r = runner.run(steps=6, mode=mode, pushes=(push,), sim_config=_on_plant(st, plant),
-                           ctrl_config=st.ctrl_config(mode), perturbation=st.perturbation)
+            r = ctl.walk(6, _with_plant(st, plant), (push,))
         finally:
             pm.MujocoPlant.reset = orig
+        final = {k: (float(r.series(k)[-1]) if r.statuses and not math.isnan(r.series(k)[-1]) else None)
+                 for k in ("tau_dot", "p")}
         row = dict(plant=plant, mode=mode, observer=observer, force=force, start=start, steps_walked=r.steps_walked,
                    fall=r.fall_cause or None, fall_time=None if math.isnan(r.fall_time) else r.fall_time,
-                   detail=r.fall_detail or None, final_p=float(r.statuses[-1].p), final_tau_dot=float(r.statuses[-1].tau_dot))
+                   detail=r.fall_detail or None, final_p=final["p"], final_tau_dot=final["tau_dot"])
+        if r.fault is not None:
+            row["fault"] = str(r.fault)
         if plants:
             row["contact"] = plants[-1].diagnostics.as_dict()
         out.append(row)
@@ -432,12 +440,16 @@ def main(argv: list[str] | None = None) -> int:
     pu = sub.add_parser("pushes")
     pu.add_argument("--dir", type=Path, default=Path("results/mujoco_plant"))
     pu.add_argument("--reuse", action="store_true")
+    pu.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
+                    help="a registered controller's rows beside the four modes (repeatable)")
     for p_ in (w, pu):
         p_.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE, help="config/profiles/ NAME")
     pu.add_argument("--json", type=Path, default=None)
     po = sub.add_parser("push")
     po.add_argument("--force", type=finite_float, required=True)
     po.add_argument("--mode", choices=MODES, default="both")
+    po.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
+                    help="any registered controller (python -m biped_controller.studies.controllers list) in place of --mode")
     po.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE, help="config/profiles/ NAME")
     po.add_argument("--observer", choices=("on", "off"), default=None,
                     help="the disturbance observer (default: the profile's; on in the default profile)")
@@ -466,10 +478,10 @@ def main(argv: list[str] | None = None) -> int:
         table, rows = robustness_table(a.rigid, a.mujoco)
         print(table)
     elif a.cmd == "push":
-        rows = push_pair(Push(a.start, 0.025, float(a.force)), a.mode,
+        rows = push_pair(Push(a.start, 0.025, float(a.force)), a.controller or a.mode,
                          None if a.observer is None else a.observer == "on", a.profile)
     elif a.cmd == "pushes":
-        table, rows = pushes_table(a.dir, a.reuse, a.profile)
+        table, rows = pushes_table(a.dir, a.reuse, a.profile, tuple(a.controller))
         print(table)
     elif a.cmd == "walk":
         try:

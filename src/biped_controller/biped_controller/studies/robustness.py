@@ -49,7 +49,6 @@ import numpy as np
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 
 from biped_controller.studies import capability_map as cmap
-from biped_controller.studies import runner
 from biped_controller.core.control.controller import MODES
 from biped_controller.studies.executor import make_executor
 from biped_controller.studies.provenance import git_state
@@ -57,6 +56,7 @@ from biped_controller.studies.trial.survival import survival_rule
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, positive_int,
                                                  profile_arg)
 from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.controller import resolve
 from biped_controller.studies.trial.settings import (DEFAULT_PROFILE, RunSettings, differences, parse_overrides,
                                                      print_settings)
 from biped_controller.studies import provenance
@@ -89,9 +89,10 @@ def search_for(mode: str) -> cmap.Search:
 
 
 def single_observer(mode: str) -> bool:
-    """The row runs once, observer off: mode none (its torque never uses the estimate) and any plug-in
+    """The row runs once, observer off, when the observer setting does not change the controller's runs
+    (``TrialController.uses_observer``): mode none (its torque never uses the estimate) and any plug-in
     controller (the observer setting is the adaptive controller's)."""
-    return mode == "none" or mode not in MODES
+    return not resolve(mode).uses_observer
 
 
 @dataclass(frozen=True)
@@ -177,58 +178,37 @@ def settings_for(perturbation: PlantPerturbation, observer: bool, full_trials: b
 def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, steps: int = WALK_STEPS,
                 simulator: tuple[tuple[str, object], ...] | None = None,
                 controller: tuple[tuple[str, object], ...] | None = None) -> dict:
-    """One undisturbed walk of ``steps`` impacts (the pure task of a worker: ``simulator`` and ``controller``
-    overrides passed with it, never read from a global in a spawned worker); JSON-ready record."""
-    ctx = context()
+    """One undisturbed walk of ``steps`` impacts by the controller ``mode`` (``TrialController.walk``; the
+    pure task of a worker: ``simulator`` and ``controller`` overrides passed with it, never read from a global
+    in a spawned worker); JSON-ready record. The tracking error [rad], p [m], tau' [-] and the force estimate
+    [N] come from the status keys ``max_tracking_error``, ``p``, ``tau_dot``, ``force_estimate`` (None where
+    the controller does not report them); a controller fault is a failed walk whose cause is the fault."""
     st = settings_for(perturbation, observer, simulator=simulator, controller=controller)
     t0 = time.perf_counter()
-    if mode not in MODES:
-        return _plugin_walk_record(perturbation, mode, steps, st, walk_fingerprint(perturbation, observer, simulator,
-                                                                                   controller), t0)
-    res = runner.run(steps=steps, mode=mode, sim_config=st.sim_config(), ctrl_config=st.ctrl_config(mode),
-                     family=ctx.family, desc=ctx.desc, perturbation=perturbation)
-    err = [s.max_tracking_error for s in res.statuses]
-    cop = [abs(r.cop) for r in res.records if math.isfinite(r.cop) and not r.fallen]
-    est = [abs(s.force_estimate) for s in res.statuses]
-    return {
-        "kind": "walk", "perturbation": perturbation.as_dict(), "mode": mode, "observer": bool(observer),
-        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer, simulator, controller), "survived": (not res.fallen) and res.steps_walked >= steps,
-        "steps_walked": int(res.steps_walked), "fall_cause": res.fall_cause or None,
-        "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
-        "fall_detail": res.fall_detail or None,
-        "max_tracking_error": float(max(err)) if err else None,
-        "max_abs_l": float(max(cop)) if cop else None,
-        "max_force_estimate": float(max(est)) if est else None,
-        "final_p": float(res.statuses[-1].p), "final_tau_dot": float(res.statuses[-1].tau_dot),
-        "wall_time": time.perf_counter() - t0,
-    }
-
-
-def _plugin_walk_record(perturbation: PlantPerturbation, name: str, steps: int, st: RunSettings, fingerprint: str,
-                        t0: float) -> dict:
-    """:func:`walk_record` of a plug-in controller (``plugin.loop``): the same fields; the tracking error, p and
-    tau' from its status keys ``max_tracking_error``, ``p``, ``tau_dot`` when it reports them (None otherwise),
-    no force estimate; a controller fault is a failed walk whose cause is the fault."""
-    from biped_controller.studies.trial.plugin_trials import trials_for
-    res = trials_for(name, st).loop.run(steps, ())
-    last = res.last_status
+    ctl = resolve(mode)
+    res = ctl.walk(steps, st)
+    fault = res.fault
 
     def top(key):
-        v = [abs(float(x[key])) for x in res.statuses if key in x]
+        v = [abs(float(x)) for x in res.series(key) if not math.isnan(x)] if res.statuses else []
         return float(max(v)) if v else None
+
+    def final(key):
+        v = res.series(key)[-1:] if res.statuses else ()
+        return float(v[0]) if len(v) and not math.isnan(v[0]) else None
     cop = [abs(r.cop) for r in res.records if math.isfinite(r.cop) and not r.fallen]
-    cause = res.fall_cause or (f"controller fault: {res.fault.kind}" if res.fault is not None else None)
+    cause = res.fall_cause or (f"controller fault: {fault.kind}" if fault is not None else None)
     return {
-        "kind": "walk", "perturbation": perturbation.as_dict(), "mode": name, "observer": False,
-        "steps": steps, "fingerprint": fingerprint,
-        "survived": (not res.fallen) and res.fault is None and res.steps_walked >= steps,
+        "kind": "walk", "perturbation": perturbation.as_dict(), "mode": mode,
+        "observer": bool(observer) and ctl.uses_observer,
+        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer, simulator, controller),
+        "survived": (not res.fallen) and fault is None and res.steps_walked >= steps,
         "steps_walked": int(res.steps_walked), "fall_cause": cause,
         "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
-        "fall_detail": res.fall_detail or (str(res.fault) if res.fault is not None else None),
+        "fall_detail": res.fall_detail or (str(fault) if fault is not None else None),
         "max_tracking_error": top("max_tracking_error"), "max_abs_l": float(max(cop)) if cop else None,
-        "max_force_estimate": None,
-        "final_p": float(last["p"]) if "p" in last else None,
-        "final_tau_dot": float(last["tau_dot"]) if "tau_dot" in last else None,
+        "max_force_estimate": top("force_estimate"),
+        "final_p": final("p"), "final_tau_dot": final("tau_dot"),
         "wall_time": time.perf_counter() - t0,
     }
 

@@ -8,7 +8,7 @@ The node graph does exactly this over DDS; ``run`` is the reference the DDS run 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -18,33 +18,13 @@ from biped_sim.robot.description import LEFT, RobotDescription, load_description
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfig, load_sim_config
-from biped_sim.plant.records import ImpactRecord, StepRecord
 from biped_sim.plant.protocol import Plant, make_plant
 
-from biped_controller.core.control.controller import AdaptiveController, ControllerConfig, ControllerStatusData, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, ControllerConfig, load_controller_config
 from biped_controller.core.control.controller_layout import M_
+from biped_controller.plugin.result import RunResult
 from biped_controller.studies.segment import Segment
 from biped_sim.robot.gait_family import GaitFamily
-
-
-@dataclass
-class RunResult:
-    records: list[StepRecord]
-    statuses: list[ControllerStatusData]
-    steps_walked: int
-    fallen: bool
-    fall_cause: str
-    fall_detail: str
-    fall_time: float
-    impacts: list[ImpactRecord]
-    # with keep_qp: (G, h, x*, qp_status) of every period that built a QP instance
-    qp_instances: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = field(default_factory=list)
-    # the controller's committed parameters over the run (from its reset, the walk to a restored snapshot
-    # included): (smallest p, largest p [m], smallest tau', largest tau' [-]), NaN when one was NaN
-    param_range: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, math.nan)
-
-    def series(self, name: str) -> np.ndarray:
-        return np.array([getattr(s, name) for s in self.statuses])
 
 
 def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,

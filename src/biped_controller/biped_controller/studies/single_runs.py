@@ -21,8 +21,9 @@ from biped_controller.studies.runner import RunResult
 from biped_controller.studies.trial import runs
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, differences
-from biped_controller.studies.trial.summary import joint_errors, summarize
+from biped_controller.studies.trial.summary import joint_errors
 from biped_controller.studies.trial.survival import survival_rule
+from biped_controller.studies.trial.controller import resolve
 from biped_controller.studies.trial.trials import band as trial_band
 
 ZOH_EXPLANATION = (
@@ -36,17 +37,25 @@ ZOH_EXPLANATION = (
 
 
 def walk(steps: int = 10, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS) -> dict:
-    """Undisturbed walking for ``steps`` impacts, controller at the integration rate and at the control
-    period (ZOH); with a sensor model only the latter (a torque function sees the true state)."""
-    out = {"steps": steps, "mode": mode, "explanation": ZOH_EXPLANATION}
+    """Undisturbed walking for ``steps`` impacts by the controller ``mode`` (a built-in mode or any registered
+    controller, ``trial.controller.resolve``), at the control period (ZOH) and, for the adaptive controller
+    with ideal sensors, also at the integration rate (a torque function sees the true state; a plug-in's
+    torque is held over the period): ``integration_rate`` None otherwise, ``not_run`` says why."""
+    ctl = resolve(mode)
+    out = {"steps": steps, "mode": mode, "explanation": ZOH_EXPLANATION if ctl.adaptive else "", "not_run": None}
     pert = settings.perturbation
     for key, ir in (("integration_rate", True), ("zoh", False)):
+        if ir and not ctl.adaptive:
+            out[key] = None
+            out["not_run"] = "a plug-in's torque is held over the control period"
+            continue
         if ir and pert is not None and not pert.sensing_is_perfect:
             out[key] = None      # a torque function sees the true state at every RK4 stage: no sensor model
+            out["not_run"] = "the sensor model needs held torques"
             continue
         t0 = time.perf_counter()
-        res = runs.run(steps, mode, integration_rate=ir, settings=settings)
-        s = summarize(res)
+        res = ctl.walk(steps, settings, integration_rate=ir)
+        s = ctl.summary(res)
         s["wall_time"] = time.perf_counter() - t0
         out[key] = s
     return out
@@ -59,7 +68,7 @@ def print_walk(r: dict) -> None:
     for key, label in (("integration_rate", "integration rate"), ("zoh", "ZOH 1 ms")):
         s = r[key]
         if s is None:
-            print(f"{label:<18} (not run: the sensor model needs held torques)")
+            print(f"{label:<18} (not run: {r.get('not_run') or 'the sensor model needs held torques'})")
             continue
         if s["fallen"]:
             print(f"{label:<18} fall: {s['fall_cause']} at t = {s['fall_time']:.4f} s: {s['fall_detail']}")
@@ -71,9 +80,13 @@ def print_walk(r: dict) -> None:
             continue
         print(f"impact times ({label}): " + ", ".join(f"{x:.6f}" for x in r[key]["impact_times"]))
         s = r[key]
-        print(f"force estimate |F| ({label}): p50 {s['force_estimate_abs_p50']:.1f} N, p95 "
-              f"{s['force_estimate_abs_p95']:.1f} N, max {s['force_estimate_abs_max']:.1f} N")
-    print(r["explanation"])
+        if s.get("fault"):
+            print(f"controller fault ({label}): {s['fault']}")
+        if math.isfinite(s["force_estimate_abs_max"]):      # NaN: the controller reports no force estimate
+            print(f"force estimate |F| ({label}): p50 {s['force_estimate_abs_p50']:.1f} N, p95 "
+                  f"{s['force_estimate_abs_p95']:.1f} N, max {s['force_estimate_abs_max']:.1f} N")
+    if r["explanation"]:
+        print(r["explanation"])
 
 
 def push_experiment(push: Push, mode: str = "both", figures: str | Path | None = None,
@@ -81,15 +94,18 @@ def push_experiment(push: Push, mode: str = "both", figures: str | Path | None =
     """One ``push`` and ``SURVIVAL_STEPS`` steps after it: the survival verdict and the run's summary;
     with ``figures`` a directory, the paper-like PNG figures written there."""
     force, duration, start, height = push.force, push.duration, push.start, push.height
-    res = runs.push_run(push, mode, settings=settings)
-    rule, band = survival_rule(), trial_band(mode, push, settings)
-    v = rule.verdict(res, push.end, band)
-    s = summarize(res, push_end=push.end)
+    ctl = resolve(mode)
+    steps = runs.trial_steps(push)
+    res = ctl.walk(steps, settings, (push,))
+    rule, band = survival_rule(), ctl.band(settings, steps)
+    v = ctl.verdict(res, push.end, band)
+    s = ctl.summary(res, push_end=push.end)
     out = {"force": force, "duration": duration, "start": start, "mode": mode, "height": height,
            "survived": v.survived, "reason": v.reason, "band": band.as_dict(), "survival": rule.text(band), **s}
     if figures is not None:
-        out["figures"] = [str(p) for p in push_figures(res, Path(figures), push,
-                                                       title=f"{force:g} N, {duration * 1e3:g} ms at t = {start:g} s, mode {mode}")]
+        title = f"{force:g} N, {duration * 1e3:g} ms at t = {start:g} s, {'mode' if ctl.adaptive else 'controller'} {mode}"
+        draw = push_figures if ctl.adaptive else reported_figures
+        out["figures"] = [str(p) for p in draw(res, Path(figures), push, title=title)]
     return out
 
 
@@ -150,6 +166,8 @@ def print_push(r: dict) -> None:
     if r["mode"] in TORSO_MODES:
         print(f"  max |lambda| = {r['max_abs_lambda']:.5f} rad, final lambda = {r['final_lambda']:.6f} rad")
     print(f"  max tracking error {r['max_tracking_error']:.4e} rad; QP statuses {r['qp_status_counts']}")
+    if r.get("fault"):
+        print(f"  controller fault: {r['fault']}")
     for f in r.get("figures", []):
         print(f"  figure: {f}")
 
@@ -259,6 +277,55 @@ def push_figures(result: RunResult, outdir: Path, push: Push, joint: int | None 
     return paths
 
 
+def reported_figures(result, outdir: Path, push: Push, title: str = "") -> list[Path]:
+    """The PNG figures of :func:`push_figures` that a run of any interface controller
+    (``plugin.result.RunResult``) has the data for: Fig. 3, the centre of pressure l(t) [m] (and the
+    controller's prediction where it reports ``zmp``), Fig. 4, p(t) [m], and Fig. 5, tau'(t) [-], where it
+    reports ``p`` and ``tau_dot``; the tracking error needs q_d(p, tau), the adaptive controller's."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fam, desc = context().family, context().desc
+    outdir.mkdir(parents=True, exist_ok=True)
+    t = np.array([r.t for r in result.records])
+    impacts = [i.t for i in result.impacts]
+    paths = []
+
+    def figure(name: str, ylabel: str, text: str, curves: list[tuple[np.ndarray, str]], lines: list[tuple[float, str]]):
+        fig, ax = plt.subplots(figsize=(7, 3.4))
+        for y, label in curves:
+            ax.plot(t, y, lw=1.0, label=label)
+        for y, label in lines:
+            ax.axhline(y, color="k", ls="--", lw=0.8, label=label)
+        ax.axvspan(push.start, push.end, color="tab:red", alpha=0.15, label="push")
+        for x in impacts:
+            ax.axvline(x, color="0.6", lw=0.6, ls=":")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{text}. {title}", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(outdir / name, dpi=110)
+        plt.close(fig)
+        paths.append(outdir / name)
+
+    def reported(key: str) -> bool:
+        return any(key in st for st in result.statuses)
+    curves = [(np.array([r.cop for r in result.records]), "l (simulator)")]
+    if reported("zmp"):
+        curves.append((result.series("zmp"), "l (controller prediction)"))
+    figure("fig3_l.png", "l [m]", "Fig. 3: centre of pressure l(t)", curves,
+           [(desc.foot.l_max, "limits"), (desc.foot.l_min, "")])
+    if reported("p"):
+        figure("fig4_p.png", "p [m]", "Fig. 4: stride parameter p(t)", [(result.series("p"), "p")], [(fam.p_d, "p_d")])
+    if reported("tau_dot"):
+        figure("fig5_tau.png", "tau' [-]", "Fig. 5: phase rate tau'(t)", [(result.series("tau_dot"), "tau'")],
+               [(1.0, "1")])
+    return paths
+
+
 @dataclass(frozen=True)
 class ProbeResult:
     """A closed-loop run plus what ``runner.run`` does not return: the controller's force estimate."""
@@ -313,6 +380,9 @@ def probe(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTIN
     B w + h_b, with the estimate when the observer is on) against the simulator's actual wrench (F_x, F_z)
     under the same torque and push [N]; l predicted (Gamma_1 / R_y predicted) and actual (m / F_z) [m];
     p'' [m/s^2] and tau'' [1/s]. Plus the survival verdict of the full run (up to SURVIVAL_STEPS after)."""
+    ctl = resolve(mode)
+    if not ctl.adaptive:
+        return _probe_reported(ctl, push, settings, before, after)
     pr = probe_run(push, mode, settings)
     res = pr.result
     force, duration, start, height = push.force, push.duration, push.start, push.height
@@ -345,11 +415,50 @@ def probe(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTIN
     }
 
 
+def _probe_reported(ctl, push: Push, settings: RunSettings, before: float, after: float) -> dict:
+    """:func:`probe` of any interface controller: per period the true push [N], the simulator's wrench
+    (F_x, F_z) [N] and centre of pressure l [m], and the controller's status as it reports it (``status``:
+    name -> value); ``max_l_error_during_push`` [m] where it reports its predicted l as ``zmp``."""
+    steps = runs.trial_steps(push)
+    res = ctl.walk(steps, settings, (push,))
+    v = ctl.verdict(res, push.end, ctl.band(settings, steps))
+    rows = []
+    for rec, st in zip(res.records, res.statuses):
+        if rec.t < push.start - before - 1e-12 or rec.t > push.end + after + 1e-12:
+            continue
+        rows.append({"t": float(rec.t), "stance": int(rec.stance), "impacts": int(rec.impacts),
+                     "push": float(rec.push_force), "R_act": [float(rec.wrench[0]), float(rec.wrench[1])],
+                     "l_act": float(rec.cop), "status": dict(st)})
+    during = [r for r in rows if push.start <= r["t"] < push.end and "zmp" in r["status"]]
+    return {
+        "force": float(push.force), "mode": ctl.name, "duration": push.duration, "start": push.start,
+        "height": push.height, "settings": differences(settings), "survived": v.survived, "reason": v.reason,
+        "fall_cause": res.fall_cause or None, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
+        "fall_detail": res.fall_detail or None, "fault": None if res.fault is None else str(res.fault),
+        "max_l_error_during_push": max((abs(r["l_act"] - float(r["status"]["zmp"])) for r in during), default=None),
+        "periods": rows,
+    }
+
+
+def _print_probe_reported(r: dict) -> None:
+    keys = sorted({k for x in r["periods"] for k in x["status"]})
+    print(f"{'t [s]':>7} {'imp':>3} {'push':>6} {'Rx act':>8} {'Ry act':>8} {'l act':>7} " + " ".join(f"{k:>10}" for k in keys))
+    for x in r["periods"]:
+        vals = " ".join(f"{float(x['status'][k]):10.4g}" if k in x["status"] else f"{'-':>10}" for k in keys)
+        print(f"{x['t']:7.4f} {x['impacts']:3d} {x['push']:6.1f} {x['R_act'][0]:8.1f} {x['R_act'][1]:8.1f} "
+              f"{x['l_act']:7.4f} {vals}")
+    if r.get("fault"):
+        print(f"  controller fault: {r['fault']}")
+
+
 def print_probe(r: dict) -> None:
     print(f"probe: {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s, mode {r['mode']}: "
           f"{'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
     if r["fall_detail"]:
         print(f"  fall: {r['fall_detail']}")
+    if r["periods"] and "qp_status" not in r["periods"][0]:
+        _print_probe_reported(r)
+        return
     print(f"{'t [s]':>7} {'imp':>3} {'push':>6} {'F_est':>7} {'QP':>13} {'tightest':>15} {'margin':>8} {'Rx pred':>8} {'Rx act':>8} "
           f"{'Ry pred':>8} {'Ry act':>8} {'l pred':>7} {'l act':>7} {'p_dd':>8} {'tau_dd':>8} {'p':>7} {'tau_d':>6}")
     for x in r["periods"]:

@@ -116,8 +116,7 @@ class MapSpec:
         for name in ("modes", "directions", "phases", "durations"):
             nonempty_unique(name, getattr(self, name))
         for m in self.modes:
-            if m not in MODES:
-                _check_controller(m)
+            _check_controller(m)
         for d in self.directions:
             if d not in DIRECTIONS:
                 raise MapError(f"directions: unknown direction {d!r}; choose from {', '.join(DIRECTIONS)}")
@@ -162,11 +161,11 @@ def onset_time(phase: float, T: float) -> float:
 
 
 def _check_controller(name: str) -> None:
-    """A map's "mode" that is not a built-in mode must name a registered controller
-    (``plugin.registry``: an entry point or ``module:Class``) satisfying the interface; MapError otherwise."""
-    from biped_controller.plugin.interface import InterfaceError
-    from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, load_controller
+    """A map's "mode" names a controller the studies can run: a built-in mode or a registered controller
+    (``trial.controller.resolve``: an entry point or ``module:Class`` satisfying the interface); MapError
+    otherwise."""
+    from biped_controller.studies.trial.controller import RESOLVE_ERRORS, resolve
     try:
-        load_controller(name)
-    except (UnknownControllerError, ControllerLoadError, InterfaceError) as exc:
+        resolve(name)
+    except RESOLVE_ERRORS as exc:
         raise MapError(f"modes: {name!r} is neither a mode ({', '.join(MODES)}) nor a usable controller: {exc}") from None

@@ -19,7 +19,8 @@ from biped_controller.studies.trial.stop import StudySettingsError
 from biped_controller.studies.trial.survival import survival_rule
 
 __all__ = ["StudyArgumentParser", "add_settings_args", "settings_from_args", "SETTINGS_ERRORS", "finite_float",
-           "positive_float", "nonnegative_float", "positive_int", "nonnegative_int", "profile_arg", "modes_arg"]
+           "positive_float", "nonnegative_float", "positive_int", "nonnegative_int", "profile_arg", "modes_arg",
+           "controller_arg"]
 
 #: the errors a bad settings flag raises (each names the key or the profile)
 SETTINGS_ERRORS = (OverrideError, ProfileError, ControllerConfigError, SimConfigError, PerturbationError, SettingsError,
@@ -103,13 +104,12 @@ def modes_arg(text: str) -> tuple[str, ...]:
 
 def controller_arg(text: str) -> str:
     """``--controller NAME``: a built-in mode, a ``biped.controllers`` entry point or ``module:Class``
-    satisfying the controller interface (``plugin.registry.load_controller``, resolved again by name in
-    each worker process)."""
-    from biped_controller.plugin.interface import InterfaceError
-    from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, load_controller
+    satisfying the controller interface, checked by the studies' one resolution step
+    (``trial.controller.resolve``; resolved again by name in each worker process)."""
+    from biped_controller.studies.trial.controller import RESOLVE_ERRORS, resolve
     try:
-        load_controller(text)
-    except (UnknownControllerError, ControllerLoadError, InterfaceError) as exc:
+        resolve(text)
+    except RESOLVE_ERRORS as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
 

@@ -28,7 +28,8 @@ from biped_sim.plant.push import Push
 from biped_sim.robot.description import RobotDescription, load_description
 from biped_sim.robot.gait_family import GaitFamily
 
-from biped_controller.plugin.loop import PluginLoop, PluginRunResult
+from biped_controller.plugin.loop import PluginLoop
+from biped_controller.plugin.result import RunResult
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, push_step_index
 from biped_controller.studies.trial.scan import analyse_coarse, coarse_forces
 from biped_controller.studies.trial.settings import RunSettings
@@ -60,7 +61,7 @@ def walk_band(loop: PluginLoop, steps: int, rule: SurvivalRule) -> Band:
                                  [float(st["tau_dot"]) for st in win if "tau_dot" in st])
 
 
-def survival(result: PluginRunResult, push_end: float, band: Band = FLOOR_BAND) -> tuple[bool, bool, str]:
+def survival(result: RunResult, push_end: float, band: Band = FLOOR_BAND) -> tuple[bool, bool, str]:
     """(survived, fell, reason): the one survival rule (``trial.survival.SurvivalRule.judge``) on a plug-in's
     run, its last status's ``p`` and ``tau_dot`` checked where it reports them; a controller fault is a
     failure that is not a fall."""

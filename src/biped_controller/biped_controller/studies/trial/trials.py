@@ -1,96 +1,47 @@
 """One survival trial: a pushed run, ended early once decided (:mod:`.stop`), judged by the survival rule
-(:mod:`.survival`) with the band of its unpushed walk."""
+(:mod:`.survival`) with the band of its unpushed walk; of any controller, through its
+:class:`~.controller.TrialController` (:func:`.controller.resolve`: a built-in mode on the compiled path,
+any other registered controller through the generic loop)."""
 from __future__ import annotations
 
-import functools
 import math
-from dataclasses import replace
 
 from biped_sim.plant.push import Push
 
-from biped_controller.core.control.controller import MODES
 from biped_controller.studies import runner
-from biped_controller.studies.trial import plugin_trials, runs, stop
-from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, _config_stamp
-from biped_controller.studies.trial.survival import Band, SurvivalRule, survival_rule
+from biped_controller.studies.trial import runs
+from biped_controller.studies.trial.controller import parameter_excursion, resolve
+from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
+from biped_controller.studies.trial.survival import Band
+
+__all__ = ["band", "walk_band", "survives", "parameter_excursion", "out_of_range", "RANGE_TOL"]
 
 
 def band(mode: str, push: Push, settings: RunSettings) -> Band:
-    """The survival rule's band for a trial of ``push`` in ``mode`` with ``settings``: the unpushed walk's of
-    the same impacts (``runs.trial_steps``), computed once per process."""
+    """The survival rule's band for a trial of ``push`` by the controller ``mode`` with ``settings``: the
+    unpushed walk's of the same impacts (``runs.trial_steps``), computed once per process."""
     return walk_band(mode, settings, runs.trial_steps(push))
 
 
 def walk_band(mode: str, settings: RunSettings, steps: int) -> Band:
-    """The band of a trial of ``steps`` impacts in ``mode`` (a built-in mode or a plug-in controller's name)
-    with ``settings`` (plant, profile, perturbation): its unpushed walk, run once per process
-    (``SurvivalRule.band_from_walk``; a plug-in's: ``plugin_trials.plugin_band``)."""
-    if mode not in MODES:
-        return plugin_trials.plugin_band(mode, settings, int(steps))
-    return _walk_band(survival_rule(), mode, replace(settings, full_trials=False), int(steps), _config_stamp())
-
-
-@functools.lru_cache(maxsize=256)
-def _walk_band(rule: SurvivalRule, mode: str, settings: RunSettings, steps: int, stamp: tuple) -> Band:
-    return rule.band_from_walk(runs.run(steps, mode, (), settings=settings, keep_records=True))
+    """The band of a trial of ``steps`` impacts by the controller ``mode`` (a built-in mode or any registered
+    controller's name) with ``settings`` (plant, profile, perturbation): its unpushed walk, run once per
+    process (``TrialController.band``)."""
+    return resolve(mode).band(settings, int(steps))
 
 
 def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
              pool: runner.LoopPool | None | bool = True) -> dict:
-    """One survival trial of ``push`` (JSON-ready): force, survived, reason, and a few numbers. With the
-    early stop (``config/studies.yaml``, unless ``settings.full_trials`` or a perturbed plant) the trial
-    ends at the first impact where its outcome is decided (``stop.EarlyStop``): survived,
-    ``decided_at_step`` = the impacts walked by then; otherwise ``decided_at_step`` is None (the trial ran
-    in full). ``fell``: the plant's fall before the end (the no-fall edge's outcome). ``pool`` True: this process's
-    ``runs.loop_pool`` (the loop and the walk up to the push reused, the outcome bit-identical); a
-    ``runner.LoopPool``; None or False: a new plant and controller, walked from t = 0.
-
-    A ``mode`` that is not one of the adaptive controller's modes names a plug-in controller
-    (``plugin.registry``, resolved in this process): its trial is ``trial.plugin_trials.survives_push`` (run in
-    full, the same rule; a controller fault is that trial's outcome)."""
-    if mode not in MODES:
-        return plugin_trials.survives_push(push, mode, settings)
-    end = push.start + push.duration
-    if pool is True:
-        pool = runs.loop_pool()
-    elif pool is False:
-        pool = None
-    on_impact = None
-    fired: list[int] = []
-    es = None if settings.full_trials else stop.early_stop()
-    if es is not None and es.enabled and stop.applies(settings):
-        fam = context().family
-
-        def stop_if_decided(sim, ctrl) -> bool:
-            if es.decided(sim, ctrl, end, fam):
-                fired.append(sim.impact_count)
-                return True
-            return False
-        on_impact = stop_if_decided
-    res = runs.push_run(push, mode, settings=settings, keep_records=False, on_impact=on_impact, pool=pool)
-    decided = bool(fired) and not res.fallen
-    if decided:
-        ok, fell, why = True, False, "survived"
-    else:
-        v = survival_rule().verdict(res, end, band(mode, push, settings))
-        ok, fell, why = v.survived, v.fell, v.reason
-    return {"force": float(push.force), "mode": mode, "survived": ok, "fell": fell, "reason": why,
-            "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
-            "steps_walked": int(res.steps_walked), "decided_at_step": int(res.steps_walked) if decided else None,
-            **parameter_excursion(res)}
-
-
-def parameter_excursion(res: runner.RunResult) -> dict:
-    """The run's parameter excursion (JSON-ready): ``max_abs_p_minus_pd`` [m], the largest |p - p_d| of the
-    controller's committed p, ``min_p``, ``max_p`` [m] its extremes, and ``min_tau_dot``, ``max_tau_dot`` [-],
-    the extremes of its tau' (at every decision from t = 0 to the run's end, early stop included; NaN when
-    one was NaN). The valid range: p in the family's [p_min, p_max], tau' >= tau_dot_min
-    (``config/controller.yaml``; :func:`out_of_range`)."""
-    p_lo, p_hi, td_lo, td_hi = res.param_range
-    p_d = context().family.p_d
-    return {"max_abs_p_minus_pd": max(abs(p_hi - p_d), abs(p_lo - p_d)), "min_p": p_lo, "max_p": p_hi,
-            "min_tau_dot": td_lo, "max_tau_dot": td_hi}
+    """One survival trial of ``push`` by the controller ``mode`` (JSON-ready): force, survived, reason, and a
+    few numbers (``TrialController.survives``). A built-in mode's, with the early stop
+    (``config/studies.yaml``, unless ``settings.full_trials`` or a perturbed plant), ends at the first impact
+    where its outcome is decided (``stop.EarlyStop``): survived, ``decided_at_step`` = the impacts walked by
+    then; otherwise ``decided_at_step`` is None (the trial ran in full). ``fell``: the plant's fall before
+    the end (the no-fall edge's outcome). ``pool`` True: this process's ``runs.loop_pool`` (the loop and
+    the walk up to the push reused, the outcome bit-identical); a ``runner.LoopPool``; None or False: a new
+    plant and controller, walked from t = 0. Any other controller's trial runs in full through the generic
+    loop (a controller fault is that trial's outcome, recorded as ``fault``)."""
+    return resolve(mode).survives(push, settings, pool)
 
 
 #: [m for p, - for tau'] how far past a bound a committed value may lie and still be on it: an active range row
