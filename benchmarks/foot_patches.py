@@ -34,7 +34,7 @@ def patch(kind: str, value: float) -> None:
     step = pm.MujocoPlant.step
     state: dict = {"g": None, "stance": None, "fz": None}
     if kind == "reference_lead":
-        from biped_controller.core import controller as ctl
+        from biped_controller.core.control import controller as ctl
         from biped_controller.core.control.controller_layout import M_
         compute = ctl.AdaptiveController.compute
 
