@@ -25,6 +25,9 @@ F_z, the period's mean). A pair is *large* when |dF_z| > ``threshold`` (200 N, t
 * ``alternation``: the lag-1 autocorrelation of dF_z within stances and the share of large pairs whose next
   pair has the opposite sign and > half its size: a share near 1 is a period-2 limit cycle (the held torque
   and the contact's response alternating period by period), near 0 isolated jumps;
+* ``largest_trace`` (``--trace``): every MuJoCo step from 3 ms before the largest pair to 2 ms after it:
+  the period's held stance-ankle torque [N m], the stance spheres' normal forces [N] and the stance ankle's
+  height [um] (at the step's start), the stance foot's pitch rate [rad/s] (at its end);
 * ``spectrum``: the frequency [Hz] of the largest peak of the stance feet's per-MuJoCo-step normal force
   (counted stretches only, mean removed) and its share of the spectrum's power above 20 Hz.
 """
@@ -47,8 +50,10 @@ from biped_sim.robot.gait_family import GaitFamily
 
 
 class SphereProbe:
-    """After each MuJoCo step: time [s], stance, per-sphere normal forces of both feet [N] (rows left, right),
-    the hip's vertical velocity [m/s]."""
+    """After each MuJoCo step (its end time [s], the plant's stance): per-sphere normal forces of both feet [N]
+    (rows left, right) and the stance ankle's height [m] at the step's start (MuJoCo's contact forces and
+    poses of the step), the hip's vertical velocity and the stance foot's pitch rate [rad/s, counter-clockwise]
+    at its end."""
 
     def __init__(self, plant):
         import mujoco
@@ -59,7 +64,8 @@ class SphereProbe:
         for k, side in enumerate(("left", "right")):
             for i, name in enumerate(foot_geom_names(side, plant.cfg.mujoco_sole_points)):
                 self.map[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)] = (k, i)
-        self.t, self.stance, self.force, self.zdot = [], [], [], []
+        self.t, self.stance, self.force, self.zdot, self.pitch_rate, self.ankle_z = [], [], [], [], [], []
+        self._foot_body = plant._foot_body
 
     def __call__(self, plant):
         d = plant.data
@@ -76,6 +82,9 @@ class SphereProbe:
         self.stance.append(plant.stance)
         self.force.append(f)
         self.zdot.append(float(d.qvel[1]))
+        j = 3 if plant.stance == 0 else 6
+        self.pitch_rate.append(float(d.qvel[2] + d.qvel[j:j + 3].sum()))
+        self.ankle_z.append(float(d.xpos[self._foot_body[plant.stance]][2]))
 
 
 def walk(steps: int, overrides: tuple[str, ...], perturb: tuple[str, ...]):
@@ -97,7 +106,7 @@ def _share(mask_big, mask_bin):
             "pairs": int(mask_bin.sum())}
 
 
-def analyse(r, probe, threshold: float) -> dict:
+def analyse(r, probe, threshold: float, trace: bool = False) -> dict:
     recs = r.records
     t = np.array([x.t for x in recs])
     tend = np.array([x.t_end for x in recs])
@@ -229,6 +238,16 @@ def analyse(r, probe, threshold: float) -> dict:
                        "d_tau_ankle": float(tq[b[i], 0] - tq[a[i], 0]), "engaged": [engaged_last[a[i]], engaged_last[b[i]]],
                        "top_sphere": [int(top_last[a[i]]), int(top_last[b[i]])], "swing_force": float(swing[i])}
                       for i in order]
+    if trace:
+        i = int(order[0])
+        lo_t, hi_t = t[a[i]] - 0.003, t[b[i]] + 0.002
+        rows = []
+        for k in np.nonzero((pt > lo_t + 1e-9) & (pt <= hi_t + 1e-9))[0]:
+            rows.append({"t_end": round(float(pt[k]), 6), "period_t": round(float(t[per[k]]), 6),
+                         "tau_ankle": float(tq[per[k], 0]), "sphere_fz": [round(float(x), 2) for x in stance_f[k]],
+                         "ankle_z_um": round(1e6 * float(probe.ankle_z[k]), 3),
+                         "foot_pitch_rate": round(float(probe.pitch_rate[k]), 4)})
+        out["largest_trace"] = rows
     return out
 
 
@@ -239,6 +258,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--perturb", action="append", default=[], metavar="FIELD=VALUE")
     ap.add_argument("--threshold", type=float, default=200.0)
+    ap.add_argument("--trace", action="store_true", help="add the MuJoCo steps around the largest pair")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     if a.steps < 1:
@@ -249,7 +269,7 @@ def main(argv=None) -> int:
                          command=".venv/bin/python benchmarks/foot_tail.py " + " ".join(argv))
     r, probe = walk(a.steps, tuple(a.overrides), tuple(a.perturb))
     res = {"steps": a.steps, "overrides": a.overrides, "perturb": a.perturb, "quiet": measure(r)["overall"],
-           "steps_walked": r.steps_walked, "fallen": r.fallen, **analyse(r, probe, a.threshold)}
+           "steps_walked": r.steps_walked, "fallen": r.fallen, **analyse(r, probe, a.threshold, a.trace)}
     text = json.dumps(res, indent=1)
     print(text)
     if a.json is not None:
