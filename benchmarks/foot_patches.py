@@ -25,6 +25,7 @@ import numpy as np
 from biped_sim.plant import mujoco as pm
 from biped_sim.plant.config import load_sim_config
 from biped_controller.core.control.controller import load_controller_config
+from biped_controller.studies import provenance as provenance_records
 from biped_controller.studies import runner
 from biped_controller.studies.foot_quiet import measure, provenance
 
@@ -33,7 +34,7 @@ def patch(kind: str, value: float) -> None:
     step = pm.MujocoPlant.step
     state: dict = {"g": None, "stance": None, "fz": None}
     if kind == "reference_lead":
-        from biped_controller.core import controller as ctl
+        from biped_controller.core.control import controller as ctl
         from biped_controller.core.control.controller_layout import M_
         compute = ctl.AdaptiveController.compute
 
@@ -78,6 +79,8 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
+    run = provenance_records.Run(argv, plant="mujoco", profile="default",
+                                 command=".venv/bin/python benchmarks/foot_patches.py " + " ".join(argv))
     kind, _, v = a.name.partition("=")
     if kind not in ("ankle_lowpass", "all_lowpass", "cop_clamp", "ankle_armature", "reference_lead"):
         ap.error(f"unknown patch {kind!r}")
@@ -94,6 +97,7 @@ def main(argv=None) -> int:
         prov = provenance(argv)
         prov["command"] = ".venv/bin/python benchmarks/foot_patches.py " + " ".join(argv)
         a.json.write_text(json.dumps({"provenance": prov, **res}, indent=1) + "\n", encoding="utf-8")
+        run.record(a.json)     # the directory's provenance.json (results/README.md)
     return 0
 
 

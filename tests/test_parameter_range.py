@@ -68,8 +68,9 @@ def test_hold_puts_the_next_parameters_on_the_range_bounds():
 @pytest.fixture(scope="module")
 def mujoco_700():
     """Mode hybrid, 700 N for 25 ms at phase 0.55 of the first step, on the MuJoCo plant (deterministic), and
-    the settings."""
-    settings = run_settings(None, ["plant=mujoco"])
+    the settings. With 0.5 ms MuJoCo steps: there the p/tau QP turns infeasible and the hold acts (with the
+    default 0.125 ms step this push leaves the QP feasible, so the checks below would check little)."""
+    settings = run_settings(None, ["plant=mujoco", "mujoco_timestep=0.0005"])
     fam = context().family
     push = Push(onset_time(0.55, fam.T), 0.025, 700.0, None)
     return runs.push_run(push, "hybrid", steps_after=3, settings=settings), settings

@@ -201,7 +201,9 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--steps must be >= 1, got {a.steps}")
     if any(o.partition("=")[0].strip() == "plant" for o in a.overrides):
         ap.error("--set plant=...: use --plant")
+    from biped_controller.studies import provenance as records
     from biped_controller.studies.trial.settings import OverrideError
+    run = records.Run(argv, plant=a.plant, profile="default")
     try:
         res = run_figures(a.plant, a.mode, a.steps, tuple(a.overrides), a.observer, tuple(a.perturb),
                           a.integration_rate)
@@ -211,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.json is not None:
         a.json.parent.mkdir(parents=True, exist_ok=True)
         a.json.write_text(json.dumps({"provenance": provenance(argv), **res}, indent=1) + "\n", encoding="utf-8")
+        run.record(a.json)      # the record in the directory's provenance.json (results/README.md)
     print(table(res))
     return 0
 

@@ -8,7 +8,7 @@ Model: ``biped_sim.robot.mjcf.make_mjcf`` from the (perturbed) description and t
 ``config/simulator.yaml``; ``qpos``/``qvel`` are the floating state ``x = [x_hip, z_hip, theta, lh, lk, la, rh,
 rk, ra]``, ``v = dx/dt`` (the tests check M(x), the centre of mass and the bias forces against Pinocchio).
 
-Time: MuJoCo steps of ``mujoco_timestep`` (2 per 1 ms control period), split exactly at every push start
+Time: MuJoCo steps of ``mujoco_timestep`` (8 per 1 ms control period), split exactly at every push start
 and end (the step length is changed for that step), so a push delivers exactly force x duration; the joint
 torques are held over the period (MuJoCo ``motor`` actuators, ``ctrlrange`` = the torque limits, and the
 same clipping as the rigid plant). After ``mj_step`` from t0 to t1 the contact list and the constraint
