@@ -171,8 +171,11 @@ def print_max_push(results: dict[str, dict]) -> None:
         print(f"{m:<6} {r['max_force']:13g} {ff:>14} {r['no_fall_edge']:16g} {fl:>14} {paper:>9} {isl:<22} "
               f"{r['failure_cause'] or '-'}")
     r0 = next(iter(results.values()))
+    # the bracket each bisection ended with (coarse step halved until it is at most the resolution asked)
+    brackets = sorted({r["first_failure"] - r["max_force"] for r in results.values() if r["first_failure"] is not None})
+    got = " / ".join(f"{b:g}" for b in brackets) or "none"
     print(f"(push {r0['direction']} for {r0['duration']:g} s from t = {r0['start']:g} s at {r0['push_height']:g} m "
-          f"above the hip; coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, both edges bisected to "
-          f"{r0['resolution']:g} N)")
+          f"above the hip; coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, both edges bisected to a "
+          f"bracket of at most {r0['resolution']:g} N: {got} N)")
     for m, r in results.items():
         print(f"survival, {m}: {r['survival']}")
