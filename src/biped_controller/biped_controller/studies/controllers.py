@@ -7,6 +7,13 @@
         [--resolution 5] [--max 2000] [--coarse 50] [--json FILE]
                                                           its largest survivable push at the paper's cell
                                                           (25 ms on the back at t = 0.2315 s; trial.plugin_trials)
+  python -m biped_controller.studies.controllers slices MAP.json [MAP.json ...] [--duration 0.025] [--tie 0]
+        [--json FILE] [--markdown FILE]
+                                                          capability-map slices (scripts/capability_map --json)
+                                                          side by side per plant and controller: mean and
+                                                          weakest boundary per direction, phases led, pairwise
+                                                          comparison, agreement with the no-fall edge
+                                                          (capmap.compare)
 """
 from __future__ import annotations
 
@@ -45,7 +52,15 @@ def main(argv: list[str] | None = None) -> int:
     mp.add_argument("--max", type=float, default=2000.0, help="largest force scanned [N]")
     mp.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
     mp.add_argument("--json", type=Path)
+    sl = sub.add_parser("slices", help="capability-map slices side by side (capmap.compare)")
+    sl.add_argument("maps", nargs="+", type=Path, help="summary JSON files of scripts/capability_map --json")
+    sl.add_argument("--duration", type=float, default=0.025, help="push duration of the slice [s]")
+    sl.add_argument("--tie", type=float, default=0.0, help="boundaries within this of the largest share the lead [N]")
+    sl.add_argument("--json", type=Path, help="write the comparison here")
+    sl.add_argument("--markdown", type=Path, help="write the markdown tables here")
     args = ap.parse_args(argv)
+    if args.cmd == "slices":
+        return _slices(args, argv)
     if args.cmd == "list":
         for r in registered():
             try:
@@ -73,6 +88,37 @@ def main(argv: list[str] | None = None) -> int:
           f"{trials.trials} trials)")
     if args.json is not None:
         args.json.write_text(json.dumps(r, indent=1))
+    return 0
+
+
+def _slices(args, argv: list[str] | None) -> int:
+    from biped_controller.studies import provenance
+    from biped_controller.studies.capmap.compare import CompareError, compare, markdown
+    provenance.track(args.json, args.markdown, argv=argv)
+    summaries = []
+    for path in args.maps:
+        try:
+            summaries.append((str(path), json.loads(path.read_text(encoding="utf-8"))))
+        except (OSError, ValueError) as exc:
+            print(f"error: {path}: {exc}", file=sys.stderr)
+            return 2
+    try:
+        cmp = compare(summaries, args.duration, provenance.default_plant(), args.tie)
+    except KeyError as exc:
+        print(f"error: a map summary lacks the field {exc}", file=sys.stderr)
+        return 2
+    except (CompareError, TypeError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    cmp["maps"] = [str(p) for p in args.maps]
+    text = markdown(cmp)
+    print(text)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(cmp, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    if args.markdown is not None:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(text + "\n", encoding="utf-8")
     return 0
 
 
