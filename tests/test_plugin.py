@@ -340,4 +340,8 @@ def test_cli_max_push_runs_the_search(tmp_path):
     assert (r["max_force"], r["first_failure"], r["plant"]) == (25.0, 50.0, "rigid")
     assert (r["first_fall"], r["no_fall_edge"]) == (50.0, 25.0)
     assert [t["force"] for t in r["trials"]] == [25.0, 50.0, 100.0]
+    assert r["options"] == {}
     assert "max push 25 N" in run.stdout
+    from biped_controller.studies.provenance import read_records
+    rec = read_records(tmp_path)["mp.json"]
+    assert rec["plant"] == "rigid" and "max-push" in rec["command"]

@@ -78,7 +78,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
         return 0
     from biped_sim.plant.config import load_sim_config      # the plant and the studies only for a run
+    from biped_controller.studies import provenance
     from biped_controller.studies.trial.plugin_trials import PushTrials
+    provenance.track(args.json, plant=args.plant, argv=argv)   # record of the file written (results/README.md)
     trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option))
     r = trials.max_push(args.resolution, args.max, args.coarse)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"
@@ -87,7 +89,8 @@ def main(argv: list[str] | None = None) -> int:
           f"first fall {'none' if r['first_fall'] is None else format(r['first_fall'], 'g') + ' N'}; "
           f"{trials.trials} trials)")
     if args.json is not None:
-        args.json.write_text(json.dumps(r, indent=1))
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({**r, "options": dict(args.option)}, indent=1))
     return 0
 
 
