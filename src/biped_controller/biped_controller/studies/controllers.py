@@ -4,9 +4,10 @@
                                                           it comes from, module:Class, what it does)
   python -m biped_controller.studies.controllers check NAME           load one and check it against the interface
   python -m biped_controller.studies.controllers max-push NAME [--plant rigid|mujoco] [--option KEY=VALUE ...]
-        [--resolution 5] [--max 2000] [--coarse 50] [--json FILE]
+        [--resolution 5] [--max 2000] [--coarse 50] [--start S] [--duration D] [--backward] [--json FILE]
                                                           its largest survivable push at the paper's cell
                                                           (25 ms on the back at t = 0.2315 s; trial.plugin_trials)
+                                                          or at the onset, duration and direction given
   python -m biped_controller.studies.controllers slices MAP.json [MAP.json ...] [--duration 0.025] [--tie 0]
         [--json FILE] [--markdown FILE]
                                                           capability-map slices (scripts/capability_map --json)
@@ -51,6 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     mp.add_argument("--resolution", type=float, default=5.0, help="bisection resolution [N]")
     mp.add_argument("--max", type=float, default=2000.0, help="largest force scanned [N]")
     mp.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
+    mp.add_argument("--start", type=float, default=None, help="push onset [s] (default the paper's, 0.2315 s)")
+    mp.add_argument("--duration", type=float, default=None, help="push duration [s] (default the paper's, 0.025 s)")
+    mp.add_argument("--backward", action="store_true", help="push backwards (on the chest) instead")
     mp.add_argument("--json", type=Path)
     sl = sub.add_parser("slices", help="capability-map slices side by side (capmap.compare)")
     sl.add_argument("maps", nargs="+", type=Path, help="summary JSON files of scripts/capability_map --json")
@@ -77,12 +81,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "check":
         print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
         return 0
+    from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
+    start = DEFAULT_START if args.start is None else args.start
+    duration = DEFAULT_DURATION if args.duration is None else args.duration
+    if not (start >= 0 and duration > 0):
+        print(f"error: --start must be >= 0 s and --duration > 0 s, got {start!r}, {duration!r}", file=sys.stderr)
+        return 2
     from biped_sim.plant.config import load_sim_config      # the plant and the studies only for a run
     from biped_controller.studies import provenance
     from biped_controller.studies.trial.plugin_trials import PushTrials
     provenance.track(args.json, plant=args.plant, argv=argv)   # record of the file written (results/README.md)
     trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option))
-    r = trials.max_push(args.resolution, args.max, args.coarse)
+    r = trials.max_push(args.resolution, args.max, args.coarse, duration=duration, start=start,
+                        sign=-1.0 if args.backward else 1.0)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"
     print(f"{args.name} on {args.plant}: max push {r['max_force']:g} N (first failure {ff}: "
           f"{r['failure_cause'] or '-'}; islands {r['islands'] or '-'}; no-fall edge {r['no_fall_edge']:g} N, "
