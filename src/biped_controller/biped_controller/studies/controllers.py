@@ -4,10 +4,12 @@
                                                           it comes from, module:Class, what it does)
   python -m biped_controller.studies.controllers check NAME           load one and check it against the interface
   python -m biped_controller.studies.controllers max-push NAME [--plant rigid|mujoco] [--option KEY=VALUE ...]
-        [--resolution 5] [--max 2000] [--coarse 50] [--start S] [--duration D] [--backward] [--json FILE]
+        [--resolution 5] [--max 2000] [--coarse 50] [--start S] [--duration D] [--backward]
+        [--perturb FIELD=VALUE ...] [--json FILE]
                                                           its largest survivable push at the paper's cell
                                                           (25 ms on the back at t = 0.2315 s; trial.plugin_trials)
-                                                          or at the onset, duration and direction given
+                                                          or at the onset, duration and direction given, on
+                                                          the plant perturbed as given
   python -m biped_controller.studies.controllers slices MAP.json [MAP.json ...] [--duration 0.025] [--tie 0]
         [--json FILE] [--markdown FILE]
                                                           capability-map slices (scripts/capability_map --json)
@@ -55,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     mp.add_argument("--start", type=float, default=None, help="push onset [s] (default the paper's, 0.2315 s)")
     mp.add_argument("--duration", type=float, default=None, help="push duration [s] (default the paper's, 0.025 s)")
     mp.add_argument("--backward", action="store_true", help="push backwards (on the chest) instead")
+    mp.add_argument("--perturb", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a field of the plant's PlantPerturbation, e.g. noise_q=1e-4 (repeatable; "
+                         "biped_sim.plant.perturbation)")
     mp.add_argument("--json", type=Path)
     sl = sub.add_parser("slices", help="capability-map slices side by side (capmap.compare)")
     sl.add_argument("maps", nargs="+", type=Path, help="summary JSON files of scripts/capability_map --json")
@@ -87,11 +92,19 @@ def main(argv: list[str] | None = None) -> int:
     if not (start >= 0 and duration > 0):
         print(f"error: --start must be >= 0 s and --duration > 0 s, got {start!r}, {duration!r}", file=sys.stderr)
         return 2
+    from biped_sim.plant.perturbation import PerturbationError
+    from biped_controller.studies.trial.settings import OverrideError, parse_perturbation
+    try:
+        perturbation = parse_perturbation(args.perturb)
+    except (OverrideError, PerturbationError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     from biped_sim.plant.config import load_sim_config      # the plant and the studies only for a run
     from biped_controller.studies import provenance
     from biped_controller.studies.trial.plugin_trials import PushTrials
     provenance.track(args.json, plant=args.plant, argv=argv)   # record of the file written (results/README.md)
-    trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option))
+    trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option),
+                        perturbation=perturbation)
     r = trials.max_push(args.resolution, args.max, args.coarse, duration=duration, start=start,
                         sign=-1.0 if args.backward else 1.0)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"
@@ -101,7 +114,9 @@ def main(argv: list[str] | None = None) -> int:
           f"{trials.trials} trials)")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({**r, "options": dict(args.option)}, indent=1))
+        args.json.write_text(json.dumps({**r, "options": dict(args.option),
+                                         "perturbation": None if perturbation is None else perturbation.as_dict()},
+                                        indent=1))
     return 0
 
 
