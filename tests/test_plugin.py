@@ -340,4 +340,52 @@ def test_cli_max_push_runs_the_search(tmp_path):
     assert (r["max_force"], r["first_failure"], r["plant"]) == (25.0, 50.0, "rigid")
     assert (r["first_fall"], r["no_fall_edge"]) == (50.0, 25.0)
     assert [t["force"] for t in r["trials"]] == [25.0, 50.0, 100.0]
+    assert r["options"] == {}
     assert "max push 25 N" in run.stdout
+    from biped_controller.studies.provenance import read_records
+    rec = read_records(tmp_path)["mp.json"]
+    assert rec["plant"] == "rigid" and "max-push" in rec["command"]
+
+
+def test_cli_max_push_at_another_cell(tmp_path, capsys):
+    """--start/--backward move the search off the paper's cell: backward at onset 0 the written controller
+    survives 50 N and 100 N (mode none's map: 125 N there), where forward at the paper's cell 50 N fails; a
+    push of no duration is refused."""
+    import json
+    import os
+    out = tmp_path / "mp.json"
+    env = dict(os.environ, PYTHONPATH=str(helpers.ROOT / "tests"))
+    run = subprocess.run([sys.executable, "-m", "biped_controller.studies.controllers", "max-push",
+                          "test_plugin:ClassicalComputedTorque", "--max", "100", "--coarse", "50", "--resolution", "25",
+                          "--start", "0", "--backward", "--json", str(out)], capture_output=True, text=True, env=env,
+                         timeout=600)
+    assert run.returncode == 0, run.stderr
+    r = json.loads(out.read_text())
+    assert (r["direction"], r["start"], r["duration"]) == ("backward", 0.0, 0.025)
+    assert [(t["force"], t["survived"]) for t in r["trials"]] == [(50.0, True), (100.0, True)]
+    assert r["max_force"] == 100.0 and r["first_failure"] is None
+    from biped_controller.studies.controllers import main
+    assert main(["max-push", "none", "--duration", "0"]) == 2
+    assert "--duration" in capsys.readouterr().err
+
+
+def test_cli_max_push_on_a_perturbed_plant(tmp_path, capsys):
+    """--perturb reaches the plant: at the cell where the written controller survives 50 N on the nominal
+    plant (backward, onset 0), with the torso 20 % lighter it falls (tip_toe at the end of the first step,
+    as mode none's walk does there: docs/robustness.md); a bad field is refused naming it."""
+    import json
+    import os
+    out = tmp_path / "mp.json"
+    env = dict(os.environ, PYTHONPATH=str(helpers.ROOT / "tests"))
+    run = subprocess.run([sys.executable, "-m", "biped_controller.studies.controllers", "max-push",
+                          "test_plugin:ClassicalComputedTorque", "--max", "50", "--coarse", "50", "--resolution", "50",
+                          "--start", "0", "--backward", "--perturb", "torso_mass_scale=0.8", "--json", str(out)],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stderr
+    r = json.loads(out.read_text())
+    assert r["perturbation"]["torso_mass_scale"] == 0.8
+    assert [(t["force"], t["survived"]) for t in r["trials"]] == [(50.0, False)]
+    assert r["trials"][0]["fall_cause"] == "tip_toe"
+    from biped_controller.studies.controllers import main
+    assert main(["max-push", "none", "--perturb", "nope=1"]) == 2
+    assert "'nope'" in capsys.readouterr().err

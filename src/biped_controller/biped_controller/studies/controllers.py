@@ -4,9 +4,19 @@
                                                           it comes from, module:Class, what it does)
   python -m biped_controller.studies.controllers check NAME           load one and check it against the interface
   python -m biped_controller.studies.controllers max-push NAME [--plant rigid|mujoco] [--option KEY=VALUE ...]
-        [--resolution 5] [--max 2000] [--coarse 50] [--json FILE]
+        [--resolution 5] [--max 2000] [--coarse 50] [--start S] [--duration D] [--backward]
+        [--perturb FIELD=VALUE ...] [--json FILE]
                                                           its largest survivable push at the paper's cell
                                                           (25 ms on the back at t = 0.2315 s; trial.plugin_trials)
+                                                          or at the onset, duration and direction given, on
+                                                          the plant perturbed as given
+  python -m biped_controller.studies.controllers slices MAP.json [MAP.json ...] [--duration 0.025] [--tie 0]
+        [--json FILE] [--markdown FILE]
+                                                          capability-map slices (scripts/capability_map --json)
+                                                          side by side per plant and controller: mean and
+                                                          weakest boundary per direction, phases led, pairwise
+                                                          comparison, agreement with the no-fall edge
+                                                          (capmap.compare)
 """
 from __future__ import annotations
 
@@ -44,8 +54,22 @@ def main(argv: list[str] | None = None) -> int:
     mp.add_argument("--resolution", type=float, default=5.0, help="bisection resolution [N]")
     mp.add_argument("--max", type=float, default=2000.0, help="largest force scanned [N]")
     mp.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
+    mp.add_argument("--start", type=float, default=None, help="push onset [s] (default the paper's, 0.2315 s)")
+    mp.add_argument("--duration", type=float, default=None, help="push duration [s] (default the paper's, 0.025 s)")
+    mp.add_argument("--backward", action="store_true", help="push backwards (on the chest) instead")
+    mp.add_argument("--perturb", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a field of the plant's PlantPerturbation, e.g. noise_q=1e-4 (repeatable; "
+                         "biped_sim.plant.perturbation)")
     mp.add_argument("--json", type=Path)
+    sl = sub.add_parser("slices", help="capability-map slices side by side (capmap.compare)")
+    sl.add_argument("maps", nargs="+", type=Path, help="summary JSON files of scripts/capability_map --json")
+    sl.add_argument("--duration", type=float, default=0.025, help="push duration of the slice [s]")
+    sl.add_argument("--tie", type=float, default=0.0, help="boundaries within this of the largest share the lead [N]")
+    sl.add_argument("--json", type=Path, help="write the comparison here")
+    sl.add_argument("--markdown", type=Path, help="write the markdown tables here")
     args = ap.parse_args(argv)
+    if args.cmd == "slices":
+        return _slices(args, argv)
     if args.cmd == "list":
         for r in registered():
             try:
@@ -62,17 +86,68 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "check":
         print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
         return 0
+    from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
+    start = DEFAULT_START if args.start is None else args.start
+    duration = DEFAULT_DURATION if args.duration is None else args.duration
+    if not (start >= 0 and duration > 0):
+        print(f"error: --start must be >= 0 s and --duration > 0 s, got {start!r}, {duration!r}", file=sys.stderr)
+        return 2
+    from biped_sim.plant.perturbation import PerturbationError
+    from biped_controller.studies.trial.settings import OverrideError, parse_perturbation
+    try:
+        perturbation = parse_perturbation(args.perturb)
+    except (OverrideError, PerturbationError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     from biped_sim.plant.config import load_sim_config      # the plant and the studies only for a run
+    from biped_controller.studies import provenance
     from biped_controller.studies.trial.plugin_trials import PushTrials
-    trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option))
-    r = trials.max_push(args.resolution, args.max, args.coarse)
+    provenance.track(args.json, plant=args.plant, argv=argv)   # record of the file written (results/README.md)
+    trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option),
+                        perturbation=perturbation)
+    r = trials.max_push(args.resolution, args.max, args.coarse, duration=duration, start=start,
+                        sign=-1.0 if args.backward else 1.0)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"
     print(f"{args.name} on {args.plant}: max push {r['max_force']:g} N (first failure {ff}: "
           f"{r['failure_cause'] or '-'}; islands {r['islands'] or '-'}; no-fall edge {r['no_fall_edge']:g} N, "
           f"first fall {'none' if r['first_fall'] is None else format(r['first_fall'], 'g') + ' N'}; "
           f"{trials.trials} trials)")
     if args.json is not None:
-        args.json.write_text(json.dumps(r, indent=1))
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({**r, "options": dict(args.option),
+                                         "perturbation": None if perturbation is None else perturbation.as_dict()},
+                                        indent=1))
+    return 0
+
+
+def _slices(args, argv: list[str] | None) -> int:
+    from biped_controller.studies import provenance
+    from biped_controller.studies.capmap.compare import CompareError, compare, markdown
+    provenance.track(args.json, args.markdown, argv=argv)
+    summaries = []
+    for path in args.maps:
+        try:
+            summaries.append((str(path), json.loads(path.read_text(encoding="utf-8"))))
+        except (OSError, ValueError) as exc:
+            print(f"error: {path}: {exc}", file=sys.stderr)
+            return 2
+    try:
+        cmp = compare(summaries, args.duration, provenance.default_plant(), args.tie)
+    except KeyError as exc:
+        print(f"error: a map summary lacks the field {exc}", file=sys.stderr)
+        return 2
+    except (CompareError, TypeError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    cmp["maps"] = [str(p) for p in args.maps]
+    text = markdown(cmp)
+    print(text)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(cmp, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    if args.markdown is not None:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(text + "\n", encoding="utf-8")
     return 0
 
 
