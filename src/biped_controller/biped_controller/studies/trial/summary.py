@@ -37,12 +37,7 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
         name = STATUS_NAMES.get(s.qp_status, "NO_ADAPTATION" if s.qp_status == 4 else str(s.qp_status))
         qp_counts[name] = qp_counts.get(name, 0) + 1
     out = {
-        "steps_walked": int(result.steps_walked),
-        "fallen": bool(result.fallen),
-        "fall_cause": result.fall_cause,
-        "fall_detail": result.fall_detail,
-        "fall_time": None if math.isnan(result.fall_time) else float(result.fall_time),
-        "sim_time": float(rec[-1].t_end) if rec else 0.0,
+        **_outcome(result),
         "max_tracking_error": float(err.max()) if err.size else 0.0,
         "max_tracking_error_before_first_impact": float(err[t < first].max()) if np.any(t < first) else 0.0,
         "max_tracking_error_after_first_impact": float(err[t >= first].max()) if np.any(t >= first) else 0.0,
@@ -69,6 +64,18 @@ def summarize(result: RunResult, family: GaitFamily | None = None, push_end: flo
     return out
 
 
+def _outcome(result) -> dict:
+    """The plant's outcome of a run (either result kind): steps walked, the fall (cause, detail, time [s] or
+    None) and the simulated time [s]."""
+    rec = result.records
+    return {
+        "steps_walked": int(result.steps_walked),
+        "fallen": bool(result.fallen),
+        "fall_cause": result.fall_cause,
+        "fall_detail": result.fall_detail,
+        "fall_time": None if math.isnan(result.fall_time) else float(result.fall_time),
+        "sim_time": float(rec[-1].t_end) if rec else 0.0,
+    }
 
 def _reduce(f, x: np.ndarray) -> float:
     """``f`` over the finite values of ``x``; NaN when there is none (a key the controller does not report)."""
@@ -96,12 +103,7 @@ def summarize_reported(result, family: GaitFamily | None = None, push_end: float
     def last(x: np.ndarray) -> float:
         return float(x[-1]) if x.size else math.nan
     out = {
-        "steps_walked": int(result.steps_walked),
-        "fallen": bool(result.fallen),
-        "fall_cause": result.fall_cause,
-        "fall_detail": result.fall_detail,
-        "fall_time": None if math.isnan(result.fall_time) else float(result.fall_time),
-        "sim_time": float(rec[-1].t_end) if rec else 0.0,
+        **_outcome(result),
         "max_tracking_error": _reduce(np.max, err),
         "max_tracking_error_before_first_impact": _reduce(np.max, err[t < first]) if err.size else math.nan,
         "max_tracking_error_after_first_impact": _reduce(np.max, err[t >= first]) if err.size else math.nan,
