@@ -24,12 +24,12 @@ from biped_controller.core.control.controller import MODES
 HELD = "held to the parameters' ranges"
 
 
-def _in_range(statuses, fam, tau_dot_min):
+def _in_range(statuses, fam, tau_dot_min, tau_dot_max=math.inf):
     p = np.array([s.p for s in statuses])
     td = np.array([s.tau_dot for s in statuses])
     tol = trials.RANGE_TOL
     return p, td, bool(np.all(p >= fam.p_min - tol) and np.all(p <= fam.p_max + tol)
-                       and np.all(td >= tau_dot_min - tol))
+                       and np.all(td >= tau_dot_min - tol) and np.all(td <= tau_dot_max + tol))
 
 
 def test_hold_puts_the_next_parameters_on_the_range_bounds():
@@ -81,8 +81,9 @@ def test_hybrid_700n_on_mujoco_stays_in_range_and_ends_physically(mujoco_700):
     and tau' are finite and in range; the run walks or ends in one of the plant's physical falls; the run's
     recorded excursion equals its periods' extremes."""
     r, settings = mujoco_700
-    fam, tdm = context().family, settings.ctrl_config("hybrid").tau_dot_min
-    p, td, ok = _in_range(r.statuses, fam, tdm)
+    cc = settings.ctrl_config("hybrid")
+    fam, tdm = context().family, cc.tau_dot_min
+    p, td, ok = _in_range(r.statuses, fam, tdm, cc.tau_dot_max)
     assert np.all(np.isfinite(p)) and np.all(np.isfinite(td))
     assert ok, (p.min(), p.max(), td.min())
     assert sum(s.qp_status == INFEASIBLE_FALLBACK for s in r.statuses) >= 5
@@ -119,6 +120,40 @@ def test_python_steps_equal_the_compiled_period_where_the_hold_acts(mujoco_700):
     assert held >= 1, "no period where the hold acted: the comparison checks little"
 
 
+def test_hold_keeps_tau_dot_below_its_upper_end():
+    """A least-violation answer with tau'' = +1e6 1/s: held so that tau' after one period lands on tau_dot_max
+    (the end the QP has no row for); an answer below it is not touched."""
+    ctrl = AdaptiveController(load_controller_config(mode="both"))
+    dt, tdx = ctrl.cfg.period, ctrl.cfg.tau_dot_max
+    res = np.zeros(RES.size)
+    res[R_.p], res[R_.p_dot], res[R_.tau_dot] = 0.463, 0.0, 3.0
+    x = np.array([0.0, 1e6])
+    assert "tau''" in ctrl._hold_ranges(x, res, None)
+    assert ctrl.ck.advance(0.463, 0.0, 0.0, 3.0, x[0], x[1], dt)[3] == pytest.approx(tdx, abs=1e-12)
+    x = np.array([0.0, (tdx - 3.0) / dt * 0.5])
+    assert ctrl._hold_ranges(x, res, None) == "" and x[1] == (tdx - 3.0) / dt * 0.5
+
+
+@pytest.mark.parametrize("tau_dot_max", [None, 1e9])
+def test_a_mujoco_fall_keeps_tau_dot_in_range(tau_dot_max):
+    """Mode both, 750 N for 25 ms at phase 0.6 on MuJoCo: the robot falls and the p/tau QP is infeasible for
+    many periods; tau' stays within [tau_dot_min, tau_dot_max]. Negative control (tau_dot_max = 1e9, i.e. no
+    upper end): tau' runs far past the configured tau_dot_max in the same fall."""
+    sets = ["plant=mujoco"] + ([f"tau_dot_max={tau_dot_max}"] if tau_dot_max else [])
+    settings = run_settings(None, sets)
+    fam = context().family
+    r = runs.push_run(Push(onset_time(0.6, fam.T), 0.025, 750.0, None), "both", steps_after=3, settings=settings)
+    assert r.fallen and r.fall_cause == "foot_rotated", (r.fallen, r.fall_cause)
+    assert sum(s.qp_status == INFEASIBLE_FALLBACK for s in r.statuses) >= 5
+    configured = load_controller_config()
+    p, td, ok = _in_range(r.statuses, fam, configured.tau_dot_min, configured.tau_dot_max)
+    if tau_dot_max is None:
+        assert ok, (p.min(), p.max(), td.min(), td.max())
+        assert td.max() > 10.0            # the QP does use tau' (the hold is not all that acts)
+    else:
+        assert td.max() > 10 * configured.tau_dot_max, td.max()
+
+
 def test_every_mode_of_a_small_map_slice_stays_in_range():
     """A small capability-map slice (phase 0.55, 25 ms, forward, 300 and 900 N) in every mode: each record
     carries the trial's excursion, and no trial leaves the range."""
@@ -130,20 +165,24 @@ def test_every_mode_of_a_small_map_slice_stays_in_range():
             for k in ("max_abs_p_minus_pd", "min_p", "max_p", "min_tau_dot", "max_tau_dot"):
                 assert math.isfinite(rec[k]), (mode, force, k)
             assert rec["max_abs_p_minus_pd"] == max(rec["max_p"] - fam.p_d, fam.p_d - rec["min_p"])
-            why = trials.out_of_range(rec, fam.p_min, fam.p_max, ctrl_cfg.tau_dot_min)
+            why = trials.out_of_range(rec, fam.p_min, fam.p_max, ctrl_cfg.tau_dot_min, ctrl_cfg.tau_dot_max)
             assert why == "", (mode, force, why)
 
 
 def test_out_of_range_names_what_leaves():
     """Negative control of the range check: each bound broken alone is named; NaN and a record from before the
     fields existed are not passed."""
-    ok = {"min_p": 0.40, "max_p": 0.60, "min_tau_dot": 0.5}
-    assert trials.out_of_range(ok, 0.35, 0.65, 0.05) == ""
-    assert "p_min" in trials.out_of_range({**ok, "min_p": 0.30}, 0.35, 0.65, 0.05)
-    assert "p_max" in trials.out_of_range({**ok, "max_p": 1e13}, 0.35, 0.65, 0.05)
-    assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": -3e13}, 0.35, 0.65, 0.05)
-    assert trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-16}, 0.35, 0.65, 0.05) == ""   # on the bound
-    assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-9}, 0.35, 0.65, 0.05)
-    assert trials.out_of_range({**ok, "max_p": math.nan}, 0.35, 0.65, 0.05) != ""
-    assert trials.out_of_range({"mode": "both"}, 0.35, 0.65, 0.05) == "parameter excursion not recorded"
-    assert trials.out_of_range({**ok, "min_p": None}, 0.35, 0.65, 0.05) == "parameter excursion not recorded"
+    ok = {"min_p": 0.40, "max_p": 0.60, "min_tau_dot": 0.5, "max_tau_dot": 3.0}
+    R = (0.35, 0.65, 0.05, 46.3)
+    assert trials.out_of_range(ok, *R) == ""
+    assert "p_min" in trials.out_of_range({**ok, "min_p": 0.30}, *R)
+    assert "p_max" in trials.out_of_range({**ok, "max_p": 1e13}, *R)
+    assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": -3e13}, *R)
+    assert trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-16}, *R) == ""   # on the bound
+    assert "tau_dot_min" in trials.out_of_range({**ok, "min_tau_dot": 0.05 - 1e-9}, *R)
+    assert "tau_dot_max" in trials.out_of_range({**ok, "max_tau_dot": 1.6e4}, *R)
+    assert trials.out_of_range({**ok, "max_tau_dot": 46.3}, *R) == ""            # on the bound
+    assert trials.out_of_range({**ok, "max_p": math.nan}, *R) != ""
+    assert trials.out_of_range({**ok, "max_tau_dot": math.nan}, *R) != ""
+    assert trials.out_of_range({"mode": "both"}, *R) == "parameter excursion not recorded"
+    assert trials.out_of_range({**ok, "min_p": None}, *R) == "parameter excursion not recorded"

@@ -256,7 +256,7 @@ def test_simulator_config_accepts_valid(period, sub):
     assert (cfg.control_period, cfg.substeps) == (period, sub)
 
 
-CTRL_NUMERIC = ['Kp', 'Kv', 'kp', 'kv', 'weight_p', 'weight_tau', 'tau_dot_min']
+CTRL_NUMERIC = ['Kp', 'Kv', 'kp', 'kv', 'weight_p', 'weight_tau', 'tau_dot_min', 'tau_dot_max']
 
 
 @SETTINGS
@@ -266,6 +266,15 @@ def test_controller_config_rejects_naming_key(key, bad):
     with pytest.raises(ControllerConfigError) as ei:
         load_controller_config(**{key: bad})
     assert key in str(ei.value)
+
+
+def test_controller_config_rejects_tau_dot_max_not_above_tau_dot_min():
+    """tau' has a range only when its upper end lies above its lower one: the message names the key."""
+    from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+    with pytest.raises(ControllerConfigError) as ei:
+        load_controller_config(tau_dot_min=0.5, tau_dot_max=0.5)
+    assert 'tau_dot_max' in str(ei.value)
+    assert load_controller_config(tau_dot_min=0.5, tau_dot_max=0.6).tau_dot_max == 0.6
 
 
 def _modes():

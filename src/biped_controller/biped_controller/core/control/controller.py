@@ -25,7 +25,8 @@ p is kept inside the family's valid range by two extra QP rows (p after one peri
 [p_min, p_max]), and tau' > 0 by one row (tau' after one period >= tau_dot_min). These ranges are hard: on
 an answer that does not hold the rows (least violation, or the solver's error answer) each adapted
 parameter's acceleration is held to the interval of its own range rows (``_hold_ranges``), in every path
-(the Python steps, the compiled period and the compiled loop take the decision from the same two callers).
+(the Python steps, the compiled period and the compiled loop take the decision from the same two callers);
+that hold also keeps tau' (after one period) <= tau_dot_max, an end the QP has no row for.
 
 State: the controller's state between periods is one array, ``memory`` (``controller_layout.MEMORY``), shared
 with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a
@@ -140,6 +141,7 @@ class ControllerConfig:
     margin_zmp: float             # [m] QP keeps l within [l_m + margin, l_M - margin]
     margin_torque: float          # [N m] QP keeps |Gamma_i| <= Gamma_iM - margin
     tau_dot_min: float            # [-] QP keeps tau' (after one period) >= this
+    tau_dot_max: float            # [-] a held answer keeps tau' (after one period) <= this (no QP row)
     qp_solver: str                # "piqp" (the product's solver) or "exact" (dedicated n <= 2 solver)
     disturbance_observer: bool    # estimate a horizontal torso force (not in the paper) for the QP rows
     observer_height: float        # [m] assumed application height of the estimated force above the hip
@@ -199,6 +201,7 @@ class ControllerConfig:
             weight_matrix(self.wbc_weight_joint, self.wbc_weight_torso)
         except ValueError as exc:
             raise ControllerConfigError(str(exc)) from exc
+        finite_number(self.tau_dot_max, "tau_dot_max", above=self.tau_dot_min, error=ControllerConfigError)
         if not (0 < self.margin_friction <= 1):
             raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
         for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once",
@@ -790,11 +793,11 @@ class AdaptiveController:
           p'' in [2 (p_min - p - p' dt) / dt^2, 2 (p_max - p - p' dt) / dt^2]   (p after one period in range)
           and, where it meets that interval, p + 2 p' dt + 3/2 p'' dt^2 in [p_min, p_max] (after a second
           period at the new p' with no acceleration: bounds p')
-          tau'' >= (tau_dot_min - tau') / dt                                   (tau' after one period >= it)
+          tau'' in [(tau_dot_min - tau') / dt, (tau_dot_max - tau') / dt]        (tau' after one period in range)
 
         and lambda'' by :meth:`_torso_box` (modes lambda and all, ``lam`` = (lambda, lambda')). The
         least-violation answer weighs a violation of these rows [m, -] against violations of the contact and
-        torque rows [N, N m]: without the hold it lets p and tau' run away (p'' ~ 1e6 m/s^2), and in mode
+        torque rows [N, N m]: without the hold it lets p and tau' run away (p'' ~ 1e6 m/s^2, tau' ~ 1e4), and in mode
         hybrid, where the whole-body stage then takes over the period's w, nothing brings them back. The
         parameters that are not adapted stay at x* (their rows are not the QP's). Returns the message's
         suffix naming what was held ("" when nothing changed)."""
@@ -816,9 +819,12 @@ class AdaptiveController:
                 x[0] = v
                 held.append("p''")
         if 1 in self.adapted:
-            lo = (c.tau_dot_min - tau_dot) / dt
-            if x[1] < lo:
-                x[1] = lo
+            # the lower end is the QP's own row; the upper end has no row (the second task pulls tau' back to 1
+            # in every answer that holds the rows), so a least-violation answer alone can take tau' past it
+            lo, hi = (c.tau_dot_min - tau_dot) / dt, (c.tau_dot_max - tau_dot) / dt
+            v = min(max(float(x[1]), lo), hi)
+            if v != x[1]:
+                x[1] = v
                 held.append("tau''")
         msg = f"; {', '.join(held)} held to the parameters' ranges" if held else ""
         if lam is not None:

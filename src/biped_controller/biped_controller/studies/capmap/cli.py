@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     pr = summ["parameter_range"]
     if pr["max_abs_p_minus_pd"] is not None:
         print(f"parameters: max |p - p_d| = {pr['max_abs_p_minus_pd']:.4f} m (range [{pr['p_min']:g}, {pr['p_max']:g}] m), "
-              f"tau' in [{pr['min_tau_dot']:.4f}, {pr['max_tau_dot']:.4f}] (>= {pr['tau_dot_min']:g}); "
+              f"tau' in [{pr['min_tau_dot']:.4f}, {pr['max_tau_dot']:.4f}] (range [{pr['tau_dot_min']:g}, {pr.get('tau_dot_max', float('inf')):g}]); "
               f"{len(pr['trials_out_of_range'])} trials out of range, {pr['trials_not_recorded']} without the record")
     for p in figs:
         print(f"figure: {p}")

@@ -182,18 +182,19 @@ def findings_text(f: dict) -> list[str]:
 
 def parameter_range(run: MapRun) -> dict:
     """The map's trials against the parameters' valid range (``trials.out_of_range``: p in the family's
-    [p_min, p_max] [m], tau' >= tau_dot_min): the range, the largest |p - p_d| [m] and the extremes of tau' [-]
+    [p_min, p_max] [m], tau' in [tau_dot_min, tau_dot_max]): the range, the largest |p - p_d| [m] and the extremes of tau' [-]
     over the recorded trials, the trials that leave the range (key and what leaves) and how many records
     carry no excursion (stored before it was recorded)."""
-    fam, tdm = context().family, run.spec.settings.ctrl_config(MODES[0]).tau_dot_min   # a setting of every mode
+    fam, cc = context().family, run.spec.settings.ctrl_config(MODES[0])    # settings of every mode
+    tdm, tdx = cc.tau_dot_min, cc.tau_dot_max
     recs = [r for by_force in run.records.values() for r in by_force.values()]
     known = [r for r in recs if all(r.get(k) is not None for k in ("max_abs_p_minus_pd", "min_tau_dot", "max_tau_dot"))]
     out = []
     for r in recs:
-        why = trials.out_of_range(r, fam.p_min, fam.p_max, tdm)
+        why = trials.out_of_range(r, fam.p_min, fam.p_max, tdm, tdx)
         if why and r in known:
             out.append({k: r[k] for k in ("mode", "direction", "phase", "duration", "force")} | {"why": why})
-    return {"p_min": fam.p_min, "p_max": fam.p_max, "p_d": fam.p_d, "tau_dot_min": tdm,
+    return {"p_min": fam.p_min, "p_max": fam.p_max, "p_d": fam.p_d, "tau_dot_min": tdm, "tau_dot_max": tdx,
             "max_abs_p_minus_pd": max((r["max_abs_p_minus_pd"] for r in known), default=None),
             "min_tau_dot": min((r["min_tau_dot"] for r in known), default=None),
             "max_tau_dot": max((r["max_tau_dot"] for r in known), default=None),

@@ -51,7 +51,7 @@ def parameter_excursion(res: runner.RunResult) -> dict:
     """The run's parameter excursion (JSON-ready): ``max_abs_p_minus_pd`` [m], the largest |p - p_d| of the
     controller's committed p, ``min_p``, ``max_p`` [m] its extremes, and ``min_tau_dot``, ``max_tau_dot`` [-],
     the extremes of its tau' (at every decision from t = 0 to the run's end, early stop included; NaN when
-    one was NaN). The valid range: p in the family's [p_min, p_max], tau' >= tau_dot_min
+    one was NaN). The valid range: p in the family's [p_min, p_max], tau' in [tau_dot_min, tau_dot_max]
     (``config/controller.yaml``; ``trials.out_of_range``)."""
     p_lo, p_hi, td_lo, td_hi = res.param_range
     p_d = context().family.p_d

@@ -50,18 +50,21 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
 RANGE_TOL = 1e-12
 
 
-def out_of_range(rec: dict, p_min: float, p_max: float, tau_dot_min: float) -> str:
+def out_of_range(rec: dict, p_min: float, p_max: float, tau_dot_min: float, tau_dot_max: float) -> str:
     """What of a record's parameter excursion (:func:`parameter_excursion`'s fields) leaves the valid range
-    p in [p_min, p_max] [m], tau' >= tau_dot_min [-], each to :data:`RANGE_TOL` ("" when nothing; a NaN counts as
-    leaving it; a record without them, or with null ones, says so)."""
-    if any(rec.get(k) is None for k in ("min_p", "max_p", "min_tau_dot")):
+    p in [p_min, p_max] [m], tau' in [tau_dot_min, tau_dot_max] [-], each to :data:`RANGE_TOL` ("" when nothing;
+    a NaN counts as leaving it; a record without them, or with null ones, says so)."""
+    if any(rec.get(k) is None for k in ("min_p", "max_p", "min_tau_dot", "max_tau_dot")):
         return "parameter excursion not recorded"
     bad = []
-    lo, hi, td = rec.get("min_p", math.nan), rec.get("max_p", math.nan), rec.get("min_tau_dot", math.nan)
+    lo, hi = rec.get("min_p", math.nan), rec.get("max_p", math.nan)
+    td, tu = rec.get("min_tau_dot", math.nan), rec.get("max_tau_dot", math.nan)
     if not lo >= p_min - RANGE_TOL:
         bad.append(f"p = {lo!r} < p_min = {p_min!r}")
     if not hi <= p_max + RANGE_TOL:
         bad.append(f"p = {hi!r} > p_max = {p_max!r}")
     if not td >= tau_dot_min - RANGE_TOL:
         bad.append(f"tau' = {td!r} < tau_dot_min = {tau_dot_min!r}")
+    if not tu <= tau_dot_max + RANGE_TOL:
+        bad.append(f"tau' = {tu!r} > tau_dot_max = {tau_dot_max!r}")
     return "; ".join(bad)
