@@ -609,17 +609,20 @@ class MujocoPlant(ScheduledPushes):
             self._push_key = ps
         return self._push_array
 
-    def _substeps_compiled(self, knots: list, t_grid_end: float) -> tuple[bool, FallInfo | None, float, float]:
+    def _substeps_compiled(self, knots: list, t_grid_end: float, i0: int = 0, impulse0: float = 0.0
+                           ) -> tuple[bool, FallInfo | None, float, float]:
         """:meth:`_substeps_python` for held torques in compiled calls (``mujoco_kernels.substeps``): one call
         runs the MuJoCo steps until the period's end, a touchdown or a possible fall (named here by
-        :meth:`_check_fall`; the steps go on after one that is not a fall). Same returns, bit for bit."""
+        :meth:`_check_fall`; the steps go on after one that is not a fall). Same returns, bit for bit.
+        ``i0``, ``impulse0``: resume after ``i0`` intervals with the pushes' impulse so far."""
         k, acc = self._k, self._acc
         kn = np.array(knots, dtype=float)
         pushes = self._push_rows()
         out = self._sub_out
-        out[:] = 0.0
+        out[k.O_DONE] = 0.0
+        out[k.O_IMPULSE] = impulse0
         n = len(knots) - 1
-        i = 0
+        i = i0
         while i < n:
             code = self._substeps(self._m_addr, self._d_addr, self._timestep, kn, i, pushes, self._torso_com,
                                   *self._mj_arrays, acc, self._ip, self._fp, out)
@@ -677,6 +680,15 @@ class MujocoPlant(ScheduledPushes):
             touchdown, fall, t_end, impulse = self._substeps_compiled(knots, t_grid_end)
         else:
             touchdown, fall, t_end, impulse = self._substeps_python(knots, t_start, t_grid_end, fn, obs_stance)
+        push_force = float(sum(f for f, _ in first)) if first else 0.0
+        return self._finish_period(row, t_start, t_end, stance0, touchdown, fall, impulse, push_force, impacts0)
+
+    def _finish_period(self, row: np.ndarray, t_start: float, t_end: float, stance0: int, touchdown: bool,
+                       fall: FallInfo | None, impulse: float, push_force: float, impacts0: int) -> StepRecord:
+        """The period [t_start, t_end] after its MuJoCo steps: the state copied out, the touchdown's impact
+        record and the exchange of the legs, the numerical check, the mean wrench (``end_period``), the clock,
+        and the period's :class:`StepRecord` (its arrays views of ``row``)."""
+        d, k, acc = self.data, self._k, self._acc
         self.x, self.v = d.qpos.copy(), d.qvel.copy()
         x0, v0 = row[k.R_X:k.R_X + 9], row[k.R_V:k.R_V + 9]
         if touchdown:
@@ -696,11 +708,31 @@ class MujocoPlant(ScheduledPushes):
                             qd=row[k.R_QD:k.R_QD + 6], base=row[k.R_BASE:k.R_BASE + 3],
                             base_dot=row[k.R_BASE_DOT:k.R_BASE_DOT + 3], x=x0, v=v0,
                             torque=row[k.R_TORQUE:k.R_TORQUE + 6], wrench=row[k.R_WRENCH:k.R_WRENCH + 3],
-                            cop=float(row[k.R_COP]), push_force=float(sum(f for f, _ in first)) if first else 0.0,
-                            impacts=impacts0,
+                            cop=float(row[k.R_COP]), push_force=push_force, impacts=impacts0,
                             fallen=fall is not None, fall_cause=fall.cause if fall else "",
                             fall_detail=fall.detail if fall else "", t_end=t_end, push_impulse=impulse)
         return rec
+
+    def finish_compiled_period(self, code: int, done: int, knots: list, t_start: float, t_grid_end: float,
+                               impulse: float, row: np.ndarray, push_force: float) -> StepRecord:
+        """A period the compiled closed loop (``mujoco_loop_kernels``) ran and handed back after its MuJoCo
+        steps stopped with ``code`` (``mujoco_kernels.substeps``) after ``done`` intervals of ``knots``
+        (CONTINUE: every interval, the end state to check for numerics): the fall named, the steps resumed
+        after a possible fall that is none, then :meth:`_finish_period`, as :meth:`step` does. ``row`` the
+        period's row (its own array: the record's arrays are views of it); the plant's clock at the period's
+        start."""
+        k = self._k
+        touchdown, fall, t_end = False, None, t_grid_end
+        if code == k.TOUCHDOWN:
+            touchdown, t_end = True, knots[done]
+        elif code == k.MAYBE_FALL:
+            fall = self._check_fall(knots[done], self.data.qpos.tolist(), int(self._acc[k.A_HIT]))
+            if fall is not None:
+                t_end = knots[done]
+            else:
+                touchdown, fall, t_end, impulse = self._substeps_compiled(knots, t_grid_end, done, impulse)
+        return self._finish_period(row, t_start, t_end, self.stance, touchdown, fall, impulse, push_force,
+                                   self.impact_count)
 
     def _touchdown(self, t_minus: float, t: float, x_minus: np.ndarray, v_minus: np.ndarray,
                    impulse: np.ndarray, work: float) -> None:
