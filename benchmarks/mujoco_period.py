@@ -15,10 +15,12 @@ timed wall (``time.perf_counter``) and CPU (``time.process_time``, this process'
 * ``compiled_loop``: the compiled closed loop (``runner``'s ``MujocoSegment``: controller period and MuJoCo
   steps in one call per run of periods), when the runner has it for this plant.
 
-Every path's records are compared field for field with ``python_steps``' (``records_equal``). Then one
-instrumented run of each of the first two paths splits a period: the controller's ``compute``, the plant's
-``observe`` and ``step`` and, inside ``step``, the calls to ``mujoco.mj_step``, ``mujoco.mj_rnePostConstraint``
-and the compiled bookkeeping (``python_steps``) or to the compiled steps (``compiled_steps``), each call timed
+Every path's records are compared field for field with ``python_steps``' (``records_equal``). Then
+instrumented runs of each path (``--repeats`` each, interleaved; the median of each figure) split a period: the
+controller's ``compute``, the plant's ``observe`` and ``step`` and, inside ``step``, the calls to
+``mujoco.mj_step``, ``mujoco.mj_rnePostConstraint`` and the compiled bookkeeping (``python_steps``) or to the
+compiled steps (``compiled_steps``); on the compiled loop its kernel (controller periods and MuJoCo steps) and
+the Python around it (records, statuses, the QP decisions, the touchdowns' impact records). Each call is timed
 with ``time.perf_counter_ns`` (the timer's own cost per call, measured around an empty call, subtracted). The
 instrumented runs are slower than the timed ones by that timing; their split is the figure, the timed runs
 the speed.
@@ -97,7 +99,7 @@ def main(argv=None) -> int:
     import mujoco
 
     from biped_controller.core.control.controller import load_controller_config
-    from biped_controller.studies import runner
+    from biped_controller.studies import runner, segment
     from biped_sim.plant.config import load_sim_config
     from biped_sim.plant.push import Push
     from biped_sim.robot.description import load_description
@@ -147,55 +149,74 @@ def main(argv=None) -> int:
                     "records_equal_to_python_steps": equal.get(p, True)}
     load1 = os.getloadavg()[0]
 
-    # the instrumented runs: where a period goes
+    # the instrumented runs: where a period goes (each path --repeats times, interleaved; the median per figure)
     over = timer_overhead_ns()
-    split = {}
-    for p in ("python_steps", "compiled_steps"):
+
+    def split_once(p: str) -> dict:
         sim, ctrl = loop.sim, loop.ctrl
-        sim.compiled_steps = p == "compiled_steps"
+        sim.compiled_steps = p != "python_steps"
         loop.reset()
-        w = {"controller_compute": Timed(ctrl.compute), "plant_observe": Timed(sim.observe),
-             "plant_step": Timed(sim.step)}
-        inner = {}
+        w = {}
+        if p != "compiled_loop":
+            w = {"controller_compute": Timed(ctrl.compute), "plant_observe": Timed(sim.observe),
+                 "plant_step": Timed(sim.step)}
         saved_mj = (mujoco.mj_step, mujoco.mj_rnePostConstraint)
+        mlk = segment.load_mujoco_loop_kernels() if has_compiled_loop else None
+        saved_seg = mlk.run_mujoco_segment if mlk is not None else None
         if p == "python_steps":
             inner = {"mj_step": Timed(mujoco.mj_step), "mj_rnePostConstraint": Timed(mujoco.mj_rnePostConstraint),
                      "after_step_kernel": Timed(sim._after_step)}
             mujoco.mj_step, mujoco.mj_rnePostConstraint = inner["mj_step"], inner["mj_rnePostConstraint"]
             sim._after_step = inner["after_step_kernel"]
-        else:
+        elif p == "compiled_steps":
             inner = {"substeps_kernel": Timed(sim._substeps)}
             sim._substeps = inner["substeps_kernel"]
-        ctrl.compute, sim.observe, sim.step = w["controller_compute"], w["plant_observe"], w["plant_step"]
+        else:
+            inner = {"segment_kernel": Timed(saved_seg)}
+            mlk.run_mujoco_segment = inner["segment_kernel"]
+        if w:
+            ctrl.compute, sim.observe, sim.step = w["controller_compute"], w["plant_observe"], w["plant_step"]
         gc.collect()
         t0 = perf_counter_ns()
         try:
-            r = loop.run(a.steps, push, limit=10.0, compiled_loop=False)
+            r = loop.run(a.steps, push, limit=10.0, compiled_loop=p == "compiled_loop")
         finally:
             wall = perf_counter_ns() - t0
             mujoco.mj_step, mujoco.mj_rnePostConstraint = saved_mj
-            for name in ("compute",):
-                del ctrl.__dict__[name]
-            for name in ("observe", "step"):
-                del sim.__dict__[name]
+            for o, names in ((ctrl, ("compute",)), (sim, ("observe", "step"))):
+                for name in names:
+                    o.__dict__.pop(name, None)
             sim._after_step = sim._k.after_step
             sim._substeps = sim._k.substeps
+            if mlk is not None:
+                mlk.run_mujoco_segment = saved_seg
         n = len(r.records)
         per = {}
         for name, t in {**w, **inner}.items():
-            per[name] = {"us_per_period": (t.ns - over * t.n) / n / 1e3, "calls_per_period": t.n / n}
-        per["plant_step_rest"] = {"us_per_period": per["plant_step"]["us_per_period"]
-                                  - sum(per[k]["us_per_period"] for k in inner)}
-        per["loop_rest"] = {"us_per_period": wall / n / 1e3 - over * sum(t.n for t in w.values()) / n / 1e3
-                            - sum(per[k]["us_per_period"] for k in w)}
-        per["total_us_per_period"] = wall / n / 1e3 - over * sum(t.n for t in (*w.values(), *inner.values())) / n / 1e3
-        per["periods"] = n
-        split[p] = per
+            per[name] = (t.ns - over * t.n) / n / 1e3
+            per[name + "_calls_per_period"] = t.n / n
+        total = wall / n / 1e3 - over * sum(t.n for t in (*w.values(), *inner.values())) / n / 1e3
+        if w:
+            # the inner calls' timers ran inside the plant's step: their cost is not the step's
+            per["plant_step"] -= over * sum(t.n for t in inner.values()) / n / 1e3
+            per["plant_step_rest"] = per["plant_step"] - sum(per[k] for k in inner)
+            per["loop_rest"] = total - sum(per[k] for k in w)
+        else:
+            per["python_rest"] = total - per["segment_kernel"]
+        per["total"] = total
+        return per
+
+    runs: dict = {p: [] for p in paths}
+    for _ in range(a.repeats):
+        for p in paths:
+            runs[p].append(split_once(p))
+    split = {p: {k: float(np.median([r[k] for r in rs])) for k in rs[0]} for p, rs in runs.items()}
+    load2 = os.getloadavg()[0]
     out = {"meta": {"date": date, "steps": a.steps, "repeats": a.repeats, "push": dict(zip(("start", "duration",
                                                                                            "force"), PUSH)),
                     "mode": "both", "mujoco_timestep": scfg.mujoco_timestep, "cpus": os.cpu_count(),
                     "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
-                    "loadavg_1min_before": load0, "loadavg_1min_after": load1,
+                    "loadavg_1min_before": load0, "loadavg_1min_after": load1, "loadavg_1min_after_split": load2,
                     "timer_overhead_ns_per_call": over},
            "timed": timed, "split": split}
     base = timed["python_steps"]["realtime_factor"]
@@ -210,9 +231,9 @@ def main(argv=None) -> int:
         t = timed[p]
         print(f"| {p} | {t['realtime_factor']:.2f} | {t['us_per_period']:.1f} | {t['realtime_factor_cpu']:.2f} | "
               f"{t['us_per_period_cpu']:.1f} | {t['records_equal_to_python_steps']} |")
+    print("where a period goes (instrumented runs, median of the repeats, us per period):")
     for p, per in split.items():
-        print(f"{p}: " + ", ".join(f"{k} {v['us_per_period']:.1f} us" for k, v in per.items() if isinstance(v, dict))
-              + f"; total {per['total_us_per_period']:.1f} us")
+        print(f"{p}: " + ", ".join(f"{k} {v:.1f}" for k, v in per.items() if not k.endswith("_calls_per_period")))
     return 0
 
 
