@@ -446,7 +446,8 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         "fast_outcome_only": ("fast", {"keep_records": False}),     # compiled loop, outcome only (the sweeps)
         "fast_objects": ("fast", {"compiled_loop": False}),         # compiled kernels, objects every period
         "reference": ("reference", {}),                             # Pinocchio, Python
-        "mujoco": ("mujoco", {}),                                   # the MuJoCo plant, compiled controller
+        "mujoco": ("mujoco", {}),                                   # the MuJoCo plant, its compiled loop
+        "mujoco_objects": ("mujoco", {"compiled_loop": False}),     # the MuJoCo plant, objects every period
     }
 
     from biped_sim.robot.description import load_description
@@ -494,6 +495,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         out[engine]["realtime_factor"] = out[engine]["both"]["realtime_factor"]
     out["fast_over_reference"] = out["fast"]["realtime_factor"] / out["reference"]["realtime_factor"]
     out["mujoco_over_fast_objects"] = out["mujoco"]["realtime_factor"] / out["fast_objects"]["realtime_factor"]
+    out["mujoco_over_mujoco_objects"] = out["mujoco"]["realtime_factor"] / out["mujoco_objects"]["realtime_factor"]
     out["mujoco_over_fast_objects_cpu"] = (out["mujoco"]["both"]["realtime_factor_cpu"]
                                            / out["fast_objects"]["both"]["realtime_factor_cpu"])
     # legacy layout (mode -> figures) for the README table: the default engine
@@ -624,14 +626,17 @@ def markdown(R: dict) -> str:
              "kept (runner.run's default); "
              "`fast_outcome_only` = the same with keep_records=False (what survival sweeps run); `fast_objects` = "
              "compiled kernels, the Python objects every period (compiled_loop=False); `reference` = Pinocchio; "
-             "`mujoco` = the MuJoCo plant (`plant: mujoco`; target >= 20x in mode both) with the controller's "
-             f"compiled period, objects every period: mujoco / fast_objects = {_f(ip.get('mujoco_over_fast_objects'), 2)} "
+             "`mujoco` = the MuJoCo plant (`plant: mujoco`; target >= 20x in mode both) on its compiled loop "
+             "(mujoco_loop_kernels: the controller's compiled period and the MuJoCo steps, many periods per call; "
+             "the plant's Python finishes the touchdowns and falls), every record kept; `mujoco_objects` = the same "
+             "plant with the objects every period (its MuJoCo steps one compiled call per period): "
+             f"mujoco / fast_objects = {_f(ip.get('mujoco_over_fast_objects'), 2)} "
              f"(by CPU time {_f(ip.get('mujoco_over_fast_objects_cpu'), 2)}). CPU s: this process's user + system "
              "time, which on a shared machine leaves out the other jobs' time slices that the wall time counts.")
     L.append("")
     L.append("| variant | mode | simulated s | wall s | sim s / wall s | us per 1 ms period | CPU s | sim s / CPU s |")
     L.append("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
-    for engine in ("fast", "fast_outcome_only", "fast_objects", "reference", "mujoco"):
+    for engine in ("fast", "fast_outcome_only", "fast_objects", "reference", "mujoco", "mujoco_objects"):
         if engine not in ip:
             continue
         for mode in ("none", "both"):
@@ -724,12 +729,13 @@ def inprocess_only(json_path: Path, steps: int = 5, repeats: int = 3) -> int:
     R = json.loads(json_path.read_text(encoding="utf-8")) if json_path.exists() else {}
     R["inprocess_side_by_side"] = {"meta": meta, **{k: v for k, v in ip.items() if k not in ("none", "both")}}
     keys = R.setdefault("keys", {})
-    for v in ("fast", "fast_objects", "mujoco"):
+    for v in ("fast", "fast_objects", "mujoco", "mujoco_objects"):
         keys[f"inprocess_side_by_side.{v}.realtime_factor"] = ip[v]["realtime_factor"]
         keys[f"inprocess_side_by_side.{v}.realtime_factor_cpu"] = ip[v]["both"]["realtime_factor_cpu"]
     keys["inprocess.mujoco.realtime_factor"] = ip["mujoco"]["realtime_factor"]
     keys["inprocess.mujoco.realtime_factor_cpu"] = ip["mujoco"]["both"]["realtime_factor_cpu"]
     keys["inprocess.mujoco_over_fast_objects"] = ip["mujoco_over_fast_objects"]
+    keys["inprocess.mujoco_over_mujoco_objects"] = ip["mujoco_over_mujoco_objects"]
     keys["inprocess.mujoco_over_fast_objects_cpu"] = ip["mujoco_over_fast_objects_cpu"]
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(R, indent=1, default=float) + "\n", encoding="utf-8")
@@ -737,11 +743,12 @@ def inprocess_only(json_path: Path, steps: int = 5, repeats: int = 3) -> int:
           f"on {meta['cpus']} CPUs:")
     print("| variant | sim s / wall s | us per period (wall) | sim s / CPU s | us per period (CPU) |")
     print("| --- | ---: | ---: | ---: | ---: |")
-    for v in ("fast", "fast_outcome_only", "fast_objects", "reference", "mujoco"):
+    for v in ("fast", "fast_outcome_only", "fast_objects", "reference", "mujoco", "mujoco_objects"):
         b = ip[v]["both"]
         print(f"| {v} | {b['realtime_factor']:.2f} | {b['us_per_period']:.0f} | {b['realtime_factor_cpu']:.2f} | "
               f"{b['cpu_s'] / (b['periods'] * repeats) * 1e6:.0f} |")
     print(f"mujoco / fast_objects: wall {ip['mujoco_over_fast_objects']:.3f}, CPU {ip['mujoco_over_fast_objects_cpu']:.3f}")
+    print(f"mujoco / mujoco_objects: wall {ip['mujoco_over_mujoco_objects']:.3f}")
     return 0
 
 

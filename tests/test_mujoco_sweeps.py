@@ -107,7 +107,8 @@ def test_outcome_only_mujoco_run_keeps_the_last_record_and_status_of_the_full_ru
     period; the impacts and the outcome are the same."""
     ctx = tcontext.context()
     push = (Push(0.5 * ctx.family.T, 0.025, force),)
-    kw = dict(sim_config=MUJOCO.sim_config(), ctrl_config=MUJOCO.ctrl_config(mode), family=ctx.family, desc=ctx.desc)
+    kw = dict(sim_config=MUJOCO.sim_config(), ctrl_config=MUJOCO.ctrl_config(mode), family=ctx.family, desc=ctx.desc,
+              compiled_loop=False)
     full = runner.run(4, mode, push, **kw)
     lean = runner.run(4, mode, push, keep_records=False, **kw)
     assert len(lean.records) == len(lean.statuses) == 1 and len(full.records) > 200

@@ -1,7 +1,8 @@
 """In-process closed loop (no ROS, no DDS): a plant + AdaptiveController, lockstep per control period.
 
 The plant is ``make_plant(sim_config.plant, ...)``: the rigid ``Simulator`` (default, the reference) or the
-MuJoCo plant (``--set plant=mujoco``); the compiled closed loop (``segment``) runs the rigid plant only.
+MuJoCo plant (``--set plant=mujoco``); the compiled closed loop runs either (``segment.Segment`` on the rigid
+plant, ``segment.MujocoSegment`` on MuJoCo).
 
 The node graph does exactly this over DDS; ``run`` is the reference the DDS run is compared with.
 """
@@ -23,7 +24,7 @@ from biped_sim.plant.protocol import Plant, make_plant
 from biped_controller.core.control.controller import AdaptiveController, ControllerConfig, load_controller_config
 from biped_controller.core.control.controller_layout import M_
 from biped_controller.plugin.result import RunResult
-from biped_controller.studies.segment import Segment
+from biped_controller.studies.segment import MujocoSegment, Segment
 from biped_sim.robot.gait_family import GaitFamily
 
 
@@ -40,21 +41,23 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     simulator only: the plant and the sensors differ, the controller keeps ``desc``.
 
     ``compiled_loop`` (fast engine, ideal sensors, held torques, no ``keep_qp``): the periods where nothing
-    needs Python run in the compiled loop (``segment.Segment``), with records identical to the objects'
-    period by period (tested); the objects take every period with a QP, an impact or a fall.
+    needs Python run in the compiled loop (``segment.Segment`` on the rigid plant, ``segment.MujocoSegment``
+    on MuJoCo), with records identical to the objects' period by period (tested); on the rigid plant the
+    objects take every period with a QP, an impact or a fall; on MuJoCo the compiled loop runs a period that
+    ends in a touchdown or a fall and the plant's Python finishes it (``MujocoPlant.finish_compiled_period``).
     ``keep_records`` False (with the compiled loop): ``records``/``statuses`` keep only the periods the
     objects ran and the run's last period -- the run's outcome (fall, impacts, the last status) is the
-    same, the time series is not there; without the compiled loop (the MuJoCo plant) they keep the run's last
-    period only, its status built once at the end. The compiled loop also takes the periods that need the QP: the
-    controller decides them between two calls (``Segment.decide``), the objects take the impacts,
-    the falls and the modes whose whole-body stage follows a QP.
+    same, the time series is not there; without the compiled loop they keep the run's last period only, its
+    status built once at the end. The compiled loop also takes the periods that need the QP: the
+    controller decides them between two calls (``Segment.decide``), the objects take the modes whose
+    whole-body stage follows a QP (and, on the rigid plant, the impacts and the falls).
 
     ``on_impact(sim, ctrl)`` (the sweeps' early stop) is called once per impact, one control
     period after it, once that period has completed without a fall (the controller's own post-impact torque
     has acted and passed the plant's checks; ``sim.impact_log[-1]`` the impact, ``sim.t`` the control
-    instant one period after it; the compiled loop hands that period back on its own), and, with the
-    compiled loop, once more at the end of the compiled segment that follows (the next QP or the next
-    touchdown, so no trial is decided later than then);
+    instant one period after it; the compiled loop hands that period back on its own), and, with the rigid
+    plant's compiled loop, once more at the end of the compiled segment that follows (the next QP or the next
+    touchdown, so no trial is decided later than then; MuJoCo's compiled loop calls it as the objects do);
     True ends the run there (``steps_walked`` then counts the impacts so far).
 
     ``pool`` (the sweeps): the plant and the controller come from the pool, reused from an earlier
@@ -113,7 +116,7 @@ class ClosedLoop:
         self.sim = make_plant(sim_config.plant, desc, sim_config, perturbation)
         self.ctrl = AdaptiveController(ctrl_config, family, desc, keep_qp=keep_qp)
         self.keep_qp = keep_qp
-        self._segs: dict[bool, Segment] = {}
+        self._segs: dict[bool, Segment | MujocoSegment] = {}
         self.snapshots = (hasattr(self.sim, "snapshot") and getattr(self.sim, "sensor", None) is not None
                           and self.sim.sensor.identity and not self.ctrl.cfg.real_sensing)
 
@@ -130,16 +133,23 @@ class ClosedLoop:
         self.sim.restore(snap.plant)
         self.ctrl.restore(snap.controller)
 
-    def _segment(self, compiled_loop: bool, keep_records: bool, integration_rate: bool) -> Segment | None:
+    def _segment(self, compiled_loop: bool, keep_records: bool, integration_rate: bool
+                 ) -> Segment | MujocoSegment | None:
         """The compiled loop over this plant and controller (kept: its record buffers are reused), or None
-        where it does not apply (module docstring of ``run``)."""
+        where it does not apply (module docstring of ``run``): ``Segment`` on the rigid plant,
+        ``MujocoSegment`` on the MuJoCo plant."""
         sim, ctrl = self.sim, self.ctrl
-        if not (compiled_loop and self.scfg.plant == "rigid" and not integration_rate and not self.keep_qp
-                and Segment.eligible(sim, ctrl)):
+        if not (compiled_loop and not integration_rate and not self.keep_qp):
+            return None
+        if self.scfg.plant == "rigid" and Segment.eligible(sim, ctrl):
+            kind = Segment
+        elif self.scfg.plant == "mujoco" and MujocoSegment.eligible(sim, ctrl):
+            kind = MujocoSegment
+        else:
             return None
         seg = self._segs.get(keep_records)
         if seg is None:
-            seg = self._segs[keep_records] = Segment(sim, ctrl, keep_records=keep_records)
+            seg = self._segs[keep_records] = kind(sim, ctrl, keep_records=keep_records)
         return seg
 
     def walk_to(self, t_push: float, compiled_loop: bool = True) -> LoopSnapshot:
@@ -172,7 +182,9 @@ class ClosedLoop:
                 recs, _ = seg.run(g)
                 if recs and pending and sim.impact_count == seen:
                     pending = False
-                if grid_end(sim.t, dt) > t_push:
+                if sim.impact_count > seen:        # the MuJoCo loop's last period ended in a touchdown
+                    seen, pending = sim.impact_count, True
+                if sim.fall is not None or grid_end(sim.t, dt) > t_push:
                     break
             obs = sim.observe()
             out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
@@ -198,14 +210,18 @@ class ClosedLoop:
         records, statuses, qps = [], [], []
         keep_qp = self.keep_qp
         seg = self._segment(compiled_loop, keep_records, integration_rate)
-        # outcome only without the compiled loop (the MuJoCo plant's sweeps): the objects keep the last
+        # outcome only without the compiled loop (e.g. a sensor model on MuJoCo): the objects keep the last
         # period's record and status only, and the controller builds that status once, at the end
         lean = seg is None and not keep_records and not keep_qp
         if lean:
             ctrl.build_status, ctrl._pending_status = False, None
         try:
-            self._run_periods(steps, limit, integration_rate, extra_time_after_steps, on_impact, seen, pending,
-                              seg, lean, keep_records, records, statuses, qps)
+            if isinstance(seg, MujocoSegment):
+                self._run_periods_mujoco(steps, limit, extra_time_after_steps, on_impact, seen, pending, seg,
+                                         keep_records, records, statuses)
+            else:
+                self._run_periods(steps, limit, integration_rate, extra_time_after_steps, on_impact, seen, pending,
+                                  seg, lean, keep_records, records, statuses, qps)
         finally:
             ctrl.build_status = True
         if lean:
@@ -288,6 +304,72 @@ class ClosedLoop:
             if sim.t >= limit:
                 break
         if seg is not None and last_in_seg:       # outcome only: the run's last period, when the compiled loop ran it
+            recs, stats = seg.last()
+            records += recs
+            statuses += stats
+
+
+    def _after_period(self, steps: int, limit: float, extra_time_after_steps: float, on_impact, seen: int,
+                      pending: bool) -> tuple[bool, int, bool]:
+        """The checks :meth:`_run_periods` makes after each period the objects ran (a fall, the early stop's
+        call one period after an impact, the steps and the time limits): (stop, seen, pending)."""
+        sim = self.sim
+        if sim.fall is not None:
+            return True, seen, pending
+        if pending and sim.impact_count == seen:
+            pending = False
+            if on_impact is not None and on_impact(sim, self.ctrl):
+                return True, seen, pending
+        if sim.impact_count > seen:
+            seen, pending = sim.impact_count, True
+        if sim.impact_count >= steps:
+            if extra_time_after_steps <= 0 or sim.t >= sim.impact_log[steps - 1].t + extra_time_after_steps:
+                return True, seen, pending
+        return sim.t >= limit, seen, pending
+
+    def _run_periods_mujoco(self, steps, limit, extra_time_after_steps, on_impact, seen, pending,
+                            seg: MujocoSegment, keep_records, records, statuses) -> None:
+        """:meth:`_run_periods` with the MuJoCo plant's compiled loop: its calls run periods up to the next
+        touchdown, fall, QP or the time to stop (``t_stop``: the limit, or the time after the last step), one
+        period at a time while an impact waits for the early stop's check; after each call the objects'
+        checks on its last period (:meth:`_after_period`: nothing in the periods before it would have
+        stopped the run); a QP period the controller decides goes to the next call, one the compiled loop
+        cannot take (or any period it hands back unrun) to the objects."""
+        sim, ctrl = self.sim, self.ctrl
+        decision = None
+        last_in_seg = False
+        while True:
+            t_stop = limit
+            if sim.impact_count >= steps and extra_time_after_steps > 0:
+                t_stop = min(limit, sim.impact_log[steps - 1].t + extra_time_after_steps)
+            recs, stats = seg.run(t_stop, 1 if (pending and on_impact is not None) else 1 << 40, decision,
+                                  build=keep_records)
+            decision = None
+            records += recs
+            statuses += stats
+            if seg.n > 0:
+                last_in_seg = True
+                stop, seen, pending = self._after_period(steps, limit, extra_time_after_steps, on_impact, seen,
+                                                         pending)
+                if stop:
+                    break
+            if seg.needs_qp:
+                decision = seg.decide()
+                if decision is not None:
+                    continue
+            elif seg.n > 0:
+                continue
+            # the objects take the period the compiled loop handed back
+            last_in_seg = False
+            obs = sim.observe()
+            out = ctrl.compute(obs.t, obs.q, obs.qd, obs.stance, obs.pitch, obs.pitch_rate)
+            statuses.append(out.status)
+            rec = sim.step(out.torque)
+            records.append(rec)
+            stop, seen, pending = self._after_period(steps, limit, extra_time_after_steps, on_impact, seen, pending)
+            if stop:
+                break
+        if last_in_seg:        # outcome only: the run's last period, when the compiled loop ran it
             recs, stats = seg.last()
             records += recs
             statuses += stats

@@ -7,6 +7,10 @@ Pure Python + NumPy, no ROS. A :class:`Segment` binds one :class:`rigid.Simulato
 (the QP, an impact, a fall, ...) and leaves both arrays at the state after the last period it committed;
 it returns the periods' ``StepRecord`` and ``ControllerStatusData``, identical to what ``ctrl.compute`` +
 ``sim.step`` return one period at a time. The objects then take the next period themselves.
+
+:class:`MujocoSegment` is the same for the MuJoCo plant (``mujoco_loop_kernels.run_mujoco_segment``): the
+controller's arrays and MuJoCo's ``mjData`` with the plant's arrays go to the kernel; a period that ends in
+a touchdown or a fall is run there and finished by the plant's Python.
 """
 from __future__ import annotations
 
@@ -166,5 +170,161 @@ class Segment:
                                   status, msg)
         if first is not None and idx[0] == 0:       # the first period took the QP's decision: its status
             statuses[0] = status_records(self.sta[sel[:1]], [cstep0], T[:1], self.ctrl.cfg.mode, stance,
+                                         int(first[0]), first[1])[0]
+        return records, statuses
+
+
+MUJOCO_LOOP_KERNELS = "biped_controller.studies.mujoco_loop_kernels"
+MUJOCO_LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS,
+                                                            "biped_sim.plant.mujoco_kernels")
+
+
+def load_mujoco_loop_kernels():
+    """The compiled closed loop on the MuJoCo plant (``mujoco_loop_kernels``) through ``numba_cache.load``,
+    after the plant's kernels (``biped_sim.plant.mujoco.load_kernels``: MuJoCo's library loaded for numba) and
+    the controller's."""
+    from biped_sim.plant.mujoco import load_kernels as load_mujoco_kernels
+
+    load_mujoco_kernels()
+    numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
+    numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
+    return numba_cache.load(MUJOCO_LOOP_KERNELS, sources=MUJOCO_LOOP_KERNELS_SOURCES)
+
+
+class MujocoSegment:
+    """The compiled loop (``mujoco_loop_kernels.run_mujoco_segment``) for one (MuJoCo plant, controller) pair,
+    with :class:`Segment`'s interface (``run``, ``last``, ``decide``, ``needs_qp``, ``n``, ``ended``). A period
+    whose MuJoCo steps end in a touchdown, a possible fall or a numerical problem is finished by the plant's
+    Python (``MujocoPlant.finish_compiled_period``) inside :meth:`run` and ends the call; it is counted in
+    ``n`` and its record and status are returned with the others."""
+
+    def __init__(self, sim, ctrl: AdaptiveController, keep_records: bool = True, capacity: int = 8192):
+        if not self.eligible(sim, ctrl):
+            raise ValueError("MujocoSegment needs the compiled period, ideal sensors and the plant's compiled steps")
+        self.mk = load_mujoco_loop_kernels()
+        self.pk = sim._k
+        self.sim, self.ctrl, self.fp = sim, ctrl, ctrl.compiled_period
+        self.keep = keep_records
+        self.rec = np.empty((capacity, self.mk.REC_SIZE))
+        self.sta = np.empty((capacity, RES.size))
+        self.out = np.zeros(self.mk.OUT_SIZE)
+        self.clock = np.zeros(2)
+        self.ended = ""
+        self.n = 0
+        self._last = None
+        self.G = np.zeros_like(self.fp.G)
+        self.h = np.zeros_like(self.fp.h)
+        self.res = np.zeros(RES.size)
+        self.work = np.zeros((WORK.size, 6))
+        self.qp_x = np.zeros(self.fp.nx)
+        self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
+        self._bad = np.array(sim._bad_warnings, dtype=np.int64)
+
+    @staticmethod
+    def eligible(sim, ctrl: AdaptiveController) -> bool:
+        """The compiled period on the controller's side (no Python whole-body stage, no real sensing), ideal
+        sensors, held torques on the plant's compiled steps (no probe, no trace)."""
+        fp = getattr(ctrl, "compiled_period", None)
+        return bool(getattr(sim, "name", "") == "mujoco" and getattr(sim, "compiled_steps", False)
+                    and fp is not None and sim.sensor.identity and not fp.python_stage
+                    and not ctrl.cfg.real_sensing and sim.probe is None and sim.trace is None)
+
+    @property
+    def needs_qp(self) -> bool:
+        """The last call ended at a period that needs the QP (its rows in ``G``, ``h``, ``res``)."""
+        return int(self.out[self.mk.O_END]) == self.mk.END_QP
+
+    def decide(self) -> tuple | None:
+        """As :meth:`Segment.decide`: the controller's decision for the QP period handed back, or None."""
+        if not (self.takes_qp and self.needs_qp):
+            return None
+        return self.fp.solve_qp(self.G, self.h, self.res)
+
+    def run(self, t_stop: float, max_periods: int = 1 << 40, decision: tuple | None = None, build: bool = True
+            ) -> tuple[list[StepRecord], list[ControllerStatusData]]:
+        """As :meth:`Segment.run`, on the MuJoCo plant (class docstring)."""
+        sim, ctrl, fp, mk = self.sim, self.ctrl, self.fp, self.mk
+        if sim.fall is not None:
+            raise RuntimeError("the robot has fallen; reset() the plant")
+        if decision is not None:
+            self.qp_x[:] = decision[0]
+        step0, cstep0, stance, impacts = sim.step_index, ctrl.step_index, sim.stance, sim.impact_count
+        clock, out = self.clock, self.out
+        clock[0], clock[1] = sim.t, sim.step_index
+        d = sim.data
+        n = mk.run_mujoco_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
+                                  sim._m_addr, sim._d_addr, sim._timestep, *sim._mj_arrays, sim._acc, sim._ip,
+                                  sim._fp, sim._warn_number, self._bad, sim._lo, sim._hi, _PERM, sim._push_rows(),
+                                  sim._torso_com, sim._h, sim.cfg.control_period, clock, float(t_stop),
+                                  int(max_periods), not self.keep, self.rec, self.sta, out, ctrl.wbc, self.G, self.h,
+                                  self.res, self.work, self.qp_x, decision is not None)
+        end = int(out[mk.O_END])
+        self.ended = mk.END_NAMES[end]
+        if n > 0:
+            sim.t, sim.step_index = float(clock[0]), int(clock[1])
+            sim.x, sim.v = d.qpos.copy(), d.qvel.copy()
+        event = None
+        if end == mk.END_PLANT_EVENT:
+            k = int(out[mk.O_ROW])
+            nk = int(out[mk.O_NK])
+            knots = out[mk.O_KNOTS:mk.O_KNOTS + nk].tolist()
+            row = self.rec[k, :self.pk.ROW_SIZE].copy()
+            event = sim.finish_compiled_period(int(out[mk.O_CODE]), int(out[mk.O_DONE]), knots,
+                                               float(out[mk.O_T_START]), float(out[mk.O_T_GRID_END]),
+                                               float(out[mk.O_IMPULSE]), row, float(self.rec[k, mk.C_PUSH_FORCE]))
+        self.n = n + (event is not None)
+        if self.n == 0:
+            return [], []
+        first = decision[1:3] if decision is not None else None
+        info = (n, step0, cstep0, stance, impacts, first, event)
+        if not self.keep and not build:
+            self._last = info
+            return [], []
+        self._last = None
+        return self._records(info, self.keep)
+
+    def last(self) -> tuple[list[StepRecord], list[ControllerStatusData]]:
+        """As :meth:`Segment.last`."""
+        if self._last is None:
+            return [], []
+        info, self._last = self._last, None
+        return self._records(info, False)
+
+    def _records(self, info: tuple, every: bool):
+        """The periods' ``StepRecord`` (the plant's fields from the rows, as ``MujocoPlant.step`` builds them;
+        the handed-back period's from the plant) and ``ControllerStatusData`` (``status_records``); all of them
+        (``every``) or the last one."""
+        n, step0, cstep0, stance, impacts, first, event = info
+        mk, pk = self.mk, self.pk
+        cap = self.rec.shape[0]
+        total = n + (event is not None)
+        idx = list(range(total)) if every else [total - 1]
+        sel = [j % cap for j in idx]
+        records = []
+        plain = [j for j in idx if j < n]
+        if plain:
+            rows = self.rec[[j % cap for j in plain]]
+            T, TE = rows[:, mk.C_T].tolist(), rows[:, mk.C_T_END].tolist()
+            PF, IMP, COP = rows[:, mk.C_PUSH_FORCE].tolist(), rows[:, mk.C_PUSH_IMPULSE].tolist(), rows[:, pk.R_COP].tolist()
+            new = object.__new__
+            for i, j in enumerate(plain):
+                r = rows[i]
+                rec = new(StepRecord)
+                rec.__dict__.update(
+                    step=step0 + j, t=T[i], stance=stance, q=r[pk.R_Q:pk.R_Q + 6], qd=r[pk.R_QD:pk.R_QD + 6],
+                    base=r[pk.R_BASE:pk.R_BASE + 3], base_dot=r[pk.R_BASE_DOT:pk.R_BASE_DOT + 3],
+                    x=r[pk.R_X:pk.R_X + 9], v=r[pk.R_V:pk.R_V + 9], torque=r[pk.R_TORQUE:pk.R_TORQUE + 6],
+                    wrench=r[pk.R_WRENCH:pk.R_WRENCH + 3], cop=COP[i], push_force=PF[i], impacts=impacts,
+                    fallen=False, fall_cause="", fall_detail="", t_end=TE[i], push_impulse=IMP[i])
+                records.append(rec)
+        if event is not None and idx[-1] == n:
+            records.append(event)
+        status, msg = ((NO_ADAPTATION, MSG_FIXED_REFERENCE[self.ctrl.cfg.mode]) if not self.ctrl.adapted
+                       else (UNCONSTRAINED, MSG_X_STAR_FEASIBLE))
+        times = self.rec[sel, mk.C_T].tolist()
+        statuses = status_records(self.sta[sel], [cstep0 + j for j in idx], times, self.ctrl.cfg.mode, stance,
+                                  status, msg)
+        if first is not None and idx[0] == 0:
+            statuses[0] = status_records(self.sta[sel[:1]], [cstep0], times[:1], self.ctrl.cfg.mode, stance,
                                          int(first[0]), first[1])[0]
         return records, statuses

@@ -54,8 +54,10 @@ Records (``plant.records``), the instants they describe on this plant (DESIGN.md
 """
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import mujoco
@@ -79,10 +81,54 @@ FX, FZ, MY, FN = range(4)
 MUJOCO_KERNELS = "biped_sim.plant.mujoco_kernels"
 
 
+def mujoco_library() -> Path:
+    """MuJoCo's shared library as the Python bindings ship it (``libmujoco.so.<version>`` beside
+    ``mujoco/__init__.py``): the library the bindings call, and the one ``mujoco_kernels.substeps`` calls."""
+    here = Path(mujoco.__file__).parent
+    libs = sorted(here.glob("libmujoco.so*"))
+    if not libs:
+        raise MujocoPlantError(f"MuJoCo's shared library libmujoco.so* not found in {here} (the mujoco wheel "
+                               "ships it there; the compiled MuJoCo steps call it)")
+    return libs[-1]
+
+
 def load_kernels():
-    """The compiled bookkeeping of a MuJoCo step (``mujoco_kernels``), through ``numba_cache.load`` (compiled
-    on first use, then cached in ``build/numba-cache``)."""
+    """The compiled MuJoCo steps and their bookkeeping (``mujoco_kernels``), through ``numba_cache.load``
+    (compiled on first use, then cached in ``build/numba-cache``), after loading :func:`mujoco_library`
+    into the process's symbol space for numba (``llvmlite.binding.load_library_permanently``: the same
+    library the bindings have loaded, found by its path), where ``substeps`` finds ``mj_step`` and
+    ``mj_rnePostConstraint`` by name."""
+    import llvmlite.binding as llvm
+
+    llvm.load_library_permanently(str(mujoco_library()))
     return numba_cache.load(MUJOCO_KERNELS)
+
+
+def opt_timestep_view(model: mujoco.MjModel) -> np.ndarray:
+    """A one-element float64 view of ``model.opt.timestep`` in the ``mjModel`` struct itself (for the compiled
+    steps, which set the step length per MuJoCo step as ``model.opt.timestep = h`` does). The bindings give the
+    struct's address (``MjModel._address``), not the field's: the field is the one double among the struct's
+    first 2 kB that follows two distinct values written through ``model.opt.timestep`` (then restored); the view
+    is checked by writing through it and reading ``model.opt.timestep`` back. Valid while ``model`` lives."""
+    n = 256
+    words = (ctypes.c_double * n).from_address(model._address)
+    old = model.opt.timestep
+    found = None
+    try:
+        for probe in (1.2345678901234567e-3, 9.876543210987654e-4):
+            model.opt.timestep = probe
+            hits = {i for i in range(n) if words[i] == probe}
+            found = hits if found is None else found & hits
+        if found is None or len(found) != 1:
+            raise MujocoPlantError(f"opt.timestep not found in the mjModel struct (candidates {sorted(found or ())}): "
+                                   "the compiled MuJoCo steps cannot set the step length")
+        view = np.ctypeslib.as_array((ctypes.c_double * 1).from_address(model._address + 8 * found.pop()))
+        view[0] = 0.5
+        if model.opt.timestep != 0.5:
+            raise MujocoPlantError("the view of opt.timestep does not write model.opt.timestep")
+    finally:
+        model.opt.timestep = old
+    return view
 
 
 class MujocoPlantError(RuntimeError):
@@ -247,6 +293,16 @@ class MujocoPlant(ScheduledPushes):
         self._touchdown_forces: list[float] = []
         self._mj_arrays = (self._cfrc, self._xpos, self._scom, self.data.qpos, self.data.qvel, self.data.xfrc_applied,
                            self.data.ctrl)
+        # the period's MuJoCo steps in one compiled call (mujoco_kernels.substeps) with held torques and no probe
+        # or trace; False: the Python loop, one iteration per MuJoCo step (the reference, bit-identical)
+        self.compiled_steps = True
+        self._substeps = k.substeps
+        self._m_addr, self._d_addr = m._address, self.data._address
+        self._timestep = opt_timestep_view(m)
+        self._torso_com = float(self.desc.torso.com)
+        self._sub_out = np.zeros(k.OUT_SIZE)
+        self._push_key: tuple = ()
+        self._push_array = np.zeros((0, 4))
         self._new_stance(LEFT, 0.0)
 
     def _new_diagnostics(self) -> ContactDiagnostics:
@@ -492,45 +548,15 @@ class MujocoPlant(ScheduledPushes):
                             f"{self.cfg.mujoco_fall_foot_tilt} rad", dict(pitch=tilt))
         return None
 
-    def step(self, torque: np.ndarray | TorqueFn) -> StepRecord:
-        """Advance one control period (see the module docstring): held paper-order torques [N m] for the
-        stance the controller was told (or a function ``(s, q, qd, stance)`` of the measured state, evaluated
-        at every MuJoCo step). Ends at the next grid instant, at a sensed touchdown or at a fall.
-
-        After each ``mj_step`` (+ ``mj_rnePostConstraint`` for the bodies' external forces) one compiled call
-        (``mujoco_kernels.after_step``) does the step's bookkeeping -- contact rows, the period's sums, work,
-        diagnostics, touchdown sensing, the fall pre-check -- on MuJoCo's arrays in place; Python names a fall,
-        adds a push's work and builds the record."""
-        if self.fall is not None:
-            raise RuntimeError("the robot has fallen; reset() the plant")
+    def _substeps_python(self, knots: list, t_start: float, t_grid_end: float, fn: TorqueFn | None,
+                         obs_stance: int) -> tuple[bool, FallInfo | None, float, float]:
+        """The period's MuJoCo steps over ``knots``, one Python iteration each (the reference of
+        :meth:`_substeps_compiled`; the only path for a torque function ``fn``, a ``probe`` or a ``trace``).
+        Returns (touchdown, fall or None, the period's end [s], the pushes' impulse over it [N s])."""
         m, d, k = self.model, self.data, self._k
-        dt_nom = self.cfg.control_period
-        t_start = self.t
-        t_grid_end = grid_end(t_start, dt_nom)
-        obs_stance = self.stance
-        if not self.sensor.identity:
-            if callable(torque):
-                raise PerturbationError("noise_q/noise_qd/delay", "a torque function sees the true state at every "
-                                        "step: use held torques (the sensor model applies to observe())")
-            obs_stance = self.observe().stance
         lo, hi = self._lo, self._hi
-        stance0 = self.stance
-        if callable(torque):
-            fn = torque
-            torque = fn(0.0, *self.measured(self.x, self.v, obs_stance), obs_stance)
-        else:
-            fn = None
-        n_sub = max(1, int(math.ceil((t_grid_end - t_start) / self._h - 1e-9)))
-        has_pushes = bool(self.book.pushes)
-        knots = period_knots(t_start, t_grid_end, n_sub,
-                             (c for p in self.book.pushes for c in (p.start, p.end)) if has_pushes else ())
-        first = self.interval_pushes(knots[0], knots[1]) if has_pushes else ()
-        impacts0 = self.impact_count
         acc = self._acc
-        # the period's record row: the clipped torque (to ctrl in URDF order), the state at its start; sums zeroed
-        row = np.empty(k.ROW_SIZE)
-        self._begin(np.ascontiguousarray(torque, dtype=float), lo, hi, PAPER_FROM_URDF[obs_stance],
-                    PAPER_FROM_URDF[stance0], obs_stance != stance0, d.qpos, d.qvel, d.ctrl, acc, row)
+        has_pushes = bool(self.book.pushes)
         impulse = 0.0
         t_end = t_grid_end
         touchdown = False
@@ -571,6 +597,98 @@ class MujocoPlant(ScheduledPushes):
                 if fall is not None:
                     t_end = t1
                     break
+        return touchdown, fall, t_end, impulse
+
+    def _push_rows(self) -> np.ndarray:
+        """The scheduled pushes as rows (start, end [s], force [N], height [m]) in the book's order, rebuilt
+        when the schedule changes."""
+        ps = tuple(self.book.pushes)
+        if ps != self._push_key:
+            self._push_array = np.array([[p.start, p.end, p.force, p.height] for p in ps],
+                                        dtype=float).reshape(len(ps), 4)
+            self._push_key = ps
+        return self._push_array
+
+    def _substeps_compiled(self, knots: list, t_grid_end: float, i0: int = 0, impulse0: float = 0.0
+                           ) -> tuple[bool, FallInfo | None, float, float]:
+        """:meth:`_substeps_python` for held torques in compiled calls (``mujoco_kernels.substeps``): one call
+        runs the MuJoCo steps until the period's end, a touchdown or a possible fall (named here by
+        :meth:`_check_fall`; the steps go on after one that is not a fall). Same returns, bit for bit.
+        ``i0``, ``impulse0``: resume after ``i0`` intervals with the pushes' impulse so far."""
+        k, acc = self._k, self._acc
+        kn = np.array(knots, dtype=float)
+        pushes = self._push_rows()
+        out = self._sub_out
+        out[k.O_DONE] = 0.0
+        out[k.O_IMPULSE] = impulse0
+        n = len(knots) - 1
+        i = i0
+        while i < n:
+            code = self._substeps(self._m_addr, self._d_addr, self._timestep, kn, i, pushes, self._torso_com,
+                                  *self._mj_arrays, acc, self._ip, self._fp, out)
+            i = int(out[k.O_DONE])
+            if code == k.CONTINUE:
+                break
+            t1 = knots[i]
+            if code == k.TOUCHDOWN:
+                return True, None, t1, float(out[k.O_IMPULSE])
+            fall = self._check_fall(t1, self.data.qpos.tolist(), int(acc[k.A_HIT]))
+            if fall is not None:
+                return False, fall, t1, float(out[k.O_IMPULSE])
+        return False, None, t_grid_end, float(out[k.O_IMPULSE])
+
+    def step(self, torque: np.ndarray | TorqueFn) -> StepRecord:
+        """Advance one control period (see the module docstring): held paper-order torques [N m] for the
+        stance the controller was told (or a function ``(s, q, qd, stance)`` of the measured state, evaluated
+        at every MuJoCo step). Ends at the next grid instant, at a sensed touchdown or at a fall.
+
+        After each ``mj_step`` (+ ``mj_rnePostConstraint`` for the bodies' external forces) one compiled call
+        (``mujoco_kernels.after_step``) does the step's bookkeeping -- contact rows, the period's sums, work,
+        diagnostics, touchdown sensing, the fall pre-check -- on MuJoCo's arrays in place; Python names a fall,
+        adds a push's work and builds the record."""
+        if self.fall is not None:
+            raise RuntimeError("the robot has fallen; reset() the plant")
+        d, k = self.data, self._k
+        dt_nom = self.cfg.control_period
+        t_start = self.t
+        t_grid_end = grid_end(t_start, dt_nom)
+        obs_stance = self.stance
+        if not self.sensor.identity:
+            if callable(torque):
+                raise PerturbationError("noise_q/noise_qd/delay", "a torque function sees the true state at every "
+                                        "step: use held torques (the sensor model applies to observe())")
+            obs_stance = self.observe().stance
+        lo, hi = self._lo, self._hi
+        stance0 = self.stance
+        if callable(torque):
+            fn = torque
+            torque = fn(0.0, *self.measured(self.x, self.v, obs_stance), obs_stance)
+        else:
+            fn = None
+        n_sub = max(1, int(math.ceil((t_grid_end - t_start) / self._h - 1e-9)))
+        has_pushes = bool(self.book.pushes)
+        knots = period_knots(t_start, t_grid_end, n_sub,
+                             (c for p in self.book.pushes for c in (p.start, p.end)) if has_pushes else ())
+        first = self.interval_pushes(knots[0], knots[1]) if has_pushes else ()
+        impacts0 = self.impact_count
+        acc = self._acc
+        # the period's record row: the clipped torque (to ctrl in URDF order), the state at its start; sums zeroed
+        row = np.empty(k.ROW_SIZE)
+        self._begin(np.ascontiguousarray(torque, dtype=float), lo, hi, PAPER_FROM_URDF[obs_stance],
+                    PAPER_FROM_URDF[stance0], obs_stance != stance0, d.qpos, d.qvel, d.ctrl, acc, row)
+        if fn is None and self.probe is None and self.trace is None and self.compiled_steps:
+            touchdown, fall, t_end, impulse = self._substeps_compiled(knots, t_grid_end)
+        else:
+            touchdown, fall, t_end, impulse = self._substeps_python(knots, t_start, t_grid_end, fn, obs_stance)
+        push_force = float(sum(f for f, _ in first)) if first else 0.0
+        return self._finish_period(row, t_start, t_end, stance0, touchdown, fall, impulse, push_force, impacts0)
+
+    def _finish_period(self, row: np.ndarray, t_start: float, t_end: float, stance0: int, touchdown: bool,
+                       fall: FallInfo | None, impulse: float, push_force: float, impacts0: int) -> StepRecord:
+        """The period [t_start, t_end] after its MuJoCo steps: the state copied out, the touchdown's impact
+        record and the exchange of the legs, the numerical check, the mean wrench (``end_period``), the clock,
+        and the period's :class:`StepRecord` (its arrays views of ``row``)."""
+        d, k, acc = self.data, self._k, self._acc
         self.x, self.v = d.qpos.copy(), d.qvel.copy()
         x0, v0 = row[k.R_X:k.R_X + 9], row[k.R_V:k.R_V + 9]
         if touchdown:
@@ -590,11 +708,31 @@ class MujocoPlant(ScheduledPushes):
                             qd=row[k.R_QD:k.R_QD + 6], base=row[k.R_BASE:k.R_BASE + 3],
                             base_dot=row[k.R_BASE_DOT:k.R_BASE_DOT + 3], x=x0, v=v0,
                             torque=row[k.R_TORQUE:k.R_TORQUE + 6], wrench=row[k.R_WRENCH:k.R_WRENCH + 3],
-                            cop=float(row[k.R_COP]), push_force=float(sum(f for f, _ in first)) if first else 0.0,
-                            impacts=impacts0,
+                            cop=float(row[k.R_COP]), push_force=push_force, impacts=impacts0,
                             fallen=fall is not None, fall_cause=fall.cause if fall else "",
                             fall_detail=fall.detail if fall else "", t_end=t_end, push_impulse=impulse)
         return rec
+
+    def finish_compiled_period(self, code: int, done: int, knots: list, t_start: float, t_grid_end: float,
+                               impulse: float, row: np.ndarray, push_force: float) -> StepRecord:
+        """A period the compiled closed loop (``mujoco_loop_kernels``) ran and handed back after its MuJoCo
+        steps stopped with ``code`` (``mujoco_kernels.substeps``) after ``done`` intervals of ``knots``
+        (CONTINUE: every interval, the end state to check for numerics): the fall named, the steps resumed
+        after a possible fall that is none, then :meth:`_finish_period`, as :meth:`step` does. ``row`` the
+        period's row (its own array: the record's arrays are views of it); the plant's clock at the period's
+        start."""
+        k = self._k
+        touchdown, fall, t_end = False, None, t_grid_end
+        if code == k.TOUCHDOWN:
+            touchdown, t_end = True, knots[done]
+        elif code == k.MAYBE_FALL:
+            fall = self._check_fall(knots[done], self.data.qpos.tolist(), int(self._acc[k.A_HIT]))
+            if fall is not None:
+                t_end = knots[done]
+            else:
+                touchdown, fall, t_end, impulse = self._substeps_compiled(knots, t_grid_end, done, impulse)
+        return self._finish_period(row, t_start, t_end, self.stance, touchdown, fall, impulse, push_force,
+                                   self.impact_count)
 
     def _touchdown(self, t_minus: float, t: float, x_minus: np.ndarray, v_minus: np.ndarray,
                    impulse: np.ndarray, work: float) -> None:

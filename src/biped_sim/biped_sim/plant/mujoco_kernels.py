@@ -1,8 +1,16 @@
-"""Compiled (numba) bookkeeping of one MuJoCo step of the MuJoCo plant: what
-``biped_sim.plant.mujoco.MujocoPlant.step`` does after each ``mj_step`` + ``mj_rnePostConstraint``.
+"""Compiled (numba) MuJoCo steps of the MuJoCo plant: the bookkeeping of one step (what
+``biped_sim.plant.mujoco.MujocoPlant.step`` does after each ``mj_step`` + ``mj_rnePostConstraint``) and
+:func:`substeps`, a control period's MuJoCo steps in one call.
 
-Pure numerics, no MuJoCo calls, no side effects on import (load it through ``numba_cache.load``, as
-``mujoco.load_kernels`` does, so its cache is kept right). The arrays are MuJoCo's own (``MjData`` fields as
+No side effects on import (load it through ``numba_cache.load``, as ``mujoco.load_kernels`` does, so its
+cache is kept right and MuJoCo's shared library is loaded first). :func:`substeps` calls MuJoCo's C functions
+``mj_step`` and ``mj_rnePostConstraint`` by name (numba external functions, resolved in the ``libmujoco``
+the Python bindings ship and load: ``mujoco.load_kernels`` makes its symbols visible to numba before the
+module is compiled or read from the cache) with the raw ``mjModel*`` / ``mjData*`` (``MjModel._address``,
+``MjData._address``); the step length is written through a one-element view of ``mjModel.opt.timestep``.
+These calls bypass the bindings' error interception: a MuJoCo *error* (not a warning) inside them ends the
+process instead of raising (the plant's warnings are read after the period, as on the Python path).
+Everything else is pure numerics. The arrays are MuJoCo's own (``MjData`` fields as
 NumPy views, read only) and two of the plant's: ``acc`` (float64, the period's accumulators and the sensing
 state, layout ``A_*`` below, read and written) and ``ip`` (int64 indices, ``I_*``); ``fp`` (float64, ``F_*``) the
 period's constants. The operations and their order are those of the plant's Python reference
@@ -30,8 +38,15 @@ Per MuJoCo step [t0, t1] of length h, the step just taken (forces of t0 applied 
 
 Returns ``CONTINUE``, ``TOUCHDOWN`` (the swing foot loaded after its debounce) or ``MAYBE_FALL`` (a body
 capsule on the floor, the hip below its height or the stance foot past its tilt: the caller names the fall).
+
+:func:`substeps` runs a period's MuJoCo steps over its integration knots: per interval [t0, t1] the pushes
+acting over it (``MujocoPlant._set_push``: force and moment on the torso), the step length t1 - t0, ``mj_step``,
+``mj_rnePostConstraint``, :func:`after_step`, the pushes' impulse and work; the order and the operations of the
+plant's Python loop (``MujocoPlant._substeps_python``), so the two are bit-identical (tested).
 """
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
@@ -68,6 +83,16 @@ IP_SIZE = 14
 # fp (float64): the period's constants
 F_THR, F_DEBOUNCE, F_HIP_MIN, F_TILT_MAX, F_EDGE_LO, F_EDGE_HI, F_CONE, F_ROLL, F_ANCHOR_X = range(9)
 FP_SIZE = 9
+
+# MuJoCo's C API (mujoco.h): void mj_step(const mjModel* m, mjData* d); void mj_rnePostConstraint(const mjModel* m,
+# mjData* d); resolved by name in the loaded libmujoco
+_mj_step = numba.types.ExternalFunction("mj_step", numba.void(numba.types.voidptr, numba.types.voidptr))
+_mj_rne_post_constraint = numba.types.ExternalFunction("mj_rnePostConstraint",
+                                                       numba.void(numba.types.voidptr, numba.types.voidptr))
+
+# out (float64) of substeps: the intervals done so far, the pushes' impulse so far [N s]
+O_DONE, O_IMPULSE = 0, 1
+OUT_SIZE = 2
 
 _M2 = numba.types.Array(numba.float64, 2, "C")
 _V = numba.types.Array(numba.float64, 1, "C")
@@ -262,4 +287,56 @@ def after_step(cfrc, xpos, scom, qpos, qvel, xfrc, ctrl, acc, ip, fp, t0, t1):  
         return TOUCHDOWN
     if hit >= 0 or qpos[1] < fp[F_HIP_MIN] or abs(pitch) > fp[F_TILT_MAX]:
         return MAYBE_FALL
+    return CONTINUE
+
+
+@numba.njit(numba.int64(numba.int64, numba.int64, _V, _V, numba.int64, _M2, numba.float64, _M2, _M2, _M2, _V, _V,
+                        _M2, _V, _V, _IV, _V, _V), cache=True, nogil=True)
+def substeps(model, data, timestep, knots, i0, pushes, torso_com, cfrc, xpos, scom, qpos, qvel, xfrc, ctrl, acc, ip,
+             fp, out):  # pragma: no cover (compiled)
+    """The MuJoCo steps of a period over the intervals [knots[i], knots[i + 1]], i = i0, i0 + 1, ... (module
+    docstring), until the last one or the first step whose :func:`after_step` does not return ``CONTINUE``;
+    returns that code (``CONTINUE`` after the last interval) with ``out[O_DONE]`` the intervals done so far
+    (i0 + those of this call). ``model``, ``data``: the ``mjModel*`` and ``mjData*`` addresses; ``timestep`` a
+    view of ``mjModel.opt.timestep``; ``pushes`` (n, 4) the scheduled pushes in the plant's order (start, end
+    [s], force [N], height [m] above the hip), n = 0: ``xfrc`` is left as it is; a push acts over an interval
+    whose midpoint lies in [start, end): force on the torso x, moment (height - ``torso_com``) cos(theta) F
+    about y at the step's start; its impulse F h is added to ``out[O_IMPULSE]`` and its work h F (x' -
+    height cos(theta) theta') with the step's end state to ``acc[A_WORK]``."""
+    torso = ip[I_TORSO]
+    n_push = pushes.shape[0]
+    n = knots.shape[0] - 1
+    i = i0
+    while i < n:
+        t0 = knots[i]
+        t1 = knots[i + 1]
+        tm = 0.5 * (t0 + t1)
+        if n_push > 0:
+            th = qpos[2]
+            for c in range(6):
+                xfrc[torso, c] = 0.0
+            for k in range(n_push):
+                if pushes[k, 0] <= tm < pushes[k, 1]:
+                    f = pushes[k, 2]
+                    xfrc[torso, 0] += f
+                    xfrc[torso, 4] += (pushes[k, 3] - torso_com) * math.cos(th) * f
+        timestep[0] = t1 - t0
+        _mj_step(model, data)
+        _mj_rne_post_constraint(model, data)          # cfrc_ext: the forces of t0, applied over [t0, t1]
+        code = after_step(cfrc, xpos, scom, qpos, qvel, xfrc, ctrl, acc, ip, fp, t0, t1)
+        if n_push > 0:
+            h = t1 - t0
+            xv = qvel[0]
+            thv = qvel[2]
+            th = qpos[2]
+            for k in range(n_push):
+                if pushes[k, 0] <= tm < pushes[k, 1]:
+                    f = pushes[k, 2]
+                    out[O_IMPULSE] += f * h
+                    acc[A_WORK] += h * f * (xv - pushes[k, 3] * math.cos(th) * thv)
+        i += 1
+        if code != CONTINUE:
+            out[O_DONE] = i
+            return code
+    out[O_DONE] = i
     return CONTINUE

@@ -1,0 +1,218 @@
+"""Compiled closed loop on the MuJoCo plant (numba): many control periods of controller + MuJoCo in one call.
+
+Pure numerics and MuJoCo's C API, no ROS, no side effects on import (load it with
+``segment.load_mujoco_loop_kernels``, which loads the plant's kernels and MuJoCo's library first). The MuJoCo
+twin of ``loop_kernels.run_segment``: the in-process runner (``runner.run``) hands a *segment* of periods to
+:func:`run_mujoco_segment`, each period exactly what the objects do one call at a time (the controller's
+``compute`` and ``MujocoPlant.step`` with held torques), in the same order and with the same kernels --
+
+  1. the sensors: ``MujocoPlant.observe`` with ideal sensors, ``mujoco_kernels.measure`` (q1 against the ground);
+  2. the controller: ``controller_kernels.period_start`` and ``period_step`` (a period that needs the QP ends
+     the segment before it, its rows handed back; the next call takes it with the caller's decision,
+     ``controller_kernels.period_outputs``) and, modes wbc and hybrid, the whole-body stage
+     (``wbc_kernels.run_stage``), as ``loop_kernels.run_segment``;
+  3. the plant: the period's grid end and integration knots (``biped_sim.plant.period_grid``: ``n_sub`` equal
+     MuJoCo steps of at most ``mujoco_timestep``, split at push starts and ends), ``mujoco_kernels.begin_period``
+     (the clipped torque to ``ctrl``), ``mujoco_kernels.substeps`` (the MuJoCo steps), then, for a period with
+     no event, ``mujoco_kernels.end_period``;
+  4. the controller's commit (``controller_kernels.period_commit``) and the period's record (row k of ``rec``:
+     the plant's row, ``mujoco_kernels.R_*``, then t, t_end, the push force at t and the push impulse; row k of
+     ``sta``: the controller's ``RES`` row).
+
+A period whose MuJoCo steps end in a touchdown or a possible fall (``substeps`` returns ``TOUCHDOWN`` or
+``MAYBE_FALL``), or whose end state is not finite or raised a MuJoCo warning (bad qacc, qpos, qvel), is run and
+committed on the controller's side but not finished: the segment ends with ``END_PLANT_EVENT``, the period's row
+(its state at the start, torque, sums so far) in ``rec``'s next row and in ``out`` what the plant's Python needs
+to finish it (``MujocoPlant.finish_compiled_period``: the impact record, the fall's name, the numerical check). A segment
+also ends after the period whose end reaches ``t_stop``, when the record arrays are full (``ring`` False) or
+after ``max_periods``. The plant's time and period index are in ``clock`` (t, step), the rest of its state in
+MuJoCo's ``mjData`` and the plant's arrays (``acc``, ``ip``, ``fp``), which the objects read afterwards.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from biped_sim.plant import mujoco_kernels as mk
+from biped_sim.robot import numba_cache
+from biped_controller.core.control import controller_kernels as ck
+from biped_controller.core.control import wbc_kernels as wk
+from biped_controller.core.control.controller_layout import R_, W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC
+
+numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
+
+# record columns after the plant's row (mujoco_kernels.R_*)
+C_T, C_T_END, C_PUSH_FORCE, C_PUSH_IMPULSE = mk.ROW_SIZE, mk.ROW_SIZE + 1, mk.ROW_SIZE + 2, mk.ROW_SIZE + 3
+REC_SIZE = mk.ROW_SIZE + 4
+# why a segment ended
+(END_LIMIT, END_FULL, END_QP, END_PLANT_EVENT, END_NONFINITE, END_MAX, END_KNOTS) = range(7)
+END_NAMES = ("t_stop reached", "record arrays full", "QP needed", "plant event", "non-finite controller value",
+             "max_periods", "too many knots in a period")
+# out: why the segment ended, then for END_PLANT_EVENT: substeps' code, the intervals done, the knots' count, the
+# period's start and grid end [s], the pushes' impulse so far [N s], the record row of the period; the knots
+O_END, O_CODE, O_DONE, O_NK, O_T_START, O_T_GRID_END, O_IMPULSE, O_ROW = range(8)
+O_KNOTS = 8
+MAX_KNOTS = 64
+OUT_SIZE = O_KNOTS + MAX_KNOTS
+# clock: the plant's time [s] and period index
+K_T, K_STEP = 0, 1
+
+
+@numba.njit(cache=True, nogil=True)
+def period_knots(t_start, dt_nom, h_mj, pushes, knots):
+    """The period's grid end (``period_grid.grid_end``) and its integration knots (``period_grid.period_knots``
+    with the MuJoCo plant's step count max(1, ceil((t_end - t_start) / h_mj - 1e-9)), the push starts and ends
+    of ``pushes`` strictly inside as cuts) into ``knots``: returns (count of knots, the grid end), count -1
+    when ``knots`` is too short. The same operations as the Python home (tested equal through the records)."""
+    t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+    n_sub = max(1, int(math.ceil((t_grid_end - t_start) / h_mj - 1e-9)))
+    h = (t_grid_end - t_start) / n_sub
+    if n_sub + 1 + 2 * pushes.shape[0] > knots.shape[0]:
+        return -1, t_grid_end
+    n = 0
+    for i in range(n_sub):
+        knots[n] = t_start + i * h
+        n += 1
+    knots[n] = t_grid_end
+    n += 1
+    cut = False
+    for k in range(pushes.shape[0]):
+        for c in (pushes[k, 0], pushes[k, 1]):
+            if t_start < c < t_grid_end:
+                knots[n] = c
+                n += 1
+                cut = True
+    if not cut:
+        return n, t_grid_end
+    ks = np.sort(knots[:n])
+    m = 0
+    for i in range(n):   # set() then sorted(): exact duplicates once
+        if m == 0 or ks[i] != knots[m - 1]:
+            knots[m] = ks[i]
+            m += 1
+    return m, t_grid_end
+
+
+_V, _VI, _M, _C4, _I, _F = ck.T_VEC, ck.T_IVEC, ck.T_MAT, ck.T_ARR4, ck.T_INT, ck.T_FLOAT
+_C3 = numba.types.Array(numba.types.float64, 3, "C")
+_B = numba.types.boolean
+_WARN = numba.types.Array(numba.types.int32, 1, "A")     # MjData.warning.number: a strided view
+
+
+@numba.njit(_I(_C4, _V, _V, _VI, _V, _V, _V, _V,                      # controller: family, tree, gains, cons, mem
+               _I, _I, _V, _M, _M, _M, _V, _V, _M, _V, _V, _VI, _V,   # MuJoCo: model, data, timestep, arrays
+               _WARN, _VI, _V, _V, _C3, _M, _F, _F, _F, _V,           # warnings, limits, perm, pushes, clock
+               _F, _I, _B, _M, _M, _V, _V,                            # t_stop, max_periods, ring, rec, sta, out, wbc
+               _M, _V, _V, _M, _V, _B), cache=True, nogil=True)       # QP: G, h, res, work, x, x given
+def run_mujoco_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
+                       model, data, timestep, cfrc, xpos, scom, qpos, qvel, xfrc, ctrl, acc, ip, fp, warn, bad_warn,
+                       lo, hi, perm, pushes, torso_com, h_mj, dt_nom, clock,
+                       t_stop, max_periods, ring, rec, sta, out, wbc,
+                       G, h, res, work, qp_x, qp_given):  # pragma: no cover (compiled)
+    """Run periods while nothing needs Python (module docstring). Returns the number of periods committed on
+    both sides; out[O_END] = why the segment ended (END_*). ``model``, ``data``: the ``mjModel*``, ``mjData*``
+    addresses; ``timestep`` the view of ``opt.timestep``; ``warn`` MuJoCo's warning counters, ``bad_warn`` the
+    indices that make a numerical fall; ``lo``, ``hi`` the torque limits (paper order); ``perm`` (2, 6, 6)
+    PAPER_FROM_URDF per stance; ``pushes`` (n, 4) the scheduled pushes (start, end, force, height);
+    ``h_mj`` the MuJoCo step, ``dt_nom`` the control period [s]. The QP hand-back is ``loop_kernels.run_segment``'s
+    (``G``, ``h``, ``res``, ``work``; ``qp_x``, ``qp_given``)."""
+    cap = rec.shape[0]
+    q = np.empty(6)
+    qd = np.empty(6)
+    meas = np.empty(12)
+    torque = np.empty(6)
+    knots = out[O_KNOTS:O_KNOTS + MAX_KNOTS]
+    sub_out = np.zeros(mk.OUT_SIZE)
+    Gw = np.empty((wk.WBC_ROWS, 6))
+    hw = np.empty(wk.WBC_ROWS)
+    wmode = wbc[WB_.mode]
+    n_push = pushes.shape[0]
+    n_done = 0
+    out[O_END] = END_MAX
+    while n_done < max_periods:
+        if not ring and n_done >= cap:
+            out[O_END] = END_FULL
+            return n_done
+        t = clock[K_T]
+        stance = ip[mk.I_STANCE]
+        P = perm[stance]
+        # 1. sensors (observe: ideal, q1 against the ground)
+        mk.measure(qpos, qvel, P, 3 if stance == 0 else 6, meas)
+        for i in range(6):
+            q[i] = meas[i]
+            qd[i] = meas[6 + i]
+        # 2. controller
+        if qp_given and n_done == 0:
+            for k in range(qp_x.shape[0]):
+                res[R_.x + k] = qp_x[k]
+            ck.period_outputs(cons, work, res)
+            code = ck.FEASIBLE
+        else:
+            ck.period_start(mem, t, stance, res)
+            code = ck.period_step(coef, inner, centers, cti, ctf, q, qd, gains, cons, mem, G, h, work, res)
+            if code == ck.NEEDS_QP:
+                out[O_END] = END_QP
+                return n_done
+        if code != ck.FEASIBLE:
+            out[O_END] = END_NONFINITE
+            return n_done
+        if wmode != WBC_MODE_OFF:
+            wcode = wk.run_stage(wbc, cons, mem, work, res, Gw, hw, wmode == WBC_MODE_WBC, False)
+            if wcode == wk.NEEDS_PIQP:
+                out[O_END] = END_QP
+                return n_done
+            if wcode == wk.NONFINITE:
+                out[O_END] = END_NONFINITE
+                return n_done
+        # 3. plant: knots, the period's start, the MuJoCo steps
+        nk, t_grid_end = period_knots(t, dt_nom, h_mj, pushes, knots)
+        if nk < 0:
+            out[O_END] = END_KNOTS
+            return n_done
+        row_i = n_done % cap
+        r = rec[row_i]
+        row = r[:mk.ROW_SIZE]
+        for i in range(6):
+            torque[i] = work[W_.torque, i]
+        mk.begin_period(torque, lo, hi, P, P, False, qpos, qvel, ctrl, acc, row)
+        push_force = 0.0
+        if n_push > 0:
+            tm = 0.5 * (knots[0] + knots[1])
+            for k in range(n_push):
+                if pushes[k, 0] <= tm < pushes[k, 1]:
+                    push_force += pushes[k, 2]
+        sub_out[mk.O_DONE] = 0.0
+        sub_out[mk.O_IMPULSE] = 0.0
+        scode = mk.substeps(model, data, timestep, knots[:nk], 0, pushes, torso_com, cfrc, xpos, scom, qpos, qvel,
+                            xfrc, ctrl, acc, ip, fp, sub_out)
+        # 4. the controller's commit (the objects commit before the plant's period: nothing reads it in between)
+        ck.period_commit(mem, res, work, qd, t, stance)
+        sta[row_i, :] = res
+        r[C_T] = t
+        r[C_PUSH_FORCE] = push_force
+        r[C_PUSH_IMPULSE] = sub_out[mk.O_IMPULSE]
+        numerical = not math.isfinite(acc[mk.A_STATE_SUM])
+        for b in range(bad_warn.shape[0]):
+            if warn[bad_warn[b]] != 0:
+                numerical = True
+        if scode != mk.CONTINUE or numerical:
+            out[O_END] = END_PLANT_EVENT
+            out[O_CODE] = scode
+            out[O_DONE] = sub_out[mk.O_DONE]
+            out[O_NK] = nk
+            out[O_T_START] = t
+            out[O_T_GRID_END] = t_grid_end
+            out[O_IMPULSE] = sub_out[mk.O_IMPULSE]
+            out[O_ROW] = row_i
+            return n_done
+        mk.end_period(acc, row, stance, False, t_grid_end - t)
+        r[C_T_END] = t_grid_end
+        clock[K_T] = t_grid_end
+        clock[K_STEP] += 1.0
+        n_done += 1
+        if t_grid_end >= t_stop:
+            out[O_END] = END_LIMIT
+            return n_done
+    return n_done
