@@ -24,9 +24,9 @@ MUJOCO_FULL = dataclasses.replace(MUJOCO, full_trials=True)
 
 # (mode, signed force [N], duration [s], onset phase): MuJoCo trials of the default map's cells (0.125 ms step,
 # results/capability_map_mujoco/summary.json): survivals well inside and at a cell's boundary, a fall
-# just above it, a backward push
+# just above it (before the first touchdown after the push), a backward push, a fall four touchdowns after it
 CASES = [("both", 390.625, 0.025, 0.5), ("both", 781.25, 0.025, 0.5), ("both", 784.375, 0.025, 0.5),
-         ("tau", -300.0, 0.025, 0.3), ("none", 150.0, 0.025, 0.5)]
+         ("tau", -300.0, 0.025, 0.3), ("none", 50.0, 0.025, 0.5), ("p", 456.25, 0.025, 0.9)]
 
 
 def _push(force, duration, phase):
@@ -49,6 +49,11 @@ def test_the_mujoco_early_stop_gives_the_full_trials_verdict(mode, force, durati
         assert a["decided_at_step"] is None and a["steps_walked"] == b["steps_walked"]
 
 
+#: (mode, signed force [N], duration [s], phase): a MuJoCo push after which the robot walks four impacts after the
+#: push's end and then falls (foot_rotated at t = 2.12 s; results/mujoco_sweeps/early_stop_orbit.json)
+LATE_FALL = ("p", 456.25, 0.025, 0.9)
+
+
 def test_loose_mujoco_tolerances_would_decide_a_fall_survived(monkeypatch):
     """Negative control: with every tolerance unbounded a trial is decided one period after its first impact
     after the push, and a push after which the robot falls a step later is reported survived: the
@@ -62,11 +67,6 @@ def test_loose_mujoco_tolerances_would_decide_a_fall_survived(monkeypatch):
     monkeypatch.setattr(stop, "mujoco_early_stop", lambda: loose)
     got = trials.survives(push, LATE_FALL[0], MUJOCO, pool=False)
     assert got["survived"] and got["decided_at_step"] is not None
-
-
-#: (mode, signed force [N], duration [s], phase): a MuJoCo push after which the robot walks at least one impact
-#: after the push's end and then falls
-LATE_FALL = ("tau", 500.0, 0.025, 0.9)
 
 
 def test_each_plant_has_its_own_early_stop(monkeypatch):
