@@ -111,7 +111,6 @@ def early_stop() -> EarlyStop:
     return _early_stop(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
 
 
-
 @dataclass(frozen=True)
 class MujocoEarlyStop:
     """When a survival trial's outcome is decided on the MuJoCo plant (``config/studies.yaml``, keys
@@ -119,8 +118,8 @@ class MujocoEarlyStop:
 
     MuJoCo's touchdown is not an instant: the landing foot's contact builds up over a few milliseconds, so
     one control period after the sensed touchdown (``runner.run``'s ``on_impact``; 0.125-1 ms after it on
-    the 1 ms control grid) the joint velocities are still part way through the impact, 0.85-3.5 rad/s from
-    the orbit's post-impact velocity in the unpushed walk, depending on that delay. The state is
+    the 1 ms control grid) the joint velocities are still part way through the impact, 0.82-3.5 rad/s from
+    the orbit's post-impact velocity in the unpushed walks, depending on that delay. The state is
     therefore compared with the gait's orbit where MuJoCo's walk follows it closely:
 
     * the configuration now (t, one period after the touchdown at t_i): |q - q_d(p_d, t - t_i)|_inf <= ``q``
@@ -129,7 +128,8 @@ class MujocoEarlyStop:
       sensed (``ImpactRecord.x_minus``, ``v_minus`` on this plant), against the orbit at the same time into
       the step, s = t_0 - t_(i-1) (t_(i-1) the previous touchdown, 0 for the first):
       |q - q_d(p_d, s)|_inf <= ``q``, |q' - dq_d/dtau(p_d, s)|_inf <= ``qd`` [rad/s]; this period must
-      start at or after the push's end;
+      start at or after the push's end (a step much longer than the gait's T, e.g. right after a backward
+      push, meets the orbit's polynomial continued past T: far from the walk, that touchdown is not decided);
 
     and the controller as in :class:`EarlyStop`: |p - p_d| <= e_p = ``band`` x the trial's band ``p_tol`` [m],
     |tau' - 1| <= ``band`` x its ``tau_dot_tol`` (``survival.Band``: the same plant, profile and mode's
