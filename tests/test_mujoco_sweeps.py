@@ -114,17 +114,3 @@ def test_outcome_only_mujoco_run_keeps_the_last_record_and_status_of_the_full_ru
     assert len(lean.records) == len(lean.statuses) == 1 and len(full.records) > 200
     assert digest(full.records[-1:], full.statuses[-1:], full.impacts, full) == \
         digest(lean.records, lean.statuses, lean.impacts, lean)
-
-
-def test_the_early_stop_applies_to_the_nominal_rigid_plant_only(monkeypatch):
-    """With a criterion that holds at every impact, a rigid trial ends at its first impact after the push,
-    a MuJoCo trial runs in full (its early stop is not measured)."""
-    from biped_controller.studies.trial import stop
-    from biped_sim.plant.perturbation import PlantPerturbation
-    monkeypatch.setattr(stop.EarlyStop, "decided", lambda self, sim, ctrl, end, fam: True)
-    push = runs.paper_push(100.0)
-    rigid = trials.survives(push, "both", ts.DEFAULT_SETTINGS, pool=False)
-    assert rigid["decided_at_step"] is not None and rigid["decided_at_step"] < runs.trial_steps(push)
-    mj = trials.survives(push, "both", MUJOCO, pool=False)
-    assert mj["decided_at_step"] is None and not stop.applies(MUJOCO) and stop.applies(ts.DEFAULT_SETTINGS)
-    assert not stop.applies(ts.RunSettings(perturbation=PlantPerturbation(torso_mass_scale=1.1)))

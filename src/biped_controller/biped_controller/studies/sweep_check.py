@@ -2,7 +2,7 @@
 
 ``python -m biped_controller.studies.sweep_check compare FAST_SUMMARY FULL_SUMMARY [--stores FAST FULL]``
     every cell of two capability-map summaries (``--json`` of ``scripts/capability_map``): boundary,
-    first failure, cause and islands, equal or not; with the stores, every (cell, force) simulated by
+    first failure, cause, islands, no-fall edge, first fall and its cause, equal or not; with the stores, every (cell, force) simulated by
     both: survived and cause equal or not (the early-stopped trials of the fast map against the same
     trials run in full).
 
@@ -13,14 +13,25 @@
     holds, whether the full trial survives, and the largest distances at the later impacts and at the
     end, relative to the early-stop tolerances and to the survival rule's floors P_FLOOR and TAU_DOT_FLOOR (its band is never tighter).
 
+``python -m biped_controller.studies.sweep_check orbit SUMMARY [--set K=V ...] [--durations D ...] [--fractions F ...]``
+    the MuJoCo early stop's argument measured (``trial.stop.MujocoEarlyStop``): each mode's unpushed walk
+    and pushed trials of a map's cells (forces: ``--fractions`` of each cell's boundary and its first
+    failing force) run in full, recording at every check after an impact the quantities the criterion
+    bounds (``MujocoEarlyStop.distances``); per trial the impact where the criterion first holds and the
+    full trial's verdict, and over all trials: the unpushed walks' largest distances, the settled pushed
+    walks' (the last ``--settled`` impacts of the survivors), whether every trial the criterion decides
+    survives in full, and how close the failing trials came to being decided.
+
 Pure: no ROS import.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import random
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +40,7 @@ from biped_sim.plant.push import Push
 
 from biped_controller.studies.trial import runs, stop, trials
 from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.settings import RunSettings
+from biped_controller.studies.trial.settings import RunSettings, differences, run_settings
 from biped_controller.studies.trial.survival import P_FLOOR, TAU_DOT_FLOOR, survival_rule
 from biped_controller.studies.capmap.spec import DIRECTIONS, onset_time
 from biped_controller.studies.capmap.store import RecordStore
@@ -46,11 +57,11 @@ def compare(fast: dict, full: dict, fast_records: list[dict] | None = None,
     """Cell by cell (and, with records, trial by trial) comparison of two map summaries."""
     a, b = _cells(fast), _cells(full)
     common = sorted(set(a) & set(b))
-    diff = {k: [] for k in ("force", "first_failure", "cause", "islands")}
+    diff = {k: [] for k in ("force", "first_failure", "cause", "islands", "no_fall_edge", "first_fall", "fall_cause")}
     for c in common:
         for k in diff:
-            if a[c][k] != b[c][k]:
-                diff[k].append({"cell": list(c), "fast": a[c][k], "full": b[c][k]})
+            if a[c].get(k) != b[c].get(k):          # (a summary written before a key existed: None)
+                diff[k].append({"cell": list(c), "fast": a[c].get(k), "full": b[c].get(k)})
     out = {"cells_fast": len(a), "cells_full": len(b), "cells_compared": len(common),
            "differences": {k: len(v) for k, v in diff.items()}, "details": diff,
            "simulations_fast": fast["run"]["simulations_in_map"], "simulations_full": full["run"]["simulations_in_map"],
@@ -134,6 +145,133 @@ def margins(records: list[dict], sample: int, seed: int, workers: int) -> dict:
             "tolerances": tol, "trials": logs}
 
 
+#: the quantities ``MujocoEarlyStop`` bounds, and the tolerance each is held to (band: a fraction of the band)
+ORBIT_KEYS = ("q", "q_in", "qd_in", "p", "tau_dot", "p_dot", "force", "lam", "lam_dot")
+
+
+def orbit_tolerances(es: stop.MujocoEarlyStop, band: dict) -> dict:
+    """The tolerance of each of :data:`ORBIT_KEYS` for a trial with ``band`` (``Band.as_dict``)."""
+    return {"q": es.q, "q_in": es.q, "qd_in": es.qd, "p": es.band * band["p_tol"],
+            "tau_dot": es.band * band["tau_dot_tol"], "p_dot": es.p_dot_rate * es.band * band["p_tol"],
+            "force": es.force, "lam": es.lam, "lam_dot": es.lam_dot}
+
+
+def _orbit_log(task: tuple) -> dict:
+    """One trial (``force`` 0: the unpushed walk of ``steps`` impacts) run in full, with
+    ``MujocoEarlyStop.distances`` at every check after an impact."""
+    mode, direction, phase, duration, force, steps, settings = task
+    fam = context().family
+    dt = settings.sim_config().control_period
+    start = onset_time(float(phase), fam.T)
+    end = start + float(duration) if force else 0.0
+    rows = []
+
+    def log(sim, ctrl) -> bool:
+        d = stop.MujocoEarlyStop.distances(sim, ctrl, end, fam, dt)
+        rows.append({"impact": int(sim.impact_count), **d})
+        return False
+    push = Push(start, float(duration), DIRECTIONS[direction] * float(force), None)
+    if force:
+        res = runs.push_run(push, mode, settings=settings, keep_records=False, on_impact=log)
+        band = trials.band(mode, push, settings)
+        v = survival_rule().verdict(res, end, band)
+        n = runs.trial_steps(push)
+    else:
+        res = runs.run(steps, mode, (), settings=settings, keep_records=False, on_impact=log)
+        band = trials.walk_band(mode, settings, steps)
+        v = survival_rule().verdict(res, 0.0, band)
+        n = steps
+    last = res.statuses[-1]
+    return {"key": [mode, direction, float(phase), float(duration), float(force)], "steps": n,
+            "survived_full": v.survived, "fell": v.fell, "reason_full": v.reason, "band": band.as_dict(),
+            "end": {"p": abs(last.p - fam.p_d), "tau_dot": abs(last.tau_dot - 1.0)}, "impacts": rows}
+
+
+def orbit_pushes(summary: dict, durations: tuple[float, ...], fractions: tuple[float, ...],
+                 phases: tuple[float, ...] | None = None) -> list[tuple]:
+    """(mode, direction, phase, duration, force) of the pushes to measure: per cell of ``summary`` (a map's
+    ``--json``) with a duration in ``durations`` (and a phase in ``phases``, None: all), ``fractions`` of its
+    boundary force and its first failing force (none when censored), each force once."""
+    out = []
+    for b in summary["boundaries"]:
+        if not any(abs(b["duration"] - d) < 1e-12 for d in durations):
+            continue
+        if phases is not None and not any(abs(b["phase"] - ph) < 1e-12 for ph in phases):
+            continue
+        forces = sorted({round(f * b["force"], 6) for f in fractions if f * b["force"] > 0}
+                        | ({b["first_failure"]} if b.get("first_failure") is not None else set()))
+        out += [(b["mode"], b["direction"], b["phase"], b["duration"], f) for f in forces]
+    return out
+
+
+def orbit_summary(logs: list[dict], es: stop.MujocoEarlyStop, settled: int) -> dict:
+    """The figures of ``orbit`` (module docstring) from :func:`_orbit_log`'s logs, with the criterion ``es``."""
+    walks = [lg for lg in logs if lg["key"][4] == 0]
+    pushed = [lg for lg in logs if lg["key"][4] != 0]
+
+    def worst(rows) -> dict:
+        return {k: max((r[k] for r in rows), default=0.0) for k in ORBIT_KEYS + ("qd",)}
+    unpushed = {lg["key"][0]: {"impacts": len(lg["impacts"]), "band": lg["band"],
+                               "largest": worst(lg["impacts"][1:]), "first_impact": worst(lg["impacts"][:1])}
+                for lg in walks}
+    settled_rows = [r for lg in pushed if lg["survived_full"]
+                    for r in [x for x in lg["impacts"] if x["after_push"]][-settled:]]
+    trials_out, wrong, decided, saved, closest = [], [], 0, 0, []
+    for lg in pushed:
+        tol = orbit_tolerances(es, lg["band"])
+        ratios = [max(r[k] / tol[k] for k in ORBIT_KEYS) if r["after_push"] else math.inf for r in lg["impacts"]]
+        first = next((i for i, (r, x) in enumerate(zip(lg["impacts"], ratios)) if es.inside(r, _Band(lg["band"]))),
+                      None)
+        at = lg["impacts"][first]["impact"] if first is not None else None
+        if at is not None:
+            decided += 1
+            saved += lg["steps"] - at
+            if not lg["survived_full"]:
+                wrong.append(lg["key"])
+        if not lg["survived_full"]:
+            closest.append(min(ratios, default=math.inf))
+        trials_out.append({"key": lg["key"], "survived_full": lg["survived_full"], "fell": lg["fell"],
+                           "decided_at": at, "steps": lg["steps"],
+                           "closest_over_tolerance": _finite(min(ratios, default=math.inf))})
+    fin = [c for c in closest if math.isfinite(c)]
+    return {"criterion": asdict(es), "unpushed": unpushed,
+            "settled": {"impacts": len(settled_rows), "last_impacts_per_trial": settled, "largest": worst(settled_rows)},
+            "pushed_trials": len(pushed), "survived_in_full": sum(1 for lg in pushed if lg["survived_full"]),
+            "decided": decided, "decided_but_not_survived_in_full": wrong,
+            "impacts_saved": saved, "impacts_in_full": sum(lg["steps"] for lg in pushed),
+            "failing_closest_over_tolerance": min(fin) if fin else None,
+            "failing_never_after_the_push": len(closest) - len(fin),
+            "trials": trials_out}
+
+
+def _finite(x: float) -> float | None:
+    """``x``, or None where it is not finite (JSON)."""
+    return x if math.isfinite(x) else None
+
+
+class _Band:
+    """A ``Band.as_dict`` read back (what ``MujocoEarlyStop.inside`` reads of a band)."""
+
+    def __init__(self, d: dict):
+        self.p_tol, self.tau_dot_tol = d["p_tol"], d["tau_dot_tol"]
+
+
+def orbit(summary: dict, settings: RunSettings, modes: tuple[str, ...], durations: tuple[float, ...],
+          fractions: tuple[float, ...], phases: tuple[float, ...] | None, walk_steps: int, workers: int,
+          settled: int) -> dict:
+    """Run :func:`_orbit_log` on each mode's unpushed walk and on :func:`orbit_pushes`; :func:`orbit_summary`."""
+    pushes = [p for p in orbit_pushes(summary, durations, fractions, phases) if p[0] in modes]
+    tasks = [(m, "forward", 0.0, 0.0, 0.0, walk_steps, settings) for m in modes] + \
+            [(*p, 0, settings) for p in pushes]
+    with make_executor(workers, initializer=context) as ex:
+        logs = ex.map(_orbit_log, [(t,) for t in tasks])
+    es = stop.mujoco_early_stop()
+    out = orbit_summary(logs, es, settled)
+    out["settings"] = differences(settings)
+    out["logs"] = logs
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="sweep_check", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -149,8 +287,22 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--workers", type=int, default=2)
     m.add_argument("--json", type=Path, default=None)
+    o = sub.add_parser("orbit")
+    o.add_argument("summary", type=Path, help="a capability map's --json (its cells' boundaries choose the forces)")
+    o.add_argument("--set", dest="overrides", action="append", default=None, metavar="KEY=VALUE",
+                   help="settings overrides (default: plant=mujoco)")
+    o.add_argument("--profile", default=None)
+    o.add_argument("--modes", default="both,tau,p,none")
+    o.add_argument("--durations", type=float, nargs="+", default=[0.025])
+    o.add_argument("--phases", type=float, nargs="+", default=None)
+    o.add_argument("--fractions", type=float, nargs="+", default=[0.5, 0.9, 1.0])
+    o.add_argument("--walk-steps", type=int, default=20)
+    o.add_argument("--settled", type=int, default=5, help="last impacts of each survivor counted as settled")
+    o.add_argument("--workers", type=int, default=2)
+    o.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    provenance.track(args.json, args=args, argv=argv)   # record of each file written (results/README.md)
+    plant = "mujoco" if args.cmd == "orbit" and args.overrides is None else None     # orbit's default settings
+    provenance.track(args.json, args=args, argv=argv, plant=plant)   # record of each file written (results/README.md)
     if args.cmd == "compare":
         fast, full = (json.loads(p.read_text()) for p in (args.fast, args.full))
         recs = [RecordStore(p).load() for p in args.stores] if args.stores else [None, None]
@@ -160,6 +312,14 @@ def main(argv: list[str] | None = None) -> int:
         for k, v in out["details"].items():
             for d in v[:10]:
                 print(f"{k}: {d}")
+    elif args.cmd == "orbit":
+        settings = run_settings(args.profile, args.overrides if args.overrides is not None else ["plant=mujoco"],
+                                full_trials=True)
+        out = orbit(json.loads(args.summary.read_text()), settings, tuple(args.modes.split(",")),
+                    tuple(args.durations), tuple(args.fractions),
+                    tuple(args.phases) if args.phases is not None else None, args.walk_steps, args.workers,
+                    args.settled)
+        print(json.dumps({k: v for k, v in out.items() if k not in ("trials", "logs")}, indent=1))
     else:
         out = margins(RecordStore(args.store).load(), args.sample, args.seed, args.workers)
         print(json.dumps({k: v for k, v in out.items() if k != "trials"}, indent=1))

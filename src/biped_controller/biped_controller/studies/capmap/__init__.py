@@ -18,9 +18,10 @@ period of the preferred gait (``GaitFamily.T``, 0.463 s); the walk starts at t =
 initial state, the beginning of that first step (just after an impact). ``--phases N`` samples
 ``phase = k / N``, k = 0 .. N-1, so phase 0.5 is the paper's "middle of the first step"
 (``trial.runs.DEFAULT_START``) whenever N is even. A long push may end after the first impact; survival
-then counts the steps after the push's end. With the early stop (``trial.stop.EarlyStop``,
-config/studies.yaml; ``--full-trials`` turns it off) a trial back on the preferred gait one period after
-an impact after the push is decided there: survived, the outcome of the full trial (measured).
+then counts the steps after the push's end. With the early stop (``trial.stop.EarlyStop`` on the rigid
+plant, ``trial.stop.MujocoEarlyStop`` on MuJoCo, config/studies.yaml; ``--full-trials`` turns it off) a
+trial back on the preferred gait one period after an impact after the push is decided there: survived,
+the outcome of the full trial (measured).
 
 Survival is the studies' one rule (``trial.survival``): no fall until ``SURVIVAL_STEPS`` impacts after
 the end of the push, and p and tau' back within the band of the same settings' unpushed walk at the end

@@ -41,7 +41,8 @@ def fingerprint(spec: MapSpec) -> str:
         "survival": survival.survival_rule().identity(),
         # the early stop decides outcomes too (a trial it ends is counted survived): a store made under other
         # tolerances (e.g. before early_stop_lambda existed, when mode lambda's cells were wrong) is not resumed
-        "early_stop": asdict(stop.early_stop()),
+        # (the plant's own: the rigid plant's dict is the one every rigid store was made with)
+        "early_stop": stop.identity(spec.settings),
         "height": spec.height,
     }
     h.update(json.dumps(inputs, sort_keys=True, default=str).encode())

@@ -127,7 +127,8 @@ class BuiltinMode(TrialController):
                  pool: runner.LoopPool | None | bool = True) -> dict:
         """One survival trial (``trials.survives``): with the early stop (``config/studies.yaml``, unless
         ``settings.full_trials`` or a perturbed plant) the trial ends at the first impact where its outcome is
-        decided (``stop.EarlyStop``); ``pool`` True: this process's ``runs.loop_pool``."""
+        decided (``stop.EarlyStop`` on the rigid plant, ``stop.MujocoEarlyStop`` on MuJoCo); ``pool`` True:
+        this process's ``runs.loop_pool``."""
         mode = self.name
         end = push.start + push.duration
         if pool is True:
@@ -146,6 +147,17 @@ class BuiltinMode(TrialController):
                     return True
                 return False
             on_impact = stop_if_decided
+        mj = None if settings.full_trials else stop.mujoco_early_stop()
+        if mj is not None and mj.enabled and stop.applies_mujoco(settings):
+            fam, dt = context().family, settings.sim_config().control_period
+            band = self.band(settings, runs.trial_steps(push))      # the trial's band, known before it
+
+            def stop_if_decided_mujoco(sim, ctrl) -> bool:
+                if mj.decided(sim, ctrl, end, fam, band, dt):
+                    fired.append(sim.impact_count)
+                    return True
+                return False
+            on_impact = stop_if_decided_mujoco
         res = runs.push_run(push, mode, settings=settings, keep_records=False, on_impact=on_impact, pool=pool)
         decided = bool(fired) and not res.fallen
         if decided:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import functools
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from biped_sim.plant.period_grid import last_grid_before
 from biped_sim.robot.gait_family import GaitFamily
 from biped_sim.robot.settings import default_config_dir, read_settings
 
@@ -37,7 +38,8 @@ class EarlyStop:
     on and ends with p, tau' inside the survival rule's floors ``survival.P_FLOOR``, ``survival.TAU_DOT_FLOOR``,
     hence inside every band of the rule (measured: docs/capability_map.md, "Early stop"); ``p`` and ``tau_dot``
     are half the floors. Applied to the nominal rigid plant with ideal sensors only (the measurement's
-    plant, :func:`applies`): a perturbed plant's trial, and a MuJoCo trial, run in full."""
+    plant, :func:`applies`); the MuJoCo plant has its own (:class:`MujocoEarlyStop`), a perturbed plant's
+    trial runs in full."""
 
     enabled: bool
     q: float
@@ -51,6 +53,10 @@ class EarlyStop:
 
     KEYS = ("early_stop", "early_stop_q", "early_stop_qd", "early_stop_p", "early_stop_p_dot",
             "early_stop_tau_dot", "early_stop_force", "early_stop_lambda", "early_stop_lambda_dot")
+
+    def identity(self) -> dict:
+        """JSON-ready: the settings (the capability map's store fingerprint hashes them)."""
+        return asdict(self)
 
     @classmethod
     def load(cls, path: str | os.PathLike | None = None) -> "EarlyStop":
@@ -82,12 +88,17 @@ class EarlyStop:
 
 
 def applies(settings) -> bool:
-    """The early stop may end a trial with these ``RunSettings``: the rigid plant, nominal, ideal sensors.
-    Not on MuJoCo: one control period after its touchdown (spread over several MuJoCo steps, the stance foot
-    chattering) the state is far from the gait's orbit even unpushed, and no tolerances were measured for
-    it (docs/mujoco_plant.md, "Sweeps on MuJoCo")."""
+    """The rigid plant's early stop (:class:`EarlyStop`) may end a trial with these ``RunSettings``: the rigid
+    plant, nominal, ideal sensors (the plant its tolerances were measured on)."""
     p = settings.perturbation
     return settings.sim_config().plant == "rigid" and (p is None or p.is_zero)
+
+
+def applies_mujoco(settings) -> bool:
+    """The MuJoCo plant's early stop (:class:`MujocoEarlyStop`) may end a trial with these ``RunSettings``: the
+    MuJoCo plant, nominal, ideal sensors (a sensor model or a model error: the trial runs in full)."""
+    p = settings.perturbation
+    return settings.sim_config().plant == "mujoco" and (p is None or p.is_zero)
 
 
 @functools.lru_cache(maxsize=4)
@@ -99,3 +110,132 @@ def early_stop() -> EarlyStop:
     """``config/studies.yaml``'s early stop, read again whenever the file changed."""
     return _early_stop(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
 
+
+@dataclass(frozen=True)
+class MujocoEarlyStop:
+    """When a survival trial's outcome is decided on the MuJoCo plant (``config/studies.yaml``, keys
+    ``early_stop_mujoco*``; measured: docs/mujoco_plant.md, "Sweeps on MuJoCo").
+
+    MuJoCo's touchdown is not an instant: the landing foot's contact builds up over a few milliseconds, so
+    one control period after the sensed touchdown (``runner.run``'s ``on_impact``; 0.125-1 ms after it on
+    the 1 ms control grid) the joint velocities are still part way through the impact, 0.82-3.5 rad/s from
+    the orbit's post-impact velocity in the unpushed walks, depending on that delay. The state is
+    therefore compared with the gait's orbit where MuJoCo's walk follows it closely:
+
+    * the configuration now (t, one period after the touchdown at t_i): |q - q_d(p_d, t - t_i)|_inf <= ``q``
+      [rad] (the impact does not move the joints);
+    * the state entering the touchdown, (q, q') at the start t_0 of the control period in which it was
+      sensed (``ImpactRecord.x_minus``, ``v_minus`` on this plant), against the orbit at the same time into
+      the step, s = t_0 - t_(i-1) (t_(i-1) the previous touchdown, 0 for the first):
+      |q - q_d(p_d, s)|_inf <= ``q``, |q' - dq_d/dtau(p_d, s)|_inf <= ``qd`` [rad/s]; this period must
+      start at or after the push's end (a step much longer than the gait's T, e.g. right after a backward
+      push, meets the orbit's polynomial continued past T: far from the walk, that touchdown is not decided);
+
+    and the controller as in :class:`EarlyStop`: |p - p_d| <= e_p = ``band`` x the trial's band ``p_tol`` [m],
+    |tau' - 1| <= ``band`` x its ``tau_dot_tol`` (``survival.Band``: the same plant, profile and mode's
+    unpushed walk's, known before the trial), |p'| <= ``p_dot_rate`` x e_p [m/s] (``p_dot_rate`` [1/s]),
+    |force estimate| <= ``force`` [N],
+    |lambda| <= ``lam`` [rad], |lambda'| <= ``lam_dot`` [rad/s] (the rigid plant's ``early_stop_lambda``,
+    ``early_stop_lambda_dot``). The walk then enters the rest of the trial as the unpushed walk does, its
+    p and tau' inside a fraction of the band the rule judges its end with. Applied to the nominal MuJoCo
+    plant with ideal sensors (:func:`applies_mujoco`)."""
+
+    enabled: bool
+    q: float
+    qd: float
+    band: float
+    p_dot_rate: float
+    force: float
+    lam: float
+    lam_dot: float
+
+    KEYS = ("early_stop_mujoco", "early_stop_mujoco_q", "early_stop_mujoco_qd", "early_stop_mujoco_band",
+            "early_stop_mujoco_p_dot_rate", "early_stop_mujoco_force", "early_stop_lambda", "early_stop_lambda_dot")
+
+    @classmethod
+    def load(cls, path: str | os.PathLike | None = None) -> "MujocoEarlyStop":
+        """The settings of ``config/studies.yaml`` (``path``: another file); a value out of range raises
+        :class:`StudySettingsError` naming the key."""
+        p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
+        v = read_settings(p, cls.KEYS)
+        if not isinstance(v["early_stop_mujoco"], bool):
+            raise StudySettingsError(f"{p}: 'early_stop_mujoco' must be true or false, got {v['early_stop_mujoco']!r}")
+        for k in cls.KEYS[1:]:
+            x = v[k]
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and x > 0):
+                raise StudySettingsError(f"{p}: '{k}' must be a finite number > 0, got {x!r}")
+        if not v["early_stop_mujoco_band"] < 1.0:
+            raise StudySettingsError(f"{p}: 'early_stop_mujoco_band' must be < 1 (a fraction of the survival band: "
+                                     f"the end must stay inside it), got {v['early_stop_mujoco_band']!r}")
+        return cls(v["early_stop_mujoco"], *(float(v[k]) for k in cls.KEYS[1:]))
+
+    def identity(self) -> dict:
+        """JSON-ready: the settings (the capability map's store fingerprint hashes them)."""
+        return {"mujoco": asdict(self)}
+
+    @staticmethod
+    def distances(sim, ctrl, push_end: float, family: GaitFamily, dt: float) -> dict:
+        """The quantities the criterion bounds, at the latest impact of ``sim`` (``dt`` [s] the control period):
+        ``q`` [rad] the configuration's distance to the orbit now, ``q_in`` [rad] and ``qd_in`` [rad/s] the
+        state's entering the touchdown, ``qd`` [rad/s] the velocity's now (recorded, not bounded),
+        ``p`` [m], ``p_dot`` [m/s], ``tau_dot`` [-], ``force`` [N], ``lam`` [rad], ``lam_dot`` [rad/s] the
+        controller's distances, ``delay`` [s] t - t_i, ``after_push`` the period entering the touchdown
+        starts at or after the push's end."""
+        log = sim.impact_log
+        imp = log[-1]
+        prev = log[-2].t if len(log) > 1 else 0.0
+        t0 = max(last_grid_before(imp.t, dt), prev)       # the start of the period the touchdown ended
+        if t0 == imp.t:                                   # a touchdown on the grid: the period before it
+            t0 = max(imp.t - dt, prev)
+        q, qd = sim.fm.paper_from_state(sim.x, sim.v, sim.stance)
+        g = family.evaluate(family.p_d, sim.t - imp.t)
+        q0, qd0 = sim.fm.paper_from_state(imp.x_minus, imp.v_minus, imp.old_stance)
+        g0 = family.evaluate(family.p_d, t0 - prev)
+        s = ctrl.state
+        mem = ctrl.memory
+        return {"delay": float(sim.t - imp.t), "after_push": bool(t0 >= push_end and imp.t >= push_end),
+                "q": float(np.max(np.abs(q - g.q))), "qd": float(np.max(np.abs(qd - g.dq_dtau))),
+                "q_in": float(np.max(np.abs(q0 - g0.q))), "qd_in": float(np.max(np.abs(qd0 - g0.dq_dtau))),
+                "p": abs(s.p - family.p_d), "p_dot": abs(s.p_dot), "tau_dot": abs(s.tau_dot - 1.0),
+                "force": abs(ctrl.force_estimate), "lam": abs(float(mem[M_.lam])), "lam_dot": abs(float(mem[M_.lam_dot]))}
+
+    def inside(self, d: dict, band) -> bool:
+        """The criterion on :meth:`distances`' ``d`` with the trial's ``band`` (``survival.Band``)."""
+        return bool(d["after_push"] and d["q"] <= self.q and d["q_in"] <= self.q and d["qd_in"] <= self.qd
+                    and d["p"] <= self.band * band.p_tol and d["tau_dot"] <= self.band * band.tau_dot_tol
+                    and d["p_dot"] <= self.p_dot_rate * self.band * band.p_tol and d["force"] <= self.force
+                    and d["lam"] <= self.lam and d["lam_dot"] <= self.lam_dot)
+
+    def decided(self, sim, ctrl, push_end: float, family: GaitFamily, band, dt: float) -> bool:
+        """The criterion above on the latest impact of ``sim``, its state now and the state of ``ctrl``, with
+        the trial's ``band`` and the control period ``dt`` [s]."""
+        if sim.impact_log[-1].t < push_end:
+            return False
+        return self.inside(self.distances(sim, ctrl, push_end, family, dt), band)
+
+
+@functools.lru_cache(maxsize=4)
+def _mujoco_early_stop(stamp: int) -> MujocoEarlyStop:
+    return MujocoEarlyStop.load()
+
+
+def mujoco_early_stop() -> MujocoEarlyStop:
+    """``config/studies.yaml``'s MuJoCo early stop, read again whenever the file changed."""
+    return _mujoco_early_stop(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
+
+
+def identity(settings) -> dict:
+    """JSON-ready: the early stop's settings for trials with these ``RunSettings`` (the capability map's store
+    fingerprint hashes them): the rigid plant's on the rigid plant (the dict it always was), the MuJoCo
+    plant's on MuJoCo."""
+    if settings.sim_config().plant == "mujoco":
+        return mujoco_early_stop().identity()
+    return early_stop().identity()
+
+
+def enabled(settings) -> bool:
+    """The early stop of the plant of these ``RunSettings`` is switched on in ``config/studies.yaml``
+    (``early_stop`` for the rigid plant, ``early_stop_mujoco`` for MuJoCo)."""
+    if settings.sim_config().plant == "mujoco":
+        return mujoco_early_stop().enabled
+    return early_stop().enabled

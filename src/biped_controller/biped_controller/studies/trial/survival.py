@@ -25,8 +25,8 @@ A run that does not fall but is not back within the band *survived without settl
 False, ``Verdict.survived`` False. The *no-fall edge* of a search counts such runs as not fallen; the
 *survival boundary* counts them as failures (``trial.search``).
 
-The early stop (:mod:`.stop`) declares a trial survived only within tolerances below the floors, hence
-within every band.
+The early stop (:mod:`.stop`) declares a trial survived only with p and tau' inside half the floors (the
+rigid plant) or half the trial's own band (MuJoCo), hence inside the band.
 """
 from __future__ import annotations
 
