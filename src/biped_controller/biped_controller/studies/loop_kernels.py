@@ -39,10 +39,11 @@ import numpy as np
 from biped_sim.robot import numba_cache
 from biped_sim.robot import planar_kernels as pk
 from biped_sim.robot.layout import Layout
+from biped_sim.plant import period_grid_kernels as pg
 from biped_sim.plant.rigid_layout import L_, S_
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
-from biped_controller.core.control.controller_layout import R_, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.control.controller_layout import RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -64,34 +65,14 @@ _B = numba.types.boolean
 
 @numba.njit(cache=True)
 def _knots(t_start, dt_nom, substeps, pushes, knots):
-    """The compiled twin of ``biped_sim.plant.period_grid``: the period's grid end (``grid_end``) and its
-    integration knots (``period_knots`` with the rigid plant's substep count ceil(substeps dt / dt_nom)) into
-    ``knots``, the push starts and ends of ``pushes`` (rows: start, end, ...) as cuts; returns (count of
-    knots, the grid end), count -1 when ``knots`` is too short (tested equal to the Python home)."""
-    t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+    """The period's grid end and its integration knots (``period_grid_kernels``, the compiled twin of
+    ``biped_sim.plant.period_grid``) with the rigid plant's substep count ceil(substeps dt / dt_nom), the push
+    starts and ends of ``pushes`` (rows: start, end, ...) as cuts, into ``knots``; returns (count of knots,
+    the grid end), count -1 when ``knots`` is too short (tested equal to the Python home)."""
+    t_grid_end = pg.grid_end(t_start, dt_nom)
     dt = t_grid_end - t_start
     n_sub = max(1, int(math.ceil(substeps * dt / dt_nom - 1e-9)))
-    h = dt / n_sub
-    n = 0
-    for i in range(n_sub):
-        knots[n] = t_start + i * h
-        n += 1
-    knots[n] = t_grid_end
-    n += 1
-    for k in range(pushes.shape[0]):
-        for c in (pushes[k, 0], pushes[k, 1]):
-            if t_start < c < t_grid_end:
-                if n >= knots.shape[0]:
-                    return -1, t_grid_end
-                knots[n] = c
-                n += 1
-    ks = np.sort(knots[:n])
-    m = 0
-    for i in range(n):   # set() then sorted(): exact duplicates once
-        if m == 0 or ks[i] != knots[m - 1]:
-            knots[m] = ks[i]
-            m += 1
-    return m, t_grid_end
+    return pg.knots(t_start, t_grid_end, n_sub, pushes, knots), t_grid_end
 
 
 @numba.njit(numba.types.int64(
@@ -145,19 +126,13 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                 sv += P[i, j] * v[3 + j]
             q[i] = sq
             qd[i] = sv
-        # 2. controller: the period's start (advance, observer mode; the memory is committed with the period)
-        if qp_given and n_done == 0:
-            # the QP period handed back by the last call, its res and work as they were left: the decision
-            for k in range(qp_x.shape[0]):      # (p'', tau''; modes lambda and all: and lambda'')
-                res[R_.x + k] = qp_x[k]
-            ck.period_outputs(cons, work, res)
-            code = ck.FEASIBLE
-        else:
-            ck.period_start(mem, t, stance, res)
-            code = ck.period_step(coef, inner, centers, cti, ctf, q, qd, gains, cons, mem, G, h, work, res)
-            if code == ck.NEEDS_QP:
-                out[0] = END_QP
-                return n_done
+        # 2. controller: the period's start and step (advance, observer mode; the memory is committed with the
+        # period), or the QP period handed back by the last call takes its decision (ck.loop_period)
+        code = ck.loop_period(qp_given and n_done == 0, qp_x, coef, inner, centers, cti, ctf, q, qd, t, stance,
+                              gains, cons, mem, G, h, work, res)
+        if code == ck.NEEDS_QP:
+            out[0] = END_QP
+            return n_done
         if code != ck.FEASIBLE:
             out[0] = END_NONFINITE
             return n_done

@@ -36,10 +36,11 @@ import numba
 import numpy as np
 
 from biped_sim.plant import mujoco_kernels as mk
+from biped_sim.plant import period_grid_kernels as pg
 from biped_sim.robot import numba_cache
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
-from biped_controller.core.control.controller_layout import R_, W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.control.controller_layout import W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -62,37 +63,13 @@ K_T, K_STEP = 0, 1
 
 @numba.njit(cache=True, nogil=True)
 def period_knots(t_start, dt_nom, h_mj, pushes, knots):
-    """The period's grid end (``period_grid.grid_end``) and its integration knots (``period_grid.period_knots``
-    with the MuJoCo plant's step count max(1, ceil((t_end - t_start) / h_mj - 1e-9)), the push starts and ends
-    of ``pushes`` strictly inside as cuts) into ``knots``: returns (count of knots, the grid end), count -1
-    when ``knots`` is too short. The same operations as the Python home (tested equal through the records)."""
-    t_grid_end = (math.floor(t_start / dt_nom + 1e-6) + 1) * dt_nom
+    """The period's grid end and its integration knots (``period_grid_kernels``, the compiled twin of
+    ``biped_sim.plant.period_grid``) with the MuJoCo plant's step count max(1, ceil((t_end - t_start) / h_mj
+    - 1e-9)), the push starts and ends of ``pushes`` strictly inside as cuts, into ``knots``: returns (count
+    of knots, the grid end), count -1 when ``knots`` is too short (tested equal through the records)."""
+    t_grid_end = pg.grid_end(t_start, dt_nom)
     n_sub = max(1, int(math.ceil((t_grid_end - t_start) / h_mj - 1e-9)))
-    h = (t_grid_end - t_start) / n_sub
-    if n_sub + 1 + 2 * pushes.shape[0] > knots.shape[0]:
-        return -1, t_grid_end
-    n = 0
-    for i in range(n_sub):
-        knots[n] = t_start + i * h
-        n += 1
-    knots[n] = t_grid_end
-    n += 1
-    cut = False
-    for k in range(pushes.shape[0]):
-        for c in (pushes[k, 0], pushes[k, 1]):
-            if t_start < c < t_grid_end:
-                knots[n] = c
-                n += 1
-                cut = True
-    if not cut:
-        return n, t_grid_end
-    ks = np.sort(knots[:n])
-    m = 0
-    for i in range(n):   # set() then sorted(): exact duplicates once
-        if m == 0 or ks[i] != knots[m - 1]:
-            knots[m] = ks[i]
-            m += 1
-    return m, t_grid_end
+    return pg.knots(t_start, t_grid_end, n_sub, pushes, knots), t_grid_end
 
 
 _V, _VI, _M, _C4, _I, _F = ck.T_VEC, ck.T_IVEC, ck.T_MAT, ck.T_ARR4, ck.T_INT, ck.T_FLOAT
@@ -144,17 +121,11 @@ def run_mujoco_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
             q[i] = meas[i]
             qd[i] = meas[6 + i]
         # 2. controller
-        if qp_given and n_done == 0:
-            for k in range(qp_x.shape[0]):
-                res[R_.x + k] = qp_x[k]
-            ck.period_outputs(cons, work, res)
-            code = ck.FEASIBLE
-        else:
-            ck.period_start(mem, t, stance, res)
-            code = ck.period_step(coef, inner, centers, cti, ctf, q, qd, gains, cons, mem, G, h, work, res)
-            if code == ck.NEEDS_QP:
-                out[O_END] = END_QP
-                return n_done
+        code = ck.loop_period(qp_given and n_done == 0, qp_x, coef, inner, centers, cti, ctf, q, qd, t, stance,
+                              gains, cons, mem, G, h, work, res)
+        if code == ck.NEEDS_QP:
+            out[O_END] = END_QP
+            return n_done
         if code != ck.FEASIBLE:
             out[O_END] = END_NONFINITE
             return n_done

@@ -31,7 +31,9 @@ _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 
 LOOP_KERNELS = "biped_controller.studies.loop_kernels"
 # what the compiled loop is compiled against besides its own source
-LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, "biped_sim.plant.rigid_layout")
+PERIOD_GRID_KERNELS = "biped_sim.plant.period_grid_kernels"
+LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
+                                                     "biped_sim.plant.rigid_layout")
 
 
 def load_loop_kernels():
@@ -39,7 +41,15 @@ def load_loop_kernels():
     dependencies: the planar kernels, the compiled period, the layouts)."""
     numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
     numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
+    numba_cache.load(PERIOD_GRID_KERNELS)
     return numba_cache.load(LOOP_KERNELS, sources=LOOP_KERNELS_SOURCES)
+
+
+def _decision_buffers(fp):
+    """The buffers of a QP period handed back by a compiled loop, shaped as the compiled period ``fp``'s:
+    G and h (its rows), the RES row, the work rows and the decision x (p'', tau'' [, lambda''])."""
+    return (np.zeros_like(fp.G), np.zeros_like(fp.h), np.zeros(RES.size), np.zeros((WORK.size, 6)),
+            np.zeros(fp.nx))
 
 
 class Segment:
@@ -61,11 +71,7 @@ class Segment:
         self._last = None
         # the QP period handed back (END_QP): its rows and RES row; the decision given with the next call
         # (modes lambda and all: the torso rows and the column of lambda'', as the compiled period's)
-        self.G = np.zeros_like(self.fp.G)
-        self.h = np.zeros_like(self.fp.h)
-        self.res = np.zeros(RES.size)
-        self.work = np.zeros((WORK.size, 6))
-        self.qp_x = np.zeros(self.fp.nx)
+        self.G, self.h, self.res, self.work, self.qp_x = _decision_buffers(self.fp)
         self._pushes_key: tuple = ()
         self._pushes = np.zeros((0, 4))
         # the compiled loop takes the QP periods too, with the controller's decision (not in modes whose
@@ -175,7 +181,7 @@ class Segment:
 
 
 MUJOCO_LOOP_KERNELS = "biped_controller.studies.mujoco_loop_kernels"
-MUJOCO_LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS,
+MUJOCO_LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
                                                             "biped_sim.plant.mujoco_kernels")
 
 
@@ -188,6 +194,7 @@ def load_mujoco_loop_kernels():
     load_mujoco_kernels()
     numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
     numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
+    numba_cache.load(PERIOD_GRID_KERNELS)
     return numba_cache.load(MUJOCO_LOOP_KERNELS, sources=MUJOCO_LOOP_KERNELS_SOURCES)
 
 
@@ -212,11 +219,7 @@ class MujocoSegment:
         self.ended = ""
         self.n = 0
         self._last = None
-        self.G = np.zeros_like(self.fp.G)
-        self.h = np.zeros_like(self.fp.h)
-        self.res = np.zeros(RES.size)
-        self.work = np.zeros((WORK.size, 6))
-        self.qp_x = np.zeros(self.fp.nx)
+        self.G, self.h, self.res, self.work, self.qp_x = _decision_buffers(self.fp)
         self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
         self._bad = np.array(sim._bad_warnings, dtype=np.int64)
 

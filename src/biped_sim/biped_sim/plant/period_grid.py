@@ -1,5 +1,5 @@
 """The control grid and a period's integration knots: the one home of both formulas (pure Python; the
-compiled closed loop's twin is ``biped_controller.studies.loop_kernels._knots``, tested equal bit for bit).
+compiled twin is ``period_grid_kernels``, which both compiled closed loops call; tested equal bit for bit).
 
 Control periods end on the grid t_k = k * dt [s] (k integer, dt the control period): a period that starts at
 t ends at the next grid instant after t, with a tolerance of 1e-6 periods so that a start a rounding error

@@ -578,3 +578,20 @@ def finish(cons, mem, work, res, qd, t, stance):
     _finish(cons, work, res)
     period_commit(mem, res, work, qd, t, stance)
     return 0
+
+
+@numba.njit(cache=True, nogil=True)
+def loop_period(qp_given, qp_x, coef, inner, centers, ti, tf, q, qd, t, stance, gains, cons, mem, G, h, work,
+                res):
+    """A compiled closed loop's controller for one period (``loop_kernels``, ``mujoco_loop_kernels``): with
+    ``qp_given`` the QP period the last call handed back (its ``res`` and ``work`` as they were left) takes the
+    decision ``qp_x`` (p'', tau''; modes lambda and all: and lambda'') and its outputs, FEASIBLE; otherwise
+    the period's start and step (:func:`period_step`'s code: FEASIBLE, NEEDS_QP with G, h filled, ...). The
+    memory is committed by the caller with the period."""
+    if qp_given:
+        for k in range(qp_x.shape[0]):
+            res[R_.x + k] = qp_x[k]
+        _finish(cons, work, res)
+        return FEASIBLE
+    period_start(mem, t, stance, res)
+    return period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, work, res)
