@@ -819,8 +819,8 @@ class AdaptiveController:
                 x[0] = v
                 held.append("p''")
         if 1 in self.adapted:
-            # the lower end is the QP's own row; the upper end has no row (the second task pulls tau' back to 1
-            # in every answer that holds the rows), so a least-violation answer alone can take tau' past it
+            # the lower end is the QP's own row; the upper end has none, and it is the least-violation answers,
+            # which weigh the range against the contact rows, that took tau' past it (1.6e4 in a MuJoCo fall)
             lo, hi = (c.tau_dot_min - tau_dot) / dt, (c.tau_dot_max - tau_dot) / dt
             v = min(max(float(x[1]), lo), hi)
             if v != x[1]:
