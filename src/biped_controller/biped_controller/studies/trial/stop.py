@@ -21,6 +21,21 @@ class StudySettingsError(ValueError):
     """``config/studies.yaml`` holds a value out of range (the message names the key)."""
 
 
+def _read_switch_and_positives(path, keys) -> tuple[Path, dict]:
+    """``keys`` of ``config/studies.yaml`` (``path``: another file): the first a switch (true or false), the
+    others finite numbers > 0; a value out of range raises :class:`StudySettingsError` naming the key.
+    Returns (the file, the values)."""
+    p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
+    v = read_settings(p, keys)
+    if not isinstance(v[keys[0]], bool):
+        raise StudySettingsError(f"{p}: '{keys[0]}' must be true or false, got {v[keys[0]]!r}")
+    for k in keys[1:]:
+        x = v[k]
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and x > 0):
+            raise StudySettingsError(f"{p}: '{k}' must be a finite number > 0, got {x!r}")
+    return p, v
+
+
 @dataclass(frozen=True)
 class EarlyStop:
     """When a survival trial's outcome is decided (``config/studies.yaml``).
@@ -60,14 +75,7 @@ class EarlyStop:
 
     @classmethod
     def load(cls, path: str | os.PathLike | None = None) -> "EarlyStop":
-        p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
-        v = read_settings(p, cls.KEYS)
-        if not isinstance(v["early_stop"], bool):
-            raise StudySettingsError(f"{p}: 'early_stop' must be true or false, got {v['early_stop']!r}")
-        for k in cls.KEYS[1:]:
-            x = v[k]
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and x > 0):
-                raise StudySettingsError(f"{p}: '{k}' must be a finite number > 0, got {x!r}")
+        p, v = _read_switch_and_positives(path, cls.KEYS)
         return cls(v["early_stop"], *(float(v[k]) for k in cls.KEYS[1:]))
 
     def decided(self, sim, ctrl, push_end: float, family: GaitFamily) -> bool:
@@ -156,14 +164,7 @@ class MujocoEarlyStop:
     def load(cls, path: str | os.PathLike | None = None) -> "MujocoEarlyStop":
         """The settings of ``config/studies.yaml`` (``path``: another file); a value out of range raises
         :class:`StudySettingsError` naming the key."""
-        p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
-        v = read_settings(p, cls.KEYS)
-        if not isinstance(v["early_stop_mujoco"], bool):
-            raise StudySettingsError(f"{p}: 'early_stop_mujoco' must be true or false, got {v['early_stop_mujoco']!r}")
-        for k in cls.KEYS[1:]:
-            x = v[k]
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and x > 0):
-                raise StudySettingsError(f"{p}: '{k}' must be a finite number > 0, got {x!r}")
+        p, v = _read_switch_and_positives(path, cls.KEYS)
         if not v["early_stop_mujoco_band"] < 1.0:
             raise StudySettingsError(f"{p}: 'early_stop_mujoco_band' must be < 1 (a fraction of the survival band: "
                                      f"the end must stay inside it), got {v['early_stop_mujoco_band']!r}")
