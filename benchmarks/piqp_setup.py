@@ -3,9 +3,10 @@ a function of its instance alone) against the held update it replaced (each PIQP
 first solve, then updated: the previous instance's scaling left in its data; docs/capability_map.md, "One
 trial, one record").
 
-    python -m benchmarks.piqp_setup [--json OUT] [--rounds 2] [--phases 4] [--repeats 20]
+    python -m benchmarks.piqp_setup [--json OUT] [--rounds 4] [--phases 4] [--repeats 20]
 
-Two measurements, the two paths taken in turn (setup, update, setup, update, ...) in one process:
+Two measurements, the two paths taken in turn in one process (setup then update in even rounds, update
+then setup in odd ones):
 
 * ``qp``: ``AdaptationQP.solve`` on the controller's own QPs with x* infeasible (MuJoCo, 4 steps with a
   push of 600 N and -900 N in mode both, 700 N in mode all; ``runner.run(keep_qp=True)``), each instance
@@ -112,7 +113,7 @@ def time_map(settings, phases: int) -> tuple[float, float, int]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", type=Path, default=OUT)
-    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--phases", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=20)
     a = ap.parse_args(argv)
@@ -124,8 +125,8 @@ def main(argv=None) -> int:
     inst = instances(settings)
     qp = {p: [] for p in PATHS}
     mp = {p: [] for p in PATHS}
-    for _ in range(a.rounds):
-        for p in PATHS:
+    for r in range(a.rounds):
+        for p in (PATHS if r % 2 == 0 else PATHS[::-1]):
             with path(p):
                 qp[p].append(time_qp(inst, a.repeats))
                 wall, cpu, n = time_map(settings, a.phases)
