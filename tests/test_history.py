@@ -155,9 +155,9 @@ RIGID_TRIALS = [(m, ph, du, f) for m in ("both", "tau", "p", "hybrid", "all", "w
 
 def test_rigid_trials_are_the_same_alone_and_after_other_trials():
     """The rigid plant's trials of every mode (survivals, falls, both directions): each on new objects,
-    then all of them twice through one pool in a seeded shuffled order, record for record. (The held
-    update changed no rigid trial in 756 trials measured: this has no negative control of its own; the
-    QP's and MuJoCo's have.)"""
+    then all of them twice through one pool in a seeded shuffled order, record for record. (No rigid trial
+    was found that the held update changes, so this test has no negative control of its own; the QP's and
+    MuJoCo's have.)"""
     T = tcontext.context().family.T
     pushes = {s: Push(s[1] * T, s[2], s[3]) for s in RIGID_TRIALS}
     alone = {s: trials.survives(pushes[s], s[0], ts.DEFAULT_SETTINGS, pool=runner.LoopPool()) for s in RIGID_TRIALS}
