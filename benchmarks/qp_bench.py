@@ -206,7 +206,7 @@ def profile_held_path(held, instances, repeats) -> dict:
 
     k_mod, W, m, n = held._k, held.W, held.m, held.n
     H = np.diag(W)
-    steps = ("type checks + early_out kernel", "load_piqp kernel (presolve)", "PIQP update", "PIQP solve",
+    steps = ("type checks + early_out kernel", "load_piqp kernel (presolve)", "PIQP setup", "PIQP solve",
              "result + iteration count", "polish kernel (+ outputs)", "QPResult")
     t = {s_: [] for s_ in steps}
     iters, rows = [], []
@@ -223,7 +223,7 @@ def profile_held_path(held, instances, repeats) -> dict:
                 k = k_mod.load_piqp(G, h, xs, W, held._g_buf, held._h_buf, held._c, held._rows)
                 e = held._held.get(k) or held._held_for(k)
                 c2 = perf_counter_ns()
-                e.screen.update(None, held._c, None, None, e.G, None, e.h)
+                e.screen.setup(held._P, held._c, None, None, e.G, None, e.h, None, None)
                 c3 = perf_counter_ns()
                 e.screen.solve()
                 c4 = perf_counter_ns()

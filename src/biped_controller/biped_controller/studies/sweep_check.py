@@ -22,6 +22,15 @@
     walks' (the last ``--settled`` impacts of the survivors), whether every trial the criterion decides
     survives in full, and how close the failing trials came to being decided.
 
+``python -m biped_controller.studies.sweep_check replay STORE [--set K=V ...] [--profile P] [--modes M ...]``
+    a record is a function of its trial alone: every record of a map's store made with these settings (its
+    fingerprint) simulated again, in the store's order, twice -- on new objects (a new loop pool per
+    trial) and on one pool reused from trial to trial, as a map's worker runs them -- and compared field
+    by field: the two replays with each other (any difference: the record depends on the trials run
+    before it) and the new-object replay with the stored record (the records a change of the code
+    changed, each field's old and new value and relative change). Records of another fingerprint are
+    counted, not replayed.
+
 Pure: no ROS import.
 """
 from __future__ import annotations
@@ -42,10 +51,12 @@ from biped_controller.studies.trial import runs, stop, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import RunSettings, differences, run_settings
 from biped_controller.studies.trial.survival import P_FLOOR, TAU_DOT_FLOOR, survival_rule
-from biped_controller.studies.capmap.spec import DIRECTIONS, onset_time
+from biped_controller.studies.capmap.spec import DIRECTIONS, Cell, MapSpec, SimSpec, onset_time
+from biped_controller.studies.capmap.store import fingerprint as map_fingerprint
+from biped_controller.studies.capmap.task import simulate
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.studies.executor import make_executor
-from biped_controller.studies import provenance
+from biped_controller.studies import provenance, runner
 
 
 def _cells(summary: dict) -> dict:
@@ -272,6 +283,68 @@ def orbit(summary: dict, settings: RunSettings, modes: tuple[str, ...], duration
     return out
 
 
+def _field_changes(old: dict, new: dict) -> dict:
+    """{field: {old, new, relative}} of the fields of two records that differ (``relative``: |new - old| /
+    max(|old|, |new|) for two numbers, None otherwise); the store's own ``fingerprint`` is left out."""
+    out = {}
+    for k in sorted(set(old) | set(new)):
+        if k == "fingerprint":
+            continue
+        a, b = old.get(k), new.get(k)
+        if a == b:
+            continue
+        num = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (a, b))
+        rel = abs(b - a) / max(abs(a), abs(b)) if num and max(abs(a), abs(b)) > 0 else None
+        out[k] = {"old": a, "new": b, "relative": rel}
+    return out
+
+
+def replay(records: list[dict], settings: RunSettings, modes: tuple[str, ...] | None = None) -> dict:
+    """``replay`` (module docstring) of ``records`` with ``settings`` (the settings the map ran with):
+    only the records whose fingerprint is that of ``settings`` (and of their push height), of ``modes``
+    when given. Returns the counts, the records whose two replays differ (``history_dependent``), and those
+    whose replay on new objects differs from the stored record (``changed``, by field)."""
+    fps: dict = {}
+    shared = runner.LoopPool()
+    out = {"records_in_store": len(records), "other_fingerprint": 0, "other_mode": 0, "replayed": 0,
+           "history_dependent": [], "changed": [], "outcome_changed": 0}
+    for rec in records:
+        if modes is not None and rec["mode"] not in modes:
+            out["other_mode"] += 1
+            continue
+        height = rec.get("height")
+        key = (rec["mode"], height)
+        if key not in fps:
+            fps[key] = map_fingerprint(MapSpec(modes=(rec["mode"],), height=height, settings=settings,
+                                               neighbours=False, island_window=0))
+        if rec.get("fingerprint") != fps[key]:
+            out["other_fingerprint"] += 1
+            continue
+        spec = SimSpec(Cell(rec["mode"], rec["direction"], float(rec["phase"]), float(rec["duration"])),
+                       float(rec["force"]))
+        alone = simulate(spec, settings, height, pool=runner.LoopPool())
+        reused = simulate(spec, settings, height, pool=shared)
+        out["replayed"] += 1
+        tag = [rec["mode"], rec["direction"], rec["phase"], rec["duration"], rec["force"]]
+        if reused != alone:
+            out["history_dependent"].append({"key": tag, "fields": _field_changes(alone, reused)})
+        ch = _field_changes(rec, alone)
+        if ch:
+            out["changed"].append({"key": tag, "fields": ch})
+            out["outcome_changed"] += int(any(k in ch for k in ("survived", "cause", "fall_time", "steps_walked",
+                                                                 "decided_at_step")))
+    fields: dict = {}
+    for c in out["changed"]:
+        for k, v in c["fields"].items():
+            f = fields.setdefault(k, {"records": 0, "max_relative": 0.0})
+            f["records"] += 1
+            if v["relative"] is not None:
+                f["max_relative"] = max(f["max_relative"], v["relative"])
+    out["changed_fields"] = fields
+    out["settings"] = differences(settings)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="sweep_check", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -300,6 +373,13 @@ def main(argv: list[str] | None = None) -> int:
     o.add_argument("--settled", type=int, default=5, help="last impacts of each survivor counted as settled")
     o.add_argument("--workers", type=int, default=2)
     o.add_argument("--json", type=Path, default=None)
+    r = sub.add_parser("replay")
+    r.add_argument("store", type=Path, help="a capability map's record store (JSON Lines)")
+    r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="the settings the map ran with (its --set)")
+    r.add_argument("--profile", default=None)
+    r.add_argument("--modes", nargs="+", default=None)
+    r.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     plant = "mujoco" if args.cmd == "orbit" and args.overrides is None else None     # orbit's default settings
     provenance.track(args.json, args=args, argv=argv, plant=plant)   # record of each file written (results/README.md)
@@ -320,6 +400,13 @@ def main(argv: list[str] | None = None) -> int:
                     tuple(args.phases) if args.phases is not None else None, args.walk_steps, args.workers,
                     args.settled)
         print(json.dumps({k: v for k, v in out.items() if k not in ("trials", "logs")}, indent=1))
+    elif args.cmd == "replay":
+        out = replay(RecordStore(args.store).load(), run_settings(args.profile, args.overrides),
+                     tuple(args.modes) if args.modes else None)
+        print(json.dumps({k: (len(v) if k in ("history_dependent", "changed") else v) for k, v in out.items()},
+                         indent=1))
+        for c in out["changed"][:10]:
+            print(f"changed: {c['key']}: " + ", ".join(f"{k} {v['old']!r} -> {v['new']!r}" for k, v in c["fields"].items()))
     else:
         out = margins(RecordStore(args.store).load(), args.sample, args.seed, args.workers)
         print(json.dumps({k: v for k, v in out.items() if k != "trials"}, indent=1))

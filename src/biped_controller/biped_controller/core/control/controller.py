@@ -609,9 +609,9 @@ class AdaptiveController:
 
     def snapshot(self) -> np.ndarray:
         """The state between two periods: a copy of ``memory``. The held solvers (PIQP, the
-        whole-body QP) keep no answer from one call to the next that changes the next answer (every solve
-        starts afresh from the instance: tested by reusing a controller across trials), so the memory is all
-        there is. Raises :class:`SnapshotUnsupported` with real sensing (its filters hold state of their
+        whole-body QP) keep nothing from one call to the next that changes the next answer (every PIQP solve
+        is set up from its instance: ``solver.AdaptationQP``; tested by reusing a controller across trials,
+        tests/test_history.py), so the memory is all there is. Raises :class:`SnapshotUnsupported` with real sensing (its filters hold state of their
         own)."""
         if self._sensing is not None:
             raise SnapshotUnsupported("AdaptiveController.snapshot: real sensing (estimator, observer, predictor) "

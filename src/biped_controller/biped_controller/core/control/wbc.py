@@ -21,8 +21,8 @@ q1..q6 of the stance-foot-fixed chain)::
   torso-pitch task weight. Units 1/(rad/s^2)^2 times a cost unit; only the ratio matters.
 * Multipliers z >= 0 with W (w - w*) + G^T z = 0 (the sign convention of :mod:`problem`).
 
-Solver: the PIQP-held :class:`solver.AdaptationQP` (n = 6, any n works with PIQP; held and updated, never
-rebuilt; duplicated rows dropped; polished and KKT-checked), on the variable y = L^T w with M = L L^T
+Solver: the PIQP-held :class:`solver.AdaptationQP` (n = 6, any n works with PIQP; its objects held, each
+solve set up from its instance alone; duplicated rows dropped; polished and KKT-checked), on the variable y = L^T w with M = L L^T
 (Cholesky), which turns the weight into the identity that solver takes (its weight is diagonal):
 1/2 |y - y*|^2 = 1/2 (w - w*)^T M (w - w*), G w = (G L^-T) y. Statuses are those of :mod:`problem`:
 UNCONSTRAINED (G w* <= h with zero tolerance, evaluated on w itself; w = w* bit for bit, no solver),
@@ -134,7 +134,8 @@ def rows_hold(G: np.ndarray, h: np.ndarray, w: np.ndarray) -> bool:
 
 
 class WholeBodyQP:
-    """The held whole-body QP solver: one PIQP object set up at construction, updated every call.
+    """The held whole-body QP solver: one :class:`solver.AdaptationQP` made at construction, whose PIQP
+    objects are set up from each call's instance (an answer depends on that instance alone).
 
     Parameters: M (6, 6) symmetric positive definite weight (:func:`weight_matrix`); ``m`` rows
     (default WBC_ROWS); ``active_tol`` (row units) for the ``active`` mask."""

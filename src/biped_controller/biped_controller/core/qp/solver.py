@@ -13,9 +13,10 @@ Per control step, :meth:`AdaptationQP.solve` first decides whether x* is feasibl
 kernel :func:`exact_kernels.early_out`, the decision of :func:`exact.solve_exact` bit for bit;
 ~97 % of the steps end there). Otherwise:
 
-* ``solver="piqp"`` (default, the product's solver): PIQP, held and updated (never rebuilt),
-  on the problem without its duplicated rows (the controller states each contact row twice:
-  37 -> 20 rows). PIQP first runs to a screening tolerance, then its answer is polished on the
+* ``solver="piqp"`` (default, the product's solver): PIQP (objects held per row count, set up
+  afresh from each instance: every answer a function of its instance alone, see
+  :class:`AdaptationQP`), on the problem without its duplicated rows (the controller states each
+  contact row twice: 37 -> 20 rows). PIQP first runs to a screening tolerance, then its answer is polished on the
   active set its multipliers indicate and accepted only if the KKT conditions hold
   (:func:`polish`); if not, PIQP runs again to the tight tolerance. Infeasible problems go to
   the least-violation fallback.
@@ -135,7 +136,9 @@ class SlackQP:
     subject to [G  -I] v <= h,  s >= 0  (x free).
 
     At the optimum s = max(G x - h, 0), so the cost equals V(x) - const of
-    :func:`least_violation`. The solver object is set up once and updated afterwards.
+    :func:`least_violation`. The solver object is held and set up afresh from each instance
+    (:meth:`solve`; PIQP's ``update`` would carry the previous instance's scaling in its data:
+    :class:`AdaptationQP`).
     """
 
     def __init__(self, n: int, m: int, eps_abs: float = 1e-10, eps_rel: float = 1e-11, max_iter: int = 250):
@@ -149,7 +152,6 @@ class SlackQP:
         self._c = np.zeros(N)
         self._A = np.asfortranarray(np.hstack([np.zeros((m, n)), -np.eye(m)]))
         self._xl = np.concatenate([np.full(n, -np.inf), np.zeros(m)])
-        self.solver.setup(self._P, self._c, None, None, self._A, None, np.ones(m), self._xl, None)
 
     def solve(self, G, h, x_star, W, eps_reg):
         n = self.n
@@ -158,7 +160,7 @@ class SlackQP:
         self._P[idx, idx] = 2.0 * e * W
         self._c[:n] = -2.0 * e * W * x_star
         self._A[:, :n] = G
-        self.solver.update(P=self._P, c=self._c, G=self._A, h_u=np.ascontiguousarray(h))
+        self.solver.setup(self._P, self._c, None, None, self._A, None, np.ascontiguousarray(h), self._xl, None)
         status = self.solver.solve()
         res = self.solver.result
         x = np.array(res.x[:n], dtype=float, copy=True)
@@ -232,8 +234,8 @@ def polish(G, h, x_star, W, z, x, feas_rtol: float = DEFAULT_FEAS_RTOL):
 
 class _Held:
     """The PIQP objects for one row count k (after the duplicate-row presolve): the screening
-    solver (or the only one without polish) and the tight one, set up once on views of the
-    shared data buffers (G: an F-ordered (k, n) view of the column-major buffer)."""
+    solver (or the only one without polish) and the tight one, with views of the shared data
+    buffers they are set up from (G: an F-ordered (k, n) view of the column-major buffer)."""
 
     __slots__ = ("k", "G", "h", "screen", "tight")
 
@@ -274,8 +276,16 @@ class AdaptationQP:
     P = diag(W), c = -W x*, G = G[rows], h_u = h[rows], h_l = -inf (None at setup), where rows
     drops duplicated rows (:func:`exact_kernels.load_piqp`; 37 -> 20 rows for the controller): the
     objective differs from 1/2 (x-x*)^T W (x-x*) by a constant. The PIQP objects of a row count
-    are created and ``setup`` on its first use (the one for m rows in the constructor) and then
-    only updated: :meth:`solve` calls ``update`` and ``solve``, never rebuilds.
+    are created on its first use (the one for m rows in the constructor) and kept; every solve
+    sets one up from the instance (``setup``, then ``solve``), so that each answer is a function
+    of its instance (G, h, x*, W) alone, whatever the object solved before. PIQP's ``update``
+    would not give that: it unscales the data it holds with the previous instance's Ruiz scaling
+    and scales it again with the new one, so the data not passed again (P, and the box scaling
+    no argument resets) drift by rounding from solve to solve, and a controller reused across
+    trials answered a trial's QPs differently after other trials (measured: an ulp in p, a
+    different count of tight solves, fall times of modes hybrid and all a few ms apart;
+    docs/capability_map.md, "One trial, one record"). A setup costs what an update does on
+    these sizes (n <= 6, a few tens of rows).
 
     Attributes ``calls`` and ``tight_calls`` count PIQP solves (all, and tight re-solves);
     :attr:`piqp_solvers` lists the held PIQP objects by row count.
@@ -338,7 +348,8 @@ class AdaptationQP:
         return {k: (e.screen, e.tight) for k, e in self._held.items()}
 
     def _held_for(self, k: int) -> _Held:
-        """The PIQP objects for k rows (created and set up on the first use of k)."""
+        """The PIQP objects for k rows (created and configured on the first use of k; each solve sets
+        one up, :meth:`_run`)."""
         e = self._held.get(k)
         if e is not None:
             return e
@@ -349,7 +360,6 @@ class AdaptationQP:
         def held(eps_a, eps_r, precond, gap):
             s = self._piqp_mod.DenseSolver()
             configure_piqp(s.settings, eps_a, eps_r, max_iter, precond, gap)
-            s.setup(self._P, self._c, None, None, G, None, h, None, None)
             return s
 
         if self.polish:
@@ -360,19 +370,15 @@ class AdaptationQP:
         return e
 
     def set_weights(self, W) -> None:
-        """Change the diagonal weight W (n,) (updates PIQP's P in place; no rebuild)."""
+        """Change the diagonal weight W (n,) (PIQP's P: the next solve sets its object up with it)."""
         W = as_float(W, "W")
         if W.shape != (self.n,):
             raise QPShapeError(f"W has shape {W.shape}, expected ({self.n},)")
         finite_array(W, "W", positive=True)
         self.W = np.ascontiguousarray(W, dtype=float).copy()
-        if self._held:
+        if self.solver_name == "piqp":
             idx = np.arange(self.n)
             self._P[idx, idx] = self.W
-            for e in self._held.values():
-                for s in (e.screen, e.tight):
-                    if s is not None:
-                        s.update(P=self._P)
 
     def solve(self, G, h, x_star) -> QPResult:
         """Solve the QP for this step's data. Raises only :class:`QPShapeError`.
@@ -424,9 +430,10 @@ class AdaptationQP:
                        None if st == INFEASIBLE_FALLBACK else z)
 
     def _run(self, solver, held: _Held):
-        """update + solve one held PIQP object; returns (status, result)."""
-        # positional (P, c, A, b, G, h_l, h_u): pybind11 matches them ~2 us faster than keywords
-        solver.update(None, self._c, None, None, held.G, None, held.h)
+        """setup (from this instance: P, c, G, h_u) + solve one held PIQP object; returns (status,
+        result)."""
+        # positional (P, c, A, b, G, h_l, h_u, x_l, x_u): pybind11 matches them faster than keywords
+        solver.setup(self._P, self._c, None, None, held.G, None, held.h, None, None)
         status = solver.solve()
         self.calls += 1
         return status, solver.result

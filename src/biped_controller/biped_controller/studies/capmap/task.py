@@ -6,6 +6,7 @@ from typing import Callable, Mapping, Sequence
 
 from biped_sim.plant.push import Push
 
+from biped_controller.studies import runner
 from biped_controller.studies.capmap.spec import DIRECTIONS, MapError, SimSpec, onset_time
 from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.context import context
@@ -40,14 +41,17 @@ def failure_cause(trial: Mapping) -> str:
     raise MapError(f"unrecognised failure reason from the survival rule: {reason!r}")
 
 
-def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: float | None = None) -> dict:
+def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: float | None = None,
+             pool: runner.LoopPool | bool = True) -> dict:
     """One simulation (the pure task function): ``trials.survives`` with the push of ``spec``; the
-    record (JSON-ready, deterministic: the same spec gives the same record in any process)."""
+    record (JSON-ready, deterministic: the same spec gives the same record in any process, on new objects
+    or on a worker's objects after any other trials: tests/test_history.py). ``pool``: ``trials.survives``'s
+    (True: this process's loop pool, as the map's workers run)."""
     c = spec.cell
     T = context().family.T
     start = onset_time(c.phase, T)
     signed = DIRECTIONS[c.direction] * spec.force
-    trial = trials.survives(Push(start, c.duration, float(signed), height), c.mode, settings)
+    trial = trials.survives(Push(start, c.duration, float(signed), height), c.mode, settings, pool)
     return {
         "mode": c.mode, "direction": c.direction, "phase": c.phase, "duration": c.duration,
         "force": spec.force, "start": start, "signed_force": signed, "height": height,
