@@ -1,7 +1,7 @@
 """One path for every controller: the studies resolve a controller's name once (``trial.controller.resolve``)
 into the object they call; built-in modes keep the compiled path and its early stop, any other controller
 runs through the generic loop under the same survival rule; ``--controller NAME`` in experiment
-walk / push / probe, plant_compare push / pushes and the bench, an unknown name an error naming it before
+walk / push / probe / band, plant_compare push / pushes and the bench, an unknown name an error naming it before
 any work."""
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from biped_controller.plugin.interface import ControllerSetup, ControlResult, Ob
 from biped_controller.plugin.registry import UnknownControllerError
 from biped_controller.studies import runner
 from biped_controller.studies.trial import runs, trials
+from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.controller import (RESOLVE_ERRORS, BuiltinMode, PluginController, resolve)
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS
 
@@ -231,3 +232,57 @@ class NaNTorque(ZeroTorque):
 
     def compute(self, obs: Observation) -> ControlResult:
         return ControlResult(np.full(6, np.nan), {})
+
+
+# ------------------------------------------------------------------------------------------ band --controller
+def _per_step_maxima(t, values, impacts):
+    """Per step (between consecutive impacts, from t = 0) the largest |value| of the periods starting in it."""
+    out, a = [], 0.0
+    for b in impacts:
+        w = [abs(v) for ti, v in zip(t, values) if a <= ti < b]
+        if w:
+            out.append(max(w))
+        a = b
+    return out
+
+
+def test_experiment_band_of_a_plugin_is_the_band_its_trials_use(tmp_path, capsys):
+    r, text = _experiment(["band", "--controller", "capture_point"], tmp_path, capsys)
+    ctl = resolve("capture_point")
+    steps = runs.trial_steps(PUSH(0.0))
+    assert r["mode"] == "capture_point" and r["steps"] == steps and not r["fallen"]
+    assert r["band"] == ctl.band(DEFAULT_SETTINGS, steps).as_dict()
+    walk = ctl.walk(steps, DEFAULT_SETTINGS, (), keep_records=True)
+    t = [rec.t for rec in walk.records]
+    imp = [i.t for i in walk.impacts]
+    p_d = context().family.p_d
+    assert [x["p"] for x in r["per_step"]] == _per_step_maxima(t, [s["p"] - p_d for s in walk.statuses], imp)
+    assert [x["tau_dot"] for x in r["per_step"]] == _per_step_maxima(t, [s["tau_dot"] - 1.0 for s in walk.statuses],
+                                                                      imp)
+    assert "controller capture_point" in text and "survival:" in text
+
+
+def test_experiment_band_of_a_plugin_without_tau_dot_says_so(tmp_path, capsys):
+    r, text = _experiment(["band", "--controller", ZERO], tmp_path, capsys)
+    assert r["fallen"] and r["band"]["unpushed_fall"]            # falls unpushed: the rule's floors
+    assert all(x["tau_dot"] is None for x in r["per_step"]) and r["end"]["tau_dot"] is None
+    assert all(x["p"] is not None for x in r["per_step"])        # it reports p
+    assert "not reported" in text
+
+
+def test_experiment_band_of_a_mode_is_its_walk(tmp_path, capsys):
+    r, _ = _experiment(["band", "--mode", "both"], tmp_path, capsys)
+    steps = runs.trial_steps(PUSH(0.0))
+    res = runner.run(steps=steps, mode="both")
+    p_d = context().family.p_d
+    t = [s.t for s in res.statuses]
+    imp = [i.t for i in res.impacts]
+    assert [x["p"] for x in r["per_step"]] == _per_step_maxima(t, [s.p - p_d for s in res.statuses], imp)
+    assert r["band"] == resolve("both").band(DEFAULT_SETTINGS, steps).as_dict()
+
+
+def test_experiment_band_of_an_unknown_controller_is_an_error_naming_it(capsys):
+    from biped_controller.studies import experiment
+    with pytest.raises(SystemExit):
+        experiment.main(["band", "--controller", "no_such_controller"])
+    assert "no_such_controller" in capsys.readouterr().err

@@ -65,9 +65,14 @@ def test_numba_reads_the_offsets_as_the_python_side_does():
 
 
 # ------------------------------------------------------------------------------------------ one advance, one mode
+def _gains() -> np.ndarray:
+    """A controller's GAINS (the family's p range [0.35, 0.65] m, which the advance holds p to)."""
+    return AdaptiveController(load_controller_config(mode="both")).gains
+
+
 def _memory(decided: bool, stance: int) -> np.ndarray:
     mem = MEMORY.new()
-    mem[M_.p:M_.p + 6] = (0.31, 0.12, 0.21, 0.97, 2.5, -3.25)
+    mem[M_.p:M_.p + 6] = (0.41, 0.12, 0.21, 0.97, 2.5, -3.25)     # p inside the range over the periods below
     mem[M_.decided], mem[M_.t_last], mem[M_.stance], mem[M_.force] = float(decided), 1.0, stance, 42.0
     return mem
 
@@ -80,7 +85,7 @@ def test_begin_is_the_exact_advance_over_the_elapsed_nanoseconds():
     mem = _memory(True, LEFT)
     before = mem.copy()
     res = np.empty(RES.size)
-    ck.begin(mem, t, LEFT, res)
+    ck.begin(mem, _gains(), t, LEFT, res)
     assert np.array_equal(mem, before)
     h = Fraction(round(t * 1e9) - round(1.0 * 1e9), 10**9)
     p, pd, tau, taud, pdd, tdd = (Fraction(v) for v in before[M_.p:M_.p + 6])
@@ -95,8 +100,9 @@ def test_begin_is_the_exact_advance_over_the_elapsed_nanoseconds():
 def test_begin_restarts_the_phase_at_an_impact_and_keeps_the_estimate():
     ck = load_controller_kernels()
     res_same, res_new = np.empty(RES.size), np.empty(RES.size)
-    ck.begin(_memory(True, LEFT), 1.001, LEFT, res_same)
-    ck.begin(_memory(True, LEFT), 1.001, RIGHT, res_new)
+    g = _gains()
+    ck.begin(_memory(True, LEFT), g, 1.001, LEFT, res_same)
+    ck.begin(_memory(True, LEFT), g, 1.001, RIGHT, res_new)
     assert res_new[R_.tau] == 0.0 and res_same[R_.tau] != 0.0          # negative control: no impact, no restart
     assert res_new[R_.obs_mode] == OBS_KEEP and res_same[R_.obs_mode] == OBS_RESIDUAL
     assert np.array_equal(res_new[[R_.p, R_.p_dot, R_.tau_dot]], res_same[[R_.p, R_.p_dot, R_.tau_dot]])
@@ -106,10 +112,11 @@ def test_begin_before_any_decision_leaves_the_parameters():
     ck = load_controller_kernels()
     mem = _memory(False, LEFT)
     res = np.empty(RES.size)
-    ck.begin(mem, 5.0, LEFT, res)
+    g = _gains()
+    ck.begin(mem, g, 5.0, LEFT, res)
     assert np.array_equal(res[R_.p:R_.p + 4], mem[M_.p:M_.p + 4]) and res[R_.obs_mode] == OBS_NONE
     mem[M_.stance] = -1.0                     # reset without a stance: any stance, no restart
-    ck.begin(mem, 5.0, RIGHT, res)
+    ck.begin(mem, g, 5.0, RIGHT, res)
     assert res[R_.tau] == mem[M_.tau]
 
 

@@ -167,9 +167,10 @@ def test_begin_advances_lambda_exactly_and_commit_keeps_it():
     mem[M_.lam], mem[M_.lam_dot], mem[M_.lam_ddot] = 0.0123, -0.456, 7.89
     mem[M_.decided], mem[M_.t_last], mem[M_.stance] = 1.0, 1.0, 0
     t = 1.0 + 987654e-9
+    gains = AdaptiveController(load_controller_config(mode="all")).gains
     for stance in (0, 1):
         res = np.full(RES.size, np.nan)
-        ck.begin(mem, t, stance, res)
+        ck.begin(mem, gains, t, stance, res)
         h = Fraction(round(t * 1e9) - round(1.0 * 1e9), 10**9)
         lam, ld, ldd = (Fraction(float(v)) for v in (mem[M_.lam], mem[M_.lam_dot], mem[M_.lam_ddot]))
         for got, want in ((res[R_.lam], lam + ld * h + ldd * h * h / 2), (res[R_.lam + 1], ld + ldd * h)):
@@ -181,5 +182,5 @@ def test_begin_advances_lambda_exactly_and_commit_keeps_it():
     ck.commit(mem2, res, np.zeros((WORK.size, 6)), np.zeros(6), t, 1)
     assert (mem2[M_.lam], mem2[M_.lam_dot], mem2[M_.lam_ddot]) == (res[R_.lam], res[R_.lam + 1], -3.5)
     mem[M_.decided] = 0.0
-    ck.begin(mem, t, 0, res)
+    ck.begin(mem, gains, t, 0, res)
     assert (res[R_.lam], res[R_.lam + 1]) == (mem[M_.lam], mem[M_.lam_dot])

@@ -8,14 +8,12 @@ figure ``push_<F>N.png``: p, tau', the whole-body QP's active rows, |w - w*| and
 over time. ``--profile`` and ``--set`` take the names and keys of ``scripts/experiment`` (e.g. the plant rule
 ``liftoff_penetration``, or ``plant=mujoco``).
 
-``python -m biped_controller.studies.baseline_wbc --slice-rigid SUMMARY [--slice-mujoco STORE --coarse 100]
-[--json F]`` prints the 25 ms capability-map slice per (mode, direction, onset phase) and checks the
-goal hybrid >= max(both, wbc) cell by cell: on the rigid plant the map's boundary (``scripts/capability_map
---json`` summary: the largest survived force below the lowest failing one, bisected); on MuJoCo the
-*no-fall edge* from the map's store (``trial.survival``: the largest simulated force that did not fall below
-the lowest one that fell), counted when every coarse force (``--coarse``) below that one was simulated
-(``--search full``) or the two are within half a coarse step (bisected). A cell where hybrid's edge is below the others' but its
-first fall above them is reported as not resolved at the scan's step.
+``python -m biped_controller.studies.baseline_wbc --slice-map SUMMARY [SUMMARY ...] [--json F] [--figure F]``
+prints the 25 ms capability-map slice per (mode, direction, onset phase) and checks the goal
+hybrid >= max(both, wbc) cell by cell, on the maps' boundaries (``scripts/capability_map --json`` summaries
+of one plant: the largest survived force below the lowest failing one, bisected, under the one survival rule;
+the summaries' cells are merged, so one map per mode will do, and a cell given twice is an error naming it).
+``--slice-rigid`` is the same option's former name.
 """
 from __future__ import annotations
 
@@ -30,11 +28,9 @@ import numpy as np
 from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
 from biped_sim.plant.push import Push
 
-from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float,
-                                                 nonnegative_float, positive_float, settings_from_args)
+                                                 nonnegative_float, settings_from_args)
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push, push_run
-from biped_controller.studies.trial.settings import RunSettings
 from biped_controller.studies import provenance
 
 MODES = ("none", "wbc", "both", "hybrid")
@@ -127,35 +123,32 @@ def figure(runs: dict, push: Push, path: Path, plant: str = "rigid") -> None:
 SLICE_MODES = ("none", "wbc", "both", "hybrid")
 
 
-def rigid_slice(summary: dict) -> dict:
-    """{(mode, direction, phase): {force, cause, fall_time, islands}} from a capability-map summary (0.025 s)."""
-    return {(b["mode"], b["direction"], float(b["phase"])): {
-        "force": float(b["force"]), "cause": b["cause"], "fall_time": b["fall_time"], "islands": b["island_ranges"]}
-        for b in summary["boundaries"]}
-
-
-def no_fall_slice(records: list[dict], coarse: float) -> dict:
-    """{(mode, direction, phase): {force: the no-fall edge (the largest simulated force that did not fall
-    below the lowest one that fell), first_fall, cause, fall_time, complete}} from a map's store (module
-    docstring). ``complete``: a fall was found and either every coarse force below it was simulated
-    (``--search full``) or the edge was bisected to within half a coarse step of it; else ``force`` is None."""
+def map_slice(summaries: list[tuple[str, dict]]) -> dict:
+    """{(mode, direction, phase): {force, cause, fall_time, islands}} from capability-map summaries (their 0.025 s
+    boundaries), given as (name, summary) pairs. Raises ValueError naming the summary and the cell when a
+    cell comes twice, or when the summaries are of different plants (``settings.differs.plant``, rigid when
+    absent)."""
+    plants = {name: summary_plant(s) for name, s in summaries}
+    if len(set(plants.values())) > 1:
+        raise ValueError("--slice-map: the summaries are of different plants: "
+                         + ", ".join(f"{n} ({p})" for n, p in plants.items()))
     cells: dict = {}
-    for r in records:
-        cells.setdefault((r["mode"], r["direction"], float(r["phase"])), {})[r["force"]] = r
-    out = {}
-    for key, by_force in cells.items():
-        falls = sorted(f for f, r in by_force.items() if r["fall_time"] is not None)
-        if not falls:
-            out[key] = {"force": None, "first_fall": None, "cause": "", "fall_time": None, "complete": False,
-                        "largest_simulated": max(by_force)}
-            continue
-        ff = falls[0]
-        edge = max((f for f in by_force if f < ff), default=0.0)
-        grid = all(any(abs(f - coarse * k) < 1e-9 for f in by_force) for k in range(1, int(round(ff / coarse))))
-        complete = grid or ff - edge <= 0.5 * coarse
-        out[key] = {"force": edge if complete else None, "first_fall": ff, "cause": by_force[ff]["cause"],
-                    "fall_time": by_force[ff]["fall_time"], "complete": complete}
-    return out
+    for name, summary in summaries:
+        for b in summary["boundaries"]:
+            if abs(float(b["duration"]) - DEFAULT_DURATION) > 1e-12:
+                continue
+            key = (b["mode"], b["direction"], float(b["phase"]))
+            if key in cells:
+                raise ValueError(f"--slice-map: {name} gives the cell {key[0]} {key[1]} phase {key[2]:g} a second time")
+            cells[key] = {"force": float(b["force"]), "cause": b["cause"], "fall_time": b["fall_time"],
+                          "islands": b["island_ranges"]}
+    return cells
+
+
+def summary_plant(summary: dict) -> str:
+    """The plant a capability-map summary was measured on (its settings' differences; rigid, the default,
+    when they name none)."""
+    return str(((summary.get("settings") or {}).get("differs") or {}).get("plant", "rigid"))
 
 
 def slice_report(cells: dict, title: str) -> tuple[list[str], dict]:
@@ -172,27 +165,19 @@ def slice_report(cells: dict, title: str) -> tuple[list[str], dict]:
             known = [v for v in vals if v is not None]
             L.append(f"| {m} | {d[:4]} | " + " | ".join("-" if v is None else f"{v:g}" for v in vals)
                      + f" | {np.mean(known):.1f} ({len(known)}) |")
-    goal = {"met": [], "missed": [], "resolution": [], "unknown": []}
+    goal = {"met": [], "missed": [], "unknown": []}
     for d in ("forward", "backward"):
         for p in phases:
             v = {m: cells.get((m, d, p), {}).get("force") for m in ("wbc", "both", "hybrid")}
             if any(x is None for x in v.values()):
                 goal["unknown"].append([d, p])
-                continue
-            best = max(v["both"], v["wbc"])
-            up = cells[("hybrid", d, p)].get("first_fall")
-            if v["hybrid"] >= best:
+            elif v["hybrid"] >= max(v["both"], v["wbc"]):
                 goal["met"].append([d, p])
-            elif up is not None and up > best:     # hybrid's edge lies in [force, first_fall): not resolved
-                goal["resolution"].append([d, p, v])
             else:
                 goal["missed"].append([d, p, v])
     L += ["", f"goal hybrid >= max(both, wbc): met in {len(goal['met'])} cells, missed in {len(goal['missed'])}"
           + "".join(f"; missed {g[0]} {g[1]:g}: " + ", ".join(f"{k} {x:g}" for k, x in g[2].items())
                     for g in goal["missed"])
-          + f"; not resolved at the scan's step in {len(goal['resolution'])}"
-          + "".join(f" ({g[0]} {g[1]:g}: " + ", ".join(f"{k} {x:g}" for k, x in g[2].items()) + ")"
-                    for g in goal["resolution"])
           + f"; not measured for all three: {len(goal['unknown'])}"]
     causes: dict = {}
     for (m, d, p), c in cells.items():
@@ -203,38 +188,6 @@ def slice_report(cells: dict, title: str) -> tuple[list[str], dict]:
                                                   for m, cs in sorted(causes.items())))
     return L, {"goal": goal, "causes": causes,
                "cells": {f"{k[0]}/{k[1]}/{k[2]:g}": v for k, v in sorted(cells.items())}}
-
-
-def refine(records: list[dict], coarse: float, step: float, out: Path, settings: RunSettings) -> list[dict]:
-    """Bisect the no-fall edge of ``hybrid`` (and of ``both`` when its edge is on the coarse grid) in the cells
-    the goal check left unresolved, between the edge and the first fall, down to ``step`` [N]: survival
-    trials (``trials.survives``, the map's trial, with ``settings``) appended to ``out`` (JSON Lines, the
-    store's fields). Returns the new records."""
-    cells = no_fall_slice(records, coarse)
-    _, rep_ = slice_report(cells, "")
-    new = []
-    for d, p, _v in rep_["goal"]["resolution"]:
-        for mode in ("hybrid", "both"):
-            c = cells[(mode, d, p)]
-            lo, hi = c["force"], c["first_fall"]
-            src = next(r for r in records if (r["mode"], r["direction"], float(r["phase"])) == (mode, d, p))
-            while hi is not None and hi - lo > step:
-                f = 0.5 * (lo + hi)
-                push = paper_push(f if d == "forward" else -f, start=src["start"], duration=src["duration"])
-                t = trials.survives(push, mode, settings)
-                r = {"mode": mode, "direction": d, "phase": p, "duration": src["duration"], "start": src["start"],
-                     "force": f, "fall_time": t["fall_time"], "cause": t["fall_cause"], "survived": t["survived"],
-                     "reason": t["reason"], "refined": True}
-                new.append(r)
-                with out.open("a", encoding="utf-8") as fh:
-                    fh.write(json.dumps(r) + "\n")
-                print(f"refine {mode} {d} {p:g}: {f:g} N {'fell ' + t['fall_cause'] if t['fall_time'] is not None else 'no fall'}",
-                      flush=True)
-                if t["fall_time"] is None:
-                    lo = f
-                else:
-                    hi = f
-    return new
 
 
 def slice_figure(cells: dict, title: str, path: Path) -> None:
@@ -253,7 +206,7 @@ def slice_figure(cells: dict, title: str, path: Path) -> None:
         a.set_title(f"{d}, 25 ms")
         a.set_xlabel("onset phase of the first step")
         a.grid(alpha=0.3)
-    ax[0].set_ylabel("edge [N]")
+    ax[0].set_ylabel("boundary [N]")
     ax[0].legend(fontsize=8)
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
@@ -261,29 +214,21 @@ def slice_figure(cells: dict, title: str, path: Path) -> None:
     plt.close(fig)
 
 
-def slice_main(args, settings: RunSettings) -> int:
-    out, lines = {}, []
-    if args.slice_rigid is not None:
-        cells = rigid_slice(json.loads(args.slice_rigid.read_text()))
-        L, out["rigid"] = slice_report(cells, f"rigid plant: boundary [N] ({args.slice_rigid})")
-        lines += L + [""]
-        if args.figure is not None:
-            slice_figure(cells, f"rigid plant: boundary ({args.slice_rigid})", args.figure)
-    if args.slice_mujoco is not None:
-        import gzip
-        text = lambda f: gzip.open(f, "rt").read() if f.suffix == ".gz" else f.read_text()   # noqa: E731
-        recs = [json.loads(x) for f in args.slice_mujoco for x in text(f).splitlines() if x.strip()]
-        if args.refine is not None:
-            recs += refine(recs, args.coarse, args.refine_step, args.refine, settings)
-        cells = no_fall_slice(recs, args.coarse)
-        if args.figure is not None:
-            slice_figure(cells, "MuJoCo: no-fall edge", args.figure)
-        L, out["mujoco"] = slice_report(cells,
-                                        f"MuJoCo: no-fall edge [N] ({', '.join(map(str, args.slice_mujoco))}; coarse step {args.coarse:g} N)")
-        lines += L
-    print("\n".join(lines))
+def slice_main(args) -> int:
+    summaries = [(str(p), json.loads(p.read_text())) for p in args.slice_map]
+    try:
+        cells = map_slice(summaries)
+    except ValueError as e:
+        print(e, file=sys.stderr)
+        return 2
+    plant = summary_plant(summaries[0][1])
+    names = ", ".join(n for n, _ in summaries)
+    L, out = slice_report(cells, f"{plant} plant: boundary [N] ({names})")
+    if args.figure is not None:
+        slice_figure(cells, f"{plant} plant: boundary", args.figure)
+    print("\n".join(L))
     if args.json is not None:
-        args.json.write_text(json.dumps(out, indent=1))
+        args.json.write_text(json.dumps({plant: out}, indent=1))
     return 0
 
 
@@ -295,20 +240,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=nonnegative_float, default=DEFAULT_START, help="[s] onset of the push (default mid first step)")
     add_settings_args(ap, perturb=False, full_trials=False)
     ap.add_argument("--no-figure", action="store_true")
-    ap.add_argument("--slice-rigid", type=Path, default=None, help="capability-map summary JSON (rigid plant)")
-    ap.add_argument("--slice-mujoco", type=Path, nargs="+", default=None,
-                    help="capability-map store(s) (JSON Lines, MuJoCo; refinements from --refine included)")
-    ap.add_argument("--refine", type=Path, default=None,
-                    help="with --slice-mujoco: bisect hybrid's/both's no-fall edge in unresolved cells, append to this file")
-    ap.add_argument("--refine-step", type=positive_float, default=12.5, help="[N] bisection step of --refine")
-    ap.add_argument("--coarse", type=positive_float, default=100.0, help="[N] the MuJoCo map's coarse step")
+    ap.add_argument("--slice-map", "--slice-rigid", dest="slice_map", type=Path, nargs="+", default=None,
+                    help="capability-map summary JSON(s) of one plant: the 25 ms slice and the goal check")
     ap.add_argument("--json", type=Path, default=None, help="with --slice-*: the slice as JSON")
     ap.add_argument("--figure", type=Path, default=None, help="with --slice-*: PNG of the edges by phase")
     args = ap.parse_args(argv)
-    provenance.track(args.json, args.figure, args.refine, args.out if args.slice_rigid is None and args.slice_mujoco is None else None, args=args, argv=argv)   # record of each file written (results/README.md)
+    provenance.track(args.json, args.figure, args.out if args.slice_map is None else None, args=args, argv=argv)   # record of each file written (results/README.md)
+    if args.slice_map is not None:
+        return slice_main(args)
     settings = settings_from_args(ap, args)
-    if args.slice_rigid is not None or args.slice_mujoco is not None:
-        return slice_main(args, settings)
     args.out.mkdir(parents=True, exist_ok=True)
     push = paper_push(args.force, start=args.start)
     runs = {m: push_run(push, m, settings=settings) for m in MODES}

@@ -133,6 +133,7 @@ def parser() -> StudyArgumentParser:
     a = sub.add_parser("band", help="the survival rule's band: the unpushed walk's excursions step by step")
     _push_window_args(a, with_force=False)
     a.add_argument("--mode", choices=MODES, default="both")
+    _controller_arg(a)
     a.add_argument("--json", type=Path)
     add_settings_args(a, full_trials=False)
     for name, hlp in (("max-push", "largest survivable push for one mode"),
@@ -174,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         single_runs.print_push(r)
     elif args.cmd == "band":
         push = paper_push(0.0, start=args.start, duration=args.duration, height=args.height)
-        r = single_runs.band_walk(push, args.mode, settings)
+        r = single_runs.band_walk(push, args.controller or args.mode, settings)
         single_runs.print_band_walk(r)
     elif args.cmd == "probe":
         push = paper_push(args.force, start=args.start, duration=args.duration, height=args.height)

@@ -7,6 +7,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 
@@ -110,41 +111,64 @@ def push_experiment(push: Push, mode: str = "both", figures: str | Path | None =
 
 
 def band_walk(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SETTINGS) -> dict:
-    """The survival rule's band for trials of ``push``'s window (its force is not used) in ``mode``: the
-    unpushed walk of the trial's impacts (``runs.trial_steps``), per step its largest |p - p_d| [m] and
-    |tau' - 1| [-], the largest of each over every window of ``band_window`` consecutive steps, and the band."""
+    """The survival rule's band for trials of ``push``'s window (its force is not used) of the controller
+    ``mode`` (a built-in mode or any registered controller, ``trial.controller.resolve``): its unpushed walk
+    of the trial's impacts (``runs.trial_steps``), per step its largest |p - p_d| [m] and |tau' - 1| [-] (a
+    controller that does not report ``p`` or ``tau_dot`` has None there, and the rule's floors for it), the
+    largest of each over every window of ``band_window`` consecutive steps, and the band (the one its
+    trials are judged with: ``TrialController.band``)."""
     rule = survival_rule()
+    ctl = resolve(mode)
     steps = runs.trial_steps(push)
-    res = runs.run(steps, mode, (), settings=settings, keep_records=True)
+    res = ctl.walk(steps, settings, (), keep_records=True)
     p_d = context().family.p_d
+    if ctl.adaptive:
+        t = np.array([s.t for s in res.statuses])
+    else:                                   # a plug-in's status has no time: its period's record has
+        t = np.array([r.t for r in res.records])
+    p = res.series("p") - p_d if _reports(res, "p") else None
+    td = res.series("tau_dot") - 1.0 if _reports(res, "tau_dot") else None
     bounds = [0.0] + [float(i.t) for i in res.impacts]
     per_step = []
     for a, b in zip(bounds[:-1], bounds[1:]):
-        w = [s for s in res.statuses if a <= s.t < b]
-        if w:
-            per_step.append({"p": max(abs(s.p - p_d) for s in w), "tau_dot": max(abs(s.tau_dot - 1.0) for s in w)})
+        w = (t >= a) & (t < b)
+        if w.any():
+            per_step.append({"p": float(np.abs(p[w]).max()) if p is not None else None,
+                             "tau_dot": float(np.abs(td[w]).max()) if td is not None else None})
+
+    def largest(xs):
+        xs = [x for x in xs if x is not None]
+        return max(xs) if xs else None
     W = rule.band_window
-    windows = [{"steps": [k + 1, k + W], "p": max(x["p"] for x in per_step[k:k + W]),
-                "tau_dot": max(x["tau_dot"] for x in per_step[k:k + W])} for k in range(len(per_step) - W + 1)]
-    band = rule.band_from_walk(res)
-    last = res.statuses[-1]
+    windows = [{"steps": [k + 1, k + W], "p": largest(x["p"] for x in per_step[k:k + W]),
+                "tau_dot": largest(x["tau_dot"] for x in per_step[k:k + W])} for k in range(len(per_step) - W + 1)]
+    band = ctl.band(settings, steps)
     return {"mode": mode, "steps": steps, "fallen": bool(res.fallen), "fall_cause": res.fall_cause or None,
             "settings": differences(settings), "rule": rule.identity(), "per_step": per_step, "windows": windows,
-            "end": {"p": float(last.p - p_d), "tau_dot": float(last.tau_dot - 1.0)},
+            "end": {"p": float(p[-1]) if p is not None else None, "tau_dot": float(td[-1]) if td is not None else None},
             "band": band.as_dict(), "survival": rule.text(band)}
 
 
+def _reports(res: RunResult, key: str) -> bool:
+    """Whether every status of the run reports ``key`` (the adaptive controller's always do)."""
+    if not res.statuses:
+        return False
+    return all(key in s for s in res.statuses) if isinstance(res.statuses[0], Mapping) else True
+
+
 def print_band_walk(r: dict) -> None:
-    print(f"unpushed walk, mode {r['mode']}, {r['steps']} impacts" + (f": FELL ({r['fall_cause']})" if r["fallen"] else ""))
+    def e(x, w):
+        return f"{x:{w}.3e}" if x is not None else f"{'not reported':>{w}}"
+    print(f"unpushed walk, controller {r['mode']}, {r['steps']} impacts" + (f": FELL ({r['fall_cause']})" if r["fallen"] else ""))
     print("step  max|p - p_d| [m]  max|tau' - 1|")
     for k, x in enumerate(r["per_step"], 1):
-        print(f"{k:4d}  {x['p']:16.3e}  {x['tau_dot']:13.3e}")
-    if r["windows"]:
-        ws = r["windows"]
-        print(f"windows of {r['rule']['band_window']} steps: max|p - p_d| {min(w['p'] for w in ws):.3e} .. "
-              f"{max(w['p'] for w in ws):.3e} m, max|tau' - 1| {min(w['tau_dot'] for w in ws):.3e} .. "
-              f"{max(w['tau_dot'] for w in ws):.3e}")
-    print(f"end: p - p_d {r['end']['p']:.3e} m, tau' - 1 {r['end']['tau_dot']:.3e}")
+        print(f"{k:4d}  {e(x['p'], 16)}  {e(x['tau_dot'], 13)}")
+    ws = r["windows"]
+    for key, label, unit in (("p", "max|p - p_d|", " m"), ("tau_dot", "max|tau' - 1|", "")):
+        xs = [w[key] for w in ws if w[key] is not None]
+        if xs:
+            print(f"windows of {r['rule']['band_window']} steps: {label} {min(xs):.3e} .. {max(xs):.3e}{unit}")
+    print(f"end: p - p_d {e(r['end']['p'], 0).strip()} m, tau' - 1 {e(r['end']['tau_dot'], 0).strip()}")
     print(f"survival: {r['survival']}")
 
 

@@ -13,7 +13,10 @@ At each control period, from the measured (q, q') and the controller's own param
   torque (eq. 15)      Gamma = A(q) w + H(q, q')
 
 Then (p, p', tau, tau') advance with constant p'', tau'' (exact integration) over the time that has
-actually elapsed when the next decision is taken (a period cut short by an impact is shorter).
+actually elapsed when the next decision is taken (a period cut short by an impact is shorter), and p is held
+to the family's range [p_min, p_max] by that integration (an integrator with limits): where the advance
+would carry p to or past a bound, p is put on the bound and the outward part of p' is removed
+(``controller_kernels.limited``; in modes lambda and all lambda, lambda' likewise at +-lambda_max).
 At an impact (the measured stance leg changes) tau goes back to 0 (tau -= T is not used: the gait
 restarts), p and p' are carried over; the measured q is already relabelled by the simulator.
 
@@ -26,7 +29,12 @@ p is kept inside the family's valid range by two extra QP rows (p after one peri
 an answer that does not hold the rows (least violation, or the solver's error answer) each adapted
 parameter's acceleration is held to the interval of its own range rows (``_hold_ranges``), in every path
 (the Python steps, the compiled period and the compiled loop take the decision from the same two callers);
-that hold also keeps tau' (after one period) <= tau_dot_max, an end the QP has no row for.
+that hold also keeps tau' (after one period) <= tau_dot_max, an end the QP has no row for. Rows and hold
+bound p at the end of a full period only; p(h) = p + p' h + p'' h^2 / 2 can peak inside the period (by up
+to p'^2 / (2 |p''|)), and a period cut short by an impact ends there: the integration's limit above holds
+p in range at every instant the controller evaluates it (every path's advance is ``period_start``'s;
+``reference_at`` and ``torque_within_period`` use the same limited advance). tau' is linear in time over a
+period, so it needs no such limit.
 
 State: the controller's state between periods is one array, ``memory`` (``controller_layout.MEMORY``), shared
 with the compiled period and the compiled loop; the advance, the observer's mode and the commit of a
@@ -593,7 +601,8 @@ class AdaptiveController:
             entry = (float(t), int(m[M_.stance])) + tuple(float(v) for v in m[M_.p:M_.p + 6])   # reset's values
         t0, s0, p, pd, tau, taud, p_dd, t_dd = entry
         h = (tn - round(t0 * 1e9)) * 1e-9
-        p, pd, tau, taud = self.ck.advance(p, pd, tau, taud, p_dd, t_dd, h)
+        p, pd, tau, taud = self.ck.advance_in_range(p, pd, tau, taud, p_dd, t_dd, h, self.family.p_min,
+                                                    self.family.p_max)
         if s0 >= 0 and int(stance) != s0:
             tau = 0.0
         return eq11(self.family.evaluate(p, tau), pd, taud, p_dd, t_dd)
@@ -623,7 +632,7 @@ class AdaptiveController:
         short by an impact is shorter), tau = 0 when the stance changed (an impact: the next step starts;
         p, p', tau' carry over), and the observer's mode. The memory is not changed."""
         res = np.empty(RES.size)
-        self.ck.begin(self.memory, float(t), int(stance), res)
+        self.ck.begin(self.memory, self.gains, float(t), int(stance), res)
         return res
 
     def _torso_begin(self, res: np.ndarray) -> tuple[float, float]:
@@ -809,8 +818,8 @@ class AdaptiveController:
             lo, hi = 2.0 * (fam.p_min - p - sd) * k, 2.0 * (fam.p_max - p - sd) * k
             # and, where the two meet, p after a second period at the new p' (no acceleration) in range too:
             # p + 2 p' dt + 3/2 p'' dt^2 within [p_min, p_max]. Held so, p' stays bounded (|p'| dt <= p_max -
-            # p_min); without it p bounces between the bounds with a growing p', and a period cut short by an
-            # impact leaves the range
+            # p_min); without it p bounces between the bounds with a growing p'. (Inside a period, p is held
+            # by the integration's limit, ``controller_kernels.limited``.)
             clo, chi = (fam.p_min - p - 2.0 * sd) * k / 1.5, (fam.p_max - p - 2.0 * sd) * k / 1.5
             if max(lo, clo) <= min(hi, chi):
                 lo, hi = max(lo, clo), min(hi, chi)
@@ -963,14 +972,16 @@ class AdaptiveController:
         period's start by the period's decision (p'', tau'') and no new QP: the controller "at the
         integration rate" (eqs. 11, 16, 15). Before any decision: the initial parameters, p'' = tau'' = 0."""
         p0, pd0, tau0, taud0, p_dd, t_dd = (float(v) for v in self.memory[M_.p:M_.p + 6])
-        p, pdot, tau, taud = self.ck.advance(p0, pd0, tau0, taud0, p_dd, t_dd, float(s_time))   # the one advance
+        fam = self.family
+        p, pdot, tau, taud = self.ck.advance_in_range(p0, pd0, tau0, taud0, p_dd, t_dd, float(s_time), fam.p_min,
+                                                      fam.p_max)   # the one advance, held to p's range
         if self.torso:
             l0, ld0, l_dd = (float(self.memory[o]) for o in (M_.lam, M_.lam_dot, M_.lam_ddot))
-            h = float(s_time)
-            qr, qdr, qddr = self.family.reference_torso(p, pdot, tau, taud, l0 + (ld0 * h + 0.5 * l_dd * h * h),
-                                                        ld0 + l_dd * h, p_dd, t_dd, l_dd)
+            h, lm = float(s_time), self.cfg.lambda_max
+            lam, lam_dot = self.ck.limit(l0 + (ld0 * h + 0.5 * l_dd * h * h), ld0 + l_dd * h, -lm, lm)
+            qr, qdr, qddr = fam.reference_torso(p, pdot, tau, taud, lam, lam_dot, p_dd, t_dd, l_dd)
         else:
-            qr, qdr, qddr = eq11(self.family.evaluate(p, tau), pdot, taud, p_dd, t_dd)
+            qr, qdr, qddr = eq11(fam.evaluate(p, tau), pdot, taud, p_dd, t_dd)
         w = joint_law(qr, qdr, qddr, q, qd, self.cfg.Kp, self.cfg.Kv)
         dyn, _ = self._model_terms(q, qd)
         return computed_torque(dyn.A, dyn.H, w)

@@ -7,9 +7,10 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
 
 * the period's start (:func:`begin`, also called by the Python steps): the parameters advance over the
   elapsed time since the last decision, from integer nanoseconds (exact integration with the held
-  p'', tau''): p += p' h + p'' h^2 / 2, p' += p'' h (tau likewise), tau = 0 when the stance changed
-  (an impact); the observer's mode: no memory, the residual of the last period, or keep F (the last
-  period ended with an impact);
+  p'', tau''): p += p' h + p'' h^2 / 2, p' += p'' h (tau likewise), then p held to [p_min, p_max] with the
+  outward part of p' removed at a bound (:func:`limited`: an integrator with limits, for a full period or one
+  cut short by an impact), tau = 0 when the stance changed (an impact); the observer's mode: no memory, the
+  residual of the last period, or keep F (the last period ended with an impact);
 * reference, eqs. (11), (16), (17), (20): q_d(p, tau) and its partial derivatives from the gait
   family's pieces (a_ij(p) = sum_m coef[k, i, j, m] (p - centers[k])^m, piece k = bisect_right(inner,
   p)), w = D x + v, D = [dq_d/dp, dq_d/dtau], x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau'));
@@ -26,7 +27,8 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
   reference (q_d += lambda phi(tau/T) e, its lambda terms in dq/dtau, d2q/dtau2 and eq. (11)), a third
   column dq/dlambda (WORK.dq_dlam) and x = (p'', tau'', lambda''), lambda''* = -kv_lambda lambda' - kp_lambda
   lambda, four more rows (lambda, lambda' after one period within +-lambda_max, +-lambda_dot_max; G is then
-  (TORSO_QP_ROWS, 3)); lambda, lambda' advance and commit with p, p' (``period_start``, ``period_commit``),
+  (TORSO_QP_ROWS, 3)); lambda, lambda' advance (held to +-lambda_max as p to its range) and commit with p, p'
+  (``period_start``, ``period_commit``),
   0 in the other modes, whose arithmetic is unchanged bit for bit;
 * when x* is feasible (or in mode none): w, the torque Gamma = A w + H (eq. 15), the margins of the
   17 true constraints, the predicted reaction R = B w + h_b,c and the ZMP l = Gamma_1 / R_y;
@@ -83,22 +85,72 @@ def advanced(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
 
 @numba.njit(numba.types.UniTuple(_F, 4)(_F, _F, _F, _F, _F, _F, _F), cache=True)
 def advance(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h):
-    """:func:`advanced` from Python (the torque law within a period)."""
+    """:func:`advanced` from Python: the free integration, without the range's limit (the hold's and the
+    tests' arithmetic of one period)."""
     return advanced(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h)
 
 
 @numba.njit(cache=True)
-def period_start(mem, t, stance, res):
+def limited(v, v_dot, lo, hi):
+    """A double integrator's state (v, v') held to its range [lo, hi] (an integrator with limits and
+    anti-windup): at or past a bound, v is put on it and the outward part of v' is removed,
+
+      v >= hi:  (hi, min(v', 0));    v <= lo:  (lo, max(v', 0));    otherwise (v, v') unchanged (bit for bit).
+
+    Units are v's (p: [m], [m/s]; lambda: [rad], [rad/s]). Why: the range rows of the QP and the hold
+    (``controller._hold_ranges``) put v inside [lo, hi] at the end of a full period, v + v' dt + v'' dt^2 / 2,
+    but the quadratic v(h) = v + v' h + v'' h^2 / 2 peaks inside the period when v' and v'' have opposite
+    signs and v' / |v''| < dt, v'^2 / (2 |v''|) beyond its start value; a period cut short by an impact
+    (h < dt) can end near that peak, outside the range.
+    Keeping v(h) itself below the bound for every h in (0, dt] would need v'' <= -v'^2 / (2 (hi - v)) (from
+    v = 0.64996 m at v' = 1.92 m/s: -4.6e4 m/s^2), so the decision cannot be what holds it: the integration
+    does. A v on the bound with v' <= 0 (inward) is unchanged; a v' pointing out of the range at the bound
+    would carry v out at once, so it is removed (the state's velocity does not wind up against the limit)."""
+    if v >= hi:
+        return hi, min(v_dot, 0.0)
+    if v <= lo:
+        return lo, max(v_dot, 0.0)
+    return v, v_dot
+
+
+@numba.njit(numba.types.UniTuple(_F, 2)(_F, _F, _F, _F), cache=True)
+def limit(v, v_dot, lo, hi):
+    """:func:`limited` from Python (lambda within a period, the tests)."""
+    return limited(v, v_dot, lo, hi)
+
+
+@numba.njit(cache=True)
+def advanced_in_range(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h, p_min, p_max):
+    """(p, p', tau, tau') after h [s] with the held p'', tau'' (:func:`advanced`), p and p' then held to
+    [p_min, p_max] [m] (:func:`limited`): the controller's parameter advance, wherever it is evaluated (the
+    period's start, the reference within a period, the reference at a sample's instant). tau' is linear in h,
+    so between two in-range ends it needs no limit."""
+    p, p_dot, tau, tau_dot = advanced(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h)
+    p, p_dot = limited(p, p_dot, p_min, p_max)
+    return p, p_dot, tau, tau_dot
+
+
+@numba.njit(numba.types.UniTuple(_F, 4)(_F, _F, _F, _F, _F, _F, _F, _F, _F), cache=True)
+def advance_in_range(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h, p_min, p_max):
+    """:func:`advanced_in_range` from Python (the torque law within a period, ``reference_at``)."""
+    return advanced_in_range(p, p_dot, tau, tau_dot, p_ddot, tau_ddot, h, p_min, p_max)
+
+
+@numba.njit(cache=True)
+def period_start(mem, gains, t, stance, res):
     """The period's parameters into res (p, p', tau, tau', and lambda, lambda' in the torso modes), advanced from the
-    memory over the elapsed integer nanoseconds with the held decision; tau = 0 when the stance changed; the
-    observer's mode and elapsed time (RES.obs_mode, obs_dt); lambda'' = lambda''* = 0 (res x[2], x_star[2]) until
-    a torso mode decides them. The memory is not changed."""
+    memory over the elapsed integer nanoseconds with the held decision, p and p' held to the family's range
+    [p_min, p_max] (:func:`advanced_in_range`; lambda, lambda' to [-lambda_max, lambda_max] in the torso modes,
+    :func:`limited`), whether the period ran in full or was cut short by an impact; tau = 0 when the stance
+    changed; the observer's mode and elapsed time (RES.obs_mode, obs_dt); lambda'' = lambda''* = 0 (res x[2],
+    x_star[2]) until a torso mode decides them. The memory is not changed."""
     p, p_dot, tau, tau_dot = mem[M_.p], mem[M_.p_dot], mem[M_.tau], mem[M_.tau_dot]
     decided = mem[M_.decided] != 0.0
     dt_ns = 0.0
     if decided:
         dt_ns = (round(t * 1e9) - round(mem[M_.t_last] * 1e9)) * 1e-9
-        p, p_dot, tau, tau_dot = advanced(p, p_dot, tau, tau_dot, mem[M_.p_ddot], mem[M_.tau_ddot], dt_ns)
+        p, p_dot, tau, tau_dot = advanced_in_range(p, p_dot, tau, tau_dot, mem[M_.p_ddot], mem[M_.tau_ddot], dt_ns,
+                                                   gains[G_.p_min], gains[G_.p_max])
     last = mem[M_.stance]
     if last >= 0.0 and stance != int(last):
         tau = 0.0
@@ -112,6 +164,8 @@ def period_start(mem, t, stance, res):
     if decided:
         lam_ddot = mem[M_.lam_ddot]
         lam, lam_dot = lam + (lam_dot * dt_ns + 0.5 * lam_ddot * dt_ns * dt_ns), lam_dot + lam_ddot * dt_ns
+        if gains[G_.torso] != 0.0:
+            lam, lam_dot = limited(lam, lam_dot, -gains[G_.lam_max], gains[G_.lam_max])
     res[R_.lam] = lam
     res[R_.lam + 1] = lam_dot
     res[R_.x + 2] = 0.0
@@ -168,10 +222,10 @@ def period_commit(mem, res, work, qd, t, stance):
             mem[M_.prev_A + N_JOINTS * i + k] = work[W_.A + i, k]
 
 
-@numba.njit(numba.types.int64(_V, _F, _I, _V), cache=True)
-def begin(mem, t, stance, res):
+@numba.njit(numba.types.int64(_V, _V, _F, _I, _V), cache=True)
+def begin(mem, gains, t, stance, res):
     """:func:`period_start` from Python (the controller's Python steps)."""
-    period_start(mem, t, stance, res)
+    period_start(mem, gains, t, stance, res)
     return 0
 
 
@@ -559,7 +613,7 @@ def step(coef, inner, centers, ti, tf, q, qd, t, stance, gains, cons, mem, G, h,
     in res, call :func:`finish`) or NONFINITE (use the reference path; the memory is unchanged).
     G (QP_ROWS, 2), h (QP_ROWS,) are filled whenever a parameter is adapted; in modes lambda and all
     G (TORSO_QP_ROWS, 3), h (TORSO_QP_ROWS,): x = (p'', tau'', lambda'')."""
-    period_start(mem, t, stance, res)
+    period_start(mem, gains, t, stance, res)
     code = period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, work, res)
     if code == FEASIBLE:
         period_commit(mem, res, work, qd, t, stance)
@@ -593,5 +647,5 @@ def loop_period(qp_given, qp_x, coef, inner, centers, ti, tf, q, qd, t, stance, 
             res[R_.x + k] = qp_x[k]
         _finish(cons, work, res)
         return FEASIBLE
-    period_start(mem, t, stance, res)
+    period_start(mem, gains, t, stance, res)
     return period_step(coef, inner, centers, ti, tf, q, qd, gains, cons, mem, G, h, work, res)
