@@ -45,6 +45,7 @@ def bench_sweep(quick: bool) -> dict:
     cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     return {"available": True, "quick": quick, "cells": len(spec.cells()), "workers": workers,
             "search": "neighbours" if spec.neighbours else "full", "island_window": spec.island_window,
+            "bracket_check_below": spec.bracket_check_below,
             "simulations": run.simulated, "wall_s": wall, "sims_per_s": run.simulated / wall,
             "worker_cpu_s": (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
             "load_average_before": list(load0), "load_average_after": list(os.getloadavg())}

@@ -500,14 +500,14 @@ def test_island_window_zero_misses_islands_the_full_search_finds(monkeypatch):
 
 
 def test_a_hole_below_the_bracket_is_what_the_bracket_assumes_away(monkeypatch):
-    """The bracket does not simulate the coarse forces below it: a failing force there (a hole below the
-    edge, absent from the default map: docs/capability_map.md) gives another first failure than the full
-    search -- the assumption, shown; the full search finds the hole."""
+    """The bracket does not simulate the coarse forces more than bracket_check_below steps under it (2
+    here, the config's): a failing force there (a hole four steps under the edge) gives another first
+    failure than the full search -- the assumption, shown; the full search finds the hole."""
     monkeypatch.setattr(trials, "survives", HoleySurvives())
     spec = cm.MapSpec(modes=("tau",), directions=("forward",), phases=cm.phases_of(4), durations=(0.025,),
                       search=cm.Search(coarse=50.0, fmax=600.0, resolution=5.0))
     full = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": False}))
-    nb = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": True, "island_window": 2}))
+    nb = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": True, "island_window": 2, "bracket_check_below": 2}))
     later = [c for c in nb.boundaries if c.phase > 0]
     assert later and all(full.boundaries[c].hi <= 150.0 for c in later)   # the hole is the full search's edge
     assert all(nb.boundaries[c].hi > 300.0 for c in later)                # the bracket, from phase 0's edge, is above it
@@ -524,7 +524,7 @@ def test_bracket_moves_up_down_and_censors():
         known: dict[float, bool] = {}
         sims = 0
         while True:
-            forces, b = cm.plan_cell(s, known, hint, window)
+            forces, b = cm.plan_cell(s, known, hint, window, 1)
             if b is not None:
                 return b, sims
             for f in forces:
@@ -549,6 +549,179 @@ def test_bracket_moves_up_down_and_censors():
     assert cm.edge_index(ref, 50.0) == 6.0 and cm.edge_index(cen, 50.0) == math.inf
 
 
+def _solve(search, surv, hint, window=2, below=1):
+    """Run plan_cell to its end on the survival function ``surv`` (force [N] -> survived): (boundary, the
+    forces simulated in order); after every batch coarse_edge on the records so far is None or the final
+    edge (the twin of the bracket never names another edge)."""
+    from biped_controller.studies.capmap.search import coarse_edge
+    known: dict[float, bool] = {}
+    order: list[float] = []
+    seen = []
+    while True:
+        forces, b = cm.plan_cell(search, known, hint, window, below)
+        seen.append(coarse_edge(search, known, hint, window, below))
+        if b is not None:
+            final = cm.edge_index(b, search.coarse)
+            assert all(e is None or e == final for e in seen), (seen, final)
+            assert coarse_edge(search, known, hint, window, below) == final
+            return b, order
+        assert forces and not any(f in known for f in forces)
+        for f in forces:
+            known[f] = surv(f)
+            order.append(f)
+
+
+def _not_monotone(f: float) -> bool:
+    """The MuJoCo case (docs/mujoco_plant.md, "Sweeps on MuJoCo"): 650 N fails under a survivable 700 N,
+    the neighbour's edge is 750 N (coarse step 15 of 50 N)."""
+    return f < 643.0 or 690.0 <= f <= 710.0
+
+
+def test_bracket_checks_below_itself_and_finds_the_failure_the_old_bracket_missed():
+    """A failure two coarse steps under the neighbour's edge, a survivable force between (650 N fails,
+    700 N survives, the hint 750 N): the bracket that checks only its lower force (below = 1) holds at
+    (700, 750] and misses the lower edge, the bracket that checks 2 under itself moves down to it and gives
+    the full search's boundary; a failure under 2 survivable forces needs below = 3 (the check's depth is
+    what it says)."""
+    s = cm.Search(coarse=50.0, fmax=1000.0, resolution=5.0)
+    surv = _not_monotone
+    full, _ = _solve(s, surv, None)
+    assert 640.0 < full.hi <= 650.0 and full.islands == (700.0,)
+    old, order_old = _solve(s, surv, 15, below=1)
+    assert 700.0 <= old.lo < old.hi <= 750.0
+    assert 650.0 not in order_old                                   # never tried: assumed to survive
+    new, order_new = _solve(s, surv, 15, below=2)
+    assert (new.lo, new.hi) == (full.lo, full.hi) and 650.0 in order_new and not new.full
+    assert new.islands == (700.0,)                                  # the survivable force passed on the way down
+    # two survivable coarse forces over the failure: below = 2 misses it, below = 3 finds it
+    deeper = lambda f: f < 643.0 or 690.0 <= f <= 760.0  # noqa: E731
+    full2, _ = _solve(s, deeper, None)
+    assert 640.0 < full2.hi <= 650.0
+    assert _solve(s, deeper, 16, below=2)[0].hi > 750.0
+    assert (_solve(s, deeper, 16, below=3)[0].lo, _solve(s, deeper, 16, below=3)[0].hi) == (full2.lo, full2.hi)
+
+
+@pytest.mark.parametrize("edge", [25.0, 275.0, 480.0])
+def test_bracket_check_below_changes_nothing_on_a_monotone_map(edge):
+    """Survival monotone in the force (edge at ``edge`` N, coarse 50 N): from every hint, checking 1, 2 or 4
+    coarse steps under the bracket gives the full search's boundary, first failure and bisection; the
+    deeper check adds at most its extra coarse forces."""
+    s = cm.Search(coarse=50.0, fmax=500.0, resolution=5.0)
+    surv = lambda f: f < edge  # noqa: E731
+    full, _ = _solve(s, surv, None)
+    for hint in (1, 2, 3, 6, 9, 10, math.inf):
+        ref, order1 = _solve(s, surv, hint, below=1)
+        assert (ref.lo, ref.hi) == (full.lo, full.hi), hint
+        for below in (2, 4):
+            b, order = _solve(s, surv, hint, below=below)
+            assert b == ref, (hint, below)
+            assert set(order1) <= set(order) and len(order) <= len(order1) + below - 1, (hint, below)
+
+
+def test_bracket_and_coarse_edge_agree_on_random_survival_maps():
+    """The twins (plan_cell's bracket and coarse_edge) on seeded random survival maps on the coarse grid
+    (several failures and islands), every hint and every check depth: coarse_edge never names an edge
+    before the search ends other than the one it ends on (checked inside _solve), and the bracket equals the
+    full search whenever no coarse step between the full search's edge and the hint has ``below``
+    survivable coarse forces right under it (where one has, the walk down stops there: counted, both
+    kinds occur)."""
+    rng = np.random.default_rng(7)
+    s = cm.Search(coarse=50.0, fmax=600.0, resolution=12.5)
+    n = len(s.coarse_forces())
+    equal = differ = 0
+    for _ in range(60):
+        ok = rng.random(n) < 0.6
+        surv = lambda f, ok=ok: bool(ok[min(int(math.ceil(f / 50.0 - 1e-9)), n) - 1])  # noqa: E731
+        full, _ = _solve(s, surv, None)
+        k0 = cm.edge_index(full, 50.0)
+        for hint in range(1, n + 1):
+            for below in (1, 2, 3):
+                b, _ = _solve(s, surv, hint, below=below)
+                # a step j in (k0, hint] with `below` survivors under it: the walk down stops at or above it
+                trap = any(all(ok[i - 1] for i in range(j - below, j))
+                           for j in range(int(k0) + 1, hint + 1) if j - below >= 1) if k0 < hint else False
+                if not trap:
+                    assert cm.edge_index(b, 50.0) == k0, (ok, hint, below)
+                    equal += 1
+                else:
+                    differ += 1
+    assert equal > 0 and differ > 0
+
+
+def test_bracket_check_below_is_validated_naming_the_key(tmp_path):
+    src = (Path(default_config_dir()) / "studies.yaml").read_text()
+    assert cm.MapSpec().bracket_check_below == cm.search_settings()["bracket_check_below"] >= 1
+    p = tmp_path / "studies.yaml"
+    for bad in ("0", "-1", "true", "1.5", "'2'"):
+        p.write_text(src.replace("bracket_check_below: {value: 2", f"bracket_check_below: {{value: {bad}"))
+        with pytest.raises(cm.MapError, match="bracket_check_below"):
+            cm.search_settings(p)
+    for bad in (0, -2, True, 1.0):
+        with pytest.raises(cm.MapError, match="bracket_check_below"):
+            cm.MapSpec(bracket_check_below=bad)
+        with pytest.raises(cm.MapError, match="bracket_check_below"):
+            cm.plan_cell(cm.Search(), {}, 3, 2, bad)
+
+
+class NearHoleSurvives(HoleySurvives):
+    """An edge at 330 N and, after phase 0, a failing 250 N under the survivable 300 N (coarse 50 N): the
+    full search's edge is 250 N after phase 0, 350 N at phase 0."""
+
+    HOLES = {("tau", "forward"): [(245.0, 255.0)]}
+
+    def edge(self, mode, direction, start, duration):
+        return 330.0, []
+
+
+NEAR_HOLE_SPEC = cm.MapSpec(modes=("tau",), directions=("forward",), phases=cm.phases_of(4), durations=(0.025,),
+                            search=cm.Search(coarse=50.0, fmax=600.0, resolution=5.0))
+
+
+def test_a_hole_within_the_check_is_found_by_the_map(monkeypatch):
+    """The driver passes the spec's check depth: a failing force one survivable coarse step under the
+    neighbour's edge (a hole just below it, after phase 0) is the full search's edge; with
+    bracket_check_below 2 the bracketed map finds it in every cell, with 1 it does not."""
+    monkeypatch.setattr(trials, "survives", NearHoleSurvives())
+    spec = NEAR_HOLE_SPEC
+    full = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": False}))
+    two = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": True, "bracket_check_below": 2}))
+    one = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": True, "bracket_check_below": 1}))
+    later = [c for c in spec.cells() if c.phase > 0]
+    assert all(full.boundaries[c].hi <= 250.0 for c in later)
+    assert _edges(two) == _edges(full)
+    assert all(one.boundaries[c].hi > 300.0 for c in later)
+
+
+@pytest.mark.parametrize("fake_cls,spec", [(NearHoleSurvives, NEAR_HOLE_SPEC), (SteepSurvives, NB_SPEC)])
+def test_replay_on_full_records_gives_the_bracketed_maps_simulations_and_differences(monkeypatch, fake_cls, spec):
+    """sweep_check.bracket_replay (the bracketed search run on a full search's records, no simulation) against the
+    bracketed map itself for each island window and bracket check: the same simulations wherever every
+    force it needs is recorded, and the same cells differing from the full search (a hole one survivable
+    step under the edge: check 1 differs, 2 does not; islands beyond a window of 0 differ)."""
+    from biped_controller.studies import sweep_check
+    monkeypatch.setattr(trials, "survives", fake_cls())
+    full = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": False}))
+    records = [r for rs in full.records.values() for r in rs.values()]
+    out = sweep_check.bracket_replay(records, (0, 2), (1, 2), spec.search)
+    assert out["cells"] == len(spec.cells()) and out["simulations_full"] == full.simulated
+    answer = lambda b: (b.lo, b.hi, tuple(b.islands), b.no_fall_lo, b.no_fall_hi)  # noqa: E731
+    counts = {}
+    for run in out["runs"]:
+        w, b = run["island_window"], run["bracket_check_below"]
+        monkeypatch.setattr(trials, "survives", fake_cls())
+        nb = cm.run_map(cm.MapSpec(**{**spec.__dict__, "neighbours": True, "island_window": w, "bracket_check_below": b}))
+        want = {(c.mode, c.direction, c.duration, c.phase) for c, bb in nb.boundaries.items()
+                if answer(bb) != answer(full.boundaries[c])}
+        assert {tuple(d["cell"]) for d in run["differing"]} == want, (w, b)
+        if not any(isinstance(d["bracketed"], str) for d in run["differing"]):
+            assert run["simulations"] == nb.simulated, (w, b)
+        counts[(w, b)] = run["cells_differing"]
+    if fake_cls is NearHoleSurvives:
+        assert counts[(2, 1)] == 3 and counts[(2, 2)] == 0
+    else:
+        assert counts[(0, 2)] > 0 and counts[(2, 2)] < counts[(0, 2)]
+
+
 def test_run_maps_serves_several_maps_as_their_own_runs(monkeypatch, tmp_path):
     """Two one-cell maps of different settings at once on one store: the boundaries and records of
     run_map on each, each under its own fingerprint."""
@@ -568,7 +741,8 @@ def test_run_maps_serves_several_maps_as_their_own_runs(monkeypatch, tmp_path):
 def test_spec_search_settings_come_from_the_config():
     cfg = cm.search_settings()
     spec = cm.MapSpec()
-    assert (spec.neighbours, spec.island_window) == (cfg["search_from_neighbours"], cfg["island_window"])
+    assert (spec.neighbours, spec.island_window, spec.bracket_check_below) == \
+        (cfg["search_from_neighbours"], cfg["island_window"], cfg["bracket_check_below"])
     with pytest.raises(cm.MapError, match="island_window"):
         cm.MapSpec(island_window=-1)
     with pytest.raises(cm.MapError, match="neighbours"):
@@ -691,15 +865,32 @@ def test_fast_map_gives_the_full_maps_answers_on_a_small_real_map():
     assert any(r.get("decided_at_step") for rs in fast.records.values() for r in rs.values())
 
 
-def test_coarse_edge_is_known_before_the_cell_ends_and_equals_its_final_edge(monkeypatch):
+class SteepHoleySurvives(SteepSurvives):
+    """SteepSurvives with a failing band one to two coarse steps under the edge (survival not monotone
+    just below it), after phase 0: the bracket's check under itself moves it down there."""
+
+    def __call__(self, push, mode, settings=ts.DEFAULT_SETTINGS, pool=True):
+        r = super().__call__(push, mode, settings, pool)
+        direction = "forward" if push.force > 0 else "backward"
+        e, _ = self.edge(mode, direction, push.start, push.duration)
+        if push.start > 0.05 and e - 100.0 <= abs(push.force) <= e - 60.0:
+            r.update(survived=False, reason="fell: tip_heel", fall_cause="tip_heel", fall_time=push.start + 0.01,
+                     steps_walked=0)
+        return r
+
+
+@pytest.mark.parametrize("below,fake_cls", [(1, SteepSurvives), (2, SteepSurvives), (2, SteepHoleySurvives),
+                                            (1, SteepHoleySurvives)])
+def test_coarse_edge_is_known_before_the_cell_ends_and_equals_its_final_edge(monkeypatch, below, fake_cls):
     """The driver starts a cell's neighbour from this cell's coarse edge as soon as the bracket (or the
     coarse scan) holds (search.coarse_edge), before its islands and bisection end: that index equals
-    edge_index of the finished boundary in every cell; without the bisection's records it is already known,
-    without one of the bracket's two forces it is not (None)."""
+    edge_index of the finished boundary in every cell, with the bracket checking ``below`` coarse steps
+    under itself (also where failures below the edge move it down); without the bisection's records it is
+    already known, without the bracket's upper force or one of those under it it is not (None)."""
     from biped_controller.studies.capmap.search import coarse_edge, edge_index
-    fake = SteepSurvives()
+    fake = fake_cls()
     monkeypatch.setattr(trials, "survives", fake)
-    spec = cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": True, "island_window": 2})
+    spec = cm.MapSpec(**{**NB_SPEC.__dict__, "neighbours": True, "island_window": 2, "bracket_check_below": below})
     run = cm.run_map(spec)
     ph = sorted(spec.phases)
     checked = unknown = 0
@@ -709,13 +900,15 @@ def test_coarse_edge_is_known_before_the_cell_ends_and_equals_its_final_edge(mon
         hint = None if left is None else edge_index(run.boundaries[left], search.coarse)
         surv = {f: r["survived"] for f, r in run.records[c].items()}
         want = edge_index(b, search.coarse)
-        assert coarse_edge(search, surv, hint, 2) == want, c
+        assert coarse_edge(search, surv, hint, 2, below) == want, c
         coarse_only = {f: s for f, s in surv.items() if abs(f / search.coarse - round(f / search.coarse)) < 1e-9}
-        assert coarse_edge(search, coarse_only, hint, 2) == want, c        # the bisection does not move it
+        assert coarse_edge(search, coarse_only, hint, 2, below) == want, c        # the bisection does not move it
         checked += 1
         if b.hi is not None and hint is not None:
             k = int(want)
-            dropped = {f: s for f, s in coarse_only.items() if f != k * search.coarse}
-            assert coarse_edge(search, dropped, hint, 2) is None, c       # the bracket's upper force missing
+            for j in range(k - below, k + 1):         # the upper force and those under it the bracket checks
+                if j >= 1:
+                    dropped = {f: s for f, s in coarse_only.items() if f != j * search.coarse}
+                    assert coarse_edge(search, dropped, hint, 2, below) is None, (c, j)
             unknown += 1
     assert checked == len(spec.cells()) and unknown > 0

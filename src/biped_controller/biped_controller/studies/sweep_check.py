@@ -31,6 +31,14 @@
     changed, each field's old and new value and relative change). Records of another fingerprint are
     counted, not replayed.
 
+``python -m biped_controller.studies.sweep_check bracket-replay FULL_STORE [--windows W ...] [--below B ...]``
+    the bracketed search replayed, without a simulation, on the records of a full search (``--search
+    full``: every coarse force of every cell and its bisection): for each island window W and bracket
+    check B (``island_window``, ``bracket_check_below`` of config/studies.yaml), the simulations the
+    bracketed search runs and the cells whose answer (boundary, first failure, islands, no-fall edge, first
+    fall) differs from the full search's on the same records; a cell whose bracketed search needs a force
+    the full search did not run (another bisection: another edge) is counted as differing.
+
 Pure: no ROS import.
 """
 from __future__ import annotations
@@ -51,7 +59,9 @@ from biped_controller.studies.trial import runs, stop, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import RunSettings, differences, run_settings
 from biped_controller.studies.trial.survival import P_FLOOR, TAU_DOT_FLOOR, survival_rule
-from biped_controller.studies.capmap.spec import DIRECTIONS, Cell, MapSpec, SimSpec, onset_time
+from biped_controller.studies.capmap.search import Boundary, coarse_edge, plan_cell, plan_no_fall
+from biped_controller.studies.capmap.spec import DEFAULT_COARSE, DEFAULT_MAX, DEFAULT_MAX_IMPULSE, DEFAULT_RESOLUTION, \
+    DIRECTIONS, Cell, MapSpec, Search, SimSpec, onset_time
 from biped_controller.studies.capmap.store import fingerprint as map_fingerprint
 from biped_controller.studies.capmap.task import simulate
 from biped_controller.studies.capmap.store import RecordStore
@@ -342,6 +352,76 @@ def replay(records: list[dict], settings: RunSettings, modes: tuple[str, ...] | 
                 f["max_relative"] = max(f["max_relative"], v["relative"])
     out["changed_fields"] = fields
     out["settings"] = differences(settings)
+
+def _replay_cell(search: Search, surv: dict, fell: dict, hint: float | None, window: int, below: int):
+    """One cell's search (``plan_cell`` then ``plan_no_fall``) on the records ``surv``, ``fell`` (force [N]
+    -> bool): (Boundary or None when a force it needs is not recorded, the forces it simulated)."""
+    used: set[float] = set()
+    view: dict[float, bool] = {}
+    while True:
+        forces, b = plan_cell(search, view, hint, window, below)
+        if b is not None:
+            break
+        if any(f not in surv for f in forces):
+            return None, used
+        for f in forces:
+            view[f] = surv[f]
+            used.add(f)
+    fv = {f: fell[f] for f in used}
+    while True:
+        forces, b2 = plan_no_fall(search, fv, b)
+        if b2 is not None:
+            return b2, used
+        if any(f not in fell for f in forces):
+            return None, used
+        for f in forces:
+            fv[f] = fell[f]
+            used.add(f)
+
+
+def _answer(b: Boundary) -> tuple:
+    return (b.lo, b.hi, tuple(b.islands), b.no_fall_lo, b.no_fall_hi)
+
+
+def bracket_replay(records: list[dict], windows: tuple[int, ...], belows: tuple[int, ...], search: Search) -> dict:
+    """The bracketed search on a full search's records, for each island window and bracket check (the
+    module's ``replay``). Rows (mode, direction, duration) are searched phase by phase as the driver does:
+    the first phase in full, every other from its lower neighbour's coarse edge (``coarse_edge`` on the
+    recorded coarse forces, which a full search holds all of)."""
+    surv: dict[tuple, dict[float, bool]] = {}
+    fell: dict[tuple, dict[float, bool]] = {}
+    for r in records:
+        k = (r["mode"], r["direction"], float(r["duration"]), float(r["phase"]))
+        surv.setdefault(k, {})[float(r["force"])] = bool(r["survived"])
+        fell.setdefault(k, {})[float(r["force"])] = r.get("fall_time") is not None
+    rows: dict[tuple, list[float]] = {}
+    for k in surv:
+        rows.setdefault(k[:3], []).append(k[3])
+    full = {}
+    for k in surv:
+        s = search.for_duration(k[2])
+        b, used = _replay_cell(s, surv[k], fell[k], None, 0, 1)
+        if b is None:
+            raise ValueError(f"the records of cell {k} are not a full search's: force(s) missing")
+        full[k] = (b, len(used))
+    out = {"cells": len(full), "simulations_full": sum(n for _, n in full.values()), "runs": []}
+    for window in windows:
+        for below in belows:
+            sims, differ = 0, []
+            for row, phases in sorted(rows.items()):
+                hint = None
+                for ph in sorted(phases):
+                    k = row + (ph,)
+                    s = search.for_duration(row[2])
+                    b, used = _replay_cell(s, surv[k], fell[k], hint, window, below)
+                    sims += len(used)
+                    if b is None or _answer(b) != _answer(full[k][0]):
+                        differ.append({"cell": list(k), "full": list(_answer(full[k][0])),
+                                       "bracketed": list(_answer(b)) if b is not None else "needs a force the full search did not run"})
+                    coarse = {f: v for f, v in surv[k].items() if f in s.coarse_forces()}
+                    hint = coarse_edge(s, coarse, hint, window, below)
+            out["runs"].append({"island_window": window, "bracket_check_below": below, "simulations": sims,
+                                "cells_differing": len(differ), "differing": differ})
     return out
 
 
@@ -380,6 +460,15 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--profile", default=None)
     r.add_argument("--modes", nargs="+", default=None)
     r.add_argument("--json", type=Path, default=None)
+    b = sub.add_parser("bracket-replay")
+    b.add_argument("store", type=Path, help="the records of a full search (--search full)")
+    b.add_argument("--windows", type=int, nargs="+", default=[2])
+    b.add_argument("--below", type=int, nargs="+", default=[1, 2])
+    b.add_argument("--coarse", type=float, default=DEFAULT_COARSE)
+    b.add_argument("--max", type=float, default=DEFAULT_MAX)
+    b.add_argument("--resolution", type=float, default=DEFAULT_RESOLUTION)
+    b.add_argument("--max-impulse", type=float, default=DEFAULT_MAX_IMPULSE)
+    b.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     plant = "mujoco" if args.cmd == "orbit" and args.overrides is None else None     # orbit's default settings
     provenance.track(args.json, args=args, argv=argv, plant=plant)   # record of each file written (results/README.md)
@@ -392,6 +481,14 @@ def main(argv: list[str] | None = None) -> int:
         for k, v in out["details"].items():
             for d in v[:10]:
                 print(f"{k}: {d}")
+    elif args.cmd == "bracket-replay":
+        out = bracket_replay(RecordStore(args.store).load(), tuple(args.windows), tuple(args.below),
+                     Search(args.coarse, args.max, args.resolution, args.max_impulse))
+        for run in out["runs"]:
+            print(f"island_window {run['island_window']}, bracket_check_below {run['bracket_check_below']}: "
+                  f"{run['simulations']} simulations (full search {out['simulations_full']}), "
+                  f"{run['cells_differing']} of {out['cells']} cells differ"
+                  + "".join(f"\n  {d['cell']}: full {d['full']}, bracketed {d['bracketed']}" for d in run["differing"]))
     elif args.cmd == "orbit":
         settings = run_settings(args.profile, args.overrides if args.overrides is not None else ["plant=mujoco"],
                                 full_trials=True)

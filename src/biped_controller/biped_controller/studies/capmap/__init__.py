@@ -44,11 +44,14 @@ fall, then the bisection).
 
 Bracketed search (``search_from_neighbours`` of config/studies.yaml, ``--search
 neighbours|full``): the first phase of each (mode, direction, duration) row is searched as above; every
-other cell starts once its lower-phase neighbour is done, from that neighbour's lowest failing coarse
-force k c: the pair ((k - 1) c, k c) is simulated and moved one coarse step at a time until the lower
-survives and the upper fails, then bisected at the same midpoints (same boundary, first failure and cause
-as the full search whenever no coarse force below the bracket fails); above the edge coarse forces are
-simulated until ``island_window`` consecutive ones fail (the islands found; ``Boundary.full`` False); a
+other cell starts once its lower-phase neighbour's coarse edge is known, from that neighbour's lowest
+failing coarse force k c: k c and the ``bracket_check_below`` (w) coarse forces under it, (k - 1) c ...
+(k - w) c, are simulated; a failure among those under it moves the bracket down to the highest failing one,
+a surviving k c moves it up one coarse step, until k c fails and the w under it survive; then [(k - 1) c,
+k c] is bisected at the same midpoints (same boundary, first failure and cause as the full search
+whenever no coarse force more than w steps under a survivable one between the edge and the hint fails:
+the bracket checks w steps under itself as the island window checks above); above the edge coarse forces
+are simulated until ``island_window`` consecutive ones fail (the islands found; ``Boundary.full`` False); a
 bracket still surviving at the scan's top falls back to the full search (censored only if every coarse
 force survives).
 

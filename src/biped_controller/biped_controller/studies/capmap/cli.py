@@ -59,8 +59,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-impulse", type=float, default=DEFAULT_MAX_IMPULSE,
                     help="largest impulse scanned [N s] (inf: none): long pushes scan up to this / duration")
     ap.add_argument("--search", choices=("neighbours", "full"), default=None,
-                    help="neighbours: bracket each cell's edge from its lower-phase neighbour's (islands within "
-                         "island_window coarse steps above the edge); full: every coarse force of every cell "
+                    help="neighbours: bracket each cell's edge from its lower-phase neighbour's (bracket_check_below "
+                         "coarse steps checked under it, islands within island_window coarse steps above the edge); "
+                         "full: every coarse force of every cell "
                          "(default: config/studies.yaml search_from_neighbours)")
     ap.add_argument("--height", type=finite_float, default=None,
                     help="push point above the hip [m] (default: push_height of config/simulator.yaml)")

@@ -44,8 +44,8 @@ def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batc
     the store as soon as its batch completes. Cells are served in order, bisection steps as soon as they
     are known, at most two batches per executor slot in flight. With ``spec.neighbours`` a cell's search
     starts once its lower-phase neighbour's coarse edge is known (its islands and bisection may go on),
-    bracketed from that edge
-    (``search.plan_cell``), then its no-fall edge (``search.plan_no_fall``); the first phase of each (mode, direction, duration) row is searched in full.
+    bracketed from that edge (``search.plan_cell``: ``spec.bracket_check_below`` coarse steps checked under
+    the bracket, ``spec.island_window`` above it), then its no-fall edge (``search.plan_no_fall``); the first phase of each (mode, direction, duration) row is searched in full.
     ``simulate=False``: nothing is run, the boundaries are those the store completes (the other cells are
     listed in ``MapRun.missing``). One map of :func:`run_maps`."""
     return run_maps([spec], executor, store, batch, progress, simulate)[0]
@@ -103,15 +103,15 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
     edges: dict[tuple, float] = {}      # a cell's coarse edge index, known before its search ends
 
     def plan(ic):
-        """(hint, window) of a cell's search, or None while its neighbour's coarse edge is unknown (the
+        """(hint, window, below) of a cell's search, or None while its neighbour's coarse edge is unknown (the
         neighbour's islands and bisection need not be finished: they do not move its coarse edge)."""
         spec = specs[ic[0]]
         if ic not in left:
-            return (None, 0)
+            return (None, 0, 1)
         e = edges.get(left[ic])
         if e is None:
             return None
-        return (e, spec.island_window)
+        return (e, spec.island_window, spec.bracket_check_below)
 
     try:
         while True:
@@ -160,7 +160,8 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                 for ic in cells:
                     if ic in bounds:
                         continue
-                    hw = plan(ic) or (math.inf, specs[ic[0]].island_window)   # waiting: a bracket's estimate
+                    hw = plan(ic) or (math.inf, specs[ic[0]].island_window,     # waiting: a bracket's estimate
+                                      specs[ic[0]].bracket_check_below)
                     remaining += remaining_estimate(specs[ic[0]].search.for_duration(ic[1].duration), survived[ic], *hw)
                 progress.update(sum(simulated), sum(resumed), remaining)
             if not inflight:

@@ -223,6 +223,7 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
                 "scan_max_per_duration": {f"{d:g}": s.search.for_duration(d).fmax for d in s.durations},
                 "resolution": s.search.resolution, "height": s.height,
                 "search": "neighbours" if s.neighbours else "full", "island_window": s.island_window,
+                "bracket_check_below": s.bracket_check_below,
                 "early_stop": (not s.settings.full_trials) and stop.enabled(s.settings),
                 "onset": f"start = phase * T of the first step, T = {ctx.family.T:g} s (walk starts at t = 0)",
                 "direction_sign": "forward = + force (on the back), backward = - force",

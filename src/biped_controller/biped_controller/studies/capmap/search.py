@@ -6,7 +6,7 @@ from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 from biped_controller.studies.trial.search import analyse_coarse
-from biped_controller.studies.capmap.spec import Search
+from biped_controller.studies.capmap.spec import MapError, Search
 
 
 @dataclass(frozen=True)
@@ -58,37 +58,66 @@ def edge_index(b: Boundary, coarse: float) -> float:
     return float(math.ceil(b.hi / coarse - 1e-9))
 
 
-def _bracket_state(search: Search, survived: Mapping[float, bool], hint: float, window: int):
+def _check_below(below) -> None:
+    """``below`` (the bracket's check under itself, coarse steps) is an integer >= 1: the bracket's lower
+    force at least."""
+    if isinstance(below, bool) or not (isinstance(below, int) and below >= 1):
+        raise MapError(f"bracket_check_below must be an integer >= 1 [coarse steps], got {below!r}")
+
+
+def _bracket_edge(search: Search, survived: Mapping[float, bool], hint: float, below: int):
+    """Step 1 of :func:`_bracket_state`, the bracket of the edge: ("coarse", forces still to simulate),
+    ("full",) when the bracket reached the scan's top still surviving (the full search takes over), or
+    ("edge", k) with k c the cell's lowest failing coarse force as the bracket finds it.
+
+    With k the hint (clamped to the grid [1, n]) the coarse forces k c and the ``below`` ones under it,
+    (k - 1) c ... (k - below) c (those > 0), are simulated. The bracket holds when k c fails and every one
+    below it survives. A failure below moves it down to the highest failing one, (k - j) c; otherwise a
+    surviving k c moves it up one coarse step (at the top, n c, the full search takes over). Every coarse
+    force of a cell is below the hint, at it, or above it, so the bracket ends on the full search's edge
+    whenever no failure lies more than ``below`` coarse steps under a survivable coarse force above that
+    edge (``below`` = 1: only the bracket's lower force is checked)."""
+    c, n = search.coarse, len(search.coarse_forces())
+    k = int(min(max(hint, 1), n))
+    while True:
+        need = [f for f in [j * c for j in range(k - below, k + 1)] if f > 0 and f not in survived]
+        if need:
+            return ("coarse", need)
+        failing = [j for j in range(k - 1, max(k - below, 1) - 1, -1) if not survived[j * c]]
+        if failing:
+            k = failing[0]
+        elif survived[k * c]:
+            if k == n:
+                return ("full",)
+            k += 1
+        else:
+            return ("edge", k)
+
+
+def _bracket_state(search: Search, survived: Mapping[float, bool], hint: float, window: int, below: int):
     """The search bracketed from a neighbour's edge ``hint`` (a coarse step index, inf: censored).
 
-    1. Edge: with k the hint (clamped to the grid), the pair of coarse forces ((k - 1) c, k c) is
-       simulated; the bracket holds when the lower survives (or k = 1: 0 N) and the upper fails, and the
-       edge is k c. When it does not hold the bracket moves one coarse step at a time -- down while
-       (k - 1) c fails, up while k c survives -- until it holds; a bracket that reaches the scan's maximum
-       still surviving falls back to the full search (a cell is censored only when every coarse force
-       survives: islands high up must not pass for a censored cell). The
-       coarse forces below (k - 1) c are not simulated: the bracket assumes they survive, as the full
-       scan found in every cell of the default map (the comparison in docs/capability_map.md).
+    1. Edge (:func:`_bracket_edge`): from the hint k, the coarse force k c must fail and the ``below``
+       coarse forces under it, (k - 1) c ... (k - below) c (those > 0), must survive; a failure among them
+       moves the bracket down to it, a surviving k c moves it up one coarse step, until it holds (the
+       edge is then k c, the bracket [(k - 1) c (0 N when k = 1), k c]). A bracket that reaches the scan's
+       maximum still surviving falls back to the full search (a cell is censored only when every coarse
+       force survives: islands high up must not pass for a censored cell). The coarse forces more than
+       ``below`` steps under the edge are not simulated: the bracket assumes they survive. It checks
+       ``below`` steps under itself as the island window checks ``window`` steps above: a failure under a
+       survivable coarse force, at most ``below`` - 1 survivable ones between them, is found (the depth
+       measured on MuJoCo: ``bracket_check_below`` in config/studies.yaml).
     2. Islands: above the edge, coarse forces are simulated upward until ``window`` consecutive ones
        fail (or the scan's maximum); every survivable one is an island (a survivable one found moves
        the window up).
     3. The edge's coarse interval is bisected at the midpoints of the full search: the same boundary,
        first failure and cause whenever the edge's coarse interval is the same."""
-    coarse = search.coarse_forces()
-    c, n = search.coarse, len(coarse)
-    k = int(min(max(hint, 1), n))
-    while True:
-        need = [f for f in ((k - 1) * c, k * c) if f > 0 and f not in survived]
-        if need:
-            return ("coarse", need)
-        if k > 1 and not survived[(k - 1) * c]:
-            k -= 1
-        elif survived[k * c]:
-            if k == n:      # survives at the scan's top: censored only if every coarse force survives
-                return _search_state(search, survived)
-            k += 1
-        else:
-            break
+    st = _bracket_edge(search, survived, hint, below)
+    if st[0] == "coarse":
+        return st
+    if st[0] == "full":      # survives at the scan's top: censored only if every coarse force survives
+        return _search_state(search, survived)
+    c, n, k = search.coarse, len(search.coarse_forces()), st[1]
     hi, lo = k * c, (k - 1) * c if k > 1 else 0.0
     j, fails = k, 0
     while j < n and fails < window:
@@ -97,46 +126,42 @@ def _bracket_state(search: Search, survived: Mapping[float, bool], hint: float, 
         if f not in survived:
             return ("coarse", [f])
         fails = 0 if survived[f] else fails + 1
-    islands = tuple(f for f in coarse if f > hi and survived.get(f, False))
+    islands = tuple(f for f in search.coarse_forces() if f > hi and survived.get(f, False))
     return _bisect(search, survived, lo, hi, islands, False)
 
 
 def coarse_edge(search: Search, survived: Mapping[float, bool], hint: float | None = None,
-                window: int = 0) -> float | None:
+                window: int = 0, below: int = 1) -> float | None:
     """The coarse step index of the cell's lowest failing coarse force (inf: censored) as soon as its search
     knows it -- the value :func:`edge_index` gives for the finished boundary (bisection keeps the edge
     inside its coarse interval) -- or None while the coarse scan or the bracket is unfinished. A neighbour
-    bracketed from this cell can start from it while this cell's islands and bisection go on."""
+    bracketed from this cell can start from it while this cell's islands and bisection go on. ``hint``
+    None: the full search's coarse scan; else the bracket of :func:`_bracket_state` (``below`` coarse
+    steps checked under it, the same function :func:`_bracket_edge`)."""
+    _check_below(below)
     c = search.coarse
-    if hint is None:
-        coarse = search.coarse_forces()
-        if any(f not in survived for f in coarse):
+    if hint is not None:
+        st = _bracket_edge(search, survived, hint, below)
+        if st[0] == "coarse":
             return None
-        _, hi, _ = analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
-        return math.inf if hi is None else float(math.ceil(hi / c - 1e-9))
-    n = len(search.coarse_forces())
-    k = int(min(max(hint, 1), n))
-    while True:                      # the bracket of _bracket_state, step 1
-        if any(f > 0 and f not in survived for f in ((k - 1) * c, k * c)):
-            return None
-        if k > 1 and not survived[(k - 1) * c]:
-            k -= 1
-        elif survived[k * c]:
-            if k == n:
-                return coarse_edge(search, survived, None, window)
-            k += 1
-        else:
-            return float(k)
+        if st[0] == "edge":
+            return float(st[1])
+    coarse = search.coarse_forces()             # the full search (or the bracket's fallback to it)
+    if any(f not in survived for f in coarse):
+        return None
+    _, hi, _ = analyse_coarse([{"force": f, "survived": survived[f]} for f in coarse])
+    return math.inf if hi is None else float(math.ceil(hi / c - 1e-9))
 
 
 def plan_cell(search: Search, survived: Mapping[float, bool], hint: float | None = None,
-              window: int = 0) -> tuple[list[float], Boundary | None]:
+              window: int = 0, below: int = 1) -> tuple[list[float], Boundary | None]:
     """The search of one cell as a pure function of its trials so far (force [N] -> survived): either the
     forces still to simulate and None, or [] and the :class:`Boundary`. ``hint`` None: the full search
     (every coarse force, then the bisection midpoint); else the coarse step index of a neighbour's edge
     (:func:`edge_index`) and the search is bracketed from it (:func:`_bracket_state`, island ``window``
-    in coarse steps)."""
-    st = _search_state(search, survived) if hint is None else _bracket_state(search, survived, hint, window)
+    and bracket check ``below`` in coarse steps)."""
+    _check_below(below)
+    st = _search_state(search, survived) if hint is None else _bracket_state(search, survived, hint, window, below)
     if st[0] == "coarse":
         return st[1], None
     if st[0] == "bisect":
@@ -149,7 +174,8 @@ def plan_no_fall(search: Search, fell: Mapping[float, bool], b: Boundary) -> tup
     (force [N] -> fell): either the forces still to simulate and None, or [] and ``b`` with the edge.
 
     A fall fails the survival rule, so no force below the survival boundary's first failing coarse force
-    k0 c fell (the coarse scan or the bracket found them survived). From k0 c upward the coarse forces are
+    k0 c fell (the coarse scan found them survived; the bracket those it simulated, and assumes the
+    others survive). From k0 c upward the coarse forces are
     simulated until the first that fell, k c (none up to the scan's top: the edge is censored there,
     ``no_fall_hi`` None); then [(k - 1) c (or 0), k c] is bisected at midpoints to the resolution, as the
     survival boundary is: where the first failure is a fall the two bisections share their trials."""
@@ -190,13 +216,14 @@ def bisection_steps(width: float, resolution: float) -> int:
 
 
 def remaining_estimate(search: Search, survived: Mapping[float, bool], hint: float | None = None,
-                       window: int = 0) -> int:
+                       window: int = 0, below: int = 1) -> int:
     """Simulations a cell still needs, estimated (for the progress bar): the missing coarse forces plus
-    the bisection of one coarse step, or the bisection steps left (bracketed: the bracket, the window
-    and the bisection)."""
-    st = _search_state(search, survived) if hint is None else _bracket_state(search, survived, hint, window)
+    the bisection of one coarse step, or the bisection steps left (bracketed: the bracket's upper force
+    and the ``below`` under it, the window and the bisection)."""
+    _check_below(below)
+    st = _search_state(search, survived) if hint is None else _bracket_state(search, survived, hint, window, below)
     if st[0] == "coarse":
-        extra = len(st[1]) if hint is None else 2 + window
+        extra = len(st[1]) if hint is None else 1 + below + window
         return extra + bisection_steps(search.coarse, search.resolution)
     if st[0] == "bisect":
         return bisection_steps(st[2] - st[1], search.resolution)

@@ -96,18 +96,22 @@ class MapSpec:
     settings: RunSettings = DEFAULT_SETTINGS
     neighbours: bool | None = None       # bracket each cell from its lower-phase neighbour; None: config/studies.yaml
     island_window: int | None = None     # coarse steps scanned above a bracketed edge; None: config/studies.yaml
+    bracket_check_below: int | None = None   # coarse steps a bracket checks under itself; None: config/studies.yaml
 
     def __post_init__(self):
-        if self.neighbours is None or self.island_window is None:
+        if self.neighbours is None or self.island_window is None or self.bracket_check_below is None:
             cfg = search_settings()
-            if self.neighbours is None:
-                object.__setattr__(self, "neighbours", cfg["search_from_neighbours"])
-            if self.island_window is None:
-                object.__setattr__(self, "island_window", cfg["island_window"])
+            for name, key in (("neighbours", "search_from_neighbours"), ("island_window", "island_window"),
+                              ("bracket_check_below", "bracket_check_below")):
+                if getattr(self, name) is None:
+                    object.__setattr__(self, name, cfg[key])
         if not isinstance(self.neighbours, bool):
             raise MapError(f"neighbours must be true or false, got {self.neighbours!r}")
         if isinstance(self.island_window, bool) or not (isinstance(self.island_window, int) and self.island_window >= 0):
             raise MapError(f"island_window must be an integer >= 0 [coarse steps], got {self.island_window!r}")
+        b = self.bracket_check_below
+        if isinstance(b, bool) or not (isinstance(b, int) and b >= 1):
+            raise MapError(f"bracket_check_below must be an integer >= 1 [coarse steps], got {b!r}")
         def nonempty_unique(name, seq):
             if not seq:
                 raise MapError(f"{name}: at least one is needed")
@@ -135,15 +139,16 @@ class MapSpec:
 
 
 def search_settings(path=None) -> dict:
-    """``search_from_neighbours`` and ``island_window`` of ``config/studies.yaml`` (a bad value raises
-    :class:`MapError` naming the key)."""
+    """``search_from_neighbours``, ``island_window`` and ``bracket_check_below`` of ``config/studies.yaml``
+    (a bad value raises :class:`MapError` naming the key)."""
     p = Path(path) if path is not None else default_config_dir() / "studies.yaml"
-    v = read_settings(p, ("search_from_neighbours", "island_window"))
+    v = read_settings(p, ("search_from_neighbours", "island_window", "bracket_check_below"))
     if not isinstance(v["search_from_neighbours"], bool):
         raise MapError(f"{p}: 'search_from_neighbours' must be true or false, got {v['search_from_neighbours']!r}")
-    w = v["island_window"]
-    if isinstance(w, bool) or not (isinstance(w, int) and w >= 0):
-        raise MapError(f"{p}: 'island_window' must be an integer >= 0, got {w!r}")
+    for key, least in (("island_window", 0), ("bracket_check_below", 1)):
+        w = v[key]
+        if isinstance(w, bool) or not (isinstance(w, int) and w >= least):
+            raise MapError(f"{p}: '{key}' must be an integer >= {least}, got {w!r}")
     return v
 
 
