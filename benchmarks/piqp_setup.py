@@ -36,23 +36,26 @@ OUT = Path(__file__).resolve().parents[1] / "results" / "mujoco_sweeps" / "piqp_
 PATHS = ("setup", "update")
 
 
+def held_update_run(self, solver, held):
+    """``AdaptationQP._run`` as it was: a PIQP object set up on its first solve, then only updated (the
+    previous instance's scaling left in the object's data). Also the negative control of tests/test_history.py."""
+    done = self.__dict__.setdefault("_held_set_up", {})
+    if id(solver) in done:
+        solver.update(None, self._c, None, None, held.G, None, held.h)
+    else:
+        solver.setup(self._P, self._c, None, None, held.G, None, held.h, None, None)
+        done[id(solver)] = solver             # kept alive: its id stays its own
+    status = solver.solve()
+    self.calls += 1
+    return status, solver.result
+
+
 @contextlib.contextmanager
 def held_update():
-    """``AdaptationQP._run`` as it was: a PIQP object set up on its first solve, then updated."""
+    """:func:`held_update_run` in place of ``AdaptationQP._run`` inside the block."""
     from biped_controller.core.qp import solver as qs
     setup_run = qs.AdaptationQP._run
-
-    def _run(self, solver, held):
-        done = self.__dict__.setdefault("_bench_set_up", {})
-        if id(solver) in done:
-            solver.update(None, self._c, None, None, held.G, None, held.h)
-        else:
-            solver.setup(self._P, self._c, None, None, held.G, None, held.h, None, None)
-            done[id(solver)] = solver             # kept alive: its id stays its own
-        status = solver.solve()
-        self.calls += 1
-        return status, solver.result
-    qs.AdaptationQP._run = _run
+    qs.AdaptationQP._run = held_update_run
     try:
         yield
     finally:

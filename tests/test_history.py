@@ -35,17 +35,8 @@ MUJOCO = ts.parse_overrides(["plant=mujoco"])
 def leaky_updates(monkeypatch) -> None:
     """The negative control: every held PIQP object set up on its first solve and then only updated (the
     behaviour before the fix: the previous instance's scaling left in the object's data)."""
-    def _run(self, solver, held):
-        done = self.__dict__.setdefault("_set_up", {})
-        if id(solver) in done:
-            solver.update(None, self._c, None, None, held.G, None, held.h)
-        else:
-            solver.setup(self._P, self._c, None, None, held.G, None, held.h, None, None)
-            done[id(solver)] = solver           # kept alive: its id stays its own
-        status = solver.solve()
-        self.calls += 1
-        return status, solver.result
-    monkeypatch.setattr(qp.AdaptationQP, "_run", _run)
+    from benchmarks.piqp_setup import held_update_run
+    monkeypatch.setattr(qp.AdaptationQP, "_run", held_update_run)
 
 
 def same_answer(a, b) -> bool:

@@ -352,6 +352,8 @@ def replay(records: list[dict], settings: RunSettings, modes: tuple[str, ...] | 
                 f["max_relative"] = max(f["max_relative"], v["relative"])
     out["changed_fields"] = fields
     out["settings"] = differences(settings)
+    return out
+
 
 def _replay_cell(search: Search, surv: dict, fell: dict, hint: float | None, window: int, below: int):
     """One cell's search (``plan_cell`` then ``plan_no_fall``) on the records ``surv``, ``fell`` (force [N]
