@@ -34,10 +34,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # `python benchmarks/fast_kernels_bench.py`
     sys.path.insert(0, str(ROOT))
 
-from biped_sim.robot.fixed_foot import FixedFootModel  # noqa: E402
-from biped_sim.robot.description import load_description  # noqa: E402
-from biped_sim.robot.fast_engine import FastFixedFootModel, FastFloatingModel  # noqa: E402
-from biped_sim.robot.floating import FloatingModel  # noqa: E402
+from biped_model.fixed_foot import FixedFootModel  # noqa: E402
+from biped_model.description import load_description  # noqa: E402
+from biped_model.fast_engine import FastFixedFootModel, FastFloatingModel  # noqa: E402
+from biped_model.floating import FloatingModel  # noqa: E402
 from biped_controller.studies import provenance
 
 H_SUB = 5e-4          # substep [s]: control period 1 ms, 2 substeps

@@ -40,13 +40,13 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.robot.description import load_description
-from biped_sim.robot.mjcf import foot_geom_names
+from biped_model.description import load_description
+from biped_model.mjcf import foot_geom_names
 from biped_controller.studies import provenance
 from biped_controller.studies import runner
 from biped_controller.studies.foot_quiet import SKIP, measure
 from biped_controller.studies.trial.settings import parse_overrides, parse_perturbation
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.gait_family import GaitFamily
 
 
 class SphereProbe:

@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from biped_sim.robot.description import LEFT, load_description
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import LEFT, load_description
+from biped_model.gait_family import GaitFamily
 from biped_sim.plant.rigid import Simulator
 
 from biped_controller.core.control.controller import AdaptiveController, load_controller_config

@@ -102,8 +102,8 @@ def main(argv=None) -> int:
     from biped_controller.studies import runner, segment
     from biped_sim.plant.config import load_sim_config
     from biped_sim.plant.push import Push
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
 
     scfg = load_sim_config(plant="mujoco")
     ccfg = load_controller_config(mode="both", period=scfg.control_period)

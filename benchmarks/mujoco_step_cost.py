@@ -116,8 +116,8 @@ def main(argv=None) -> int:
     from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies import runner
     from biped_sim.plant.config import load_sim_config
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
 
     family, desc = GaitFamily.load(), load_description()
     ccfg = load_controller_config(mode="both", engine="fast")

@@ -83,8 +83,8 @@ def main(argv=None) -> int:
     from biped_controller.plugin.loop import PluginLoop
     from biped_controller.studies.runner import run
     from biped_sim.plant.config import load_sim_config
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
     from biped_controller.core.control.controller import load_controller_config
 
     names = list(dict.fromkeys(a.controller or ["capture_point"]))

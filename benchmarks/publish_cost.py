@@ -89,7 +89,7 @@ def _makers(rng: random.Random):
     from biped_sim.graph import cdr
     from biped_sim.graph.imu import ImuBuilder
     from biped_sim.graph.simulator_node import TransformBuilder
-    from biped_sim.robot.description import PAPER_JOINTS, URDF_JOINTS, load_description, make_urdf
+    from biped_model.description import PAPER_JOINTS, URDF_JOINTS, load_description, make_urdf
     from biped_controller.graph.controller_node import STATUS_FIELDS
 
     urdf = make_urdf(load_description())

@@ -156,8 +156,8 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     Passes repeat the recording until >= min_steps steps each.
     """
     from biped_controller.core.control.controller import AdaptiveController
-    from biped_sim.robot.gait_family import GaitFamily
-    from biped_sim.robot.description import LEFT, load_description
+    from biped_model.gait_family import GaitFamily
+    from biped_model.description import LEFT, load_description
 
     desc, family, scfg = load_description(), GaitFamily.load(), _sim_cfg()
     ccfg = _ctrl_cfg(mode, period=scfg.control_period)
@@ -450,8 +450,8 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         "mujoco_objects": ("mujoco", {"compiled_loop": False}),     # the MuJoCo plant, objects every period
     }
 
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
     desc, family = load_description(), GaitFamily.load()
     configs = {(e, m): (_sim_cfg(engine=e, plant="rigid"), _ctrl_cfg(m, engine=e))
                for e in ("fast", "reference") for m in ("none", "both")}

@@ -47,8 +47,8 @@ def main(argv=None) -> int:
     from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
-    from biped_sim.robot.description import LEFT, load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import LEFT, load_description
+    from biped_model.gait_family import GaitFamily
 
     desc, family = load_description(), GaitFamily.load()
     rec = run(steps=a.steps, mode="both", pushes=(Push(0.2315, 0.025, a.force),))

@@ -51,8 +51,8 @@ def main(argv=None) -> int:
     from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
     from biped_controller.studies.runner import run
     from biped_sim.plant.push import Push
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
 
     desc, family = load_description(), GaitFamily.load()
     runs = {}

@@ -1,5 +1,5 @@
 """An independent physics check of a recorded run: the bag (read with ``mcap`` + ``mcap_ros2`` only) and
-``config/biped.yaml`` (read with ``yaml`` only), no project code. Used by test_graph (a walk with a push off
+``robots/biped7/description.yaml`` (read with ``yaml`` only), no project code. Used by test_graph (a walk with a push off
 the control grid) and test_faults (a push cut short by a fall).
 
 Own model: the planar chain of DESIGN.md (floating x = [x_hip, z_hip, theta, lh, lk, la, rh, rk, ra], every
@@ -58,9 +58,9 @@ def _dup(a: float) -> np.ndarray:
 
 
 class PlanarBiped:
-    """Masses, centres of mass and inertias from config/biped.yaml; momentum and kinetic energy."""
+    """Masses, centres of mass and inertias from robots/biped7/description.yaml; momentum and kinetic energy."""
 
-    def __init__(self, path: Path = ROOT / "config" / "biped.yaml"):
+    def __init__(self, path: Path = ROOT / "robots" / "biped7" / "description.yaml"):
         d = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
 
         def link(name):

@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from biped_sim.robot.description import LEFT, load_description
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import LEFT, load_description
+from biped_model.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 

@@ -9,7 +9,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-CONFIG = ROOT / "config" / "biped.yaml"
+CONFIG = ROOT / "robots" / "biped7" / "description.yaml"
 
 
 def assert_close(a, b, tol: float, what: str, rel: bool = False) -> None:

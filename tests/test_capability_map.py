@@ -23,10 +23,10 @@ from biped_controller.studies.trial import runs, stop, trials
 from biped_controller.studies.trial import search as tsearch
 from biped_controller.studies.trial import settings as ts
 from biped_controller.studies.trial import survival as tsurv
-from biped_sim.robot.settings import default_config_dir
+from biped_model.settings import default_config_dir
 from biped_controller.core.control.controller_layout import M_, MEMORY
-from biped_sim.robot.description import load_description
-from biped_sim.robot.floating import FloatingModel
+from biped_model.description import load_description
+from biped_model.floating import FloatingModel
 
 
 # ------------------------------------------------------------------------------------------ synthetic
@@ -803,8 +803,8 @@ def test_loose_early_stop_tolerances_would_change_an_outcome(monkeypatch):
 def test_early_stop_criterion_checks_every_tolerance_and_the_push_end():
     """EarlyStop.decided on a synthetic state 0.7 ms after an impact: on the gait's orbit it holds; each
     quantity just outside its tolerance (and an impact before the push's end) makes it fail."""
-    from biped_sim.robot.description import LEFT
-    from biped_sim.robot.floating import FloatingModel, urdf_from_paper
+    from biped_model.description import LEFT
+    from biped_model.floating import FloatingModel, urdf_from_paper
     fam = tcontext.context().family
     es = stop.early_stop()
     g = fam.evaluate(fam.p_d, 0.0007)

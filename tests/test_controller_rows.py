@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 
 from biped_controller.core.control.controller import AdaptiveController, load_controller_config
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.gait_family import GaitFamily
 
 
 def test_rows_without_estimate_equal_full_evaluation():
@@ -40,7 +40,7 @@ def test_gait_optimizer_uses_the_contact_rows_of_the_model():
     margins (mu, l range, R_y >= min_normal_force M g) and its row order take_off, slide_forward,
     slide_backward, zmp_heel, zmp_toe."""
     from biped_controller.gaits.optimizer import StepOptimizer
-    from biped_sim.robot.fixed_foot import contact_rows
+    from biped_model.fixed_foot import contact_rows
     o = StepOptimizer()
     st = o.st
     Mg = o.M * o.g

@@ -1,4 +1,4 @@
-"""config/biped.yaml and the generated URDF: reasons, the paper's values, validation errors naming
+"""robots/biped7/description.yaml and the generated URDF: reasons, the paper's values, validation errors naming
 the key, and the URDF read back by Pinocchio and by an XML parser."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import yaml
 
 from helpers import CONFIG, assert_close
 
-from biped_sim.robot.description import (
+from biped_model.description import (
     URDF_JOINTS,
     DescriptionError,
     load_description,

@@ -31,8 +31,8 @@ def test_fast_engine_matches_reference_record_for_record(case):
 
 def test_engines_are_really_different_code():
     """The two engines are selected: the fast simulator holds the compiled model."""
-    from biped_sim.robot.fast_engine import FastFloatingModel
-    from biped_sim.robot.floating import FloatingModel
+    from biped_model.fast_engine import FastFloatingModel
+    from biped_model.floating import FloatingModel
     from biped_sim.plant.rigid import Simulator
     assert isinstance(Simulator(config=load_sim_config(engine="fast")).fm, FastFloatingModel)
     assert type(Simulator(config=load_sim_config(engine="reference")).fm) is FloatingModel

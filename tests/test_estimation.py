@@ -19,8 +19,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from biped_sim.robot.description import load_description
-from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_model.description import load_description
+from biped_model.fixed_foot import FixedFootModel
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation, SensorModel
 
 from biped_controller.core.sensing import momentum_observer as mom
@@ -305,7 +305,7 @@ def test_no_touchdown_is_predicted_when_it_is_reported_at_once(engine):
     same pipeline with the predictor's touchdown detection on takes the noisy estimate's sole for landed
     before the impact, acts in the new stance too early and falls (take_off at the first touchdown)."""
     from biped_sim.plant.config import load_sim_config
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.gait_family import GaitFamily
     from biped_controller.studies import runner
     plant = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch=1e-3, delay=1,
                               touchdown_delayed=False)
@@ -327,7 +327,7 @@ def test_predictor_sample_age_checked():
     """``DelayPredictor.predict``'s ``periods`` (the sample's age): 0 returns the sample; an age beyond the
     decisions recorded is refused naming it."""
     from biped_controller.core.sensing.predictor import DelayPredictor, PredictorError
-    from biped_sim.robot.description import load_description
+    from biped_model.description import load_description
     dp = DelayPredictor(load_description(), 2, 2, 1e-3, 1e-8, 1e-4, 1e-9)
     q, qd = np.array([0.15, 0.3, -0.4, -0.2, 0.6, -0.3]), np.array([0.5, -0.2, 0.1, 0.3, -0.4, 0.2])
     dp.record(0.0, np.zeros(6), 0)
@@ -385,8 +385,8 @@ def test_qp_rows_carry_the_wrench_and_its_spread():
     """The momentum observer's estimate enters the 17 'with estimate' rows as C dR on the five contact
     offsets plus estimate_confidence x sqrt(C_i Sigma_dR C_i^T); the 17 rows without it are the nominal
     ones; the matrix G is the same for both sets (checked against the rows built with no estimate)."""
-    from biped_sim.robot.fixed_foot import contact_rows
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.fixed_foot import contact_rows
+    from biped_model.gait_family import GaitFamily
     from biped_controller.core.control.controller import AdaptiveController
     fam = GaitFamily.load()
     q0, qd0 = fam.initial_state()

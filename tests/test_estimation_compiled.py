@@ -13,9 +13,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from biped_sim.robot.description import load_description
-from biped_sim.robot.fast_engine import FastFixedFootModel
-from biped_sim.robot.fixed_foot import contact_rows
+from biped_model.description import load_description
+from biped_model.fast_engine import FastFixedFootModel
+from biped_model.fixed_foot import contact_rows
 from biped_sim.plant.perturbation import PlantPerturbation
 
 from biped_controller.core.sensing import momentum_observer as mom
@@ -160,8 +160,8 @@ def test_predictor_pieces_against_python():
     stance ankle) against ``DelayPredictor.lowest_sole`` and ``predictor.flat_foot_impact`` (Pinocchio's
     floating model, root at the torso) at seeded random states, to round-off; negative control: the
     relabelling without laying the landing foot flat differs."""
-    from biped_sim.robot.floating import FloatingModel
-    from biped_sim.robot.fixed_foot import relabel
+    from biped_model.floating import FloatingModel
+    from biped_model.fixed_foot import relabel
     from biped_controller.core.sensing.predictor import DelayPredictor, flat_foot_impact
     ek = load_pipeline_kernels()
     fast = FastFixedFootModel(DESC)
@@ -213,9 +213,9 @@ def test_imu_pitch_in_the_mujoco_plant():
     IMU's torso pitch is q1 + q2 + q3 even while the foot tips (half a step of walking with the compiled
     step and the real-sensor profile); negative control: with the ankle encoder alone as q1 the sum misses
     the pitch by the foot's tilt."""
-    from biped_sim.robot.description import LEFT
-    from biped_sim.robot.gait_family import GaitFamily
-    from biped_sim.robot.floating import paper_from_urdf
+    from biped_model.description import LEFT
+    from biped_model.gait_family import GaitFamily
+    from biped_model.floating import paper_from_urdf
     from biped_sim.plant.config import load_sim_config
     from biped_sim.plant.protocol import make_plant
     fam = GaitFamily.load()

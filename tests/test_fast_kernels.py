@@ -19,14 +19,14 @@ import pytest
 
 from helpers import assert_close
 
-from biped_sim.robot.fixed_foot import FixedFootModel
-from biped_sim.robot import numba_cache
-from biped_sim.robot.description import LEFT, RIGHT, load_description
-from biped_sim.robot.fast_engine import (
+from biped_model.fixed_foot import FixedFootModel
+from biped_model import numba_cache
+from biped_model.description import LEFT, RIGHT, load_description
+from biped_model.fast_engine import (
     PX, REV, Body, FastFixedFootModel, FastFloatingModel, Joint, PlanarTree, TreeError, fixed_foot_tree,
     floating_tree, push_arrays,
 )
-from biped_sim.robot.floating import FloatingModel, SimulationError
+from biped_model.floating import FloatingModel, SimulationError
 
 N_STATES = 60
 TOL = 1e-10
@@ -450,7 +450,7 @@ def test_tree_validation_names_the_problem(desc):
 def test_compile_notice_only_without_a_matching_stamp(tmp_path):
     stamp = tmp_path / "cache" / "planar_kernels.stamp"
     nc = numba_cache
-    key = nc.cache_key(nc.source_of("biped_sim.robot.planar_kernels"))
+    key = nc.cache_key(nc.source_of("biped_model.planar_kernels"))
     out = io.StringIO()
     assert nc.announce_compile(stamp, key, out) is True
     assert out.getvalue().strip() == nc.COMPILE_NOTICE
@@ -467,7 +467,7 @@ def test_compile_notice_only_without_a_matching_stamp(tmp_path):
 def test_stale_cache_of_a_dependent_module_is_dropped(tmp_path):
     """A module compiled against another module's kernels: its cache files go when a dependency's source
     changes (numba itself only watches the module's own source), and stay otherwise."""
-    from biped_sim.robot.numba_cache import drop_stale_cache
+    from biped_model.numba_cache import drop_stale_cache
     dep = tmp_path / "dep.py"
     dep.write_text("x = 1\n")
     cache = tmp_path / "cache" / "pkg_hash"

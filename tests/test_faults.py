@@ -35,10 +35,10 @@ def _run_node(pkg, name, *params, timeout=120):
 def other_robot(tmp_path_factory):
     import yaml
     tmp = tmp_path_factory.mktemp('robot')
-    tree = yaml.safe_load((ROOT / 'config' / 'biped.yaml').read_text())
+    tree = yaml.safe_load((ROOT / 'robots' / 'biped7' / 'description.yaml').read_text())
     tree['shin']['length']['value'] = 0.45
     (tmp / 'biped.yaml').write_text(yaml.safe_dump(tree))
-    from biped_sim.robot.description import load_description, make_urdf
+    from biped_model.description import load_description, make_urdf
     (tmp / 'bad.urdf').write_text(make_urdf(load_description()).replace('"left_knee"', '"l_knee"'))
     (tmp / 'broken.json').write_text('{"family": ')
     return tmp

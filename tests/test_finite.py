@@ -1,4 +1,4 @@
-"""The one finite-number check (``biped_sim.robot.finite``): what it accepts, what it rejects, the
+"""The one finite-number check (``biped_model.finite``): what it accepts, what it rejects, the
 messages it writes and the error types it raises."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from biped_sim.robot.finite import NumberError, finite_array, finite_number
+from biped_model.finite import NumberError, finite_array, finite_number
 
 
 class DomainError(ValueError):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from biped_sim.plant.config import SimConfigError, load_sim_config
-from biped_sim.robot.mjcf import foot_geom_names, make_mjcf
+from biped_model.mjcf import foot_geom_names, make_mjcf
 from biped_controller.studies import foot_quiet as fq
 
 
@@ -62,7 +62,7 @@ def test_sole_points_in_the_mjcf_and_their_bad_values():
     """n contact spheres from heel to toe, named as the plant looks them up; 0 keeps the box; other counts
     are refused naming the key."""
     from biped_sim.plant.mujoco import contact_settings
-    from biped_sim.robot.description import load_description
+    from biped_model.description import load_description
     desc = load_description()
     text = make_mjcf(desc, contact_settings(load_sim_config(plant="mujoco", mujoco_sole_points=5)))
     for side in ("left", "right"):

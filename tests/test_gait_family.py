@@ -1,4 +1,4 @@
-"""Independent checks of the reference gait family (config/gait_family.json) and of gait_family.py.
+"""Independent checks of the reference gait family (robots/biped7/gait_family.json) and of gait_family.py.
 
 Every optimised stride, fitted and held out, is re-checked from its own polynomial (the ``a``
 coefficients of its record) with the project's models but none of the optimiser's code: periodicity
@@ -21,12 +21,12 @@ import pytest
 
 from helpers import ROOT, assert_close
 
-from biped_sim.robot.floating import FloatingModel, impact_paper
-from biped_sim.robot.gait_family import (POLYNOMIAL, SPLINE, GaitFamily, GaitFamilyError, fit_family, fit_spline_family,
+from biped_model.floating import FloatingModel, impact_paper
+from biped_model.gait_family import (POLYNOMIAL, SPLINE, GaitFamily, GaitFamilyError, fit_family, fit_spline_family,
                                    spline_pieces)
-from biped_sim.robot.fixed_foot import N_CONSTRAINTS, CONSTRAINT_NAMES, FixedFootModel, relabel
+from biped_model.fixed_foot import N_CONSTRAINTS, CONSTRAINT_NAMES, FixedFootModel, relabel
 
-FAMILY_FILE = ROOT / "config" / "gait_family.json"
+FAMILY_FILE = ROOT / "robots" / "biped7" / "gait_family.json"
 DATA = json.loads(FAMILY_FILE.read_text(encoding="utf-8"))
 FAM = GaitFamily.load(FAMILY_FILE)
 RECORDS = [r for r in DATA["strides"] if r["success"]]
@@ -35,7 +35,7 @@ HELD_OUT = DATA.get("held_out", [])
 GRID = int(DATA["settings"]["grid_intervals"]["value"])
 FINE = 10 * GRID
 SETTINGS = DATA["settings"]
-# The tolerances the family was generated against (config/gait.yaml, copied into the file).
+# The tolerances the family was generated against (robots/biped7/gait.yaml, copied into the file).
 FIT_TOL_Q = float(SETTINGS["fit_tolerance_q"]["value"])
 FIT_TOL_QD = float(SETTINGS["fit_tolerance_qdot"]["value"])
 ALL_STEPS = RECORDS + HELD_OUT

@@ -235,7 +235,7 @@ def test_d_bag_reads_and_decodes_counts_and_time_range(walk):
 
 
 def test_f_bag_passes_an_independent_physics_check(walk):
-    """From the bag and config/biped.yaml alone (tests/bag_physics: own kinematics, no project code):
+    """From the bag and robots/biped7/description.yaml alone (tests/bag_physics: own kinematics, no project code):
     the push (off the 1 ms grid) acts exactly over its window, the momentum of every period balances the
     recorded ground reaction, push and impact impulses, and every recorded impact is consistent."""
     import bag_physics as bp

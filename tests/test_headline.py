@@ -6,7 +6,7 @@ import shutil
 import pytest
 
 from biped_controller.studies import headline
-from biped_sim.robot.settings import repo_root
+from biped_model.settings import repo_root
 
 
 @pytest.mark.parametrize("doc", ["README.md", "docs/paper_table.md"])

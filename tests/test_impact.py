@@ -8,9 +8,9 @@ import pytest
 
 from helpers import assert_close, directional_diff
 
-from biped_sim.robot.fixed_foot import FixedFootModel, relabel
-from biped_sim.robot.description import LEFT, RIGHT
-from biped_sim.robot.floating import FloatingModel, impact_paper, paper_from_urdf, urdf_from_paper
+from biped_model.fixed_foot import FixedFootModel, relabel
+from biped_model.description import LEFT, RIGHT
+from biped_model.floating import FloatingModel, impact_paper, paper_from_urdf, urdf_from_paper
 
 STANCES = (LEFT, RIGHT)
 

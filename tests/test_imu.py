@@ -111,8 +111,8 @@ def test_rigid_plant_reports_the_torso_rate():
     sample of it with a gyro of zero noise (the joints noisy)."""
     from biped_sim.plant.config import load_sim_config
     from biped_sim.plant.rigid import Simulator
-    from biped_sim.robot.description import LEFT, load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import LEFT, load_description
+    from biped_model.gait_family import GaitFamily
     from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     desc, cfg, family = load_description(), load_sim_config(), GaitFamily.load()
     q0, qd0 = family.initial_state()

@@ -55,8 +55,8 @@ def _in_process(ccfg, pert, through_imu: bool | str | None):
     from builtin_interfaces.msg import Time
     from biped_sim.graph.imu import ImuBuilder, imu_reading
     from biped_sim.plant.config import load_sim_config
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
     from biped_controller.studies.runner import ClosedLoop
     loop = ClosedLoop(load_sim_config(), ccfg, GaitFamily.load(), load_description(), pert)
     loop.reset()

@@ -20,7 +20,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"biped_sim": ROOT / "src" / "biped_sim" / "biped_sim",
+PACKAGES = {"biped_model": ROOT / "src" / "biped_model" / "biped_model",
+            "biped_sim": ROOT / "src" / "biped_sim" / "biped_sim",
             "biped_controller": ROOT / "src" / "biped_controller" / "biped_controller"}
 # The ROS layer: nodes and the tools that talk to a running graph. Everything else is pure core.
 ROS_LAYER = {
@@ -31,19 +32,19 @@ ROS_LAYER = {
 }
 # room -> the rooms it may import (besides itself). A module's room is its sub-package.
 ROOMS = {
-    "biped_sim.robot": set(),
-    "biped_sim.plant": {"biped_sim.robot"},
-    "biped_sim.recording": {"biped_sim.robot"},
-    "biped_sim.graph": {"biped_sim.robot", "biped_sim.plant", "biped_sim.recording"},
-    "biped_sim.live": {"biped_sim.robot", "biped_sim.graph", "biped_sim.recording"},
-    "biped_controller.core.qp": {"biped_sim.robot"},
-    "biped_controller.core.sensing": {"biped_sim.robot", "biped_controller.core.qp"},
-    "biped_controller.core.control": {"biped_sim.robot", "biped_controller.core.qp", "biped_controller.core.sensing"},
-    "biped_controller.gaits": {"biped_sim.robot", "biped_controller.core"},
-    "biped_controller.plugin": {"biped_sim.robot", "biped_sim.plant", "biped_controller.core"},
-    "biped_controller.studies": {"biped_sim.robot", "biped_sim.plant", "biped_controller.core", "biped_controller.gaits",
+    "biped_model": set(),
+    "biped_sim.plant": {"biped_model"},
+    "biped_sim.recording": {"biped_model"},
+    "biped_sim.graph": {"biped_model", "biped_sim.plant", "biped_sim.recording"},
+    "biped_sim.live": {"biped_model", "biped_sim.graph", "biped_sim.recording"},
+    "biped_controller.core.qp": {"biped_model"},
+    "biped_controller.core.sensing": {"biped_model", "biped_controller.core.qp"},
+    "biped_controller.core.control": {"biped_model", "biped_controller.core.qp", "biped_controller.core.sensing"},
+    "biped_controller.gaits": {"biped_model", "biped_controller.core"},
+    "biped_controller.plugin": {"biped_model", "biped_sim.plant", "biped_controller.core"},
+    "biped_controller.studies": {"biped_model", "biped_sim.plant", "biped_controller.core", "biped_controller.gaits",
                                  "biped_controller.plugin"},
-    "biped_controller.graph": {"biped_sim.robot", "biped_sim.graph", "biped_controller.core", "biped_controller.plugin"},
+    "biped_controller.graph": {"biped_model", "biped_sim.graph", "biped_controller.core", "biped_controller.plugin"},
 }
 ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",
              "builtin_interfaces", "tf2_msgs", "biped_msgs_py", "std_srvs", "ament_index_python"}
@@ -92,6 +93,8 @@ def violations(graph: dict[str, set[str]], ros_layer: set[str]) -> list[str]:
             out.append(f"pure-core module {mod} imports ROS: {sorted(roots & ROS_ROOTS)}")
         if mod.startswith("biped_sim") and "biped_controller" in roots:
             out.append(f"{mod} imports biped_controller (the simulator must not depend on the controller)")
+        if mod.startswith("biped_model") and roots & {"biped_sim", "biped_controller"}:
+            out.append(f"{mod} imports {sorted(roots & {'biped_sim', 'biped_controller'})} (the robot model is below both sides)")
     return out
 
 
@@ -146,7 +149,7 @@ def test_checker_finds_planted_violations(bad_package):
 
 def test_project_modules_found():
     g = collect(PACKAGES)
-    for m in ("biped_sim.plant.rigid", "biped_sim.robot.gait_family", "biped_controller.core.control.controller", "biped_controller.core.qp.solver"):
+    for m in ("biped_sim.plant.rigid", "biped_model.gait_family", "biped_controller.core.control.controller", "biped_controller.core.qp.solver"):
         assert m in g, sorted(g)
     assert len(g) >= 30
 
@@ -173,7 +176,7 @@ PACKAGE_ROOTS = {"biped_sim", "biped_controller", "biped_controller.core"}
 def room_of(mod: str, rooms: dict[str, set[str]] = ROOMS) -> str | None:
     """The longest room (a key of ``rooms``) that is a package of ``mod`` or ``mod`` itself; None if none."""
     parts = mod.split(".")
-    for k in range(len(parts), 1, -1):
+    for k in range(len(parts), 0, -1):
         if ".".join(parts[:k]) in rooms:
             return ".".join(parts[:k])
     return None
@@ -197,21 +200,21 @@ def room_violations(graph: dict[str, set[str]], rooms: dict[str, set[str]]) -> l
             continue
         for i in sorted(imps):
             r = room_of(i, rooms)
-            if i.split(".")[0] in ("biped_sim", "biped_controller") and r is not None \
+            if i.split(".")[0] in ("biped_model", "biped_sim", "biped_controller") and r is not None \
                     and not may_import(room, r, rooms):
                 out.append(f"{mod} ({room}) imports {i} ({r})")
     return out
 
 
 def test_room_checker_finds_planted_violations():
-    g = {"biped_sim.robot.a": {"biped_sim.plant.b"}, "biped_sim.plant.b": {"biped_sim.robot.a"},
+    g = {"biped_model.a": {"biped_sim.plant.b"}, "biped_sim.plant.b": {"biped_model.a"},
          "biped_controller.core.qp.c": {"biped_sim.plant.b", "biped_sim.graph.names", "biped_controller.core.control.d"},
          "biped_controller.core.control.d": {"biped_controller.core.qp.c", "biped_controller.core.sensing.e"},
          "biped_controller.core.sensing.e": {"biped_controller.core.control.d"},
          "biped_controller.gaits.f": {"biped_controller.core.control.d"},
          "biped_sim.loose": set(), "biped_controller.core.loose": set()}
     v = room_violations(g, ROOMS)
-    assert "biped_sim.robot.a (biped_sim.robot) imports biped_sim.plant.b (biped_sim.plant)" in v, v
+    assert "biped_model.a (biped_model) imports biped_sim.plant.b (biped_sim.plant)" in v, v
     assert "biped_controller.core.qp.c (biped_controller.core.qp) imports biped_sim.plant.b (biped_sim.plant)" in v, v
     assert "biped_controller.core.qp.c (biped_controller.core.qp) imports biped_sim.graph.names (biped_sim.graph)" in v, v
     assert ("biped_controller.core.qp.c (biped_controller.core.qp) imports biped_controller.core.control.d "

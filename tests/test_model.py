@@ -19,7 +19,7 @@ from helpers import (
     rk4_step,
 )
 
-from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES, N_CONSTRAINTS, FixedFootModel, relabel
+from biped_model.fixed_foot import CONSTRAINT_NAMES, N_CONSTRAINTS, FixedFootModel, relabel
 
 
 @pytest.fixture(scope="module")

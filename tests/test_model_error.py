@@ -8,15 +8,15 @@ import itertools
 import numpy as np
 import pytest
 
-from biped_sim.robot.description import load_description
-from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_model.description import load_description
+from biped_model.fixed_foot import FixedFootModel
 from biped_sim.plant.perturbation import PlantPerturbation
 
 from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
 from biped_controller.core.sensing.model_error import (LEG_PARAMETERS, LINK_JOINTS, LegModelError, LegRegressor,
                                                 ModelErrorConfigError, RneaLegRegressor, _bumped,
                                                 load_model_error_kernels, parameter_bumps, prior_std)
-from biped_sim.robot.fixed_foot import relabel
+from biped_model.fixed_foot import relabel
 
 from estimation_loop import closed_loop
 
@@ -417,9 +417,9 @@ def test_reference_at_is_the_controllers_reference():
     # the live run: the sample's instant against the true state (the log keeps the last decisions only, so
     # replay a fresh controller step by step)
     from biped_controller.core.control.controller import AdaptiveController
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.gait_family import GaitFamily
     from biped_sim.plant.rigid import Simulator
-    from biped_sim.robot.description import LEFT
+    from biped_model.description import LEFT
     fam = GaitFamily.load()
     sim = Simulator(DESC)
     c = AdaptiveController(load_controller_config(mode="both", momentum_observer=True, momentum_observer_gain=K,

@@ -10,10 +10,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from biped_sim.robot.description import LEFT, load_description
-from biped_sim.robot.fast_engine import fixed_foot_tree
-from biped_sim.robot.fixed_foot import relabel
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import LEFT, load_description
+from biped_model.fast_engine import fixed_foot_tree
+from biped_model.fixed_foot import relabel
+from biped_model.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 

@@ -20,8 +20,8 @@ MJ = load_sim_config(plant="mujoco")
 def _loop():
     from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies.runner import ClosedLoop
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
     return ClosedLoop(MJ, load_controller_config(mode="both", period=MJ.control_period), GaitFamily.load(),
                       load_description())
 
@@ -118,8 +118,8 @@ def test_opt_timestep_view_is_the_models_field():
 def _loop_mode(mode: str):
     from biped_controller.core.control.controller import load_controller_config
     from biped_controller.studies.runner import ClosedLoop
-    from biped_sim.robot.description import load_description
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.description import load_description
+    from biped_model.gait_family import GaitFamily
     return ClosedLoop(MJ, load_controller_config(mode=mode, period=MJ.control_period), GaitFamily.load(),
                       load_description())
 

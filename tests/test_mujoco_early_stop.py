@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from biped_sim.plant.perturbation import PlantPerturbation
-from biped_sim.robot.settings import default_config_dir
+from biped_model.settings import default_config_dir
 
 from biped_controller.studies import capability_map as cm
 from biped_controller.studies.trial import context as tcontext

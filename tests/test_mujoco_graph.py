@@ -45,7 +45,7 @@ def mujoco_bag(tmp_path_factory):
 
 
 def _joints_of(js) -> np.ndarray:
-    from biped_sim.robot.description import URDF_JOINTS
+    from biped_model.description import URDF_JOINTS
     pos, vel = dict(zip(js.name, js.position)), dict(zip(js.name, js.velocity))
     return np.array([pos[j] for j in URDF_JOINTS]), np.array([vel[j] for j in URDF_JOINTS])
 
@@ -80,7 +80,7 @@ def test_graph_runs_on_mujoco_and_the_bag_decodes(mujoco_bag):
 
 
 def test_mujoco_bag_physics_from_the_bag_alone(mujoco_bag):
-    """Own planar model (tests/bag_physics, config/biped.yaml): per period P(t_k+1) - P(t_k) = (F_x dt + push,
+    """Own planar model (tests/bag_physics, robots/biped7/description.yaml): per period P(t_k+1) - P(t_k) = (F_x dt + push,
     (F_z - M g) dt) + the touchdown's impulse, with /ground_reaction the period's mean wrench (DESIGN.md: the
     MuJoCo plant's instants); every impact: its window is the period it ends, and its impulse is the momentum
     jump over that period less the stance reaction and gravity; /sim/state's q1 = encoder + stance foot pitch."""

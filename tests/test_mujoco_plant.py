@@ -13,8 +13,8 @@ import pytest
 
 from biped_sim.plant.config import SimConfigError, load_sim_config
 from biped_sim.plant.push import Push
-from biped_sim.robot.description import LEFT, RIGHT, load_description
-from biped_sim.robot.floating import FloatingModel
+from biped_model.description import LEFT, RIGHT, load_description
+from biped_model.floating import FloatingModel
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -137,7 +137,7 @@ def test_contact_forces_three_ways_agree():
 def test_observed_stance_ankle_is_measured_against_the_ground():
     """q1 (q1') reported = the stance ankle encoder + the stance foot's pitch (rate); the records keep the
     encoders. A flat foot: the same numbers as the rigid convention."""
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.gait_family import GaitFamily
     p = _plant()
     q0, qd0 = GaitFamily.load().initial_state()
     p.reset(q0, qd0, LEFT)
@@ -260,7 +260,7 @@ def test_a_push_far_above_the_boundary_ends_in_a_physical_fall():
 
 def test_fall_checks_each_fire(monkeypatch):
     """Each physical check on a state built for it: hip low, foot rotated, a shin on the floor."""
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.gait_family import GaitFamily
     p = _plant()
     q0, qd0 = GaitFamily.load().initial_state()
     p.reset(q0, qd0, LEFT)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 from biped_sim.plant.push import Push
-from biped_sim.robot.layout import SnapshotUnsupported
+from biped_model.layout import SnapshotUnsupported
 
 from biped_controller.studies import runner
 from biped_controller.studies.trial import context as tcontext

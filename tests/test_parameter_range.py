@@ -14,7 +14,7 @@ from helpers import assert_same_run
 from biped_sim.plant.push import Push
 from biped_controller.core.control.controller import (
     AdaptiveController, computed_torque, joint_law, load_controller_config, load_controller_kernels)
-from biped_sim.robot.gait_family import eq11
+from biped_model.gait_family import eq11
 from biped_controller.core.control.controller_layout import M_, MEMORY, R_, RES
 from biped_controller.studies import runner
 from biped_controller.core.qp.problem import INFEASIBLE_FALLBACK

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import yaml
 
-from biped_sim.robot.description import LEFT, load_description
-from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import LEFT, load_description
+from biped_model.floating import paper_from_urdf, urdf_from_paper
+from biped_model.gait_family import GaitFamily
 from biped_sim.plant.perturbation import (ZERO, PerturbationError, PlantPerturbation, SensorModel, plant_parameters,
                                     plant_yaml)
 from biped_sim.plant.config import load_sim_config
@@ -458,7 +458,7 @@ def test_recorded_perturbed_run_carries_the_true_plant_in_the_bag_metadata(ros_d
     import yaml
     from mcap.reader import make_reader
     from biped_sim.graph.recorder_node import PLANT_METADATA
-    from biped_sim.robot.settings import repo_root
+    from biped_model.settings import repo_root
     bag = tmp_path / "bag"
     r = subprocess.run([sys.executable, "-m", "biped_sim.graph.launch", "--bag", str(bag), "--steps", "1",
                         "--sim-param", "perturbation.torso_mass_scale:=1.1"],

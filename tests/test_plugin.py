@@ -32,7 +32,7 @@ from biped_controller.studies.trial import runs as trial_runs, trials as trial_t
 from biped_controller.studies import runner
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
-from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_model.fixed_foot import FixedFootModel
 
 START, DURATION = trial_runs.DEFAULT_START, trial_runs.DEFAULT_DURATION
 

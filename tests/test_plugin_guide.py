@@ -34,7 +34,7 @@ import numpy as np
 
 from biped_controller.core.control.controller import load_controller_config
 from biped_controller.plugin.interface import ControlResult
-from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_model.fixed_foot import FixedFootModel
 
 
 class ComputedTorque:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from biped_sim.robot.profiles import ProfileError, load_profile, profile_names
+from biped_model.profiles import ProfileError, load_profile, profile_names
 from biped_controller.studies import capability_map as cmap
 from biped_controller.studies.trial import settings as ts
 
@@ -131,7 +131,7 @@ def test_the_nodes_take_a_profile_and_explicit_parameters_win(rclpy_context):
     from rclpy.parameter import Parameter
     from biped_controller.graph.controller_node import read_controller_config
     from biped_sim.graph.simulator_node import read_perturbation, read_sim_config
-    from biped_sim.robot.description import load_description
+    from biped_model.description import load_description
 
     def node(name, **params):
         return Node(name, context=rclpy_context,

@@ -100,7 +100,7 @@ def test_compiled_period_gets_intervals_split_at_the_switches(monkeypatch):
     """The intervals and per-interval pushes handed to planar_kernels.period: none straddles the window,
     the force is on exactly inside it."""
     import math
-    from biped_sim.robot.fast_engine import planar_kernels
+    from biped_model.fast_engine import planar_kernels
     pk = planar_kernels()
     start, duration = 0.2003217, 0.0251
     end = start + duration

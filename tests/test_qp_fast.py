@@ -19,7 +19,7 @@ from biped_controller.core.qp import exact as qp_exact
 from biped_controller.core.qp.solver import load_exact_kernels
 from biped_controller.core.qp import problem as qp_types
 from biped_controller.core.control.controller import QP_ROWS
-from biped_sim.robot.fixed_foot import N_CONSTRAINTS
+from biped_model.fixed_foot import N_CONSTRAINTS
 from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
 from biped_controller.core.qp.problem import constraint_values, kkt_residuals
 
@@ -478,7 +478,7 @@ def test_first_import_says_it_compiles_then_loads_silently(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     first = _import_exact_kernels(env)
     assert first.returncode == 0, first.stderr
-    from biped_sim.robot.numba_cache import COMPILE_NOTICE
+    from biped_model.numba_cache import COMPILE_NOTICE
     assert COMPILE_NOTICE in first.stderr and "compiled in" in first.stderr
     assert list(tmp_path.rglob("exact_kernels.early_out-*.nbi"))
     second = _import_exact_kernels(env)

@@ -19,14 +19,14 @@ from scipy.optimize import linprog
 
 from helpers import assert_close, assert_same_run
 
-from biped_sim.robot.description import LEFT, RIGHT, load_description
+from biped_model.description import LEFT, RIGHT, load_description
 from biped_sim.plant.push import Rejected
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_controller.studies import runner
 from biped_controller.core.control.controller import load_controller_config
-from biped_sim.robot.gait_family import GaitFamily
-from biped_sim.robot.fixed_foot import relabel
+from biped_model.gait_family import GaitFamily
+from biped_model.fixed_foot import relabel
 from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals
 from biped_sim.plant.push import Push
 
@@ -232,7 +232,7 @@ def test_relabel_at_impact(ideal_run):
 def test_no_liftoff_fall_ends_the_period_at_its_instant():
     """A released foot driven into the ground before it clears: the no_liftoff fall is dated at the end
     of the integration interval where it sank too deep, and the period (and the state) stop there."""
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.gait_family import GaitFamily
     from biped_sim.plant.rigid import Simulator
     q, qd = GaitFamily.load().initial_state()
     sim = Simulator()

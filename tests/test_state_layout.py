@@ -17,9 +17,9 @@ import pytest
 
 from helpers import assert_close
 
-from biped_sim.robot.description import LEFT, RIGHT, load_description
-from biped_sim.robot.gait_family import GaitFamily
-from biped_sim.robot.layout import Layout, LayoutError
+from biped_model.description import LEFT, RIGHT, load_description
+from biped_model.gait_family import GaitFamily
+from biped_model.layout import Layout, LayoutError
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_sim.plant.rigid_layout import S_, SIM_STATE
@@ -220,9 +220,9 @@ def test_the_compiled_loop_runs_on_the_objects_own_arrays(monkeypatch):
 
 # ------------------------------------------------------------------------------------------ the floating-base model
 def test_both_floating_models_satisfy_one_protocol():
-    from biped_sim.robot.fast_engine import FastFloatingModel
-    from biped_sim.robot.floating import FloatingModel
-    from biped_sim.robot.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
+    from biped_model.fast_engine import FastFloatingModel
+    from biped_model.floating import FloatingModel
+    from biped_model.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
     desc = load_description()
     ref, fast = make_floating_model(desc, "reference"), make_floating_model(desc, "fast")
     assert type(ref) is FloatingModel and type(fast) is FastFloatingModel
@@ -257,10 +257,10 @@ def test_kernel_modules_import_without_side_effects(tmp_path):
     imported directly (not through numba_cache.load) refuses instead of caching in a stray place."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     code = ("import os, sys, numba\n"
-            "import biped_sim.robot.fast_engine, biped_sim.plant.rigid, biped_controller.core.control.controller\n"
+            "import biped_model.fast_engine, biped_sim.plant.rigid, biped_controller.core.control.controller\n"
             "import biped_controller.core.qp.solver, biped_controller.studies.segment, biped_controller.studies.runner\n"
             "import biped_controller.core.sensing.model_error\n"
-            "kern = [m for m in ('biped_sim.robot.planar_kernels', 'biped_controller.core.qp.exact_kernels',\n"
+            "kern = [m for m in ('biped_model.planar_kernels', 'biped_controller.core.qp.exact_kernels',\n"
             "        'biped_controller.core.control.controller_kernels', 'biped_controller.core.control.wbc_kernels',\n"
             "        'biped_controller.studies.loop_kernels', 'biped_controller.core.sensing.model_error_kernels')\n"
             "        if m in sys.modules]\n"
@@ -268,11 +268,11 @@ def test_kernel_modules_import_without_side_effects(tmp_path):
     out = _python(code, env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[] False ''" and out.stderr == ""
-    for mod in ("biped_sim.robot.planar_kernels", "biped_controller.core.sensing.model_error_kernels"):
+    for mod in ("biped_model.planar_kernels", "biped_controller.core.sensing.model_error_kernels"):
         direct = _python(f"import {mod}", env)
         assert direct.returncode != 0 and "CacheNotConfigured" in direct.stderr and "numba_cache.load" in direct.stderr
     # through load: the repository's cache, nothing printed when it is warm (setup compiled it)
-    loaded = _python("from biped_sim.robot.fast_engine import planar_kernels; import numba; planar_kernels(); "
+    loaded = _python("from biped_model.fast_engine import planar_kernels; import numba; planar_kernels(); "
                      "print(numba.config.CACHE_DIR)", env)
     assert loaded.returncode == 0, loaded.stderr
     assert Path(loaded.stdout.strip()) == ROOT / "build" / "numba-cache"

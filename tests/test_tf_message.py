@@ -2,7 +2,7 @@
 at every state (stamps, torso translation, every rotation), seeded random states."""
 import numpy as np
 
-from biped_sim.robot.description import load_description, make_urdf
+from biped_model.description import load_description, make_urdf
 from biped_sim.graph.simulator_node import TransformBuilder, stamp_of
 
 

@@ -14,7 +14,7 @@ from biped_controller.core.control.controller_layout import G_, TORSO_QP_ROWS
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.studies import runner, segment
 from biped_sim.plant.push import Push
-from biped_sim.robot.gait_family import torso_profile
+from biped_model.gait_family import torso_profile
 
 CASES = {"walk": (), "push": (Push(0.2315, 0.025, 500.0),), "back": (Push(0.2315, 0.025, -1200.0),),
          "fall": (Push(0.2, 0.1, 1500.0),)}

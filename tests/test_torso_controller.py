@@ -14,7 +14,7 @@ import pytest
 from scipy.optimize import minimize
 
 from biped_sim.plant.push import Push
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.gait_family import GaitFamily
 from biped_controller.core.control.controller import (ADAPTED, MODES, TORSO_MODES, TORSO_ROWS, AdaptiveController,
                                               ControllerConfigError, load_controller_config)
 from biped_controller.core.control.controller_layout import M_, QP_ROWS
@@ -274,7 +274,7 @@ def test_torque_within_period_starts_at_the_period_torque_with_lambda():
     """The integration-rate law (torque_within_period) at s = 0 is the period's own torque: the same
     reference (with lambda, lambda', lambda'') and the same decision, once lambda != 0. Negative control:
     with the torso terms dropped (lambda'' = 0 in the memory) the torque differs."""
-    from biped_sim.robot.description import LEFT
+    from biped_model.description import LEFT
     rec = run(2, "both", (Push(0.2315, 0.025, 500.0),))
     ctrl = AdaptiveController(load_controller_config(mode="all"))
     ctrl.reset(LEFT)

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from biped_sim.robot.fixed_foot import FixedFootModel, relabel
-from biped_sim.robot.gait_family import (TORSO_DIRECTION, GaitFamily, GaitSample, eq11, eq11_torso, torso_profile,
+from biped_model.fixed_foot import FixedFootModel, relabel
+from biped_model.gait_family import (TORSO_DIRECTION, GaitFamily, GaitSample, eq11, eq11_torso, torso_profile,
                                          with_torso)
 
 FAM = GaitFamily.load()

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from biped_sim.plant.perturbation import PlantPerturbation
-from biped_sim.robot.description import load_description
-from biped_sim.robot.fixed_foot import FixedFootModel, relabel
-from biped_sim.robot.floating import FloatingModel
+from biped_model.description import load_description
+from biped_model.fixed_foot import FixedFootModel, relabel
+from biped_model.floating import FloatingModel
 
 from biped_controller.core.control.controller import load_controller_config
 from biped_controller.core.sensing.estimation import EstimatorConfig, JointStateEstimator
@@ -220,8 +220,8 @@ def test_compiled_band_equals_the_python_band():
     relative) and the same hypotheses' states (1e-9). Negative controls: the replay with k = 1 instead of 5
     puts a band in fewer periods; with the estimator's process noise 1 % larger sigma_z differs."""
     from dataclasses import replace
-    from biped_sim.robot.fast_engine import FastFixedFootModel
-    from biped_sim.robot.fixed_foot import contact_rows
+    from biped_model.fast_engine import FastFixedFootModel
+    from biped_model.fixed_foot import contact_rows
     from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
     from estimation_loop import closed_loop
     tr = closed_loop(0.5, DELAY_ROW, python_sensing=True, engine="reference", delay_compensation=2, **REAL)
@@ -264,5 +264,5 @@ def _sim_cfg():
 
 
 def _family():
-    from biped_sim.robot.gait_family import GaitFamily
+    from biped_model.gait_family import GaitFamily
     return GaitFamily.load()

@@ -179,8 +179,8 @@ def _set(tree, key, value):
 
 @pytest.fixture(scope='module')
 def biped_tree():
-    from biped_sim.robot.settings import default_config_dir
-    return yaml.safe_load((default_config_dir() / 'biped.yaml').read_text())
+    from biped_model.settings import default_robot_dir
+    return yaml.safe_load((default_robot_dir() / 'description.yaml').read_text())
 
 
 BAD_VALUES = st.sampled_from([math.nan, math.inf, -math.inf, 'abc', None, [1.0]])
@@ -189,7 +189,7 @@ BAD_VALUES = st.sampled_from([math.nan, math.inf, -math.inf, 'abc', None, [1.0]]
 @SETTINGS
 @given(data=st.data())
 def test_biped_description_rejects_bad_value_naming_key(biped_tree, data):
-    from biped_sim.robot.description import DescriptionError, parse_description
+    from biped_model.description import DescriptionError, parse_description
     key = data.draw(st.sampled_from(sorted(_leaf_keys(biped_tree))))
     tree = copy.deepcopy(biped_tree)
     _set(tree, key, data.draw(BAD_VALUES))
@@ -201,7 +201,7 @@ def test_biped_description_rejects_bad_value_naming_key(biped_tree, data):
 @SETTINGS
 @given(data=st.data())
 def test_biped_description_accepts_scaled_valid_masses(biped_tree, data):
-    from biped_sim.robot.description import parse_description
+    from biped_model.description import parse_description
     tree = copy.deepcopy(biped_tree)
     for seg in ('torso', 'thigh', 'shin'):
         _set(tree, f'{seg}.mass', data.draw(st.floats(0.5, 100.0)))
@@ -220,7 +220,7 @@ def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
         return   # any finite height is a valid default here (the nodes bound it by the torso)
     if key == 'substeps' and not math.isfinite(bad):
         return   # known bug, see test_simulator_config_non_finite_substeps_known_bug
-    from biped_sim.robot.settings import default_config_dir
+    from biped_model.settings import default_config_dir
     tree = yaml.safe_load((default_config_dir() / 'simulator.yaml').read_text())
     if isinstance(tree[key], dict):
         tree[key]['value'] = bad
@@ -237,7 +237,7 @@ def test_simulator_config_rejects_naming_key(tmp_path_factory, key, bad):
 def test_simulator_config_non_finite_substeps(tmp_path, bad):
     """NaN/inf substeps are rejected naming the key (load_sim_config validates before int())."""
     from biped_sim.plant.config import load_sim_config
-    from biped_sim.robot.settings import default_config_dir
+    from biped_model.settings import default_config_dir
     text = (default_config_dir() / 'simulator.yaml').read_text()
     tree = yaml.safe_load(text)
     tree['substeps'] = float(bad.replace('.', ''))
@@ -304,7 +304,7 @@ def test_controller_config_accepts_valid(mode, kp):
 def test_graph_params_file_repeats_no_setting():
     """config/graph.yaml holds only the nodes' own keys: every simulator/controller setting has one
     home (config/simulator.yaml, config/controller.yaml), which the nodes use as their defaults."""
-    from biped_sim.robot.settings import default_config_dir
+    from biped_model.settings import default_config_dir
     from biped_sim.plant.config import SimConfig
     from biped_controller.core.control.controller import ControllerConfig
     g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
@@ -318,7 +318,7 @@ def test_graph_params_file_repeats_no_setting():
 
 def test_bare_objects_read_the_config_files():
     """A bare Simulator() / AdaptiveController() use exactly the numbers of config/*.yaml."""
-    from biped_sim.robot.settings import default_config_dir, read_settings
+    from biped_model.settings import default_config_dir, read_settings
     from biped_sim.plant.config import SimConfig
     from biped_sim.plant.rigid import Simulator
     from biped_controller.core.control.controller import AdaptiveController, ControllerConfig
@@ -334,10 +334,10 @@ def test_bare_objects_read_the_config_files():
 
 def test_family_description_check():
     import dataclasses
-    from biped_sim.robot.gait_family import GaitFamily
-    from biped_sim.robot.description import load_description
+    from biped_model.gait_family import GaitFamily
+    from biped_model.description import load_description
     from biped_sim.graph.checks import RobotFilesError, check_family_matches_description, check_urdf_joints
-    from biped_sim.robot.description import make_urdf
+    from biped_model.description import make_urdf
     desc, fam = load_description(), GaitFamily.load()
     check_family_matches_description(desc, fam)
     other = dataclasses.replace(desc, shin=dataclasses.replace(desc.shin, length=0.45))
@@ -351,7 +351,7 @@ def test_family_description_check():
 
 def test_graph_yaml_every_key_has_a_reason():
     """Every parameter in config/graph.yaml carries its reason (a comment on its line or the line above)."""
-    from biped_sim.robot.settings import default_config_dir
+    from biped_model.settings import default_config_dir
     lines = (default_config_dir() / 'graph.yaml').read_text().splitlines()
     missing = []
     for i, ln in enumerate(lines):
@@ -382,7 +382,7 @@ def test_node_defaults_come_from_graph_yaml():
     """A node parameter that config/graph.yaml lists is read without a code default (graph_default supplies it),
     and graph_default finds every one of them; the checker catches a planted literal default."""
     from biped_sim.graph.params import GraphDefaultsError, graph_default
-    from biped_sim.robot.settings import default_config_dir, repo_root
+    from biped_model.settings import default_config_dir, repo_root
     g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
     nodes = {'simulator': 'src/biped_sim/biped_sim/graph/simulator_node.py',
              'controller': 'src/biped_controller/biped_controller/graph/controller_node.py',

@@ -11,9 +11,9 @@ import pytest
 import qpsolvers
 from scipy.optimize import minimize, nnls
 
-from biped_sim.robot.description import load_description
-from biped_sim.robot.fixed_foot import N_CONSTRAINTS, FixedFootModel, contact_rows
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import load_description
+from biped_model.fixed_foot import N_CONSTRAINTS, FixedFootModel, contact_rows
+from biped_model.gait_family import GaitFamily
 from biped_controller.core.control.controller import load_controller_config
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, QPShapeError
 from biped_controller.core.control.wbc import (

@@ -54,8 +54,8 @@ import numpy as np
 
 from biped_controller.core.control.controller import load_controller_config
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
-from biped_sim.robot.fixed_foot import FixedFootModel
-from biped_sim.robot.gait_family import eq11
+from biped_model.fixed_foot import FixedFootModel
+from biped_model.gait_family import eq11
 
 
 class StepperSettingsError(ValueError):

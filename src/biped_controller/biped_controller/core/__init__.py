@@ -15,11 +15,11 @@ Rooms, each importing only the rooms listed before it (checked by ``tests/test_l
 Naming rule for a Python reference and its compiled twin, inside one room:
 
 * ``<name>.py``          -- Python (NumPy / Pinocchio): the reference and the tests' oracle; it loads its
-                            kernels (through ``biped_sim.robot.numba_cache.load``).
+                            kernels (through ``biped_model.numba_cache.load``).
 * ``<name>_kernels.py``  -- the numba twin: the same equations, units and row order, compiled; a kernel
                             module is imported only through ``numba_cache.load``, never directly.
 * ``<name>_layout.py``   -- the flat float64 arrays that ``<name>`` and ``<name>_kernels`` share, declared
-                            once (``biped_sim.robot.layout.Layout``).
+                            once (``biped_model.layout.Layout``).
 * ``<name>_compiled.py`` -- a Python class with ``<name>``'s interface that runs ``<name>_kernels``, when
                             ``<name>.py`` does not host that engine itself.
 

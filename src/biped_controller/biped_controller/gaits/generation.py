@@ -1,4 +1,4 @@
-"""Generate (and check) ``config/gait_family.json``: optimised steps over the stride range, the
+"""Generate (and check) ``robots/biped7/gait_family.json``: optimised steps over the stride range, the
 degree-7 fit b_ijk, validation figures, and the paper's own question (best stride at 1 m/s).
 
 Run through ``scripts/generate_gait_family [--check] [--json FILE]``. Deterministic: the same settings
@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.robot.settings import default_config_dir
-from biped_sim.robot.floating import impact_paper
+from biped_model.settings import default_robot_dir
+from biped_model.floating import impact_paper
 
-from biped_sim.robot.gait_family import SPLINE, GaitFamily, fit_family, fit_spline_family
+from biped_model.gait_family import SPLINE, GaitFamily, fit_family, fit_spline_family
 from biped_controller.gaits.optimizer import GaitSettings, StepOptimizer, StepSolution, basis, load_gait_settings
-from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES, relabel
+from biped_model.fixed_foot import CONSTRAINT_NAMES, relabel
 
 
 
@@ -466,10 +466,10 @@ def print_report(data: dict, validation: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--check", action="store_true", help="reload the committed file and print validation figures")
-    ap.add_argument("--settings", type=Path, default=None, help="gait settings (default config/gait.yaml)")
+    ap.add_argument("--settings", type=Path, default=None, help="gait settings (default robots/biped7/gait.yaml)")
     ap.add_argument("--refit", action="store_true", help="re-fit the family and the valid range from the stored strides and re-solve the held-out strides (the fitted strides are not re-optimised)")
     ap.add_argument("--json", type=Path, help="write the validation figures as JSON")
-    ap.add_argument("--out", type=Path, default=default_config_dir() / "gait_family.json")
+    ap.add_argument("--out", type=Path, default=default_robot_dir() / "gait_family.json")
     args = ap.parse_args(argv)
     st = load_gait_settings(args.settings) if args.settings else load_gait_settings()
     if args.refit:

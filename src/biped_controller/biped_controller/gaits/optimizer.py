@@ -9,9 +9,9 @@ Minimised criterion (Chevallereau & Aoustin 2001):   C(p) = (1 / p) * integral_0
 [N^2 m^2 s / m], Gamma from inverse dynamics of the single-support model along q(t) (Simpson's rule on
 the optimisation grid).
 
-Constraints (all stated in config/gait.yaml with their reasons):
+Constraints (all stated in robots/biped7/gait.yaml with their reasons):
   * cyclic: q(0) = relabel(q(T)) and q'(0) = relabel(impact(q(T), q'(T))) (the impact is the inelastic
-    flat-foot impact of the floating-base model, biped_sim.robot.floating);
+    flat-foot impact of the floating-base model, biped_model.floating);
   * the swing foot lands flat at horizontal distance p: swing ankle (x, z, angle)(T) = (p, 0, 0);
   * on the grid: the 17 constraints of eq. (10) with margins (R_y >= r M g, |R_x| <= f mu R_y,
     l in [l_m + d, l_M - d], |Gamma_i| <= u Gamma_iM); heel and toe of the swing foot above a
@@ -35,17 +35,17 @@ import numpy as np
 import pinocchio as pin
 from scipy.optimize import minimize
 
-from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.settings import SettingsError, default_config_dir, load_yaml_tree, read_settings
-from biped_sim.robot.floating import FloatingModel, impact_paper
+from biped_model.description import LEFT, RobotDescription, load_description
+from biped_model.settings import SettingsError, default_robot_dir, load_yaml_tree, read_settings
+from biped_model.floating import FloatingModel, impact_paper
 
-from biped_sim.robot.fixed_foot import FixedFootModel, contact_rows, relabel
+from biped_model.fixed_foot import FixedFootModel, contact_rows, relabel
 
 NJ = 6
 
 
 class GaitConfigError(ValueError):
-    """config/gait.yaml is missing a value or has an inconsistent one."""
+    """robots/biped7/gait.yaml is missing a value or has an inconsistent one."""
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ class GaitSettings:
 
 
 def load_gait_settings(path: str | Path | None = None) -> GaitSettings:
-    p = Path(path) if path is not None else default_config_dir() / "gait.yaml"
+    p = Path(path) if path is not None else default_robot_dir() / "gait.yaml"
     keys = ("step_duration", "preferred_stride", "strides", "time_degree", "family_representation", "stride_degree",
             "smoothing_breakpoints", "smoothing_weights", "fit_tolerance_q", "fit_tolerance_qdot", "grid_intervals",
             "min_normal_force", "friction_use", "zmp_margin", "torque_use", "clearance", "touchdown_speed",
@@ -108,28 +108,28 @@ def load_gait_settings(path: str | Path | None = None) -> GaitSettings:
         max_iterations=int(val("max_iterations")), tolerance=float(val("tolerance")), raw=tree,
     )
     if s.time_degree != 4:
-        raise GaitConfigError("config/gait.yaml: time_degree must be 4 (paper eq. 12)")
+        raise GaitConfigError("robots/biped7/gait.yaml: time_degree must be 4 (paper eq. 12)")
     if s.grid_intervals % 2:
-        raise GaitConfigError("config/gait.yaml: grid_intervals must be even (Simpson's rule)")
+        raise GaitConfigError("robots/biped7/gait.yaml: grid_intervals must be even (Simpson's rule)")
     if s.p_d not in s.strides:
-        raise GaitConfigError("config/gait.yaml: strides must contain preferred_stride")
+        raise GaitConfigError("robots/biped7/gait.yaml: strides must contain preferred_stride")
     if list(s.strides) != sorted(set(s.strides)):
-        raise GaitConfigError("config/gait.yaml: strides must be strictly increasing")
+        raise GaitConfigError("robots/biped7/gait.yaml: strides must be strictly increasing")
     if s.representation not in ("cubic_spline_in_p", "polynomial_in_p"):
-        raise GaitConfigError(f"config/gait.yaml: family_representation must be cubic_spline_in_p or "
+        raise GaitConfigError(f"robots/biped7/gait.yaml: family_representation must be cubic_spline_in_p or "
                               f"polynomial_in_p, got {s.representation!r}")
     if s.representation == "cubic_spline_in_p":
         bp = s.smoothing_breakpoints
         if list(bp) != sorted(set(bp)) or len(bp) < 4:
-            raise GaitConfigError("config/gait.yaml: smoothing_breakpoints must be at least 4 increasing values")
+            raise GaitConfigError("robots/biped7/gait.yaml: smoothing_breakpoints must be at least 4 increasing values")
         if s.p_d not in bp:
-            raise GaitConfigError("config/gait.yaml: smoothing_breakpoints must contain preferred_stride (exact at p_d)")
+            raise GaitConfigError("robots/biped7/gait.yaml: smoothing_breakpoints must contain preferred_stride (exact at p_d)")
         if bp[0] != s.strides[0] or bp[-1] != s.strides[-1]:
-            raise GaitConfigError("config/gait.yaml: smoothing_breakpoints must start and end at the first and last stride")
+            raise GaitConfigError("robots/biped7/gait.yaml: smoothing_breakpoints must start and end at the first and last stride")
         if len(s.strides) < 4:
-            raise GaitConfigError("config/gait.yaml: the spline family needs at least 4 strides")
+            raise GaitConfigError("robots/biped7/gait.yaml: the spline family needs at least 4 strides")
     if not s.smoothing_weights or any(w <= 0 for w in s.smoothing_weights):
-        raise GaitConfigError("config/gait.yaml: smoothing_weights must be positive")
+        raise GaitConfigError("robots/biped7/gait.yaml: smoothing_weights must be positive")
     return s
 
 
@@ -400,7 +400,7 @@ class StepOptimizer:
         q, qd, qdd = phi @ c.T, dphi @ c.T, ddphi @ c.T
         fm = self.fixed
         worst, worst_name = math.inf, ""
-        from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
+        from biped_model.fixed_foot import CONSTRAINT_NAMES
         clear = math.inf
         ft = self.desc.foot
         for k in range(n + 1):

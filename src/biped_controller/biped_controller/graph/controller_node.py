@@ -66,7 +66,7 @@ from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
 from biped_sim.graph.imu import ImuMessageError, imu_reading
 from biped_sim.graph.sim_clock import SimClock
-from biped_sim.robot.description import LEFT, PAPER_JOINTS
+from biped_model.description import LEFT, PAPER_JOINTS
 from biped_sim.graph.params import (
     ParameterError,
     declare_executor,
@@ -77,7 +77,7 @@ from biped_sim.graph.params import (
     load_robot_files,
     run_node,
 )
-from biped_sim.robot.loop import ENGINES, load_loop_settings
+from biped_model.loop import ENGINES, load_loop_settings
 
 from biped_controller.core.control.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, InterfaceError,

@@ -33,8 +33,8 @@ from typing import Mapping, Protocol, Union, runtime_checkable
 
 import numpy as np
 
-from biped_sim.robot.description import RobotDescription
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import RobotDescription
+from biped_model.gait_family import GaitFamily
 
 N_JOINTS = 6
 

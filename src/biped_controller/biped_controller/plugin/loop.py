@@ -22,8 +22,8 @@ from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.protocol import make_plant
 from biped_sim.plant.push import Push
-from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import LEFT, RobotDescription, load_description
+from biped_model.gait_family import GaitFamily
 
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, Observation,
                                                stamp_time)

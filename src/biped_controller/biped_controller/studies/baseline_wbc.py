@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
+from biped_model.fixed_foot import CONSTRAINT_NAMES
 from biped_sim.plant.push import Push
 
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, finite_float,

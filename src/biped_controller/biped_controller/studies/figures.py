@@ -1,4 +1,4 @@
-"""Figures of the reference gait family (config/gait_family.json), written as PNG files.
+"""Figures of the reference gait family (robots/biped7/gait_family.json), written as PNG files.
 
 Run through ``scripts/figures [--out results/gait_family] [--family FILE]``:
 
@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from biped_sim.robot.description import load_description
-from biped_sim.robot.settings import default_config_dir, repo_root
+from biped_model.description import load_description
+from biped_model.settings import default_robot_dir, repo_root
 
-from biped_sim.robot.gait_family import GaitFamily
-from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_model.gait_family import GaitFamily
+from biped_model.fixed_foot import FixedFootModel
 from biped_controller.studies import provenance
 
 
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="scripts/figures", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=repo_root() / "results" / "gait_family")
-    ap.add_argument("--family", type=Path, default=default_config_dir() / "gait_family.json")
+    ap.add_argument("--family", type=Path, default=default_robot_dir() / "gait_family.json")
     args = ap.parse_args(argv)
     provenance.track(args.out, args=args, argv=argv)   # record of each file written (results/README.md)
     for p in make_all(args.out, args.family):

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.robot.description import LEFT, load_description
+from biped_model.description import LEFT, load_description
 from biped_controller.studies import runner
 
 #: the measurement's defaults: a period counts after SKIP [s] past a touchdown; F_MIN [N] the unloaded

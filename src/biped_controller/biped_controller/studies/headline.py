@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from biped_sim.robot.settings import repo_root
+from biped_model.settings import repo_root
 
 #: the table's columns: (header, plant, profile)
 COLUMNS = (("rigid, `paper`", "rigid", "paper"), ("rigid, `default`", "rigid", "default"),

@@ -36,9 +36,9 @@ import math
 import numba
 import numpy as np
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot import planar_kernels as pk
-from biped_sim.robot.layout import Layout
+from biped_model import numba_cache
+from biped_model import planar_kernels as pk
+from biped_model.layout import Layout
 from biped_sim.plant import period_grid_kernels as pg
 from biped_sim.plant.rigid_layout import L_, S_
 from biped_controller.core.control import controller_kernels as ck

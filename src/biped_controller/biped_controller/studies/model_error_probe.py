@@ -15,8 +15,8 @@ import sys
 
 import numpy as np
 
-from biped_sim.robot.description import LEFT
-from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_model.description import LEFT
+from biped_model.fixed_foot import FixedFootModel
 from biped_sim.plant.protocol import make_plant
 from biped_sim.plant.push import Push
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from biped_sim.plant import mujoco_kernels as mk
 from biped_sim.plant import period_grid_kernels as pg
-from biped_sim.robot import numba_cache
+from biped_model import numba_cache
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
 from biped_controller.core.control.controller_layout import W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC

@@ -37,7 +37,7 @@ CODE_PATHS = ("src", "config", "benchmarks", "scripts", "requirements.txt")
 
 
 def _repo_root() -> Path:
-    from biped_sim.robot.settings import repo_root
+    from biped_model.settings import repo_root
     return Path(repo_root())
 
 

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from biped_sim.plant.period_grid import grid_end, last_grid_before
-from biped_sim.robot.description import LEFT, RobotDescription, load_description
+from biped_model.description import LEFT, RobotDescription, load_description
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfig, load_sim_config
@@ -25,7 +25,7 @@ from biped_controller.core.control.controller import AdaptiveController, Control
 from biped_controller.core.control.controller_layout import M_
 from biped_controller.plugin.result import RunResult
 from biped_controller.studies.segment import MujocoSegment, Segment
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.gait_family import GaitFamily
 
 
 def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot.floating import PAPER_FROM_URDF
+from biped_model import numba_cache
+from biped_model.floating import PAPER_FROM_URDF
 from biped_sim.plant.records import StepRecord
 from biped_sim.plant.rigid import Simulator
 

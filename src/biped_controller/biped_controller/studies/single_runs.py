@@ -13,8 +13,8 @@ import numpy as np
 
 from biped_sim.plant.protocol import make_plant
 from biped_sim.plant.push import Push
-from biped_sim.robot.description import LEFT
-from biped_sim.robot.fixed_foot import CONSTRAINT_NAMES
+from biped_model.description import LEFT
+from biped_model.fixed_foot import CONSTRAINT_NAMES
 
 from biped_controller.core.control.controller import NO_ADAPTATION, TORSO_MODES, AdaptiveController
 from biped_controller.core.qp.solver import STATUS_NAMES

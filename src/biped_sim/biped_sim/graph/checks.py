@@ -14,7 +14,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from biped_sim.robot.description import LEFT, RIGHT, URDF_JOINTS
+from biped_model.description import LEFT, RIGHT, URDF_JOINTS
 
 TOLERANCE = 1e-3
 
@@ -29,10 +29,10 @@ class RobotFilesError(ValueError):
 
 
 def load_robot_files(description_path: str = "", gait_family_path: str = ""):
-    """(RobotDescription, GaitFamily) from two paths ('' = config/biped.yaml, config/gait_family.json),
+    """(RobotDescription, GaitFamily) from two paths ('' = robots/biped7/description.yaml, robots/biped7/gait_family.json),
     checked against each other; :class:`RobotFilesError` names the path parameter at fault."""
-    from biped_sim.robot.description import DescriptionError, load_description
-    from biped_sim.robot.gait_family import GaitFamily, GaitFamilyError
+    from biped_model.description import DescriptionError, load_description
+    from biped_model.gait_family import GaitFamily, GaitFamilyError
     try:
         desc = load_description(description_path or None)
     except (DescriptionError, OSError, ValueError) as exc:
@@ -49,7 +49,7 @@ def load_robot_files(description_path: str = "", gait_family_path: str = ""):
 
 
 def check_family_matches_description(desc, family) -> None:
-    from biped_sim.robot.floating import FloatingModel
+    from biped_model.floating import FloatingModel
     g = family.evaluate(family.p_d, 0.0)
     fm = FloatingModel(desc)
     x, _v = fm.state_from_paper(np.asarray(g.q, float), np.asarray(g.dq_dtau, float), LEFT, 0.0)

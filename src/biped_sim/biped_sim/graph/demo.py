@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     ap.add_argument('--live', action='store_true', help='Foxglove WebSocket bridge, real-time pacing')
     ap.add_argument('--port', type=int, default=None, help='--live: WebSocket port (default 8765)')
     a = ap.parse_args(argv)
-    from biped_sim.robot.settings import repo_root
+    from biped_model.settings import repo_root
     bag = (a.bag or repo_root() / 'runs' / f'demo_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
     bag.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()

@@ -45,7 +45,7 @@ from std_msgs.msg import String
 from biped_msgs_py.msg import PushEvent
 from biped_msgs_py.srv import ApplyPush
 from biped_sim.graph import names as gn
-from biped_sim.robot.description import DescriptionError, load_description
+from biped_model.description import DescriptionError, load_description
 from biped_sim.plant.push import PushBook, PushLimits, Rejected
 from biped_sim.graph.params import (
     ParameterError,

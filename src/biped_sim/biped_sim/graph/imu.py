@@ -30,7 +30,7 @@ from sensor_msgs.msg import Imu
 
 from biped_sim.graph import cdr
 from biped_sim.graph.names import IMU_FRAME
-from biped_sim.robot.finite import finite_number
+from biped_model.finite import finite_number
 
 #: the largest out-of-plane quaternion component or unit-norm error a reader accepts (round-off is ~1e-16)
 PLANAR_TOLERANCE = 1e-9

@@ -276,7 +276,7 @@ def bridge_host_process(params: Path) -> str:
 
 
 def default_params() -> Path:
-    from biped_sim.robot.settings import default_config_dir
+    from biped_model.settings import default_config_dir
     return default_config_dir() / 'graph.yaml'
 
 
@@ -306,7 +306,7 @@ def parse_args(argv=None):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    from biped_sim.robot.settings import repo_root
+    from biped_model.settings import repo_root
     params = (args.params or default_params()).resolve()
     if not params.is_file():
         log(f'no parameters file {params}')

@@ -192,7 +192,7 @@ TOPICS: dict[str, TopicSpec] = {t.name: t for t in [
     TopicSpec(SIM_PLANT, 'std_msgs/msg/String', 'latched',
               "YAML of the simulated plant's actual parameters (masses, centres of mass, inertias, friction, "
               'sensor noise and delay: biped_sim.plant.perturbation.plant_parameters); the controller keeps the nominal '
-              'config/biped.yaml'),
+              'robots/biped7/description.yaml'),
     TopicSpec(CONTROLLER_TORQUE, 'sensor_msgs/msg/JointState', 'lockstep',
               'joint torques (N m) in effort, controller -> simulator'),
     TopicSpec(CONTROLLER_STATUS, 'biped_msgs_py/msg/ControllerStatus', 'sensor',

@@ -26,7 +26,7 @@ import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
-from biped_sim.robot.finite import finite_number
+from biped_model.finite import finite_number
 
 EXIT_OK = 0
 EXIT_BAD_PARAMETER = 2
@@ -61,7 +61,7 @@ def _graph_tree(path: str) -> dict:
 def graph_default(node_name: str, name: str, path: str | Path | None = None) -> Any:
     """The default of parameter ``name`` of node ``node_name``: its value in ``config/graph.yaml``."""
     if path is None:
-        from biped_sim.robot.settings import default_config_dir
+        from biped_model.settings import default_config_dir
         path = default_config_dir() / "graph.yaml"
     params = (_graph_tree(str(path)).get(node_name) or {}).get("ros__parameters") or {}
     if name not in params:
@@ -126,9 +126,9 @@ def get_str(node: Node, name: str, default: str | None = None, *, choices: Seque
 
 def get_profile(node: Node):
     """The named profile of parameter ``profile`` (``config/profiles/NAME.yaml``,
-    :mod:`biped_sim.robot.profiles`; default ``config/graph.yaml``); an unknown name or a malformed file
+    :mod:`biped_model.profiles`; default ``config/graph.yaml``); an unknown name or a malformed file
     raises ParameterError naming ``profile`` and the known profiles."""
-    from biped_sim.robot.profiles import ProfileError, load_profile
+    from biped_model.profiles import ProfileError, load_profile
     # declared once (the simulator reads it for its settings and for its perturbation)
     name = node.get_parameter('profile').value if node.has_parameter('profile') else get_str(node, 'profile')
     try:
@@ -158,7 +158,7 @@ def get_float_list(node: Node, name: str) -> list[float]:
 
 def load_robot_files(node: Node):
     """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
-    (empty = config/biped.yaml, config/gait_family.json), checked against each other."""
+    (empty = robots/biped7/description.yaml, robots/biped7/gait_family.json), checked against each other."""
     from biped_sim.graph.checks import RobotFilesError, load_robot_files as _load
     desc_path = get_str(node, 'description_path')
     fam_path = get_str(node, 'gait_family_path')

@@ -2,7 +2,7 @@
 
 Owns a plant built by ``biped_sim.plant.protocol.make_plant`` from the parameter ``plant`` (``rigid``: the
 rigid ``Simulator``, the default; ``mujoco``: ``biped_sim.plant.mujoco.MujocoPlant``), robot from
-``config/biped.yaml``, ``SimConfig`` from the parameters below, which have the keys of
+``robots/biped7/description.yaml``, ``SimConfig`` from the parameters below, which have the keys of
 ``config/simulator.yaml`` (the ``mujoco_*`` keys set the MuJoCo plant's contact). What each message
 describes on the MuJoCo plant: DESIGN.md. Initial state: the start of
 the preferred gait (``GaitFamily.initial_state()``), LEFT stance, as the in-process
@@ -54,7 +54,7 @@ the event's id; a repeated id is ignored.
 Perturbations (``biped_sim.plant.perturbation``): the parameters ``perturbation.<field>`` for every
 field of ``PlantPerturbation`` (``perturbation.torso_mass_scale``, ``perturbation.torso_com_shift``,
 ``perturbation.noise_qd``, ``perturbation.delay``, ...; defaults: none; ``perturbation.mu`` 0 = the
-description's mu) make the simulated plant differ from ``config/biped.yaml``, which the controller keeps.
+description's mu) make the simulated plant differ from ``robots/biped7/description.yaml``, which the controller keeps.
 ``/sim/state`` then carries what the sensors report (q, q' with noise and delay; ``base`` and the other
 topics are true), and ``/sim/plant`` (latched ``std_msgs/String``, YAML of
 ``perturbation.plant_parameters``) the plant's actual parameters, so a recording can be checked against
@@ -91,8 +91,8 @@ from tf2_msgs.msg import TFMessage
 from biped_msgs_py.msg import AppliedPush, Impact, PushEvent, SimState
 from biped_sim.graph import cdr
 from biped_sim.graph import names as gn
-from biped_sim.robot.description import LEFT, URDF_JOINTS, make_urdf
-from biped_sim.robot.floating import urdf_from_paper
+from biped_model.description import LEFT, URDF_JOINTS, make_urdf
+from biped_model.floating import urdf_from_paper
 from biped_sim.graph.params import (
     ParameterError,
     declare_executor,
@@ -109,7 +109,7 @@ from biped_sim.graph.checks import RobotFilesError, check_urdf_joints
 from biped_sim.graph.imu import ImuBuilder
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation, plant_yaml
 from biped_sim.plant.push import Rejected
-from biped_sim.robot.loop import ENGINES
+from biped_model.loop import ENGINES
 from biped_sim.plant.config import MUJOCO_CONES, MUJOCO_INTEGRATORS, PLANT_NAMES, SimConfig, SimConfigError, load_sim_config
 from biped_sim.plant.protocol import make_plant
 

@@ -321,7 +321,7 @@ def main(argv=None) -> int:
     for name in ('max_forward', 'max_backward'):
         if not 0 < getattr(a, name) <= 250:
             ap.error(f'--{name.replace("_", "-")} must be in (0, 250] N')
-    from biped_sim.robot.settings import repo_root
+    from biped_model.settings import repo_root
     bag = (a.bag or repo_root() / 'runs' / f'soak_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
     bag.parent.mkdir(parents=True, exist_ok=True)
     r = run_soak(a.minutes, bag, seed=a.seed, every=a.every, min_force=a.min_force, max_forward=a.max_forward,

@@ -8,9 +8,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from biped_sim.robot.finite import finite_number
-from biped_sim.robot.loop import LoopSettings, LoopSettingsError
-from biped_sim.robot.settings import SettingsError, default_config_dir, read_settings
+from biped_model.finite import finite_number
+from biped_model.loop import LoopSettings, LoopSettingsError
+from biped_model.settings import SettingsError, default_config_dir, read_settings
 
 
 #: the engines a plant can be built on (``protocol.make_plant``): the rigid reference and MuJoCo

@@ -4,7 +4,7 @@ interface as the rigid :class:`~biped_sim.plant.rigid.Simulator`.
 MuJoCo + NumPy, the per-step bookkeeping compiled (``mujoco_kernels``, numba, bit-identical to the Python it
 replaced); Pinocchio's ``FloatingModel`` only at reset and at impacts; no ROS.
 
-Model: ``biped_sim.robot.mjcf.make_mjcf`` from the (perturbed) description and the ``mujoco_*`` settings of
+Model: ``biped_model.mjcf.make_mjcf`` from the (perturbed) description and the ``mujoco_*`` settings of
 ``config/simulator.yaml``; ``qpos``/``qvel`` are the floating state ``x = [x_hip, z_hip, theta, lh, lk, la, rh,
 rk, ra]``, ``v = dx/dt`` (the tests check M(x), the centre of mass and the bias forces against Pinocchio).
 
@@ -68,11 +68,11 @@ from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbat
 from biped_sim.plant.period_grid import grid_end, period_knots
 from biped_sim.plant.push import ScheduledPushes
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
-from biped_sim.robot import numba_cache
-from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import PAPER_FROM_URDF, FloatingModel, urdf_from_paper
-from biped_sim.robot.layout import SnapshotUnsupported
-from biped_sim.robot.mjcf import BODY_GEOMS, FLOOR_GEOM, MjcfContact, foot_geom_names, make_mjcf
+from biped_model import numba_cache
+from biped_model.description import LEFT, RobotDescription, load_description
+from biped_model.floating import PAPER_FROM_URDF, FloatingModel, urdf_from_paper
+from biped_model.layout import SnapshotUnsupported
+from biped_model.mjcf import BODY_GEOMS, FLOOR_GEOM, MjcfContact, foot_geom_names, make_mjcf
 
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, int], np.ndarray]
 FOOT_BODIES = ("left_foot", "right_foot")

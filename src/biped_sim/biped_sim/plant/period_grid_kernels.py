@@ -14,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-from biped_sim.robot import numba_cache
+from biped_model import numba_cache
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 

@@ -1,7 +1,7 @@
 """Plant perturbations: the simulated robot differs from the controller's model.
 
 Pure Python (NumPy, PyYAML), no ROS. Perturbations live in the simulator only: the controller keeps
-the nominal :class:`~biped_sim.robot.description.RobotDescription` (``config/biped.yaml``), while
+the nominal :class:`~biped_model.description.RobotDescription` (``robots/biped7/description.yaml``), while
 ``Simulator(desc, config, perturbation)`` integrates the *plant* ``perturbation.apply(desc)`` and hands
 the controller what its sensors report (:class:`SensorModel`).
 
@@ -63,8 +63,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from biped_sim.robot.description import RobotDescription
-from biped_sim.robot.finite import finite_number
+from biped_model.description import RobotDescription
+from biped_model.finite import finite_number
 
 #: the link kinds of the description that may be perturbed
 LINKS: tuple[str, ...] = ("torso", "thigh", "shin", "foot")

@@ -18,7 +18,7 @@ from biped_sim.plant.config import PLANT_NAMES, SimConfig
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 from biped_sim.plant.records import FallInfo, ImpactRecord, Observation, StepRecord
-from biped_sim.robot.description import RobotDescription
+from biped_model.description import RobotDescription
 
 PLANTS = PLANT_NAMES   # ("rigid", "mujoco")
 
@@ -70,7 +70,7 @@ class Plant(Protocol):
 
 def make_plant(name: str, desc: RobotDescription | None = None, config: SimConfig | None = None,
                perturbation: PlantPerturbation | None = None) -> Plant:
-    """The plant called ``name`` (one of :data:`PLANTS`) for the robot ``desc`` (None: config/biped.yaml)."""
+    """The plant called ``name`` (one of :data:`PLANTS`) for the robot ``desc`` (None: robots/biped7/description.yaml)."""
     if name == "rigid":
         from biped_sim.plant.rigid import Simulator
         return Simulator(desc, config, perturbation)

@@ -33,7 +33,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Iterable
 
-from biped_sim.robot.finite import finite_number
+from biped_model.finite import finite_number
 
 __all__ = ['Push', 'Rejected', 'PushLimits', 'validate_push', 'PushBook']
 

@@ -34,10 +34,10 @@ from typing import Callable
 
 import numpy as np
 
-from biped_sim.robot.description import LEFT, RobotDescription, load_description
-from biped_sim.robot.floating import paper_from_urdf, urdf_from_paper
-from biped_sim.robot.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
-from biped_sim.robot.layout import SnapshotUnsupported
+from biped_model.description import LEFT, RobotDescription, load_description
+from biped_model.floating import paper_from_urdf, urdf_from_paper
+from biped_model.floating_base import CompiledFloatingModel, FloatingBaseModel, make_floating_model
+from biped_model.layout import SnapshotUnsupported
 from biped_sim.plant.period_grid import grid_end, period_knots
 from biped_sim.plant.push import Push, ScheduledPushes
 from biped_sim.plant.perturbation import ZERO, PerturbationError, PlantPerturbation, SensorModel

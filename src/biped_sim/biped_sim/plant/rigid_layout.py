@@ -15,7 +15,7 @@ closed loop (``biped_controller.studies.loop_kernels``) takes the same arrays an
 """
 from __future__ import annotations
 
-from biped_sim.robot.layout import Layout
+from biped_model.layout import Layout
 
 N_STATE = 9
 N_JOINTS = 6

@@ -92,7 +92,7 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
     from mcap_ros2.decoder import DecoderFactory
 
     from biped_sim.recording.bag_reader import find_mcap
-    from biped_sim.robot.floating import FloatingModel, urdf_from_paper
+    from biped_model.floating import FloatingModel, urdf_from_paper
 
     path = find_mcap(bag)
     decode_topics = {gn.SIM_STATE, gn.GROUND_REACTION, gn.PUSH_EVENTS, gn.PUSH_REQUESTS, gn.FALL,

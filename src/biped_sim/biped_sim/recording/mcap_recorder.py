@@ -48,7 +48,7 @@ from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 import yaml
 from mcap.writer import CompressionType, IndexType, Writer
 
-from biped_sim.robot.finite import finite_number
+from biped_model.finite import finite_number
 
 try:  # optional compressors; the choice is reported by Rosbag2McapWriter.compression
     import zstandard as _zstandard

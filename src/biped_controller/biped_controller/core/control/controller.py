@@ -69,15 +69,15 @@ from typing import Sequence
 
 import numpy as np
 
-from biped_sim.robot.description import RobotDescription, load_description
-from biped_sim.robot.loop import ENGINES, load_loop_settings
-from biped_sim.robot.settings import SettingsError, default_config_dir, read_settings
+from biped_model.description import RobotDescription, load_description
+from biped_model.loop import ENGINES, load_loop_settings
+from biped_model.settings import SettingsError, default_config_dir, read_settings
 
-from biped_sim.robot.gait_family import GaitFamily, eq11, eq11_torso
-from biped_sim.robot.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
-from biped_sim.robot import numba_cache
-from biped_sim.robot.layout import SnapshotUnsupported
-from biped_sim.robot.finite import finite_number
+from biped_model.gait_family import GaitFamily, eq11, eq11_torso
+from biped_model.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
+from biped_model import numba_cache
+from biped_model.layout import SnapshotUnsupported
+from biped_model.finite import finite_number
 from biped_controller.core.control.controller_layout import (
     CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, TORSO_QP_ROWS, TORSO_ROWS, WBC, WORK, M_, R_, W_,
     WB_)
@@ -105,8 +105,8 @@ MSG_X_STAR_FEASIBLE = "x* feasible"
 
 CONTROLLER_KERNELS = "biped_controller.core.control.controller_kernels"
 # what the compiled period is compiled against besides its own source (kernels it calls, offsets it reads)
-CONTROLLER_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels", "biped_sim.robot.layout",
-                           "biped_sim.robot.gait_family",
+CONTROLLER_KERNELS_SOURCES = ("biped_model.planar_abi", "biped_model.planar_kernels", "biped_model.layout",
+                           "biped_model.gait_family",
                            "biped_controller.core.control.controller_layout", "biped_controller.core.qp.problem",
                            "biped_controller.core.qp.exact_kernels")
 
@@ -155,7 +155,7 @@ class ControllerConfig:
     observer_height: float        # [m] assumed application height of the estimated force above the hip
     wbc_weight_joint: float       # whole-body QP weight M = wbc_weight_joint I + wbc_weight_torso s s^T (wbc.py)
     wbc_weight_torso: float       # torso-pitch task weight of M (s . w = torso pitch acceleration)
-    engine: str                   # "fast": compiled model terms (biped_sim.robot.fast_engine); "reference": Pinocchio
+    engine: str                   # "fast": compiled model terms (biped_model.fast_engine); "reference": Pinocchio
     period: float                 # [s] control period (config/simulator.yaml control_period)
     # the torso parameter lambda (modes lambda and all): second task and range of lambda
     kp_lambda: float              # [1/s^2] lambda -> 0 (lambda''* = -kv_lambda lambda' - kp_lambda lambda)
@@ -276,7 +276,7 @@ def load_controller_config(path: str | Path | None = None, **overrides) -> Contr
     except SettingsError as exc:
         raise ControllerConfigError(str(exc)) from exc
     if "period" not in overrides or "engine" not in overrides:
-        # one home for both: the loop's settings in config/simulator.yaml (biped_sim.robot.loop)
+        # one home for both: the loop's settings in config/simulator.yaml (biped_model.loop)
         loop = load_loop_settings()
         kw["period"], kw["engine"] = loop.control_period, loop.engine
     kw.update(overrides)
@@ -441,7 +441,7 @@ class AdaptiveController:
         self._fast = None
         self._kernel = None
         if self.cfg.engine == "fast":
-            from biped_sim.robot.fast_engine import FastFixedFootModel   # compiled kernels only when used
+            from biped_model.fast_engine import FastFixedFootModel   # compiled kernels only when used
             self._fast = FastFixedFootModel(self.desc)
         self.keep_qp = keep_qp
         # False: compute() leaves ControlOutput.status None and keeps what builds it (last_status()): a run
@@ -738,7 +738,7 @@ class AdaptiveController:
         parameter (``lam`` = (lambda, lambda')): a third column (lambda'') and four more rows, the torso's range
         lambda + lambda' dt + lambda'' dt^2/2 within [-lambda_max, lambda_max] and its rate lambda' + lambda'' dt
         within [-lambda_dot_max, lambda_dot_max] (the offset moves only the two hips, which have no joint limits
-        in config/biped.yaml; their torques are among the 17 rows)."""
+        in robots/biped7/description.yaml; their torques are among the 17 rows)."""
         c, fam, m = self.cfg, self.family, self.model
         p, p_dot, _, tau_dot = self._params(res)
         mu = c.margin_friction * m.mu

@@ -15,7 +15,7 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
   family's pieces (a_ij(p) = sum_m coef[k, i, j, m] (p - centers[k])^m, piece k = bisect_right(inner,
   p)), w = D x + v, D = [dq_d/dp, dq_d/dtau], x* = (-k_v p' + k_p (p_d - p), k_v (1 - tau'));
 * model terms, eq. (1): A, H, B, h_b on the controller's locked-root chain
-  (``biped_sim.robot.planar_kernels.fixed_root_terms``' maths) and the torso point's Jacobian x row;
+  (``biped_model.planar_kernels.fixed_root_terms``' maths) and the torso point's Jacobian x row;
 * disturbance observer: F = j6 . r / j6 . j6, r = A_prev ((q'_now - q'_prev) / dt - w_prev);
   h_b,c = h_b + B A^-1 j6 F - Jb F; or, with the momentum observer (GAINS.momentum), the
   compiled sensing pipeline's (``pipeline_kernels``) h_b,c = h_b + (dR, 0), F = F_x, and the five
@@ -50,9 +50,9 @@ import math
 import numba
 import numpy as np
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot import planar_kernels as pk
-from biped_sim.robot.gait_family import TORSO_DIRECTION
+from biped_model import numba_cache
+from biped_model import planar_kernels as pk
+from biped_model.gait_family import TORSO_DIRECTION
 from biped_controller.core.control.controller_layout import (
     C_, G_, M_, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, QP_ROWS, R_, TORSO_ROWS, W_, CONS, RES, WORK, N_JOINTS)
 from biped_controller.core.qp.exact_kernels import rows_and_decision

@@ -1,6 +1,6 @@
 """The controller's per-period state and arrays, declared once.
 
-Pure Python + NumPy, no ROS. Each layout is a :class:`biped_sim.robot.layout.Layout`: named fields of
+Pure Python + NumPy, no ROS. Each layout is a :class:`biped_model.layout.Layout`: named fields of
 a flat float64 array (2-D arrays: named rows of 6 columns), offsets generated from the declaration.
 :class:`controller.AdaptiveController` keeps its state in a ``MEMORY`` array (properties over it),
 ``controller_kernels`` (one compiled period) and ``loop_kernels`` (many periods) take the same arrays and
@@ -33,8 +33,8 @@ read the offsets from the ``*.at`` NamedTuples below (frozen as compile-time con
 """
 from __future__ import annotations
 
-from biped_sim.robot.fixed_foot import N_CONSTRAINTS
-from biped_sim.robot.layout import Layout
+from biped_model.fixed_foot import N_CONSTRAINTS
+from biped_model.layout import Layout
 
 N_JOINTS = 6
 # rows of the adaptation QP: the 17 constraints with the estimated push force, the same without it,

@@ -8,7 +8,7 @@ q1..q6 of the stance-foot-fixed chain)::
     minimise    1/2 (w - w*)^T M (w - w*)
     subject to  G w <= h          (m = 34 rows: WBC_ROWS)
 
-* The rows are the 17 of eq. (10), ``A_q w + b_q < 0`` (``biped_sim.robot.fixed_foot``, row order
+* The rows are the 17 of eq. (10), ``A_q w + b_q < 0`` (``biped_model.fixed_foot``, row order
   ``CONSTRAINT_NAMES``), with the controller's margins, exactly as the p/tau QP states them (eq. 21
   with w = D x + v): rows 0-16 with the disturbance observer's shifted reaction drift h_b,c, rows 17-33
   the same without it (robust to a push that ends during the coming period; identical rows when the
@@ -42,8 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from biped_sim.robot.fixed_foot import N_CONSTRAINTS
-from biped_sim.robot.finite import finite_number
+from biped_model.fixed_foot import N_CONSTRAINTS
+from biped_model.finite import finite_number
 from biped_controller.core.control.controller_layout import WBC_MODE_HYBRID, WBC_MODE_WBC
 from biped_controller.core.qp.solver import AdaptationQP
 from biped_controller.core.qp.problem import (
@@ -232,7 +232,7 @@ class WholeBodyStage:
     @classmethod
     def for_controller(cls, cfg, model) -> "WholeBodyStage":
         """From a ``ControllerConfig`` (mode, margins, wbc weights) and the controller's FixedFootModel."""
-        from biped_sim.robot.fixed_foot import contact_rows
+        from biped_model.fixed_foot import contact_rows
         C, e = contact_rows(cfg.margin_friction * model.mu, model.l_min + cfg.margin_zmp, model.l_max - cfg.margin_zmp)
         tC, te = contact_rows(model.mu, model.l_min, model.l_max)
         margin = np.concatenate([[cfg.margin_normal_force, 0.0, 0.0, 0.0, 0.0], np.full(12, cfg.margin_torque)])

@@ -44,7 +44,7 @@ import math
 import numba
 import numpy as np
 
-from biped_sim.robot import numba_cache
+from biped_model import numba_cache
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control.controller_layout import (
     C_, M_, R_, W_, WB_, N_JOINTS, WBC_MODE_OFF)

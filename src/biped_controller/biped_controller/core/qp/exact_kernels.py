@@ -22,7 +22,7 @@ Kernels, each one call from Python:
 
 The four kernels called from Python have explicit signatures (float64 arrays of any layout --
 the controller's G is column-major -- and float64 scalars): importing this module (through
-``biped_sim.robot.numba_cache.load``, which keeps the cache in ``<repo>/build/numba-cache`` and says
+``biped_model.numba_cache.load``, which keeps the cache in ``<repo>/build/numba-cache`` and says
 on stderr when it compiles, ~30 s on the project machine; loading takes ~1 s) compiles them or loads
 them from the cache. Other
 argument types raise TypeError instead of compiling on the fly. The kernels do not check shapes
@@ -37,7 +37,7 @@ import math
 import numba
 import numpy as np
 
-from biped_sim.robot import numba_cache
+from biped_model import numba_cache
 from biped_controller.core.qp.problem import (
     ACTIVE,
     DEFAULT_ACTIVE_TOL,

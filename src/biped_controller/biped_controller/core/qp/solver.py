@@ -30,7 +30,7 @@ from typing import Optional
 
 import numpy as np
 
-from biped_sim.robot.finite import finite_array
+from biped_model.finite import finite_array
 from biped_controller.core.qp.exact import least_violation_exact, reg_weight
 from biped_controller.core.qp.problem import (
     ACTIVE,
@@ -201,7 +201,7 @@ EXACT_KERNELS_SOURCES = ("biped_controller.core.qp.problem",)
 def load_exact_kernels():
     """The compiled QP kernels (``exact_kernels``), loaded through ``numba_cache.load`` when a solver is built,
     not by users of the constants."""
-    from biped_sim.robot import numba_cache
+    from biped_model import numba_cache
 
     return numba_cache.load(EXACT_KERNELS, sources=EXACT_KERNELS_SOURCES)
 

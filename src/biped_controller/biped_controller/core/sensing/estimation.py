@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from biped_sim.robot.finite import finite_number
+from biped_model.finite import finite_number
 
 N = 6
 

@@ -93,11 +93,11 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot.description import RobotDescription
-from biped_sim.robot.fast_engine import fixed_foot_tree
-from biped_sim.robot.fixed_foot import FixedFootModel, relabel
-from biped_sim.robot.finite import finite_number
+from biped_model import numba_cache
+from biped_model.description import RobotDescription
+from biped_model.fast_engine import fixed_foot_tree
+from biped_model.fixed_foot import FixedFootModel, relabel
+from biped_model.finite import finite_number
 
 from biped_controller.core.sensing.momentum_observer import Wrench
 
@@ -111,7 +111,7 @@ HOLD_VARIANCE = 1e200
 #: what the regressor is evaluated on (module docstring, "What the regressor is fed")
 REGRESSOR_INPUTS = ("measured", "reference")
 MODEL_ERROR_KERNELS = "biped_controller.core.sensing.model_error_kernels"
-MODEL_ERROR_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels")
+MODEL_ERROR_KERNELS_SOURCES = ("biped_model.planar_abi", "biped_model.planar_kernels")
 
 
 def load_model_error_kernels(warm: bool = False):

@@ -4,7 +4,7 @@ six-column leg regressor Y(q, q', q'') in closed form on the planar fixed-foot t
 Pinocchio's joint torque regressor its oracle); and the estimator's whole sample compiled (``update``: the
 maths of ``LegModelError.update`` after the model terms, run by the compiled sensing pipeline inside
 ``pipeline_kernels.sense_finish``). A kernel module: import it with ``model_error.load_model_error_kernels``
-(``biped_sim.robot.numba_cache.load``), never directly. The maths, units and conventions: ``model_error``'s
+(``biped_model.numba_cache.load``), never directly. The maths, units and conventions: ``model_error``'s
 module docstring, ``combine``'s, ``regressor_into``'s and ``update``'s."""
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ import math
 import numba
 import numpy as np
 
-from biped_sim.robot.numba_cache import require_configured
+from biped_model.numba_cache import require_configured
 
 require_configured(__name__)
 
-from biped_sim.robot import planar_kernels as pk   # noqa: E402  (a kernel module: after the check)
+from biped_model import planar_kernels as pk   # noqa: E402  (a kernel module: after the check)
 
 _V = numba.types.Array(numba.types.float64, 1, "C")
 _VI = numba.types.Array(numba.types.int64, 1, "C")

@@ -42,9 +42,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from biped_sim.robot.description import RobotDescription
-from biped_sim.robot.fixed_foot import FixedFootModel
-from biped_sim.robot.finite import finite_number
+from biped_model.description import RobotDescription
+from biped_model.fixed_foot import FixedFootModel
+from biped_model.finite import finite_number
 
 
 class MomentumObserverError(ValueError):

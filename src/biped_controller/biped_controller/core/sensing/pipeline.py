@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from biped_sim.robot.description import RobotDescription
-from biped_sim.robot.fixed_foot import FixedFootModel, relabel
-from biped_sim.robot.floating import FloatingModel
+from biped_model.description import RobotDescription
+from biped_model.fixed_foot import FixedFootModel, relabel
+from biped_model.floating import FloatingModel
 
 from biped_controller.core.sensing.estimation import EstimatorConfig, JointStateEstimator
 from biped_controller.core.sensing.model_error import LegModelError

@@ -22,14 +22,14 @@ import math
 
 import numpy as np
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot.description import RobotDescription
-from biped_sim.robot.fast_engine import fixed_foot_tree
-from biped_sim.robot.floating import FloatingModel
+from biped_model import numba_cache
+from biped_model.description import RobotDescription
+from biped_model.fast_engine import fixed_foot_tree
+from biped_model.floating import FloatingModel
 
 from collections import deque
 
-from biped_sim.robot.fixed_foot import relabel
+from biped_model.fixed_foot import relabel
 
 from biped_controller.core.sensing.estimation import RELABEL
 from biped_controller.core.sensing.pipeline import estimator_config
@@ -43,8 +43,8 @@ from biped_controller.core.sensing.touchdown_band import (TouchdownBand, in_band
                                                   sole_height_std)
 
 PIPELINE_KERNELS = "biped_controller.core.sensing.pipeline_kernels"
-PIPELINE_KERNELS_SOURCES = ("biped_sim.robot.planar_abi", "biped_sim.robot.planar_kernels",
-                              "biped_sim.robot.layout", "biped_controller.core.sensing.pipeline_layout",
+PIPELINE_KERNELS_SOURCES = ("biped_model.planar_abi", "biped_model.planar_kernels",
+                              "biped_model.layout", "biped_controller.core.sensing.pipeline_layout",
                               "biped_controller.core.sensing.model_error_kernels")
 
 

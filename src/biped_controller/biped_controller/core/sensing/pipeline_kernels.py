@@ -50,8 +50,8 @@ import math
 import numba
 import numpy as np
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot import planar_kernels as pk
+from biped_model import numba_cache
+from biped_model import planar_kernels as pk
 from biped_controller.core.sensing import model_error_kernels as mek
 from biped_controller.core.sensing.pipeline_layout import N_LEG_PARAMETERS, N_TREE_BODIES, S_, SC_
 

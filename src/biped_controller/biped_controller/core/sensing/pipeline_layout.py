@@ -1,6 +1,6 @@
 """The compiled sensing pipeline's state and settings arrays, declared once.
 
-Pure Python + NumPy, no ROS. Two :class:`biped_sim.robot.layout.Layout` records that the Python wrapper
+Pure Python + NumPy, no ROS. Two :class:`biped_model.layout.Layout` records that the Python wrapper
 (``pipeline_compiled.CompiledSensing``) and the numba kernels (``pipeline_kernels``) share, so the two
 sides cannot disagree on where a field lives (the same pattern as ``controller_layout``):
 
@@ -35,7 +35,7 @@ sides cannot disagree on where a field lives (the same pattern as ``controller_l
 """
 from __future__ import annotations
 
-from biped_sim.robot.layout import Layout
+from biped_model.layout import Layout
 
 N_STATE = 12
 N_LEG_PARAMETERS = 6   # len(model_error.LEG_PARAMETERS) (checked by CompiledSensing)

@@ -41,10 +41,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from biped_sim.robot.description import RobotDescription
-from biped_sim.robot.fixed_foot import FixedFootModel, relabel
-from biped_sim.robot.finite import finite_number
-from biped_sim.robot.floating import FloatingModel, impact_paper
+from biped_model.description import RobotDescription
+from biped_model.fixed_foot import FixedFootModel, relabel
+from biped_model.finite import finite_number
+from biped_model.floating import FloatingModel, impact_paper
 
 
 def flat_foot_impact(fm: FloatingModel, q: np.ndarray, qd: np.ndarray, stance: int) -> tuple[np.ndarray, np.ndarray]:

@@ -53,7 +53,7 @@ from typing import Callable
 
 import numpy as np
 
-from biped_sim.robot.fixed_foot import FixedFootModel
+from biped_model.fixed_foot import FixedFootModel
 
 from biped_controller.core.qp.solver import least_violation
 

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from biped_sim.robot.settings import default_config_dir, read_settings
+from biped_model.settings import default_config_dir, read_settings
 
 from biped_controller.core.control.controller import MODES, PAPER_MODES
 from biped_controller.studies.trial.search import coarse_forces

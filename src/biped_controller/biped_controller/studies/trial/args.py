@@ -10,8 +10,8 @@ import sys
 
 from biped_sim.plant.config import SimConfigError
 from biped_sim.plant.perturbation import PerturbationError
-from biped_sim.robot.profiles import DEFAULT_PROFILE, ProfileError, profile_names
-from biped_sim.robot.settings import SettingsError
+from biped_model.profiles import DEFAULT_PROFILE, ProfileError, profile_names
+from biped_model.settings import SettingsError
 
 from biped_controller.core.control.controller import MODES, ControllerConfigError
 from biped_controller.studies.trial.settings import OverrideError, RunSettings, run_settings

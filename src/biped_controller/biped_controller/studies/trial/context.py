@@ -5,8 +5,8 @@ import functools
 from dataclasses import dataclass
 
 from biped_sim.plant.config import SimConfig, load_sim_config
-from biped_sim.robot.description import RobotDescription, load_description
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import RobotDescription, load_description
+from biped_model.gait_family import GaitFamily
 
 
 @dataclass(frozen=True)

@@ -25,8 +25,8 @@ from typing import Mapping
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
-from biped_sim.robot.description import RobotDescription, load_description
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.description import RobotDescription, load_description
+from biped_model.gait_family import GaitFamily
 
 from biped_controller.plugin.loop import PluginLoop
 from biped_controller.plugin.result import RunResult

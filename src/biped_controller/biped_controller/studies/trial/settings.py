@@ -2,7 +2,7 @@
 ``config/simulator.yaml``, the plant's perturbation; their parsing and their printed form.
 
 Precedence, lowest first: the configuration files, the profile (``config/profiles/NAME.yaml``,
-:mod:`biped_sim.robot.profiles`), ``--set KEY=VALUE`` and ``--observer on|off``, ``--perturb FIELD=VALUE``
+:mod:`biped_model.profiles`), ``--set KEY=VALUE`` and ``--observer on|off``, ``--perturb FIELD=VALUE``
 (over the profile's perturbation fields). Values are parsed as YAML scalars; the config loaders check
 them (a bad value raises the config's error naming the key).
 """
@@ -16,8 +16,8 @@ import yaml
 
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.perturbation import PlantPerturbation
-from biped_sim.robot.profiles import DEFAULT_PROFILE, ProfileError, load_profile, profile_names
-from biped_sim.robot.settings import default_config_dir
+from biped_model.profiles import DEFAULT_PROFILE, ProfileError, load_profile, profile_names
+from biped_model.settings import default_config_dir
 
 from biped_controller.core.control.controller import MODES, ControllerConfig, load_controller_config
 from biped_controller.studies.trial.context import context

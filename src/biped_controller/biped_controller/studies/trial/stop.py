@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from biped_sim.plant.period_grid import last_grid_before
-from biped_sim.robot.gait_family import GaitFamily
-from biped_sim.robot.settings import default_config_dir, read_settings
+from biped_model.gait_family import GaitFamily
+from biped_model.settings import default_config_dir, read_settings
 
 from biped_controller.core.control.controller_layout import M_
 

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from biped_sim.robot.gait_family import GaitFamily
+from biped_model.gait_family import GaitFamily
 
 from biped_controller.core.qp.solver import STATUS_NAMES
 from biped_controller.studies.runner import RunResult

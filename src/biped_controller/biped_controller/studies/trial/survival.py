@@ -36,7 +36,7 @@ import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from biped_sim.robot.settings import default_config_dir, read_settings
+from biped_model.settings import default_config_dir, read_settings
 
 from biped_controller.studies.runner import RunResult
 from biped_controller.studies.trial.context import context

@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from biped_sim.robot.description import RobotDescription
+from biped_model.description import RobotDescription
 
 if TYPE_CHECKING:   # pragma: no cover - types only
     from types import ModuleType
 
-    from biped_sim.robot.floating import ContactSolution, ImpactResult
+    from biped_model.floating import ContactSolution, ImpactResult
 
 ENGINE_NAMES = ("fast", "reference")
 
@@ -104,9 +104,9 @@ def make_floating_model(desc: RobotDescription, engine: str) -> FloatingBaseMode
     """The simulator's model for ``engine``: "fast" (compiled kernels, a :class:`CompiledFloatingModel`) or
     "reference" (Pinocchio). Raises ValueError naming the engine otherwise."""
     if engine == "fast":
-        from biped_sim.robot.fast_engine import FastFloatingModel   # loads the compiled kernels only when used
+        from biped_model.fast_engine import FastFloatingModel   # loads the compiled kernels only when used
         return FastFloatingModel(desc)
     if engine == "reference":
-        from biped_sim.robot.floating import FloatingModel
+        from biped_model.floating import FloatingModel
         return FloatingModel(desc)
     raise ValueError(f"engine must be one of {ENGINE_NAMES}, got {engine!r}")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from biped_sim.robot.description import LEFT, RIGHT, RobotDescription, load_description, make_urdf
+from biped_model.description import LEFT, RIGHT, RobotDescription, load_description, make_urdf
 
 AXIS = np.array([0.0, -1.0, 0.0])
 FOOT_FRAMES = ("left_foot", "right_foot")

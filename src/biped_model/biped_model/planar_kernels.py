@@ -58,8 +58,8 @@ import math
 import numpy as np
 from numba import njit
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot.planar_abi import (  # noqa: F401  (the kernels' constants, also read as pk.<name>)
+from biped_model import numba_cache
+from biped_model.planar_abi import (  # noqa: F401  (the kernels' constants, also read as pk.<name>)
     HEADER_F, HEADER_I, IMPACT_SIZE, PERIOD_DONE, PERIOD_EVENT, PERIOD_LIMITS_SIZE, PERIOD_OUT_SIZE, POINT_SIZE,
     PROBE_SIZE, PX, PZ, REV, STATUS_OK, STATUS_SINGULAR)
 

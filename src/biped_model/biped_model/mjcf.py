@@ -10,7 +10,7 @@ The model mirrors ``description.make_urdf`` + the floating root of ``floating.Fl
 * each leg: ``<side>_thigh`` at the hip, ``<side>_shin`` at ``-thigh.length`` along its z, ``<side>_foot`` at
   ``-shin.length``; hinges ``<side>_hip / _knee / _ankle`` about (0, -1, 0) (counter-clockwise in the sagittal
   view, DESIGN.md); inertials (mass, centre of mass on the link axis, I_yy; the other two axes equal, as the
-  URDF) from ``config/biped.yaml``; no joint limits, damping or armature (the rigid plant has none);
+  URDF) from ``robots/biped7/description.yaml``; no joint limits, damping or armature (the rigid plant has none);
 * contact geometry: each foot a box from ``foot.l_min`` to ``foot.l_max`` along x (heel, toe), ``thickness``
   thick with its sole on the ankle line (``foot.ankle_height`` = 0), friction ``mu`` (``sole_points`` = 0); or
   (``sole_points`` = n >= 2) the sole as n spheres of diameter ``thickness`` whose lowest points lie on the ankle
@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from biped_sim.robot.description import URDF_JOINTS, RobotDescription
+from biped_model.description import URDF_JOINTS, RobotDescription
 
 ROOT_JOINTS = ("root_x", "root_z", "root_pitch")
 FOOT_GEOMS = ("left_foot_sole", "right_foot_sole")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from biped_sim.robot.settings import SettingsError, default_config_dir, load_yaml_tree
+from biped_model.settings import SettingsError, default_config_dir, load_yaml_tree
 
 __all__ = ["DEFAULT_PROFILE", "Profile", "ProfileError", "profile_dir", "profile_names", "load_profile"]
 

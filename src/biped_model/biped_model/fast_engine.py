@@ -1,9 +1,9 @@
 """Fast engine: the compiled planar kernels behind the simulator's and the controller's models.
 
 Pure Python + NumPy around ``planar_kernels`` (numba), no ROS. The Pinocchio models
-(``floating.FloatingModel``, ``biped_sim.robot.fixed_foot.FixedFootModel``) stay the reference engine and
+(``floating.FloatingModel``, ``biped_model.fixed_foot.FixedFootModel``) stay the reference engine and
 the oracle of the tests; the classes here compute the same quantities from a ``PlanarTree`` built from
-the ``RobotDescription`` (lengths, masses, centres of mass, inertias of ``config/biped.yaml``):
+the ``RobotDescription`` (lengths, masses, centres of mass, inertias of ``robots/biped7/description.yaml``):
 
 * ``FastFloatingModel``: a drop-in for ``FloatingModel`` (same methods, same frames, signs and
   orderings: ``x = [x_hip, z_hip, theta_torso, lh, lk, la, rh, rk, ra]``), plus the one-call
@@ -22,20 +22,20 @@ from typing import Sequence
 
 import numpy as np
 
-from biped_sim.robot import numba_cache
-from biped_sim.robot import planar_abi as abi
-from biped_sim.robot.description import RobotDescription, load_description
-from biped_sim.robot.finite import finite_array, finite_number
-from biped_sim.robot.floating import ContactSolution, FloatingModel, ImpactResult, SimulationError
+from biped_model import numba_cache
+from biped_model import planar_abi as abi
+from biped_model.description import RobotDescription, load_description
+from biped_model.finite import finite_array, finite_number
+from biped_model.floating import ContactSolution, FloatingModel, ImpactResult, SimulationError
 
 PX, PZ, REV = abi.PX, abi.PZ, abi.REV
-PLANAR_KERNELS = "biped_sim.robot.planar_kernels"
+PLANAR_KERNELS = "biped_model.planar_kernels"
 
 
 def planar_kernels():
     """The compiled planar kernels (``planar_kernels``), loaded through ``numba_cache.load`` (compiled on
     the first run after a change, then loaded from the cache)."""
-    return numba_cache.load(PLANAR_KERNELS, sources=("biped_sim.robot.planar_abi",))
+    return numba_cache.load(PLANAR_KERNELS, sources=("biped_model.planar_abi",))
 _NO_PUSH = np.empty(0)
 
 
@@ -157,7 +157,7 @@ def floating_tree(desc: RobotDescription) -> PlanarTree:
 
 
 def fixed_foot_tree(desc: RobotDescription) -> PlanarTree:
-    """The controller's chain (``biped_sim.robot.fixed_foot.build_fixed_foot_model``): planar root at the
+    """The controller's chain (``biped_model.fixed_foot.build_fixed_foot_model``): planar root at the
     stance ankle carrying the stance foot, then the paper's q1..q6 (stance ankle, knee, hip, swing hip,
     knee, ankle). Push frame = q3's (the torso, origin at the hip); feet = (root pitch, q6)."""
     t, th, sh, ft = desc.torso, desc.thigh, desc.shin, desc.foot

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from biped_sim.robot.description import RobotDescription, load_description
+from biped_model.description import RobotDescription, load_description
 
 AXIS = np.array([0.0, -1.0, 0.0])
 N_CONSTRAINTS = 17

@@ -1,4 +1,4 @@
-"""Robot description: load ``config/biped.yaml`` and generate the URDF.
+"""Robot description: load ``robots/biped7/description.yaml`` and generate the URDF.
 
 Pure Python (no ROS). The YAML file holds every physical value as ``{value, reason}``; this module
 turns it into frozen dataclasses, checks it, and writes the URDF that both Pinocchio (simulator) and
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from biped_sim.robot.finite import finite_number
-from biped_sim.robot.settings import SettingsError, default_config_dir, load_yaml_tree
+from biped_model.finite import finite_number
+from biped_model.settings import SettingsError, default_robot_dir, load_yaml_tree
 
 JOINT_AXIS = (0.0, -1.0, 0.0)
 URDF_JOINTS = ("left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle")
@@ -160,8 +160,8 @@ def parse_description(tree: dict[str, Any], source: str = "") -> RobotDescriptio
 
 
 def load_description(path: str | os.PathLike[str] | None = None) -> RobotDescription:
-    """Load and validate ``config/biped.yaml`` (or ``path``)."""
-    p = Path(path) if path is not None else default_config_dir() / "biped.yaml"
+    """Load and validate ``robots/biped7/description.yaml`` (or ``path``)."""
+    p = Path(path) if path is not None else default_robot_dir() / "description.yaml"
     if not p.is_file():
         raise DescriptionError(f"biped description: file not found: {p}")
     try:

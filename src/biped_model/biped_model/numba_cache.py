@@ -1,6 +1,6 @@
 """Where the compiled (numba) kernels are cached, and loading them: run explicitly, never on import.
 
-Pure Python, no ROS. The kernel modules (``biped_sim.robot.planar_kernels``,
+Pure Python, no ROS. The kernel modules (``biped_model.planar_kernels``,
 ``biped_sim.plant.mujoco_kernels``, ``biped_controller.core.qp.exact_kernels``, ``biped_controller.core.control.controller_kernels``,
 ``biped_controller.core.control.wbc_kernels``, ``biped_controller.core.sensing.pipeline_kernels``,
 ``biped_controller.core.sensing.model_error_kernels``, ``biped_controller.studies.loop_kernels``,
@@ -32,7 +32,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Sequence, TextIO
 
-from biped_sim.robot.settings import repo_root
+from biped_model.settings import repo_root
 
 COMPILE_NOTICE = "fast engine: compiling numba kernels (first run, ~15 s)..."
 
@@ -64,7 +64,7 @@ def require_configured(module: str) -> None:
 
     if numba.config.CACHE_DIR != str(cache_dir()):
         raise CacheNotConfigured(f"{module} is a numba kernel module: import it with "
-                                 f"biped_sim.robot.numba_cache.load({module!r}, ...)")
+                                 f"biped_model.numba_cache.load({module!r}, ...)")
 
 
 def cache_key(source: Path) -> str:

@@ -1,7 +1,7 @@
 """The one reader of the project's ``{value, reason}`` settings files (pure: no ROS import).
 
 Every number the software assumes lives in ``config/*.yaml`` as ``key: {value: V, reason: "why"}``
-(``config/biped.yaml`` nests such leaves in groups). This module is the only place that opens those
+(``robots/biped7/description.yaml`` nests such leaves in groups). This module is the only place that opens those
 files; the dataclasses that hold settings (``SimConfig``, ``ControllerConfig``, ``GaitSettings``,
 ``RobotDescription``) carry no default values of their own, so a bare ``Simulator()`` and a node
 read the very same numbers.
@@ -27,11 +27,25 @@ def repo_root() -> Path:
     env = os.environ.get("BIPED_ROOT")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[4]
+    return Path(__file__).resolve().parents[3]
 
 
 def default_config_dir() -> Path:
     return repo_root() / "config"
+
+
+DEFAULT_ROBOT = "biped7"
+
+
+def robots_dir() -> Path:
+    """Where robots live: ``robots/<name>/`` holds a robot's ``description.yaml`` (its physical values),
+    ``gait.yaml`` (the settings of its gait generation) and ``gait_family.json`` (the generated family)."""
+    return repo_root() / "robots"
+
+
+def default_robot_dir() -> Path:
+    """The default robot's directory, ``robots/biped7`` (the 41 kg seven-link biped with 0.2 m feet)."""
+    return robots_dir() / DEFAULT_ROBOT
 
 
 def load_yaml_tree(path: str | os.PathLike[str]) -> dict[str, Any]:

@@ -12,7 +12,7 @@ tau [s] in [0, T],
 
 and differs only in how the 30 time coefficients a_ij depend on p. Two are read:
 
-* ``"cubic_spline_in_p"`` (the family in use, ``config/gait_family.json``): each a_ij(p) is a C2 cubic
+* ``"cubic_spline_in_p"`` (the family in use, ``robots/biped7/gait_family.json``): each a_ij(p) is a C2 cubic
   spline in p on breakpoints x_0 < ... < x_P, the "not-a-knot" spline through the values
   Y_k = a(x_k) (third derivative also continuous at x_1 and x_(P-1)). Piece k (p in [x_k, x_(k+1)])
   is a cubic in u = p - x_k:  a(p) = sum_{m=0..3} c_km u^m,  c_k0 = Y_k. So a, da/dp and d2a/dp2 are
@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_sim.robot.finite import finite_array
-from biped_sim.robot.settings import default_config_dir
+from biped_model.finite import finite_array
+from biped_model.settings import default_robot_dir
 
 SPLINE = "cubic_spline_in_p"
 POLYNOMIAL = "polynomial_in_p"
@@ -316,7 +316,7 @@ class GaitFamily:
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> "GaitFamily":
-        p = Path(path) if path is not None else default_config_dir() / "gait_family.json"
+        p = Path(path) if path is not None else default_robot_dir() / "gait_family.json"
         if not p.is_file():
             raise GaitFamilyError(f"gait family: file not found: {p} (run scripts/generate_gait_family)")
         try:
