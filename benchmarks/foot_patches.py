@@ -26,7 +26,7 @@ from biped_sim.plant import mujoco as pm
 from biped_sim.plant.config import load_sim_config
 from biped_controller.core.control.controller import load_controller_config
 from biped_controller.studies import provenance as provenance_records
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.foot_quiet import measure, provenance
 
 
@@ -34,7 +34,7 @@ def patch(kind: str, value: float) -> None:
     if kind != "ankle_armature":
         # the patches act on the objects' calls (the controller's compute, the plant's step): the runs take
         # every period through them, not through the compiled closed loop
-        from biped_controller.studies import segment
+        from biped_controller.closed_loop import segment
         segment.MujocoSegment.eligible = staticmethod(lambda sim, ctrl: False)
     step = pm.MujocoPlant.step
     state: dict = {"g": None, "stance": None, "fz": None}

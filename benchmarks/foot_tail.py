@@ -43,7 +43,7 @@ import numpy as np
 from biped_model.description import load_description
 from biped_model.mjcf import foot_geom_names
 from biped_controller.studies import provenance
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.foot_quiet import SKIP, measure
 from biped_controller.studies.trial.settings import parse_overrides, parse_perturbation
 from biped_model.gait_family import GaitFamily

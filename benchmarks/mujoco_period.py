@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     import mujoco
 
     from biped_controller.core.control.controller import load_controller_config
-    from biped_controller.studies import runner, segment
+    from biped_controller.closed_loop import runner, segment
     from biped_sim.plant.config import load_sim_config
     from biped_sim.plant.push import Push
     from biped_model.description import load_description

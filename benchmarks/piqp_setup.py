@@ -70,7 +70,7 @@ def instances(settings) -> list[tuple]:
     from biped_sim.plant.push import Push
 
     from biped_controller.core.qp.problem import constraint_values
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     out = []
     for mode, force in (("both", 600.0), ("both", -900.0), ("all", 700.0)):
         res = runner.run(4, mode, (Push(0.2315, 0.025, force),), sim_config=settings.sim_config(),

@@ -81,7 +81,7 @@ def main(argv=None) -> int:
         ap.error("--steps and --repeats must be >= 1")
     provenance.track(a.json, argv=argv, plant="rigid")
     from biped_controller.plugin.loop import PluginLoop
-    from biped_controller.studies.runner import run
+    from biped_controller.closed_loop.runner import run
     from biped_sim.plant.config import load_sim_config
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily

@@ -77,7 +77,7 @@ def pct(a) -> dict:
 
 def generate_instances(forces, modes, steps: int = 2) -> list[dict]:
     """The controller's QP instances (G, h, x*) of short pushed runs; W from the controller config."""
-    from biped_controller.studies.runner import run
+    from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
 
     out = []

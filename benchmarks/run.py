@@ -86,7 +86,7 @@ def pct(a) -> dict:
 # ------------------------------------------------------------------------------------------------
 
 def _push_run(force: float, steps: int, mode: str = "both", keep_qp: bool = True):
-    from biped_controller.studies.runner import run
+    from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
     scfg = _sim_cfg()
     return run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp,
@@ -439,7 +439,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
     """In-process closed loop (runner.run), sim time / wall time, per engine and mode, the engines
     interleaved in the same run (the machine's speed varies: compare ratios). The first fast run of a
     process loads the compiled kernels: a warm-up run of each engine comes first and is not timed."""
-    from biped_controller.studies.runner import run
+    from biped_controller.closed_loop.runner import run
 
     variants = {   # name: (engine, runner.run keywords)
         "fast": ("fast", {}),                                       # compiled loop, every record kept

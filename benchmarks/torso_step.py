@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
     from biped_controller.core.control.controller import AdaptiveController, load_controller_config
-    from biped_controller.studies.runner import run
+    from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
     from biped_model.description import LEFT, load_description
     from biped_model.gait_family import GaitFamily

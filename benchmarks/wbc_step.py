@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     provenance.track(a.json, a.results, argv=argv)   # record of each file written (results/README.md)
     from biped_controller.core.control.controller import AdaptiveController, load_controller_config
     from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
-    from biped_controller.studies.runner import run
+    from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily

@@ -156,7 +156,7 @@ def test_exact_agrees_with_piqp_on_random_degenerate_instances(feasible):
 def test_exact_agrees_with_piqp_on_recorded_controller_instances():
     """QPs the controller built in a run pushed past the `both`-mode limit (falls): real scaling."""
     from biped_controller.core.control.controller import load_controller_config
-    from biped_controller.studies.runner import run
+    from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
 
     res = run(steps=1, mode="both", pushes=(Push(0.2315, 0.025, 150.0),), keep_qp=True)

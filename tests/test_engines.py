@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from helpers import assert_same_fields, assert_same_run, count_compiled_periods
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.core.control.controller import load_controller_config
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import load_sim_config
@@ -103,7 +103,7 @@ def test_compiled_loop_is_the_objects_period_by_period(monkeypatch, mode, push, 
     """loop_kernels.run_segment (segment.Segment: many periods in one call while nothing needs Python)
     against the objects (ctrl.compute + sim.step every period): bit-identical records, statuses and
     impacts; the outcome-only mode (keep_records=False) ends the same way with the same last status."""
-    from biped_controller.studies import segment
+    from biped_controller.closed_loop import segment
     runs = []
     orig = segment.Segment.run
 
@@ -128,7 +128,7 @@ def test_compiled_loop_is_the_objects_period_by_period(monkeypatch, mode, push, 
 
 def test_compiled_loop_is_off_where_python_must_see_every_period():
     """Perturbed sensors, a torque function (integration rate), the reference engine: no compiled loop."""
-    from biped_controller.studies.segment import Segment
+    from biped_controller.closed_loop.segment import Segment
     from biped_controller.core.control.controller import AdaptiveController
     from biped_sim.plant.perturbation import PlantPerturbation
     from biped_sim.plant.rigid import Simulator

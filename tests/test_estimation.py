@@ -228,7 +228,7 @@ def _max_diff(a, b):
 
 @pytest.fixture(scope="module")
 def undelayed():
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     return runner.run(steps=2, mode="both", ctrl_config=load_controller_config(mode="both"))
 
 
@@ -236,7 +236,7 @@ def test_predictor_exact_when_the_model_is_exact(undelayed):
     """Delay of 2 periods, touchdown delayed too: with the Smith predictor the run is the undelayed one
     (every true state to 1e-9, through two touchdowns); the controller acts in the true stance at every
     period, i.e. it predicted each touchdown 2 periods before it was sensed."""
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     d = 2
     r = runner.run(steps=2, mode="both", ctrl_config=load_controller_config(mode="both", delay_compensation=d),
                    perturbation=PlantPerturbation(delay=d))
@@ -251,7 +251,7 @@ def test_predictor_exact_when_the_model_is_exact(undelayed):
 def test_predictor_negative_controls(undelayed):
     """The wrong delay (1 for 2) is not exact; without the predictor the walk falls within 5 ms of the
     first touchdown (docs/robustness.md: the old stance's law on the new stance)."""
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     wrong = runner.run(steps=1, mode="both", ctrl_config=load_controller_config(mode="both", delay_compensation=1),
                        perturbation=PlantPerturbation(delay=2), max_time=0.3)
     assert _max_diff(wrong, undelayed) > 1e-6
@@ -273,7 +273,7 @@ def test_predictor_reconciles_a_touchdown_sensed_at_once(undelayed, engine):
     from biped_controller.core.control.controller import AdaptiveController
     from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
     from biped_controller.core.sensing.pipeline import SensingPipeline
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     at_once = PlantPerturbation(delay=2, touchdown_delayed=False)
     cfg = load_controller_config(mode="both", engine=engine, delay_compensation=2, predictor_touchdown_at_once=True)
     kind = CompiledSensing if engine == "fast" else SensingPipeline
@@ -306,7 +306,7 @@ def test_no_touchdown_is_predicted_when_it_is_reported_at_once(engine):
     before the impact, acts in the new stance too early and falls (take_off at the first touchdown)."""
     from biped_sim.plant.config import load_sim_config
     from biped_model.gait_family import GaitFamily
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     plant = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, noise_pitch=1e-3, delay=1,
                               touchdown_delayed=False)
     cfg = load_controller_config(mode="both", engine=engine, delay_compensation=1, predictor_touchdown_at_once=True,

@@ -168,7 +168,7 @@ def test_b_push_applied_at_requested_time_and_nan_rejected(walk):
     reqs = [m.data for t, _, _, m in msgs if t == '/push_requests']
     assert len(reqs) == 2 and 'accepted: false' in reqs[0] and 'accepted: true' in reqs[1]
     # the effect: compare with the same walk without a push, in process
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     free = runner.run(steps=STEPS)
     states = [m for t, _, _, m in msgs if t == '/sim/state']
     k0 = int(math.floor(PUSH['start'] / 1e-3))   # last state before the onset (no impact before it)
@@ -178,7 +178,7 @@ def test_b_push_applied_at_requested_time_and_nan_rejected(walk):
 
 
 def test_c_dds_run_equals_in_process_run(walk):
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     from biped_sim.plant.push import Push
     ref = runner.run(steps=STEPS, pushes=(Push(PUSH['start'], PUSH['duration'], PUSH['force']),))
     d = _decoded(walk['bag'])

@@ -20,7 +20,7 @@ from biped_sim.plant.push import Push
 
 from biped_controller.core.qp import solver as qp
 from biped_controller.core.qp.solver import AdaptationQP
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.capmap import task
 from biped_controller.studies.capmap.spec import Cell, SimSpec
 from biped_controller.studies.trial import trials

@@ -57,7 +57,7 @@ def _in_process(ccfg, pert, through_imu: bool | str | None):
     from biped_sim.plant.config import load_sim_config
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily
-    from biped_controller.studies.runner import ClosedLoop
+    from biped_controller.closed_loop.runner import ClosedLoop
     loop = ClosedLoop(load_sim_config(), ccfg, GaitFamily.load(), load_description(), pert)
     loop.reset()
     sim, ctrl = loop.sim, loop.ctrl
@@ -84,7 +84,7 @@ def test_imu_over_dds_with_real_sensing_equals_the_in_process_loop(ros_domain, t
     from biped_sim.plant.perturbation import PlantPerturbation
     from biped_sim.recording.bag_reader import read_bag
     from biped_controller.core.control.controller import load_controller_config
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
 
     bag, ready = tmp_path / 'bag', tmp_path / 'ready'
     cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--ready-file', str(ready),

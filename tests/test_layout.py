@@ -42,8 +42,9 @@ ROOMS = {
     "biped_controller.core.control": {"biped_model", "biped_controller.core.qp", "biped_controller.core.sensing"},
     "biped_controller.gaits": {"biped_model", "biped_controller.core"},
     "biped_controller.plugin": {"biped_model", "biped_sim.plant", "biped_controller.core"},
+    "biped_controller.closed_loop": {"biped_model", "biped_sim.plant", "biped_controller.core", "biped_controller.plugin"},
     "biped_controller.studies": {"biped_model", "biped_sim.plant", "biped_controller.core", "biped_controller.gaits",
-                                 "biped_controller.plugin"},
+                                 "biped_controller.plugin", "biped_controller.closed_loop"},
     "biped_controller.graph": {"biped_model", "biped_sim.graph", "biped_controller.core", "biped_controller.plugin"},
 }
 ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",

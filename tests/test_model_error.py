@@ -312,7 +312,7 @@ def test_survival_under_model_error_takes_the_band_of_the_unpushed_walk():
     from types import SimpleNamespace
     from biped_controller.studies.trial import context as tcontext
     from biped_controller.studies.trial import survival as surv
-    from biped_controller.studies.runner import RunResult
+    from biped_controller.closed_loop.runner import RunResult
     p_d = tcontext.context().family.p_d
     impacts = [SimpleNamespace(t=0.3 + 0.46 * k) for k in range(11)]
 

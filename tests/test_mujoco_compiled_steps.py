@@ -19,7 +19,7 @@ MJ = load_sim_config(plant="mujoco")
 
 def _loop():
     from biped_controller.core.control.controller import load_controller_config
-    from biped_controller.studies.runner import ClosedLoop
+    from biped_controller.closed_loop.runner import ClosedLoop
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily
     return ClosedLoop(MJ, load_controller_config(mode="both", period=MJ.control_period), GaitFamily.load(),
@@ -117,7 +117,7 @@ def test_opt_timestep_view_is_the_models_field():
 # ------------------------------------------------------------------------------------------ the compiled loop
 def _loop_mode(mode: str):
     from biped_controller.core.control.controller import load_controller_config
-    from biped_controller.studies.runner import ClosedLoop
+    from biped_controller.closed_loop.runner import ClosedLoop
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily
     return ClosedLoop(MJ, load_controller_config(mode=mode, period=MJ.control_period), GaitFamily.load(),
@@ -127,7 +127,7 @@ def _loop_mode(mode: str):
 def _run_loop(loop, compiled_loop: bool, steps: int, pushes: tuple, **kw):
     """The run through the runner's loop with or without the compiled closed loop (the plant's compiled steps
     either way), the MuJoCo segment's calls counted; with the early stop's calls (t, impacts) logged."""
-    from biped_controller.studies import segment
+    from biped_controller.closed_loop import segment
     calls = []
     kernel = _Count(segment.load_mujoco_loop_kernels().run_mujoco_segment)
     on_impact = kw.pop("stop_at", None)

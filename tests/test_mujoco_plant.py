@@ -102,7 +102,7 @@ def test_contact_forces_three_ways_agree():
     MuJoCo's contact list and its constraint forces (``contacts_from_list``), after every MuJoCo step of the
     first step of a walk with a push (landing included). Negative control: the two feet's rows, swapped,
     do not agree (the comparison sees the loads)."""
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     from biped_sim.plant import mujoco as pm
     mk = pm.load_kernels()
     seen = []
@@ -157,7 +157,7 @@ def test_observed_stance_ankle_is_measured_against_the_ground():
 # ------------------------------------------------------------------------------------------ walking
 @pytest.fixture(scope="module")
 def walk20():
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     from biped_sim.plant import mujoco as pm
     plants = []
     orig = pm.MujocoPlant.reset
@@ -176,7 +176,7 @@ def walk20():
 
 
 def test_twenty_steps_in_mode_both_survive(walk20):
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     r, plant = walk20
     assert not r.fallen and r.steps_walked == 20, (r.fall_cause, r.fall_detail)
     assert [i.new_stance for i in r.impacts] == [RIGHT, LEFT] * 10
@@ -245,7 +245,7 @@ def test_period_momentum_balances_the_recorded_wrench_push_and_impacts(walk20):
 def test_a_push_far_above_the_boundary_ends_in_a_physical_fall():
     """1500 N for 25 ms (the rigid plant's boundary in mode both is about 550 N): the MuJoCo plant's run ends in
     a physical fall, with its cause, after the push began; the rigid plant declares a contact limit."""
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     push = (Push(0.2315, 0.025, 1500.0),)
     r = runner.run(steps=4, mode="both", sim_config=MJ, pushes=push)
     assert r.fallen and r.fall_cause in ("body_contact", "hip_low", "foot_rotated"), r.fall_cause
@@ -315,7 +315,7 @@ def _h(h, o):
 def test_rigid_plant_records_bit_identical(name, kw, digest):
     """The rigid plant's records, statuses and impacts hash as before the MuJoCo plant (the team's fingerprint
     of the restructured main, commit bfdaaa8): the second engine changed nothing of the first."""
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     r = runner.run(**kw)
     h = hashlib.sha256()
     _h(h, r.records)

@@ -10,7 +10,7 @@ import pytest
 from biped_sim.plant.push import Push
 from biped_model.layout import SnapshotUnsupported
 
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.trial import context as tcontext
 from biped_controller.studies.trial import runs, trials
 from biped_controller.studies.trial import settings as ts

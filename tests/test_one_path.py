@@ -13,7 +13,7 @@ import pytest
 from biped_controller.core.control.controller import MODES
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
 from biped_controller.plugin.registry import UnknownControllerError
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.trial import runs, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.controller import (RESOLVE_ERRORS, BuiltinMode, PluginController, resolve)

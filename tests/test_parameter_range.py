@@ -16,7 +16,7 @@ from biped_controller.core.control.controller import (
     AdaptiveController, computed_torque, joint_law, load_controller_config, load_controller_kernels)
 from biped_model.gait_family import eq11
 from biped_controller.core.control.controller_layout import M_, MEMORY, R_, RES
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.core.qp.problem import INFEASIBLE_FALLBACK
 from biped_controller.core.control.wbc import NOT_RUN
 from biped_controller.studies.capmap.spec import Cell, SimSpec, onset_time

@@ -38,7 +38,7 @@ def _python(t_start, substeps, cuts):
 
 @pytest.fixture(scope="module")
 def lk():
-    from biped_controller.studies.segment import load_loop_kernels
+    from biped_controller.closed_loop.segment import load_loop_kernels
     return load_loop_kernels()
 
 

@@ -36,7 +36,7 @@ def family():
 
 
 def _run(perturbation=None, max_time=SHORT, steps=1, **kw):
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     return runner.run(steps=steps, max_time=max_time, perturbation=perturbation, **kw)
 
 
@@ -175,7 +175,7 @@ def test_perturbed_mass_changes_the_dynamics():
 def test_controller_keeps_the_nominal_model(monkeypatch):
     """runner.run gives the perturbation to the simulator only: the controller's description and both of
     its models (Pinocchio and compiled) have the nominal masses, the simulator's have the plant's."""
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     made = {}
 
     make_plant = runner.make_plant

@@ -29,7 +29,7 @@ from biped_controller.plugin.registry import (ControllerLoadError, UnknownContro
                                               registered)
 from biped_controller.studies.trial.plugin_trials import PushTrials
 from biped_controller.studies.trial import runs as trial_runs, trials as trial_trials
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
 from biped_model.fixed_foot import FixedFootModel

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_sim.plant.push import Push
 from biped_sim.plant.rigid import Simulator
 

@@ -80,7 +80,7 @@ def real_instances(tmp_path_factory):
     25 ms (cached in the session's tmp directory)."""
     path = tmp_path_factory.getbasetemp() / "qp_real_instances.npz"
     if not path.exists():
-        from biped_controller.studies.runner import run
+        from biped_controller.closed_loop.runner import run
         from biped_sim.plant.push import Push
 
         arrays = {}

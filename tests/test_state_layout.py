@@ -196,7 +196,7 @@ def test_simulator_state_is_its_array_and_records_do_not_alias_it():
 
 
 def test_the_compiled_loop_runs_on_the_objects_own_arrays(monkeypatch):
-    from biped_controller.studies.segment import Segment
+    from biped_controller.closed_loop.segment import Segment
     sim, ctrl = _pair()
     seg = Segment(sim, ctrl)
     seen = {}
@@ -258,11 +258,11 @@ def test_kernel_modules_import_without_side_effects(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     code = ("import os, sys, numba\n"
             "import biped_model.fast_engine, biped_sim.plant.rigid, biped_controller.core.control.controller\n"
-            "import biped_controller.core.qp.solver, biped_controller.studies.segment, biped_controller.studies.runner\n"
+            "import biped_controller.core.qp.solver, biped_controller.closed_loop.segment, biped_controller.closed_loop.runner\n"
             "import biped_controller.core.sensing.model_error\n"
             "kern = [m for m in ('biped_model.planar_kernels', 'biped_controller.core.qp.exact_kernels',\n"
             "        'biped_controller.core.control.controller_kernels', 'biped_controller.core.control.wbc_kernels',\n"
-            "        'biped_controller.studies.loop_kernels', 'biped_controller.core.sensing.model_error_kernels')\n"
+            "        'biped_controller.closed_loop.loop_kernels', 'biped_controller.core.sensing.model_error_kernels')\n"
             "        if m in sys.modules]\n"
             "print(kern, 'NUMBA_CACHE_DIR' in os.environ, repr(numba.config.CACHE_DIR))\n")
     out = _python(code, env)

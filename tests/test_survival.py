@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from biped_controller.studies.runner import RunResult
+from biped_controller.closed_loop.runner import RunResult
 from biped_controller.studies.trial import runs, trials
 from biped_controller.studies.trial import search as tsearch
 from biped_controller.studies.trial import survival as surv

@@ -13,7 +13,7 @@ import pytest
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.push import Push
 
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.trial import context as tcontext
 from biped_controller.studies.trial import runs, trials
 from biped_controller.studies.trial import settings as ts
@@ -124,7 +124,7 @@ def test_the_compiled_loop_takes_the_qp_periods_bit_for_bit(monkeypatch, mode, f
     """The periods that need the QP are decided between two calls of the compiled loop (Segment.decide) and
     run by it: records, statuses (QP status and message included) and impacts are the objects' bit for bit;
     hybrid's whole-body stage keeps them with the objects (decide answers None)."""
-    from biped_controller.studies import segment
+    from biped_controller.closed_loop import segment
     from biped_controller.core.qp.problem import UNCONSTRAINED
     from biped_controller.core.control.controller import NO_ADAPTATION
     answers = []

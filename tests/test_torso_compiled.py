@@ -12,7 +12,7 @@ from biped_controller.core.control import controller as C
 from biped_controller.core.control.controller import AdaptiveController, load_controller_config
 from biped_controller.core.control.controller_layout import G_, TORSO_QP_ROWS
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
-from biped_controller.studies import runner, segment
+from biped_controller.closed_loop import runner, segment
 from biped_sim.plant.push import Push
 from biped_model.gait_family import torso_profile
 

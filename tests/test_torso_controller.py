@@ -19,7 +19,7 @@ from biped_controller.core.control.controller import (ADAPTED, MODES, TORSO_MODE
                                               ControllerConfigError, load_controller_config)
 from biped_controller.core.control.controller_layout import M_, QP_ROWS
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, kkt_residuals
-from biped_controller.studies.runner import run
+from biped_controller.closed_loop.runner import run
 
 FAM = GaitFamily.load()
 

@@ -26,7 +26,7 @@ def test_mode_all_over_dds_equals_the_in_process_run(ros_domain, rclpy_context, 
     from biped_sim.graph.push_client import call_apply_push
     from biped_sim.plant.push import Push
     from biped_sim.recording.bag_reader import read_bag
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
 
     bag, ready = tmp_path / 'bag', tmp_path / 'ready'
     cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--ready-file', str(ready),

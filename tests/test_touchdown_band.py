@@ -40,7 +40,7 @@ DELAY_ROW = PlantPerturbation(noise_q=5e-4, noise_qd=5e-2, encoder_bits=14, dela
 def before_impact():
     """The true (q, q') and applied torque of the last period before the first touchdown of a perfect-sensor
     walk (stance 0), and the model's flat-foot impact of that state."""
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     r = runner.run(steps=1, mode="both", ctrl_config=load_controller_config(mode="both"))
     recs = [rec for rec in r.records if rec.t < r.impacts[0].t and rec.stance == 0]
     rec = recs[-1]
@@ -196,7 +196,7 @@ def test_delayed_touchdown_walks_with_real_sensors(engine):
     from biped_controller.core.control.controller import AdaptiveController
     from biped_controller.core.sensing.pipeline_compiled import CompiledSensing
     from biped_controller.core.sensing.pipeline import SensingPipeline
-    from biped_controller.studies import runner
+    from biped_controller.closed_loop import runner
     steps = 3 if engine == "fast" else 1
     cfg = load_controller_config(mode="both", engine=engine, delay_compensation=2, **REAL)
     assert cfg.touchdown_band_sigmas > 0

@@ -241,7 +241,7 @@ def test_negative_control_a_wbc_that_ignores_a_row_fails_the_row_check(setting):
 # the modes in closed loop (rigid plant, in process)
 # ----------------------------------------------------------------------------------------
 from biped_controller.core.control.wbc import NOT_RUN  # noqa: E402
-from biped_controller.studies import runner  # noqa: E402
+from biped_controller.closed_loop import runner  # noqa: E402
 from biped_sim.plant.push import Push  # noqa: E402
 from biped_controller.core.qp.problem import SOLVER_ERROR  # noqa: E402
 

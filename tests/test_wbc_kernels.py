@@ -16,7 +16,7 @@ from biped_controller.core.control.controller import AdaptiveController, load_co
 from biped_controller.core.control.controller_layout import MEMORY, R_, RES, W_, WORK
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.core.control.wbc import NOT_RUN, WBC_ROWS, WholeBodyQP, rows_on_w, weight_matrix
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 
 from helpers import assert_close
 from test_wbc import dedupe, kkt_full, real_rows, setting, states, violating_instances  # noqa: F401  (fixture)

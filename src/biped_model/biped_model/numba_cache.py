@@ -3,8 +3,8 @@
 Pure Python, no ROS. The kernel modules (``biped_model.planar_kernels``,
 ``biped_sim.plant.mujoco_kernels``, ``biped_controller.core.qp.exact_kernels``, ``biped_controller.core.control.controller_kernels``,
 ``biped_controller.core.control.wbc_kernels``, ``biped_controller.core.sensing.pipeline_kernels``,
-``biped_controller.core.sensing.model_error_kernels``, ``biped_controller.studies.loop_kernels``,
-``biped_controller.studies.mujoco_loop_kernels``) only define kernels; they are imported through :func:`load`,
+``biped_controller.core.sensing.model_error_kernels``, ``biped_controller.closed_loop.loop_kernels``,
+``biped_controller.closed_loop.mujoco_loop_kernels``) only define kernels; they are imported through :func:`load`,
 which
 
 1. points numba's on-disk cache at ``<repo>/build/numba-cache`` (``NUMBA_CACHE_DIR`` when set), before the

@@ -1,6 +1,6 @@
 """In-process closed loop (no ROS, no DDS) of any interface controller with the rigid or the MuJoCo plant.
 
-The loop of ``studies.runner.ClosedLoop.run`` (its Python-object path) with the controller interface in
+The loop of ``closed_loop.runner.ClosedLoop.run`` (its Python-object path) with the controller interface in
 place of ``AdaptiveController.compute``: each period the plant's ``observe()`` (its sensor model
 applied) becomes an :class:`~biped_controller.plugin.interface.Observation` (with the torque the plant
 applied over the previous period), ``on_touchdown`` is called when the sensed stance changed, the

@@ -20,7 +20,7 @@ from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATI
 from biped_controller.studies.capmap.store import RECORD_VERSION, RecordStore, StoreError, fingerprint, load_records
 from biped_controller.studies.capmap.task import failure_cause, record_key, simulate, simulate_batch
 from biped_controller.studies.capmap.cli import main
-from biped_controller.studies.executor import ProgressBar
+from biped_controller.closed_loop.executor import ProgressBar
 from biped_controller.studies.provenance import git_state
 
 __all__ = [

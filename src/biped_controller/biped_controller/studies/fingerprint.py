@@ -20,7 +20,7 @@ import sys
 import numpy as np
 
 from biped_sim.plant.push import Push
-from biped_controller.studies.runner import run
+from biped_controller.closed_loop.runner import run
 
 # (name, steps, mode, pushes)
 RUNS = (

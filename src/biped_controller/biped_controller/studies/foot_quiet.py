@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from biped_model.description import LEFT, load_description
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 
 #: the measurement's defaults: a period counts after SKIP [s] past a touchdown; F_MIN [N] the unloaded
 #: threshold (the MuJoCo plant's foot switch); BAND [m] the edge band (the rigid plant's tip boundary seen

@@ -50,7 +50,7 @@ from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 
 from biped_controller.studies import capability_map as cmap
 from biped_controller.core.control.controller import MODES
-from biped_controller.studies.executor import make_executor
+from biped_controller.closed_loop.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.trial.survival import survival_rule
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, positive_int,
@@ -236,7 +236,7 @@ def _record_key(r: dict) -> str:
 def run_walks(levels, modes, observers, store: cmap.RecordStore, workers, log=print,
               simulate: bool = True) -> dict[str, dict]:
     """Every (level, mode, observer) walk not yet in ``store``, on ``workers`` (an executor of
-    ``studies.executor``, or a number of processes); returns the records by key. Mode ``none`` ignores the observer (no QP: the estimate is never used), so it runs once,
+    ``closed_loop.executor``, or a number of processes); returns the records by key. Mode ``none`` ignores the observer (no QP: the estimate is never used), so it runs once,
     with the observer as configured off. ``simulate`` False: only the stored records."""
     done = {_record_key(r): r for r in store.load() if r.get("kind") == "walk"}
     if not simulate:

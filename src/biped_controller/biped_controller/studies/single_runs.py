@@ -18,7 +18,7 @@ from biped_model.fixed_foot import CONSTRAINT_NAMES
 
 from biped_controller.core.control.controller import NO_ADAPTATION, TORSO_MODES, AdaptiveController
 from biped_controller.core.qp.solver import STATUS_NAMES
-from biped_controller.studies.runner import RunResult
+from biped_controller.closed_loop.runner import RunResult
 from biped_controller.studies.trial import runs
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, differences

@@ -65,7 +65,7 @@ from biped_controller.studies.capmap.spec import DEFAULT_COARSE, DEFAULT_MAX, DE
 from biped_controller.studies.capmap.store import fingerprint as map_fingerprint
 from biped_controller.studies.capmap.task import simulate
 from biped_controller.studies.capmap.store import RecordStore
-from biped_controller.studies.executor import make_executor
+from biped_controller.closed_loop.executor import make_executor
 from biped_controller.studies import provenance, runner
 
 

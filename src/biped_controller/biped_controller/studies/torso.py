@@ -41,7 +41,7 @@ from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS
 from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.survival import FLOOR_BAND, survival_rule
-from biped_controller.studies.runner import RunResult, run
+from biped_controller.closed_loop.runner import RunResult, run
 from biped_controller.studies import provenance
 
 

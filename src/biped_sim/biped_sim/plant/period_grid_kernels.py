@@ -1,5 +1,5 @@
 """The compiled twin (numba) of :mod:`biped_sim.plant.period_grid`: the control grid's period end and a
-period's integration knots, for the compiled closed loops (``biped_controller.studies.loop_kernels`` on the
+period's integration knots, for the compiled closed loops (``biped_controller.closed_loop.loop_kernels`` on the
 rigid plant, ``mujoco_loop_kernels`` on MuJoCo), which import it. The same operations in the same order as
 the Python home (IEEE double, no fast-math), so the knots are bit-identical to it
 (``tests/test_period_grid.py``).

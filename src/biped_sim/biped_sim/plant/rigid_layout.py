@@ -2,7 +2,7 @@
 
 Pure Python + NumPy, no ROS, no Pinocchio. :class:`biped_sim.plant.rigid.Simulator` keeps its state in a
 ``SIM_STATE`` array (properties over it) and its fixed limits in a ``SIM_LIMITS`` array; the compiled
-closed loop (``biped_controller.studies.loop_kernels``) takes the same arrays and reads the offsets from
+closed loop (``biped_controller.closed_loop.loop_kernels``) takes the same arrays and reads the offsets from
 ``SIM_STATE.at`` / ``SIM_LIMITS.at`` (compile-time constants for numba).
 
 * ``SIM_STATE``: time t [s] at the start of the current period, period index, stance foot (0 left, 1 right),

@@ -85,7 +85,7 @@ executor gives the same records (tested).
 
 Modules: ``spec`` (cells, search, map), ``metrics`` (conversions), ``task`` (one simulation and its
 record), ``store`` (records, fingerprint), ``search`` (one cell's search), ``driver`` (``run_map``),
-``executors`` (the shared ``studies.executor`` bound to the task), ``findings`` (summary), ``figures``,
+``executors`` (the shared ``closed_loop.executor`` bound to the task), ``findings`` (summary), ``figures``,
 ``cli``; ``studies.capability_map`` re-exports them (the public API and ``python -m``).
 
 Pure: no ROS import.

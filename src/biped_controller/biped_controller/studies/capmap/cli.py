@@ -19,7 +19,7 @@ from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATI
                                                   DEFAULT_PHASES, DEFAULT_RESOLUTION, DIRECTIONS, Cell, MapError,
                                                   MapSpec, Search, phases_of)
 from biped_controller.studies.capmap.store import RecordStore
-from biped_controller.studies.executor import ProgressBar
+from biped_controller.closed_loop.executor import ProgressBar
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, controller_arg, finite_float,
                                                  positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.settings import print_settings

@@ -12,7 +12,7 @@ from biped_controller.studies.capmap.search import (Boundary, coarse_edge, edge_
 from biped_controller.studies.capmap.spec import Cell, MapError, MapSpec, SimSpec
 from biped_controller.studies.capmap.store import RecordStore, fingerprint
 from biped_controller.studies.capmap.task import record_key, simulate_batch
-from biped_controller.studies.executor import ProgressBar, SerialExecutor
+from biped_controller.closed_loop.executor import ProgressBar, SerialExecutor
 
 
 @dataclass

@@ -1,8 +1,8 @@
-"""The shared executors (``studies.executor``) bound to the map's task: a batch of simulations
+"""The shared executors (``closed_loop.executor``) bound to the map's task: a batch of simulations
 (:func:`task.simulate_batch`), each worker loading its models once (:func:`task.worker_init`)."""
 from __future__ import annotations
 
-from biped_controller.studies import executor as _ex
+from biped_controller.closed_loop import executor as _ex
 from biped_controller.studies.capmap.task import simulate_batch, worker_init
 
 #: simulations per task by executor: 1 on the pool, 4 on Ray (a failing simulation takes ~0.1 s, less

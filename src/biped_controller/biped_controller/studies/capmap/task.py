@@ -6,7 +6,7 @@ from typing import Callable, Mapping, Sequence
 
 from biped_sim.plant.push import Push
 
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.capmap.spec import DIRECTIONS, MapError, SimSpec, onset_time
 from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.context import context

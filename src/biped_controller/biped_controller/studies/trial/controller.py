@@ -36,7 +36,7 @@ from biped_controller.core.control.controller import MODES
 from biped_controller.plugin.interface import InterfaceError
 from biped_controller.plugin.result import RunResult
 from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, load_controller
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.trial import plugin_trials, runs, stop
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, _config_stamp

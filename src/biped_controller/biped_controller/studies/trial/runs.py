@@ -7,8 +7,8 @@ import math
 
 from biped_sim.plant.push import Push
 
-from biped_controller.studies import runner
-from biped_controller.studies.runner import RunResult
+from biped_controller.closed_loop import runner
+from biped_controller.closed_loop.runner import RunResult
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
 from biped_controller.studies.trial.survival import SURVIVAL_STEPS

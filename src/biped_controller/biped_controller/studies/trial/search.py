@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import sys
 
-from biped_controller.studies.executor import CountingBar, ProgressBar, make_executor
+from biped_controller.closed_loop.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.scan import analyse_coarse, coarse_forces, outcome  # noqa: F401 (the search API)
 from biped_controller.studies.trial.context import context

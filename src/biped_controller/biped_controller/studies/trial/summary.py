@@ -8,7 +8,7 @@ import numpy as np
 from biped_model.gait_family import GaitFamily
 
 from biped_controller.core.qp.solver import STATUS_NAMES
-from biped_controller.studies.runner import RunResult
+from biped_controller.closed_loop.runner import RunResult
 from biped_controller.studies.trial.context import context
 
 

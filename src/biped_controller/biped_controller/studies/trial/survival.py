@@ -38,7 +38,7 @@ from pathlib import Path
 
 from biped_model.settings import default_config_dir, read_settings
 
-from biped_controller.studies.runner import RunResult
+from biped_controller.closed_loop.runner import RunResult
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.stop import StudySettingsError
 

@@ -8,7 +8,7 @@ import math
 
 from biped_sim.plant.push import Push
 
-from biped_controller.studies import runner
+from biped_controller.closed_loop import runner
 from biped_controller.studies.trial import runs
 from biped_controller.studies.trial.controller import parameter_excursion, resolve
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings

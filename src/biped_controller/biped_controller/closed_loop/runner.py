@@ -24,7 +24,7 @@ from biped_sim.plant.protocol import Plant, make_plant
 from biped_controller.core.control.controller import AdaptiveController, ControllerConfig, load_controller_config
 from biped_controller.core.control.controller_layout import M_
 from biped_controller.plugin.result import RunResult
-from biped_controller.studies.segment import MujocoSegment, Segment
+from biped_controller.closed_loop.segment import MujocoSegment, Segment
 from biped_model.gait_family import GaitFamily
 
 

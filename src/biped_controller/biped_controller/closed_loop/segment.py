@@ -29,7 +29,7 @@ from biped_controller.core.qp.problem import UNCONSTRAINED
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 
-LOOP_KERNELS = "biped_controller.studies.loop_kernels"
+LOOP_KERNELS = "biped_controller.closed_loop.loop_kernels"
 # what the compiled loop is compiled against besides its own source
 PERIOD_GRID_KERNELS = "biped_sim.plant.period_grid_kernels"
 LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
@@ -180,7 +180,7 @@ class Segment:
         return records, statuses
 
 
-MUJOCO_LOOP_KERNELS = "biped_controller.studies.mujoco_loop_kernels"
+MUJOCO_LOOP_KERNELS = "biped_controller.closed_loop.mujoco_loop_kernels"
 MUJOCO_LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
                                                             "biped_sim.plant.mujoco_kernels")
 
