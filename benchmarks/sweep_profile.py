@@ -24,7 +24,8 @@ from pathlib import Path
 def profile(phases: int) -> dict:
     from biped_sim.plant import rigid
     from biped_controller.core.control import controller as C
-    from biped_controller.studies import capability_map as cm, runner, segment
+    from biped_controller.closed_loop import runner, segment
+    from biped_controller.studies import capability_map as cm
     from biped_controller.studies.trial import runs, trials
 
     acc: dict[str, list] = {}

@@ -66,7 +66,8 @@ from biped_controller.studies.capmap.store import fingerprint as map_fingerprint
 from biped_controller.studies.capmap.task import simulate
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.closed_loop.executor import make_executor
-from biped_controller.studies import provenance, runner
+from biped_controller.closed_loop import runner
+from biped_controller.studies import provenance
 
 
 def _cells(summary: dict) -> dict:
