@@ -8,7 +8,7 @@ import time
 
 def time_table(quick: bool) -> dict:
     from biped_controller.studies.trial import search as ex
-    from biped_controller.core.control.controller import MODES
+    from biped_controller.core.control.config import MODES
 
     if quick:
         kw = dict(resolution=25.0, fmax=100.0, coarse=50.0)

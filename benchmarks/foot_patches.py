@@ -24,7 +24,7 @@ import numpy as np
 
 from biped_sim.plant import mujoco as pm
 from biped_sim.plant.config import load_sim_config
-from biped_controller.core.control.controller import load_controller_config
+from biped_controller.core.control.config import load_controller_config
 from biped_controller.studies import provenance as provenance_records
 from biped_controller.closed_loop import runner
 from biped_controller.studies.foot_quiet import measure, provenance

@@ -26,7 +26,8 @@ from biped_model.description import LEFT, load_description
 from biped_model.gait_family import GaitFamily
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
 
 
 def _wrap(obj, name: str, label: str, times: dict) -> None:
@@ -81,7 +82,7 @@ def main(argv=None) -> int:
     s.ek = _Kernels(s.ek, times)
     _wrap(s, "into_res", "CompiledSensing.into_res", times)
     _wrap(s, "sense", "CompiledSensing.sense (all)", times)
-    _wrap(ctrl._kernel, "compute", "_FastPeriod.compute (into_res + the period)", times)
+    _wrap(ctrl._kernel, "compute", "CompiledPeriod.compute (into_res + the period)", times)
     sim = Simulator(desc)
     q0, qd0 = fam.initial_state()
     total = []

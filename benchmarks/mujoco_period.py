@@ -98,7 +98,7 @@ def main(argv=None) -> int:
     provenance.track(a.json, argv=argv, plant="mujoco")
     import mujoco
 
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     from biped_controller.closed_loop import runner, segment
     from biped_sim.plant.config import load_sim_config
     from biped_sim.plant.push import Push

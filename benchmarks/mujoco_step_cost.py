@@ -113,7 +113,7 @@ def main(argv=None) -> int:
         ap.error("--steps and --repeats must be >= 1")
     provenance.track(a.json, argv=argv, plant="mujoco")
 
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     from biped_controller.closed_loop import runner
     from biped_sim.plant.config import load_sim_config
     from biped_model.description import load_description

@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     from biped_sim.plant.config import load_sim_config
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
 
     names = list(dict.fromkeys(a.controller or ["capture_point"]))
     desc, family, scfg = load_description(), GaitFamily.load(), load_sim_config()

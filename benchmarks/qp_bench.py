@@ -110,7 +110,7 @@ def load_instances(path: Path) -> list[dict]:
 
 def controller_weights(mode: str) -> np.ndarray:
     """W of the controller's QP in this mode (config/controller.yaml weights of the adapted parameters)."""
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
 
     cfg = load_controller_config()
     idx = {"tau": [1], "p": [0], "both": [0, 1]}[mode]

@@ -28,7 +28,7 @@ from time import perf_counter_ns
 
 import numpy as np
 
-from biped_controller.core.control.controller import QP_ROWS
+from biped_controller.core.control.controller_layout import QP_ROWS
 from biped_controller.studies import provenance
 from biped_controller.studies.trial.args import controller_arg
 
@@ -42,7 +42,7 @@ _SETTINGS = None
 
 def _ctrl_cfg(mode: str, **kw):
     """``load_controller_config`` with the profile's controller settings, then ``kw``."""
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     base = dict(_SETTINGS.controller) if _SETTINGS is not None else {}
     return load_controller_config(**{**base, "mode": mode, **kw})
 

@@ -44,7 +44,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=RESULTS_DIR / "torso_step.json")
     a = ap.parse_args(argv)
     provenance.track(a.json, argv=argv)   # record of each file written (results/README.md)
-    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.config import load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController
     from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
     from biped_model.description import LEFT, load_description

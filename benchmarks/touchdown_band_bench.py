@@ -22,7 +22,8 @@ from biped_sim.plant.rigid import Simulator
 from biped_model.description import LEFT, load_description
 from biped_model.gait_family import GaitFamily
 
-from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
 from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
 

@@ -47,7 +47,8 @@ def main(argv=None) -> int:
     ap.add_argument("--results", type=Path, default=RESULTS_DIR / "results.json")
     a = ap.parse_args(argv)
     provenance.track(a.json, a.results, argv=argv)   # record of each file written (results/README.md)
-    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.config import load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController
     from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR
     from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push

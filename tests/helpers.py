@@ -186,16 +186,16 @@ def assert_same_run(a, b, tol: float = 0.0, skip_status: tuple[str, ...] = (), r
 
 
 def count_compiled_periods(patch) -> list:
-    """Wrap the controller's compiled period (``controller._FastPeriod.compute``) through ``patch`` (a pytest
+    """Wrap the controller's compiled period (``controller_compiled.CompiledPeriod.compute``) through ``patch`` (a pytest
     ``monkeypatch`` or one of its contexts) so that every call appends whether the compiled period served
     it (True) or handed it back to the Python steps (False); returns that list."""
     from biped_controller.core.control import controller as C
     used: list = []
-    orig = C._FastPeriod.compute
+    orig = C.CompiledPeriod.compute
 
     def counting(self, *a):
         out = orig(self, *a)
         used.append(out is not None)
         return out
-    patch.setattr(C._FastPeriod, "compute", counting)
+    patch.setattr(C.CompiledPeriod, "compute", counting)
     return used

@@ -17,7 +17,7 @@ from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, UNCONST
 from biped_controller.core.qp.exact import solve_exact
 
 ROOT = Path(__file__).resolve().parents[1]
-from biped_controller.core.control.controller import QP_ROWS
+from biped_controller.core.control.controller_layout import QP_ROWS
 
 M = QP_ROWS  # rows of the controller's QP (17 with and 17 without the push estimate + 3 range rows)
 
@@ -155,7 +155,7 @@ def test_exact_agrees_with_piqp_on_random_degenerate_instances(feasible):
 
 def test_exact_agrees_with_piqp_on_recorded_controller_instances():
     """QPs the controller built in a run pushed past the `both`-mode limit (falls): real scaling."""
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
 

@@ -5,7 +5,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
 from biped_model.gait_family import GaitFamily
 
 

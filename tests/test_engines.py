@@ -7,7 +7,7 @@ import pytest
 
 from helpers import assert_same_fields, assert_same_run, count_compiled_periods
 from biped_controller.closed_loop import runner
-from biped_controller.core.control.controller import load_controller_config
+from biped_controller.core.control.config import load_controller_config
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import load_sim_config
 
@@ -61,7 +61,7 @@ def test_compiled_controller_period_matches_its_python_steps(monkeypatch, mode):
     used = count_compiled_periods(monkeypatch)
     fast = runner.run(steps=2, mode=mode, pushes=push, compiled_loop=False)
     assert used and all(used), "the compiled period must serve every period of a finite run"
-    _without(monkeypatch, C._FastPeriod, "compute")
+    _without(monkeypatch, C.CompiledPeriod, "compute")
     steps = runner.run(steps=2, mode=mode, pushes=push, compiled_loop=False)
     if mode != "none":
         assert sum(s.qp_status == 1 for s in steps.statuses) > 0, "the push must make the QP active"

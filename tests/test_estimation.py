@@ -24,7 +24,7 @@ from biped_model.fixed_foot import FixedFootModel
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation, SensorModel
 
 from biped_controller.core.sensing import momentum_observer as mom
-from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.control.config import ControllerConfigError, load_controller_config
 from biped_controller.core.sensing.estimation import EstimatorConfig, EstimatorConfigError, JointStateEstimator
 
 from estimation_loop import closed_loop

@@ -19,7 +19,8 @@ from biped_model.fixed_foot import contact_rows
 from biped_sim.plant.perturbation import PlantPerturbation
 
 from biped_controller.core.sensing import momentum_observer as mom
-from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
 from biped_controller.core.sensing.pipeline_compiled import CompiledSensing, load_pipeline_kernels
 from biped_controller.core.sensing.pipeline_layout import SENS
 from biped_controller.core.control.controller_layout import G_

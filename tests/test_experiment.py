@@ -24,7 +24,7 @@ from biped_controller.studies.trial import context as tcontext
 from biped_controller.studies.trial import runs, trials
 from biped_controller.studies.trial import settings as ts
 from biped_controller.closed_loop import runner
-from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.control.config import ControllerConfigError, load_controller_config
 from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfigError, load_sim_config
 

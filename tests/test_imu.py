@@ -113,7 +113,8 @@ def test_rigid_plant_reports_the_torso_rate():
     from biped_sim.plant.rigid import Simulator
     from biped_model.description import LEFT, load_description
     from biped_model.gait_family import GaitFamily
-    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.config import load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController
     desc, cfg, family = load_description(), load_sim_config(), GaitFamily.load()
     q0, qd0 = family.initial_state()
     for pert in (PlantPerturbation(), PlantPerturbation(noise_q=1e-3, seed=2)):
@@ -141,7 +142,7 @@ def test_controller_status_table_covers_every_message_field():
     carries the values. Negative control: a field left out of the table is caught by the same comparison."""
     import dataclasses
     from biped_msgs_py.msg import ControllerStatus
-    from biped_controller.core.control.controller import ControllerStatusData
+    from biped_controller.core.control.status import ControllerStatusData
     from biped_controller.graph.controller_node import STATUS_FIELDS, status_message
     names = [n for n, _ in STATUS_FIELDS]
     msg_fields = set(ControllerStatus.get_fields_and_field_types()) - {'stamp'}

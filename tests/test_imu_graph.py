@@ -83,7 +83,7 @@ def test_imu_over_dds_with_real_sensing_equals_the_in_process_loop(ros_domain, t
     from biped_sim.graph.imu import imu_reading
     from biped_sim.plant.perturbation import PlantPerturbation
     from biped_sim.recording.bag_reader import read_bag
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     from biped_controller.closed_loop import runner
 
     bag, ready = tmp_path / 'bag', tmp_path / 'ready'

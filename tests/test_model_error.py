@@ -12,7 +12,7 @@ from biped_model.description import load_description
 from biped_model.fixed_foot import FixedFootModel
 from biped_sim.plant.perturbation import PlantPerturbation
 
-from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+from biped_controller.core.control.config import ControllerConfigError, load_controller_config
 from biped_controller.core.sensing.model_error import (LEG_PARAMETERS, LINK_JOINTS, LegModelError, LegRegressor,
                                                 ModelErrorConfigError, RneaLegRegressor, _bumped,
                                                 load_model_error_kernels, parameter_bumps, prior_std)

@@ -17,7 +17,8 @@ from biped_model.gait_family import GaitFamily
 from biped_sim.plant.perturbation import PlantPerturbation
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
 from biped_controller.core.sensing.pipeline_layout import SC_
 from biped_controller.core.sensing.model_error import (LEG_PARAMETERS, CompiledLegRegressor, LegRegressor,
                                                 RneaLegRegressor, body_combination)

@@ -18,7 +18,7 @@ MJ = load_sim_config(plant="mujoco")
 
 
 def _loop():
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     from biped_controller.closed_loop.runner import ClosedLoop
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily
@@ -116,7 +116,7 @@ def test_opt_timestep_view_is_the_models_field():
 
 # ------------------------------------------------------------------------------------------ the compiled loop
 def _loop_mode(mode: str):
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     from biped_controller.closed_loop.runner import ClosedLoop
     from biped_model.description import load_description
     from biped_model.gait_family import GaitFamily

@@ -10,7 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from biped_controller.core.control.controller import MODES
+from biped_controller.core.control.config import MODES
+from biped_controller.plugin.builtin import ModeBoth
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
 from biped_controller.plugin.registry import UnknownControllerError
 from biped_controller.closed_loop import runner
@@ -30,7 +31,7 @@ class ZeroTorque:
     def __init__(self, setup: ControllerSetup):
         self.p = setup.family.p_d
 
-    def reset(self, stance: int, t: float) -> None:
+    def reset(self, t: float, stance: int) -> None:
         pass
 
     def on_touchdown(self, t: float, stance: int) -> None:
@@ -52,8 +53,14 @@ def test_every_mode_resolves_to_the_compiled_path_and_other_names_to_the_loop():
     z = resolve(ZERO)
     assert isinstance(z, PluginController) and not z.adaptive and not z.uses_observer
     assert resolve(ZERO) is z            # once per process
-    # the adapter of a mode given as module:Class is a plug-in: the generic loop, not the compiled path
-    assert isinstance(resolve("biped_controller.plugin.builtin:ModeBoth"), PluginController)
+    # the compiled path is the built-in class's own, whichever name reaches it: its module:Class is the mode
+    assert resolve("biped_controller.plugin.builtin:ModeBoth") is resolve("both")
+    # a subclass of a built-in may change compute: the generic loop runs it
+    assert isinstance(resolve(f"{__name__}:SubclassedBoth"), PluginController)
+
+
+class SubclassedBoth(ModeBoth):
+    """Mode both's class subclassed by a user (its compute unchanged here): not the built-in itself."""
 
 
 @pytest.mark.parametrize("name", ["no_such_controller", "no_such_module:Thing", f"{__name__}:NoSuchClass", ""])
@@ -65,11 +72,11 @@ def test_an_unusable_name_is_an_error_naming_it(name):
 
 def test_builtin_trial_keeps_the_early_stop_and_the_plugin_trial_runs_in_full():
     """A survived built-in trial is decided early (the compiled path's early stop); the same force through
-    the generic loop (mode both's adapter as a plug-in) runs in full to the same outcome."""
+    the generic loop (mode both's class subclassed: a plug-in) runs in full to the same outcome."""
     push = PUSH(150.0)
     b = trials.survives(push, "both", DEFAULT_SETTINGS)
     assert b["survived"] and b["decided_at_step"] is not None and b["decided_at_step"] < runs.trial_steps(push)
-    g = trials.survives(push, "biped_controller.plugin.builtin:ModeBoth", DEFAULT_SETTINGS)
+    g = trials.survives(push, f"{__name__}:SubclassedBoth", DEFAULT_SETTINGS)
     assert g["survived"] and g["decided_at_step"] is None and g["fault"] is None
     assert g["steps_walked"] == runs.trial_steps(push)
 

@@ -12,8 +12,9 @@ import pytest
 from helpers import assert_same_run
 
 from biped_sim.plant.push import Push
-from biped_controller.core.control.controller import (
-    AdaptiveController, computed_torque, joint_law, load_controller_config, load_controller_kernels)
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController, computed_torque, joint_law
+from biped_controller.core.control.controller_compiled import load_controller_kernels
 from biped_model.gait_family import eq11
 from biped_controller.core.control.controller_layout import M_, MEMORY, R_, RES
 from biped_controller.closed_loop import runner
@@ -24,7 +25,7 @@ from biped_controller.studies.capmap.task import simulate
 from biped_controller.studies.trial import runs, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import run_settings
-from biped_controller.core.control.controller import MODES
+from biped_controller.core.control.config import MODES
 
 HELD = "held to the parameters' ranges"
 

@@ -255,7 +255,8 @@ def test_delay_controller_sees_the_state_of_d_periods_ago(family, d, touchdown_d
     torque is applied to the legs the controller meant (mapped with the stance it was told), and the true
     record carries that torque in the true stance's paper order. With ``touchdown_delayed`` False the
     source is max(k - d, the first record of the current stance): the touchdown is told at once."""
-    from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+    from biped_controller.core.control.config import load_controller_config
+    from biped_controller.core.control.controller import AdaptiveController
     cfg = load_sim_config()
     sim = Simulator(DESC, cfg, perturbation=PlantPerturbation(delay=d, touchdown_delayed=touchdown_delayed))
     ctrl = AdaptiveController(load_controller_config(mode="both", period=cfg.control_period), family, DESC)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import helpers
-from biped_controller.core.control.controller import MODES, load_controller_config
+from biped_controller.core.control.config import MODES, load_controller_config
 from biped_controller.plugin import loop as plugin_loop
 from biped_controller.plugin.builtin import BUILTIN, ModeNone
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, ControlResult, GuardedController,
@@ -32,25 +32,24 @@ from biped_controller.studies.trial import runs as trial_runs, trials as trial_t
 from biped_controller.closed_loop import runner
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
-from biped_model.fixed_foot import FixedFootModel
 
 START, DURATION = trial_runs.DEFAULT_START, trial_runs.DEFAULT_DURATION
 
 
 class ClassicalComputedTorque:
-    """Written against the interface only: q_d = q_d(p_d, tau), tau = time since the step began (tau' = 1),
-    w = q_d'' + K_v (q_d' - q') + K_p (q_d - q), Gamma = A(q) w + H(q, q')."""
+    """Written against the interface only (its setup's gains, reference and model): q_d = q_d(p_d, tau),
+    tau = time since the step began (tau' = 1), w = q_d'' + K_v (q_d' - q') + K_p (q_d - q),
+    Gamma = A(q) w + H(q, q')."""
 
     description = "test: classical computed torque on the fixed reference"
 
     def __init__(self, setup: ControllerSetup):
-        cfg = load_controller_config()
-        self.Kp, self.Kv = cfg.Kp, cfg.Kv
-        self.family = setup.family
-        self.model = FixedFootModel(setup.desc)
+        self.Kp, self.Kv = setup.gains.Kp, setup.gains.Kv
+        self.ref = setup.reference
+        self.model = setup.model
         self.t0 = 0.0
 
-    def reset(self, stance: int, t: float) -> None:
+    def reset(self, t: float, stance: int) -> None:
         self.t0 = t
 
     def on_touchdown(self, t: float, stance: int) -> None:
@@ -58,10 +57,10 @@ class ClassicalComputedTorque:
 
     def compute(self, obs: Observation) -> ControlResult:
         tau = (round(obs.t * 1e9) - round(self.t0 * 1e9)) * 1e-9     # whole nanoseconds, as the plant's clock
-        g = self.family.evaluate(self.family.p_d, tau)
+        g = self.ref.at(self.ref.p_d, tau)
         w = g.d2q_dtau2 + self.Kv * (g.dq_dtau - obs.qd) + self.Kp * (g.q - obs.q)
         dyn = self.model.dynamics(obs.q, obs.qd)
-        return ControlResult(dyn.A @ w + dyn.H, {"p": self.family.p_d, "tau": tau, "tau_dot": 1.0})
+        return ControlResult(dyn.A @ w + dyn.H, {"p": self.ref.p_d, "tau": tau, "tau_dot": 1.0})
 
 
 def _records(recs):
@@ -230,7 +229,7 @@ class NoCompute:
     def __init__(self, setup):
         pass
 
-    def reset(self, stance, t):
+    def reset(self, t, stance):
         pass
 
     def on_touchdown(self, t, stance):
@@ -247,8 +246,13 @@ class NoSetup(ClassicalComputedTorque):
         pass
 
 
+class OldOrderReset(ClassicalComputedTorque):
+    def reset(self, stance, t):      # the order before the time came first in every call
+        self.t0 = t
+
+
 @pytest.mark.parametrize("cls, needle", [(NoCompute, "compute"), (BadTouchdown, "on_touchdown"),
-                                         (NoSetup, "constructor")])
+                                         (NoSetup, "constructor"), (OldOrderReset, "reset")])
 def test_a_class_that_does_not_satisfy_the_interface_is_named(cls, needle):
     with pytest.raises(InterfaceError) as e:
         load_controller(f"{__name__}:{cls.__name__}")
@@ -389,3 +393,27 @@ def test_cli_max_push_on_a_perturbed_plant(tmp_path, capsys):
     from biped_controller.studies.controllers import main
     assert main(["max-push", "none", "--perturb", "nope=1"]) == 2
     assert "'nope'" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------ the controller node
+def test_the_node_builds_every_controller_through_the_interface():
+    """The controller node's one route: a built-in mode is the registry's class built with the node's controller
+    settings as its options (the adaptive controller inside has exactly those settings) and returns its whole
+    status as the result's record; a plug-in gets no options and its result has no record."""
+    pytest.importorskip("rclpy")
+    from dataclasses import replace
+
+    from biped_controller.core.control.status import ControllerStatusData
+    from biped_controller.graph.controller_node import build_controller
+    lp = plugin_loop.PluginLoop("none")
+    cfg = replace(load_controller_config(mode="both", period=lp.scfg.control_period), margin_torque=2.5, Kp=410.0)
+    c = build_controller("both", lp.desc, lp.family, cfg)
+    assert isinstance(c, GuardedController) and type(c.inner).__name__ == "ModeBoth"
+    assert c.inner.ctrl.cfg == cfg
+    q0, qd0 = lp.family.initial_state()
+    out = c.compute(Observation.frozen(0.0, 0, 0, q0, qd0, np.nan, np.nan, np.zeros(6), 0))
+    assert isinstance(out.record, ControllerStatusData) and out.record.mode == "both"
+    assert out.status["p"] == out.record.p and out.status["qp_status"] == out.record.qp_status
+    ct = build_controller(f"{__name__}:ClassicalComputedTorque", lp.desc, lp.family, cfg)
+    assert isinstance(ct.inner, ClassicalComputedTorque)
+    assert ct.compute(Observation.frozen(0.0, 0, 0, q0, qd0, np.nan, np.nan, np.zeros(6), 0)).record is None

@@ -4,7 +4,7 @@ guide's two commands.
 The package (written to a temporary directory, imported through PYTHONPATH, registered by its
 ``module:Class`` string as the guide allows) implements classical computed torque on the fixed reference
 q_d(p_d, t - t_touchdown): w = q_d'' + K_v (q_d' - q') + K_p (q_d - q), Gamma = A(q) w + H(q, q'), with the
-gains of config/controller.yaml and the dynamics the guide names. That is mode ``none``'s law, so the
+setup's gains, reference and model the guide names (the plug-in package alone). That is mode ``none``'s law, so the
 oracle is the studies' figure of mode none at the paper's cell: 43.75 N (the search's last two bisection
 points from a coarse failure at 50 N: 43.75 N survives, 46.875 N falls).
 
@@ -32,22 +32,19 @@ PACKAGE = '''
 """Classical computed torque, written from docs/controllers.md."""
 import numpy as np
 
-from biped_controller.core.control.controller import load_controller_config
 from biped_controller.plugin.interface import ControlResult
-from biped_model.fixed_foot import FixedFootModel
 
 
 class ComputedTorque:
     description = "classical computed torque on q_d(p_d, t - t_touchdown)"
 
     def __init__(self, setup):
-        cfg = load_controller_config()
-        self.Kp, self.Kv = cfg.Kp, cfg.Kv
-        self.family = setup.family
-        self.model = FixedFootModel(setup.desc)
+        self.Kp, self.Kv = setup.gains.Kp, setup.gains.Kv
+        self.ref = setup.reference
+        self.model = setup.model
         self.t0 = 0.0
 
-    def reset(self, stance, t):
+    def reset(self, t, stance):
         self.t0 = t
 
     def on_touchdown(self, t, stance):
@@ -55,10 +52,10 @@ class ComputedTorque:
 
     def compute(self, obs):
         tau = obs.t - self.t0
-        g = self.family.evaluate(self.family.p_d, tau)
+        g = self.ref.at(self.ref.p_d, tau)
         w = g.d2q_dtau2 + self.Kv * (g.dq_dtau - obs.qd) + self.Kp * (g.q - obs.q)
         dyn = self.model.dynamics(obs.q, obs.qd)
-        return ControlResult(dyn.A @ w + dyn.H, {"p": self.family.p_d, "tau": tau, "tau_dot": 1.0})
+        return ControlResult(dyn.A @ w + dyn.H, {"p": self.ref.p_d, "tau": tau, "tau_dot": 1.0})
 
 
 class Broken(ComputedTorque):

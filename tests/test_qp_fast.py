@@ -18,7 +18,7 @@ import pytest
 from biped_controller.core.qp import exact as qp_exact
 from biped_controller.core.qp.solver import load_exact_kernels
 from biped_controller.core.qp import problem as qp_types
-from biped_controller.core.control.controller import QP_ROWS
+from biped_controller.core.control.controller_layout import QP_ROWS
 from biped_model.fixed_foot import N_CONSTRAINTS
 from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, AdaptationQP, polish
 from biped_controller.core.qp.problem import constraint_values, kkt_residuals

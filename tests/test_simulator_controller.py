@@ -24,7 +24,7 @@ from biped_sim.plant.push import Rejected
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_controller.closed_loop import runner
-from biped_controller.core.control.controller import load_controller_config
+from biped_controller.core.control.config import load_controller_config
 from biped_model.gait_family import GaitFamily
 from biped_model.fixed_foot import relabel
 from biped_controller.core.qp.solver import ACTIVE, INFEASIBLE_FALLBACK, SOLVER_ERROR, UNCONSTRAINED, kkt_residuals

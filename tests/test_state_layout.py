@@ -23,7 +23,9 @@ from biped_model.layout import Layout, LayoutError
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.rigid import Simulator
 from biped_sim.plant.rigid_layout import S_, SIM_STATE
-from biped_controller.core.control.controller import AdaptiveController, load_controller_kernels, load_controller_config
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
+from biped_controller.core.control.controller_compiled import load_controller_kernels
 from biped_controller.core.control.controller_layout import (
     CONS, GAINS, M_, MEMORY, OBS_KEEP, OBS_NONE, OBS_RESIDUAL, R_, RES, WORK)
 

@@ -126,7 +126,7 @@ def test_the_compiled_loop_takes_the_qp_periods_bit_for_bit(monkeypatch, mode, f
     hybrid's whole-body stage keeps them with the objects (decide answers None)."""
     from biped_controller.closed_loop import segment
     from biped_controller.core.qp.problem import UNCONSTRAINED
-    from biped_controller.core.control.controller import NO_ADAPTATION
+    from biped_controller.core.control.status import NO_ADAPTATION
     answers = []
     orig = segment.Segment.decide
 

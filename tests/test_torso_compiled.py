@@ -9,7 +9,8 @@ import pytest
 
 from helpers import assert_same_fields, assert_same_run, count_compiled_periods
 from biped_controller.core.control import controller as C
-from biped_controller.core.control.controller import AdaptiveController, load_controller_config
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
 from biped_controller.core.control.controller_layout import G_, TORSO_QP_ROWS
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.closed_loop import runner, segment
@@ -23,7 +24,7 @@ CASES = {"walk": (), "push": (Push(0.2315, 0.025, 500.0),), "back": (Push(0.2315
 def _python_steps(monkeypatch, **kw):
     """The run on the controller's Python steps (the compiled period switched off for this run only)."""
     with monkeypatch.context() as m:
-        m.setattr(C._FastPeriod, "compute", lambda self, *a: None)
+        m.setattr(C.CompiledPeriod, "compute", lambda self, *a: None)
         return runner.run(compiled_loop=False, **kw)
 
 

@@ -15,8 +15,10 @@ from scipy.optimize import minimize
 
 from biped_sim.plant.push import Push
 from biped_model.gait_family import GaitFamily
-from biped_controller.core.control.controller import (ADAPTED, MODES, TORSO_MODES, TORSO_ROWS, AdaptiveController,
-                                              ControllerConfigError, load_controller_config)
+from biped_controller.core.control.config import (ADAPTED, MODES, TORSO_MODES, ControllerConfigError,
+                                                  load_controller_config)
+from biped_controller.core.control.controller import AdaptiveController
+from biped_controller.core.control.controller_layout import TORSO_ROWS
 from biped_controller.core.control.controller_layout import M_, QP_ROWS
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, kkt_residuals
 from biped_controller.closed_loop.runner import run
@@ -198,7 +200,7 @@ def test_foxglove_layout_plots_lambda_from_real_status_fields():
     import json
     import re
     from helpers import ROOT
-    from biped_controller.core.control.controller import ControllerStatusData
+    from biped_controller.core.control.status import ControllerStatusData
     import dataclasses
     fields = _msg_fields(ROOT / "src" / "biped_msgs_py" / "msg" / "ControllerStatus.msg")
     layout = json.loads((ROOT / "config" / "foxglove_layout.json").read_text(encoding="utf-8"))

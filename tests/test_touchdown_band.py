@@ -23,7 +23,7 @@ from biped_model.description import load_description
 from biped_model.fixed_foot import FixedFootModel, relabel
 from biped_model.floating import FloatingModel
 
-from biped_controller.core.control.controller import load_controller_config
+from biped_controller.core.control.config import load_controller_config
 from biped_controller.core.sensing.estimation import EstimatorConfig, JointStateEstimator
 from biped_controller.core.sensing.predictor import flat_foot_impact
 from biped_controller.core.sensing.touchdown_band import (BothStancesTorque, TouchdownBand, in_band,

@@ -262,7 +262,7 @@ CTRL_NUMERIC = ['Kp', 'Kv', 'kp', 'kv', 'weight_p', 'weight_tau', 'tau_dot_min',
 @SETTINGS
 @given(key=st.sampled_from(CTRL_NUMERIC), bad=st.sampled_from([math.nan, math.inf, -1.0]))
 def test_controller_config_rejects_naming_key(key, bad):
-    from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+    from biped_controller.core.control.config import ControllerConfigError, load_controller_config
     with pytest.raises(ControllerConfigError) as ei:
         load_controller_config(**{key: bad})
     assert key in str(ei.value)
@@ -270,7 +270,7 @@ def test_controller_config_rejects_naming_key(key, bad):
 
 def test_controller_config_rejects_tau_dot_max_not_above_tau_dot_min():
     """tau' has a range only when its upper end lies above its lower one: the message names the key."""
-    from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+    from biped_controller.core.control.config import ControllerConfigError, load_controller_config
     with pytest.raises(ControllerConfigError) as ei:
         load_controller_config(tau_dot_min=0.5, tau_dot_max=0.5)
     assert 'tau_dot_max' in str(ei.value)
@@ -278,7 +278,7 @@ def test_controller_config_rejects_tau_dot_max_not_above_tau_dot_min():
 
 
 def _modes():
-    from biped_controller.core.control.controller import MODES
+    from biped_controller.core.control.config import MODES
     return tuple(MODES)
 
 
@@ -288,7 +288,7 @@ _MODES = _modes()   # every valid mode (none, tau, p, both, wbc, hybrid, lambda,
 @SETTINGS
 @given(mode=st.text(max_size=8).filter(lambda m: m not in _MODES))
 def test_controller_config_rejects_unknown_mode(mode):
-    from biped_controller.core.control.controller import ControllerConfigError, load_controller_config
+    from biped_controller.core.control.config import ControllerConfigError, load_controller_config
     with pytest.raises(ControllerConfigError) as ei:
         load_controller_config(mode=mode)
     assert 'mode' in str(ei.value)
@@ -297,7 +297,7 @@ def test_controller_config_rejects_unknown_mode(mode):
 @SETTINGS
 @given(mode=st.sampled_from(['none', 'tau', 'p', 'both']), kp=st.floats(1.0, 1000.0))
 def test_controller_config_accepts_valid(mode, kp):
-    from biped_controller.core.control.controller import load_controller_config
+    from biped_controller.core.control.config import load_controller_config
     load_controller_config(mode=mode, Kp=kp)
 
 
@@ -306,7 +306,7 @@ def test_graph_params_file_repeats_no_setting():
     home (config/simulator.yaml, config/controller.yaml), which the nodes use as their defaults."""
     from biped_model.settings import default_config_dir
     from biped_sim.plant.config import SimConfig
-    from biped_controller.core.control.controller import ControllerConfig
+    from biped_controller.core.control.config import ControllerConfig
     g = yaml.safe_load((default_config_dir() / 'graph.yaml').read_text())
     for n in ('simulator', 'controller', 'disturbance', 'recorder'):
         assert 'ros__parameters' in g[n], n
@@ -321,7 +321,8 @@ def test_bare_objects_read_the_config_files():
     from biped_model.settings import default_config_dir, read_settings
     from biped_sim.plant.config import SimConfig
     from biped_sim.plant.rigid import Simulator
-    from biped_controller.core.control.controller import AdaptiveController, ControllerConfig
+    from biped_controller.core.control.config import ControllerConfig
+    from biped_controller.core.control.controller import AdaptiveController
     sim_yaml = read_settings(default_config_dir() / 'simulator.yaml', SimConfig.__dataclass_fields__)
     assert {k: getattr(Simulator().cfg, k) for k in sim_yaml} == sim_yaml
     keys = [k for k in ControllerConfig.__dataclass_fields__ if k not in ('period', 'engine')]

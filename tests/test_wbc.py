@@ -14,7 +14,7 @@ from scipy.optimize import minimize, nnls
 from biped_model.description import load_description
 from biped_model.fixed_foot import N_CONSTRAINTS, FixedFootModel, contact_rows
 from biped_model.gait_family import GaitFamily
-from biped_controller.core.control.controller import load_controller_config
+from biped_controller.core.control.config import load_controller_config
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED, QPShapeError
 from biped_controller.core.control.wbc import (
     TORSO_PITCH_ROW,
@@ -334,7 +334,7 @@ def test_status_message_carries_the_whole_body_fields():
     import dataclasses
     from biped_msgs_py.msg import ControllerStatus
     from builtin_interfaces.msg import Time
-    from biped_controller.core.control.controller import ControllerStatusData
+    from biped_controller.core.control.status import ControllerStatusData
     from biped_controller.graph.controller_node import status_message
     fields = set(ControllerStatus.get_fields_and_field_types())
     data_fields = {f.name for f in dataclasses.fields(ControllerStatusData)} - {"t"}

@@ -12,7 +12,9 @@ import pytest
 import qpsolvers
 
 from biped_sim.plant.push import Push
-from biped_controller.core.control.controller import AdaptiveController, load_controller_config, load_wbc_kernels
+from biped_controller.core.control.config import load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
+from biped_controller.core.control.controller_compiled import load_wbc_kernels
 from biped_controller.core.control.controller_layout import MEMORY, R_, RES, W_, WORK
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.core.control.wbc import NOT_RUN, WBC_ROWS, WholeBodyQP, rows_on_w, weight_matrix

@@ -9,9 +9,9 @@ LIP and capture point. With the centre of mass (CoM) at a constant height z_c ov
 x'' = omega^2 (x - u_cop), omega = sqrt(g / z_c) [1/s]. The DCM (instantaneous capture point)
 xi = x + x'/omega [m] obeys xi' = omega (xi - u_cop); with the centre of pressure at the ankle
 (u_cop = 0) it diverges as xi(t + s) = xi(t) e^{omega s}. Here x, x' are the CoM's horizontal
-position and velocity relative to the stance ankle, from the sensed (q, q') by the controller's
-fixed-foot model (``FixedFootModel.com_terms``: x_G and J_G q'); z_c is the mean CoM height of the
-preferred step q_d(p_d, .).
+position and velocity relative to the stance ankle, from the sensed (q, q') by the controller-side
+model of its setup (``setup.model.com_state``: x_G and J_G q'); z_c is the mean CoM height of the
+preferred step q_d(p_d, .) (``setup.reference``).
 
 Step location and timing. With T_r [s] the time left until touchdown, the DCM at touchdown is
 xi_T = xi e^{omega T_r} (relative to the stance ankle). The preferred gait defines the DCM offset
@@ -38,8 +38,12 @@ p'' = k_p (p* - p) - k_v p',  tau'' = k_tau (tau'* - tau').  At a touchdown tau 
 carry over.
 
 Torque: the computed-torque law of the paper on q_d(p, tau) (eqs. 11, 15-17), q_d' = dq/dp p' +
-dq/dtau tau', q_d'' with the p'', tau'' terms, w = q_d'' + K_v (q_d' - q') + K_p (q_d - q),
-Gamma = A(q) w + H(q, q') [N m] (``FixedFootModel.dynamics``, the robot as the controller knows it).
+dq/dtau tau', q_d'' with the p'', tau'' terms (``setup.reference.at(p, tau).motion(p', tau', p'', tau'')``),
+w = q_d'' + K_v (q_d' - q') + K_p (q_d - q) (K_p, K_v: ``setup.gains`` unless given as options),
+Gamma = A(q) w + H(q, q') [N m] (``setup.model.dynamics``, the robot as the controller knows it).
+
+Everything comes from the plug-in package (``biped_controller.plugin``): the interface's types and the
+setup's model, gains and reference.
 
 Status (per period): p [m], p_dot [m/s], tau [s], tau_dot [-], p_target [m], tau_dot_target [-],
 dcm [m] (xi), dcm_error [m] (xi - xi_n(tau)), time_left [s] (T_r), timing_adapted (bool: T_r differs
@@ -52,10 +56,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from biped_controller.core.control.controller import load_controller_config
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
-from biped_model.fixed_foot import FixedFootModel
-from biped_model.gait_family import eq11
+from biped_controller.plugin.model import Gains
 
 
 class StepperSettingsError(ValueError):
@@ -66,8 +68,8 @@ class StepperSettingsError(ValueError):
 class StepperSettings:
     """The step adjuster's settings (``ControllerSetup.options`` override them by name)."""
 
-    Kp: float                 # [1/s^2] joint PD stiffness (eq. 16); default: config/controller.yaml's
-    Kv: float                 # [1/s] joint PD damping; default: config/controller.yaml's
+    Kp: float                 # [1/s^2] joint PD stiffness (eq. 16); default: the setup's gains
+    Kv: float                 # [1/s] joint PD damping; default: the setup's gains
     kp: float = 25.0          # [1/s^2] p -> p*: the paper's second-task gain for p -> p_d (omega_n = 5 rad/s)
     kv: float = 10.0          # [1/s] critical damping for kp (the paper's k_v)
     k_tau: float = 10.0       # [1/s] tau' -> tau'*: the paper's k_v for tau' -> 1
@@ -98,13 +100,13 @@ class StepperSettings:
         return self
 
     @classmethod
-    def from_options(cls, options) -> "StepperSettings":
+    def from_options(cls, options, gains: Gains) -> "StepperSettings":
+        """The settings with ``gains`` (``ControllerSetup.gains``) as Kp, Kv, overridden by ``options``."""
         known = {f.name for f in fields(cls)}
         bad = sorted(set(options) - known)
         if bad:
             raise StepperSettingsError(f"capture_point: unknown option(s) {bad}; known: {sorted(known)}")
-        cc = load_controller_config()
-        base = cls(Kp=cc.Kp, Kv=cc.Kv)
+        base = cls(Kp=gains.Kp, Kv=gains.Kv)
         return replace(base, **{k: float(v) for k, v in options.items()}).validate()
 
 
@@ -116,27 +118,27 @@ class CapturePointStepper:
     N_TABLE = 401       # points of the preferred gait's DCM table over tau in [0, T]
 
     def __init__(self, setup: ControllerSetup):
-        self.s = StepperSettings.from_options(setup.options)
-        self.family = fam = setup.family
-        self.model = FixedFootModel(setup.desc)
-        self.T, self.p_d, self.p_min, self.p_max = fam.T, fam.p_d, fam.p_min, fam.p_max
-        taus = np.linspace(0.0, fam.T, self.N_TABLE)
+        self.s = StepperSettings.from_options(setup.options, setup.gains)
+        self.ref = ref = setup.reference
+        self.model = setup.model
+        self.T, self.p_d, self.p_min, self.p_max = ref.T, ref.p_d, ref.p_min, ref.p_max
+        taus = np.linspace(0.0, ref.T, self.N_TABLE)
         xs, zs, vs = [], [], []
         for tau in taus:
-            g = fam.evaluate(fam.p_d, tau)
-            c, J, _ = self.model.com_terms(g.q, g.dq_dtau)
-            xs.append(c[0])
-            zs.append(c[1])
-            vs.append((J @ g.dq_dtau)[0])
+            g = ref.at(ref.p_d, tau)
+            com = self.model.com_terms(g.q, g.dq_dtau)
+            xs.append(com.position[0])
+            zs.append(com.position[1])
+            vs.append((com.jacobian @ g.dq_dtau)[0])
         self.z_c = float(np.mean(zs))                              # [m]
-        self.omega = math.sqrt(setup.desc.gravity / self.z_c)      # [1/s]
+        self.omega = math.sqrt(self.model.gravity / self.z_c)      # [1/s]
         self._taus = taus
         self._xi_n = np.array(xs) + np.array(vs) / self.omega      # [m] DCM along the preferred step
-        self._offset = self._xi_n * np.exp(self.omega * (fam.T - taus))   # c(tau) [m]
-        self.reset(0, 0.0)
+        self._offset = self._xi_n * np.exp(self.omega * (ref.T - taus))   # c(tau) [m]
+        self.reset(0.0, 0)
 
     # ------------------------------------------------------------------ interface
-    def reset(self, stance: int, t: float) -> None:
+    def reset(self, t: float, stance: int) -> None:
         """p = p_d, p' = 0, tau = 0, tau' = 1, targets at the preferred gait, the step starting at ``t``."""
         self.p, self.p_dot, self.tau, self.tau_dot = self.p_d, 0.0, 0.0, 1.0
         self.p_ddot = self.tau_ddot = 0.0
@@ -157,8 +159,8 @@ class CapturePointStepper:
             self.tau, self._touched = 0.0, False
         self.t_last = obs.t
         q, qd = obs.q, obs.qd
-        c, v = self.model.com_velocity(q, qd)
-        xi = float(c[0] + v[0] / self.omega)
+        com = self.model.com_state(q, qd)
+        xi = float(com.position[0] + com.velocity[0] / self.omega)
         tau_c = min(max(self.tau, 0.0), self.T)
         xi_n = float(np.interp(tau_c, self._taus, self._xi_n))
         adapted = False
@@ -168,9 +170,9 @@ class CapturePointStepper:
         s = self.s
         self.p_ddot = s.kp * (self.p_target - self.p) - s.kv * self.p_dot
         self.tau_ddot = s.k_tau * (self.tau_dot_target - self.tau_dot)
-        g = self.family.evaluate(self.p, self.tau)
-        q_d, qd_d, qdd_d = eq11(g, self.p_dot, self.tau_dot, self.p_ddot, self.tau_ddot)
-        w = qdd_d + s.Kv * (qd_d - qd) + s.Kp * (q_d - q)
+        ref = self.ref.at(self.p, self.tau).motion(self.p_dot, self.tau_dot, self.p_ddot, self.tau_ddot)
+        q_d = ref.q
+        w = ref.qdd + s.Kv * (ref.qd - qd) + s.Kp * (q_d - q)
         dyn = self.model.dynamics(q, qd)
         torque = dyn.A @ w + dyn.H
         status = {"p": self.p, "p_dot": self.p_dot, "tau": self.tau, "tau_dot": self.tau_dot,

@@ -38,11 +38,11 @@ def test_registered_through_the_entry_point():
 def test_the_law_lands_on_p_d_on_the_preferred_gait(stepper):
     """On q_d(p_d, .) at the preferred timing the foot goes to p_d (to the tabulation's linear
     interpolation error, 401 points over T: a few micrometres)."""
-    fam = stepper.family
+    fam = stepper.ref
     for tau in (0.0, 0.1, 0.2315, 0.35):
-        g = fam.evaluate(fam.p_d, tau)
-        c, J, _ = stepper.model.com_terms(g.q, g.dq_dtau)
-        xi = c[0] + (J @ g.dq_dtau)[0] / stepper.omega
+        g = fam.at(fam.p_d, tau)
+        com = stepper.model.com_terms(g.q, g.dq_dtau)
+        xi = com.position[0] + (com.jacobian @ g.dq_dtau)[0] / stepper.omega
         assert abs(stepper.stride_at(xi, tau, fam.T - tau) - fam.p_d) < 1e-5
         p, t_r, adapted = stepper._targets(xi, tau, tau)
         assert abs(p - fam.p_d) < 1e-5 and abs(t_r - (fam.T - tau)) < 1e-5
@@ -52,10 +52,10 @@ def test_the_law_lands_on_p_d_on_the_preferred_gait(stepper):
 def test_a_forward_dcm_error_lengthens_the_step_and_shortens_its_time(stepper):
     """The weighted law's optimality condition w_u xi (u - p_d) + w_t (sigma - sigma_n) = 0 at its answer
     (sigma = e^{omega T_r}, xi the DCM after the dead band), and the range first for a large error."""
-    fam, tau, om, s = stepper.family, 0.2315, stepper.omega, stepper.s
-    g = fam.evaluate(fam.p_d, tau)
-    c, J, _ = stepper.model.com_terms(g.q, g.dq_dtau)
-    xi_n = c[0] + (J @ g.dq_dtau)[0] / om
+    fam, tau, om, s = stepper.ref, 0.2315, stepper.omega, stepper.s
+    g = fam.at(fam.p_d, tau)
+    com = stepper.model.com_terms(g.q, g.dq_dtau)
+    xi_n = com.position[0] + (com.jacobian @ g.dq_dtau)[0] / om
     p1, t1, a1 = stepper._targets(xi_n + 0.02, tau, tau)
     assert fam.p_d < p1 < fam.p_max and t1 < fam.T - tau and a1
     xi = xi_n + 0.02 - s.dead_band
@@ -68,6 +68,23 @@ def test_a_forward_dcm_error_lengthens_the_step_and_shortens_its_time(stepper):
     assert abs(t3 - lo) < 1e-12 and p3 == fam.p_max
     p4, t4, _ = stepper._targets(xi_n - 0.02, tau, tau)      # backward: a shorter stride, a longer step
     assert p4 < fam.p_d and t4 > fam.T - tau
+
+
+def test_the_package_needs_only_the_plug_in_package():
+    """The controller's module imports nothing of the project but ``biped_controller.plugin`` (the model, the
+    gains and the reference come with its ``ControllerSetup``)."""
+    import ast
+    from pathlib import Path
+
+    import capture_point_stepper
+    ours = ("biped_controller", "biped_model", "biped_sim")
+    for path in Path(capture_point_stepper.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for n in names:
+                if n.split(".")[0] in ours:
+                    assert n == "biped_controller.plugin" or n.startswith("biped_controller.plugin."), (path.name, n)
 
 
 def test_unknown_option_is_named():

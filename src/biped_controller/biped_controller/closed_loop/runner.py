@@ -21,7 +21,8 @@ from biped_sim.plant.push import Push
 from biped_sim.plant.config import SimConfig, load_sim_config
 from biped_sim.plant.protocol import Plant, make_plant
 
-from biped_controller.core.control.controller import AdaptiveController, ControllerConfig, load_controller_config
+from biped_controller.core.control.config import ControllerConfig, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
 from biped_controller.core.control.controller_layout import M_
 from biped_controller.plugin.result import RunResult
 from biped_controller.closed_loop.segment import MujocoSegment, Segment

@@ -9,8 +9,9 @@ it returns the periods' ``StepRecord`` and ``ControllerStatusData``, identical t
 ``sim.step`` return one period at a time. The objects then take the next period themselves.
 
 :class:`MujocoSegment` is the same for the MuJoCo plant (``mujoco_loop_kernels.run_mujoco_segment``): the
-controller's arrays and MuJoCo's ``mjData`` with the plant's arrays go to the kernel; a period that ends in
-a touchdown or a fall is run there and finished by the plant's Python.
+controller's arrays and the plant's (``MujocoPlant.compiled_plant()``: MuJoCo's ``mjData`` and the plant's
+bookkeeping arrays, its public description of what a compiled loop needs) go to the kernel; a period that
+ends in a touchdown or a fall is run there and finished by the plant's Python.
 """
 from __future__ import annotations
 
@@ -21,9 +22,11 @@ from biped_model.floating import PAPER_FROM_URDF
 from biped_sim.plant.records import StepRecord
 from biped_sim.plant.rigid import Simulator
 
-from biped_controller.core.control.controller import (
-    CONTROLLER_KERNELS, CONTROLLER_KERNELS_SOURCES, MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
-    WBC_KERNELS, WBC_KERNELS_SOURCES, AdaptiveController, ControllerStatusData, status_records)
+from biped_controller.core.control.controller import AdaptiveController
+from biped_controller.core.control.controller_compiled import (CONTROLLER_KERNELS, CONTROLLER_KERNELS_SOURCES,
+                                                               WBC_KERNELS, WBC_KERNELS_SOURCES)
+from biped_controller.core.control.status import (MSG_FIXED_REFERENCE, MSG_X_STAR_FEASIBLE, NO_ADAPTATION,
+                                                  ControllerStatusData, status_records)
 from biped_controller.core.control.controller_layout import RES, WORK
 from biped_controller.core.qp.problem import UNCONSTRAINED
 
@@ -72,8 +75,6 @@ class Segment:
         # the QP period handed back (END_QP): its rows and RES row; the decision given with the next call
         # (modes lambda and all: the torso rows and the column of lambda'', as the compiled period's)
         self.G, self.h, self.res, self.work, self.qp_x = _decision_buffers(self.fp)
-        self._pushes_key: tuple = ()
-        self._pushes = np.zeros((0, 4))
         # the compiled loop takes the QP periods too, with the controller's decision (not in modes whose
         # whole-body stage follows a QP: hybrid)
         self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
@@ -97,11 +98,7 @@ class Segment:
         handed back, which this call then takes first. ``build`` False (``keep_records`` False only): nothing
         is built, :meth:`last` builds the last period's record when it is wanted (a run's last period)."""
         sim, ctrl, fp, lk = self.sim, self.ctrl, self.fp, self.lk
-        ps = tuple(sim.book.pushes)
-        if ps != self._pushes_key:      # (start, end, force, height) of each push, built when the schedule changes
-            self._pushes = np.array([[p.start, p.end, p.force, p.height] for p in ps], dtype=float).reshape(len(ps), 4)
-            self._pushes_key = ps
-        pushes = self._pushes
+        pushes = sim.push_rows()        # (start, end, force, height) of each push (the plant's, ScheduledPushes)
         step0, cstep0, stance = sim.step_index, ctrl.step_index, sim.stance
         if decision is not None:
             self.qp_x[:] = decision[0]
@@ -136,7 +133,7 @@ class Segment:
         return int(self.out[0]) == self.lk.END_QP
 
     def decide(self) -> tuple | None:
-        """The controller's decision for the QP period the last call handed back (``_FastPeriod.solve_qp``:
+        """The controller's decision for the QP period the last call handed back (``CompiledPeriod.solve_qp``:
         the controller's own solver, as its compiled period decides): (x, status, message, ...), or None
         where the compiled loop does not take it (hybrid's whole-body stage, a non-finite answer): the objects
         take that period."""
@@ -209,7 +206,8 @@ class MujocoSegment:
         if not self.eligible(sim, ctrl):
             raise ValueError("MujocoSegment needs the compiled period, ideal sensors and the plant's compiled steps")
         self.mk = load_mujoco_loop_kernels()
-        self.pk = sim._k
+        self.plant = sim.compiled_plant()       # the plant's arrays the compiled steps take (biped_sim's CompiledPlant)
+        self.pk = self.plant.kernels
         self.sim, self.ctrl, self.fp = sim, ctrl, ctrl.compiled_period
         self.keep = keep_records
         self.rec = np.empty((capacity, self.mk.REC_SIZE))
@@ -221,7 +219,6 @@ class MujocoSegment:
         self._last = None
         self.G, self.h, self.res, self.work, self.qp_x = _decision_buffers(self.fp)
         self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
-        self._bad = np.array(sim._bad_warnings, dtype=np.int64)
 
     @staticmethod
     def eligible(sim, ctrl: AdaptiveController) -> bool:
@@ -255,10 +252,10 @@ class MujocoSegment:
         clock, out = self.clock, self.out
         clock[0], clock[1] = sim.t, sim.step_index
         d = sim.data
+        plant = self.plant
         n = mk.run_mujoco_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
-                                  sim._m_addr, sim._d_addr, sim._timestep, *sim._mj_arrays, sim._acc, sim._ip,
-                                  sim._fp, sim._warn_number, self._bad, sim._lo, sim._hi, _PERM, sim._push_rows(),
-                                  sim._torso_com, sim._h, sim.cfg.control_period, clock, float(t_stop),
+                                  *plant.step_arguments(), _PERM, sim.push_rows(), plant.torso_com,
+                                  plant.mujoco_step, sim.cfg.control_period, clock, float(t_stop),
                                   int(max_periods), not self.keep, self.rec, self.sta, out, ctrl.wbc, self.G, self.h,
                                   self.res, self.work, self.qp_x, decision is not None)
         end = int(out[mk.O_END])

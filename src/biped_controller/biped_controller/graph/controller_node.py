@@ -1,8 +1,11 @@
-"""ROS 2 node ``controller``: the p/tau-adaptive controller answering the simulator's lockstep.
+"""ROS 2 node ``controller``: a controller answering the simulator's lockstep, through the controller interface.
 
-Owns an :class:`biped_controller.core.control.controller.AdaptiveController`; its configuration comes from the
-parameters, which have the keys of ``config/controller.yaml`` (defaults from that file) plus
-``control_period`` (s, must equal the simulator's; default ``config/simulator.yaml``).
+Owns one controller built by the interface's registry (``biped_controller.plugin.registry.make_controller``),
+whatever it is: the p/tau-adaptive controller in one of its modes (``biped_controller.plugin.builtin``, an
+:class:`biped_controller.core.control.controller.AdaptiveController` with its compiled period) or any plug-in.
+The adaptive controller's configuration comes from the parameters, which have the keys of
+``config/controller.yaml`` (defaults from that file) plus ``control_period`` (s, must equal the simulator's;
+default ``config/simulator.yaml``): a built-in mode gets them as its setup's options.
 ``mode`` is validated against none | tau | p | both | wbc | hybrid | lambda | all (``controller.MODES``).
 ``profile`` (default ``config/graph.yaml``: ``default``) names a profile of ``config/profiles/``: its controller
 settings replace the file's as the parameters' defaults (a parameter given explicitly still wins; the
@@ -21,7 +24,8 @@ the planar torso IMU is logged naming the field and dropped (the simulator then 
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
   ``effort`` = paper torques q1..q6 [N m], ``header.stamp`` = the state's stamp;
-- ``/controller/status`` (ControllerStatus): every field of ``ControllerStatusData``.
+- ``/controller/status`` (ControllerStatus): a built-in mode's every field of ``ControllerStatusData`` (the
+  ``record`` of its ``ControlResult``); a plug-in's as below.
 
 With ``publish_cdr`` (default ``config/graph.yaml``: true) both go out as CDR bytes encoded by
 ``biped_sim.graph.cdr`` (the same bytes as the message objects, which ``publish_cdr`` false publishes).
@@ -34,14 +38,15 @@ the controller); it exits 0 on SIGINT / SIGTERM.
 
 Any registered controller (``controller`` parameter; default ``config/graph.yaml``: ``''`` = the adaptive
 controller in ``mode``): a built-in mode's name sets ``mode``, any other name (a ``biped.controllers``
-entry point or ``module:Class``, ``biped_controller.plugin.registry``) runs that controller behind the
-controller interface (``biped_controller.plugin.interface``, built from the description, the gait family
-and ``control_period``). Each state becomes its ``Observation``: t = the stamp [s], step = the state's step,
+entry point or ``module:Class``, ``biped_controller.plugin.registry``) names that controller. Every
+controller runs behind the controller interface (``biped_controller.plugin.interface``, built from the
+description, the gait family and ``control_period``; a built-in mode's options are the controller
+parameters above, a plug-in gets none). Each state becomes its ``Observation``: t = the stamp [s], step = the state's step,
 the sensed q, q', stance, the IMU's pitch and rate (NaN without ``use_imu``), and the previous period's torque
 clipped to the description's torque limits (what the nominal plant applies); a stance change is announced
-by ``on_touchdown`` before ``compute``. Its torque is published as above; its status keys that name a
-numeric field of ControllerStatus (p, tau_dot, ...) fill that field, ``mode`` carries the controller's name,
-the other fields keep their defaults. A controller fault (``ControllerFault``: a non-finite or wrongly shaped
+by ``on_touchdown`` before ``compute``. Its torque is published as above; a plug-in's status keys that
+name a numeric field of ControllerStatus (p, tau_dot, ...) fill that field, ``mode`` carries the controller's
+name, the other fields keep their defaults. A controller fault (``ControllerFault``: a non-finite or wrongly shaped
 torque, a malformed status, an exception) is logged naming the controller and the period, and that state
 and every later one is left unanswered (the simulator reports the missing torque and stops).
 
@@ -79,10 +84,14 @@ from biped_sim.graph.params import (
 )
 from biped_model.loop import ENGINES, load_loop_settings
 
-from biped_controller.core.control.controller import MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, AdaptiveController, ControllerConfig, ControllerConfigError, load_controller_config
+from biped_controller.core.control.config import (MODEL_ERROR_REGRESSORS, MODES, QP_SOLVERS, ControllerConfig,
+                                                  ControllerConfigError, load_controller_config)
+from biped_controller.core.control.status import ControllerStatusData
+from biped_controller.plugin.builtin import compiled_mode
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, InterfaceError,
                                                Observation, stamp_time)
-from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, make_controller
+from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
+                                              make_controller)
 
 
 #: the controller's settings that take one of a few names, with those names
@@ -157,12 +166,16 @@ PLUGIN_STATUS_FIELDS: dict[str, object] = {name: conv for name, conv in STATUS_F
                                            if conv in (int, float) and name not in ('step', 'stance')}
 
 
-def _make_plugin(name: str, desc, family, period: float) -> GuardedController:
-    """The registered controller ``name`` built and reset for a run starting in LEFT stance at t = 0;
-    ParameterError naming ``controller`` when it cannot be found, loaded, or fails its reset."""
+def build_controller(name: str, desc, family, cfg: ControllerConfig) -> GuardedController:
+    """The registered controller ``name`` (a built-in mode or a plug-in) built and reset for a run starting in
+    LEFT stance at t = 0, with the period ``cfg.period`` [s]; a built-in mode (``plugin.builtin.compiled_mode``)
+    gets ``cfg``'s settings as its options, a plug-in none. ParameterError naming ``controller`` when it cannot
+    be found, loaded, or fails its reset."""
     try:
-        ctrl = make_controller(name, ControllerSetup(desc, family, period))
-        ctrl.reset(LEFT, 0.0)
+        builtin = compiled_mode(load_controller(name)) is not None
+        options = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ('mode', 'period')} if builtin else {}
+        ctrl = make_controller(name, ControllerSetup(desc, family, cfg.period, options))
+        ctrl.reset(0.0, LEFT)
     except (UnknownControllerError, ControllerLoadError, InterfaceError, ControllerFault) as exc:
         raise ParameterError('controller', str(exc)) from exc
     return ctrl
@@ -183,16 +196,14 @@ class ControllerNode(Node):
         self.publish_cdr = get_bool(self, 'publish_cdr')
         self._cdr_torque, self._cdr_status = cdr.JointState(), cdr.ControllerStatus()
         desc, family = load_robot_files(self)
-        self.controller_name = get_str(self, 'controller')
-        self.plugin = None
-        if self.controller_name in MODES:
-            self.cfg = dataclasses.replace(self.cfg, mode=self.controller_name).validate()
-        elif self.controller_name:
-            self.plugin = _make_plugin(self.controller_name, desc, family, self.cfg.period)
-            self._torque_limits = desc.torque_limits()
-            self._last_torque, self._last_stance, self._faulted = np.zeros(6), None, False
-        self.ctrl = AdaptiveController(self.cfg, family, desc)
-        self.ctrl.reset()
+        name = get_str(self, 'controller')
+        if name in MODES:
+            self.cfg = dataclasses.replace(self.cfg, mode=name).validate()
+        # one route for every controller: the interface (a built-in mode included, its compiled period inside)
+        self.controller_name = name or self.cfg.mode
+        self.controller = build_controller(self.controller_name, desc, family, self.cfg)
+        self._torque_limits = desc.torque_limits()
+        self._last_torque, self._last_stance, self._faulted = np.zeros(6), None, False
         self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
         self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
         self.state_sub = None
@@ -210,7 +221,7 @@ class ControllerNode(Node):
         # wall-clock timer: with use_sim_time a ROS-time timer would stop with /clock, i.e. exactly when
         # the simulator is gone or not started yet
         self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        what = f'controller {self.controller_name!r}' if self.plugin is not None else f'mode {self.cfg.mode}'
+        what = f'mode {self.cfg.mode}' if self.controller_name == self.cfg.mode else f'controller {self.controller_name!r}'
         self.get_logger().info(f'controller ready: {what}, period {self.cfg.period} s, profile '
                                f'{self.get_parameter("profile").value}, publishing '
                                f'{"CDR bytes" if self.publish_cdr else "message objects"}')
@@ -277,29 +288,12 @@ class ControllerNode(Node):
             self.imu_pitch = {k: v for k, v in self.imu_pitch.items() if k > key}
         t = msg.stamp.sec + 1e-9 * msg.stamp.nanosec
         self.sim_clock.set(self._stamp_ns(msg.stamp))
-        if self.plugin is not None:
-            self._answer_plugin(msg, stamp_time(t), pitch, rate)
-            return
-        out = self.ctrl.compute(t, np.asarray(msg.q, dtype=float), np.asarray(msg.q_dot, dtype=float),
-                                int(msg.stance), pitch, rate)
-        if self.publish_cdr:
-            sec, nsec = msg.stamp.sec, msg.stamp.nanosec
-            js = self._cdr_torque.encode(sec, nsec, '', PAPER_JOINTS, (), (),
-                                         np.asarray(out.torque, dtype=float).tolist())
-            status = status_cdr(self._cdr_status, out.status, sec, nsec)
-        else:
-            js = JointState()
-            js.header.stamp = msg.stamp
-            js.name = list(PAPER_JOINTS)
-            js.effort = np.asarray(out.torque, dtype=float).tolist()
-            status = status_message(out.status, msg.stamp)
-        self.pub_torque.publish(js)
-        self.last_reply = js
-        self.pub_status.publish(status)
-        self.steps += 1
+        self._answer_state(msg, stamp_time(t), pitch, rate)
 
-    def _answer_plugin(self, msg: SimState, t: float, pitch: float, rate: float):
-        """:meth:`_answer` with the plug-in controller (module docstring)."""
+    def _answer_state(self, msg: SimState, t: float, pitch: float, rate: float):
+        """:meth:`_answer` through the controller interface (module docstring): the observation of ``msg`` at
+        ``t`` [s] (the stamp), ``on_touchdown`` on a stance change, ``compute``, then the torque and the status
+        published."""
         if self._faulted:
             return
         stance = int(msg.stance)
@@ -308,8 +302,8 @@ class ControllerNode(Node):
                                  stance if self._last_stance is None else self._last_stance)
         try:
             if self._last_stance is not None and stance != self._last_stance:
-                self.plugin.on_touchdown(t, stance)
-            res = self.plugin.compute(obs)
+                self.controller.on_touchdown(t, stance)
+            res = self.controller.compute(obs)
         except ControllerFault as exc:
             self._faulted = True
             self.get_logger().error(f'{exc}: no torque for this state or any later one')
@@ -318,15 +312,6 @@ class ControllerNode(Node):
         self._last_torque = np.clip(res.torque, *self._torque_limits)
         self._last_stance = stance
         sec, nsec = msg.stamp.sec, msg.stamp.nanosec
-        m = ControllerStatus()
-        m.stamp = msg.stamp
-        m.mode = self.controller_name
-        m.stance = stance
-        m.step = self.steps
-        for k, v in res.status.items():
-            conv = PLUGIN_STATUS_FIELDS.get(k)
-            if conv is not None:
-                setattr(m, k, conv(v))
         if self.publish_cdr:
             js = self._cdr_torque.encode(sec, nsec, '', PAPER_JOINTS, (), (), torque)
         else:
@@ -334,10 +319,28 @@ class ControllerNode(Node):
             js.header.stamp = msg.stamp
             js.name = list(PAPER_JOINTS)
             js.effort = torque
+        if isinstance(res.record, ControllerStatusData):       # a built-in mode: its whole status
+            status = (status_cdr(self._cdr_status, res.record, sec, nsec) if self.publish_cdr
+                      else status_message(res.record, msg.stamp))
+        else:
+            status = self._plugin_status(msg, stance, res.status)
         self.pub_torque.publish(js)
         self.last_reply = js
-        self.pub_status.publish(m)
+        self.pub_status.publish(status)
         self.steps += 1
+
+    def _plugin_status(self, msg: SimState, stance: int, values) -> ControllerStatus:
+        """The ``/controller/status`` of a plug-in's status mapping (module docstring)."""
+        m = ControllerStatus()
+        m.stamp = msg.stamp
+        m.mode = self.controller_name
+        m.stance = stance
+        m.step = self.steps
+        for k, v in values.items():
+            conv = PLUGIN_STATUS_FIELDS.get(k)
+            if conv is not None:
+                setattr(m, k, conv(v))
+        return m
 
     def _on_timer(self):
         if self.state_sub is None:

@@ -9,6 +9,14 @@ max_tracking_error [rad], force_estimate [N], the whole-body stage's and the tor
 ``on_touchdown`` does nothing: the controller detects the stance change itself (tau restarts at 0).
 The settings are ``config/controller.yaml``'s with the mode set, the period the setup's, and the
 setup's options as overrides of its keys.
+
+Every consumer reaches a built-in mode through this interface (``registry.make_controller``): the controller
+node, the generic loop (``plugin.loop``) and the studies. The compiled fast path is this controller's own
+optimisation: its period is the compiled period of ``AdaptiveController`` (``core.control.controller_compiled``),
+and its class declares ``compiled_mode`` (:func:`compiled_mode`), which lets the studies run its trials on the
+compiled closed loop (``closed_loop.runner``: many periods of controller and plant in one compiled call, the
+records those of this class's ``compute`` through the generic loop bit for bit, tested) with the early stop of
+a decided trial.
 """
 from __future__ import annotations
 
@@ -16,8 +24,9 @@ from dataclasses import fields
 
 import numpy as np
 
-from biped_controller.core.control.controller import (MODES, AdaptiveController, ControllerConfigError, ControllerStatusData,
-                                              load_controller_config)
+from biped_controller.core.control.config import MODES, ControllerConfigError, load_controller_config
+from biped_controller.core.control.controller import AdaptiveController
+from biped_controller.core.control.status import ControllerStatusData
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
 
 #: ControllerStatusData fields that are numbers or flags (margins and predicted_reaction are arrays; the
@@ -43,7 +52,7 @@ class ModeController:
         cfg = load_controller_config(mode=self.mode, period=setup.period, **dict(setup.options))
         self.ctrl = AdaptiveController(cfg, setup.family, setup.desc)
 
-    def reset(self, stance: int, t: float) -> None:
+    def reset(self, t: float, stance: int) -> None:
         self.ctrl.reset(stance)
 
     def on_touchdown(self, t: float, stance: int) -> None:
@@ -52,13 +61,22 @@ class ModeController:
     def compute(self, obs: Observation) -> ControlResult:
         # writable copies: the compiled period takes writable arrays, the observation's are read-only
         out = self.ctrl.compute(obs.t, np.array(obs.q), np.array(obs.qd), obs.stance, obs.pitch, obs.pitch_rate)
-        return ControlResult(np.asarray(out.torque, dtype=float), status_mapping(out.status))
+        return ControlResult(np.asarray(out.torque, dtype=float), status_mapping(out.status), out.status)
+
+
+def compiled_mode(cls: object) -> str | None:
+    """The built-in mode a controller class is, when the class declares ``compiled_mode`` in its own body (the
+    classes of this module do): then the compiled closed loop may run it (module docstring). None for any
+    other class, a subclass of a built-in included (it may change ``compute``: the generic loop runs it)."""
+    m = vars(cls).get("compiled_mode") if isinstance(cls, type) else None
+    return m if isinstance(m, str) and m in MODES and issubclass(cls, ModeController) else None
 
 
 def _mode_class(mode: str, text: str) -> type:
     name = "Mode" + mode.capitalize()
-    return type(name, (ModeController,), {"mode": mode, "description": text, "__module__": __name__,
-                                         "__qualname__": name, "__doc__": f"Mode {mode!r}: {text}."})
+    return type(name, (ModeController,), {"mode": mode, "compiled_mode": mode, "description": text,
+                                         "__module__": __name__, "__qualname__": name,
+                                         "__doc__": f"Mode {mode!r}: {text}."})
 
 
 _TEXT = {

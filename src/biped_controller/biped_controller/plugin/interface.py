@@ -3,7 +3,7 @@
 Pure Python + NumPy, no ROS. A controller is a class built from a :class:`ControllerSetup` and driven by
 the closed loop (``plugin.loop``) in three calls:
 
-* ``reset(stance, t)``: a run starts at time ``t`` [s] with ``stance`` (``LEFT`` = 0 / ``RIGHT`` = 1) on the
+* ``reset(t, stance)``: a run starts at time ``t`` [s] with ``stance`` (``LEFT`` = 0 / ``RIGHT`` = 1) on the
   ground, the robot at the gait family's initial state;
 * ``on_touchdown(t, stance)``: the sensed stance changed to ``stance`` at the period starting at ``t`` [s]
   (called before that period's ``compute``; the measured q, q' are already in the new stance's order);
@@ -26,6 +26,7 @@ malformed status, into a :class:`ControllerFault` naming the controller.
 """
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 from dataclasses import dataclass, field
@@ -35,6 +36,8 @@ import numpy as np
 
 from biped_model.description import RobotDescription
 from biped_model.gait_family import GaitFamily
+
+from biped_controller.plugin.model import Gains, Reference, RobotModel
 
 N_JOINTS = 6
 
@@ -49,12 +52,34 @@ class ControllerSetup:
     ``desc``: the robot as the controller knows it (the nominal description; a perturbed plant differs
     from it); ``family``: the gait family q_d(p, tau) (stride p [m] in [p_min, p_max], phase tau [s] in
     [0, T]); ``period``: the control period [s]; ``options``: controller-specific settings (name -> value,
-    empty by default), as given to :func:`biped_controller.plugin.registry.load_controller`."""
+    empty by default), as given to :func:`biped_controller.plugin.registry.load_controller`.
+
+    What a controller needs of the robot comes with it, from this package alone (``plugin.model``):
+    :attr:`model` the fixed-stance-foot model of ``desc`` (dynamics A, H and the reaction rows, the centre
+    of mass and its terms), :attr:`gains` the built-in computed-torque law's joint gains (``Kp``, ``Kv``),
+    :attr:`reference` the gait family with named partial derivatives (q, dq/dp, dq/dtau, d2q/dtau2, ...)
+    and the reference motion of eq. (11). ``model`` and ``reference`` are built on first use."""
 
     desc: RobotDescription
     family: GaitFamily
     period: float
     options: Mapping[str, object] = field(default_factory=dict)
+
+    @functools.cached_property
+    def model(self) -> RobotModel:
+        """The controller-side model of :attr:`desc` (:class:`~biped_controller.plugin.model.RobotModel`)."""
+        return RobotModel(self.desc)
+
+    @functools.cached_property
+    def gains(self) -> Gains:
+        """The joint PD gains ``Kp`` [1/s^2], ``Kv`` [1/s] of ``config/controller.yaml``
+        (:class:`~biped_controller.plugin.model.Gains`)."""
+        return Gains.from_config()
+
+    @functools.cached_property
+    def reference(self) -> Reference:
+        """The gait family as a controller reads it (:class:`~biped_controller.plugin.model.Reference`)."""
+        return Reference(self.family)
 
 
 def stamp_time(t: float) -> float:
@@ -112,17 +137,20 @@ class ControlResult:
     """What a controller returns for one period: ``torque`` (6,) [N m] in paper order of the observation's
     stance, and ``status``: name -> number or flag (recorded per period by the studies and the bag;
     a key the studies read: ``p`` [m] and ``tau_dot`` [-] when the controller has a stride and a time
-    scaling, for the survival criterion's return to the preferred gait)."""
+    scaling, for the survival criterion's return to the preferred gait). ``record`` (optional, None by
+    default): the controller's own typed record of the period, passed on unchecked beside the status; the
+    built-in modes give their ``ControllerStatusData``, which the controller node publishes whole."""
 
     torque: np.ndarray
     status: Mapping[str, StatusValue] = field(default_factory=dict)
+    record: object = None
 
 
 @runtime_checkable
 class Controller(Protocol):
     """The interface (module docstring). A class satisfying it is built as ``cls(setup)``."""
 
-    def reset(self, stance: int, t: float) -> None: ...
+    def reset(self, t: float, stance: int) -> None: ...
 
     def on_touchdown(self, t: float, stance: int) -> None: ...
 
@@ -146,19 +174,32 @@ class ControllerFault(RuntimeError):
 
 FAULT_KINDS = ("wrong result type", "wrong torque shape", "non-finite torque", "malformed status", "raised")
 
-#: method -> the positional parameters it takes after ``self``
-_METHODS = {"reset": ("stance", "t"), "on_touchdown": ("t", "stance"), "compute": ("obs",)}
+#: method -> the positional parameters it takes after ``self``: the time first, then what it is about (as in
+#: ``Observation(t, step, stance, ...)``); ``reset`` took (stance, t) before the order was made one
+_METHODS = {"reset": ("t", "stance"), "on_touchdown": ("t", "stance"), "compute": ("obs",)}
 
 
 def _describe(cls: type) -> str:
     return f"{cls.__module__}.{cls.__qualname__}"
 
 
+def _check_order(name: str, meth: str, params: tuple[str, ...], sig: inspect.Signature) -> None:
+    """An :class:`InterfaceError` when ``meth``'s first positional parameters after ``self`` carry the
+    interface's names in another order (e.g. ``reset(self, stance, t)``, the order before both methods took
+    the time first): the loop passes them by position, so the swapped names would silently swap values."""
+    pos = [p.name for p in sig.parameters.values()
+           if p.kind in (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)][1:1 + len(params)]
+    if len(pos) == len(params) and list(pos) != list(params) and sorted(pos) == sorted(params):
+        raise InterfaceError(f"controller class {name}: {meth} takes ({', '.join(params)}) in that order, its "
+                             f"signature is {meth}{sig} (the time comes first in every call)")
+
+
 def check_controller_class(cls: object) -> type:
     """``cls`` itself when it is a class whose instances satisfy :class:`Controller`: callable ``reset``,
     ``on_touchdown`` and ``compute`` that accept the interface's positional arguments, and a constructor
     that accepts one (the :class:`ControllerSetup`). Raises :class:`InterfaceError` naming the class and
-    the first member that is missing or takes the wrong arguments."""
+    the first member that is missing or takes the wrong arguments (also when a method names the
+    interface's parameters in another order: :func:`_check_order`)."""
     if not inspect.isclass(cls):
         raise InterfaceError(f"{cls!r} is not a class (a controller is registered as a class built from a "
                              f"ControllerSetup)")
@@ -169,12 +210,14 @@ def check_controller_class(cls: object) -> type:
             raise InterfaceError(f"controller class {name} has no method {meth}({', '.join(params)}) "
                                  f"(biped_controller.plugin.interface.Controller)")
         try:
-            inspect.signature(f).bind(None, *params)
+            sig = inspect.signature(f)
+            sig.bind(None, *params)
         except TypeError as exc:
             raise InterfaceError(f"controller class {name}: {meth} must accept ({', '.join(params)}), "
                                  f"its signature is {meth}{inspect.signature(f)}: {exc}") from None
         except ValueError:          # a builtin without a signature: accepted as it is
-            pass
+            continue
+        _check_order(name, meth, params, sig)
     try:
         inspect.signature(cls).bind("setup")
     except TypeError as exc:
@@ -203,8 +246,8 @@ class GuardedController:
         except Exception as exc:     # the controller's own code failed: a fault of this controller, not of the study
             raise ControllerFault(self.name, t, FAULT_KINDS[4], f"{what} raised {type(exc).__name__}: {exc}") from exc
 
-    def reset(self, stance: int, t: float) -> None:
-        self._call("reset", t, self.inner.reset, stance, t)
+    def reset(self, t: float, stance: int) -> None:
+        self._call("reset", t, self.inner.reset, t, stance)
 
     def on_touchdown(self, t: float, stance: int) -> None:
         self._call("on_touchdown", t, self.inner.on_touchdown, t, stance)
@@ -224,7 +267,7 @@ class GuardedController:
         if not np.all(np.isfinite(torque)):
             bad = [i + 1 for i in np.flatnonzero(~np.isfinite(torque))]
             raise ControllerFault(self.name, obs.t, FAULT_KINDS[2], f"torque {torque.tolist()} (joints {bad})")
-        return ControlResult(torque, self._status(out.status, obs.t))
+        return ControlResult(torque, self._status(out.status, obs.t), out.record)
 
     def _status(self, status: object, t: float) -> dict[str, StatusValue]:
         if not isinstance(status, Mapping):

@@ -70,7 +70,7 @@ class PluginLoop:
         status: Mapping = {}
         n = 0
         try:
-            ctrl.reset(LEFT, sim.t)
+            ctrl.reset(sim.t, LEFT)
         except ControllerFault as exc:
             fault = exc
         while fault is None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from biped_sim.plant.records import ImpactRecord, StepRecord
 
-from biped_controller.core.control.controller import ControllerStatusData
+from biped_controller.core.control.status import ControllerStatusData
 from biped_controller.plugin.interface import ControllerFault
 
 

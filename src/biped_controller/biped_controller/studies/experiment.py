@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_controller.core.control.controller import MODES
+from biped_controller.core.control.config import MODES
 from biped_controller.studies import single_runs
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, controller_arg, finite_float,
                                                  modes_arg, nonnegative_float, positive_float, positive_int, settings_from_args)

@@ -71,7 +71,7 @@ import numpy as np
 
 from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
-from biped_controller.core.control.controller import MODES
+from biped_controller.core.control.config import MODES
 from biped_controller.closed_loop import runner
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, finite_float,
                                                  nonnegative_float, positive_int, profile_arg)

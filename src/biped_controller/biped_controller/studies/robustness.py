@@ -49,7 +49,7 @@ import numpy as np
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 
 from biped_controller.studies import capability_map as cmap
-from biped_controller.core.control.controller import MODES
+from biped_controller.core.control.config import MODES
 from biped_controller.closed_loop.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.trial.survival import survival_rule

@@ -16,7 +16,9 @@ from biped_sim.plant.push import Push
 from biped_model.description import LEFT
 from biped_model.fixed_foot import CONSTRAINT_NAMES
 
-from biped_controller.core.control.controller import NO_ADAPTATION, TORSO_MODES, AdaptiveController
+from biped_controller.core.control.config import TORSO_MODES
+from biped_controller.core.control.controller import AdaptiveController
+from biped_controller.core.control.status import NO_ADAPTATION
 from biped_controller.core.qp.solver import STATUS_NAMES
 from biped_controller.closed_loop.runner import RunResult
 from biped_controller.studies.trial import runs

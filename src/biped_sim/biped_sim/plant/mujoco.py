@@ -177,6 +177,44 @@ class MujocoSnapshot:
     next_push_id: int
 
 
+@dataclass(frozen=True, eq=False)
+class CompiledPlant:
+    """What a compiled closed loop outside the plant (``biped_controller.closed_loop.mujoco_loop_kernels``)
+    needs to run this plant's MuJoCo steps and their bookkeeping (``mujoco_kernels``) in its own calls, as
+    :meth:`MujocoPlant.step` runs them: every array is the plant's own (a view or the array itself, kept for
+    the plant's life), so the loop's writes are the plant's state.
+
+    ``kernels``: the plant's kernel module (its record row layout ``ROW_SIZE``, ``R_*``); ``model_address``,
+    ``data_address``: MuJoCo's ``mjModel*`` and ``mjData*``; ``timestep``: the view of ``opt.timestep`` [s];
+    ``mj_arrays``: MuJoCo's ``cfrc_ext``, ``xpos``, ``subtree_com``, ``qpos``, ``qvel``, ``xfrc_applied``,
+    ``ctrl`` (views); ``acc``, ``ip``, ``fp``: the bookkeeping's accumulators, indices and constants;
+    ``warnings``: the view of MuJoCo's warning counters, ``bad_warnings`` the indices that make a numerical
+    fall; ``torque_min``, ``torque_max`` (6,) [N m] the torque limits in paper order; ``torso_com`` [m] the
+    torso's centre of mass above the hip (where a push's height is measured from); ``mujoco_step`` [s]
+    MuJoCo's step (``mujoco_timestep``)."""
+
+    kernels: object
+    model_address: int
+    data_address: int
+    timestep: np.ndarray
+    mj_arrays: tuple
+    acc: np.ndarray
+    ip: np.ndarray
+    fp: np.ndarray
+    warnings: np.ndarray
+    bad_warnings: np.ndarray
+    torque_min: np.ndarray
+    torque_max: np.ndarray
+    torso_com: float
+    mujoco_step: float
+
+    def step_arguments(self) -> tuple:
+        """The arguments of the compiled MuJoCo steps in the kernels' order: model, data, timestep, the seven
+        MuJoCo arrays, acc, ip, fp, warnings, bad_warnings, torque_min, torque_max."""
+        return (self.model_address, self.data_address, self.timestep, *self.mj_arrays, self.acc, self.ip, self.fp,
+                self.warnings, self.bad_warnings, self.torque_min, self.torque_max)
+
+
 @dataclass
 class ContactDiagnostics:
     """Contact-limit excursions of a run (the rigid plant would have declared some of them falls).
@@ -301,8 +339,7 @@ class MujocoPlant(ScheduledPushes):
         self._timestep = opt_timestep_view(m)
         self._torso_com = float(self.desc.torso.com)
         self._sub_out = np.zeros(k.OUT_SIZE)
-        self._push_key: tuple = ()
-        self._push_array = np.zeros((0, 4))
+        self._compiled_plant: CompiledPlant | None = None
         self._new_stance(LEFT, 0.0)
 
     def _new_diagnostics(self) -> ContactDiagnostics:
@@ -599,15 +636,15 @@ class MujocoPlant(ScheduledPushes):
                     break
         return touchdown, fall, t_end, impulse
 
-    def _push_rows(self) -> np.ndarray:
-        """The scheduled pushes as rows (start, end [s], force [N], height [m]) in the book's order, rebuilt
-        when the schedule changes."""
-        ps = tuple(self.book.pushes)
-        if ps != self._push_key:
-            self._push_array = np.array([[p.start, p.end, p.force, p.height] for p in ps],
-                                        dtype=float).reshape(len(ps), 4)
-            self._push_key = ps
-        return self._push_array
+    def compiled_plant(self) -> CompiledPlant:
+        """The plant's arrays and constants a compiled loop outside it runs its MuJoCo steps with
+        (:class:`CompiledPlant`; one object for the plant's life)."""
+        if self._compiled_plant is None:
+            self._compiled_plant = CompiledPlant(
+                self._k, self._m_addr, self._d_addr, self._timestep, self._mj_arrays, self._acc, self._ip, self._fp,
+                self._warn_number, np.array(self._bad_warnings, dtype=np.int64), self._lo, self._hi,
+                self._torso_com, self._h)
+        return self._compiled_plant
 
     def _substeps_compiled(self, knots: list, t_grid_end: float, i0: int = 0, impulse0: float = 0.0
                            ) -> tuple[bool, FallInfo | None, float, float]:
@@ -617,7 +654,7 @@ class MujocoPlant(ScheduledPushes):
         ``i0``, ``impulse0``: resume after ``i0`` intervals with the pushes' impulse so far."""
         k, acc = self._k, self._acc
         kn = np.array(knots, dtype=float)
-        pushes = self._push_rows()
+        pushes = self.push_rows()
         out = self._sub_out
         out[k.O_DONE] = 0.0
         out[k.O_IMPULSE] = impulse0

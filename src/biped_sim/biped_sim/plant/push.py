@@ -30,6 +30,8 @@ after :meth:`PushBook.check` passed. The simulator validates what it is given wi
 from __future__ import annotations
 
 import math
+
+import numpy as np
 from dataclasses import dataclass, replace
 from typing import Iterable
 
@@ -164,6 +166,17 @@ class ScheduledPushes:
     @property
     def pushes(self) -> list[Push]:
         return self.book.pushes
+
+    def push_rows(self) -> np.ndarray:
+        """The scheduled pushes as rows (start, end [s], force [N], height [m] above the hip) in the book's
+        order, shape (n, 4): what the compiled steps and the compiled closed loops take; rebuilt only when
+        the schedule changes."""
+        ps = tuple(self.book.pushes)
+        if ps != getattr(self, "_push_key", None):
+            self._push_array = np.array([[p.start, p.end, p.force, p.height] for p in ps],
+                                        dtype=float).reshape(len(ps), 4)
+            self._push_key = ps
+        return self._push_array
 
     def schedule_push(self, start: float, duration: float, force: float, height: float | None = None,
                       push_id: int | None = None) -> Push:

@@ -1,4 +1,9 @@
-"""p/tau-adaptive computed-torque controller (paper section 4). Pure Python, no ROS.
+"""p/tau-adaptive computed-torque controller (paper section 4): the control law. Pure Python, no ROS.
+
+The controller's other concerns have their own modules of ``core/control``: its settings and their checks
+(``config``: ``ControllerConfig``, ``load_controller_config``, the modes), what a period reports
+(``status``: ``ControllerStatusData``, ``ControlOutput``), and the compiled period that runs this law's
+kernels (``controller_compiled``: ``CompiledPeriod``, the kernels' loaders).
 
 At each control period, from the measured (q, q') and the controller's own parameter state
 (p, p', tau, tau'):
@@ -47,7 +52,7 @@ whole-body QP min (w - w*)' M (w - w*) s.t. the same 17 rows (twice) on w, w* = 
 adapted w only when the p/tau QP did not hold its rows (INFEASIBLE_FALLBACK or SOLVER_ERROR).
 Whenever w holds every row the whole-body stage changes nothing (bit for bit). With the compiled period
 the stage is compiled too (``wbc_kernels``, PIQP when its active set does not settle; the compiled loop
-runs it as well); the Python steps (and ``_FastPeriod.python_stage``, the tests' oracle) run
+runs it as well); the Python steps (and ``controller_compiled.CompiledPeriod.python_stage``, the tests' oracle) run
 ``wbc.WholeBodyStage``. Either overwrites the period's w (in ``memory``, the observer's next residual),
 torque and reported outputs when it changes w.
 
@@ -63,224 +68,27 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from biped_model.description import RobotDescription, load_description
-from biped_model.loop import ENGINES, load_loop_settings
-from biped_model.settings import SettingsError, default_config_dir, read_settings
-
 from biped_model.gait_family import GaitFamily, eq11, eq11_torso
 from biped_model.fixed_foot import N_CONSTRAINTS, Dynamics, FixedFootModel, contact_rows, relabel
-from biped_model import numba_cache
 from biped_model.layout import SnapshotUnsupported
-from biped_model.finite import finite_number
+from biped_controller.core.control.config import (ADAPTED, TORSO_MODES, ControllerConfig,
+                                                   load_controller_config)
+from biped_controller.core.control.controller_compiled import (CompiledPeriod, load_controller_kernels)
 from biped_controller.core.control.controller_layout import (
-    CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, TORSO_QP_ROWS, TORSO_ROWS, WBC, WORK, M_, R_, W_,
+    CONS, GAINS, MEMORY, OBS_KEEP, OBS_RESIDUAL, QP_ROWS, RES, TORSO_ROWS, WBC, WORK, M_, R_, W_,
     WB_)
-from biped_controller.core.qp.solver import SOLVER_ERROR, SOLVERS as QP_SOLVERS, AdaptationQP
-from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
-from biped_controller.core.control.wbc import WBC_MODES, WholeBodyStage, weight_matrix
+from biped_controller.core.control.status import (MSG_FIXED_REFERENCE, NO_ADAPTATION,
+                                                   ControllerStatusData, ControlOutput, status_records)
+from biped_controller.core.qp.solver import SOLVER_ERROR, AdaptationQP
+from biped_controller.core.qp.problem import ACTIVE, UNCONSTRAINED
+from biped_controller.core.control.wbc import WBC_MODES, WholeBodyStage
 
-MODES = ("none", "tau", "p", "both", "wbc", "hybrid", "lambda", "all")
-#: what the legs' model-error estimator's regressor is evaluated on (``model_error.REGRESSOR_INPUTS``)
-MODEL_ERROR_REGRESSORS = ("measured", "reference")
-#: the paper's four modes: the default set of the tables and maps (wbc and hybrid on request, --modes)
-PAPER_MODES = ("none", "tau", "p", "both")
-#: the parameters each mode's p/tau QP adapts (0: p'', 1: tau'', 2: lambda'', the torso offset);
-#: wbc keeps the reference fixed like none
-ADAPTED = {"none": (), "tau": (1,), "p": (0,), "both": (0, 1), "wbc": (), "hybrid": (0, 1), "lambda": (2,),
-           "all": (0, 1, 2)}
-#: the modes whose reference has the torso parameter lambda; TORSO_ROWS (controller_layout): the rows it adds
-#: to the QP, lambda and lambda' after one period within [-lambda_max, lambda_max] and [-lambda_dot_max, lambda_dot_max]
-TORSO_MODES = ("lambda", "all")
-NO_ADAPTATION = 4
-NO_ADAPTATION_STATUS = NO_ADAPTATION
-MSG_NO_ADAPTATION = "mode none: classical computed torque"
-MSG_FIXED_REFERENCE = {"none": MSG_NO_ADAPTATION, "wbc": "mode wbc: fixed reference, whole-body QP on w"}
-MSG_X_STAR_FEASIBLE = "x* feasible"
-
-CONTROLLER_KERNELS = "biped_controller.core.control.controller_kernels"
-# what the compiled period is compiled against besides its own source (kernels it calls, offsets it reads)
-CONTROLLER_KERNELS_SOURCES = ("biped_model.planar_abi", "biped_model.planar_kernels", "biped_model.layout",
-                           "biped_model.gait_family",
-                           "biped_controller.core.control.controller_layout", "biped_controller.core.qp.problem",
-                           "biped_controller.core.qp.exact_kernels")
-
-
-WBC_KERNELS = "biped_controller.core.control.wbc_kernels"
-WBC_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS,)
-
-
-def load_wbc_kernels():
-    """The compiled whole-body stage (``wbc_kernels``, modes wbc and hybrid) through ``numba_cache.load``."""
-    load_controller_kernels()
-    return numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
-
-
-def load_controller_kernels():
-    """The compiled control period (``controller_kernels``), through ``numba_cache.load``: its ``begin`` and
-    ``commit`` are the one home of the parameter advance, the observer's mode and the period's commit, for
-    the compiled period and the Python steps alike."""
-    return numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
-
-
-class ControllerConfigError(ValueError):
-    """A controller setting is missing or out of range (message names it)."""
-
-
-@dataclass(frozen=True)
-class ControllerConfig:
-    """Controller settings. The values and their reasons live in ``config/controller.yaml`` only (the
-    control period in ``config/simulator.yaml``): build one with :func:`load_controller_config`."""
-
-    mode: str                     # none | tau | p | both | wbc | hybrid | lambda | all: which parameters the QP adapts
-    Kp: float                     # [1/s^2] joint PD stiffness of eq. (16)
-    Kv: float                     # [1/s] joint PD damping of eq. (16)
-    kp: float                     # [1/s^2] second task eq. (20), p -> p_d
-    kv: float                     # [1/s] second task eq. (20), p' -> 0 and tau' -> 1
-    weight_p: float               # QP weight on (p'' - p''*)^2
-    weight_tau: float             # QP weight on (tau'' - tau''*)^2
-    margin_normal_force: float    # [N] QP keeps R_y >= this
-    margin_friction: float        # [-] QP keeps |R_x| <= margin_friction mu R_y
-    margin_zmp: float             # [m] QP keeps l within [l_m + margin, l_M - margin]
-    margin_torque: float          # [N m] QP keeps |Gamma_i| <= Gamma_iM - margin
-    tau_dot_min: float            # [-] QP keeps tau' (after one period) >= this
-    tau_dot_max: float            # [-] a held answer keeps tau' (after one period) <= this (no QP row)
-    qp_solver: str                # "piqp" (the product's solver) or "exact" (dedicated n <= 2 solver)
-    disturbance_observer: bool    # estimate a horizontal torso force (not in the paper) for the QP rows
-    observer_height: float        # [m] assumed application height of the estimated force above the hip
-    wbc_weight_joint: float       # whole-body QP weight M = wbc_weight_joint I + wbc_weight_torso s s^T (wbc.py)
-    wbc_weight_torso: float       # torso-pitch task weight of M (s . w = torso pitch acceleration)
-    engine: str                   # "fast": compiled model terms (biped_model.fast_engine); "reference": Pinocchio
-    period: float                 # [s] control period (config/simulator.yaml control_period)
-    # the torso parameter lambda (modes lambda and all): second task and range of lambda
-    kp_lambda: float              # [1/s^2] lambda -> 0 (lambda''* = -kv_lambda lambda' - kp_lambda lambda)
-    kv_lambda: float              # [1/s] lambda' -> 0
-    weight_lambda: float          # QP weight on (lambda'' - lambda''*)^2
-    lambda_max: float             # [rad] QP keeps |lambda| (after one period) <= this: the torso's range
-    lambda_dot_max: float         # [rad/s] QP keeps |lambda'| (after one period) <= this
-    # real sensing: core/sensing/pipeline.py; with all of them off the controller is the one above
-    momentum_observer: bool       # the observer is the generalized-momentum one (else acceleration residual)
-    momentum_observer_gain: float   # [1/s] its bandwidth K
-    estimate_confidence: float      # [-] k: the QP's contact rows keep k sigma of the estimate's spread
-    state_estimator: bool         # Kalman filter on (q, q') (core/sensing/estimation.py)
-    sensor_noise_q: float           # [rad] encoder noise std the controller assumes
-    sensor_encoder_bits: int          # [bits per turn] encoder resolution it assumes (0: none)
-    sensor_noise_qd: float          # [rad/s] rate sensor noise std it assumes
-    sensor_noise_pitch: float       # [rad] IMU pitch noise std it assumes
-    estimator_gyro: bool            # the estimator fuses the IMU gyro's pitch rate
-    sensor_noise_pitch_rate: float  # [rad/s] IMU gyro pitch-rate noise std it assumes
-    estimator_accel_std: float      # [rad/s^2] the filter's process noise
-    estimator_impact_std: float     # [rad/s] added to each rate's std at a touchdown
-    delay_compensation: int           # [periods] known delay the Smith predictor compensates (0: none)
-    predictor_substeps: int           # RK4 steps per period of the predictor
-    predictor_touchdown_height: float   # [m] a swing sole this low at a period's end has touched down
-    predictor_clearance: float      # [m] the swing foot must have risen this high before
-    predictor_time_tolerance: float     # [s] a touchdown inside a substep located to this
-    model_error_estimator: bool       # identify the legs' mass and inertia error from the observer (model_error.py)
-    model_mass_uncertainty: float     # [-] prior std of each leg link's mass error, relative to its mass
-    model_inertia_uncertainty: float  # [-] prior std of each leg link's inertia error, relative to its inertia
-    model_error_residual_std: float   # [N m] std of what the legs' regressor leaves in a swing-leg row of r
-    model_error_regressor: str        # what its regressor is evaluated on: "measured" | "reference" (model_error.py)
-    model_error_settle: float         # [observer time constants 1/K] no update this long after the observer's start
-    predictor_touchdown_at_once: bool   # a sensed touchdown's first sample is fresh (plant touchdown_delayed False)
-    touchdown_band_sigmas: float      # k of the predicted touchdown's band |z| <= k sigma_z (touchdown_band.py)
-
-    def validate(self) -> "ControllerConfig":
-        if self.engine not in ENGINES:
-            raise ControllerConfigError(f"engine must be one of {ENGINES}, got {self.engine!r}")
-        if self.qp_solver not in QP_SOLVERS:
-            raise ControllerConfigError(f"qp_solver must be one of {QP_SOLVERS}, got {self.qp_solver!r}")
-        if self.mode not in MODES:
-            raise ControllerConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
-        for name in ("Kp", "Kv", "kp", "kv", "weight_p", "weight_tau", "period", "tau_dot_min", "kp_lambda",
-                     "kv_lambda", "weight_lambda", "lambda_max", "lambda_dot_max"):
-            finite_number(getattr(self, name), name, above=0, error=ControllerConfigError)
-        for name in ("margin_normal_force", "margin_zmp", "margin_torque"):
-            finite_number(getattr(self, name), name, at_least=0, error=ControllerConfigError)
-        if not isinstance(self.disturbance_observer, bool):
-            raise ControllerConfigError(f"disturbance_observer must be true or false, got {self.disturbance_observer!r}")
-        finite_number(self.observer_height, "observer_height", error=ControllerConfigError)
-        try:
-            weight_matrix(self.wbc_weight_joint, self.wbc_weight_torso)
-        except ValueError as exc:
-            raise ControllerConfigError(str(exc)) from exc
-        finite_number(self.tau_dot_max, "tau_dot_max", above=self.tau_dot_min, error=ControllerConfigError)
-        if not (0 < self.margin_friction <= 1):
-            raise ControllerConfigError(f"margin_friction must be in (0, 1], got {self.margin_friction}")
-        for name in ("momentum_observer", "state_estimator", "model_error_estimator", "predictor_touchdown_at_once",
-                     "estimator_gyro"):
-            if not isinstance(getattr(self, name), bool):
-                raise ControllerConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
-        ints = {}
-        for name in ("sensor_encoder_bits", "delay_compensation", "predictor_substeps"):
-            ints[name] = int(finite_number(getattr(self, name), name, at_least=0, integer=True,
-                                           error=ControllerConfigError))   # (a ROS parameter arrives as a float)
-        for name in ("momentum_observer_gain", "estimate_confidence", "sensor_noise_q", "sensor_noise_qd",
-                     "sensor_noise_pitch", "sensor_noise_pitch_rate", "estimator_accel_std", "estimator_impact_std",
-                     "predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance",
-                     "touchdown_band_sigmas"):
-            finite_number(getattr(self, name), name, at_least=0, error=ControllerConfigError)
-        if self.momentum_observer and self.disturbance_observer and self.momentum_observer_gain <= 0:
-            raise ControllerConfigError("momentum_observer_gain must be > 0 with the momentum observer on")
-        if self.model_error_estimator:
-            for name in ("model_mass_uncertainty", "model_inertia_uncertainty", "model_error_residual_std"):
-                v = getattr(self, name)
-                finite_number(v, name, above=0, error=ControllerConfigError,
-                              message=f"{name} must be a finite number > 0 with model_error_estimator on, got {v!r}")
-            v = self.model_error_settle
-            finite_number(v, "model_error_settle", at_least=0, error=ControllerConfigError,
-                          message=f"model_error_settle must be a finite number >= 0 with model_error_estimator on, "
-                                  f"got {v!r}")
-            if not (self.disturbance_observer and self.momentum_observer):
-                raise ControllerConfigError("model_error_estimator needs disturbance_observer and momentum_observer on")
-            if self.model_error_regressor not in MODEL_ERROR_REGRESSORS:
-                raise ControllerConfigError(f"model_error_regressor must be one of {MODEL_ERROR_REGRESSORS}, "
-                                            f"got {self.model_error_regressor!r}")
-            if self.model_error_regressor == "reference" and self.mode in TORSO_MODES:
-                raise ControllerConfigError("model_error_regressor 'reference' is not done for the torso modes "
-                                            f"{TORSO_MODES} (their reference has lambda), got mode {self.mode!r}")
-        if self.state_estimator and (self.estimator_accel_std <= 0 or
-                                     (self.sensor_noise_q <= 0 and ints["sensor_encoder_bits"] == 0)):
-            raise ControllerConfigError("estimator_accel_std must be > 0, and sensor_noise_q > 0 or "
-                                        "sensor_encoder_bits > 0, with the state estimator on")
-        if ints["delay_compensation"] > 0:
-            for name in ("predictor_touchdown_height", "predictor_clearance", "predictor_time_tolerance"):
-                if getattr(self, name) <= 0:
-                    raise ControllerConfigError(f"{name} must be > 0 with delay_compensation > 0")
-            if ints["predictor_substeps"] < 1:
-                raise ControllerConfigError("predictor_substeps must be >= 1 with delay_compensation > 0")
-        if any(getattr(self, k) != v or type(getattr(self, k)) is not int for k, v in ints.items()):
-            return replace(self, **ints)
-        return self
-
-    @property
-    def real_sensing(self) -> bool:
-        """Any part of real sensing on: the sensing pipeline runs (Python steps, no compiled period)."""
-        return bool(self.state_estimator or self.delay_compensation > 0
-                    or (self.disturbance_observer and self.momentum_observer))
-
-
-
-def load_controller_config(path: str | Path | None = None, **overrides) -> ControllerConfig:
-    """``config/controller.yaml`` (or ``path``) with ``overrides`` applied, validated. ``period`` comes
-    from ``config/simulator.yaml`` (control_period) unless overridden."""
-    p = Path(path) if path is not None else default_config_dir() / "controller.yaml"
-    keys = [k for k in ControllerConfig.__dataclass_fields__ if k not in ("period", "engine")]
-    try:
-        kw = read_settings(p, keys)
-    except SettingsError as exc:
-        raise ControllerConfigError(str(exc)) from exc
-    if "period" not in overrides or "engine" not in overrides:
-        # one home for both: the loop's settings in config/simulator.yaml (biped_model.loop)
-        loop = load_loop_settings()
-        kw["period"], kw["engine"] = loop.control_period, loop.engine
-    kw.update(overrides)
-    return ControllerConfig(**kw).validate()
+_NEW = object.__new__
 
 
 class ParamState:
@@ -300,80 +108,6 @@ class ParamState:
 
     def __repr__(self) -> str:
         return f"ParamState(p={self.p!r}, p_dot={self.p_dot!r}, tau={self.tau!r}, tau_dot={self.tau_dot!r})"
-
-
-@dataclass(frozen=True)
-class ControllerStatusData:
-    """Every field of biped_msgs_py/ControllerStatus (pure-Python mirror)."""
-
-    step: int
-    t: float
-    mode: str
-    p: float
-    p_dot: float
-    tau: float
-    tau_dot: float
-    p_ddot: float
-    tau_ddot: float
-    p_ddot_star: float
-    tau_ddot_star: float
-    qp_status: int
-    qp_message: str
-    margins: np.ndarray
-    tightest: int
-    zmp: float
-    stance: int
-    max_tracking_error: float
-    predicted_reaction: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    force_estimate: float = 0.0
-    wbc_status: int = NO_ADAPTATION_STATUS   # whole-body stage (modes wbc, hybrid): problem status, or 4 = not run
-    wbc_active: int = 0                      # bit i: row CONSTRAINT_NAMES[i] active in the whole-body QP's answer
-    wbc_deviation: float = 0.0               # [rad/s^2] |w - w*| of the whole-body stage (0 when w* held)
-    lam: float = 0.0                         # [rad] torso offset lambda of the period (modes lambda, all; else 0)
-    lam_dot: float = 0.0                     # [rad/s] lambda'
-    lam_ddot: float = 0.0                    # [rad/s^2] lambda'' chosen
-    lam_ddot_star: float = 0.0               # [rad/s^2] lambda''* of the second task
-
-
-_NEW = object.__new__
-_SENS_RES = slice(RES.at.sens_dR, RES.at.sens_margin + RES.sizes["sens_margin"])
-_MG = RES.slice("margins")
-_RR = RES.slice("reaction")
-
-
-def status_records(rows: np.ndarray, steps: Sequence[int], times: Sequence[float], mode: str, stance: int,
-                   qp_status: int, qp_message: str) -> list[ControllerStatusData]:
-    """The one builder of :class:`ControllerStatusData`: from rows of the ``RES`` layout (n, RES.size), one a
-    period (the period's p, p', tau, tau', x = (p'', tau''), x*, margins, tightest row, l, max |e|, R, F),
-    with their period indices ``steps``, times [s], the mode, the stance and the QP's status and message.
-    Each instance's ``__dict__`` is filled at once (the frozen dataclass's ``__init__`` costs ~4 us, as
-    much as a compiled period); every field is set here, and ``margins`` / ``predicted_reaction`` are views
-    of ``rows`` (pass rows nobody writes again)."""
-    c = rows.T.tolist()     # columns, as exact Python floats
-    P, PD, TA, TAD, X0, X1, XS0, XS1 = (c[R_.p], c[R_.p_dot], c[R_.tau], c[R_.tau_dot], c[R_.x], c[R_.x + 1],
-                                        c[R_.x_star], c[R_.x_star + 1])
-    TIGHT, ZMP, ERR, F = [int(v) for v in c[R_.tightest]], c[R_.zmp], c[R_.max_error], c[R_.force]
-    MG, RR = rows[:, _MG], rows[:, _RR]
-    wbc = mode in WBC_MODES       # the whole-body stage's fields (RES wbc_*); the class defaults otherwise
-    if wbc:
-        WS, WA, WD = ([int(v) for v in c[R_.wbc_status]], [int(v) for v in c[R_.wbc_active]], c[R_.wbc_deviation])
-    torso = mode in TORSO_MODES   # torso modes: lambda, lambda', lambda'', lambda''* (RES lam, x[2], x_star[2])
-    if torso:
-        LA, LD, X2, XS2 = c[R_.lam], c[R_.lam + 1], c[R_.x + 2], c[R_.x_star + 2]
-    out = []
-    for j in range(len(P)):
-        s = _NEW(ControllerStatusData)
-        s.__dict__.update(
-            step=steps[j], t=times[j], mode=mode, p=P[j], p_dot=PD[j], tau=TA[j], tau_dot=TAD[j], p_ddot=X0[j],
-            tau_ddot=X1[j], p_ddot_star=XS0[j], tau_ddot_star=XS1[j], qp_status=qp_status, qp_message=qp_message,
-            margins=MG[j], tightest=TIGHT[j], zmp=ZMP[j], stance=stance, max_tracking_error=ERR[j],
-            predicted_reaction=RR[j], force_estimate=F[j])
-        if wbc:
-            s.__dict__.update(wbc_status=WS[j], wbc_active=WA[j], wbc_deviation=WD[j])
-        if torso:
-            s.__dict__.update(lam=LA[j], lam_dot=LD[j], lam_ddot=X2[j], lam_ddot_star=XS2[j])
-        out.append(s)
-    return out
 
 
 def computed_torque(A: np.ndarray, H: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -397,15 +131,6 @@ class _Reference:
     v: np.ndarray          # (6,) rad/s^2
     x_star: np.ndarray     # (2,) (p''*, tau''*) (modes lambda, all: (3,), and lambda''*)
     error: np.ndarray      # (6,) rad
-
-
-@dataclass(frozen=True)
-class ControlOutput:
-    torque: np.ndarray            # paper q1..q6 [N m]
-    status: ControllerStatusData
-    G: np.ndarray | None = None   # the QP instance (for benchmarks/tests); None in mode 'none'
-    h: np.ndarray | None = None
-    x_star: np.ndarray | None = None
 
 
 def _mem_scalar(name: str, kind=float):
@@ -503,7 +228,7 @@ class AdaptiveController:
             self._sensing.reference_source = self.reference_at
         self.reset(None)
         if self._fast is not None and (self._sensing is None or self._compiled_sensing):
-            self._kernel = _FastPeriod(self)   # the compiled period (fast engine)
+            self._kernel = CompiledPeriod(self)   # the compiled period (fast engine)
 
     def _gains(self) -> np.ndarray:
         """The ``GAINS`` array (eqs. 16, 20, the p range, the observer, the adapted parameters)."""
@@ -543,7 +268,7 @@ class AdaptiveController:
         self._sensing.wrench = value
 
     @property
-    def compiled_period(self) -> "_FastPeriod | None":
+    def compiled_period(self) -> "CompiledPeriod | None":
         """The compiled period (fast engine), None on the Python steps."""
         return self._kernel
 
@@ -985,132 +710,3 @@ class AdaptiveController:
         w = joint_law(qr, qdr, qddr, q, qd, self.cfg.Kp, self.cfg.Kv)
         dyn, _ = self._model_terms(q, qd)
         return computed_torque(dyn.A, dyn.H, w)
-
-
-class _FastPeriod:
-    """The compiled period of an :class:`AdaptiveController` (fast engine): ``controller_kernels.step`` on the
-    controller's own arrays (gains, cons, memory), the QP when x* is not feasible, the same
-    ``ControlOutput`` as the Python steps."""
-
-    def __init__(self, ctrl: AdaptiveController):
-        self.ck = ctrl.ck
-        self.ctrl = ctrl
-        self.coef, self.inner, self.centers = ctrl.family.piece_arrays()
-        self.ti, self.tf = ctrl._fast.ti, ctrl._fast.tf
-        # the rows G x <= h of the period (modes lambda, all: the four torso rows and the column of lambda'')
-        self.nx = 3 if ctrl.torso else 2
-        self.G = np.zeros((TORSO_QP_ROWS, 3) if ctrl.torso else (QP_ROWS, 2))
-        self.h = np.zeros(self.G.shape[0])
-        # modes wbc, hybrid: the compiled whole-body stage (wbc_kernels) with PIQP when it does not settle;
-        # ``python_stage`` True runs the Python stage (wbc.WholeBodyStage, the tests' oracle) instead
-        self.wk = load_wbc_kernels() if ctrl.whole_body is not None else None
-        self.python_stage = False
-        self.stage_counts = {"solved": 0, "piqp": 0}   # periods the compiled stage changed w / handed to PIQP
-        self.Gw = np.zeros((2 * N_CONSTRAINTS, 6))
-        self.hw = np.zeros(2 * N_CONSTRAINTS)
-
-    def compute(self, t: float, q: np.ndarray, qd: np.ndarray, stance: int) -> ControlOutput | None:
-        ck, ctrl = self.ck, self.ctrl
-        if q.dtype != np.float64 or not q.flags.c_contiguous:
-            q = np.ascontiguousarray(q, dtype=float)
-        if qd.dtype != np.float64 or not qd.flags.c_contiguous:
-            qd = np.ascontiguousarray(qd, dtype=float)
-        work = np.empty((WORK.size, 6))
-        res = np.empty(RES.size)
-        if ctrl._compiled_sensing:              # the momentum observer's inputs to the period
-            ctrl._sensing.into_res(res[_SENS_RES])
-        G, h = self.G, self.h
-        t, stance = float(t), int(stance)
-        code = ck.step(self.coef, self.inner, self.centers, self.ti, self.tf, q, qd, t, stance, ctrl.gains,
-                       ctrl.cons, ctrl.memory, G, h, work, res)
-        if code == ck.NONFINITE:
-            return None
-        Gr = hr = xs = None
-        if not ctrl.adapted:
-            status, msg = NO_ADAPTATION, MSG_FIXED_REFERENCE[ctrl.cfg.mode]
-        elif code == ck.FEASIBLE:
-            if ctrl.keep_qp:                  # the instance is only handed out when kept
-                Gr, hr, xs = self.reduced(G, h, res)
-            status, msg = UNCONSTRAINED, MSG_X_STAR_FEASIBLE
-        else:
-            answer = self.solve_qp(G, h, res)
-            if answer is None:
-                return None
-            x, status, msg, Gr, hr, xs = answer
-            res[R_.x:R_.x + x.size] = x
-            ck.finish(ctrl.cons, ctrl.memory, work, res, qd, t, stance)
-        torque, wb = work[W_.torque].copy(), None
-        if ctrl.whole_body is not None:       # modes wbc, hybrid: the whole-body stage
-            if self.python_stage:
-                torque, wb = self._whole_body(work, res, torque, status)
-            else:
-                torque, wb = self._whole_body_compiled(work, res, status, t)
-        return ctrl._output(res, torque, t, stance, status, msg,
-                            Gr.copy() if Gr is not None else None, hr, xs.copy() if xs is not None else None, wb)
-
-    def _whole_body_compiled(self, work: np.ndarray, res: np.ndarray, status: int, t: float):
-        """The compiled whole-body stage (``wbc_kernels.stage``) after the compiled period (which has
-        committed its w to ``memory``): it writes the stage's status fields into ``res`` and, when it changes
-        w, the torque, outputs and the memory's w; when its active-set iteration does not settle, the held
-        PIQP of the Python stage answers (least violation when no w holds every row) and ``wbc_kernels.apply``
-        takes that w. Returns (torque, False: the status fields are in ``res``)."""
-        ctrl, wk = self.ctrl, self.wk
-        run = ctrl.whole_body.mode == "wbc" or status in (INFEASIBLE_FALLBACK, SOLVER_ERROR)
-        code = wk.stage(ctrl.wbc, ctrl.cons, ctrl.memory, work, res, self.Gw, self.hw, bool(run))
-        if code == wk.SOLVED:
-            self.stage_counts["solved"] += 1
-        elif code == wk.NEEDS_PIQP:
-            self.stage_counts["piqp"] += 1
-            w_star = work[W_.w].copy()
-            wb = ctrl.whole_body.qp.solve(self.Gw, self.hw, w_star)
-            wk.apply(ctrl.cons, ctrl.memory, work, res, self.Gw, self.hw, w_star,
-                     np.ascontiguousarray(wb.w, dtype=float), int(wb.status))
-        elif code == wk.NONFINITE:      # non-finite rows: w* is kept (the Python stage's SOLVER_ERROR)
-            res[R_.wbc_status] = SOLVER_ERROR
-        return work[W_.torque].copy(), False
-
-    def reduced(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
-        """The QP over the adapted parameters of the rows G x <= h (x = (p'', tau''), modes lambda and all
-        (p'', tau'', lambda'')) and x* of ``res``: a parameter that is not adapted stays at x* and moves to the
-        right-hand side. Returns (G_r, h_r, x*_r)."""
-        ctrl = self.ctrl
-        xs_full = res[R_.x_star:R_.x_star + self.nx]
-        idx, fixed = ctrl._adapted_idx, ctrl._fixed_idx
-        Gr, xs = G[:, idx], xs_full[idx]
-        hr = h - G[:, fixed] @ xs_full[fixed] if fixed else h.copy()
-        return Gr, hr, xs
-
-    def solve_qp(self, G: np.ndarray, h: np.ndarray, res: np.ndarray):
-        """The period's decision when x* is not feasible (``controller_kernels.step`` returned NEEDS_QP with G,
-        h and ``res``): the controller's QP on the adapted parameters. Returns (x (2,), status, message, G_r,
-        h_r, x*_r), or None when the answer is not finite (the caller takes the reference path). Also the
-        compiled loop's QP periods (``segment``): one home of the decision. Modes lambda and all: x (3,), and
-        lambda'' held to the torso's range after an answer that does not hold the rows (as the Python steps)."""
-        Gr, hr, xs = self.reduced(G, h, res)
-        qres = self.ctrl.qp.solve(Gr, hr, xs)
-        x = res[R_.x_star:R_.x_star + self.nx].copy()
-        x[self.ctrl._adapted_idx] = qres.x
-        if not np.all(np.isfinite(x)):
-            return None
-        msg = qres.message
-        if qres.status not in (UNCONSTRAINED, ACTIVE):
-            msg += self.ctrl._hold_ranges(x, res, (float(res[R_.lam]), float(res[R_.lam + 1]))
-                                          if self.nx == 3 else None)
-        return x, qres.status, msg, Gr, hr, xs
-
-    def _whole_body(self, work: np.ndarray, res: np.ndarray, torque: np.ndarray, status: int):
-        """The whole-body stage after the compiled period (which has committed its w to ``memory``): when it
-        changes w, the torque, the reported margins, reaction, l and tightest row follow the new w, and the
-        memory's w (the observer's next residual) is the new w. Returns (torque, WBCResult or None)."""
-        ctrl = self.ctrl
-        A, H, B = work[W_.A:W_.A + 6], work[W_.H], work[W_.B:W_.B + 3]
-        hbc = res[R_.h_b_c:R_.h_b_c + 3]
-        wb = ctrl.whole_body.decide(work[W_.w].copy(), status, A, H, B, res[R_.h_b:R_.h_b + 3], hbc)
-        if wb is None or wb.status == UNCONSTRAINED:
-            return torque, wb
-        torque, R, margins, tightest, zmp = ctrl.whole_body.outputs(wb.w, A, H, B, hbc)
-        res[RES.slice("margins")] = margins
-        res[RES.slice("reaction")] = R
-        res[R_.tightest], res[R_.zmp] = tightest, zmp
-        ctrl.memory[MEMORY.slice("prev_w")] = wb.w
-        return torque, wb

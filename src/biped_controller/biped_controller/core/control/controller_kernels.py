@@ -37,7 +37,7 @@ reference (Python) steps, which stay the oracle of the tests (``engine: referenc
 
 When x* is not feasible the caller solves the QP (PIQP or the exact solver) on G, h and calls
 :func:`finish` with the answer (modes lambda and all: lambda'' held to the torso's range first when the
-answer does not hold the rows, ``controller._FastPeriod.solve_qp``). Any non-finite value sends the caller back to the reference path
+answer does not hold the rows, ``controller_compiled.CompiledPeriod.solve_qp``). Any non-finite value sends the caller back to the reference path
 (memory unchanged).
 
 Arrays (float64, C order; fields and offsets declared once in ``controller_layout``): ``gains`` (GAINS),

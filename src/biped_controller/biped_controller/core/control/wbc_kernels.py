@@ -313,7 +313,7 @@ def run_stage(wbc, cons, mem, work, res, G, h, run, committed):
 
 @numba.njit(_I(_V, _V, _V, _M, _V, _M, _V, _B), cache=True)
 def stage(wbc, cons, mem, work, res, G, h, run):
-    """:func:`run_stage` from Python (the compiled period of ``controller._FastPeriod``, committed)."""
+    """:func:`run_stage` from Python (the compiled period of ``controller_compiled.CompiledPeriod``, committed)."""
     return run_stage(wbc, cons, mem, work, res, G, h, run, True)
 
 

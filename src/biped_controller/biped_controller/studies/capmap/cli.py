@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from biped_controller.core.control.controller import MODES, PAPER_MODES
+from biped_controller.core.control.config import MODES, PAPER_MODES
 from biped_controller.studies import capmap
 from biped_controller.studies.capmap.driver import run_map
 from biped_controller.studies.capmap.executors import DEFAULT_BATCH, SerialExecutor, make_executor

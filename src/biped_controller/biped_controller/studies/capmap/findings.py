@@ -9,7 +9,7 @@ from typing import Sequence
 
 from biped_sim.plant.push import Push
 
-from biped_controller.core.control.controller import MODES
+from biped_controller.core.control.config import MODES
 from biped_controller.studies.trial import stop, survival, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, trial_steps

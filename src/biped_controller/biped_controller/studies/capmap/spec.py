@@ -9,7 +9,7 @@ from pathlib import Path
 
 from biped_model.settings import default_config_dir, read_settings
 
-from biped_controller.core.control.controller import MODES, PAPER_MODES
+from biped_controller.core.control.config import MODES, PAPER_MODES
 from biped_controller.studies.trial.search import coarse_forces
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
 

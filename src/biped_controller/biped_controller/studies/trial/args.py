@@ -13,7 +13,7 @@ from biped_sim.plant.perturbation import PerturbationError
 from biped_model.profiles import DEFAULT_PROFILE, ProfileError, profile_names
 from biped_model.settings import SettingsError
 
-from biped_controller.core.control.controller import MODES, ControllerConfigError
+from biped_controller.core.control.config import MODES, ControllerConfigError
 from biped_controller.studies.trial.settings import OverrideError, RunSettings, run_settings
 from biped_controller.studies.trial.stop import StudySettingsError
 from biped_controller.studies.trial.survival import survival_rule

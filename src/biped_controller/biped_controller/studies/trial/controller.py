@@ -1,11 +1,11 @@
 """One path for every controller in the studies: :func:`resolve` turns a controller's name into the one
 object the studies call, whatever the controller is.
 
-A name is a built-in mode of the adaptive controller (``none``, ``tau``, ``p``, ``both``, ``wbc``,
-``hybrid``, ``lambda``, ``all``), a ``biped.controllers`` entry point, or ``module:Class``
-(``plugin.registry.load_controller``: the built-in modes first). :func:`resolve` checks it once, here
-(an unknown name, a class that cannot be imported or that does not satisfy the interface raises one of
-:data:`RESOLVE_ERRORS`, the message naming it) and returns a :class:`TrialController`:
+Every name goes through the controller interface's registry (``plugin.registry.load_controller``: a built-in
+mode of the adaptive controller -- ``none``, ``tau``, ``p``, ``both``, ``wbc``, ``hybrid``, ``lambda``,
+``all`` -- first, then a ``biped.controllers`` entry point, then ``module:Class``). :func:`resolve` checks it
+once, here (an unknown name, a class that cannot be imported or that does not satisfy the interface raises
+one of :data:`RESOLVE_ERRORS`, the message naming it) and returns a :class:`TrialController`:
 
 * ``walk(steps, settings, pushes)``: one closed-loop run with a run's settings (plant, profile,
   perturbation), records kept or not;
@@ -15,13 +15,15 @@ A name is a built-in mode of the adaptive controller (``none``, ``tau``, ``p``, 
 * ``survives(push, settings, pool)``: one survival trial, the record every study stores;
 * ``summary(result, push_end)``: the numbers of one run (``trial.summary``).
 
-A built-in mode is :class:`BuiltinMode`: the adaptive controller on the studies' compiled fast path
-(``runner.run``: the compiled loop, the reused loop pool, the early stop of a decided trial), so its
-trials are bit-identical to those of ``runner.run`` (the fingerprints). Any other controller is
-:class:`PluginController`: the generic in-process loop (``plugin.loop``) with its interface, run in full
-(the early stop reads the adaptive controller's parameters), a controller fault being that trial's
-outcome. The same survival rule judges both: the band is the controller's own unpushed walk's excursion
-of the ``p`` [m] and ``tau_dot`` [-] it reports (none reported: the floors).
+How a class is run is its own: a class that declares the compiled closed loop (``plugin.builtin.compiled_mode``:
+the built-in modes' classes, whichever name reached them) is :class:`BuiltinMode`, its trials on the studies'
+compiled fast path (``runner.run``: the compiled loop -- the same records as the class through the generic
+loop, bit for bit --, the reused loop pool, the early stop of a decided trial), so its trials are
+bit-identical to those of ``runner.run`` (the fingerprints). Any other class is :class:`PluginController`: the
+generic in-process loop (``plugin.loop``) with its interface, run in full (the early stop reads the adaptive
+controller's parameters), a controller fault being that trial's outcome. The same survival rule judges both:
+the band is the controller's own unpushed walk's excursion of the ``p`` [m] and ``tau_dot`` [-] it reports
+(none reported: the floors).
 """
 from __future__ import annotations
 
@@ -32,7 +34,8 @@ from dataclasses import replace
 
 from biped_sim.plant.push import Push
 
-from biped_controller.core.control.controller import MODES
+from biped_controller.core.control.config import MODES
+from biped_controller.plugin.builtin import compiled_mode
 from biped_controller.plugin.interface import InterfaceError
 from biped_controller.plugin.result import RunResult
 from biped_controller.plugin.registry import ControllerLoadError, UnknownControllerError, load_controller
@@ -98,7 +101,8 @@ class TrialController(ABC):
 
 
 class BuiltinMode(TrialController):
-    """A built-in mode: ``runner.run`` (the compiled loop, the loop pool, the early stop)."""
+    """A built-in mode (a class with ``plugin.builtin.compiled_mode``): ``runner.run`` (the compiled loop, the
+    loop pool, the early stop)."""
 
     adaptive = True
 
@@ -185,7 +189,7 @@ class PluginController(TrialController):
     its trials run in full."""
 
     def __init__(self, name: str):
-        load_controller(name)           # an unknown or unusable name raises here, naming it
+        load_controller(name)           # an unknown or unusable name raises here, naming it (cached by the import)
         self.name = name
 
     def walk(self, steps: int, settings: RunSettings = DEFAULT_SETTINGS, pushes: tuple[Push, ...] = (), *,
@@ -215,8 +219,13 @@ class PluginController(TrialController):
 
 @functools.lru_cache(maxsize=64)
 def resolve(name: str) -> TrialController:
-    """The :class:`TrialController` of ``name`` (module docstring), once per process. Raises one of
-    :data:`RESOLVE_ERRORS`, the message naming ``name``."""
+    """The :class:`TrialController` of ``name`` (module docstring), once per process: the registry's class for
+    ``name``; a class that declares the compiled closed loop resolves to its mode's :class:`BuiltinMode` (the
+    same object for the mode's name and its ``module:Class``). Raises one of :data:`RESOLVE_ERRORS`, the
+    message naming ``name``."""
     if not isinstance(name, str) or not name:
         raise UnknownControllerError(f"a controller name must be a non-empty string, got {name!r}")
-    return BuiltinMode(name) if name in MODES else PluginController(name)
+    mode = compiled_mode(load_controller(name))
+    if mode is None:
+        return PluginController(name)
+    return BuiltinMode(mode) if mode == name else resolve(mode)

@@ -19,7 +19,7 @@ from biped_sim.plant.perturbation import PlantPerturbation
 from biped_model.profiles import DEFAULT_PROFILE, ProfileError, load_profile, profile_names
 from biped_model.settings import default_config_dir
 
-from biped_controller.core.control.controller import MODES, ControllerConfig, load_controller_config
+from biped_controller.core.control.config import MODES, ControllerConfig, load_controller_config
 from biped_controller.studies.trial.context import context
 
 __all__ = ["OverrideError", "ProfileError", "CONTROLLER_KEYS", "SIMULATOR_KEYS", "RunSettings", "DEFAULT_SETTINGS",
