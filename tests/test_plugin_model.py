@@ -51,15 +51,18 @@ def test_the_setup_gives_model_gains_and_reference(setup):
 
 
 def test_reference_fields_are_the_partial_derivatives_of_q_d(setup):
-    """Each named field against central differences of ``at(p, tau).q`` (h = 1e-5 in both; the error is
-    O(h^2) ~ 1e-8 relative to the derivatives' size, far below a swapped or missing term)."""
+    """Each named field against central differences of ``at(p, tau).q`` (h = 1e-5 in both), at strides inside
+    the family's spline pieces (a piece's end, where the third derivative in p jumps, would add h/6 of that
+    jump to the second difference); the tolerances are far below a swapped or missing term."""
     ref = setup.reference
     h = 1e-5
 
     def q(p, tau):
         return ref.at(p, tau).q
 
-    for p in (ref.p_min + 0.01, ref.p_d, ref.p_max - 0.01):
+    _, inner, _ = setup.family.piece_arrays()
+    mids = [0.5 * (a + b) for a, b in zip(inner[:-1], inner[1:]) if ref.p_min < a and b < ref.p_max]
+    for p in (mids[0], mids[len(mids) // 2], mids[-1]):
         for tau in (0.05, 0.2315, 0.8 * ref.T):
             g = ref.at(p, tau)
             assert g.p == p and g.tau == tau
@@ -121,6 +124,8 @@ def test_model_terms_are_pinocchio_s(setup):
         terms = model.com_terms(q, qd)
         assert np.allclose(terms.position, c[[0, 2]], rtol=0, atol=1e-14)
         assert np.allclose(terms.jacobian, Jc[[0, 2], 3:], rtol=0, atol=1e-14)
+        pin.centerOfMass(pm, pd, x, v, np.zeros(9))
+        assert np.allclose(terms.drift, pd.acom[0][[0, 2]], rtol=0, atol=1e-12)
         state = model.com_state(q, qd)
         assert np.allclose(state.position, c[[0, 2]], rtol=0, atol=1e-14)
         assert np.allclose(state.velocity, Jc[[0, 2], 3:] @ qd, rtol=0, atol=1e-12)

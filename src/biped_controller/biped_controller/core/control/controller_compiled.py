@@ -6,8 +6,6 @@ Python steps of ``controller.AdaptiveController`` (its oracle). Units and row or
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from biped_model import numba_cache
@@ -17,9 +15,6 @@ from biped_controller.core.control.status import (MSG_FIXED_REFERENCE, MSG_X_STA
                                                    ControlOutput)
 from biped_controller.core.qp.problem import ACTIVE, INFEASIBLE_FALLBACK, UNCONSTRAINED
 from biped_controller.core.qp.solver import SOLVER_ERROR
-
-if TYPE_CHECKING:
-    from biped_controller.core.control.controller import AdaptiveController
 
 CONTROLLER_KERNELS = "biped_controller.core.control.controller_kernels"
 # what the compiled period is compiled against besides its own source (kernels it calls, offsets it reads)
@@ -53,7 +48,7 @@ class CompiledPeriod:
     controller's own arrays (gains, cons, memory), the QP when x* is not feasible, the same
     ``ControlOutput`` as the Python steps."""
 
-    def __init__(self, ctrl: AdaptiveController):
+    def __init__(self, ctrl):
         self.ck = ctrl.ck
         self.ctrl = ctrl
         self.coef, self.inner, self.centers = ctrl.family.piece_arrays()
