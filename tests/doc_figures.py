@@ -15,6 +15,8 @@ between them). The body is ``PATH#QUERY`` followed by optional ``fmt=SPEC`` and 
   - ``*``: every item of a list (or every value of a dict);
   - ``[k=v,k2=v2]``: the items of a list of dicts whose fields equal those values (numbers compared as numbers);
 
+  a space, comma, ``%`` or ``|`` inside a key or value is written URL-encoded (``%20``, ``%2C``, ``%25``, ``%7C``);
+
   after a ``*`` or a ``[...]`` the following steps apply to each selected item. The query may end with
   ``|len``, ``|sum``, ``|min``, ``|max`` or ``|mean`` (chainable) over the selected values; without one the
   selection must be exactly one value.
@@ -33,6 +35,7 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import unquote
 
 ROOT = Path(__file__).resolve().parents[1]
 MARKER = re.compile(r"<!--\s*fig:(?P<body>.*?)-->", re.S)
@@ -127,7 +130,7 @@ def resolve(doc: object, query: str):
         raise MarkerError(f"query {query!r} must start with '/'")
     nodes, many = [doc], False
     for raw in pointer[1:].split("/") if pointer != "/" else []:
-        step = raw.replace("~1", "/").replace("~0", "~")
+        step = unquote(raw.replace("~1", "/").replace("~0", "~"))
         nxt = []
         for node in nodes:
             if step == "*":
@@ -138,7 +141,7 @@ def resolve(doc: object, query: str):
             elif step.startswith("[") and step.endswith("]"):
                 if not isinstance(node, list):
                     raise MarkerError(f"{step} over a {type(node).__name__} in {query!r}")
-                conds = [c.split("=", 1) for c in step[1:-1].split(",") if c]
+                conds = [[unquote(x) for x in c.split("=", 1)] for c in raw[1:-1].split(",") if c]
                 if any(len(c) != 2 for c in conds):
                     raise MarkerError(f"a filter is [key=value,...], got {step!r} in {query!r}")
                 nxt.extend(x for x in node if isinstance(x, dict)
