@@ -22,7 +22,8 @@ between them). The body is ``PATH#QUERY`` followed by optional ``fmt=SPEC`` and 
   selection must be exactly one value.
 - ``scale=X`` multiplies the value (``scale=100`` for a percentage).
 - ``fmt=SPEC``: the figure must equal ``format(value, SPEC)`` exactly. Without it the figure must equal the
-  value rounded to the figure's own decimals (``696.4`` matches 696.4375, ``0.2555`` does not match 0.256).
+  value rounded to the figure's own decimals (``696.4`` matches 696.4375, ``0.2555`` does not match 0.256,
+  ``6.4e-4`` matches 6.38e-4).
 
 ``python tests/doc_figures.py`` lists every marker that does not hold; ``tests/test_doc_figures.py`` runs the
 same check over README.md and docs/*.md.
@@ -40,7 +41,7 @@ from urllib.parse import unquote
 ROOT = Path(__file__).resolve().parents[1]
 MARKER = re.compile(r"<!--\s*fig:(?P<body>.*?)-->", re.S)
 #: a figure: digits with an optional fraction; a minus sign counts at the start of a word only ("11.4-78.4" is a range)
-FIGURE = re.compile(r"-?\d+(?:\.\d+)?")
+FIGURE = re.compile(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
 OPS = {"len": len, "sum": sum, "min": min, "max": max, "mean": lambda xs: sum(xs) / len(xs)}
 
 
@@ -176,7 +177,8 @@ def matches(figure: str, value: float, fmt: str | None = None) -> bool:
     rounded to the figure's decimals (half a unit of its last digit)."""
     if fmt is not None:
         return format(value, fmt) == figure
-    decimals = len(figure.split(".", 1)[1]) if "." in figure else 0
+    mantissa, _e, exponent = figure.partition("e")
+    decimals = (len(mantissa.split(".", 1)[1]) if "." in mantissa else 0) - int(exponent or 0)
     return math.isfinite(value) and abs(value - float(figure)) <= 0.5 * 10.0 ** -decimals * (1 + 1e-9)
 
 

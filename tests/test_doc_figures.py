@@ -59,9 +59,9 @@ def test_a_changed_committed_figure_fails_the_check(tmp_path):
 def test_the_figure_is_the_last_number_before_the_marker():
     text = ("a 4467 simulations in 120.0 s <!-- fig: r.json#/a -->\n"
             "range 11.4-78.4 s <!-- fig: r.json#/b -->, a minus -3.5 <!-- fig: r.json#/c scale=-1 -->\n"
-            "p_d = 0.463 m<!-- fig: r.json#/d fmt=.3f -->\n")
+            "p_d = 0.463 m<!-- fig: r.json#/d fmt=.3f -->, within 6.4e-4 rad <!-- fig: r.json#/e -->\n")
     ms = df.parse(text, "x.md")
-    assert [(m.line, m.figure) for m in ms] == [(1, "120.0"), (2, "78.4"), (2, "-3.5"), (3, "0.463")]
+    assert [(m.line, m.figure) for m in ms] == [(1, "120.0"), (2, "78.4"), (2, "-3.5"), (3, "0.463"), (3, "6.4e-4")]
     assert ms[2].scale == -1.0 and ms[3].fmt == ".3f"
 
 
@@ -86,6 +86,7 @@ def test_rounding_and_formats():
     assert df.matches("696.4", 696.4375) and df.matches("0.2560", 0.256) and df.matches("4467", 4467)
     assert not df.matches("0.2555", 0.256) and not df.matches("4183", 4467) and not df.matches("696.5", 696.4375)
     assert df.matches("15.4", 15.43, ".1f") and not df.matches("15.40", 15.43, ".1f")
+    assert df.matches("6.4e-4", 6.38e-4) and not df.matches("6.4e-4", 6.3e-4) and df.matches("2e3", 2049)
 
 
 def test_a_marker_without_a_figure_or_a_file_is_reported(tmp_path):
