@@ -6,7 +6,7 @@ A marker is an HTML comment (invisible once rendered) placed after the figure, o
     both 960.6 N <!-- fig: results/paper_table/maps_25ms.json#/plants/rigid/stats/both/backward/mean -->
 
 The figure is the last number before the marker on its line (other markers skipped; units and words may stand
-between them). The body is ``PATH#QUERY`` followed by optional ``fmt=SPEC`` and ``scale=X``:
+between them). A marker inside code (a fenced block or an inline span) is an example, not a marker. The body is ``PATH#QUERY`` followed by optional ``fmt=SPEC`` and ``scale=X``:
 
 - ``PATH``: a JSON file, relative to the repository root.
 - ``QUERY``: slash-separated steps, as in a JSON pointer (``~1`` stands for ``/`` in a key, ``~0`` for ``~``):
@@ -42,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MARKER = re.compile(r"<!--\s*fig:(?P<body>.*?)-->", re.S)
 #: a figure: digits with an optional fraction; a minus sign counts at the start of a word only ("11.4-78.4" is a range)
 FIGURE = re.compile(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
+CODE = re.compile(r"^(```|~~~).*?^\1[^\n]*$|`[^`\n]*`", re.M | re.S)
 OPS = {"len": len, "sum": sum, "min": min, "max": max, "mean": lambda xs: sum(xs) / len(xs)}
 
 
@@ -78,9 +79,16 @@ def _last_figure(before: str) -> str | None:
     return found
 
 
+def _mask_code(text: str) -> str:
+    """``text`` with code (fenced blocks, inline spans) blanked, line breaks kept: a marker there is an example."""
+    return CODE.sub(lambda m: re.sub(r"[^\n]", " ", m.group()), text)
+
+
 def parse(text: str, doc: str = "") -> list[Marker]:
-    """The markers of a document, in order; :class:`MarkerError` for one that is malformed or has no figure."""
+    """The markers of a document, in order (none inside code); :class:`MarkerError` for one that is malformed or
+    has no figure."""
     out = []
+    text = _mask_code(text)
     for m in MARKER.finditer(text):
         line_no = text.count("\n", 0, m.start()) + 1
         line_start = text.rfind("\n", 0, m.start()) + 1

@@ -65,6 +65,11 @@ def test_the_figure_is_the_last_number_before_the_marker():
     assert ms[2].scale == -1.0 and ms[3].fmt == ".3f"
 
 
+def test_a_marker_in_code_is_an_example():
+    text = ("syntax `<!-- fig: FILE#/a -->`\n```\n5 <!-- fig: r.json#/b -->\n```\n7 N <!-- fig: r.json#/c -->\n")
+    assert [(m.line, m.figure, m.query) for m in df.parse(text, "x.md")] == [(5, "7", "/c")]
+
+
 def test_queries_select_filter_and_aggregate():
     doc = {"rows": [{"mode": "tau", "phase": 0.5, "force": 362.5}, {"mode": "tau", "phase": 0.95, "force": 137.5},
                     {"mode": "both", "phase": 0.5, "force": 553.125}],
