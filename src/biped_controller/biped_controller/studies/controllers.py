@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 def _slices(args, argv: list[str] | None) -> int:
     from biped_controller.studies import provenance
     from biped_controller.studies.capmap.compare import CompareError, compare, markdown
-    provenance.track(args.json, args.markdown, argv=argv)
+    run = provenance.track(args.json, args.markdown, argv=argv)
     summaries = []
     for path in args.maps:
         try:
@@ -140,6 +140,7 @@ def _slices(args, argv: list[str] | None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     cmp["maps"] = [str(p) for p in args.maps]
+    run.plant = ",".join(cmp["plants"])     # the plants the maps were run on (results/README.md: a comparison)
     text = markdown(cmp)
     print(text)
     if args.json is not None:

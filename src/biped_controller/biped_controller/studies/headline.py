@@ -18,7 +18,7 @@ from biped_model.settings import repo_root
 #: the table's columns: (header, plant, profile)
 COLUMNS = (("rigid, `paper`", "rigid", "paper"), ("rigid, `default`", "rigid", "default"),
            ("MuJoCo, `paper`", "mujoco", "paper"), ("MuJoCo, `default`", "mujoco", "default"))
-#: the rows: (label, mode or controller name, the paper's figure [N] or None)
+#: the rows: (label, mode or controller name, the paper's published figure [N] or None: the "published" column)
 ROWS = (("none (computed torque)", "none", None), ("tau", "tau", 455), ("p", "p", 320), ("both", "both", 650),
         ("wbc (whole-body QP)", "wbc", None), ("hybrid", "hybrid", None), ("lambda (torso)", "lambda", None),
         ("all (p, tau, lambda)", "all", None), ("capture_point (plug-in example)", "capture_point", None))
@@ -48,7 +48,7 @@ def load(root: Path | None = None) -> dict:
 def markdown(root: Path | None = None) -> str:
     """The table (Markdown, no trailing newline)."""
     data = load(root)
-    lines = ["| mode | paper | " + " | ".join(h for h, _p, _q in COLUMNS) + " |",
+    lines = ["| mode | published | " + " | ".join(h for h, _p, _q in COLUMNS) + " |",
              "| --- | ---: | " + " | ".join("---:" for _ in COLUMNS) + " |"]
     for label, mode, paper in ROWS:
         cells = []

@@ -33,7 +33,7 @@ from pathlib import Path
 PROVENANCE_FILE = "provenance.json"
 UNKNOWN = "unknown"
 FIELDS = ("commit", "clean", "command", "date", "load_average", "duration_s", "plant", "profile", "reconstructed")
-CODE_PATHS = ("src", "config", "benchmarks", "scripts", "requirements.txt")
+CODE_PATHS = ("src", "config", "robots", "benchmarks", "scripts", "requirements.txt")
 
 
 def _repo_root() -> Path:
@@ -198,8 +198,8 @@ def track(*roots: os.PathLike | str | None, args=None, argv: list[str] | None = 
 
 def _plant_of(args) -> str | None:
     """The plant an argparse namespace names: ``--plant``, a ``--set plant=NAME``, or, for a command that
-    takes ``--set`` but names neither (and no profile), the configured default (``config/simulator.yaml``);
-    None for a command without settings."""
+    takes ``--set`` but names neither, the plant of its profile (:func:`profile_plant`) or, without a profile,
+    the configured default (``config/simulator.yaml``); None for a command without settings."""
     p = getattr(args, "plant", None)
     if isinstance(p, str):
         return p
@@ -212,9 +212,21 @@ def _plant_of(args) -> str | None:
         for item in (s if isinstance(s, (list, tuple)) else [s]):
             if isinstance(item, str) and item.replace(" ", "").startswith("plant="):
                 return item.split("=", 1)[1].strip()
-    if getattr(args, "profile", None):
-        return UNKNOWN
+    profile = getattr(args, "profile", None)
+    if profile:
+        return profile_plant(profile)
     return default_plant()
+
+
+def profile_plant(name: str) -> str:
+    """The plant a run under profile ``name`` uses: the profile's ``plant`` setting, else the configured default
+    (``config/simulator.yaml``); :data:`UNKNOWN` when the profile cannot be read."""
+    from biped_model.profiles import ProfileError, load_profile
+    try:
+        settings = dict(load_profile(name).settings)
+    except (ProfileError, OSError):
+        return UNKNOWN
+    return str(settings["plant"]) if "plant" in settings else default_plant()
 
 
 def default_plant() -> str:
