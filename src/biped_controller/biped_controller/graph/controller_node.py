@@ -202,7 +202,7 @@ class ControllerNode(Node):
         # one route for every controller: the interface (a built-in mode included, its compiled period inside)
         self.controller_name = name or self.cfg.mode
         self.controller = build_controller(self.controller_name, desc, family, self.cfg)
-        self._torque_limits = desc.torque_limits()
+        self._torque_min, self._torque_max = (np.array(v, dtype=float) for v in desc.torque_limits())
         self._last_torque, self._last_stance, self._faulted = np.zeros(6), None, False
         self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
         self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
@@ -309,7 +309,7 @@ class ControllerNode(Node):
             self.get_logger().error(f'{exc}: no torque for this state or any later one')
             return
         torque = res.torque.tolist()
-        self._last_torque = np.clip(res.torque, *self._torque_limits)
+        self._last_torque = np.minimum(np.maximum(res.torque, self._torque_min), self._torque_max)   # np.clip's values
         self._last_stance = stance
         sec, nsec = msg.stamp.sec, msg.stamp.nanosec
         if self.publish_cdr:

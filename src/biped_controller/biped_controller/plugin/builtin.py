@@ -20,6 +20,7 @@ a decided trial.
 """
 from __future__ import annotations
 
+import operator
 from dataclasses import fields
 
 import numpy as np
@@ -35,9 +36,13 @@ STATUS_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(ControllerStatusDa
                                        if f.name not in ("margins", "predicted_reaction", "mode", "qp_message"))
 
 
+_STATUS_VALUES = operator.attrgetter(*STATUS_FIELDS)
+
+
 def status_mapping(s: ControllerStatusData) -> dict[str, float | int | bool]:
-    """The scalar fields of one period's status as the interface's status mapping."""
-    return {k: getattr(s, k) for k in STATUS_FIELDS}
+    """The scalar fields of one period's status as the interface's status mapping (every period of the
+    controller node: one attribute getter for all, about half the cost of a getattr per field)."""
+    return dict(zip(STATUS_FIELDS, _STATUS_VALUES(s)))
 
 
 class ModeController:
