@@ -9,6 +9,11 @@ compiled closed loop on and off (the objects and the compiled loop must agree wi
 each pair is also compared). Every field of every ``StepRecord``, ``ImpactRecord`` and controller
 status enters the hash, in order, except status fields named with a ``--skip-prefix`` (a field added
 on purpose is skipped so that the rest can still be compared).
+
+Each run is also made a third way, through the controller interface every consumer uses (the mode's
+built-in class, ``plugin.builtin``, on the generic loop ``plugin.loop``): its records, impacts and outcome
+(its status is the interface's mapping, not hashed) must equal the compiled loop's bit for bit, so the compiled
+path stays an optimisation of the one route. It is compared, not hashed: the fingerprint line is the same.
 """
 from __future__ import annotations
 
@@ -21,6 +26,7 @@ import numpy as np
 
 from biped_sim.plant.push import Push
 from biped_controller.closed_loop.runner import run
+from biped_controller.plugin import loop as plugin_loop
 
 # (name, steps, mode, pushes)
 RUNS = (
@@ -46,9 +52,9 @@ def feed(h, value) -> None:
         h.update(repr(value).encode())
 
 
-def digest(result, skip: tuple[str, ...]) -> str:
+def digest(result, skip: tuple[str, ...], statuses: bool = True) -> str:
     """sha256 (hex) of every field of a ``RunResult``'s records, impacts and statuses (status fields starting
-    with one of ``skip`` left out) and its outcome."""
+    with one of ``skip`` left out; none with ``statuses`` False) and its outcome."""
     h = hashlib.sha256()
     for rec in result.records:
         for f in dataclasses.fields(rec):
@@ -56,7 +62,7 @@ def digest(result, skip: tuple[str, ...]) -> str:
     for imp in result.impacts:
         for f in dataclasses.fields(imp):
             feed(h, getattr(imp, f.name))
-    for st in result.statuses:
+    for st in result.statuses if statuses else ():
         for f in dataclasses.fields(st):
             if not f.name.startswith(skip):
                 feed(h, getattr(st, f.name))
@@ -75,16 +81,24 @@ def main(argv=None) -> int:
         digests = {}
         for compiled in (True, False):
             r = run(steps, mode, pushes, compiled_loop=compiled)
+            if compiled:
+                r_compiled = r
             digests[compiled] = digest(r, skip)
             print(f"{name:12s} compiled={compiled!s:5s} steps={r.steps_walked} fallen={r.fallen} "
                   f"{digests[compiled][:16]}", flush=True)
         if digests[True] != digests[False]:
             disagree.append(name)
+        iface = plugin_loop.run(mode, steps, pushes)        # the built-in class through the interface
+        same = iface.fault is None and digest(iface, skip, statuses=False) == digest(r_compiled, skip, statuses=False)
+        print(f"{name:12s} interface     steps={iface.steps_walked} fallen={iface.fallen} "
+              f"{'same records as the compiled loop' if same else 'DIFFERENT records'}", flush=True)
+        if not same:
+            disagree.append(f"{name} (interface)")
         total.update(digests[True].encode())
         total.update(digests[False].encode())
     print(f"fingerprint {total.hexdigest()}")
     if disagree:
-        print(f"compiled loop and objects disagree: {', '.join(disagree)}", file=sys.stderr)
+        print(f"compiled loop and objects (or the interface) disagree: {', '.join(disagree)}", file=sys.stderr)
         return 1
     return 0
 
