@@ -10,7 +10,7 @@ import pytest
 
 from biped_sim.plant.config import SimConfigError, load_sim_config
 from biped_model.mjcf import foot_geom_names, make_mjcf
-from biped_controller.studies import foot_quiet as fq
+from lab import foot_quiet as fq
 
 
 class _Rec:

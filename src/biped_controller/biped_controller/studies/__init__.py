@@ -11,6 +11,8 @@ Product studies (``python -m biped_controller.studies.NAME``):
 - ``plant_compare`` -- walk, push and pushes on both plants side by side, and ``fingerprint``, the MuJoCo
   plant's records hashed (a behaviour check);
 - ``fingerprint`` -- the rigid closed loop's records hashed (a behaviour check);
+- ``fingerprint_record`` -- both fingerprints with the package versions that give them
+  (``results/fingerprints/``);
 - ``headline`` -- the README's headline table from the committed paper's-table files;
 - ``baseline_wbc`` -- one push in modes none, wbc, both and hybrid: findings and figure;
 - ``torso`` -- the torso parameter's cost and its p / tau' / lambda figure;
