@@ -251,7 +251,22 @@ def test_trial_record_seed_and_fault_kind():
         record.complete({"reason": "survived", "fault_kind": "bad luck"})
 
 
-COMMITTED = sorted(Path(__file__).resolve().parents[1].glob("results/**/*.jsonl"))
+ROOT = Path(__file__).resolve().parents[1]
+COMMITTED = sorted(ROOT.glob("results/**/*.jsonl"))
+
+
+def _committed_maps() -> list[tuple[Path, Path]]:
+    """(store, summary) of every committed map whose provenance command wrote both (results/*/provenance.json)."""
+    pairs = set()
+    for prov in ROOT.glob("results/*/provenance.json"):
+        for entry in json.loads(prov.read_text()).values():
+            cmd = entry.get("command", "") if isinstance(entry, dict) else ""
+            words = cmd.split()
+            if "capability_map" in cmd and "--store" in words and "--json" in words and "--report-only" not in words:
+                st, js = ROOT / words[words.index("--store") + 1], ROOT / words[words.index("--json") + 1]
+                if st.is_file() and js.is_file():
+                    pairs.add((st, js))
+    return sorted(pairs)
 
 
 def test_committed_stores_load_with_the_new_fields_and_keep_their_keys():
@@ -265,3 +280,25 @@ def test_committed_stores_load_with_the_new_fields_and_keep_their_keys():
         for a, b in zip(raw, got):
             assert b == {**a, "seed": None, "fault_kind": None}, path
             assert cm.record_key(a) == cm.record_key(b) and a.get("fingerprint") == b.get("fingerprint")
+
+
+@pytest.mark.parametrize("store, summary", _committed_maps(), ids=lambda p: p.name)
+def test_committed_stores_give_their_committed_summaries(store, summary, monkeypatch):
+    """A committed map replayed from its committed store (no simulation; the store's own fingerprint, since the
+    settings moved on since it was made) gives the committed summary's boundaries and findings, every field,
+    with the records completed by the new fields on load."""
+    summ = json.loads(summary.read_text())
+    m = summ["map"]
+    from biped_controller.studies.capmap import driver
+    monkeypatch.setattr(driver, "fingerprint", lambda spec: summ["fingerprint"])
+    spec = cm.MapSpec(tuple(m["modes"]), tuple(m["directions"]), tuple(m["phases"]), tuple(m["durations"]),
+                      cm.Search(m["coarse"], m["max"], m["resolution"], m["max_impulse"]), m["height"],
+                      neighbours=m["search"] == "neighbours", island_window=m.get("island_window"),
+                      bracket_check_below=m.get("bracket_check_below"))     # (None: the config's; a full search's
+    #                                                                           maps predate the key and ignore it)
+    run = cm.run_map(spec, store=cm.RecordStore(store), simulate=False)
+    assert not run.missing and run.resumed > 0
+    assert all(r["seed"] is None and r["fault_kind"] is None for recs in run.records.values() for r in recs.values())
+    got = [cm.cell_summary(run, c) for c in spec.cells()]
+    assert got == summ["boundaries"]
+    assert cm.findings(got, spec.search.resolution) == summ["findings"]
