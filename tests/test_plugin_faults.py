@@ -302,3 +302,13 @@ def test_committed_stores_give_their_committed_summaries(store, summary, monkeyp
     got = [cm.cell_summary(run, c) for c in spec.cells()]
     assert got == summ["boundaries"]
     assert cm.findings(got, spec.search.resolution) == summ["findings"]
+
+
+def test_robustness_row_of_a_faulting_controller(tmp_path, capsys):
+    """The robustness table's max-push cell of the five-torque controller: 0 N and the no-fall edge
+    undefined (was "[no fall to 1200]", the scan's top), from the run and again from its store alone."""
+    argv = ["--controller", FIVE, "--what", "push", "--levels", "nominal", "--workers", "1", "--store", str(tmp_path)]
+    for extra in ([], ["--report-only"]):
+        assert robustness.main(argv + extra) == 0
+        row = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("| nominal"))
+        assert row.split("|")[2].strip() == "0 [no-fall edge undefined: controller fault]", row

@@ -119,7 +119,7 @@ def add_modes_arg(a: argparse.ArgumentParser, default: tuple[str, ...] | None, d
     documented form); several words are accepted too and joined (``--modes both tau``, ``--modes both,tau p``:
     the form of earlier command lines, kept so that every recorded command still runs). Each mode known,
     each once; the value is a tuple of mode names (``default`` when the option is not given)."""
-    a.add_argument("--modes", nargs="+", type=modes_arg, action=_ModesAction, default=default, metavar="MODE[,MODE...]",
+    a.add_argument("--modes", nargs="+", type=modes_arg, action=_ModesAction, default=default, metavar="MODES",
                    help=f"built-in modes, comma-separated (e.g. both,tau; any of {','.join(MODES)}); default "
                         f"{default_text}; other controllers: --controller")
 
