@@ -124,6 +124,9 @@ def test_map_of_a_faulting_controller(tmp_path):
                for c in cells)
     text = "\n".join(cm.findings_text(summ["findings"]))
     assert "no-fall edge: mean" not in text and "no-fall edge: undefined at phase 0, 0.5" in text
+    from biped_controller.studies.capmap.compare import compare, markdown
+    table = markdown(compare([("faulting", json.loads(json.dumps(summ)))], 0.025, "rigid"))
+    assert "| undefined in 2 (controller fault before any fall) |" in table and "not searched" not in table
     recs = cm.RecordStore(tmp_path / "r.jsonl").load()
     assert recs and all(r["cause"] == "controller_fault" and r["fault_kind"] == "wrong torque shape"
                         and r["seed"] is None for r in recs)
