@@ -315,3 +315,19 @@ def test_robustness_row_of_a_faulting_controller(tmp_path, capsys):
         assert robustness.main(argv + extra) == 0
         row = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("| nominal"))
         assert row.split("|")[2].strip() == "0 [no-fall edge undefined: controller fault]", row
+
+
+def test_plant_comparison_row_of_a_faulting_controller(tmp_path):
+    """``plant_compare pushes`` from table files (reused, not run) holding the five-torque controller's row as
+    the table writes it: its no-fall cell says undefined (was: a TypeError on the None edge)."""
+    from biped_controller.studies import plant_compare
+    res = search.max_push_modes((FIVE,), resolution=25.0, fmax=100.0, coarse=50.0, progress=False)[FIVE]
+    builtin = {"max_force": 43.75, "failure_cause": "fell: tip_toe", "no_fall_edge": 43.75, "first_fall": 46.875,
+               "fall_cause": "fell: tip_toe", "islands": [], "paper": None}
+    rows = {**{m: builtin for m in ("none", "tau", "p", "both")}, FIVE: res}
+    for obs in ("on", "off"):
+        for plant in plant_compare.PLANTS:
+            (tmp_path / f"table_{plant}_observer_{obs}.json").write_text(json.dumps({"modes": rows}))
+    text, out = plant_compare.pushes_table(tmp_path, reuse=True, controllers=(FIVE,))
+    row = next(x for x in text.splitlines() if f"| {FIVE} |" in x)
+    assert row.count("undefined (controller fault)") == 2 and out[f"rigid/on/{FIVE}"]["no_fall"] is None

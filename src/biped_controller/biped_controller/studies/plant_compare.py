@@ -216,7 +216,8 @@ def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE,
                                  else no_fall_edge(m["trials"]))     # a table of the coarse-only search
                 out[f"{plant}/{obs}/{mode}"] = dict(max_force=m["max_force"], failure=m["failure_cause"], no_fall=lo,
                                                     first_fall=hi, fall_cause=cause, islands=m["islands"])
-                cells.append((f"{m['max_force']:g} ({m['failure_cause']})", f"{lo:g}, {hi:g} N {cause}" if hi else f"> {lo:g}"))
+                cells.append((f"{m['max_force']:g} ({m['failure_cause']})", "undefined (controller fault)" if lo is None
+                              else f"{lo:g}, {hi:g} N {cause}" if hi else f"> {lo:g}"))
             paper = data[("rigid", obs)][mode]["paper"]
             L.append(f"| {obs} | {mode} | {paper if paper else '-'} | {cells[0][0]} | {cells[1][0]} | {cells[0][1]} | {cells[1][1]} |")
     return "\n".join(L), out
