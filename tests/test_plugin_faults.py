@@ -122,6 +122,8 @@ def test_map_of_a_faulting_controller(tmp_path):
     cells = summ["boundaries"]
     assert all(c["no_fall_edge"] is None and c["first_fall"] is None and "faulted" in c["no_fall_undefined"]
                for c in cells)
+    rule = summ["map"]["survival_by_mode"][FIVE]
+    assert "reports neither p nor tau'" in rule and "|p - p_d|" not in rule
     text = "\n".join(cm.findings_text(summ["findings"]))
     assert "no-fall edge: mean" not in text and "no-fall edge: undefined at phase 0, 0.5" in text
     from biped_controller.studies.capmap.compare import compare, markdown

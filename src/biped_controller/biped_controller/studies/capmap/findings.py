@@ -220,9 +220,25 @@ def survival_bands(spec: MapSpec) -> dict:
     return {m: {str(n): trials.walk_band(m, spec.settings, n).as_dict() for n in steps} for m in spec.modes}
 
 
+def partial_rules(spec: MapSpec) -> dict:
+    """{mode: the survival rule in words with its band} for the modes whose rule is not the definition's
+    (``rule_text()``): a controller that does not report both p and tau' (``Band.checks_p``,
+    ``Band.checks_tau_dot``) is not held to the return to the gait it does not report. Empty for the
+    built-in modes (they report both)."""
+    T = context().family.T
+    n = min(trial_steps(Push(onset_time(c.phase, T), c.duration, 0.0)) for c in spec.cells())
+    out = {}
+    for m in spec.modes:
+        band = trials.walk_band(m, spec.settings, n)
+        if not (band.checks_p and band.checks_tau_dot):
+            out[m] = survival.rule_text(band)
+    return out
+
+
 def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
     """The summary JSON: the map, the robot's mass and weight, what the run did, every boundary, the
-    findings and the figures."""
+    findings and the figures. ``map.survival`` is the rule's definition; ``map.survival_by_mode``, present
+    only when some mode's rule differs from it, gives that mode's rule (:func:`partial_rules`)."""
     ctx = context()
     M, g = ctx.desc.total_mass, ctx.desc.gravity
     s = run.spec
@@ -240,6 +256,7 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
                 "onset": f"start = phase * T of the first step, T = {ctx.family.T:g} s (walk starts at t = 0)",
                 "direction_sign": "forward = + force (on the back), backward = - force",
                 "survival": survival.rule_text(),
+                **({"survival_by_mode": rules} if (rules := partial_rules(s)) else {}),
                 "survival_bands": survival_bands(s)},
         "fingerprint": run.fingerprint,
         "settings": differences(s.settings),
