@@ -216,6 +216,12 @@ def test_modes_one_syntax_everywhere(tmp_path, capsys):
     with pytest.raises(SystemExit) as ex:
         robustness.main(["--modes", "both,both", "--report-only"])
     assert ex.value.code == 2
+    from biped_controller.studies import plant_compare, torso
+    for main, argv in ((plant_compare.main, ["walk", "--modes", "none,tau", "tau"]),
+                       (torso.main, ["cost", "--modes", "both", "all,both"])):
+        with pytest.raises(SystemExit) as ex:
+            main(argv)
+        assert ex.value.code == 2 and "given more than once" in capsys.readouterr().err
     for argv in (["--modes", "none,tau"], ["--modes", "none", "tau"]):
         assert cm.main([*argv, "--report-only", "--phases", "2", "--durations", "0.025", "--no-progress",
                         "--store", str(tmp_path / "none.jsonl"), "--json", str(tmp_path / "m.json")]) == 0

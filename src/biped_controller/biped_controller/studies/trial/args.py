@@ -114,14 +114,16 @@ class _ModesAction(argparse.Action):
         setattr(namespace, self.dest, modes)
 
 
-def add_modes_arg(a: argparse.ArgumentParser, default: tuple[str, ...] | None, default_text: str) -> None:
+def add_modes_arg(a: argparse.ArgumentParser, default: tuple[str, ...] | None, default_text: str,
+                  controller: bool = True) -> None:
     """``--modes``, one syntax for every study: the built-in modes comma-separated (``--modes both,tau``, the
     documented form); several words are accepted too and joined (``--modes both tau``, ``--modes both,tau p``:
     the form of earlier command lines, kept so that every recorded command still runs). Each mode known,
-    each once; the value is a tuple of mode names (``default`` when the option is not given)."""
+    each once; the value is a tuple of mode names (``default`` when the option is not given). ``controller``:
+    the command also takes ``--controller`` (the help points there for other controllers)."""
     a.add_argument("--modes", nargs="+", type=modes_arg, action=_ModesAction, default=default, metavar="MODES",
                    help=f"built-in modes, comma-separated (e.g. both,tau; any of {','.join(MODES)}); default "
-                        f"{default_text}; other controllers: --controller")
+                        f"{default_text}" + ("; other controllers: --controller" if controller else ""))
 
 
 def controller_arg(text: str) -> str:
