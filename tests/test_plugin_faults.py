@@ -249,6 +249,8 @@ def test_trial_record_seed_and_fault_kind():
     are completed on load, the kind read back from a fault's reason."""
     rec = trials.survives(paper_push(40.0), "none", DEFAULT_SETTINGS)
     assert rec["seed"] is None and rec["fault_kind"] is None and rec["survived"]
+    noisy = trials.survives(paper_push(40.0), "none", RunSettings(perturbation=PlantPerturbation(noise_q=1e-4, seed=3)))
+    assert noisy["seed"] == 3 and noisy["fault_kind"] is None
     assert record.seed_of(PlantPerturbation(noise_q=1e-4, seed=7)) == 7
     assert record.seed_of(PlantPerturbation(torso_mass_scale=1.1, seed=7)) is None
     assert record.seed_of(RunSettings().perturbation) is None
