@@ -64,6 +64,13 @@ class FiveTorques(NaNLater):
         return ControlResult(np.zeros(5))
 
 
+class BadInit(NaNLater):
+    """Its constructor raises."""
+
+    def __init__(self, setup):
+        raise ValueError("no gains given")
+
+
 NAN = f"{__name__}:NaNLater"
 FIVE = f"{__name__}:FiveTorques"
 
@@ -179,6 +186,8 @@ def test_check_runs_one_period(capsys):
     assert "six finite torques [" in out and "not caught here" in out and "np." not in out
     assert controllers_cli.main(["check", NAN, "--time", "0.3"]) == 1
     assert "non-finite torque" in capsys.readouterr().out
+    assert controllers_cli.main(["check", f"{__name__}:BadInit"]) == 1
+    assert "the constructor raised ValueError: no gains given" in capsys.readouterr().out
     assert controllers_cli.main(["check", "none"]) == 0
     assert controllers_cli.main(["check", NAN, "--time", "nan"]) == 2
 

@@ -60,14 +60,17 @@ def one_period(name: str, t: float = 0.0, options: dict | None = None) -> Contro
     ``reset(LEFT, t)``, then ``compute`` of the observation at ``t`` [s] (stamped as a run's, step 0, left
     stance) of the gait family's initial state q, q' [rad, rad/s], no IMU reading (NaN) and a zero last
     torque. Returns the checked result; raises ``interface.ControllerFault`` (wrong type, shape, a
-    non-finite torque, a malformed status, an exception) naming the controller."""
+    non-finite torque, a malformed status, an exception, the constructor's included) naming the controller."""
     from biped_model.description import LEFT
-    from biped_controller.plugin.interface import ControllerSetup, Observation, stamp_time
+    from biped_controller.plugin.interface import FAULT_KINDS, ControllerSetup, Observation, stamp_time
     from biped_controller.plugin.registry import make_controller
     from biped_controller.studies.trial.context import context
     ctx = context()
     setup = ControllerSetup(ctx.desc, ctx.family, ctx.sim_config.control_period, dict(options or {}))
-    ctrl = make_controller(name, setup)
+    try:
+        ctrl = make_controller(name, setup)
+    except Exception as exc:        # the controller's own constructor failed: its fault, named as the runs name it
+        raise ControllerFault(name, t, FAULT_KINDS[4], f"the constructor raised {type(exc).__name__}: {exc}") from exc
     q0, qd0 = ctx.family.initial_state()
     ts = stamp_time(t)
     ctrl.reset(LEFT, ts)
