@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from biped_controller.studies import provenance
-from biped_controller.studies.trial.args import StudyArgumentParser, modes_arg
+from biped_controller.studies.trial.args import StudyArgumentParser, add_modes_arg
 
 
 def map_comparison(boundaries: list[dict], base: str = "both", modes: tuple[str, ...] = ("lambda", "all")) -> dict:
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
                              formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("summary", type=Path, help="a capability map's summary JSON")
     ap.add_argument("--base", default="both")
-    ap.add_argument("--modes", type=modes_arg, default=("lambda", "all"))
+    add_modes_arg(ap, ("lambda", "all"), "lambda,all", controller=False)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     provenance.track(args.json, args=args, argv=argv)   # record of each file written (results/README.md)

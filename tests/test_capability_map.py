@@ -222,9 +222,10 @@ def test_store_rejects_a_malformed_middle_line(tmp_path):
     q = tmp_path / "q.jsonl"
     q.write_text('{"a": 1}\n{"b": 2}')                # complete last record without its newline
     s = cm.RecordStore(q)
-    assert s.load() == [{"a": 1}, {"b": 2}]
+    new = {"seed": None, "fault_kind": None}      # the trial record's fields, filled on load (trial.record)
+    assert s.load() == [{"a": 1, **new}, {"b": 2, **new}]
     s.append([{"c": 3}])
-    assert s.load() == [{"a": 1}, {"b": 2}, {"c": 3}]
+    assert s.load() == [{"a": 1, **new}, {"b": 2, **new}, {"c": 3, **new}]
 
 
 def test_failure_cause_from_experiment_survival_reasons():

@@ -54,7 +54,7 @@ from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
 from biped_controller.core.control.controller import MODES
 from biped_controller.closed_loop import runner
-from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, finite_float,
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, controller_arg, finite_float,
                                                  nonnegative_float, positive_int, profile_arg)
 from biped_controller.studies.trial.controller import resolve
 from biped_controller.studies.trial.settings import DEFAULT_PROFILE, RunSettings, parse_overrides
@@ -180,7 +180,8 @@ def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE,
                                  else no_fall_edge(m["trials"]))     # a table of the coarse-only search
                 out[f"{plant}/{obs}/{mode}"] = dict(max_force=m["max_force"], failure=m["failure_cause"], no_fall=lo,
                                                     first_fall=hi, fall_cause=cause, islands=m["islands"])
-                cells.append((f"{m['max_force']:g} ({m['failure_cause']})", f"{lo:g}, {hi:g} N {cause}" if hi else f"> {lo:g}"))
+                cells.append((f"{m['max_force']:g} ({m['failure_cause']})", "undefined (controller fault)" if lo is None
+                              else f"{lo:g}, {hi:g} N {cause}" if hi else f"> {lo:g}"))
             paper = data[("rigid", obs)][mode]["paper"]
             L.append(f"| {obs} | {mode} | {paper if paper else '-'} | {cells[0][0]} | {cells[1][0]} | {cells[0][1]} | {cells[1][1]} |")
     return "\n".join(L), out
@@ -292,8 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     w = sub.add_parser("walk")
     w.add_argument("--steps", type=positive_int, default=20)
-    w.add_argument("--modes", nargs="+", choices=MODES, default=None,
-                   help="default both tau p none, or none with --controller")
+    add_modes_arg(w, None, "both,tau,p,none without --controller; with --controller, only the controllers given")
     w.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
                    help="a registered controller's walk on both plants (repeatable), beside the --modes given")
     w.add_argument("--json", type=Path, default=None)
@@ -334,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
             settings = parse_overrides((), profile=a.profile)
         except SETTINGS_ERRORS as exc:
             ap.error(str(exc))
-        modes = list(dict.fromkeys((a.modes if a.modes is not None else ([] if a.controller else
+        modes = list(dict.fromkeys((list(a.modes) if a.modes is not None else ([] if a.controller else
                                                                           ["both", "tau", "p", "none"]))
                                    + list(a.controller)))
         rows = [walk_row(pl, m, a.steps, settings) for m in modes for pl in PLANTS]

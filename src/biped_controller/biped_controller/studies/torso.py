@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from biped_sim.plant.push import Push
-from biped_controller.studies.trial.args import (StudyArgumentParser, modes_arg, nonnegative_float,
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, nonnegative_float,
                                                  positive_float, positive_int)
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
@@ -112,7 +112,8 @@ def main(argv=None) -> int:
         a.add_argument("--start", type=nonnegative_float, default=DEFAULT_START, help="[s]")
         a.add_argument("--duration", type=positive_float, default=DEFAULT_DURATION, help="[s]")
         a.add_argument("--backward", action="store_true", help="push on the chest (negative force)")
-        a.add_argument("--modes", type=modes_arg, default=("both", "lambda", "all") if name == "cost" else ("both", "all"))
+        add_modes_arg(a, ("both", "lambda", "all") if name == "cost" else ("both", "all"),
+                      "both,lambda,all" if name == "cost" else "both,all", controller=False)
         a.add_argument("--steps", type=positive_int, default=12, help="impacts to walk")
         a.add_argument("--json", type=Path)
         if name == "figure":
