@@ -84,29 +84,13 @@ from benchmarks.lockstep import _LINE  # noqa: E402  the simulator's "run over: 
 from benchmarks.proc_cpu import TreeCpu  # noqa: E402
 from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
+from benchmarks.domain import Domain
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
 LAYOUT_TOPICS = ('/sim/state', '/joint_states', '/tf')
-PROBES: list = []        # the DDS probe of each run, newest last (benchmarks.bridge_profile starts py-spy on its first state)
+PROBES: list = []        # the DDS probe of each run, newest last (lab.benchmarks.bridge_profile starts py-spy on its first state)
 CLIENT_CPU = {'s': 0.0}   # CPU s of the last client's thread (asyncio + websockets), connect to close
 START_DELAY = 2.0   # s between "graph connected" and the first state: the client subscribes meanwhile
-
-
-class Domain:
-    """A free ROS_DOMAIN_ID (domain_coordinator's port lock) and an environment inside it."""
-
-    def __enter__(self):
-        from domain_coordinator import domain_id
-        self._cm = domain_id()
-        self.id = self._cm.__enter__()
-        env = dict(os.environ, ROS_DOMAIN_ID=str(self.id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-        env.pop('ROS_STATIC_PEERS', None)
-        env.pop('ROS_LOCALHOST_ONLY', None)
-        self.env = env
-        return self
-
-    def __exit__(self, *exc):
-        self._cm.__exit__(*exc)
 
 
 def node_name(words: list[str]) -> str | None:
@@ -222,7 +206,7 @@ class _FileFlag:
 
 class Marker:
     """A run's start flag (``first.is_set()``): the probe's first ``/sim/state``, or the client's first message
-    frame in a run without the probe. ``PROBES`` holds one per run (``benchmarks.bridge_profile`` starts py-spy then)."""
+    frame in a run without the probe. ``PROBES`` holds one per run (``lab.benchmarks.bridge_profile`` starts py-spy then)."""
 
     def __init__(self, first):
         self.first = first

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from benchmarks.lockstep import measure
-from benchmarks.run import Domain
+from benchmarks.domain import Domain
 from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
 

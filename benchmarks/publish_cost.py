@@ -216,7 +216,7 @@ def main(argv=None) -> int:
     if not a.lockstep_only:
         _per_type(a, summary)
     if a.lockstep_pairs:
-        from benchmarks.run import Domain
+        from benchmarks.domain import Domain
         from benchmarks.lockstep import measure
         runs = []
         for k in range(a.lockstep_pairs):

@@ -192,3 +192,28 @@ def test_least_violation_is_finite_on_degenerate_instances():
     qp_exact: minimum-norm Newton step on a numerically singular piece)."""
     bad = _nonfinite_least_violation_cases()
     assert not bad, f"{len(bad)} instance(s), e.g. {bad[0][4]}"
+
+
+# ------------------------------------------------------------------------------------------ bench --controller
+# scripts/bench as its user runs it (a subprocess from the repository root): no test imports benchmark code.
+def _bench(*args: str, timeout: float = 600):
+    return subprocess.run([sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.slow
+def test_bench_controller_runs_the_plugin_bench(tmp_path):
+    """``benchmarks.run --controller NAME --quick`` is the plug-in bench of NAME at 1 step, 1 repeat, written
+    to --json (the plug-in bench's figures and keys, not the sections')."""
+    out = tmp_path / "plugin.json"
+    p = _bench("benchmarks.run", "--controller", "capture_point", "--quick", "--json", str(out))
+    assert p.returncode == 0, p.stderr[-3000:]
+    R = json.loads(out.read_text())
+    assert (R["meta"]["steps"], R["meta"]["repeats"]) == (1, 1)
+    assert "plugin_capture_point" in R["variants"] and R["keys"]["plugin.capture_point.realtime_factor"] > 0
+    assert "controller" not in R and "hard_run" not in R
+
+
+def test_bench_unknown_controller_is_an_error_naming_it():
+    for mod in ("benchmarks.run", "benchmarks.plugin_bench"):
+        p = _bench(mod, "--controller", "no_such_controller")
+        assert p.returncode == 2 and "no_such_controller" in p.stderr, (mod, p.returncode, p.stderr[-2000:])

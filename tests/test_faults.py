@@ -77,7 +77,7 @@ def test_bad_parameter_exits_2_naming_it(ros_domain, other_robot, pkg, name, par
 
 
 STOP_BOUND = 5.0   # wall s the other nodes may take to be gone after one died: generous for a loaded 2-core
-                   # machine; the launcher's own figure is measured by benchmarks/launch_fault_stop.py
+                   # machine; the launcher's own figure is measured by lab/benchmarks/launch_fault_stop.py
 
 
 class _Walk:

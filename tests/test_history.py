@@ -35,8 +35,7 @@ MUJOCO = ts.parse_overrides(["plant=mujoco"])
 def leaky_updates(monkeypatch) -> None:
     """The negative control: every held PIQP object set up on its first solve and then only updated (the
     behaviour before the fix: the previous instance's scaling left in the object's data)."""
-    from benchmarks.piqp_setup import held_update_run
-    monkeypatch.setattr(qp.AdaptationQP, "_run", held_update_run)
+    monkeypatch.setattr(qp.AdaptationQP, "_run", qp.held_update_run)
 
 
 def same_answer(a, b) -> bool:
@@ -158,26 +157,3 @@ def test_rigid_trials_are_the_same_alone_and_after_other_trials():
     random.Random(3).shuffle(order)
     for s in order:
         assert trials.survives(pushes[s], s[0], ts.DEFAULT_SETTINGS, pool=pool) == alone[s], s
-
-
-def test_replay_reports_changed_records_and_skips_other_fingerprints():
-    """``sweep_check replay`` on a small rigid store: a record as the map wrote it replays unchanged, one
-    with a field edited is reported changed (old, new, relative change), one of another fingerprint is
-    counted and not replayed; no record depends on the trials replayed before it."""
-    from biped_controller.studies.capmap.spec import MapSpec
-    from biped_controller.studies.capmap.store import fingerprint
-    from biped_controller.studies.sweep_check import replay
-    fp = fingerprint(MapSpec(modes=("both",), settings=ts.DEFAULT_SETTINGS, neighbours=False, island_window=0))
-    a = dict(task.simulate(SimSpec(Cell("both", "forward", 0.25, 0.025), 700.0), pool=runner.LoopPool()),
-             fingerprint=fp)
-    b = dict(task.simulate(SimSpec(Cell("both", "backward", 0.5, 0.025), 900.0), pool=runner.LoopPool()),
-             fingerprint=fp)
-    edited = dict(b, min_p=b["min_p"] * (1 + 1e-9))
-    other = dict(a, fingerprint="0" * 16)
-    out = replay([a, edited, other], ts.DEFAULT_SETTINGS)
-    assert (out["replayed"], out["other_fingerprint"], out["history_dependent"]) == (2, 1, [])
-    assert [c["key"] for c in out["changed"]] == [["both", "backward", 0.5, 0.025, 900.0]]
-    ch = out["changed"][0]["fields"]
-    assert list(ch) == ["min_p"] and ch["min_p"]["new"] == b["min_p"]
-    assert ch["min_p"]["relative"] == pytest.approx(1e-9, rel=1e-3)
-    assert out["outcome_changed"] == 0 and out["changed_fields"]["min_p"]["records"] == 1

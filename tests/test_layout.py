@@ -7,7 +7,9 @@
   (never the plant or the ROS plumbing), the studies the plant too, the nodes whatever they serve;
   inside the controller core, the QP below the sensing below the control law (a room named in
   ``ROOMS`` admits its sub-rooms: ``biped_controller.core`` stands for all three);
-- no circular imports between the project's modules.
+- no circular imports between the project's modules;
+- the product apart from the lab: no module of ``src/`` and no file of ``tests/`` imports ``lab`` (the
+  investigations) or ``benchmarks`` (what ``scripts/bench`` runs); a test of either runs it as its user does.
 
 The checker is exercised on a small synthetic package first (negative controls), so a checker that
 finds nothing cannot pass silently.
@@ -230,3 +232,46 @@ def test_room_checker_finds_planted_violations():
 
 def test_rooms_import_only_the_rooms_below_them():
     assert room_violations(collect(PACKAGES), ROOMS) == []
+
+
+# ------------------------------------------------------------------------------------------ the lab apart
+#: top-level packages of the repository that are not the product: neither src/ nor tests/ imports them
+OUTSIDE_PRODUCT = ("lab", "benchmarks")
+TESTS = ROOT / "tests"
+
+
+def files_imports(tests: Path) -> dict[str, set[str]]:
+    """Every ``.py`` file under ``tests`` -> the modules it imports (anywhere in the file), keyed by its path
+    relative to ``tests``' parent."""
+    return {str(f.relative_to(tests.parent)): module_imports(f, f.stem) for f in sorted(tests.rglob("*.py"))}
+
+
+def outside_imports(graph: dict[str, set[str]], outside=OUTSIDE_PRODUCT) -> list[str]:
+    """``name imports X`` for each import in ``graph`` (module or file -> imported names) whose top-level
+    package is one of ``outside``."""
+    return [f"{m} imports {i}" for m, imps in sorted(graph.items()) for i in sorted(imps)
+            if i.split(".")[0] in outside]
+
+
+def test_lab_checker_finds_planted_imports(tmp_path):
+    """Negative control: a synthetic product package and tests folder, each with an import of lab or
+    benchmarks (one inside a function, one ``from X import``), are found; the clean files are not named."""
+    pkg = tmp_path / "biped_sim"
+    tests = tmp_path / "tests"
+    pkg.mkdir()
+    tests.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "clean.py").write_text("import numpy\nfrom . import other\n")
+    (pkg / "other.py").write_text("def f():\n    from lab.sweep_check import replay\n")
+    (tests / "test_clean.py").write_text("import subprocess\nARGS = ['-m', 'benchmarks.run']\n")
+    (tests / "test_bad.py").write_text("from benchmarks import run\n\n\ndef test_x():\n    import lab\n")
+    found = outside_imports(collect({"biped_sim": pkg})) + outside_imports(files_imports(tests))
+    assert "biped_sim.other imports lab.sweep_check" in found, found
+    assert "tests/test_bad.py imports benchmarks" in found and "tests/test_bad.py imports lab" in found, found
+    assert not any(s.startswith(("biped_sim.clean", "tests/test_clean.py")) for s in found), found
+
+
+def test_product_and_tests_import_neither_lab_nor_benchmarks():
+    assert len(files_imports(TESTS)) >= 50
+    assert outside_imports(collect(PACKAGES)) == []
+    assert outside_imports(files_imports(TESTS)) == []

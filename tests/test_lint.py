@@ -1,4 +1,4 @@
-"""Lint: ``ruff check src tests benchmarks`` with the repository's ``ruff.toml`` (pyflakes-class F rules)
+"""Lint: ``ruff check src tests benchmarks lab examples`` with the repository's ``ruff.toml`` (pyflakes-class F rules)
 finds nothing. A negative control first: the same ruff and configuration flag a planted undefined name and
 an unused import, so a ruff that checks nothing cannot pass silently."""
 from __future__ import annotations
@@ -26,6 +26,6 @@ def test_ruff_flags_planted_errors(tmp_path):
     assert "F401" in r.stdout, r.stdout
 
 
-def test_ruff_finds_nothing_in_src_tests_benchmarks():
-    r = ruff_check("src", "tests", "benchmarks")
+def test_ruff_finds_nothing_in_src_tests_benchmarks_lab_examples():
+    r = ruff_check("src", "tests", "benchmarks", "lab", "examples")
     assert r.returncode == 0, f"ruff findings:\n{r.stdout}{r.stderr}"

@@ -193,26 +193,6 @@ def test_plant_compare_unknown_controller_is_an_error(capsys):
         assert e.value.code == 2 and "no_such_controller" in capsys.readouterr().err
 
 
-# ------------------------------------------------------------------------------------------ bench
-def test_bench_controller_runs_the_plugin_bench(monkeypatch, tmp_path):
-    import benchmarks.plugin_bench as pb
-    from benchmarks import run as bench
-    got = []
-    monkeypatch.setattr(pb, "main", lambda argv: got.append(argv) or 0)
-    out = tmp_path / "plugin.json"
-    assert bench.main(["--controller", "capture_point", "--quick", "--json", str(out)]) == 0
-    assert got == [["--json", str(out), "--controller", "capture_point", "--steps", "1", "--repeats", "1"]]
-
-
-def test_bench_unknown_controller_is_an_error_naming_it(capsys):
-    from benchmarks import plugin_bench
-    from benchmarks import run as bench
-    for main in (bench.main, plugin_bench.main):
-        with pytest.raises(SystemExit) as e:
-            main(["--controller", "no_such_controller"])
-        assert e.value.code == 2 and "no_such_controller" in capsys.readouterr().err
-
-
 def test_resolve_refuses_a_non_string():
     with pytest.raises(UnknownControllerError):
         resolve(None)

@@ -1,8 +1,8 @@
-"""Results and the documents that cite them: every repository path README.md, DESIGN.md and docs/*.md
-cite exists, every file under results/ has a complete provenance record, and benchmarks/ holds code only.
+"""Results and the documents that cite them: every repository path README.md, DESIGN.md, docs/*.md and
+lab/README.md cite exists, every file under results/ has a complete provenance record, and benchmarks/ holds code only.
 
 A cited path is a markdown link's target (relative to the document) or a token of inline code or of a
-fenced code block starting with a top-level directory of the repository (``results/``, ``docs/``, ``benchmarks/``, ``src/``, ``config/``,
+fenced code block starting with a top-level directory of the repository (``results/``, ``docs/``, ``benchmarks/``, ``lab/``, ``src/``, ``config/``,
 ``scripts/``, ``tests/``). ``{a,b}`` alternatives are expanded; ``*``, ``<name>`` and a lone capital letter between separators
 (``table_P_observer_O.json``: placeholders) match any name, and at least one file must match.
 ``git show COMMIT:PATH`` cites a file of the history: that object must exist.
@@ -19,7 +19,7 @@ import pytest
 from biped_controller.studies.provenance import FIELDS, PROVENANCE_FILE, UNKNOWN, read_records
 
 ROOT = Path(__file__).resolve().parents[1]
-TOP = ("results/", "docs/", "benchmarks/", "src/", "config/", "scripts/", "tests/")
+TOP = ("results/", "docs/", "benchmarks/", "lab/", "src/", "config/", "scripts/", "tests/")
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 CODE = re.compile(r"`([^`\n]+)`")
 GIT_SHOW = re.compile(r"git show ([0-9a-f]{7,40}):(\S+)")
@@ -27,7 +27,8 @@ PLACEHOLDER = re.compile(r"(?<=[_/])[A-Z](?=[_.])")
 
 
 def documents(root: Path = ROOT) -> list[Path]:
-    return [p for p in (root / "README.md", root / "DESIGN.md") if p.exists()] + sorted((root / "docs").glob("*.md"))
+    return [p for p in (root / "README.md", root / "DESIGN.md") if p.exists()] + sorted((root / "docs").glob("*.md")) \
+        + [p for p in (root / "lab" / "README.md",) if p.exists()]
 
 
 def _expand(path: str) -> list[str]:

@@ -191,9 +191,15 @@ def _hms(seconds: float) -> str:
 
 class ProgressBar:
     """``label [####....] done/total sims (R resumed), rate sims/s, time left`` on a terminal (redrawn in
-    place), or one line every ``interval`` seconds otherwise (log files); ``stream`` None: silent. The
-    total may be an estimate (bisection steps are counted before they are known); the rate counts this
-    run's simulations."""
+    place), or one line every ``interval`` seconds otherwise (log files); ``stream`` None: silent. The rate
+    counts this run's simulations; the time left is the remaining simulations (an estimate where bisection
+    steps are counted before they are known) over that rate.
+
+    What the bar is drawn over: with ``count`` = (done, total, words) given to :meth:`update`, a count whose
+    total does not change during the run (the capability map's cells; the max-push search's simulations
+    against the most its search can need), written ``done/total words``; without it, the simulations
+    against their estimated total (run + resumed + remaining), which moves as bisections are found
+    shorter or longer than estimated."""
 
     def __init__(self, stream: TextIO | None = sys.stderr, interval: float = 30.0, width: int = 28,
                  label: str = "capability map"):
@@ -206,15 +212,22 @@ class ProgressBar:
         self.last = -math.inf
         self.line = ""
 
-    def update(self, run: int, resumed: int, remaining: int, force: bool = False) -> None:
+    def update(self, run: int, resumed: int, remaining: int, force: bool = False,
+               count: tuple[int, int, str] | None = None) -> None:
+        """``run`` simulations run now, ``resumed`` found stored, ``remaining`` still to run (estimated);
+        ``count``: (done, total, words), the stable count the bar is drawn over (class docstring)."""
         now = time.perf_counter()
         el = now - self.t0
         rate = run / el if el > 0 else 0.0
-        total = run + resumed + remaining
-        k = int(self.width * (run + resumed) / max(total, 1))
         left = remaining / rate if rate > 0 else math.inf
-        self.line = (f"{self.label} [{'#' * k}{'.' * (self.width - k)}] {run + resumed}/{total} sims "
-                     f"({resumed} resumed) {rate:.2f} sims/s, elapsed {_hms(el)}, left ~{_hms(left)}")
+        if count is None:
+            done, total = run + resumed, run + resumed + remaining
+            what = f"sims ({resumed} resumed)"
+        else:
+            done, total, what = count
+        k = int(self.width * min(done, total) / max(total, 1))
+        self.line = (f"{self.label} [{'#' * k}{'.' * (self.width - k)}] {done}/{total} {what} "
+                     f"{rate:.2f} sims/s, elapsed {_hms(el)}, left ~{_hms(left)}")
         if self.stream is None or (not force and now - self.last < self.interval):
             return
         self.last = now
@@ -228,19 +241,24 @@ class ProgressBar:
 
 
 class CountingBar:
-    """A progress bar over a known number of simulations: ``counter()`` after each one (``n`` at once),
-    ``counter.add(k)`` when more become known."""
+    """A progress bar over simulations counted against a fixed ``total``, the most the work can need (its
+    ``why``, e.g. "80 coarse + at most 16 bisection", is shown beside it): ``counter()`` after each one
+    (``n`` at once). The total does not change during the run, so the bar may end short of it (the steps
+    that were not needed); ``counter.add(k)`` raises it when more work becomes known."""
 
-    def __init__(self, total: int, bar: ProgressBar):
-        self.total, self.done, self.bar = total, 0, bar
+    def __init__(self, total: int, bar: ProgressBar, why: str = ""):
+        self.total, self.done, self.bar, self.why = total, 0, bar, why
+
+    def _count(self) -> tuple[int, int, str]:
+        return (self.done, self.total, "sims" + (f" (at most {self.total}: {self.why})" if self.why else ""))
 
     def __call__(self, n: int = 1) -> None:
         self.done += n
-        self.bar.update(self.done, 0, max(self.total - self.done, 0))
+        self.bar.update(self.done, 0, max(self.total - self.done, 0), count=self._count())
 
     def add(self, k: int) -> None:
         self.total += k
 
     def close(self) -> None:
-        self.bar.update(self.done, 0, 0, force=True)
+        self.bar.update(self.done, 0, 0, force=True, count=self._count())
         self.bar.close()

@@ -265,7 +265,7 @@ class GuardedController:
             raise ControllerFault(self.name, obs.t, FAULT_KINDS[1],
                                   f"torque has shape {torque.shape}, expected ({N_JOINTS},)")
         if not np.all(np.isfinite(torque)):
-            bad = [i + 1 for i in np.flatnonzero(~np.isfinite(torque))]
+            bad = ", ".join(str(int(i) + 1) for i in np.flatnonzero(~np.isfinite(torque)))   # plain numbers
             raise ControllerFault(self.name, obs.t, FAULT_KINDS[2], f"torque {torque.tolist()} (joints {bad})")
         return ControlResult(torque, self._status(out.status, obs.t), out.record)
 

@@ -8,12 +8,8 @@ figure ``push_<F>N.png``: p, tau', the whole-body QP's active rows, |w - w*| and
 over time. ``--profile`` and ``--set`` take the names and keys of ``scripts/experiment`` (e.g. the plant rule
 ``liftoff_penetration``, or ``plant=mujoco``).
 
-``python -m biped_controller.studies.baseline_wbc --slice-map SUMMARY [SUMMARY ...] [--json F] [--figure F]``
-prints the 25 ms capability-map slice per (mode, direction, onset phase) and checks the goal
-hybrid >= max(both, wbc) cell by cell, on the maps' boundaries (``scripts/capability_map --json`` summaries
-of one plant: the largest survived force below the lowest failing one, bisected, under the one survival rule;
-the summaries' cells are merged, so one map per mode will do, and a cell given twice is an error naming it).
-``--slice-rigid`` is the same option's former name.
+The 25 ms capability-map slice of modes none / wbc / both / hybrid and its goal check (hybrid >= max(both,
+wbc)), once ``--slice-map`` here, is ``python -m lab.wbc_slice`` (``lab/README.md``).
 """
 from __future__ import annotations
 
@@ -120,118 +116,6 @@ def figure(runs: dict, push: Push, path: Path, plant: str = "rigid") -> None:
     plt.close(fig)
 
 
-SLICE_MODES = ("none", "wbc", "both", "hybrid")
-
-
-def map_slice(summaries: list[tuple[str, dict]]) -> dict:
-    """{(mode, direction, phase): {force, cause, fall_time, islands}} from capability-map summaries (their 0.025 s
-    boundaries), given as (name, summary) pairs. Raises ValueError naming the summary and the cell when a
-    cell comes twice, or when the summaries are of different plants (``settings.differs.plant``, rigid when
-    absent)."""
-    plants = {name: summary_plant(s) for name, s in summaries}
-    if len(set(plants.values())) > 1:
-        raise ValueError("--slice-map: the summaries are of different plants: "
-                         + ", ".join(f"{n} ({p})" for n, p in plants.items()))
-    cells: dict = {}
-    for name, summary in summaries:
-        for b in summary["boundaries"]:
-            if abs(float(b["duration"]) - DEFAULT_DURATION) > 1e-12:
-                continue
-            key = (b["mode"], b["direction"], float(b["phase"]))
-            if key in cells:
-                raise ValueError(f"--slice-map: {name} gives the cell {key[0]} {key[1]} phase {key[2]:g} a second time")
-            cells[key] = {"force": float(b["force"]), "cause": b["cause"], "fall_time": b["fall_time"],
-                          "islands": b["island_ranges"]}
-    return cells
-
-
-def summary_plant(summary: dict) -> str:
-    """The plant a capability-map summary was measured on (its settings' differences; rigid, the default,
-    when they name none)."""
-    return str(((summary.get("settings") or {}).get("differs") or {}).get("plant", "rigid"))
-
-
-def slice_report(cells: dict, title: str) -> tuple[list[str], dict]:
-    """Markdown rows (mode x direction over the onset phases, means) and the goal check per cell:
-    hybrid >= max(both, wbc) where the three are known."""
-    phases = sorted({k[2] for k in cells})
-    L = [f"### {title}", "", "| mode | dir | " + " | ".join(f"{p:g}" for p in phases) + " | mean |",
-         "| --- | --- | " + " | ".join("---:" for _ in phases) + " | ---: |"]
-    for d in ("forward", "backward"):
-        for m in SLICE_MODES:
-            vals = [cells.get((m, d, p), {}).get("force") for p in phases]
-            if all(v is None for v in vals):
-                continue
-            known = [v for v in vals if v is not None]
-            L.append(f"| {m} | {d[:4]} | " + " | ".join("-" if v is None else f"{v:g}" for v in vals)
-                     + f" | {np.mean(known):.1f} ({len(known)}) |")
-    goal = {"met": [], "missed": [], "unknown": []}
-    for d in ("forward", "backward"):
-        for p in phases:
-            v = {m: cells.get((m, d, p), {}).get("force") for m in ("wbc", "both", "hybrid")}
-            if any(x is None for x in v.values()):
-                goal["unknown"].append([d, p])
-            elif v["hybrid"] >= max(v["both"], v["wbc"]):
-                goal["met"].append([d, p])
-            else:
-                goal["missed"].append([d, p, v])
-    L += ["", f"goal hybrid >= max(both, wbc): met in {len(goal['met'])} cells, missed in {len(goal['missed'])}"
-          + "".join(f"; missed {g[0]} {g[1]:g}: " + ", ".join(f"{k} {x:g}" for k, x in g[2].items())
-                    for g in goal["missed"])
-          + f"; not measured for all three: {len(goal['unknown'])}"]
-    causes: dict = {}
-    for (m, d, p), c in cells.items():
-        if c.get("cause"):
-            causes.setdefault(m, {}).setdefault(c["cause"], 0)
-            causes[m][c["cause"]] += 1
-    L.append("first failure causes: " + "; ".join(f"{m} " + ", ".join(f"{k} {n}" for k, n in sorted(cs.items()))
-                                                  for m, cs in sorted(causes.items())))
-    return L, {"goal": goal, "causes": causes,
-               "cells": {f"{k[0]}/{k[1]}/{k[2]:g}": v for k, v in sorted(cells.items())}}
-
-
-def slice_figure(cells: dict, title: str, path: Path) -> None:
-    """Edge [N] against onset phase, one line per mode, forward and backward side by side (a missing cell
-    is a gap in its line)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    phases = sorted({k[2] for k in cells})
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    for a, d in zip(ax, ("forward", "backward")):
-        for m in SLICE_MODES:
-            v = [cells.get((m, d, p), {}).get("force") for p in phases]
-            if any(x is not None for x in v):
-                a.plot(phases, [np.nan if x is None else x for x in v], "o-", ms=3, label=m)
-        a.set_title(f"{d}, 25 ms")
-        a.set_xlabel("onset phase of the first step")
-        a.grid(alpha=0.3)
-    ax[0].set_ylabel("boundary [N]")
-    ax[0].legend(fontsize=8)
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def slice_main(args) -> int:
-    summaries = [(str(p), json.loads(p.read_text())) for p in args.slice_map]
-    try:
-        cells = map_slice(summaries)
-    except ValueError as e:
-        print(e, file=sys.stderr)
-        return 2
-    plant = summary_plant(summaries[0][1])
-    names = ", ".join(n for n, _ in summaries)
-    L, out = slice_report(cells, f"{plant} plant: boundary [N] ({names})")
-    if args.figure is not None:
-        slice_figure(cells, f"{plant} plant: boundary", args.figure)
-    print("\n".join(L))
-    if args.json is not None:
-        args.json.write_text(json.dumps({plant: out}, indent=1))
-    return 0
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = StudyArgumentParser(prog="python -m biped_controller.studies.baseline_wbc", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -240,14 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=nonnegative_float, default=DEFAULT_START, help="[s] onset of the push (default mid first step)")
     add_settings_args(ap, perturb=False, full_trials=False)
     ap.add_argument("--no-figure", action="store_true")
-    ap.add_argument("--slice-map", "--slice-rigid", dest="slice_map", type=Path, nargs="+", default=None,
-                    help="capability-map summary JSON(s) of one plant: the 25 ms slice and the goal check")
-    ap.add_argument("--json", type=Path, default=None, help="with --slice-*: the slice as JSON")
-    ap.add_argument("--figure", type=Path, default=None, help="with --slice-*: PNG of the edges by phase")
     args = ap.parse_args(argv)
-    provenance.track(args.json, args.figure, args.out if args.slice_map is None else None, args=args, argv=argv)   # record of each file written (results/README.md)
-    if args.slice_map is not None:
-        return slice_main(args)
+    provenance.track(args.out, args=args, argv=argv)   # record of each file written (results/README.md)
     settings = settings_from_args(ap, args)
     args.out.mkdir(parents=True, exist_ok=True)
     push = paper_push(args.force, start=args.start)

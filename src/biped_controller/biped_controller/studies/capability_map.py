@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from biped_controller.studies.capmap.driver import MapRun, record_fell, run_map, run_maps
+from biped_controller.studies.capmap.driver import MapRun, record_ends_no_fall, record_fell, run_map, run_maps
 from biped_controller.studies.capmap.executors import (DEFAULT_BATCH, PoolExecutor, RayExecutor, SerialExecutor,
                                                        make_executor)
 from biped_controller.studies.capmap.figures import figures
@@ -24,7 +24,7 @@ from biped_controller.closed_loop.executor import ProgressBar
 from biped_controller.studies.provenance import git_state
 
 __all__ = [
-    "MapRun", "record_fell", "plan_no_fall", "run_map", "run_maps", "edge_index", "search_settings", "DEFAULT_BATCH", "PoolExecutor", "RayExecutor", "SerialExecutor", "make_executor",
+    "MapRun", "record_fell", "record_ends_no_fall", "plan_no_fall", "run_map", "run_maps", "edge_index", "search_settings", "DEFAULT_BATCH", "PoolExecutor", "RayExecutor", "SerialExecutor", "make_executor",
     "figures", "cell_summary", "findings", "findings_text", "summary", "body_weight_fraction",
     "com_velocity_change", "impulse", "Boundary", "bisection_steps", "island_ranges", "plan_cell",
     "remaining_estimate", "DEFAULT_COARSE", "DEFAULT_DURATIONS", "DEFAULT_MAX", "DEFAULT_MAX_IMPULSE",

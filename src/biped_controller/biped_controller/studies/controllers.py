@@ -2,7 +2,11 @@
 
   python -m biped_controller.studies.controllers list                 the registered controllers, one a line (name, where
                                                           it comes from, module:Class, what it does)
-  python -m biped_controller.studies.controllers check NAME           load one and check it against the interface
+  python -m biped_controller.studies.controllers check NAME [--time T] [--option KEY=VALUE ...]
+                                                          load one, check it against the interface, then
+                                                          build it and run one control period on a
+                                                          synthetic observation (one_period): a fault
+                                                          there fails the check (exit 1)
   python -m biped_controller.studies.controllers max-push NAME [--plant rigid|mujoco] [--option KEY=VALUE ...]
         [--resolution 5] [--max 2000] [--coarse 50] [--start S] [--duration D] [--backward]
         [--perturb FIELD=VALUE ...] [--json FILE]
@@ -22,10 +26,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
-from biped_controller.plugin.interface import InterfaceError
+import numpy as np
+
+from biped_controller.plugin.interface import ControllerFault, ControlResult, InterfaceError
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               load_registration, registered, summary)
 
@@ -40,13 +47,52 @@ def _option(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"--option {key}: {value!r} is not a number") from None
 
 
+#: what ``check`` can and cannot tell, printed with a passed check
+CHECK_SCOPE = ("the check runs reset and one compute at one time on one state: a fault that shows only later in a run "
+               "(another time, state or stance, a touchdown) is not caught here; a run or a sweep records it as the "
+               "trial's controller fault (reason 'controller fault: ...', cause controller_fault)")
+
+
+def one_period(name: str, t: float = 0.0, options: dict | None = None) -> ControlResult:
+    """One control period of the controller ``name`` on a synthetic observation, through the same guard as
+    every run (``interface.GuardedController``): the controller built from the setup of the studies'
+    default robot (description, gait family, control period [s] of config/simulator.yaml; ``options``),
+    ``reset(t, LEFT)``, then ``compute`` of the observation at ``t`` [s] (stamped as a run's, step 0, left
+    stance) of the gait family's initial state q, q' [rad, rad/s], no IMU reading (NaN) and a zero last
+    torque. Returns the checked result; raises ``interface.ControllerFault`` (wrong type, shape, a
+    non-finite torque, a malformed status, an exception, the constructor's included) naming the controller."""
+    from biped_model.description import LEFT
+    from biped_controller.plugin.interface import FAULT_KINDS, ControllerSetup, Observation, stamp_time
+    from biped_controller.plugin.registry import make_controller
+    from biped_controller.studies.trial.context import context
+    ctx = context()
+    setup = ControllerSetup(ctx.desc, ctx.family, ctx.sim_config.control_period, dict(options or {}))
+    try:
+        ctrl = make_controller(name, setup)
+    except Exception as exc:        # the controller's own constructor failed: its fault, named as the runs name it
+        raise ControllerFault(name, t, FAULT_KINDS[4], f"the constructor raised {type(exc).__name__}: {exc}") from exc
+    q0, qd0 = ctx.family.initial_state()
+    ts = stamp_time(t)
+    ctrl.reset(ts, LEFT)
+    return ctrl.compute(Observation.frozen(ts, 0, LEFT, q0, qd0, math.nan, math.nan, np.zeros(6), LEFT))
+
+
+def _numbers(x) -> str:
+    """An array as plain numbers (no NumPy reprs)."""
+    return "[" + ", ".join(f"{float(v):.6g}" for v in x) + "]"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.controllers",
                                  description="Controllers behind the controller interface.")
     sub = ap.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="the registered controllers, one a line")
-    chk = sub.add_parser("check", help="load one controller and check it against the interface")
+    chk = sub.add_parser("check", help="load one controller, check it against the interface and run one period "
+                                        "on a synthetic observation")
     chk.add_argument("name")
+    chk.add_argument("--time", type=float, default=0.0,
+                     help="the synthetic observation's time t [s] (default 0: a run's first period)")
+    chk.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE")
     mp = sub.add_parser("max-push", help="largest survivable push at the paper's cell")
     mp.add_argument("name")
     mp.add_argument("--plant", choices=("rigid", "mujoco"), default="rigid")
@@ -85,6 +131,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.cmd == "check":
         print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
+        if not (math.isfinite(args.time) and args.time >= 0.0):
+            print(f"error: --time must be a finite time >= 0 s, got {args.time!r}", file=sys.stderr)
+            return 2
+        try:
+            out = one_period(args.name, args.time, dict(args.option))
+        except ControllerFault as exc:
+            print(f"{args.name}: FAILED: one period on a synthetic observation at t = {args.time:g} s: {exc}")
+            return 1
+        keys = ", ".join(sorted(out.status)) or "none"
+        print(f"{args.name}: one period at t = {args.time:g} s on a synthetic observation (the gait family's initial "
+              f"state, left stance): six finite torques {_numbers(out.torque)} N m, status keys: {keys}")
+        print(f"{args.name}: {CHECK_SCOPE}")
         return 0
     from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
     start = DEFAULT_START if args.start is None else args.start
@@ -109,9 +167,11 @@ def main(argv: list[str] | None = None) -> int:
                         sign=-1.0 if args.backward else 1.0)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"
     print(f"{args.name} on {args.plant}: max push {r['max_force']:g} N (first failure {ff}: "
-          f"{r['failure_cause'] or '-'}; islands {r['islands'] or '-'}; no-fall edge {r['no_fall_edge']:g} N, "
-          f"first fall {'none' if r['first_fall'] is None else format(r['first_fall'], 'g') + ' N'}; "
-          f"{trials.trials} trials)")
+          f"{r['failure_cause'] or '-'}; islands {r['islands'] or '-'}; "
+          + (f"no-fall edge {r['no_fall_undefined']}" if r.get("no_fall_undefined") else
+             f"no-fall edge {r['no_fall_edge']:g} N, "
+             f"first fall {'none' if r['first_fall'] is None else format(r['first_fall'], 'g') + ' N'}")
+          + f"; {trials.trials} trials)")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({**r, "options": dict(args.option),

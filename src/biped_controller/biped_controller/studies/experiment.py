@@ -57,8 +57,8 @@ import numpy as np
 
 from biped_controller.core.control.config import MODES
 from biped_controller.studies import single_runs
-from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, controller_arg, finite_float,
-                                                 modes_arg, nonnegative_float, positive_float, positive_int, settings_from_args)
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_settings_args, controller_arg,
+                                                 finite_float, nonnegative_float, positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.search import max_push_modes, ordering_finding, print_max_push
 from biped_controller.studies.trial.settings import differences, print_settings
@@ -143,8 +143,7 @@ def parser() -> StudyArgumentParser:
             a.add_argument("--mode", choices=MODES, default="both")
             _controller_arg(a)
         else:
-            a.add_argument("--modes", type=modes_arg, default=TABLE_MODES,
-                           help=f"comma-separated modes (default {','.join(TABLE_MODES)}; any of {','.join(MODES)})")
+            add_modes_arg(a, TABLE_MODES, f"the paper's {','.join(TABLE_MODES)}")
             a.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
                            help="a registered controller added to the table (repeatable)")
         a.add_argument("--resolution", type=positive_float, default=5.0, help="bisection resolution [N]")

@@ -33,7 +33,7 @@ from pathlib import Path
 PROVENANCE_FILE = "provenance.json"
 UNKNOWN = "unknown"
 FIELDS = ("commit", "clean", "command", "date", "load_average", "duration_s", "plant", "profile", "reconstructed")
-CODE_PATHS = ("src", "config", "robots", "benchmarks", "scripts", "requirements.txt")
+CODE_PATHS = ("src", "config", "robots", "benchmarks", "lab", "scripts", "requirements.txt")
 
 
 def _repo_root() -> Path:

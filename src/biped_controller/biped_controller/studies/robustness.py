@@ -49,13 +49,14 @@ import numpy as np
 from biped_sim.plant.perturbation import PerturbationError, PlantPerturbation
 
 from biped_controller.studies import capability_map as cmap
-from biped_controller.core.control.config import MODES
 from biped_controller.closed_loop.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.trial.survival import survival_rule
-from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, controller_arg, positive_int,
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, controller_arg, positive_int,
                                                  profile_arg)
 from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.record import faulted
+from biped_controller.studies.trial.scan import no_fall_undefined
 from biped_controller.studies.trial.controller import resolve
 from biped_controller.studies.trial.settings import (DEFAULT_PROFILE, RunSettings, differences, parse_overrides,
                                                      print_settings)
@@ -280,7 +281,8 @@ def max_push_record(run: cmap.MapRun) -> dict:
     b = cmap.cell_summary(run, cell)
     return {"max_force": b["force"], "max_force_no_fall": b["no_fall_edge"], "first_fall": b["first_fall"], "first_failure": b["first_failure"], "censored": b["censored"],
             "cause": b["cause"], "reason": b["reason"], "islands": b["islands"], "simulations": b["simulations"],
-            "resolution": run.spec.search.resolution, "coarse": run.spec.search.coarse, "scan_max": run.spec.search.fmax}
+            "resolution": run.spec.search.resolution, "coarse": run.spec.search.coarse, "scan_max": run.spec.search.fmax,
+            **({k: b[k] for k in ("no_fall_undefined",) if k in b})}
 
 
 def stored_max_push(spec: cmap.MapSpec, records: list[dict]) -> dict | None:
@@ -294,14 +296,16 @@ def stored_max_push(spec: cmap.MapSpec, records: list[dict]) -> dict | None:
     forces, b = cmap.plan_cell(spec.search, {f: bool(r["survived"]) for f, r in recs.items()})
     if b is None:
         return None
-    forces, b = cmap.plan_no_fall(spec.search, {f: cmap.record_fell(r) for f, r in recs.items()}, b)
+    forces, b = cmap.plan_no_fall(spec.search, {f: cmap.record_ends_no_fall(r) for f, r in recs.items()}, b,
+                                  {f: faulted(r) for f, r in recs.items()})
     if b is None:
         return None
     first = recs.get(b.hi) if b.hi is not None else None
     return {"max_force": b.lo, "max_force_no_fall": b.no_fall_lo, "first_fall": b.no_fall_hi, "first_failure": b.hi, "censored": b.hi is None,
             "cause": first["cause"] if first else None, "reason": first["reason"] if first else None,
             "islands": list(b.islands), "simulations": len(recs), "resolution": spec.search.resolution,
-            "coarse": spec.search.coarse, "scan_max": spec.search.fmax}
+            "coarse": spec.search.coarse, "scan_max": spec.search.fmax,
+            **({} if b.no_fall_fault is None else {"no_fall_undefined": no_fall_undefined(recs[b.no_fall_fault])})}
 
 
 def run_pushes(levels, modes, observers, store: cmap.RecordStore, executor, log=print,
@@ -352,7 +356,9 @@ def _push_cell(r: dict | None) -> str:
     if r["islands"]:
         s += " (isl. " + ", ".join(f"{x:g}" for x in r["islands"]) + ")"
     nf = r.get("max_force_no_fall")
-    if nf is not None:
+    if r.get("no_fall_undefined"):
+        s += " [no-fall edge undefined: controller fault]"
+    elif nf is not None:
         s += f" [no fall to {nf:g}]" if r.get("first_fall") is None else f" [no-fall edge {nf:g}]"
     return s
 
@@ -442,8 +448,7 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--levels", nargs="+", default=None, metavar="KEY",
                     help="level keys (default all): " + " ".join(LEVELS_BY_KEY))
-    ap.add_argument("--modes", nargs="+", choices=MODES, default=None,
-                    help=f"any of {' '.join(MODES)} (default both none, or none with --controller)")
+    add_modes_arg(ap, None, "both,none without --controller; with --controller, only the controllers given")
     ap.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
                     help="a registered controller's rows (repeatable; observer off: it is the adaptive "
                          "controller's), beside the --modes given")
@@ -486,7 +491,7 @@ def main(argv: list[str] | None = None) -> int:
         levels = _levels(args.levels)
     except (RobustnessError, PerturbationError) as exc:
         ap.error(str(exc))
-    modes = tuple(dict.fromkeys((args.modes if args.modes is not None else ([] if args.controller else ["both", "none"]))
+    modes = tuple(dict.fromkeys((list(args.modes) if args.modes is not None else ([] if args.controller else ["both", "none"]))
                                 + list(args.controller)))
     observers = tuple(o == "on" for o in args.observer)
     signal.signal(signal.SIGTERM, _terminate)

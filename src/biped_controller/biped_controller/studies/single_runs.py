@@ -145,7 +145,9 @@ def band_walk(push: Push, mode: str = "both", settings: RunSettings = DEFAULT_SE
     windows = [{"steps": [k + 1, k + W], "p": largest(x["p"] for x in per_step[k:k + W]),
                 "tau_dot": largest(x["tau_dot"] for x in per_step[k:k + W])} for k in range(len(per_step) - W + 1)]
     band = ctl.band(settings, steps)
+    fault = getattr(res, "fault", None)         # a plug-in's controller fault (the adaptive controller has none)
     return {"mode": mode, "steps": steps, "fallen": bool(res.fallen), "fall_cause": res.fall_cause or None,
+            "fault": None if fault is None else str(fault),
             "settings": differences(settings), "rule": rule.identity(), "per_step": per_step, "windows": windows,
             "end": {"p": float(p[-1]) if p is not None else None, "tau_dot": float(td[-1]) if td is not None else None},
             "band": band.as_dict(), "survival": rule.text(band)}
@@ -161,7 +163,9 @@ def _reports(res: RunResult, key: str) -> bool:
 def print_band_walk(r: dict) -> None:
     def e(x, w):
         return f"{x:{w}.3e}" if x is not None else f"{'not reported':>{w}}"
-    print(f"unpushed walk, controller {r['mode']}, {r['steps']} impacts" + (f": FELL ({r['fall_cause']})" if r["fallen"] else ""))
+    end = (f": CONTROLLER FAULT ({r['fault']})" if r.get("fault") else f": FELL ({r['fall_cause']})" if r["fallen"]
+           else "")
+    print(f"unpushed walk, controller {r['mode']}, {r['steps']} impacts" + end)
     print("step  max|p - p_d| [m]  max|tau' - 1|")
     for k, x in enumerate(r["per_step"], 1):
         print(f"{k:4d}  {e(x['p'], 16)}  {e(x['tau_dot'], 13)}")
@@ -175,12 +179,23 @@ def print_band_walk(r: dict) -> None:
 
 
 def _verdict_word(r: dict) -> str:
-    return "SURVIVED" if r["survived"] else "FELL" if r["fallen"] else "FAILED (no fall, not back on the gait)"
+    """A single run's headline word: a controller fault (no torque from then on: neither a survival nor a
+    fall) is named before the fall and the survival rule."""
+    if r.get("fault"):
+        return "CONTROLLER FAULT"
+    return "SURVIVED" if r["survived"] else "FELL" if r["fallen"] else \
+        "FAILED (no fall, not back on the gait)"
+
+
+def _verdict_line(r: dict) -> str:
+    """``WORD (reason)``: the fault's message in place of the reason's "controller fault: " prefix."""
+    reason = r["reason"].removeprefix("controller fault: ") if r.get("fault") else r["reason"]
+    return f"{_verdict_word(r)} ({reason})"
 
 
 def print_push(r: dict) -> None:
     print(f"push {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s (+ forward, on the back), mode {r['mode']}")
-    print(f"  result: {_verdict_word(r)} ({r['reason']})")
+    print(f"  result: {_verdict_line(r)}")
     print(f"  survival: {r['survival']}")
     if r["fallen"]:
         print(f"  fall: {r['fall_cause']} at t = {r['fall_time']:.4f} s: {r['fall_detail']}")
@@ -479,7 +494,7 @@ def _print_probe_reported(r: dict) -> None:
 
 def print_probe(r: dict) -> None:
     print(f"probe: {r['force']:g} N for {r['duration']:g} s at t = {r['start']:g} s, mode {r['mode']}: "
-          f"{'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})")
+          + (f"{_verdict_line(r)}" if r.get("fault") else f"{'SURVIVED' if r['survived'] else 'FAILED'} ({r['reason']})"))
     if r["fall_detail"]:
         print(f"  fall: {r['fall_detail']}")
     if r["periods"] and "qp_status" not in r["periods"][0]:

@@ -9,7 +9,7 @@ For each message:
   ``/sim/state``'s log time is its own stamp and a controller message's the step it answers. Each topic keeps its
   order in DDS, topics among themselves need not: a message repaired after a loss (a frozen or starved recorder's
   full shared-memory queue) can arrive after many later ``/clock``; taken in order it got the newest of them (0-10
-  of 928 states in 2-step real-time runs, ``benchmarks/recorder_logtime.py``; 8-250 of 300 in a loaded run of the
+  of 928 states in 2-step real-time runs, ``lab/benchmarks/recorder_logtime.py``; 8-250 of 300 in a loaded run of the
   frozen-recorder test). A ``/clock`` can be repaired late too (1 of 300 states got the step before's in a CI run
   of that test): a message is held until a ``/clock`` published at or after it has been received, at most
   ``log_time.CLOCK_WAIT`` s of wall time, then written; the bag is written in publication order. Before the first

@@ -40,7 +40,7 @@ Parameters (``bridge: {ros__parameters: {...}}``), validated at start (exit 2 na
   oldest is dropped (the SDK's ``message_backlog_size``; 20000 = 1.3 s of all 15 topics at 1 kHz,
   for a client that lags).
 - ``executor`` (``events`` | ``single_threaded``; ``config/graph.yaml``: ``events``): rclpy's C++
-  ``EventsExecutor`` or its Python ``SingleThreadedExecutor``. Measured (``benchmarks/bridge_profile``, py-spy at
+  ``EventsExecutor`` or its Python ``SingleThreadedExecutor``. Measured (``lab/benchmarks/bridge_profile``, py-spy at
   real time): on the ``SingleThreadedExecutor`` 86-90 % of the bridge's Python thread went to the
   executor's rounds (wait set rebuilt over every subscription, timer and service entity, task, callback), 9-19 %
   to ``Channel.log`` and 1-2 % to the bridge's own code; the bridge cost 0.9-1.7 ms of CPU per control step,

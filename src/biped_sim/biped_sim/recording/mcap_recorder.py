@@ -31,7 +31,7 @@ chunk is in the kernel's page cache at once:
 - a power cut (or kernel crash) also loses what the kernel had not written back yet: with ``sync`` off,
   up to the kernel's dirty-page expiry (Linux ``vm.dirty_expire_centisecs``, 30 s by default) on top;
   with ``sync`` on, every chunk is ``fdatasync``-ed when written, so the bound stays one chunk (the
-  cost of a sync per chunk is measured by ``benchmarks/recorder_durability.py``).
+  cost of a sync per chunk is measured by ``lab/benchmarks/recorder_durability.py``).
 """
 
 from __future__ import annotations

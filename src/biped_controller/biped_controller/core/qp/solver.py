@@ -528,3 +528,21 @@ def solve_with_qpsolvers(G, h, x_star, W, solver: str = "piqp", *, active_tol: f
         z = None if sol.z is None else np.array(sol.z, dtype=float, copy=True)
         return finish_result(x, G, h, ACTIVE, f"solved ({solver} via qpsolvers)", active_tol, 0, z)
     return least_violation(G, h, x_star, W, eps_reg, active_tol, prefix=f"{solver}: {why}; infeasible")
+
+
+def held_update_run(qp: AdaptationQP, solver, held: _Held):
+    """``AdaptationQP._run`` as it was before every solve was set up from its instance: a held PIQP object
+    set up (P, c, G, h_u) on its first solve, then only updated (c, G, h_u), so the previous instance's
+    scaling stays in the object's data and an answer depends on the instances solved before it. The solver
+    never calls it: it is the negative control of ``tests/test_history.py`` (patched in for
+    ``AdaptationQP._run``) and the ``update`` path of ``lab/benchmarks/piqp_setup.py``. Returns
+    (status, result) as ``_run`` does."""
+    done = qp.__dict__.setdefault("_held_set_up", {})
+    if id(solver) in done:
+        solver.update(None, qp._c, None, None, held.G, None, held.h)
+    else:
+        solver.setup(qp._P, qp._c, None, None, held.G, None, held.h, None, None)
+        done[id(solver)] = solver             # kept alive: its id stays its own
+    status = solver.solve()
+    qp.calls += 1
+    return status, solver.result

@@ -65,8 +65,12 @@ Each boundary force F [N] of a push of duration d [s] is also reported as
   * a fraction of body weight ``F / (M g)`` [-] (g from the description), the convention of humanoid
     push-recovery test suites.
 The failure cause is that of the first failing force after the bisection (hi): the simulator's fall
-cause (``tip_toe``, ``tip_heel``, ``slip``, ``take_off``, ``no_liftoff``, ``numerical``) or, without a
-fall, ``p_not_back`` / ``tau_dot_not_back`` (not back on the preferred gait) or ``time_limit``.
+cause (``tip_toe``, ``tip_heel``, ``slip``, ``take_off``, ``no_liftoff``, ``numerical``; on MuJoCo
+``body_contact``, ``hip_low``, ``foot_rotated``) or, without a fall, ``p_not_back`` / ``tau_dot_not_back``
+(not back on the preferred gait), ``time_limit``, or ``controller_fault`` (a plug-in controller returned
+what the plant cannot apply or raised: the trial is neither a survival nor a fall, its record's
+``fault_kind`` names the fault, and where the lowest force that fell or faulted faulted the cell's no-fall
+edge is undefined).
 
 Records: one JSON object per simulation, one per line (JSON Lines), appended as each simulation
 completes (:class:`RecordStore`); a rerun with the same store skips every simulation already stored for
@@ -74,7 +78,10 @@ the same *fingerprint* (sha256 of the controller and simulator settings, the rob
 family file, the survival rule (floors, band factor and window), the early stop and the push height; records of another fingerprint stay in the file
 and are ignored). The code is not fingerprinted: after a change of the controller or the simulator that
 changes results, start a new store (the summary records the git commit and the modified files). A torn last line (a run killed while writing) is cut
-off. A notebook loads the file with ``load_records(path)`` or ``pandas.read_json(path, lines=True)``.
+off. Each record carries the trial record's ``seed`` (the noise seed, null for a deterministic profile) and
+``fault_kind`` (null, or the controller fault's kind; ``trial.record``), neither in its key nor in the
+fingerprint: records of a store written before them are completed when loaded, and such a store resumes.
+A notebook loads the file with ``load_records(path)`` or ``pandas.read_json(path, lines=True)``.
 
 Executors: in-process (``--workers 1``), a local process pool (``--workers N``, default: all cores) or
 Ray (``--ray``: a local Ray instance with ``num_cpus = --workers``; ``--ray ADDRESS``: an existing

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from biped_controller.core.control.config import MODES, PAPER_MODES
+from biped_controller.core.control.config import PAPER_MODES
 from biped_controller.studies import capmap
 from biped_controller.studies.capmap.driver import run_map
 from biped_controller.studies.capmap.executors import DEFAULT_BATCH, SerialExecutor, make_executor
@@ -20,7 +20,8 @@ from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATI
                                                   MapSpec, Search, phases_of)
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.closed_loop.executor import ProgressBar
-from biped_controller.studies.trial.args import (StudyArgumentParser, add_settings_args, controller_arg, finite_float,
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_settings_args, controller_arg,
+                                                 finite_float,
                                                  positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.settings import print_settings
 from biped_controller.studies.provenance import git_state
@@ -44,9 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     ap = StudyArgumentParser(prog="scripts/capability_map", description=capmap.__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--modes", nargs="+", default=None,
-                    help=f"any of {' '.join(MODES)} (default the paper's {' '.join(PAPER_MODES)}, or none with "
-                         f"--controller)")
+    add_modes_arg(ap, None, f"the paper's {','.join(PAPER_MODES)} without --controller; with --controller, only the "
+                            f"controllers given")
     ap.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
                     help="a registered controller to map (repeatable; python -m biped_controller.studies.controllers list), "
                          "beside the --modes given")
@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     provenance.track(args.json, args.out, args.store, args=args, argv=argv)   # record of each file written (results/README.md)
     settings = settings_from_args(ap, args)
     try:
-        names = _split(args.modes) if args.modes is not None else ([] if args.controller else list(PAPER_MODES))
+        names = list(args.modes) if args.modes is not None else ([] if args.controller else list(PAPER_MODES))
         spec = MapSpec(tuple(dict.fromkeys(names + list(args.controller))), tuple(_split(args.directions)), phases_of(args.phases),
                        tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
                        args.height, settings, None if args.search is None else args.search == "neighbours")

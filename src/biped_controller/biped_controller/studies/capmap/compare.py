@@ -75,6 +75,8 @@ def _row_stats(row: Mapping[float, dict]) -> dict:
             "cells_with_no_fall_edge": agree.get("cells_with_no_fall_edge", 0),
             "cells_within_resolution_of_no_fall": agree.get("cells_boundary_within_resolution_of_no_fall", 0),
             "phases_below_no_fall": agree.get("phases_boundary_below_no_fall", []),
+            # cells whose no-fall edge is undefined (a controller fault before any fall), only when there are some
+            **({k: agree[k] for k in ("phases_no_fall_undefined",) if k in agree}),
             "boundaries": {f"{p:g}": float(row[p]["force"]) for p in phases}}
 
 
@@ -143,7 +145,7 @@ def markdown(cmp: Mapping) -> str:
         n_phases = None
         for c in p["controllers"]:
             cells_ = [plant, c]
-            within = nf = 0
+            within = nf = undefined = 0
             for d in dirs:
                 s = p["stats"][c].get(d)
                 if s is None:
@@ -155,7 +157,9 @@ def markdown(cmp: Mapping) -> str:
                            f"{p['leads'][d][c]} of {n_phases}"]
                 within += s["cells_within_resolution_of_no_fall"]
                 nf += s["cells_with_no_fall_edge"]
-            cells_.append(f"{within} of {nf}" if nf else "not searched")
+                undefined += len(s.get("phases_no_fall_undefined", []))
+            why = f"undefined in {undefined} (controller fault before any fall)" if undefined else ""
+            cells_.append((f"{within} of {nf}" + (f"; {why}" if why else "")) if nf else why or "not searched")
             lines.append("| " + " | ".join(cells_) + " |")
     lines += ["", "| plant | a vs b | forward: phases a ahead / b ahead / equal (mean a - b [N]) | "
               "backward: phases a ahead / b ahead / equal (mean a - b [N]) |", "| --- | --- | --- | --- |"]

@@ -6,6 +6,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
+from biped_controller.studies.trial.record import faulted
 from biped_controller.studies.trial.settings import check_settings
 from biped_controller.studies.capmap.search import (Boundary, coarse_edge, edge_index, plan_cell, plan_no_fall,
                                                     remaining_estimate)
@@ -35,6 +36,18 @@ class MapRun:
 def record_fell(rec: dict) -> bool:
     """A record's trial fell (the plant's fall; a trial that did not settle did not fall)."""
     return rec.get("fall_time") is not None
+
+
+def record_ends_no_fall(rec: dict) -> bool:
+    """A record's trial bounds the no-fall edge: it fell, or its controller faulted (``trial.record``: no
+    torque from the fault on, so whether it would have fallen is unknown)."""
+    return record_fell(rec) or faulted(rec)
+
+
+def _cells_count(bounds: dict, cells: list, simulated: list[int], resumed: list[int]) -> tuple[int, int, str]:
+    """The map's progress count: cells whose search (survival boundary and no-fall edge) is finished, of all
+    the cells (a total that does not change during the run), with the simulations behind them."""
+    return (len(bounds), len(cells), f"cells searched ({sum(simulated) + sum(resumed)} sims, {sum(resumed)} resumed)")
 
 
 def run_map(spec: MapSpec, executor=None, store: RecordStore | None = None, batch: int = 1,
@@ -91,7 +104,8 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                 ignored[i] += 1
     resumed = [sum(len(recs[(j, c)]) for j, c in cells if j == i) for i in range(len(specs))]
     survived = {ic: {f: bool(r["survived"]) for f, r in recs[ic].items()} for ic in cells}
-    fell = {ic: {f: record_fell(r) for f, r in recs[ic].items()} for ic in cells}
+    fell = {ic: {f: record_ends_no_fall(r) for f, r in recs[ic].items()} for ic in cells}
+    fault = {ic: {f: faulted(r) for f, r in recs[ic].items()} for ic in cells}
     needs: dict[tuple, list[float]] = {}
     bounds: dict[tuple, Boundary] = {}
     dirty = set(cells)
@@ -131,7 +145,7 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                         if ic in right:
                             dirty.add(right[ic])
                 if b is not None:          # the survival boundary found: then the no-fall edge
-                    forces, b = plan_no_fall(search, fell[ic], b)
+                    forces, b = plan_no_fall(search, fell[ic], b, fault[ic])
                 if b is not None:
                     bounds[ic] = b
                     needs.pop(ic, None)
@@ -163,7 +177,8 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                     hw = plan(ic) or (math.inf, specs[ic[0]].island_window,     # waiting: a bracket's estimate
                                       specs[ic[0]].bracket_check_below)
                     remaining += remaining_estimate(specs[ic[0]].search.for_duration(ic[1].duration), survived[ic], *hw)
-                progress.update(sum(simulated), sum(resumed), remaining)
+                progress.update(sum(simulated), sum(resumed), remaining, count=_cells_count(bounds, cells, simulated,
+                                                                                              resumed))
             if not inflight:
                 break
             for h, out in ex.wait(list(inflight)):
@@ -180,14 +195,16 @@ def run_maps(specs: Sequence[MapSpec], executor=None, store: RecordStore | None 
                     pending.discard((ic[0],) + s.key())
                     recs[ic][s.force] = r
                     survived[ic][s.force] = bool(r["survived"])
-                    fell[ic][s.force] = record_fell(r)
+                    fell[ic][s.force] = record_ends_no_fall(r)
+                    fault[ic][s.force] = faulted(r)
                     dirty.add(ic)
                 simulated[i] += len(out)
     finally:
         if executor is None:
             ex.close()
     if progress is not None:
-        progress.update(sum(simulated), sum(resumed), 0, force=True)
+        progress.update(sum(simulated), sum(resumed), 0, force=True,
+                        count=_cells_count(bounds, cells, simulated, resumed))
         progress.close()
     # a trial reads config/controller.yaml at every simulation: a file edited during the run would
     # mix settings under one fingerprint, so the fingerprint is taken again and reported

@@ -13,6 +13,7 @@ from biped_controller.core.control.config import MODES
 from biped_controller.studies.trial import stop, survival, trials
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, trial_steps
+from biped_controller.studies.trial.scan import no_fall_undefined
 from biped_controller.studies.trial.search import PAPER_MAX_PUSH
 from biped_controller.studies.trial.settings import differences
 from biped_controller.studies.capmap.driver import MapRun
@@ -23,7 +24,9 @@ from biped_controller.studies.capmap.spec import Cell, MapSpec, onset_time
 
 def cell_summary(run: MapRun, cell: Cell) -> dict:
     """One boundary, JSON-ready, with its conversions, failure cause and islands, and the no-fall edge
-    (``no_fall_edge``, ``first_fall``: None censored, and its cause) at the same resolution."""
+    (``no_fall_edge``, ``first_fall``: None censored, and its cause) at the same resolution; where the
+    lowest force that fell or faulted faulted (a plug-in controller's fault), the no-fall edge is undefined:
+    ``no_fall_edge`` and ``first_fall`` None and ``no_fall_undefined`` says why."""
     ctx = context()
     M, g = ctx.desc.total_mass, ctx.desc.gravity
     b = run.boundaries[cell]
@@ -44,6 +47,8 @@ def cell_summary(run: MapRun, cell: Cell) -> dict:
         "island_impulses": [impulse(f, d) for f in b.islands],
         "no_fall_edge": b.no_fall_lo, "first_fall": b.no_fall_hi,
         "fall_cause": first_fall["cause"] if first_fall else None,
+        **({} if b.no_fall_fault is None
+           else {"no_fall_undefined": no_fall_undefined(run.records[cell][b.no_fall_fault])}),
         "simulations": len(run.records[cell]),
     }
 
@@ -55,10 +60,14 @@ def _fmt_phases(phases: Sequence[float]) -> str:
 def no_fall_agreement(bs: Sequence[dict], resolution: float) -> dict:
     """Over cells ``bs``: the mean no-fall edge and the cells whose survival boundary is within one
     ``resolution`` [N] of the no-fall edge (a censored no-fall edge counts when the boundary is censored
-    too), with the phases of the others."""
+    too), with the phases of the others; the cells whose no-fall edge is undefined (a controller fault
+    before any fall: ``cell_summary``'s ``no_fall_undefined``) are left out of both and listed in
+    ``phases_no_fall_undefined``, present only when there are some."""
+    undefined = [b["phase"] for b in bs if b.get("no_fall_undefined")]
+    extra = {"phases_no_fall_undefined": undefined} if undefined else {}
     nf = [b for b in bs if b.get("no_fall_edge") is not None]
     if not nf:
-        return {}
+        return extra
     def close(b):
         if b["first_fall"] is None:
             return b["censored"]
@@ -66,7 +75,7 @@ def no_fall_agreement(bs: Sequence[dict], resolution: float) -> dict:
     return {"mean_no_fall_edge": sum(b["no_fall_edge"] for b in nf) / len(nf),
             "cells_with_no_fall_edge": len(nf),
             "cells_boundary_within_resolution_of_no_fall": sum(1 for b in nf if close(b)),
-            "phases_boundary_below_no_fall": [b["phase"] for b in nf if not close(b)]}
+            "phases_boundary_below_no_fall": [b["phase"] for b in nf if not close(b)], **extra}
 
 
 def findings(boundaries: Sequence[dict], resolution: float) -> dict:
@@ -152,6 +161,9 @@ def findings_text(f: dict) -> list[str]:
             lines.append(f"       no-fall edge: mean {w['mean_no_fall_edge']:.1f} N; boundary within one resolution step "
                          f"of it in {w['cells_boundary_within_resolution_of_no_fall']} of {w['cells_with_no_fall_edge']} "
                          f"cells (below it at {_fmt_phases(w['phases_boundary_below_no_fall'])})")
+        if w.get("phases_no_fall_undefined"):
+            lines.append(f"       no-fall edge: undefined at phase {_fmt_phases(w['phases_no_fall_undefined'])} (the "
+                         f"controller faulted before any fall: a faulted trial is neither a survival nor a fall)")
     if f["p_vs_tau"]:
         lines.append("p vs tau (difference > resolution):")
         for x in f["p_vs_tau"]:
@@ -208,9 +220,25 @@ def survival_bands(spec: MapSpec) -> dict:
     return {m: {str(n): trials.walk_band(m, spec.settings, n).as_dict() for n in steps} for m in spec.modes}
 
 
+def partial_rules(spec: MapSpec) -> dict:
+    """{mode: the survival rule in words with its band} for the modes whose rule is not the definition's
+    (``rule_text()``): a controller that does not report both p and tau' (``Band.checks_p``,
+    ``Band.checks_tau_dot``) is not held to the return to the gait it does not report. Empty for the
+    built-in modes (they report both)."""
+    T = context().family.T
+    n = min(trial_steps(Push(onset_time(c.phase, T), c.duration, 0.0)) for c in spec.cells())
+    out = {}
+    for m in spec.modes:
+        band = trials.walk_band(m, spec.settings, n)
+        if not (band.checks_p and band.checks_tau_dot):
+            out[m] = survival.rule_text(band)
+    return out
+
+
 def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
     """The summary JSON: the map, the robot's mass and weight, what the run did, every boundary, the
-    findings and the figures."""
+    findings and the figures. ``map.survival`` is the rule's definition; ``map.survival_by_mode``, present
+    only when some mode's rule differs from it, gives that mode's rule (:func:`partial_rules`)."""
     ctx = context()
     M, g = ctx.desc.total_mass, ctx.desc.gravity
     s = run.spec
@@ -228,6 +256,7 @@ def summary(run: MapRun, figures: Sequence[Path] = ()) -> dict:
                 "onset": f"start = phase * T of the first step, T = {ctx.family.T:g} s (walk starts at t = 0)",
                 "direction_sign": "forward = + force (on the back), backward = - force",
                 "survival": survival.rule_text(),
+                **({"survival_by_mode": rules} if (rules := partial_rules(s)) else {}),
                 "survival_bands": survival_bands(s)},
         "fingerprint": run.fingerprint,
         "settings": differences(s.settings),

@@ -21,6 +21,9 @@ class Boundary:
     full: bool = True
     no_fall_lo: float | None = None    # the no-fall edge: largest force without a fall below the first fall
     no_fall_hi: float | None = None    # the first fall found (after bisection); None: no fall up to the scan's top
+    # the lowest force that fell or faulted faulted (the controller's fault, ``trial.record``): whether it would
+    # have fallen is unknown, so the no-fall edge is undefined (``no_fall_lo``, ``no_fall_hi`` None); None: defined
+    no_fall_fault: float | None = None
 
 
 def _bisect(search: Search, survived: Mapping[float, bool], lo: float, hi: float, islands: tuple, full: bool):
@@ -169,9 +172,13 @@ def plan_cell(search: Search, survived: Mapping[float, bool], hint: float | None
     return [], st[1]
 
 
-def plan_no_fall(search: Search, fell: Mapping[float, bool], b: Boundary) -> tuple[list[float], Boundary | None]:
+def plan_no_fall(search: Search, fell: Mapping[float, bool], b: Boundary,
+                 faulted: Mapping[float, bool] | None = None) -> tuple[list[float], Boundary | None]:
     """The no-fall edge of a cell whose survival search ended in ``b``, as a pure function of its trials
-    (force [N] -> fell): either the forces still to simulate and None, or [] and ``b`` with the edge.
+    (force [N] -> fell; ``faulted``: force -> the controller faulted, a trial that counts as fallen in
+    ``fell`` too, since whether it would have fallen is unknown): either the forces still to simulate and
+    None, or [] and ``b`` with the edge. When the lowest force that fell or faulted faulted, the edge is
+    undefined: ``no_fall_lo`` and ``no_fall_hi`` None, ``no_fall_fault`` that force.
 
     A fall fails the survival rule, so no force below the survival boundary's first failing coarse force
     k0 c fell (the coarse scan found them survived; the bracket those it simulated, and assumes the
@@ -203,6 +210,8 @@ def plan_no_fall(search: Search, fell: Mapping[float, bool], b: Boundary) -> tup
             hi = mid
         else:
             lo = mid
+    if faulted is not None and faulted.get(hi, False):
+        return [], replace(b, no_fall_lo=None, no_fall_hi=None, no_fall_fault=hi)
     return [], replace(b, no_fall_lo=lo, no_fall_hi=hi)
 
 

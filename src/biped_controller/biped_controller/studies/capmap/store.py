@@ -11,7 +11,7 @@ from typing import Iterable
 
 from biped_model.settings import default_robot_dir
 
-from biped_controller.studies.trial import stop, survival
+from biped_controller.studies.trial import record, stop, survival
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import check_settings
 from biped_controller.studies.capmap.spec import MapError, MapSpec
@@ -59,9 +59,11 @@ class RecordStore:
         self.repaired_bytes = 0
 
     def load(self) -> list[dict]:
-        """Every record in the file (none if it does not exist). A last line without its newline that
-        does not parse (a write cut short) is removed from the file; any other malformed line raises
-        :class:`StoreError`."""
+        """Every record in the file (none if it does not exist), each with the trial record's ``seed`` and
+        ``fault_kind`` (``trial.record.complete``: filled in records written before they existed; the file
+        is not rewritten). A last line without its newline that does not parse (a write cut short) is
+        removed from the file; any other malformed line, or a ``seed`` or ``fault_kind`` of the wrong type,
+        raises :class:`StoreError` naming the line."""
         if not self.path.exists():
             return []
         data = self.path.read_bytes()
@@ -88,7 +90,10 @@ class RecordStore:
                 if nl < 0:       # a complete record without its newline: add it before appending
                     with open(self.path, "ab") as fh:
                         fh.write(b"\n")
-                out.append(rec)
+                try:
+                    out.append(record.complete(rec))
+                except record.TrialRecordError as exc:
+                    raise StoreError(f"{self.path}:{lineno}: {exc}") from exc
             pos = end + 1
         return out
 

@@ -58,6 +58,10 @@ def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: fl
         "survived": bool(trial["survived"]), "reason": trial["reason"], "cause": failure_cause(trial),
         "fall_time": trial["fall_time"], "steps_walked": int(trial["steps_walked"]),
         "decided_at_step": trial.get("decided_at_step"),
+        # the trial record's seed (null: nothing random drawn) and fault kind (null: no controller fault;
+        # ``trial.record``), outside the record's key and the store's fingerprint; null when the trial function
+        # does not report them
+        "seed": trial.get("seed"), "fault_kind": trial.get("fault_kind"),
         # the controller's parameter excursion over the trial (``trials.parameter_excursion``); null when the
         # trial function does not report it or it was NaN (the store is strict JSON), which
         # ``trials.out_of_range`` reports as not recorded

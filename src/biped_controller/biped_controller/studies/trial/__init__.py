@@ -11,6 +11,8 @@
 - :mod:`.plugin_trials`: the survival trials and max-push search of an interface controller through the
   generic loop (``plugin.loop``);
 - :mod:`.trials`: one survival trial (run + early stop + survival rule) of any controller;
+- :mod:`.record`: the fields every trial record carries beside its outcome (``seed``, ``fault_kind``), and their
+  completion in records stored before them;
 - :mod:`.search`: the largest survivable push (coarse scan, bisection) and its table;
 - :mod:`.summary`: the numbers of one run;
 - :mod:`.args`: the command-line pieces every study's CLI shares (settings flags, checked value types).

@@ -20,7 +20,7 @@ from biped_controller.studies.trial.survival import survival_rule
 
 __all__ = ["StudyArgumentParser", "add_settings_args", "settings_from_args", "SETTINGS_ERRORS", "finite_float",
            "positive_float", "nonnegative_float", "positive_int", "nonnegative_int", "profile_arg", "modes_arg",
-           "controller_arg"]
+           "add_modes_arg", "controller_arg"]
 
 #: the errors a bad settings flag raises (each names the key or the profile)
 SETTINGS_ERRORS = (OverrideError, ProfileError, ControllerConfigError, SimConfigError, PerturbationError, SettingsError,
@@ -100,6 +100,30 @@ def modes_arg(text: str) -> tuple[str, ...]:
     if not modes or bad or len(set(modes)) != len(modes):
         raise argparse.ArgumentTypeError(f"expected distinct modes out of {','.join(MODES)}, got {text!r}")
     return modes
+
+
+class _ModesAction(argparse.Action):
+    """``--modes`` of :func:`add_modes_arg`: the words given (each a comma-separated list, :func:`modes_arg`)
+    joined into one tuple; a mode named twice is the option's error."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        modes = tuple(m for v in values for m in v)
+        twice = sorted({m for m in modes if modes.count(m) > 1})
+        if twice:
+            parser.error(f"argument {option_string}: {', '.join(twice)} given more than once in {' '.join(','.join(v) for v in values)!r}")
+        setattr(namespace, self.dest, modes)
+
+
+def add_modes_arg(a: argparse.ArgumentParser, default: tuple[str, ...] | None, default_text: str,
+                  controller: bool = True) -> None:
+    """``--modes``, one syntax for every study: the built-in modes comma-separated (``--modes both,tau``, the
+    documented form); several words are accepted too and joined (``--modes both tau``, ``--modes both,tau p``:
+    the form of earlier command lines, kept so that every recorded command still runs). Each mode known,
+    each once; the value is a tuple of mode names (``default`` when the option is not given). ``controller``:
+    the command also takes ``--controller`` (the help points there for other controllers)."""
+    a.add_argument("--modes", nargs="+", type=modes_arg, action=_ModesAction, default=default, metavar="MODES",
+                   help=f"built-in modes, comma-separated (e.g. both,tau; any of {','.join(MODES)}); default "
+                        f"{default_text}" + ("; other controllers: --controller" if controller else ""))
 
 
 def controller_arg(text: str) -> str:

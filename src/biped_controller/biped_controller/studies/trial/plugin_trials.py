@@ -13,7 +13,8 @@ The search (``trial.search.max_push_modes``'s): forces ``coarse, 2 coarse, ..., 
 survivable force below the first failure, then the edge bisected to ``resolution`` [N]; survivable
 coarse forces above the first failure are reported as islands, and beside this strict boundary the no-fall
 edge (the largest force tried below the lowest one that fell, ``first_fall``: the plant comparison's second
-figure). One process.
+figure; undefined, None with ``no_fall_undefined`` saying why, when the lowest force that fell or faulted
+faulted: a faulted trial is neither a survival nor a fall). One process.
 """
 from __future__ import annotations
 
@@ -30,8 +31,10 @@ from biped_model.gait_family import GaitFamily
 
 from biped_controller.plugin.loop import PluginLoop
 from biped_controller.plugin.result import RunResult
+from biped_controller.studies.trial import record
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, push_step_index
-from biped_controller.studies.trial.scan import analyse_coarse, coarse_forces
+from biped_controller.studies.trial.record import faulted
+from biped_controller.studies.trial.scan import analyse_coarse, coarse_forces, no_fall_undefined
 from biped_controller.studies.trial.settings import RunSettings
 from biped_controller.studies.trial.survival import FLOOR_BAND, SURVIVAL_STEPS, Band, SurvivalRule, survival_rule
 
@@ -50,15 +53,20 @@ def _plugin_band(controller: str, settings: RunSettings, steps: int, rule: Survi
 
 def walk_band(loop: PluginLoop, steps: int, rule: SurvivalRule) -> Band:
     """The band of ``loop``'s controller from its unpushed walk of ``steps`` touchdowns (the floors when it
-    falls or faults)."""
+    falls or faults), with which of p and tau' it reports (``Band.checks_p``, ``Band.checks_tau_dot``)."""
     res = loop.run(steps, (), keep_records=True)
-    if res.fault is not None or res.fallen:
-        why = f"controller fault: {res.fault}" if res.fault is not None else f"{res.fall_cause} at t = {res.fall_time:.4f} s"
-        return replace(FLOOR_BAND, unpushed_fall=why)
+    # what the controller reports, from every status of its walk (none before a fault at its first period)
+    checks = {"checks_p": any("p" in st for st in res.statuses),
+              "checks_tau_dot": any("tau_dot" in st for st in res.statuses)}
+    if res.fault is not None:
+        return replace(FLOOR_BAND, unpushed_fault=str(res.fault), **checks)
+    if res.fallen:
+        return replace(FLOOR_BAND, unpushed_fall=f"{res.fall_cause} at t = {res.fall_time:.4f} s", **checks)
     t0 = rule.window_start(res.impacts)
     win = [st for rec, st in zip(res.records, res.statuses) if rec.t >= t0]
-    return rule.band_from_series([float(st["p"]) for st in win if "p" in st],
+    band = rule.band_from_series([float(st["p"]) for st in win if "p" in st],
                                  [float(st["tau_dot"]) for st in win if "tau_dot" in st])
+    return replace(band, **checks)
 
 
 def survival(result: RunResult, push_end: float, band: Band = FLOOR_BAND) -> tuple[bool, bool, str]:
@@ -84,6 +92,7 @@ class PushTrials:
         self.loop = PluginLoop(controller, sim_config=sim_config if sim_config is not None else load_sim_config(),
                                family=self.family, desc=desc if desc is not None else load_description(),
                                perturbation=perturbation, options=options)
+        self.perturbation = perturbation
         self.trials = 0
         self._bands: dict[tuple[int, SurvivalRule], Band] = {}
 
@@ -96,7 +105,9 @@ class PushTrials:
 
     def survives(self, force: float, duration: float = DEFAULT_DURATION, start: float = DEFAULT_START,
                  height: float | None = None) -> dict:
-        """One trial (JSON-ready): force [N], survived, reason, fall cause and time, steps walked, fault."""
+        """One trial (JSON-ready): force [N], survived, fell, reason, fall cause and time, steps walked,
+        ``fault`` (the fault's kind, None without one) and the trial record's ``seed`` and ``fault_kind``
+        (``trial.record``)."""
         steps = push_step_index(Push(start, duration, 0.0), self.family.T) + 1 + SURVIVAL_STEPS
         res = self.loop.run(steps, (Push(start, duration, float(force), height),), keep_records=False)
         self.trials += 1
@@ -104,7 +115,8 @@ class PushTrials:
         return {"force": float(force), "controller": self.loop.name, "survived": ok, "fell": fell, "reason": why,
                 "fall_cause": res.fall_cause, "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
                 "steps_walked": int(res.steps_walked),
-                "fault": None if res.fault is None else res.fault.kind}
+                "fault": None if res.fault is None else res.fault.kind,
+                "seed": record.seed_of(self.perturbation), "fault_kind": record.fault_kind_of(res.fault)}
 
     def max_push(self, resolution: float = 5.0, fmax: float = 2000.0, coarse: float = 50.0,
                  duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, height: float | None = None,
@@ -125,12 +137,16 @@ class PushTrials:
                 hi = mid
         trials.sort(key=lambda r: r["force"])
         first = next((r for r in trials if r["force"] == hi), None) if hi is not None else None
-        fell = [r["force"] for r in trials if r["fall_cause"]]
-        first_fall = min(fell) if fell else None
-        below = [r["force"] for r in trials if first_fall is None or r["force"] < first_fall]
+        ended = [r for r in trials if r["fall_cause"] or faulted(r)]     # fell, or faulted: its fall unknown
+        first_end = min(ended, key=lambda r: r["force"]) if ended else None
+        undefined = no_fall_undefined(first_end)
+        first_fall = first_end["force"] if first_end is not None and undefined is None else None
+        below = [r["force"] for r in trials if first_end is None or r["force"] < first_end["force"]]
+        no_fall_edge = None if undefined is not None else max(below) if below else 0.0
         return {"controller": self.loop.name, "plant": self.loop.scfg.plant, "max_force": lo, "first_failure": hi,
                 "failure_cause": first["reason"] if first else None, "islands": islands,
-                "first_fall": first_fall, "no_fall_edge": max(below) if below else 0.0, "resolution": resolution,
+                "first_fall": first_fall, "no_fall_edge": no_fall_edge,
+                **({} if undefined is None else {"no_fall_undefined": undefined}), "resolution": resolution,
                 "coarse_step": coarse, "scan_max": fmax, "duration": duration, "start": start, "height": height,
                 "direction": "forward" if sign > 0 else "backward", "trials": trials}
 

@@ -13,7 +13,8 @@ import sys
 
 from biped_controller.closed_loop.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.trial import trials
-from biped_controller.studies.trial.scan import analyse_coarse, coarse_forces, outcome  # noqa: F401 (the search API)
+from biped_controller.studies.trial.scan import (analyse_coarse, coarse_forces, no_fall_undefined,  # noqa: F401
+                                                outcome)  # (the search API)
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings, check_settings, differences
@@ -86,12 +87,16 @@ def _result_for(mode: str, coarse_trials: list[dict], edges: dict, fmax: float, 
     nf_lo, nf_hi, nf_isl = edges["no_fall"]
     first_fail = next((r for r in trials if r["force"] == hi), None) if hi is not None else None
     first_fall = next((r for r in trials if r["force"] == nf_hi), None) if nf_hi is not None else None
+    undefined = no_fall_undefined(first_fall)
+    if undefined is not None:               # the lowest force that fell or faulted faulted: no edge is known
+        nf_lo, nf_hi, nf_isl, first_fall = None, None, [], None
     return {
         "mode": mode, "max_force": lo, "first_failure": hi, "resolution": resolution, "coarse_step": coarse,
         "scan_max": fmax, "islands": islands, "paper": PAPER_MAX_PUSH.get(mode),
         "failure_cause": first_fail["reason"] if first_fail else None,
         "no_fall_edge": nf_lo, "first_fall": nf_hi, "no_fall_islands": nf_isl,
         "fall_cause": first_fall["reason"] if first_fall else None,
+        **({} if undefined is None else {"no_fall_undefined": undefined}),
         "trials": trials,
     }
 
@@ -110,9 +115,12 @@ def max_push_modes(modes: tuple[str, ...], resolution: float = 5.0, fmax: float 
     forces = coarse_forces(fmax, coarse)
     tasks = [(paper_push(sign * f, start=start, duration=duration, height=height), m, settings)
              for m in modes for f in forces]
-    bis_est = 2 * len(modes) * max(0, math.ceil(math.log2(max(coarse / resolution, 1.0))))
-    bar = CountingBar(len(tasks) + bis_est, ProgressBar(sys.stderr if progress else None,
-                                                        label="max-push " + ",".join(modes)))
+    # the most the search can need: every coarse force, then two bisections (survival boundary, no-fall edge)
+    # per mode, each of one coarse step halved down to the resolution (trials shared at equal forces)
+    bis_max = 2 * len(modes) * max(0, math.ceil(math.log2(max(coarse / resolution, 1.0))))
+    bar = CountingBar(len(tasks) + bis_max, ProgressBar(sys.stderr if progress else None,
+                                                        label="max-push " + ",".join(modes)),
+                      f"{len(tasks)} coarse + {bis_max} bisection")
     ex = make_executor(workers, initializer=context)
     try:
         coarse_res = ex.map(_trial, [(t,) for t in tasks], on_result=lambda r: bar())
@@ -168,7 +176,9 @@ def print_max_push(results: dict[str, dict]) -> None:
         ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g}"
         fl = "none" if r["first_fall"] is None else f"{r['first_fall']:g}"
         isl = ", ".join(f"{x:g}" for x in r["islands"]) or "-"
-        print(f"{m:<6} {r['max_force']:13g} {ff:>14} {r['no_fall_edge']:16g} {fl:>14} {paper:>9} {isl:<22} "
+        nf = "undefined" if r["no_fall_edge"] is None else f"{r['no_fall_edge']:g}"
+        fl = "-" if r["no_fall_edge"] is None else fl
+        print(f"{m:<6} {r['max_force']:13g} {ff:>14} {nf:>16} {fl:>14} {paper:>9} {isl:<22} "
               f"{r['failure_cause'] or '-'}")
     r0 = next(iter(results.values()))
     # the bracket each bisection ended with (coarse step halved until it is at most the resolution asked)
@@ -177,5 +187,8 @@ def print_max_push(results: dict[str, dict]) -> None:
     print(f"(push {r0['direction']} for {r0['duration']:g} s from t = {r0['start']:g} s at {r0['push_height']:g} m "
           f"above the hip; coarse step {r0['coarse_step']:g} N up to {r0['scan_max']:g} N, both edges bisected to a "
           f"bracket of at most {r0['resolution']:g} N: {got} N)")
+    for m, r in results.items():
+        if r.get("no_fall_undefined"):
+            print(f"no-fall edge, {m}: {r['no_fall_undefined']}")
     for m, r in results.items():
         print(f"survival, {m}: {r['survival']}")

@@ -59,13 +59,19 @@ class SurvivalSettingsError(StudySettingsError):
 class Band:
     """The end tolerances of a survival trial: |p - p_d| <= ``p_tol`` [m], |tau' - 1| <= ``tau_dot_tol``;
     ``p_excursion`` [m] and ``tau_dot_excursion`` the unpushed walk's over the window (NaN when it fell);
-    ``unpushed_fall`` the unpushed walk's fall ("" when it walked)."""
+    ``unpushed_fall`` the unpushed walk's fall ("" when it walked); ``unpushed_fault`` the controller fault
+    that ended the unpushed walk ("" without one: only a plug-in controller faults); ``checks_p``,
+    ``checks_tau_dot``: the controller reports p, tau' (the adaptive controller always does; a plug-in
+    that reports neither is judged by the fall and the step count alone, and the rule's text says so)."""
 
     p_tol: float
     tau_dot_tol: float
     p_excursion: float
     tau_dot_excursion: float
     unpushed_fall: str = ""
+    unpushed_fault: str = ""
+    checks_p: bool = True
+    checks_tau_dot: bool = True
 
     @property
     def is_floor(self) -> bool:
@@ -73,10 +79,17 @@ class Band:
         return self.p_tol == P_FLOOR and self.tau_dot_tol == TAU_DOT_FLOOR
 
     def as_dict(self) -> dict:
+        """JSON-ready; ``unpushed_fault`` and ``checks`` (which of p and tau_dot are checked) only where they
+        differ from a walk without a fault and a controller that reports both."""
         def f(x):
             return None if not math.isfinite(x) else float(x)
-        return {"p_tol": self.p_tol, "tau_dot_tol": self.tau_dot_tol, "p_excursion": f(self.p_excursion),
-                "tau_dot_excursion": f(self.tau_dot_excursion), "unpushed_fall": self.unpushed_fall}
+        out = {"p_tol": self.p_tol, "tau_dot_tol": self.tau_dot_tol, "p_excursion": f(self.p_excursion),
+               "tau_dot_excursion": f(self.tau_dot_excursion), "unpushed_fall": self.unpushed_fall}
+        if self.unpushed_fault:
+            out["unpushed_fault"] = self.unpushed_fault
+        if not (self.checks_p and self.checks_tau_dot):
+            out["checks"] = [k for k, on in (("p", self.checks_p), ("tau_dot", self.checks_tau_dot)) if on]
+        return out
 
 
 FLOOR_BAND = Band(P_FLOOR, TAU_DOT_FLOOR, math.nan, math.nan)
@@ -177,16 +190,26 @@ class SurvivalRule:
         return Verdict(True, False, "survived")
 
     def text(self, band: Band | None = None) -> str:
-        """The rule in words, with a trial's band (None: the band's definition)."""
-        head = f"no fall for {self.steps} steps after the push, then "
+        """The rule in words, with a trial's band (None: the band's definition). The end tolerances are
+        stated only for what the controller reports (``Band.checks_p``, ``Band.checks_tau_dot``); an unpushed
+        walk that ended in a controller fault is called a fault, not a fall."""
+        head = f"no fall for {self.steps} steps after the push"
         if band is None:
-            return (head + f"|p - p_d| <= max({P_FLOOR:g} m, {self.band_factor:g} e_p) and |tau' - 1| <= "
+            return (head + f", then |p - p_d| <= max({P_FLOOR:g} m, {self.band_factor:g} e_p) and |tau' - 1| <= "
                     f"max({TAU_DOT_FLOOR:g}, {self.band_factor:g} e_tau), e = the unpushed walk's largest "
                     f"excursion over its last {self.band_window} steps")
-        src = ("the floors: the unpushed walk fell (" + band.unpushed_fall + ")" if band.unpushed_fall
+        src = ("the floors: the unpushed walk faulted (" + band.unpushed_fault + ")" if band.unpushed_fault
+               else "the floors: the unpushed walk fell (" + band.unpushed_fall + ")" if band.unpushed_fall
                else "the floors" if band.is_floor
                else f"{self.band_factor:g} x the unpushed walk's excursion over its last {self.band_window} steps")
-        return head + f"|p - p_d| <= {band.p_tol:.3g} m and |tau' - 1| <= {band.tau_dot_tol:.3g} ({src})"
+        ends = ([f"|p - p_d| <= {band.p_tol:.3g} m"] if band.checks_p else []) + \
+               ([f"|tau' - 1| <= {band.tau_dot_tol:.3g}"] if band.checks_tau_dot else [])
+        if not ends:
+            why = "; the unpushed walk faulted (" + band.unpushed_fault + ")" if band.unpushed_fault else ""
+            return head + f" (the controller reports neither p nor tau': no return to the gait is checked{why})"
+        unreported = ("" if len(ends) == 2 else
+                      " (the controller does not report " + ("tau'" if band.checks_p else "p") + ": not checked)")
+        return head + ", then " + " and ".join(ends) + f" ({src})" + unreported
 
 
 @functools.lru_cache(maxsize=4)

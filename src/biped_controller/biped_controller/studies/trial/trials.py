@@ -9,7 +9,7 @@ import math
 from biped_sim.plant.push import Push
 
 from biped_controller.closed_loop import runner
-from biped_controller.studies.trial import runs
+from biped_controller.studies.trial import record, runs
 from biped_controller.studies.trial.controller import parameter_excursion, resolve
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
 from biped_controller.studies.trial.survival import Band
@@ -40,8 +40,12 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
     the end (the no-fall edge's outcome). ``pool`` True: this process's ``runs.loop_pool`` (the loop and
     the walk up to the push reused, the outcome bit-identical); a ``runner.LoopPool``; None or False: a new
     plant and controller, walked from t = 0. Any other controller's trial runs in full through the generic
-    loop (a controller fault is that trial's outcome, recorded as ``fault``)."""
-    return resolve(mode).survives(push, settings, pool)
+    loop (a controller fault is that trial's outcome, recorded as ``fault``). Every record also carries the
+    trial record's ``seed`` and ``fault_kind`` (:mod:`.record`)."""
+    rec = resolve(mode).survives(push, settings, pool)
+    rec["seed"] = record.seed_of(settings.perturbation)
+    rec["fault_kind"] = record.fault_kind_of(rec.get("fault"))
+    return rec
 
 
 #: [m for p, - for tau'] how far past a bound a committed value may lie and still be on it: an active range row

@@ -1,6 +1,6 @@
 """The whole recorded graph's lockstep rate at this tree and at an earlier revision, alternated in one run.
 
-    .venv/bin/python -m benchmarks.recorder_before_after --before-rev REV [--pairs 3] [--sim-seconds 3]
+    .venv/bin/python -m lab.benchmarks.recorder_before_after --before-rev REV [--pairs 3] [--sim-seconds 3]
 
 Each pair runs ``biped_sim.graph.launch`` unpaced (``real_time_factor`` 0: as fast as the lockstep allows) for
 ``--sim-seconds`` of simulated time, once with the code at ``--before-rev`` (a temporary detached worktree, its
@@ -23,11 +23,12 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.bridge_bench import Domain, Revision  # noqa: E402
+from benchmarks.bridge_bench import Revision  # noqa: E402
+from benchmarks.domain import Domain  # noqa: E402
 from benchmarks.lockstep import _LINE  # noqa: E402
 from biped_controller.studies import provenance  # noqa: E402
 

@@ -1,7 +1,7 @@
 """Where the live view's time goes: CPU per process and per thread of the whole graph at real time, with and
 without the bridge, and a sampling profile of the bridge's Python thread.
 
-    .venv/bin/python -m benchmarks.bridge_profile [--steps 4] [--pairs 1] [--json FILE] [--py-spy PATH]
+    .venv/bin/python -m lab.benchmarks.bridge_profile [--steps 4] [--pairs 1] [--json FILE] [--py-spy PATH]
 
 Each run is ``benchmarks.bridge_bench.run_graph`` (the whole graph from ``biped_sim.graph.launch``, recorder
 included, ``real_time_factor`` 1.0, its own ROS domain, 127.0.0.1): ``off`` = no bridge; ``layout`` =
@@ -31,7 +31,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 

@@ -1,4 +1,4 @@
-"""The whole-body baseline's slice table (studies/baseline_wbc.py: capability-map summaries merged into one
+"""The whole-body baseline's slice table (lab/wbc_slice.py: capability-map summaries merged into one
 25 ms slice, the goal check hybrid >= max(both, wbc)) on hand-made summaries whose answers are known by
 construction."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from biped_controller.studies.baseline_wbc import main, map_slice, slice_report
+from lab.wbc_slice import main, map_slice, slice_report
 
 
 def boundary(mode, force, phase=0.5, direction="forward", duration=0.025):
@@ -55,7 +55,7 @@ def test_command_line_writes_the_slice_under_its_plant(tmp_path):
     a.write_text(json.dumps(summary(boundary("both", 600), plant="mujoco")))
     b.write_text(json.dumps(summary(boundary("hybrid", 800), boundary("wbc", 450), plant="mujoco")))
     out = tmp_path / "slice.json"
-    assert main(["--slice-map", str(a), str(b), "--json", str(out)]) == 0
+    assert main([str(a), str(b), "--json", str(out)]) == 0
     got = json.loads(out.read_text())
     assert list(got) == ["mujoco"] and got["mujoco"]["goal"]["met"] == [["forward", 0.5]]
-    assert main(["--slice-map", str(a), str(a)]) == 2          # the same cell twice: refused
+    assert main([str(a), str(a)]) == 2          # the same cell twice: refused

@@ -1,6 +1,6 @@
 """How long the rest of the node graph lives after one of its nodes is killed.
 
-    .venv/bin/python -m benchmarks.launch_fault_stop [--victim recorder] [--trials 5] [--json FILE]
+    .venv/bin/python -m lab.benchmarks.launch_fault_stop [--victim recorder] [--trials 5] [--json FILE]
                                                      [--launcher-arg=--fault-stop-timeout=10 ...]
 
 The trials go to ``--json`` (default ``results/node_graph/fault_stop_<victim>.json``; ``--json ''``: none),
@@ -27,12 +27,12 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from benchmarks import RESULTS_DIR  # noqa: E402
-from benchmarks.bridge_bench import Domain  # noqa: E402
+from benchmarks.domain import Domain  # noqa: E402
 from biped_controller.studies import provenance  # noqa: E402
 
 VICTIMS = ('recorder', 'controller', 'disturbance', 'simulator')

@@ -1,6 +1,6 @@
 """How many of a real-time run's ``/sim/state`` messages carry another step's ``/clock`` as their bag log time.
 
-    .venv/bin/python -m benchmarks.recorder_logtime [--steps 2] [--batch-waits 0,0.002]
+    .venv/bin/python -m lab.benchmarks.recorder_logtime [--steps 2] [--batch-waits 0,0.002]
 
 For each recorder ``batch_wait`` given: the whole graph (``biped_sim.graph.launch``, its own ROS domain,
 127.0.0.1) walks ``--steps`` steps at ``real_time_factor`` 1.0; the bag's ``/sim/state`` messages whose log time
@@ -17,11 +17,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.bridge_bench import Domain  # noqa: E402
+from benchmarks.domain import Domain  # noqa: E402
 
 
 def main(argv=None) -> int:

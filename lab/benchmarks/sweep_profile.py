@@ -5,7 +5,7 @@ objects take (``AdaptiveController.compute``, ``Simulator.step``), building the 
 the walks to the push onsets (``ClosedLoop.walk_to``, where it exists). Parts nest (``Segment.run``
 includes the records it builds), so the shares do not add up to 100 %.
 
-    python -m benchmarks.sweep_profile [--phases 2] [--json FILE]
+    python -m lab.benchmarks.sweep_profile [--phases 2] [--json FILE]
 
 Run it in another tree with that tree's sources on ``PYTHONPATH`` (and its own ``NUMBA_CACHE_DIR``) to
 compare two versions: the parts missing there are left out. The machine is shared: the figures are this

@@ -1,8 +1,8 @@
 """One-change MuJoCo walks that the product's settings cannot express (a research script, not product code):
 the torques the plant applies, or the MJCF, patched for one run, then the figures of
-``biped_controller.studies.foot_quiet``. Usage (from the repository root)::
+``lab.foot_quiet``. Usage (from the repository root)::
 
-    .venv/bin/python benchmarks/foot_patches.py NAME [--sole N] [--steps 20] [--json FILE]
+    .venv/bin/python -m lab.benchmarks.foot_patches NAME [--sole N] [--steps 20] [--json FILE]
 
 NAME: ``ankle_lowpass=TAU`` (the stance-ankle torque through a first-order low-pass of time constant TAU [s],
 per control period), ``all_lowpass=TAU`` (all six torques), ``cop_clamp=M`` (the stance-ankle torque clipped to
@@ -27,7 +27,7 @@ from biped_sim.plant.config import load_sim_config
 from biped_controller.core.control.config import load_controller_config
 from biped_controller.studies import provenance as provenance_records
 from biped_controller.closed_loop import runner
-from biped_controller.studies.foot_quiet import measure, provenance
+from lab.foot_quiet import measure, provenance
 
 
 def patch(kind: str, value: float) -> None:
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     run = provenance_records.Run(argv, plant="mujoco", profile="default",
-                                 command=".venv/bin/python benchmarks/foot_patches.py " + " ".join(argv))
+                                 command=".venv/bin/python -m lab.benchmarks.foot_patches " + " ".join(argv))
     kind, _, v = a.name.partition("=")
     if kind not in ("ankle_lowpass", "all_lowpass", "cop_clamp", "ankle_armature", "reference_lead"):
         ap.error(f"unknown patch {kind!r}")
@@ -100,7 +100,7 @@ def main(argv=None) -> int:
           f"max pitch {o['max_pitch']:.4f} rad")
     if a.json is not None:
         prov = provenance(argv)
-        prov["command"] = ".venv/bin/python benchmarks/foot_patches.py " + " ".join(argv)
+        prov["command"] = ".venv/bin/python -m lab.benchmarks.foot_patches " + " ".join(argv)
         a.json.write_text(json.dumps({"provenance": prov, **res}, indent=1) + "\n", encoding="utf-8")
         run.record(a.json)     # the directory's provenance.json (results/README.md)
     return 0

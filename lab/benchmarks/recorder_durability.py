@@ -1,6 +1,6 @@
 """Recorder durability: what a SIGKILL of the recorder loses at real time, and what syncing costs.
 
-    .venv/bin/python -m benchmarks.recorder_durability [--kills 10] [--before 3] [--seed 20] [--json FILE]
+    .venv/bin/python -m lab.benchmarks.recorder_durability [--kills 10] [--before 3] [--seed 20] [--json FILE]
 
 **Kills** (the whole graph from ``biped_sim.graph.launch``, ``--steps 0``, paced at ``real_time_factor`` 1.0,
 each launch in its own ROS domain from ``domain_coordinator``, 127.0.0.1 only). Per run: once ``/clock``
@@ -43,11 +43,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # `python benchmarks/recorder_durability.py`
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:  # `python lab/benchmarks/recorder_durability.py`
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.bridge_bench import Domain  # noqa: E402
+from benchmarks.domain import Domain  # noqa: E402
 from biped_controller.studies import provenance
 
 

@@ -9,7 +9,7 @@ over ``--rounds`` closed loops of 1 s on the rigid plant (perfect sensors, momen
 * ``--path kernel``: the estimator inside ``pipeline_kernels.sense`` (the default);
 * ``--path off``: the observer alone.
 
-    .venv/bin/python -m benchmarks.model_error_profile [--path python|kernel|off] [--rounds 3]
+    .venv/bin/python -m lab.benchmarks.model_error_profile [--path python|kernel|off] [--rounds 3]
 
 Prints only (a profile, not a benchmark key).
 """

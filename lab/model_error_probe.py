@@ -1,12 +1,12 @@
-"""The momentum observer under model error, period by period (docs/robustness.md "Model
-error"): one pushed run with the Python sensing pipeline, printing per period the ground force the QP
+"""The momentum observer under model error, period by period (docs/robustness.md, "Why (from the
+table's run)"): one pushed run with the Python sensing pipeline, printing per period the ground force the QP
 needed (the plant's actual minus the controller's prediction without the estimate), the estimate it used
 (dR), the reading of the observer's whole r through the joint accelerations alone (B A^-1 r), and the
 observer's r against the true generalized force of the error, tau_d = A_m q'' + H_m - Gamma with q'' the
 plant's own acceleration (its model from ``PlantPerturbation.apply``, rigid stance foot). Forces [N],
 torques [N m], l [m]; with the legs' model-error estimator, its theta divided by the prior std (model_error.py).
 
-    .venv/bin/python -m biped_controller.studies.model_error_probe --force 200 --from 0.40 --to 0.46 \\
+    .venv/bin/python -m lab.model_error_probe --force 200 --from 0.40 --to 0.46 \\
         --set momentum_observer=true --perturb torso_inertia_scale=1.3 ...
 """
 from __future__ import annotations
@@ -73,7 +73,7 @@ def probe_rows(push: Push, settings: RunSettings, steps: int = 2) -> tuple[list[
 
 
 def main(argv: list[str] | None = None) -> int:
-    a = StudyArgumentParser(prog="python -m biped_controller.studies.model_error_probe",
+    a = StudyArgumentParser(prog="python -m lab.model_error_probe",
                             description=__doc__.split("\n\n")[0])
     a.add_argument("--force", type=finite_float, default=0.0, help="[N] of the paper's push (0: none)")
     a.add_argument("--from", dest="t0", type=finite_float, default=0.0)

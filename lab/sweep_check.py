@@ -1,19 +1,19 @@
 """Checks of the sweeps' speed-ups, run once and reported in docs/capability_map.md.
 
-``python -m biped_controller.studies.sweep_check compare FAST_SUMMARY FULL_SUMMARY [--stores FAST FULL]``
+``python -m lab.sweep_check compare FAST_SUMMARY FULL_SUMMARY [--stores FAST FULL]``
     every cell of two capability-map summaries (``--json`` of ``scripts/capability_map``): boundary,
     first failure, cause, islands, no-fall edge, first fall and its cause, equal or not; with the stores, every (cell, force) simulated by
     both: survived and cause equal or not (the early-stopped trials of the fast map against the same
     trials run in full).
 
-``python -m biped_controller.studies.sweep_check margins STORE [--sample N] [--seed S] [--workers W]``
+``python -m lab.sweep_check margins STORE [--sample N] [--seed S] [--workers W]``
     the early stop's argument measured: N early-stopped trials of a map's store (seeded sample) run
     again in full, recording at every check after an impact the plant's distance to the gait's fixed point and the
     controller's p, p', tau', force estimate; per trial the impact where ``EarlyStop.decided`` first
     holds, whether the full trial survives, and the largest distances at the later impacts and at the
     end, relative to the early-stop tolerances and to the survival rule's floors P_FLOOR and TAU_DOT_FLOOR (its band is never tighter).
 
-``python -m biped_controller.studies.sweep_check orbit SUMMARY [--set K=V ...] [--durations D ...] [--fractions F ...]``
+``python -m lab.sweep_check orbit SUMMARY [--set K=V ...] [--durations D ...] [--fractions F ...]``
     the MuJoCo early stop's argument measured (``trial.stop.MujocoEarlyStop``): each mode's unpushed walk
     and pushed trials of a map's cells (forces: ``--fractions`` of each cell's boundary and its first
     failing force) run in full, recording at every check after an impact the quantities the criterion
@@ -22,7 +22,7 @@
     walks' (the last ``--settled`` impacts of the survivors), whether every trial the criterion decides
     survives in full, and how close the failing trials came to being decided.
 
-``python -m biped_controller.studies.sweep_check replay STORE [--set K=V ...] [--profile P] [--modes M ...]``
+``python -m lab.sweep_check replay STORE [--set K=V ...] [--profile P] [--modes M ...]``
     a record is a function of its trial alone: every record of a map's store made with these settings (its
     fingerprint) simulated again, in the store's order, twice -- on new objects (a new loop pool per
     trial) and on one pool reused from trial to trial, as a map's worker runs them -- and compared field
@@ -31,7 +31,7 @@
     changed, each field's old and new value and relative change). Records of another fingerprint are
     counted, not replayed.
 
-``python -m biped_controller.studies.sweep_check bracket-replay FULL_STORE [--windows W ...] [--below B ...]``
+``python -m lab.sweep_check bracket-replay FULL_STORE [--windows W ...] [--below B ...]``
     the bracketed search replayed, without a simulation, on the records of a full search (``--search
     full``: every coarse force of every cell and its bisection): for each island window W and bracket
     check B (``island_window``, ``bracket_check_below`` of config/studies.yaml), the simulations the

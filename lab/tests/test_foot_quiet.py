@@ -1,4 +1,4 @@
-"""The stance foot's per-period figures (``studies.foot_quiet``): the arithmetic on hand-made series, and on
+"""The stance foot's per-period figures (``lab.foot_quiet``): the arithmetic on hand-made series, and on
 short walks of both plants with the MuJoCo sole as contact points against the box it replaced, and the
 20-step walk against the quiet-foot targets with the MuJoCo step against the former one."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 
 from biped_sim.plant.config import SimConfigError, load_sim_config
 from biped_model.mjcf import foot_geom_names, make_mjcf
-from biped_controller.studies import foot_quiet as fq
+from lab import foot_quiet as fq
 
 
 class _Rec:

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m biped_controller.studies.foot_quiet [--plant rigid|mujoco] [--mode both] [--steps 10]
+    python -m lab.foot_quiet [--plant rigid|mujoco] [--mode both] [--steps 10]
         [--set KEY=VALUE ...] [--observer on|off] [--perturb FIELD=VALUE ...] [--integration-rate] [--json FILE]
 
 One undisturbed walk, then, over the control periods that
@@ -177,13 +177,13 @@ def table(res: dict) -> str:
 def provenance(argv: list[str]) -> dict:
     """Where a result came from: the commit and modified files, the command line, the date, the load."""
     from biped_controller.studies.provenance import git_state
-    return {**git_state(), "command": "python -m biped_controller.studies.foot_quiet " + " ".join(argv),
+    return {**git_state(), "command": "python -m lab.foot_quiet " + " ".join(argv),
             "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_average": list(os.getloadavg())}
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.foot_quiet", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m lab.foot_quiet", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--plant", choices=("rigid", "mujoco"), default="mujoco")
     ap.add_argument("--mode", default="both")

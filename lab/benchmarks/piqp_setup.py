@@ -3,7 +3,7 @@ a function of its instance alone) against the held update it replaced (each PIQP
 first solve, then updated: the previous instance's scaling left in its data; docs/capability_map.md, "One
 trial, one record").
 
-    python -m benchmarks.piqp_setup [--json OUT] [--rounds 4] [--phases 4] [--repeats 20]
+    python -m lab.benchmarks.piqp_setup [--json OUT] [--rounds 4] [--phases 4] [--repeats 20]
 
 Two measurements, the two paths taken in turn in one process (setup then update in even rounds, update
 then setup in odd ones):
@@ -32,30 +32,17 @@ import numpy as np
 
 from biped_controller.studies import provenance
 
-OUT = Path(__file__).resolve().parents[1] / "results" / "mujoco_sweeps" / "piqp_setup_cost.json"
+OUT = Path(__file__).resolve().parents[2] / "results" / "mujoco_sweeps" / "piqp_setup_cost.json"
 PATHS = ("setup", "update")
-
-
-def held_update_run(self, solver, held):
-    """``AdaptationQP._run`` as it was: a PIQP object set up on its first solve, then only updated (the
-    previous instance's scaling left in the object's data). Also the negative control of tests/test_history.py."""
-    done = self.__dict__.setdefault("_held_set_up", {})
-    if id(solver) in done:
-        solver.update(None, self._c, None, None, held.G, None, held.h)
-    else:
-        solver.setup(self._P, self._c, None, None, held.G, None, held.h, None, None)
-        done[id(solver)] = solver             # kept alive: its id stays its own
-    status = solver.solve()
-    self.calls += 1
-    return status, solver.result
 
 
 @contextlib.contextmanager
 def held_update():
-    """:func:`held_update_run` in place of ``AdaptationQP._run`` inside the block."""
+    """``solver.held_update_run`` (the held update this cost comparison measures against) in place of
+    ``AdaptationQP._run`` inside the block."""
     from biped_controller.core.qp import solver as qs
     setup_run = qs.AdaptationQP._run
-    qs.AdaptationQP._run = held_update_run
+    qs.AdaptationQP._run = qs.held_update_run
     try:
         yield
     finally:

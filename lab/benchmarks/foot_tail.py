@@ -1,7 +1,7 @@
 """Where the stance foot's |dF_z| tail lives on MuJoCo (a research script, not product code). Usage (from the
 repository root)::
 
-    .venv/bin/python benchmarks/foot_tail.py [--steps 20] [--set KEY=VALUE ...] [--perturb FIELD=VALUE ...]
+    .venv/bin/python -m lab.benchmarks.foot_tail [--steps 20] [--set KEY=VALUE ...] [--perturb FIELD=VALUE ...]
         [--threshold 200] [--json FILE]
 
 One undisturbed walk (mode both, default profile, ``--set``/``--perturb`` as ``foot_quiet``), the plant's
@@ -44,7 +44,7 @@ from biped_model.description import load_description
 from biped_model.mjcf import foot_geom_names
 from biped_controller.studies import provenance
 from biped_controller.closed_loop import runner
-from biped_controller.studies.foot_quiet import SKIP, measure
+from lab.foot_quiet import SKIP, measure
 from biped_controller.studies.trial.settings import parse_overrides, parse_perturbation
 from biped_model.gait_family import GaitFamily
 
@@ -266,7 +266,7 @@ def main(argv=None) -> int:
     if a.threshold <= 0:
         ap.error(f"--threshold must be > 0 N, got {a.threshold}")
     run = provenance.Run(argv, plant="mujoco", profile="default",
-                         command=".venv/bin/python benchmarks/foot_tail.py " + " ".join(argv))
+                         command=".venv/bin/python -m lab.benchmarks.foot_tail " + " ".join(argv))
     r, probe = walk(a.steps, tuple(a.overrides), tuple(a.perturb))
     res = {"steps": a.steps, "overrides": a.overrides, "perturb": a.perturb, "quiet": measure(r)["overall"],
            "steps_walked": r.steps_walked, "fallen": r.fallen, **analyse(r, probe, a.threshold, a.trace)}
