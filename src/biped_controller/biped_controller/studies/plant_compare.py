@@ -16,7 +16,9 @@ three modes, a backward push, a fall, the classical controller's fall, sensor no
 evaluated at every MuJoCo step): every field of every ``StepRecord``, ``ImpactRecord`` and controller status
 (hashed as ``studies.fingerprint`` hashes the rigid plant's), the outcome, and the plant's contact diagnostics
 (each counter and the touchdown forces). A change to the plant that must not change behaviour (a speed-up)
-prints the same last line before and after, on the same machine.
+prints the same last line before and after, on the same machine. Each run but the integration-rate one is
+also made through the controller interface (the mode's built-in class on the generic loop): its records,
+impacts and outcome must equal the compiled path's bit for bit (compared, not hashed; exit 1 otherwise).
 
 ``push``: one push (25 ms at t = 0.2315 s or ``--start``, 5 steps after it) on both plants: the outcome, and on MuJoCo the
 contact diagnostics over the run: what the rigid plant would have declared a fall (the friction cone, the
@@ -271,9 +273,28 @@ def run_digest(run_spec: tuple, scfg=None) -> tuple[str, "runner.RunResult"]:
     return h.hexdigest(), r
 
 
-def mujoco_fingerprint(out=print) -> str:
+def interface_agrees(run_spec: tuple, result: "runner.RunResult", scfg) -> bool | None:
+    """Whether the run ``run_spec`` made through the controller interface (the mode's built-in class on the
+    generic loop, ``plugin.loop``) has the records, impacts and outcome of ``result`` (the studies' compiled
+    path), bit for bit; None for a run the interface does not make (the torque law at the integration rate:
+    an interface controller's torque is held over the period)."""
+    from biped_sim.plant.perturbation import PlantPerturbation
+    from biped_controller.plugin import loop as plugin_loop
+    from biped_controller.studies.fingerprint import digest
+
+    name, steps, mode, pushes, pert, kw = run_spec
+    if kw:
+        return None
+    iface = plugin_loop.run(mode, steps, pushes, sim_config=scfg,
+                            perturbation=PlantPerturbation(**pert) if pert else None)
+    return iface.fault is None and digest(iface, (), statuses=False) == digest(result, (), statuses=False)
+
+
+def mujoco_fingerprint(out=print, disagree: list | None = None) -> str:
     """The hash of ``FINGERPRINT_RUNS`` on the MuJoCo plant (module docstring, ``fingerprint``); prints one
-    line per run and the total."""
+    line per run and the total. Each run is also made through the controller interface
+    (:func:`interface_agrees`: compared, not hashed); the names of the runs where it differs are appended to
+    ``disagree``."""
     import hashlib
 
     scfg = load_sim_config(plant="mujoco")
@@ -281,8 +302,12 @@ def mujoco_fingerprint(out=print) -> str:
     for spec in FINGERPRINT_RUNS:
         digest, r = run_digest(spec, scfg)
         total.update(digest.encode())
+        same = interface_agrees(spec, r, scfg)
         out(f"{spec[0]:12s} steps={r.steps_walked} fallen={r.fallen} {r.fall_cause or '-':13s} "
-            f"periods={len(r.records)} {digest[:16]}")
+            f"periods={len(r.records)} {digest[:16]} interface: "
+            f"{'-' if same is None else 'same records' if same else 'DIFFERENT records'}")
+        if same is False and disagree is not None:
+            disagree.append(spec[0])
     out(f"mujoco fingerprint {total.hexdigest()}")
     return total.hexdigest()
 
@@ -321,7 +346,11 @@ def main(argv: list[str] | None = None) -> int:
     provenance.track(getattr(a, "json", None), getattr(a, "dir", None) if a.cmd == "pushes" else None, argv=argv,
                      plant=None if a.cmd in ("fingerprint",) else "rigid,mujoco")   # record of each file written (results/README.md)
     if a.cmd == "fingerprint":
-        mujoco_fingerprint()
+        disagree: list = []
+        mujoco_fingerprint(disagree=disagree)
+        if disagree:
+            print(f"the controller interface and the compiled path disagree: {', '.join(disagree)}", file=sys.stderr)
+            return 1
         return 0
     if a.cmd == "push":
         rows = push_pair(Push(a.start, 0.025, float(a.force)), a.controller or a.mode,
