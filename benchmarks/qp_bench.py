@@ -51,6 +51,8 @@ from time import perf_counter_ns
 
 import numpy as np
 
+from benchmarks.common import pct
+
 from biped_controller.studies import provenance
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,14 +62,6 @@ MATCH_TOL = 1e-6
 
 def log(msg: str) -> None:
     print(f"qp_bench: {msg}", file=sys.stderr, flush=True)
-
-
-def pct(a) -> dict:
-    a = np.asarray(a, dtype=float)
-    if a.size == 0:
-        return {"n": 0, "p50": None, "p99": None, "mean": None}
-    return {"n": int(a.size), "p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-            "mean": float(a.mean())}
 
 
 # ------------------------------------------------------------------------------------------------
