@@ -211,11 +211,13 @@ def probe_family(fam: GaitFamily, p: float, opt: StepOptimizer, instants: int = 
 
 
 def check_family(fam: GaitFamily, records: list[dict], opt: StepOptimizer, held_out: list[dict] | None = None,
-                 fine: int = 400, probes_per_interval: int = 4) -> dict:
+                 fine: int = 400, probes_per_interval: int = 4, probe_many=None) -> dict:
     """Validation figures of a fitted family, computed from the file alone (no re-optimisation): fit
     errors at the fitted strides and at the held-out strides; the fitted family itself at
     ``probes_per_interval`` points per interval of consecutive strides (true constraints, clearance,
-    periodicity); largest |dq/dp| and |d2q/dp2| (p' enters q_d'' through them, eq. 11)."""
+    periodicity); largest |dq/dp| and |d2q/dp2| (p' enters q_d'' through them, eq. 11).
+    ``probe_many(fam, strides)``, when given, returns ``[probe_family(fam, p, opt) for p in strides]``
+    (e.g. computed by worker processes; the same numbers)."""
     T = fam.T
     s = np.linspace(0, 1, fine + 1)
     tt = s * T
@@ -226,7 +228,7 @@ def check_family(fam: GaitFamily, records: list[dict], opt: StepOptimizer, held_
     ps = sorted(r["stride"] for r in per_stride if r["in_range"])
     probes = [a + (b - a) * m / probes_per_interval for a, b in zip(ps[:-1], ps[1:]) for m in range(probes_per_interval)]
     probes.append(ps[-1])
-    between = [probe_family(fam, p, opt) for p in probes]
+    between = probe_many(fam, probes) if probe_many is not None else [probe_family(fam, p, opt) for p in probes]
     grid_p = np.linspace(fam.p_min, fam.p_max, 141)
     grid_t = np.linspace(0.0, T, 21)
     g = [fam.evaluate(p, t) for p in grid_p for t in grid_t]
@@ -306,7 +308,7 @@ def clean_interval(between: list[dict], p_d: float) -> tuple[float, float]:
     return ps[lo], ps[hi]
 
 
-def fit_and_restrict(records: list[dict], st: GaitSettings, opt: StepOptimizer) -> GaitFamily:
+def fit_and_restrict(records: list[dict], st: GaitSettings, opt: StepOptimizer, probe_many=None) -> GaitFamily:
     """Fit the family over the successful strides around p_d, then restrict the range the controller
     may use to where the *fitted* family passes the constraint and clearance checks (probes at and
     between the optimised strides)."""
@@ -321,7 +323,7 @@ def fit_and_restrict(records: list[dict], st: GaitSettings, opt: StepOptimizer) 
     used = ps[lo:hi + 1]
     a = np.array([np.array(sols_ok[p]["a"]) for p in used])
     wide = fit_strides(used, a, st)
-    between = check_family(wide, records, opt)["fitted_family"]
+    between = check_family(wide, records, opt, probe_many=probe_many)["fitted_family"]
     p_min, p_max = clean_interval(between, st.p_d)
     return fit_strides(used, a, st, p_min, p_max, meta={"fit_range": (used[0], used[-1])})
 
@@ -357,8 +359,8 @@ def restrict_to_held_out(fam: GaitFamily, used: list[float], held: list[StepSolu
     return with_range(fam, max(used[lo], fam.p_min), min(used[hi], fam.p_max))
 
 
-def _validate(fam: GaitFamily, data: dict, opt: StepOptimizer) -> dict:
-    v = check_family(fam, data["strides"], opt, data.get("held_out", []))
+def _validate(fam: GaitFamily, data: dict, opt: StepOptimizer, probe_many=None) -> dict:
+    v = check_family(fam, data["strides"], opt, data.get("held_out", []), probe_many=probe_many)
     v["fit_range"] = list(fam.meta.get("fit_range", [])) or [fam.p_min, fam.p_max]
     return v
 
