@@ -58,6 +58,24 @@ def test_fast_evaluation_matches_reference(index):
     assert float(np.max(np.abs(bad - ref.evaluate(z)["eq_jac"]))) > 1e-6
 
 
+def test_fast_evaluation_after_a_change_of_T():
+    """The 1 m/s question changes T (and the basis) of an optimizer between solves: the fast evaluator
+    follows (its end-of-step derivatives depend on dphi/dt = dphi/ds / T)."""
+    from biped_controller.gaits.optimizer import basis, simpson_weights
+    rec = FAMILY["strides"][14]
+    ref, fast = StepOptimizer(), FastStepOptimizer()
+    z = np.array(rec["c"]).ravel()
+    fast.evaluate(z)  # evaluated once at the old T
+    for o in (ref, fast):
+        o.st = dataclasses.replace(o.st, T=0.4)
+        o.phi, o.dphi, o.ddphi = basis(o.s, 0.4)
+        o.w = simpson_weights(o.n, 0.4)
+        o.p = 0.4
+        o._cache_key = None
+    d = compare_evaluations(ref, fast, z)
+    assert d["eq"] < 1e-11 and d["obj"] < 1e-11 and d["eq_jac"] < 1e-6 and d["ineq_jac"] < 1e-6, d
+
+
 def test_fast_impact_derivative_is_exact_in_velocity():
     """The end-of-step terms are linear in q'(T): the map A(q(T)) times q'(T) equals the values of the
     reference's impact, and A's columns equal a central difference of them."""

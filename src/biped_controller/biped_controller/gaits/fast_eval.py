@@ -39,9 +39,6 @@ class FastStepOptimizer(StepOptimizer):
         self._U = PAPER_FROM_URDF[LEFT].T          # URDF joint velocities from paper q' (stance LEFT)
         self._P_new = PAPER_FROM_URDF[1 - LEFT]    # paper q' of the new stance from URDF joint velocities
         self._R = -np.eye(6)[::-1]
-        # d(q(0)), d(q'(0)), d(q(T)), d(q'(T)) / dz: (6, 30) each
-        self._dq0, self._dqd0, self._dqT, self._dqdT = (np.kron(np.eye(NJ), row[None, :]) for row in
-                                                        (self.phi[0], self.dphi[0], self.phi[-1], self.dphi[-1]))
         self._knee_jac = None
         self._upper = np.triu(np.ones((9, 9), dtype=bool))
 
@@ -185,6 +182,10 @@ class FastStepOptimizer(StepOptimizer):
             kj[2 * (n + 1):3 * (n + 1), 20:25] = -self.phi
             kj[3 * (n + 1):, 20:25] = self.phi
             self._knee_jac = kj
+        # d(q(0)), d(q'(0)), d(q(T)), d(q'(T)) / dz: (6, 30) each (from the current basis: the 1 m/s question
+        # changes T, hence dphi, between solves)
+        self._dq0, self._dqd0, self._dqT, self._dqdT = (np.kron(np.eye(NJ), row[None, :]) for row in
+                                                        (self.phi[0], self.dphi[0], self.phi[-1], self.dphi[-1]))
         qT, qdT = q[-1], qd[-1]
         qd0_req, J_req, end_ineq, J_end = self._end_terms(qT, qdT)
         D_end = np.vstack([self._dqT, self._dqdT])        # (12, 30)
