@@ -43,57 +43,63 @@ class FastStepOptimizer(StepOptimizer):
         self._upper = np.triu(np.ones((9, 9), dtype=bool))
 
     # ------------------------------------------------------------ end of step
-    def _end_maps(self, qT: np.ndarray) -> np.ndarray:
-        """(11, 6) matrix A(q(T)): rows [q'(0+) (6), swing ankle v_x, v_z, impulse Lambda_x, Lambda_z,
-        vertical velocity of the former stance foot] = A q'(T)."""
+    def _end_maps(self, Q: np.ndarray) -> np.ndarray:
+        """(B, 11, 6) matrices A(q(T)) for the B configurations ``Q`` (B, 6): rows [q'(0+) (6), swing ankle
+        v_x, v_z, impulse Lambda_x, Lambda_z, vertical velocity of the former stance foot] = A q'(T).
+        Pinocchio per configuration, the linear algebra batched."""
         fl = self.floating
         model, data = fl.model, fl.data
-        # the floating state of FloatingModel.state_from_paper (stance foot flat at the origin), one
-        # kinematics pass for both feet's Jacobians
-        x = np.zeros(9)
-        x[3:] = self._U @ qT
-        x[2] = 0.0 - float(np.sum(x[3:6]))
+        Q = np.atleast_2d(Q)
+        B = Q.shape[0]
         st_id, new_id = fl.foot_ids[LEFT], fl.foot_ids[1 - LEFT]
-        pin.forwardKinematics(model, data, x)
-        pin.updateFramePlacement(model, data, st_id)
-        t = data.oMf[st_id].translation
-        x[0] -= t[0]
-        x[1] -= t[2]
-        pin.computeJointJacobians(model, data, x)
-        pin.updateFramePlacements(model, data)
         lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        Jst = pin.getFrameJacobian(model, data, st_id, lwa)[[0, 2, 4]]
-        Jst[2] *= -1.0
-        Jn = pin.getFrameJacobian(model, data, new_id, lwa)[[0, 2, 4]]
-        Jn[2] *= -1.0
+        Jst = np.empty((B, 3, 9))
+        Jn = np.empty((B, 3, 9))
+        M = np.empty((B, 9, 9))
+        for b in range(B):
+            # the floating state of FloatingModel.state_from_paper (stance foot flat at the origin), one
+            # kinematics pass for both feet's Jacobians
+            x = np.zeros(9)
+            x[3:] = self._U @ Q[b]
+            x[2] = 0.0 - float(np.sum(x[3:6]))
+            pin.forwardKinematics(model, data, x)
+            pin.updateFramePlacement(model, data, st_id)
+            t = data.oMf[st_id].translation
+            x[0] -= t[0]
+            x[1] -= t[2]
+            pin.computeJointJacobians(model, data, x)
+            pin.updateFramePlacements(model, data)
+            Jst[b] = pin.getFrameJacobian(model, data, st_id, lwa)[[0, 2, 4]]
+            Jn[b] = pin.getFrameJacobian(model, data, new_id, lwa)[[0, 2, 4]]
+            M[b] = pin.crba(model, data, x)
+        Jst[:, 2] *= -1.0
+        Jn[:, 2] *= -1.0
+        M = np.where(self._upper[None], M, M.transpose(0, 2, 1))
         # base velocity that keeps the stance foot still: v[:3] = -Jst[:, :3]^-1 Jst[:, 3:] v[3:]
-        G = np.zeros((9, 6))
-        G[3:] = self._U
-        G[:3] = np.linalg.solve(Jst[:, :3], -Jst[:, 3:] @ self._U)
-        M = pin.crba(model, data, x)
-        M = np.where(self._upper, M, M.T)
-        Minv_JT = np.linalg.solve(M, Jn.T)
-        Lam = np.linalg.solve(Jn @ Minv_JT, -Jn @ G)       # (3, 6)
-        Vp = G + Minv_JT @ Lam                              # (9, 6)
-        A = np.empty((11, 6))
-        A[:6] = self._P_new @ Vp[3:]
-        A[6:8] = (Jn @ G)[:2]                               # new foot (the swing ankle) before impact: x, z
-        A[8:10] = Lam[:2]
-        A[10] = (Jst @ Vp)[1]
+        G = np.zeros((B, 9, 6))
+        G[:, 3:] = self._U
+        G[:, :3] = np.linalg.solve(Jst[:, :, :3], -Jst[:, :, 3:] @ self._U)
+        Minv_JT = np.linalg.solve(M, Jn.transpose(0, 2, 1))        # (B, 9, 3)
+        JnG = Jn @ G
+        Lam = np.linalg.solve(Jn @ Minv_JT, -JnG)                   # (B, 3, 6)
+        Vp = G + Minv_JT @ Lam                                       # (B, 9, 6)
+        A = np.empty((B, 11, 6))
+        A[:, :6] = self._P_new @ Vp[:, 3:]
+        A[:, 6:8] = JnG[:, :2]                                       # new foot (the swing ankle) before impact: x, z
+        A[:, 8:10] = Lam[:, :2]
+        A[:, 10] = (Jst @ Vp)[:, 1]
         return A
 
     def _end_terms(self, qT: np.ndarray, qdT: np.ndarray):
         """q'(0+) demanded by the impact, the end-of-step inequalities (as ``StepOptimizer._endpoint``),
         and their Jacobians w.r.t. (q(T), q'(T)) (6 x 12 and 6 x 12)."""
         st = self.st
-        A = self._end_maps(qT)
-        val = A @ qdT
         eps = 1e-7
-        dval_dq = np.empty((11, 6))
-        for m in range(6):
-            dq = np.zeros(6)
-            dq[m] = eps
-            dval_dq[:, m] = (self._end_maps(qT + dq) @ qdT - self._end_maps(qT - dq) @ qdT) / (2 * eps)
+        E = eps * np.eye(6)
+        As = self._end_maps(np.vstack([qT[None, :], qT + E, qT - E]))   # (13, 11, 6)
+        A = As[0]
+        val = A @ qdT
+        dval_dq = ((As[1:7] @ qdT) - (As[7:13] @ qdT)).T / (2 * eps)      # (11, 6)
         D = np.hstack([dval_dq, A])                         # (11, 12) d val / d(qT, qdT)
         vx, vz, lx, lz, vo = val[6], val[7], val[8], val[9], val[10]
         mu = st.friction_use * self.desc.mu
