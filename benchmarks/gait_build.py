@@ -18,6 +18,14 @@ between the strides, the valid range) and its distance to the committed family
 |dq/dtau - ...| [rad/s] on a 61 x 41 (p, t) grid, largest difference of the stride coefficients c.
 Writes ``results.json`` and ``results.md`` in ``--out`` with their provenance records. The 60 s target is
 printed beside the figures, never asserted. ``--quick``: a reduced family (6 strides, 2 smoothing passes).
+
+``--blas-probe``: the reproducibility probe instead (``blas_configs.json``): three held-out strides of the
+committed family re-solved from their own targets under 1 and 2 OpenBLAS threads and two OpenBLAS kernels.
+
+Hook into ``scripts/bench``: run ``python -m benchmarks.gait_build`` as its own step (about 10-20 min at
+load 3-6: today's generator dominates); its stable figures are ``summary.new_wall_s``,
+``summary.old_wall_s``, ``summary.ratio_old_over_new`` and ``summary.new_identical_across_runs`` of
+``results/gait_build/results.json``.
 """
 from __future__ import annotations
 
@@ -93,6 +101,71 @@ def _figures(path: Path) -> dict:
     return out
 
 
+#: BLAS configurations of the reproducibility probe: thread count and OpenBLAS kernel (core type).
+BLAS_CONFIGS = ({"OPENBLAS_NUM_THREADS": "1"}, {"OPENBLAS_NUM_THREADS": "2"},
+                {"OPENBLAS_NUM_THREADS": "1", "OPENBLAS_CORETYPE": "Haswell"},
+                {"OPENBLAS_NUM_THREADS": "2", "OPENBLAS_CORETYPE": "Haswell"})
+PROBE_HELD_OUT = (3, 12, 20)
+
+_PROBE = """
+import json, sys
+import numpy as np
+from biped_model.settings import default_robot_dir
+from biped_controller.gaits.blas import blas_info
+from biped_controller.gaits.generation import fit_strides
+from biped_controller.gaits.optimizer import StepOptimizer, load_gait_settings
+data = json.loads((default_robot_dir() / "gait_family.json").read_text())
+st = load_gait_settings()
+recs = data["strides"]
+fam = fit_strides([r["stride"] for r in recs], np.array([r["a"] for r in recs]), st)
+opt = StepOptimizer(settings=st)
+scale = fam.T ** np.arange(5)[None, :]
+out = []
+for i in json.loads(sys.argv[1]):
+    h = data["held_out"][i]
+    tg = fam.coefficients(h["stride"])[0] * scale
+    sol = opt.solve(h["stride"], c0=tg, target=tg, weight=h["smoothing_weight"], diagnose=False)
+    out.append({"held_out": i, "stride": h["stride"], "iterations": sol.iterations,
+                "iterations_committed": h["iterations"], "c": sol.c.tolist(),
+                "max_abs_dc_committed": float(np.max(np.abs(sol.c - np.array(h["c"]))))})
+print(json.dumps({"blas": blas_info(), "solves": out}))
+"""
+
+
+def blas_probe(out_dir: Path) -> Path:
+    """One SLSQP solve per held-out stride of :data:`PROBE_HELD_OUT`, from the committed family's own
+    target (the fit through its stored strides, as ``generate`` computed it), under each configuration
+    of :data:`BLAS_CONFIGS` in a fresh process: the solutions against each other and against the committed
+    held-out records (``blas_configs.json``)."""
+    from biped_controller.studies import provenance
+    run = provenance.Run()
+    rows = []
+    for cfg in BLAS_CONFIGS:
+        env = dict(os.environ)
+        env.pop("OPENBLAS_CORETYPE", None)
+        env.update(cfg)
+        proc = subprocess.run([sys.executable, "-c", _PROBE, json.dumps(list(PROBE_HELD_OUT))], cwd=ROOT, env=env,
+                              capture_output=True, text=True)
+        r = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.returncode == 0 else {"error": proc.stderr[-2000:]}
+        r["env"] = cfg
+        rows.append(r)
+        print(cfg, [(s["iterations"], s["iterations_committed"], f"{s['max_abs_dc_committed']:.1e}")
+                    for s in r.get("solves", [])], flush=True)
+    pair = {}
+    for i, a in enumerate(rows):
+        for j, b in enumerate(rows):
+            if j > i and "solves" in a and "solves" in b:
+                pair[f"{i}-{j}"] = max(float(np.max(np.abs(np.array(x["c"]) - np.array(y["c"]))))
+                                       for x, y in zip(a["solves"], b["solves"]))
+    res = {"configs": rows, "max_abs_dc_between_configs": pair,
+           "note": "configs indexed as listed; 'c' are the solutions' normalised coefficients"}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "blas_configs.json"
+    path.write_text(json.dumps(res, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    run.record(path)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     from biped_controller.studies import provenance
     from biped_controller.gaits.blas import blas_info
@@ -108,7 +181,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-old", action="store_true", help="only the new build")
     ap.add_argument("--keep", type=Path, default=None, help="copy the built families into this directory")
+    ap.add_argument("--blas-probe", action="store_true",
+                    help="only the reproducibility probe: held-out solves under 4 BLAS configurations (blas_configs.json)")
     args = ap.parse_args(argv)
+    if args.blas_probe:
+        print(blas_probe(args.out))
+        return 0
     run = provenance.Run(argv)
     committed = default_robot_dir() / "gait_family.json"
     py = sys.executable

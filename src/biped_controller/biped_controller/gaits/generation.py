@@ -1,8 +1,13 @@
 """Generate (and check) ``robots/biped7/gait_family.json``: optimised steps over the stride range, the
 degree-7 fit b_ijk, validation figures, and the paper's own question (best stride at 1 m/s).
 
-Run through ``scripts/generate_gait_family [--check] [--json FILE]``. Deterministic: the same settings
-give the same file (wall-clock times are printed, never stored).
+Run through ``scripts/generate_gait_family [--check] [--json FILE]``. Deterministic on one machine with
+one BLAS configuration: the same settings give the same file (wall-clock times are printed, never
+stored). Not across BLAS configurations: SLSQP's subproblem goes through OpenBLAS, whose result changes
+in the last bits with its thread count (the number of cores, ``OPENBLAS_NUM_THREADS``) and its kernel
+(chosen from the CPU), and the chained warm-started solves carry that on (``gaits.blas``;
+``benchmarks/gait_build.py --blas-probe``). ``gaits.build`` is the same algorithm on both cores with
+single-threaded BLAS: one file for any number of cores of one CPU type.
 """
 from __future__ import annotations
 
