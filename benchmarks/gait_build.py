@@ -180,7 +180,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2, help="runs of the new build (compared byte for byte)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-old", action="store_true", help="only the new build")
+    ap.add_argument("--old-single-thread", action="store_true",
+                    help="also today's generator with OPENBLAS_NUM_THREADS=1 (row old_blas1): the share of the BLAS threads")
     ap.add_argument("--keep", type=Path, default=None, help="copy the built families into this directory")
+    ap.add_argument("--tag", default=None, help="write results_TAG.json / .md (keeps the main results)")
     ap.add_argument("--blas-probe", action="store_true",
                     help="only the reproducibility probe: held-out solves under 4 BLAS configurations (blas_configs.json)")
     args = ap.parse_args(argv)
@@ -199,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
         st = load_gait_settings(settings) if settings else load_gait_settings()
         extra = ["--settings", str(settings)] if settings else []
         plan = [] if args.skip_old else [("old", [py, "-m", "biped_controller.gaits.generation"], {})]
+        if args.old_single_thread:
+            plan.append(("old_blas1", [py, "-m", "biped_controller.gaits.generation"], {"OPENBLAS_NUM_THREADS": "1"}))
         plan += [(f"new_{i + 1}", [py, "-m", "biped_controller.gaits.build", "--workers", str(args.workers)], {})
                  for i in range(args.repeats)]
         for name, cmd, env in plan:
@@ -222,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {r['wall_s']:.1f} s, exit {r['exit']}, load after {r['load_after'][0]:.2f}", flush=True)
         if not args.skip_old and "old" in rows and (tmp / "old" / "gait_family.json").is_file():
             for name in rows:
-                if name.startswith("new") and (tmp / name / "gait_family.json").is_file():
+                if name != "old" and (tmp / name / "gait_family.json").is_file():
                     rows[name]["vs_old"] = _distance(tmp / name / "gait_family.json", tmp / "old" / "gait_family.json")
     news = [r for k, r in rows.items() if k.startswith("new")]
     summary = {
@@ -238,7 +243,8 @@ def main(argv: list[str] | None = None) -> int:
                   "settings": "reduced (benchmarks: --quick)" if args.quick else "robots/biped7/gait.yaml"},
          "summary": summary, "rows": rows}
     args.out.mkdir(parents=True, exist_ok=True)
-    jpath = args.out / ("results_quick.json" if args.quick else "results.json")
+    stem = "results" + (f"_{args.tag}" if args.tag else "") + ("_quick" if args.quick else "")
+    jpath = args.out / f"{stem}.json"
     jpath.write_text(json.dumps(R, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     mpath = jpath.with_suffix(".md")
     mpath.write_text(markdown(R), encoding="utf-8")
