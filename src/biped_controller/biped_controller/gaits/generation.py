@@ -1,8 +1,13 @@
 """Generate (and check) ``robots/biped7/gait_family.json``: optimised steps over the stride range, the
 degree-7 fit b_ijk, validation figures, and the paper's own question (best stride at 1 m/s).
 
-Run through ``scripts/generate_gait_family [--check] [--json FILE]``. Deterministic: the same settings
-give the same file (wall-clock times are printed, never stored).
+Run through ``scripts/generate_gait_family [--check] [--json FILE]``. Deterministic on one machine with
+one BLAS configuration: the same settings give the same file (wall-clock times are printed, never
+stored). Not across BLAS configurations: SLSQP's subproblem goes through OpenBLAS, whose result changes
+in the last bits with its thread count (the number of cores, ``OPENBLAS_NUM_THREADS``) and its kernel
+(chosen from the CPU), and the chained warm-started solves carry that on (``gaits.blas``;
+``benchmarks/gait_build.py --blas-probe``). ``gaits.build`` is the same algorithm on both cores with
+single-threaded BLAS: one file for any number of cores of one CPU type.
 """
 from __future__ import annotations
 
@@ -211,11 +216,13 @@ def probe_family(fam: GaitFamily, p: float, opt: StepOptimizer, instants: int = 
 
 
 def check_family(fam: GaitFamily, records: list[dict], opt: StepOptimizer, held_out: list[dict] | None = None,
-                 fine: int = 400, probes_per_interval: int = 4) -> dict:
+                 fine: int = 400, probes_per_interval: int = 4, probe_many=None) -> dict:
     """Validation figures of a fitted family, computed from the file alone (no re-optimisation): fit
     errors at the fitted strides and at the held-out strides; the fitted family itself at
     ``probes_per_interval`` points per interval of consecutive strides (true constraints, clearance,
-    periodicity); largest |dq/dp| and |d2q/dp2| (p' enters q_d'' through them, eq. 11)."""
+    periodicity); largest |dq/dp| and |d2q/dp2| (p' enters q_d'' through them, eq. 11).
+    ``probe_many(fam, strides)``, when given, returns ``[probe_family(fam, p, opt) for p in strides]``
+    (e.g. computed by worker processes; the same numbers)."""
     T = fam.T
     s = np.linspace(0, 1, fine + 1)
     tt = s * T
@@ -226,7 +233,7 @@ def check_family(fam: GaitFamily, records: list[dict], opt: StepOptimizer, held_
     ps = sorted(r["stride"] for r in per_stride if r["in_range"])
     probes = [a + (b - a) * m / probes_per_interval for a, b in zip(ps[:-1], ps[1:]) for m in range(probes_per_interval)]
     probes.append(ps[-1])
-    between = [probe_family(fam, p, opt) for p in probes]
+    between = probe_many(fam, probes) if probe_many is not None else [probe_family(fam, p, opt) for p in probes]
     grid_p = np.linspace(fam.p_min, fam.p_max, 141)
     grid_t = np.linspace(0.0, T, 21)
     g = [fam.evaluate(p, t) for p in grid_p for t in grid_t]
@@ -306,7 +313,7 @@ def clean_interval(between: list[dict], p_d: float) -> tuple[float, float]:
     return ps[lo], ps[hi]
 
 
-def fit_and_restrict(records: list[dict], st: GaitSettings, opt: StepOptimizer) -> GaitFamily:
+def fit_and_restrict(records: list[dict], st: GaitSettings, opt: StepOptimizer, probe_many=None) -> GaitFamily:
     """Fit the family over the successful strides around p_d, then restrict the range the controller
     may use to where the *fitted* family passes the constraint and clearance checks (probes at and
     between the optimised strides)."""
@@ -321,7 +328,7 @@ def fit_and_restrict(records: list[dict], st: GaitSettings, opt: StepOptimizer) 
     used = ps[lo:hi + 1]
     a = np.array([np.array(sols_ok[p]["a"]) for p in used])
     wide = fit_strides(used, a, st)
-    between = check_family(wide, records, opt)["fitted_family"]
+    between = check_family(wide, records, opt, probe_many=probe_many)["fitted_family"]
     p_min, p_max = clean_interval(between, st.p_d)
     return fit_strides(used, a, st, p_min, p_max, meta={"fit_range": (used[0], used[-1])})
 
@@ -357,8 +364,8 @@ def restrict_to_held_out(fam: GaitFamily, used: list[float], held: list[StepSolu
     return with_range(fam, max(used[lo], fam.p_min), min(used[hi], fam.p_max))
 
 
-def _validate(fam: GaitFamily, data: dict, opt: StepOptimizer) -> dict:
-    v = check_family(fam, data["strides"], opt, data.get("held_out", []))
+def _validate(fam: GaitFamily, data: dict, opt: StepOptimizer, probe_many=None) -> dict:
+    v = check_family(fam, data["strides"], opt, data.get("held_out", []), probe_many=probe_many)
     v["fit_range"] = list(fam.meta.get("fit_range", [])) or [fam.p_min, fam.p_max]
     return v
 

@@ -357,10 +357,11 @@ class StepOptimizer:
         return c.T.copy()
 
     def solve(self, p: float, c0: np.ndarray | None = None, maxiter: int | None = None,
-              target: np.ndarray | None = None, weight: float = 0.0) -> StepSolution:
+              target: np.ndarray | None = None, weight: float = 0.0, diagnose: bool = True) -> StepSolution:
         """Optimal step for stride p. With ``target``/``weight``, minimise C(p)/C_scale + weight *
         |c - target|^2 instead (a smoothing term used to make the family smooth in p); the reported
-        criterion is always C alone."""
+        criterion is always C alone. ``diagnose=False`` leaves the diagnostics of :meth:`diagnose` NaN
+        (they depend on the solution alone and can be filled later, for the solutions kept)."""
         self.p = float(p)
         self.penalty_target = None if target is None else np.asarray(target, dtype=float).ravel().copy()
         self.penalty_weight = float(weight)
@@ -386,7 +387,8 @@ class StepOptimizer:
         self.penalty_target = None
         self.penalty_weight = 0.0
         self._cache_key = None
-        self.diagnose(sol)
+        if diagnose:
+            self.diagnose(sol)
         return sol
 
     def diagnose(self, sol: StepSolution, refine: int = 10) -> None:
