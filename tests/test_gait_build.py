@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 
@@ -29,6 +30,21 @@ def _reduced(**kw):
     vals = dict(REDUCED, **kw)
     return dataclasses.replace(st, strides=tuple(vals["strides"]), smoothing_breakpoints=tuple(vals["smoothing_breakpoints"]),
                                smoothing_weights=tuple(vals["smoothing_weights"]))
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _restore_blas_threads():
+    """These tests set OpenBLAS to one thread (as the build does); the rest of the suite gets back the
+    count it had, and the environment variable as it was."""
+    before = [r.get("threads") for r in blas_info()]
+    env = os.environ.get("OPENBLAS_NUM_THREADS")
+    yield
+    if before and before[0] is not None:
+        set_blas_threads(before[0])
+    if env is None:
+        os.environ.pop("OPENBLAS_NUM_THREADS", None)
+    else:
+        os.environ["OPENBLAS_NUM_THREADS"] = env
 
 
 def test_blas_single_thread():
