@@ -1,25 +1,53 @@
-"""What every run needs that is loaded once per process: robot description, gait family, simulator settings."""
+"""What every run needs that is loaded once per process and robot: robot description, gait family,
+simulator settings.
+
+The robot travels with the run's settings (``RunSettings.robot``, a name under ``robots/`` or a path; ""
+the default robot): every task function a pool runs calls ``settings.activate()`` (:func:`select_robot`)
+before it touches :func:`context`, so a worker process uses the robot of the settings it was given, never
+one set in the parent only."""
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
 
 from biped_sim.plant.config import SimConfig, load_sim_config
-from biped_model.description import RobotDescription, load_description
+from biped_model.description import RobotDescription
 from biped_model.gait_family import GaitFamily
+from biped_model.robot import Robot, resolve_robot
 
 
 @dataclass(frozen=True)
 class Context:
-    """Everything a run needs that can be loaded once per process."""
+    """Everything a run needs that can be loaded once per process (for one robot)."""
 
     desc: RobotDescription
     family: GaitFamily
     sim_config: SimConfig
+    robot: Robot
+    robot_hash: str
 
 
-@functools.lru_cache(maxsize=1)
-def context() -> Context:
-    """This process's :class:`Context` (config/ files read once)."""
-    return Context(load_description(), GaitFamily.load(), load_sim_config())
+_selected: list[str] = [""]
 
+
+def select_robot(robot: str | None) -> None:
+    """Make ``robot`` (name or path; "" or None: the default robot) the one :func:`context` returns in this
+    process (called from the run's settings in each process that runs a trial)."""
+    _selected[0] = "" if robot is None else str(robot)
+
+
+def selected_robot() -> str:
+    """The robot :func:`context` returns in this process ("" = the default robot)."""
+    return _selected[0]
+
+
+def context(robot: str | None = None) -> Context:
+    """The :class:`Context` of ``robot`` (None: this process's selected robot, :func:`select_robot`); its
+    files read once per process (its family checked against its description's stamp)."""
+    return _context(selected_robot() if robot is None else str(robot))
+
+
+@functools.lru_cache(maxsize=4)
+def _context(robot: str) -> Context:
+    r = resolve_robot(robot)
+    return Context(r.description(), r.family(), load_sim_config(), r, r.description_hash())
