@@ -71,9 +71,15 @@ class DisturbanceNode(Node):
         super().__init__(gn.DISTURBANCE_NODE, parameter_overrides=overrides, **kwargs)
         # sim time read only at a request: a polled /clock reader instead of rclpy's callback per message
         self.sim_clock = SimClock(self, poll_clock=True)
+        robot = get_str(self, 'robot')
         desc_path = get_str(self, 'description_path')
         try:
-            desc = load_description(desc_path or None)
+            from biped_model.robot import resolve_robot
+            desc_file = desc_path or resolve_robot(robot or None).description_path
+        except ValueError as exc:
+            raise ParameterError('robot', str(exc)) from exc
+        try:
+            desc = load_description(desc_file)
         except (DescriptionError, OSError, ValueError) as exc:
             raise ParameterError('description_path', str(exc)) from exc
         max_force = get_float(self, 'max_force', lo=0.0, lo_open=True)

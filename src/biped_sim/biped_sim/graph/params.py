@@ -157,13 +157,15 @@ def get_float_list(node: Node, name: str) -> list[float]:
 
 
 def load_robot_files(node: Node):
-    """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
-    (empty = robots/biped7/description.yaml, robots/biped7/gait_family.json), checked against each other."""
+    """(description, gait family) from the parameters ``robot`` (a name under robots/ or a path; empty = the
+    default robot, robots/biped7), ``description_path`` and ``gait_family_path`` (empty = the robot's),
+    checked against each other."""
     from biped_sim.graph.checks import RobotFilesError, load_robot_files as _load
+    robot = get_str(node, 'robot')
     desc_path = get_str(node, 'description_path')
     fam_path = get_str(node, 'gait_family_path')
     try:
-        return _load(desc_path, fam_path)
+        return _load(desc_path, fam_path, robot)
     except RobotFilesError as exc:
         raise ParameterError(exc.field, str(exc)) from exc
 
