@@ -51,3 +51,14 @@ def context(robot: str | None = None) -> Context:
 def _context(robot: str) -> Context:
     r = resolve_robot(robot)
     return Context(r.description(), r.family(), load_sim_config(), r, r.description_hash())
+
+
+def robot_in_process(settings) -> dict:
+    """The robot a process runs a trial of ``settings`` (a ``RunSettings``) on, as a pool's task sees it:
+    ``settings.activate()`` then :func:`context`. JSON-ready: ``robot`` (the directory's name), ``directory``,
+    ``robot_hash`` (its description's sha256), ``mass`` [kg] and ``pid``."""
+    import os
+    settings.activate()
+    ctx = context()
+    return {"robot": ctx.robot.name, "directory": str(ctx.robot.directory), "robot_hash": ctx.robot_hash,
+            "mass": ctx.desc.total_mass, "pid": os.getpid()}
