@@ -370,3 +370,38 @@ def test_round_trip_new_build_check_walk(tmp_path):
     from biped_controller.studies.trial.settings import parse_overrides
     res = run(3, "both", settings=parse_overrides((), robot=str(d)))
     assert res.steps_walked == 3 and not res.fallen
+
+
+def test_new_derives_the_size_dependent_run_settings(tmp_path):
+    """settings.yaml: a copy of biped7 gets the configuration files' values bit for bit; a 30 kg torso on
+    1.2 m legs the touch threshold x weight ratio, the fall height x 1.5, tau_dot_max x sqrt(1.5); they reach
+    the run's settings (and a --set still wins)."""
+    from biped_sim.plant.config import load_sim_config
+    from biped_controller.core.control.config import load_controller_config
+    from biped_controller.studies.trial.settings import parse_overrides
+    assert robot_cli("new", str(tmp_path / "same"), "--from", "biped7").returncode == 0
+    own = yaml.safe_load((tmp_path / "same" / "settings.yaml").read_text())
+    sim, ctrl = load_sim_config(), load_controller_config()
+    assert own["push_height"]["value"] == sim.push_height == 0.3125
+    assert own["observer_height"]["value"] == ctrl.observer_height == 0.3125
+    assert own["mujoco_fall_hip_height"]["value"] == sim.mujoco_fall_hip_height == 0.5
+    assert own["mujoco_touch_threshold"]["value"] == sim.mujoco_touch_threshold == 20.0
+    assert own["tau_dot_max"]["value"] == ctrl.tau_dot_max == 46.3
+    assert all(v["reason"].startswith("derived") for v in own.values())
+    p = robot_cli("new", str(tmp_path / "big"), "--from", "biped7", "--set", "thigh.length=0.6", "--set", "shin.length=0.6",
+                  "--set", "thigh.com_from_proximal=0.3", "--set", "shin.com_from_proximal=0.3", "--set", "torso.mass=30")
+    assert p.returncode == 0, p.stderr
+    own = yaml.safe_load((tmp_path / "big" / "settings.yaml").read_text())
+    assert own["mujoco_fall_hip_height"]["value"] == pytest.approx(0.75)
+    assert own["mujoco_touch_threshold"]["value"] == pytest.approx(20.0 * 51.0 / 41.0, abs=1e-6)
+    assert own["tau_dot_max"]["value"] == pytest.approx(46.3 * 1.5 ** 0.5, abs=1e-4)
+    # applied: a robot with settings.yaml and a (fixture) family
+    d = robot_dir(tmp_path, "tall_torso", {"torso.com_from_proximal": 0.4, "torque_limits.knee": 200.0})
+    (d / "settings.yaml").write_text(yaml.safe_dump({"push_height": {"value": 0.4, "reason": "torso com"},
+                                                     "observer_height": {"value": 0.4, "reason": "torso com"}}))
+    st = parse_overrides((), robot=str(d))
+    assert st.sim_config().push_height == 0.4 and st.ctrl_config("both").observer_height == 0.4
+    assert parse_overrides(("push_height=0.3",), robot=str(d)).sim_config().push_height == 0.3
+    (d / "settings.yaml").write_text(yaml.safe_dump({"push_height": {"value": 0.4, "reason": ""}}))
+    with pytest.raises(RobotError, match="push_height"):
+        parse_overrides((), robot=str(d))

@@ -3,7 +3,12 @@
 - ``description.yaml`` -- its physical values (:mod:`biped_model.description`),
 - ``gait.yaml``        -- the settings of its gait generation,
 - ``gait_family.json`` -- its generated family q_d(p, tau), stamped with the hash of the description it was
-  built for.
+  built for;
+- ``settings.yaml``    -- optional: the keys of ``config/controller.yaml`` and ``config/simulator.yaml`` whose
+  values depend on the robot's size (push and observer heights, MuJoCo's fall height and touch threshold,
+  ``tau_dot_max``), each ``{value, reason}``, derived from the description by ``scripts/robot new``. They
+  apply over the configuration files and under a profile and ``--set`` (:meth:`Robot.settings`). The default
+  robot has none: its values are the configuration files'.
 
 The URDF and the MJCF are generated from the description when asked (:meth:`Robot.urdf`,
 :meth:`Robot.mjcf`); they are not stored.
@@ -36,6 +41,7 @@ GAIT_FILE = "gait.yaml"
 FAMILY_FILE = "gait_family.json"
 STAMP_FILE = "gait_family.stamp.json"
 STAMP_KEY = "robot_stamp"
+SETTINGS_FILE = "settings.yaml"
 
 
 class RobotError(ValueError):
@@ -125,6 +131,24 @@ class Robot:
         """The gait family, checked against the description's hash."""
         self.check_stamp()
         return _family(self.family_path, _mtime(self.family_path))
+
+    @property
+    def settings_path(self) -> Path:
+        return self.directory / SETTINGS_FILE
+
+    def settings(self) -> tuple[tuple[str, object], ...]:
+        """The robot's own settings (``settings.yaml``: key -> value, sorted; empty without the file). Each
+        entry must be ``{value, reason}`` with a reason (:class:`RobotError` naming the file and the key);
+        whether a key is a controller or simulator key is checked where they are applied."""
+        if not self.settings_path.is_file():
+            return ()
+        from biped_model.settings import SettingsError, load_yaml_tree, read_settings
+        try:
+            tree = load_yaml_tree(self.settings_path)
+            values = read_settings(self.settings_path, list(tree))
+        except SettingsError as exc:
+            raise RobotError(str(exc)) from exc
+        return tuple(sorted(values.items()))
 
     def urdf(self) -> str:
         from biped_model.description import make_urdf

@@ -32,7 +32,7 @@ import yaml
 
 from biped_model.description import DescriptionError, RobotDescription, parse_description
 from biped_model.gait_family import GaitFamily, GaitFamilyError
-from biped_model.robot import (DESCRIPTION_FILE, FAMILY_FILE, GAIT_FILE, STAMP_KEY, Robot, RobotError,
+from biped_model.robot import (DESCRIPTION_FILE, FAMILY_FILE, GAIT_FILE, SETTINGS_FILE, STAMP_KEY, Robot, RobotError,
                                is_path_spec, resolve_robot, robot_names)
 from biped_model.settings import SettingsError, load_yaml_tree, robots_dir
 
@@ -98,6 +98,55 @@ def derive_gait_settings(tree: dict, base: RobotDescription, desc: RobotDescript
     return out
 
 
+#: the controller and simulator settings ``derive_robot_settings`` derives (a robot's settings.yaml)
+DERIVED_SETTINGS = ("push_height", "observer_height", "mujoco_fall_hip_height", "mujoco_touch_threshold", "tau_dot_max")
+
+
+def base_settings(base: Robot) -> dict:
+    """The effective values of :data:`DERIVED_SETTINGS` for the robot ``base``: the configuration files'
+    (``config/simulator.yaml``, ``config/controller.yaml``) under its own settings.yaml."""
+    from biped_sim.plant.config import load_sim_config
+    from biped_controller.core.control.config import load_controller_config
+    own = dict(base.settings())
+    sim = load_sim_config(**{k: v for k, v in own.items() if k in ("push_height", "mujoco_fall_hip_height",
+                                                                   "mujoco_touch_threshold")})
+    ctrl = load_controller_config(**{k: v for k, v in own.items() if k in ("observer_height", "tau_dot_max")})
+    return {"push_height": sim.push_height, "observer_height": ctrl.observer_height,
+            "mujoco_fall_hip_height": sim.mujoco_fall_hip_height, "mujoco_touch_threshold": sim.mujoco_touch_threshold,
+            "tau_dot_max": ctrl.tau_dot_max}
+
+
+def derive_robot_settings(values: dict, base: RobotDescription, desc: RobotDescription, T_base: float, T: float,
+                          base_name: str) -> dict:
+    """The size-dependent controller and simulator settings of ``desc`` from ``base``'s ``values``
+    (:func:`base_settings`), ``{key: {value, reason}}``: the push and observer heights keep their place on
+    the torso (a fraction of its centre of mass's height above the hip), MuJoCo's fall hip height its
+    fraction of the leg length, the touch threshold its fraction of the weight, ``tau_dot_max`` (a tenth
+    of a step per control period) scales with the step time. Equal to ``values`` when the two descriptions
+    agree in those sizes."""
+    k = desc.leg_length / base.leg_length
+    kc = desc.torso.com / base.torso.com
+    kw = desc.total_mass * desc.gravity / (base.total_mass * base.gravity)
+    kT = T / T_base
+    src = f"{base_name}'s"
+    out = {}
+    for key, factor, why in (
+            ("push_height", kc, f"the torso's centre of mass above the hip ({desc.torso.com:g} m) x {src} "
+                                f"{values['push_height']:g} / {base.torso.com:g} m"),
+            ("observer_height", kc, f"the assumed height of the estimated force keeps its place on the torso: "
+                                    f"{src} {values['observer_height']:g} m x {kc:.6g} (torso centre-of-mass height ratio)"),
+            ("mujoco_fall_hip_height", k, f"a fall: hip below the same fraction of the leg length as {base_name} "
+                                          f"({values['mujoco_fall_hip_height'] / base.leg_length:.4g} of {desc.leg_length:g} m)"),
+            ("mujoco_touch_threshold", kw, f"a foot is loaded above the same fraction of the weight as for {base_name} "
+                                           f"({values['mujoco_touch_threshold'] / (base.total_mass * base.gravity):.4g} of "
+                                           f"{desc.total_mass * desc.gravity:.4g} N)"),
+            ("tau_dot_max", kT, f"a tenth of a step per control period: {src} {values['tau_dot_max']:g} x step time "
+                                f"ratio {kT:.6g}")):
+        v = values[key] if factor == 1.0 else _round(values[key] * factor)
+        out[key] = {"value": v, "reason": f"derived from the description: {why}"}
+    return out
+
+
 def _set_fields(tree: dict, items: list[str], base_name: str) -> dict:
     """``tree`` (a parsed description) with ``FIELD=VALUE`` items set (FIELD dotted, e.g. foot.length); the
     field must exist (an unknown one: :class:`UsageError` naming it)."""
@@ -142,6 +191,8 @@ def cmd_new(name: str, source: str, items: list[str]) -> int:
     gait_tree = load_yaml_tree(base.gait_path)
     load_gait_settings(base.gait_path)                      # the source's settings are valid
     derived = derive_gait_settings(gait_tree, base_desc, desc, base.name)
+    own = derive_robot_settings(base_settings(base), base_desc, desc, float(gait_tree["step_duration"]["value"]),
+                                float(derived["step_duration"]["value"]), base.name)
     target.mkdir(parents=True)
     if items:
         head = (f"# Physical description of robot {target.name}: {base.name}'s ({base.description_path}) with "
@@ -153,9 +204,13 @@ def cmd_new(name: str, source: str, items: list[str]) -> int:
     head = (f"# Gait generation settings of robot {target.name}, from {base.name}'s (scripts/robot new): the "
             f"size-dependent values ({', '.join(DERIVED)}) derived from its description, each with its reason.\n")
     (target / GAIT_FILE).write_text(head + yaml.safe_dump(derived, sort_keys=False, width=120, default_flow_style=None), encoding="utf-8")
+    head = (f"# Size-dependent controller and simulator settings of robot {target.name} (scripts/robot new, from "
+            f"{base.name}): applied over config/controller.yaml and config/simulator.yaml, under a profile and --set.\n")
+    (target / SETTINGS_FILE).write_text(head + yaml.safe_dump(own, sort_keys=False, width=120), encoding="utf-8")
     shown = ", ".join(f"{k}={_short(derived[k]['value'])}" for k in DERIVED)
+    shown_own = ", ".join(f"{k}={own[k]['value']:g}" for k in DERIVED_SETTINGS)
     print(f"{target}: {DESCRIPTION_FILE} ({'from ' + base.name if not items else ', '.join(items)}), {GAIT_FILE} "
-          f"(derived: {shown}); next: {PROG} build {name}")
+          f"(derived: {shown}), {SETTINGS_FILE} ({shown_own}); next: {PROG} build {name}")
     return 0
 
 

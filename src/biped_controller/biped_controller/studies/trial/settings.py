@@ -156,6 +156,12 @@ def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | boo
     prof = load_profile(name)
     ctrl: dict[str, object] = {}
     sim: dict[str, object] = {}
+    robot = canonical_robot(robot)
+    if robot:                           # the robot's own settings (robots/<name>/settings.yaml), under the profile
+        from biped_model.robot import resolve_robot
+        r = resolve_robot(robot)
+        for key, value in r.settings():
+            _place(key, value, ctrl, sim, f"{r.settings_path}:")
     for key, value in prof.settings:
         _place(key, value, ctrl, sim, f"profile {name}:")
     given: set[str] = set()
@@ -182,7 +188,7 @@ def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | boo
         except ValueError as exc:
             raise OverrideError(f"profile {name}: perturbation: {exc}") from exc
     return RunSettings(tuple(sorted(ctrl.items())), tuple(sorted(sim.items())), pert, full_trials=bool(full_trials),
-                       profile=name, robot=canonical_robot(robot))
+                       profile=name, robot=robot)
 
 
 def canonical_robot(robot: str | None) -> str:
