@@ -292,6 +292,11 @@ def test_trial_tasks_select_the_robot_of_their_settings(tmp_path):
     rec = search._trial((paper_push(10.0), "none", st))
     assert selected_robot() == str(d.resolve()) and rec["force"] == 10.0
     select_robot("")
+    from biped_controller.studies.capmap.spec import Cell, SimSpec
+    from biped_controller.studies.capmap.task import simulate
+    rec = simulate(SimSpec(Cell("none", "forward", 0.5, 0.025), 10.0), st)
+    assert selected_robot() == str(d.resolve()) and rec["force"] == 10.0
+    select_robot("")
 
 
 def test_default_robot_settings_equal_the_settings_before_robots():
@@ -405,3 +410,25 @@ def test_new_derives_the_size_dependent_run_settings(tmp_path):
     (d / "settings.yaml").write_text(yaml.safe_dump({"push_height": {"value": 0.4, "reason": ""}}))
     with pytest.raises(RobotError, match="push_height"):
         parse_overrides((), robot=str(d))
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_launch_on_another_robot_publishes_its_urdf(ros_domain, tmp_path):
+    """scripts/launch --robot: the nodes take the robot (parameter robot); the bag's /robot_description is
+    that robot's URDF (its 0.55 kg feet), the walk reaches its steps; a robot with a stale family: exit 2."""
+    from biped_model.description import make_urdf
+    from biped_sim.recording.bag_reader import read_bag
+    d = robot_dir(tmp_path, "strong_feet", {"foot.mass": 0.55, "torque_limits.hip": 160.0})
+    bag = tmp_path / "bag"
+    p = subprocess.run([PY, "-m", "biped_sim.graph.launch", "--steps", "2", "--robot", str(d), "--bag", str(bag)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    data = read_bag(bag, decode=True)
+    (urdf,) = [m.data for t, _, _, m in data["messages"] if t == "/robot_description"]
+    assert urdf == make_urdf(resolve_robot(str(d)).description()) != make_urdf(load_description())
+    assert data["counts"]["/sim/impacts"] == 2
+    stale = robot_dir(tmp_path, "stale", {"foot.mass": 0.55}, stamp_for=description_hash(load_description()))
+    p = subprocess.run([PY, "-m", "biped_sim.graph.launch", "--steps", "2", "--robot", str(stale),
+                        "--bag", str(tmp_path / "bag2")], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 2 and "another description" in p.stderr and not (tmp_path / "bag2").exists()
