@@ -432,3 +432,25 @@ def test_launch_on_another_robot_publishes_its_urdf(ros_domain, tmp_path):
     p = subprocess.run([PY, "-m", "biped_sim.graph.launch", "--steps", "2", "--robot", str(stale),
                         "--bag", str(tmp_path / "bag2")], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert p.returncode == 2 and "another description" in p.stderr and not (tmp_path / "bag2").exists()
+
+
+def test_initial_guess_takes_the_hip_height_of_the_gait_settings():
+    """gait.yaml's initial_hip_height sets the initial guess's double-support posture; without it 0.74 m
+    (the default robot's guess, unchanged)."""
+    import dataclasses
+    import numpy as np
+    from biped_controller.gaits.optimizer import StepOptimizer, basis, double_support_posture, load_gait_settings
+    st = load_gait_settings()
+    assert "initial_hip_height" not in st.raw
+    base = StepOptimizer(settings=st)
+    c = base.initial_guess(0.463)
+    phi, _, _ = basis(np.array([1.0]), st.T)
+    raw = dict(st.raw, initial_hip_height={"value": 0.74, "reason": "same"})
+    same = StepOptimizer(settings=dataclasses.replace(st, raw=raw)).initial_guess(0.463)
+    assert np.array_equal(c, same)
+    raw = dict(st.raw, initial_hip_height={"value": 0.70, "reason": "lower"})
+    low = StepOptimizer(settings=dataclasses.replace(st, raw=raw)).initial_guess(0.463)
+    assert not np.allclose(c, low)
+    # the end of the guessed step is (to the least-squares projection) the 0.70 m posture
+    qT = double_support_posture(base.desc, 0.463, hip_height=0.70)
+    assert np.max(np.abs((phi @ low.T)[0] - qT)) < 0.1 < np.max(np.abs((phi @ c.T)[0] - qT))
