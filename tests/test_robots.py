@@ -61,6 +61,14 @@ def robot_cli(*args, cwd=ROOT) -> subprocess.CompletedProcess:
                           text=True)
 
 
+@pytest.fixture(autouse=True)
+def _default_robot_after():
+    """Every test leaves this process's selected robot the default one (trial.context.select_robot)."""
+    yield
+    from biped_controller.studies.trial.context import select_robot
+    select_robot("")
+
+
 def _files(d: Path) -> dict:
     return {p.name: p.read_bytes() for p in sorted(d.iterdir())} if d.exists() else {}
 
