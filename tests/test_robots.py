@@ -462,3 +462,18 @@ def test_initial_guess_takes_the_hip_height_of_the_gait_settings():
     # the end of the guessed step is (to the least-squares projection) the 0.70 m posture
     qT = double_support_posture(base.desc, 0.463, hip_height=0.70)
     assert np.max(np.abs((phi @ low.T)[0] - qT)) < 0.1 < np.max(np.abs((phi @ c.T)[0] - qT))
+
+
+def test_force_search_ranges_scale_with_the_robot(tmp_path, monkeypatch):
+    """M sqrt(g L) relative to biped7: 1.0 exactly for biped7 (its ranges bit for bit), 46/41 for a 5 kg
+    heavier torso on the same legs; robustness's searches follow the robot."""
+    from biped_controller.studies import robustness
+    from biped_controller.studies.trial.context import force_scale, scaled_force
+    assert force_scale("") == 1.0 and scaled_force(2000.0, "") == 2000.0 and scaled_force(5.0, "biped7") == 5.0
+    d = robot_dir(tmp_path, "heavy", {"torso.mass": 25.0, "torque_limits.knee": 200.0})
+    assert force_scale(str(d)) == pytest.approx(46.0 / 41.0, rel=1e-12)
+    assert scaled_force(2000.0, str(d)) == round(2000.0 * 46.0 / 41.0, 3)
+    assert robustness.search_for("both") is robustness.SEARCHES["both"]
+    monkeypatch.setattr(robustness, "ROBOT", str(d))
+    s = robustness.search_for("both")
+    assert (s.coarse, s.fmax, s.resolution) == tuple(round(x * 46.0 / 41.0, 3) for x in (40.0, 960.0, 20.0))

@@ -54,7 +54,7 @@ from biped_controller.studies.provenance import git_state
 from biped_controller.studies.trial.survival import survival_rule
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, add_robot_arg,
                                                  controller_arg, positive_int, profile_arg)
-from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.context import context, scaled_force
 from biped_controller.studies.trial.record import faulted
 from biped_controller.studies.trial.scan import no_fall_undefined
 from biped_controller.studies.trial.controller import resolve
@@ -85,8 +85,14 @@ ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
 
 
 def search_for(mode: str) -> cmap.Search:
-    """The max-push search of a row: :data:`SEARCHES` for a built-in mode, :data:`PLUGIN_SEARCH` otherwise."""
-    return SEARCHES.get(mode, PLUGIN_SEARCH)
+    """The max-push search of a row: :data:`SEARCHES` for a built-in mode, :data:`PLUGIN_SEARCH` otherwise;
+    for another robot than the default one each force scaled by its M sqrt(g L) / the default robot's
+    (``trial.context.force_scale``; the default robot's: these, bit for bit)."""
+    s = SEARCHES.get(mode, PLUGIN_SEARCH)
+    if not ROBOT:
+        return s
+    return cmap.Search(scaled_force(s.coarse, ROBOT), scaled_force(s.fmax, ROBOT), scaled_force(s.resolution, ROBOT),
+                       s.max_impulse if math.isinf(s.max_impulse) else scaled_force(s.max_impulse, ROBOT))
 
 
 def single_observer(mode: str) -> bool:

@@ -62,3 +62,23 @@ def robot_in_process(settings) -> dict:
     ctx = context()
     return {"robot": ctx.robot.name, "directory": str(ctx.robot.directory), "robot_hash": ctx.robot_hash,
             "mass": ctx.desc.total_mass, "pid": os.getpid()}
+
+
+def force_scale(robot: str | None = None) -> float:
+    """How the push searches' force ranges scale for ``robot`` (None: this process's selected robot): the
+    ratio of its M sqrt(g L) to the default robot's (M the total mass [kg], L the leg length [m]: a push of
+    the same dimensionless impulse F dt / (M sqrt(g L)) and duration). Exactly 1.0 for a robot with the
+    default robot's description, so its search ranges are the committed ones bit for bit."""
+    import math
+    ctx, base = context(robot), context("")
+    if ctx.robot_hash == base.robot_hash:
+        return 1.0
+    d, b = ctx.desc, base.desc
+    return (d.total_mass * math.sqrt(d.gravity * d.leg_length)) / (b.total_mass * math.sqrt(b.gravity * b.leg_length))
+
+
+def scaled_force(value: float, robot: str | None = None) -> float:
+    """``value`` [N or N s] of a default search range for ``robot`` (:func:`force_scale`; rounded to 1e-3:
+    unchanged for the default robot)."""
+    k = force_scale(robot)
+    return value if k == 1.0 else round(value * k, 3)
