@@ -477,3 +477,28 @@ def test_force_search_ranges_scale_with_the_robot(tmp_path, monkeypatch):
     monkeypatch.setattr(robustness, "ROBOT", str(d))
     s = robustness.search_for("both")
     assert (s.coarse, s.fmax, s.resolution) == tuple(round(x * 46.0 / 41.0, 3) for x in (40.0, 960.0, 20.0))
+
+
+def test_no_gait_is_one_line_naming_the_binding_constraint(tmp_path, monkeypatch, capsys):
+    """When the preferred stride has no feasible step, build stops there: one line naming the constraint with
+    the smallest margin, exit 1, the previous family untouched (the solver's answer is replaced by a failed
+    one here: a real infeasible robot costs minutes of SLSQP)."""
+    from types import SimpleNamespace
+    from biped_controller.gaits import generation
+    from biped_controller.studies import robots
+    d = robot_dir(tmp_path, "strong", {"torque_limits.hip": 160.0})
+    before = _files(d)
+
+    class Failing:
+        def __init__(self, desc=None, settings=None):
+            self.st = settings
+
+        def solve(self, p, c0=None):
+            return SimpleNamespace(success=False, criterion=float("nan"), min_margin=-0.0123, min_margin_name="zmp_toe",
+                                   message="Positive directional derivative for linesearch", c=None)
+    monkeypatch.setattr(robots, "StepOptimizer", Failing)
+    monkeypatch.setattr(generation, "generate", lambda *a, **k: pytest.fail("the generator must not run"))
+    assert robots.cmd_build(str(d), force=False, speed_sweep=False) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no feasible gait" in err and "zmp_toe" in err and "-0.0123" in err
+    assert _files(d) == before
