@@ -15,8 +15,8 @@ The URDF and the MJCF are generated from the description when asked (:meth:`Robo
 
 **The stamp.** :func:`description_hash` is the sha256 of the description's physical values (every field of
 :class:`~biped_model.description.RobotDescription` but ``source``, as sorted JSON; a reason's text or a
-comment does not change it). A family built by ``scripts/robot build`` carries it in the file itself, under
-``robot_stamp`` (``description_sha256``); the default robot's committed family predates stamps and is kept
+comment does not change it). A family built by ``scripts/robot build`` (or written by
+``scripts/generate_gait_family``) carries it in the file itself, under ``robot_stamp`` (``description_sha256``); the default robot's committed family predates stamps and is kept
 bit for bit, so its stamp lives beside it in ``gait_family.stamp.json``, which names the sha256 of the family
 file's bytes as well (it stamps that file only). :meth:`Robot.family` refuses a family whose stamp names
 another description, or that has no stamp at all, with one line naming both files.

@@ -18,6 +18,7 @@ import numpy as np
 
 from biped_model.settings import default_robot_dir
 from biped_model.description import load_description
+from biped_model.robot import STAMP_KEY, description_hash
 from biped_model.floating import impact_paper
 
 from biped_model.gait_family import SPLINE, GaitFamily, fit_family, fit_spline_family
@@ -383,6 +384,7 @@ def refit(path: Path, settings_path: Path | None = None, progress: bool = True) 
     data["settings"] = dict(st.raw)
     data["held_out"] = [dict(_solution_record(h), smoothing_weight=st.smoothing_weights[-1]) for h in held]
     data["validation"] = _validate(fam, data, opt)
+    data[STAMP_KEY] = {"description_sha256": description_hash(opt.desc)}
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     return data
 
@@ -421,6 +423,8 @@ def generate(path: Path, progress: bool = True, settings_path: Path | None = Non
         **({"speed_1mps": speed} if speed is not None else {}),
     }
     data["validation"] = _validate(fam, data, opt)
+    # the stamp (biped_model.robot): the description this family was built for
+    data[STAMP_KEY] = {"description_sha256": description_hash(opt.desc)}
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     print(f"family: {t_family:.1f} s, 1 m/s sweep: {t_speed:.1f} s, total {time.perf_counter() - t0:.1f} s")
     return data

@@ -279,6 +279,8 @@ def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None =
         if not ok and not force:
             print(f"{r.family_path}: not replaced (the new family fails its checks; --force writes it anyway)")
             return 1
+        if data[STAMP_KEY]["description_sha256"] != r.description_hash():    # (the generator's own stamp)
+            raise UsageError(f"{r.description_path} changed during the build: {r.family_path} not replaced")
         data[STAMP_KEY] = {"description_sha256": r.description_hash(), "description": DESCRIPTION_FILE,
                            "settings": GAIT_FILE, "accepted": ok}
         tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
