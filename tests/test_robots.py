@@ -502,3 +502,18 @@ def test_no_gait_is_one_line_naming_the_binding_constraint(tmp_path, monkeypatch
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no feasible gait" in err and "zmp_toe" in err and "-0.0123" in err
     assert _files(d) == before
+
+
+def test_new_takes_a_given_speed(tmp_path):
+    """--speed: the step time is the preferred stride over it (tau_dot_max follows the step time); a speed
+    <= 0 is one line, exit 2, nothing created."""
+    p = robot_cli("new", str(tmp_path / "slow"), "--from", "biped7", "--speed", "0.8")
+    assert p.returncode == 0, p.stderr
+    g = yaml.safe_load((tmp_path / "slow" / "gait.yaml").read_text())
+    own = yaml.safe_load((tmp_path / "slow" / "settings.yaml").read_text())
+    assert g["step_duration"]["value"] == round(0.463 / 0.8, 6) and g["step_duration"]["reason"].startswith("given")
+    assert g["preferred_stride"]["value"] == 0.463
+    assert own["tau_dot_max"]["value"] == pytest.approx(46.3 / 0.8, abs=1e-4)
+    p = robot_cli("new", str(tmp_path / "never"), "--from", "biped7", "--speed", "-1")
+    assert p.returncode == 2 and "--speed" in p.stderr and p.stderr.count("\n") == 1
+    assert not (tmp_path / "never").exists()

@@ -59,13 +59,15 @@ def half_foot(desc: RobotDescription) -> float:
     return min(-desc.foot.l_min, desc.foot.l_max)
 
 
-def derive_gait_settings(tree: dict, base: RobotDescription, desc: RobotDescription, base_name: str) -> dict:
+def derive_gait_settings(tree: dict, base: RobotDescription, desc: RobotDescription, base_name: str,
+                         speed: float | None = None) -> dict:
     """The gait settings ``tree`` (a parsed gait.yaml of the robot ``base``) with the size-dependent values
     derived for ``desc``, each with its reason. Same Froude number v^2 / (g L) as ``base`` (L the leg
     length): strides, preferred stride and smoothing breakpoints scale with k = L / L_base, the step time
     with sqrt(k g_base / g) (so the speed scales with sqrt(k g / g_base)); the ZMP design margin keeps its
     fraction of the half-foot; the initial guess's hip height scales with k. With k = 1 and the same foot
-    every value is ``base``'s, bit for bit."""
+    every value is ``base``'s, bit for bit. ``speed`` [m/s] given: the step time is the preferred stride over
+    it instead (the strides still scale with k)."""
     k = desc.leg_length / base.leg_length
     kt = math.sqrt(k * base.gravity / desc.gravity)
     kf = half_foot(desc) / half_foot(base)
@@ -79,6 +81,11 @@ def derive_gait_settings(tree: dict, base: RobotDescription, desc: RobotDescript
     out["step_duration"] = {"value": T, "reason": (
         f"derived: {src} {T0} s x sqrt(k g_base / g) = x {kt:.6g} (k = leg length {desc.leg_length:g} / "
         f"{base.leg_length:g} m): the same Froude number v^2 / (g L) = {froude:.4g} as {base_name}")}
+    if speed is not None:
+        T = _round(_round(p0 * k) / speed)
+        out["step_duration"] = {"value": T, "reason": (
+            f"given: speed {speed:g} m/s (scripts/robot new --speed), T = preferred stride / speed; {base_name} "
+            f"walks at the Froude number {froude:.4g}, this robot at {speed ** 2 / (desc.gravity * desc.leg_length):.4g}")}
     out["preferred_stride"] = {"value": _round(p0 * k), "reason": (
         f"derived: {src} {p0} m x k = {k:.6g} (strides scale with the leg length at the same Froude number); "
         f"speed {_round(p0 * k) / T:.4g} m/s")}
@@ -176,7 +183,7 @@ def _target_dir(name: str) -> Path:
     return Path(name).expanduser() if is_path_spec(name) else robots_dir() / name
 
 
-def cmd_new(name: str, source: str, items: list[str]) -> int:
+def cmd_new(name: str, source: str, items: list[str], speed: float | None = None) -> int:
     base = resolve_robot(source)
     base_desc = base.description()
     target = _target_dir(name)
@@ -190,7 +197,9 @@ def cmd_new(name: str, source: str, items: list[str]) -> int:
         raise UsageError(f"{target / DESCRIPTION_FILE}: {str(exc).removeprefix('biped description: ')}") from exc
     gait_tree = load_yaml_tree(base.gait_path)
     load_gait_settings(base.gait_path)                      # the source's settings are valid
-    derived = derive_gait_settings(gait_tree, base_desc, desc, base.name)
+    if speed is not None and not (math.isfinite(speed) and speed > 0):
+        raise UsageError(f"--speed must be a finite number > 0 [m/s], got {speed}")
+    derived = derive_gait_settings(gait_tree, base_desc, desc, base.name, speed)
     own = derive_robot_settings(base_settings(base), base_desc, desc, float(gait_tree["step_duration"]["value"]),
                                 float(derived["step_duration"]["value"]), base.name)
     target.mkdir(parents=True)
@@ -346,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--from", dest="source", default="", metavar="ROBOT", help="the robot to start from (default biped7)")
     a.add_argument("--set", dest="items", action="append", default=[], metavar="FIELD=VALUE",
                    help="a description field changed, e.g. foot.length=0.1 (repeatable; docs/robots.md)")
+    a.add_argument("--speed", type=float, default=None, metavar="M_PER_S",
+                   help="the preferred walking speed [m/s] (default: the source robot's Froude number)")
     a = sub.add_parser("build", help="build the robot's gait family (atomic replace)")
     a.add_argument("robot", metavar="NAME|PATH")
     a.add_argument("--force", action="store_true", help="write the family even when it fails its checks")
@@ -359,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         if args.cmd == "new":
-            return cmd_new(args.name, args.source, args.items)
+            return cmd_new(args.name, args.source, args.items, args.speed)
         if args.cmd == "build":
             return cmd_build(args.robot, args.force, not args.no_speed_sweep, args.warm_from)
         if args.cmd == "check":
