@@ -517,3 +517,16 @@ def test_new_takes_a_given_speed(tmp_path):
     p = robot_cli("new", str(tmp_path / "never"), "--from", "biped7", "--speed", "-1")
     assert p.returncode == 2 and "--speed" in p.stderr and p.stderr.count("\n") == 1
     assert not (tmp_path / "never").exists()
+
+
+def test_bad_gait_settings_are_one_line_naming_the_file(tmp_path):
+    d = tmp_path / "g"
+    assert robot_cli("new", str(d), "--from", "biped7").returncode == 0
+    g = yaml.safe_load((d / "gait.yaml").read_text())
+    g["preferred_stride"]["value"] = 0.47
+    (d / "gait.yaml").write_text(yaml.safe_dump(g, sort_keys=False))
+    before = _files(d)
+    p = robot_cli("build", str(d))
+    assert p.returncode == 2 and p.stderr.count("\n") == 1, p.stderr
+    assert str(d / "gait.yaml") in p.stderr and "preferred_stride" in p.stderr and "biped7" not in p.stderr
+    assert _files(d) == before

@@ -237,7 +237,9 @@ def _check_inputs(r: Robot):
     try:
         st = load_gait_settings(r.gait_path)
     except (GaitConfigError, SettingsError) as exc:
-        raise UsageError(f"{r.gait_path}: {exc}") from exc
+        # (the settings reader names the default robot's file in some messages, and the file in others)
+        why = str(exc).replace("robots/biped7/gait.yaml: ", "").replace(f"{r.gait_path}: ", "")
+        raise UsageError(f"{r.gait_path}: {why}") from exc
     return desc, st
 
 
