@@ -16,6 +16,14 @@ ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = None
 
 
+def robot_files():
+    """(RobotDescription, GaitFamily) of the bench's robot (``--robot``: ``SETTINGS.robot``; the default robot
+    without it), as the studies load it (``trial.context.context``)."""
+    from biped_controller.studies.trial.context import context
+    ctx = context(SETTINGS.robot if SETTINGS is not None else "")
+    return ctx.desc, ctx.family
+
+
 def ctrl_cfg(mode: str, **kw):
     """``load_controller_config`` with the profile's controller settings, then ``kw``."""
     from biped_controller.core.control.config import load_controller_config

@@ -8,7 +8,7 @@ from time import perf_counter_ns
 
 import numpy as np
 
-from benchmarks.common import ctrl_cfg, pct, sim_cfg
+from benchmarks.common import ctrl_cfg, pct, robot_files, sim_cfg
 
 
 def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
@@ -22,10 +22,9 @@ def bench_controller(records, min_steps: int, mode: str = "both") -> dict:
     Passes repeat the recording until >= min_steps steps each.
     """
     from biped_controller.core.control.controller import AdaptiveController
-    from biped_model.gait_family import GaitFamily
-    from biped_model.description import LEFT, load_description
+    from biped_model.description import LEFT
 
-    desc, family, scfg = load_description(), GaitFamily.load(), sim_cfg()
+    (desc, family), scfg = robot_files(), sim_cfg()
     ccfg = ctrl_cfg(mode, period=scfg.control_period)
     states = [(r.t, np.array(r.q), np.array(r.qd), r.stance) for r in records]
     reps = max(1, math.ceil(min_steps / len(states)))

@@ -7,15 +7,16 @@ import time
 
 import numpy as np
 
-from benchmarks.common import PUSH_DURATION, PUSH_START, ctrl_cfg, log, sim_cfg
+from benchmarks.common import PUSH_DURATION, PUSH_START, ctrl_cfg, log, robot_files, sim_cfg
 
 
 def push_run(force: float, steps: int, mode: str = "both", keep_qp: bool = True):
     from biped_controller.closed_loop.runner import run
     from biped_sim.plant.push import Push
     scfg = sim_cfg()
+    desc, family = robot_files()
     return run(steps=steps, mode=mode, pushes=(Push(PUSH_START, PUSH_DURATION, force),), keep_qp=keep_qp,
-               sim_config=scfg, ctrl_config=ctrl_cfg(mode, period=scfg.control_period))
+               sim_config=scfg, ctrl_config=ctrl_cfg(mode, period=scfg.control_period), family=family, desc=desc)
 
 
 def qp_counts(res) -> dict:

@@ -10,7 +10,7 @@ import platform
 import time
 from pathlib import Path
 
-from benchmarks.common import ctrl_cfg, sim_cfg
+from benchmarks.common import ctrl_cfg, robot_files, sim_cfg
 
 
 def bench_inprocess(steps: int, repeats: int = 2) -> dict:
@@ -28,9 +28,7 @@ def bench_inprocess(steps: int, repeats: int = 2) -> dict:
         "mujoco_objects": ("mujoco", {"compiled_loop": False}),     # the MuJoCo plant, objects every period
     }
 
-    from biped_model.description import load_description
-    from biped_model.gait_family import GaitFamily
-    desc, family = load_description(), GaitFamily.load()
+    desc, family = robot_files()
     configs = {(e, m): (sim_cfg(engine=e, plant="rigid"), ctrl_cfg(m, engine=e))
                for e in ("fast", "reference") for m in ("none", "both")}
     for m in ("none", "both"):   # the MuJoCo plant with the fast engine's controller (its compiled period)

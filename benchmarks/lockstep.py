@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from benchmarks import common
+
 ROOT = Path(__file__).resolve().parents[1]
 _LINE = re.compile(r"run over: (?P<reason>[^;]*); (?P<steps>\d+) control steps, sim time (?P<sim>[0-9.]+) s, "
                    r"(?P<imp>\d+) impacts, wall (?P<wall>[0-9.]+) s")
@@ -57,7 +59,8 @@ def measure_with_recorder(sim_seconds: float, domain_cls, timeout: float = 300.0
     import tempfile
     with domain_cls() as dom, tempfile.TemporaryDirectory() as tmp:
         p = subprocess.run([sys.executable, "-m", "biped_sim.graph.launch", "--bag", str(Path(tmp) / "bag"), "--steps", "0",
-                            "--sim-param", f"max_time:={sim_seconds}", "--sim-param", "linger:=0.0"],
+                            "--sim-param", f"max_time:={sim_seconds}", "--sim-param", "linger:=0.0"]
+                           + (["--robot", common.SETTINGS.robot] if common.SETTINGS is not None and common.SETTINGS.robot else []),
                            cwd=ROOT, env=dom.env, capture_output=True, text=True, timeout=timeout)
         text = p.stdout + p.stderr
         m = _LINE.search(text)

@@ -60,6 +60,9 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", default=None, metavar="NAME",
                     help="a named profile of config/profiles/ for every controller and plant the bench builds "
                          "(default: the configuration files); a profile with a plant perturbation is refused")
+    ap.add_argument("--robot", default=None, metavar="NAME|PATH",
+                    help="the robot every section builds (a name under robots/ or a path; default biped7; "
+                         "docs/robots.md); not with --controller")
     ap.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
                     help="instead of the bench's sections: the in-process speed of the named controller "
                          "(repeatable; a built-in mode, a registered controller or module:Class) walking on the "
@@ -67,9 +70,9 @@ def main(argv=None) -> int:
                          "1 repeat)")
     a = ap.parse_args(argv)
     if a.controller:
-        if a.profile is not None or a.inprocess_only:
+        if a.profile is not None or a.inprocess_only or a.robot is not None:
             ap.error("--controller times the configuration files' settings alone (no --profile, "
-                     "no --inprocess-only)")
+                     "no --inprocess-only, no --robot)")
         from benchmarks import plugin_bench
         return plugin_bench.main(["--json", a.json or str(RESULTS_DIR / "plugin.json")]
                                  + [x for n in a.controller for x in ("--controller", n)]
@@ -77,15 +80,18 @@ def main(argv=None) -> int:
     if a.json is None:
         a.json = str(RESULTS_DIR / "results.json")
     from biped_controller.studies.trial.settings import OverrideError, differences, run_settings
+    from biped_model.robot import RobotError
     try:
-        common.SETTINGS = run_settings(profile=a.profile)
+        common.SETTINGS = run_settings(profile=a.profile, robot=a.robot)
+    except RobotError as exc:
+        ap.error(str(exc))
     except (OverrideError, ValueError) as exc:
         ap.error(f"--profile {a.profile}: {exc}")
     if common.SETTINGS.perturbation is not None and not common.SETTINGS.perturbation.is_zero:
         ap.error(f"--profile {a.profile}: sets a plant perturbation; the bench times unperturbed plants")
     json_path = Path(a.json)
     md_path = Path(a.md) if a.md else json_path.with_suffix(".md")
-    provenance.track(json_path, None if a.inprocess_only else md_path, argv=argv, plant="rigid,mujoco")
+    provenance.track(json_path, None if a.inprocess_only else md_path, argv=argv, plant="rigid,mujoco", robot=a.robot)
     if a.inprocess_only:
         return inprocess_only(json_path)
     T0 = time.perf_counter()

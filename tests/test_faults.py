@@ -41,6 +41,9 @@ def other_robot(tmp_path_factory):
     from biped_model.description import load_description, make_urdf
     (tmp / 'bad.urdf').write_text(make_urdf(load_description()).replace('"left_knee"', '"l_knee"'))
     (tmp / 'broken.json').write_text('{"family": ')
+    import shutil
+    shutil.copytree(ROOT / 'robots' / 'biped7', tmp / 'stale')      # biped7's family, stamped for biped7 ...
+    (tmp / 'stale' / 'description.yaml').write_text(yaml.safe_dump(tree))   # ... beside another description
     return tmp
 
 
@@ -64,6 +67,11 @@ CASES = [
     ('biped_sim', 'disturbance', 'max_force:=-5.0', 'max_force'),
     ('biped_sim', 'disturbance', 'description_path:=/nonexistent.yaml', 'description_path'),
     ('biped_sim', 'disturbance', 'executor:=multi', 'executor'),
+    ('biped_sim', 'simulator', 'robot:=no_such_robot', 'robot'),
+    ('biped_sim', 'simulator', 'robot:={tmp}/stale', 'robot'),          # a family built for another description
+    ('biped_controller', 'controller', 'robot:=no_such_robot', 'robot'),
+    ('biped_controller', 'controller', 'robot:={tmp}/stale', 'robot'),
+    ('biped_sim', 'disturbance', 'robot:=no_such_robot', 'robot'),
 ]
 
 

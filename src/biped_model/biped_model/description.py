@@ -117,10 +117,65 @@ def _link(tree: dict[str, Any], name: str) -> Link:
     return Link(length, mass, com, inertia)
 
 
+#: every field of a description: group -> its leaves (None: the group is itself a {value, reason} leaf)
+FIELDS: dict[str, tuple[str, ...] | None] = {
+    "gravity": None,
+    "torso": ("length", "mass", "com_from_proximal", "inertia"),
+    "thigh": ("length", "mass", "com_from_proximal", "inertia"),
+    "shin": ("length", "mass", "com_from_proximal", "inertia"),
+    "foot": ("length", "mass", "inertia", "ankle_height", "com_forward", "l_min", "l_max"),
+    "friction": ("mu",),
+    "torque_limits": ("ankle", "knee", "hip"),
+    "joint_limits": ("knee_min_flexion", "knee_max_flexion"),
+}
+
+#: hip height over the stance ankle [leg lengths] of the posture the torque limits must hold (standing_torques)
+STANDING_HIP_HEIGHT = 0.925
+
+
+def _unknown_fields(tree: dict[str, Any]) -> None:
+    for k, v in tree.items():
+        if k not in FIELDS:
+            raise DescriptionError(f"biped description: unknown field '{k}' (fields: {', '.join(FIELDS)})")
+        leaves = FIELDS[k]
+        if leaves is not None and isinstance(v, dict):
+            for sub in v:
+                if sub not in leaves:
+                    raise DescriptionError(f"biped description: unknown field '{k}.{sub}' "
+                                           f"(fields of {k}: {', '.join(leaves)})")
+
+
+def standing_torques(desc: "RobotDescription") -> tuple[float, float, float]:
+    """Static torques [N m] (ankle, knee, hip) of the stance leg in the posture a robot must be able to hold:
+    single support, the hip :data:`STANDING_HIP_HEIGHT` leg lengths straight above the stance ankle (the
+    knee bent forward, the height of the gait generation's initial guess for the default robot: 0.74 m of
+    0.8 m), torso upright, swing leg hanging straight under the hip. Gravity only, frames of the sagittal
+    plane (x forward, z up). The centre of mass of everything above a joint is over the hip line except the
+    stance thigh's (and, for the ankle, the shin's), so the ankle and hip torques are small and the knee's
+    is the one that binds: the weight above the knee times the knee's forward offset from the hip line."""
+    a, b = desc.thigh.length, desc.shin.length
+    h = STANDING_HIP_HEIGHT * (a + b)
+    # knee position (x forward of the ankle-hip line): the triangle ankle-knee-hip with sides b, a, h
+    zk = (h * h + b * b - a * a) / (2.0 * h)          # knee height above the ankle
+    xk = math.sqrt(max(b * b - zk * zk, 0.0))
+    g = desc.gravity
+    swing = desc.thigh.mass + desc.shin.mass + desc.foot.mass
+    # about the knee: torso + swing leg on the hip line (x = 0), stance thigh's centre of mass on the thigh
+    thigh_com_x = xk * (1.0 - desc.thigh.com / a)      # the thigh runs from the hip (x 0) to the knee (x xk)
+    knee = g * ((desc.torso.mass + swing) * xk + desc.thigh.mass * (xk - thigh_com_x))
+    shin_com_x = xk * (desc.shin.com / b)              # the shin runs from the knee (x xk) down to the ankle (x 0)
+    ankle = g * desc.shin.mass * shin_com_x + g * desc.thigh.mass * thigh_com_x
+    hip = 0.0
+    return ankle, knee, hip
+
+
 def parse_description(tree: dict[str, Any], source: str = "") -> RobotDescription:
-    """Validate a parsed YAML tree and build the description. Raises DescriptionError naming the key."""
+    """Validate a parsed YAML tree and build the description. Raises DescriptionError naming the key:
+    a missing or unknown field, a value that is not a finite number, a mass, length or inertia <= 0, a
+    torque limit that cannot hold the standing posture of :func:`standing_torques`."""
     if not isinstance(tree, dict):
         raise DescriptionError("biped description: top level must be a mapping")
+    _unknown_fields(tree)
     foot = Foot(
         length=_positive("foot.length", _value(tree, "foot", "length")),
         mass=_positive("foot.mass", _value(tree, "foot", "mass")),
@@ -145,7 +200,7 @@ def parse_description(tree: dict[str, Any], source: str = "") -> RobotDescriptio
     kmax = _value(tree, "joint_limits", "knee_max_flexion")
     if not kmin < kmax:
         raise DescriptionError("biped description: need joint_limits.knee_min_flexion < knee_max_flexion")
-    return RobotDescription(
+    desc = RobotDescription(
         gravity=_positive("gravity", _value(tree, "gravity")),
         torso=_link(tree, "torso"),
         thigh=_link(tree, "thigh"),
@@ -157,6 +212,11 @@ def parse_description(tree: dict[str, Any], source: str = "") -> RobotDescriptio
         knee_max_flexion=kmax,
         source=source,
     )
+    for name, need, have in zip(("ankle", "knee", "hip"), standing_torques(desc), (ankle, knee, hip)):
+        if have < need:
+            raise DescriptionError(f"biped description: 'torque_limits.{name}' = {have:g} N m cannot hold the robot "
+                                   f"standing ({need:.1f} N m on one leg, hip at {STANDING_HIP_HEIGHT} leg lengths)")
+    return desc
 
 
 def load_description(path: str | os.PathLike[str] | None = None) -> RobotDescription:

@@ -343,10 +343,12 @@ class StepOptimizer:
 
     # -------------------------------------------------------------- solving
     def initial_guess(self, p: float) -> np.ndarray:
-        """Stated initial guess: double-support postures at both ends (hip at 0.74 m, midway between the
+        """Stated initial guess: double-support postures at both ends (hip at the gait settings'
+        ``initial_hip_height`` [m] above the ground, 0.74 m when they do not give it, midway between the
         feet, torso upright, knees bent forwards), joined linearly, plus a swing-knee flexion bump of
         0.6 sin(pi s) rad; projected on degree-4 polynomials by least squares."""
-        qT = double_support_posture(self.desc, p, hip_height=0.74)
+        hip = self.st.raw.get("initial_hip_height", {}).get("value", 0.74) if isinstance(self.st.raw, dict) else 0.74
+        qT = double_support_posture(self.desc, p, hip_height=float(hip))
         q0 = relabel(qT)
         s = np.linspace(0, 1, 50)
         traj = q0[None, :] + (qT - q0)[None, :] * s[:, None]

@@ -76,6 +76,7 @@ from biped_sim.graph.params import (
     ParameterError,
     declare_executor,
     get_profile,
+    robot_settings,
     get_bool,
     get_float,
     get_str,
@@ -104,8 +105,9 @@ def read_controller_config(node: Node) -> ControllerConfig:
     from ``CHOICES``, a bool, or a number; a bad one (or an unknown profile) raises ParameterError naming it."""
     profile = get_profile(node)
     fields = ControllerConfig.__dataclass_fields__
+    own = dict(robot_settings(node))        # the robot's size-dependent values, under the profile's
     try:
-        base = load_controller_config(**{k: v for k, v in profile.settings if k in fields and k != 'period'})
+        base = load_controller_config(**{k: v for k, v in (*own.items(), *profile.settings) if k in fields and k != 'period'})
     except ControllerConfigError as exc:
         raise ParameterError('profile', f"profile {profile.name}: {exc}") from exc
     kw = {}

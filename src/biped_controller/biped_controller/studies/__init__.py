@@ -17,7 +17,8 @@ Product studies (``python -m biped_controller.studies.NAME``):
 - ``baseline_wbc`` -- one push in modes none, wbc, both and hybrid: findings and figure;
 - ``torso`` -- the torso parameter's cost and its p / tau' / lambda figure;
 - ``controllers`` -- the registered controllers: list, check, their max-push rows and map slices;
-- ``figures`` -- the gait family's figures (``scripts/figures``).
+- ``figures`` -- the gait family's figures (``scripts/figures``);
+- ``robots`` -- a robot's life cycle: new, build, check, list (``scripts/robot``, ``docs/robots.md``).
 
 Their shared pieces: ``trial/`` (settings, runs, the survival rule, the early stop, the push search, the
 CLI flags), ``provenance`` (the record of each result file, ``results/README.md``).

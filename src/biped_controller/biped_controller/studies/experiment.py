@@ -59,6 +59,7 @@ from biped_controller.core.control.config import MODES
 from biped_controller.studies import single_runs
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_settings_args, controller_arg,
                                                  finite_float, nonnegative_float, positive_float, positive_int, settings_from_args)
+from biped_controller.studies.trial.context import scaled_force
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.search import max_push_modes, ordering_finding, print_max_push
 from biped_controller.studies.trial.settings import differences, print_settings
@@ -106,6 +107,10 @@ def _controller_arg(a: argparse.ArgumentParser) -> None:
                         "of --mode")
 
 
+#: the push searches' defaults [N] for the default robot (scaled for another: ``trial.context.scaled_force``)
+SEARCH_DEFAULTS = {"resolution": 5.0, "max": 2000.0, "coarse": 50.0}
+
+
 def parser() -> StudyArgumentParser:
     """The command line of ``scripts/experiment``."""
     ap = StudyArgumentParser(prog="scripts/experiment", description=__doc__,
@@ -146,9 +151,13 @@ def parser() -> StudyArgumentParser:
             add_modes_arg(a, TABLE_MODES, f"the paper's {','.join(TABLE_MODES)}")
             a.add_argument("--controller", type=controller_arg, action="append", default=[], metavar="NAME",
                            help="a registered controller added to the table (repeatable)")
-        a.add_argument("--resolution", type=positive_float, default=5.0, help="bisection resolution [N]")
-        a.add_argument("--max", type=positive_float, default=2000.0, help="largest force scanned [N]")
-        a.add_argument("--coarse", type=positive_float, default=50.0, help="coarse scan step [N]")
+        a.add_argument("--resolution", type=positive_float, default=None,
+                       help=f"bisection resolution [N] (default {SEARCH_DEFAULTS['resolution']:g} N; another robot: "
+                            "x its M sqrt(g L) / biped7's, docs/robots.md)")
+        a.add_argument("--max", type=positive_float, default=None,
+                       help=f"largest force scanned [N] (default {SEARCH_DEFAULTS['max']:g} N, scaled likewise)")
+        a.add_argument("--coarse", type=positive_float, default=None,
+                       help=f"coarse scan step [N] (default {SEARCH_DEFAULTS['coarse']:g} N, scaled likewise)")
         _push_window_args(a, with_force=False)
         a.add_argument("--backward", action="store_true", help="push backwards (on the chest) instead")
         a.add_argument("--workers", type=positive_int, default=1, help="processes (each builds its own models)")
@@ -162,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     provenance.track(getattr(args, "json", None), getattr(args, "figures", None), args=args, argv=argv)   # record of each file written (results/README.md)
     settings = settings_from_args(ap, args)
+    for name, default in SEARCH_DEFAULTS.items():
+        if hasattr(args, name) and getattr(args, name) is None:    # scaled with the robot (biped7: the defaults)
+            setattr(args, name, scaled_force(default, settings.robot))
     given = list(sys.argv[1:] if argv is None else argv)
     print(f"scripts/experiment {' '.join(given)}")
     print_settings(settings)

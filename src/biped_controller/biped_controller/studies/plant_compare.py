@@ -56,7 +56,7 @@ from biped_sim.plant.config import load_sim_config
 from biped_sim.plant.push import Push
 from biped_controller.core.control.config import MODES
 from biped_controller.closed_loop import runner
-from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, controller_arg, finite_float,
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, add_robot_arg, controller_arg, finite_float,
                                                  nonnegative_float, positive_int, profile_arg)
 from biped_controller.studies.trial.controller import resolve
 from biped_controller.studies.trial.settings import DEFAULT_PROFILE, RunSettings, parse_overrides
@@ -154,10 +154,11 @@ def no_fall_edge(trials: list[dict]) -> tuple[float, float | None, str]:
 
 
 def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE,
-                 controllers: tuple[str, ...] = ()) -> tuple[str, dict]:
+                 controllers: tuple[str, ...] = (), robot: str | None = None) -> tuple[str, dict]:
     """The max-push table of the four modes and of the ``controllers`` named (registered controllers'
     names, ``trial.controller.resolve``) on both plants, observer on and off (module docstring, ``pushes``).
-    ``reuse``: a table file that holds every row asked for is read, not run again."""
+    ``reuse``: a table file that holds every row asked for is read, not run again. ``robot``: ``--robot``
+    (None: the default robot)."""
     from biped_controller.studies import experiment
     names = tuple(dict.fromkeys(("none", "tau", "p", "both") + tuple(controllers)))
     data = {}
@@ -167,7 +168,8 @@ def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE,
             if not (reuse and f.is_file() and set(names) <= set(json.loads(f.read_text(encoding="utf-8"))["modes"])):
                 experiment.main(["table", "--workers", "2", "--profile", profile, "--observer", obs,
                                  "--set", f"plant={plant}", "--json", str(f)]
-                                + [x for c in controllers for x in ("--controller", c)])
+                                + [x for c in controllers for x in ("--controller", c)]
+                                + (["--robot", robot] if robot else []))
             data[(plant, obs)] = json.loads(f.read_text(encoding="utf-8"))["modes"]
     L = ["| observer | mode | paper [N] | rigid: max push [N] (first failure) | MuJoCo: max push [N] (first failure) | "
          "rigid: no-fall edge [N], first fall | MuJoCo: no-fall edge [N], first fall |",
@@ -189,7 +191,8 @@ def pushes_table(directory: Path, reuse: bool, profile: str = DEFAULT_PROFILE,
     return "\n".join(L), out
 
 
-def push_pair(push: Push, mode: str, observer: bool | None = None, profile: str = DEFAULT_PROFILE) -> list[dict]:
+def push_pair(push: Push, mode: str, observer: bool | None = None, profile: str = DEFAULT_PROFILE,
+              robot: str | None = None) -> list[dict]:
     """``push`` and 5 steps after it by the controller ``mode`` (a built-in mode or a registered controller,
     ``TrialController.walk``) on both plants (the profile's settings, the observer on or off, None: the
     profile's; the observer is the adaptive controller's): the outcome and on MuJoCo the contact diagnostics
@@ -197,7 +200,7 @@ def push_pair(push: Push, mode: str, observer: bool | None = None, profile: str 
     report them."""
     from biped_sim.plant import mujoco as pm
     ctl = resolve(mode)
-    st = parse_overrides((), observer, profile=profile)
+    st = parse_overrides((), observer, profile=profile, robot=robot).activate()
     observer = st.ctrl_config(mode).disturbance_observer if ctl.adaptive else False
     force, start = push.force, push.start
     out = []
@@ -329,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="a registered controller's rows beside the four modes (repeatable)")
     for p_ in (w, pu):
         p_.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE, help="config/profiles/ NAME")
+        add_robot_arg(p_)
     pu.add_argument("--json", type=Path, default=None)
     po = sub.add_parser("push")
     po.add_argument("--force", type=finite_float, required=True)
@@ -341,10 +345,11 @@ def main(argv: list[str] | None = None) -> int:
     po.add_argument("--start", type=nonnegative_float, default=0.2315, help="push onset [s] (default 0.2315 s, phase 0.5; "
                     "onset phase k/20 of the capability map: k/20 x 0.463 s; negative --force: backward)")
     po.add_argument("--json", type=Path, default=None)
+    add_robot_arg(po)
     sub.add_parser("fingerprint")
     a = ap.parse_args(argv)
     provenance.track(getattr(a, "json", None), getattr(a, "dir", None) if a.cmd == "pushes" else None, argv=argv,
-                     plant=None if a.cmd in ("fingerprint",) else "rigid,mujoco")   # record of each file written (results/README.md)
+                     plant=None if a.cmd in ("fingerprint",) else "rigid,mujoco", robot=getattr(a, "robot", None))   # record of each file written (results/README.md)
     if a.cmd == "fingerprint":
         disagree: list = []
         mujoco_fingerprint(disagree=disagree)
@@ -352,15 +357,20 @@ def main(argv: list[str] | None = None) -> int:
             print(f"the controller interface and the compiled path disagree: {', '.join(disagree)}", file=sys.stderr)
             return 1
         return 0
+    if getattr(a, "robot", None) is not None:
+        try:
+            parse_overrides((), profile=a.profile, robot=a.robot)       # the robot checked: one line, exit 2
+        except SETTINGS_ERRORS as exc:
+            ap.error(str(exc))
     if a.cmd == "push":
         rows = push_pair(Push(a.start, 0.025, float(a.force)), a.controller or a.mode,
-                         None if a.observer is None else a.observer == "on", a.profile)
+                         None if a.observer is None else a.observer == "on", a.profile, a.robot)
     elif a.cmd == "pushes":
-        table, rows = pushes_table(a.dir, a.reuse, a.profile, tuple(a.controller))
+        table, rows = pushes_table(a.dir, a.reuse, a.profile, tuple(a.controller), a.robot)
         print(table)
     elif a.cmd == "walk":
         try:
-            settings = parse_overrides((), profile=a.profile)
+            settings = parse_overrides((), profile=a.profile, robot=a.robot).activate()
         except SETTINGS_ERRORS as exc:
             ap.error(str(exc))
         modes = list(dict.fromkeys((list(a.modes) if a.modes is not None else ([] if a.controller else

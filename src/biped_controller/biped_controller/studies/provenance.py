@@ -16,6 +16,14 @@ name; the layout is documented in ``results/README.md``). A record holds every f
 - ``reconstructed`` False for a record written by the run itself; True for a record rebuilt later from
                     git and from the file's own contents, whose unrecoverable fields hold :data:`UNKNOWN`
 
+and, in every record written since robots became directories (:data:`ROBOT_FIELDS`; a record written before
+has neither and still loads):
+
+- ``robot``         the robot of the run: its directory's name under ``robots/`` (``biped7`` by default),
+                    else the directory's path
+- ``robot_hash``    sha256 of that robot's description (``biped_model.robot.description_hash``: its physical
+                    values), :data:`UNKNOWN` when the description cannot be read
+
 A field that could not be known holds the string :data:`UNKNOWN`, never a guess.
 """
 from __future__ import annotations
@@ -33,6 +41,8 @@ from pathlib import Path
 PROVENANCE_FILE = "provenance.json"
 UNKNOWN = "unknown"
 FIELDS = ("commit", "clean", "command", "date", "load_average", "duration_s", "plant", "profile", "reconstructed")
+#: fields every new record holds, absent from the records written before them
+ROBOT_FIELDS = ("robot", "robot_hash")
 CODE_PATHS = ("src", "config", "robots", "benchmarks", "lab", "scripts", "requirements.txt")
 
 
@@ -123,12 +133,13 @@ class Run:
     """
 
     def __init__(self, argv: list[str] | None = None, *, plant: str | None = None, profile: str | None = None,
-                 command: str | None = None) -> None:
+                 command: str | None = None, robot: str | None = None) -> None:
         self.t0 = time.monotonic()
         self.wall0 = time.time()
         self.command = command if command is not None else command_line(argv)
         self.plant = plant
         self.profile = profile
+        self.robot, self.robot_hash = robot_identity(robot)
         self._roots: list[Path] = []
         self._registered = False
 
@@ -138,7 +149,7 @@ class Run:
         rec = {"commit": state["commit"], "clean": state["clean"], "command": self.command, "date": _utc_now(),
                "load_average": [round(x, 2) for x in os.getloadavg()],
                "duration_s": round(time.monotonic() - self.t0, 3), "plant": self.plant, "profile": self.profile,
-               "reconstructed": False}
+               "reconstructed": False, "robot": self.robot, "robot_hash": self.robot_hash}
         if state["modified"]:
             rec["modified"] = state["modified"]
         return rec
@@ -187,13 +198,27 @@ class Run:
 
 
 def track(*roots: os.PathLike | str | None, args=None, argv: list[str] | None = None,
-          plant: str | None = None, profile: str | None = None) -> Run:
+          plant: str | None = None, profile: str | None = None, robot: str | None = None) -> Run:
     """Start a :class:`Run` and record, at exit, the files it writes under ``roots``. ``args`` (an argparse
-    namespace) supplies ``plant`` and ``profile`` when it has them (``--set plant=...`` included)."""
+    namespace) supplies ``plant``, ``profile`` and ``robot`` (``--robot``) when it has them (``--set plant=...``
+    included)."""
     if args is not None:
         profile = profile if profile is not None else getattr(args, "profile", None)
         plant = plant if plant is not None else _plant_of(args)
-    return Run(argv, plant=plant, profile=profile).track(*roots)
+        robot = robot if robot is not None else getattr(args, "robot", None)
+    return Run(argv, plant=plant, profile=profile, robot=robot).track(*roots)
+
+
+def robot_identity(robot: str | None) -> tuple[str, str]:
+    """(``robot``, ``robot_hash``) of a record: the robot ``robot`` names (None or "": the default robot) and
+    its description's sha256; the hash is :data:`UNKNOWN` when the description cannot be read."""
+    from biped_model.robot import RobotError, resolve_robot, robot_label
+    from biped_model.settings import DEFAULT_ROBOT
+    try:
+        label = robot_label(robot)
+        return label, resolve_robot(robot).description_hash()
+    except RobotError:
+        return (str(robot) if robot else DEFAULT_ROBOT), UNKNOWN
 
 
 def _plant_of(args) -> str | None:

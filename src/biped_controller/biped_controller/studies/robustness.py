@@ -52,9 +52,9 @@ from biped_controller.studies import capability_map as cmap
 from biped_controller.closed_loop.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.trial.survival import survival_rule
-from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, controller_arg, positive_int,
-                                                 profile_arg)
-from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, add_robot_arg,
+                                                 controller_arg, positive_int, profile_arg)
+from biped_controller.studies.trial.context import context, scaled_force
 from biped_controller.studies.trial.record import faulted
 from biped_controller.studies.trial.scan import no_fall_undefined
 from biped_controller.studies.trial.controller import resolve
@@ -85,8 +85,14 @@ ALL_INERTIAS = ("torso", "thigh", "shin", "foot")
 
 
 def search_for(mode: str) -> cmap.Search:
-    """The max-push search of a row: :data:`SEARCHES` for a built-in mode, :data:`PLUGIN_SEARCH` otherwise."""
-    return SEARCHES.get(mode, PLUGIN_SEARCH)
+    """The max-push search of a row: :data:`SEARCHES` for a built-in mode, :data:`PLUGIN_SEARCH` otherwise;
+    for another robot than the default one each force scaled by its M sqrt(g L) / the default robot's
+    (``trial.context.force_scale``; the default robot's: these, bit for bit)."""
+    s = SEARCHES.get(mode, PLUGIN_SEARCH)
+    if not ROBOT:
+        return s
+    return cmap.Search(scaled_force(s.coarse, ROBOT), scaled_force(s.fmax, ROBOT), scaled_force(s.resolution, ROBOT),
+                       s.max_impulse if math.isinf(s.max_impulse) else scaled_force(s.max_impulse, ROBOT))
 
 
 def single_observer(mode: str) -> bool:
@@ -160,31 +166,35 @@ SIMULATOR_OVERRIDES: tuple[tuple[str, object], ...] = ()
 CONTROLLER_OVERRIDES: tuple[tuple[str, object], ...] = ()
 #: the profile's name (recorded in the settings; its entries are the overrides above)
 PROFILE: str = DEFAULT_PROFILE
+#: the robot (``--robot``; "" the default), set by :func:`main` like :data:`SIMULATOR_OVERRIDES`: passed
+#: explicitly to every walk task and carried by every push spec's settings
+ROBOT: str = ""
 
 
 def settings_for(perturbation: PlantPerturbation, observer: bool, full_trials: bool = False,
                  simulator: tuple[tuple[str, object], ...] | None = None,
-                 controller: tuple[tuple[str, object], ...] | None = None) -> RunSettings:
+                 controller: tuple[tuple[str, object], ...] | None = None, robot: str | None = None) -> RunSettings:
     """Run settings: the config files, the profile's controller overrides (``controller``, None:
     :data:`CONTROLLER_OVERRIDES`) with the observer switch, the plant's perturbation, ``simulator`` overrides
-    (None: :data:`SIMULATOR_OVERRIDES`)."""
+    (None: :data:`SIMULATOR_OVERRIDES`), the robot (None: :data:`ROBOT`)."""
     sim = SIMULATOR_OVERRIDES if simulator is None else tuple(simulator)
     ctrl = dict(CONTROLLER_OVERRIDES if controller is None else controller)
     ctrl["disturbance_observer"] = bool(observer)
     return RunSettings(controller=tuple(sorted(ctrl.items())), simulator=sim,
-                       perturbation=perturbation, full_trials=full_trials, profile=PROFILE)
+                       perturbation=perturbation, full_trials=full_trials, profile=PROFILE,
+                       robot=ROBOT if robot is None else robot)
 
 
 # ------------------------------------------------------------------------------------------ walk
 def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, steps: int = WALK_STEPS,
                 simulator: tuple[tuple[str, object], ...] | None = None,
-                controller: tuple[tuple[str, object], ...] | None = None) -> dict:
+                controller: tuple[tuple[str, object], ...] | None = None, robot: str | None = None) -> dict:
     """One undisturbed walk of ``steps`` impacts by the controller ``mode`` (``TrialController.walk``; the
     pure task of a worker: ``simulator`` and ``controller`` overrides passed with it, never read from a global
-    in a spawned worker); JSON-ready record. The tracking error [rad], p [m], tau' [-] and the force estimate
+    in a spawned worker; ``robot`` likewise); JSON-ready record. The tracking error [rad], p [m], tau' [-] and the force estimate
     [N] come from the status keys ``max_tracking_error``, ``p``, ``tau_dot``, ``force_estimate`` (None where
     the controller does not report them); a controller fault is a failed walk whose cause is the fault."""
-    st = settings_for(perturbation, observer, simulator=simulator, controller=controller)
+    st = settings_for(perturbation, observer, simulator=simulator, controller=controller, robot=robot).activate()
     t0 = time.perf_counter()
     ctl = resolve(mode)
     res = ctl.walk(steps, st)
@@ -202,7 +212,7 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
     return {
         "kind": "walk", "perturbation": perturbation.as_dict(), "mode": mode,
         "observer": bool(observer) and ctl.uses_observer,
-        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer, simulator, controller),
+        "steps": steps, "fingerprint": walk_fingerprint(perturbation, observer, simulator, controller, robot),
         "survived": (not res.fallen) and fault is None and res.steps_walked >= steps,
         "steps_walked": int(res.steps_walked), "fall_cause": cause,
         "fall_time": None if math.isnan(res.fall_time) else float(res.fall_time),
@@ -216,11 +226,11 @@ def walk_record(perturbation: PlantPerturbation, mode: str, observer: bool, step
 
 def walk_fingerprint(perturbation: PlantPerturbation, observer: bool,
                      simulator: tuple[tuple[str, object], ...] | None = None,
-                     controller: tuple[tuple[str, object], ...] | None = None) -> str:
+                     controller: tuple[tuple[str, object], ...] | None = None, robot: str | None = None) -> str:
     """The capability map's fingerprint of the walk's settings (controller and simulator settings with the
     perturbation, robot description, gait family file): a walk record is reused only while it matches."""
-    return cmap.fingerprint(cmap.MapSpec(settings=settings_for(perturbation, observer, simulator=simulator,
-                                                               controller=controller)))
+    st = settings_for(perturbation, observer, simulator=simulator, controller=controller, robot=robot).activate()
+    return cmap.fingerprint(cmap.MapSpec(settings=st))
 
 
 def _walk_key(perturbation: PlantPerturbation | dict, mode: str, observer: bool, steps: int,
@@ -248,7 +258,7 @@ def run_walks(levels, modes, observers, store: cmap.RecordStore, workers, log=pr
             for obs in ((False,) if single_observer(m) else observers):
                 k = _walk_key(lv.perturbation, m, obs, WALK_STEPS, walk_fingerprint(lv.perturbation, obs))
                 if k not in done:
-                    tasks.append((lv.perturbation, m, obs, WALK_STEPS, SIMULATOR_OVERRIDES, CONTROLLER_OVERRIDES))
+                    tasks.append((lv.perturbation, m, obs, WALK_STEPS, SIMULATOR_OVERRIDES, CONTROLLER_OVERRIDES, ROBOT))
     log(f"walks: {len(tasks)} to run, {len(done)} stored")
 
     def keep(r: dict) -> None:
@@ -463,6 +473,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="run every survival trial in full (no early stop; it applies to the nominal plant only)")
     ap.add_argument("--report-only", action="store_true",
                     help="no simulation: the table, figure and JSON of what the store holds")
+    add_robot_arg(ap)
     ap.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE,
                     help="config/profiles/ NAME: the controller and simulator settings of every row (the observer "
                          "is the table's column)")
@@ -470,19 +481,20 @@ def main(argv: list[str] | None = None) -> int:
                     help="a config/simulator.yaml setting for every run, e.g. --set plant=mujoco (repeatable)")
     args = ap.parse_args(argv)
     provenance.track(args.json, args.table, args.figures, args=args, argv=argv)   # record of each file written (results/README.md)
-    global SIMULATOR_OVERRIDES, CONTROLLER_OVERRIDES, PROFILE
+    global SIMULATOR_OVERRIDES, CONTROLLER_OVERRIDES, PROFILE, ROBOT
     try:
         given = parse_overrides(args.overrides)
         if given.controller:
             raise RobustnessError("--set: only config/simulator.yaml keys here (the table sets the controller's "
                                   f"observer itself), got {', '.join(k for k, _ in given.controller)}")
-        st = parse_overrides(args.overrides, profile=args.profile)
+        st = parse_overrides(args.overrides, profile=args.profile, robot=args.robot)
         if st.perturbation is not None:
             raise RobustnessError(f"--profile {args.profile}: sets a plant perturbation; the table's rows are the "
                                   "perturbations (choose a profile without one)")
         SIMULATOR_OVERRIDES = st.simulator
         CONTROLLER_OVERRIDES = tuple((k, v) for k, v in st.controller if k != "disturbance_observer")
         PROFILE = args.profile
+        ROBOT = st.activate().robot
         survival_rule()          # config/studies.yaml's rule settings, checked before any simulation
         print_settings(st)
     except (*SETTINGS_ERRORS, RobustnessError) as exc:
@@ -532,7 +544,7 @@ def main(argv: list[str] | None = None) -> int:
             "git": git_state(), "wall_time": wall, "workers": args.workers,
             "full_trials": args.full_trials,
             # the profile and what differs from the configuration files in every row (the observer: per row)
-            "settings": differences(RunSettings(CONTROLLER_OVERRIDES, SIMULATOR_OVERRIDES, profile=PROFILE))},
+            "settings": differences(RunSettings(CONTROLLER_OVERRIDES, SIMULATOR_OVERRIDES, profile=PROFILE, robot=ROBOT))},
             indent=1), encoding="utf-8")
     return 0
 

@@ -28,17 +28,33 @@ class RobotFilesError(ValueError):
         self.field = field
 
 
-def load_robot_files(description_path: str = "", gait_family_path: str = ""):
-    """(RobotDescription, GaitFamily) from two paths ('' = robots/biped7/description.yaml, robots/biped7/gait_family.json),
-    checked against each other; :class:`RobotFilesError` names the path parameter at fault."""
+def load_robot_files(description_path: str = "", gait_family_path: str = "", robot: str = ""):
+    """(RobotDescription, GaitFamily) of the robot ``robot`` (a name under ``robots/`` or a path; '' = the
+    default robot, robots/biped7), its description and family replaced by ``description_path`` and
+    ``gait_family_path`` when given, checked against each other (the robot's own family also against its
+    description's stamp, ``biped_model.robot``); :class:`RobotFilesError` names the parameter at fault."""
     from biped_model.description import DescriptionError, load_description
     from biped_model.gait_family import GaitFamily, GaitFamilyError
+    from biped_model.robot import RobotError, resolve_robot
     try:
-        desc = load_description(description_path or None)
+        r = resolve_robot(robot or None)
+    except RobotError as exc:
+        raise RobotFilesError(str(exc), "robot") from exc
+    if not description_path and not gait_family_path:
+        try:
+            r.description()
+        except RobotError as exc:
+            raise RobotFilesError(str(exc), "robot") from exc
+        try:
+            r.check_stamp()
+        except RobotError as exc:
+            raise RobotFilesError(str(exc), "robot") from exc
+    try:
+        desc = load_description(description_path or r.description_path)
     except (DescriptionError, OSError, ValueError) as exc:
         raise RobotFilesError(str(exc), "description_path") from exc
     try:
-        family = GaitFamily.load(gait_family_path or None)
+        family = GaitFamily.load(gait_family_path or r.family_path)
     except (GaitFamilyError, OSError) as exc:
         raise RobotFilesError(str(exc), "gait_family_path") from exc
     try:

@@ -69,7 +69,18 @@ def main(argv=None) -> int:
     ap.add_argument('--timeout', type=float, default=600.0, help='wall s for the whole run')
     ap.add_argument('--live', action='store_true', help='Foxglove WebSocket bridge, real-time pacing')
     ap.add_argument('--port', type=int, default=None, help='--live: WebSocket port (default 8765)')
+    ap.add_argument('--robot', default=None, metavar='NAME|PATH',
+                    help="the robot: a name under robots/ or a robot directory's path (default biped7; docs/robots.md)")
     a = ap.parse_args(argv)
+    if a.robot is not None:         # one line naming the file, exit 2, before the graph starts
+        from biped_model.robot import RobotError, resolve_robot
+        try:
+            r = resolve_robot(a.robot)
+            r.description()
+            r.check_stamp()
+        except RobotError as exc:
+            print(f'demo: {exc}', file=sys.stderr)
+            return 2
     from biped_model.settings import repo_root
     bag = (a.bag or repo_root() / 'runs' / f'demo_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
     bag.parent.mkdir(parents=True, exist_ok=True)
@@ -78,6 +89,8 @@ def main(argv=None) -> int:
         ready = Path(tmp) / 'ready'
         cmd = [sys.executable, '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--steps', str(a.steps),
                '--sim-param', 'wait_for_pushes:=1', '--ready-file', str(ready)]
+        if a.robot is not None:
+            cmd += ['--robot', a.robot]
         if a.live:
             cmd += ['--live'] + (['--port', str(a.port)] if a.port is not None else [])
         launcher = subprocess.Popen(cmd)

@@ -53,7 +53,9 @@ from biped_sim.graph.params import (
     get_bool,
     get_float,
     get_float_list,
+    get_robot_name,
     get_str,
+    robot_settings,
     run_node,
 )
 from biped_sim.plant.config import load_sim_config
@@ -71,14 +73,21 @@ class DisturbanceNode(Node):
         super().__init__(gn.DISTURBANCE_NODE, parameter_overrides=overrides, **kwargs)
         # sim time read only at a request: a polled /clock reader instead of rclpy's callback per message
         self.sim_clock = SimClock(self, poll_clock=True)
+        robot = get_robot_name(self)
         desc_path = get_str(self, 'description_path')
         try:
-            desc = load_description(desc_path or None)
+            from biped_model.robot import resolve_robot
+            desc_file = desc_path or resolve_robot(robot or None).description_path
+        except ValueError as exc:
+            raise ParameterError('robot', str(exc)) from exc
+        try:
+            desc = load_description(desc_file)
         except (DescriptionError, OSError, ValueError) as exc:
             raise ParameterError('description_path', str(exc)) from exc
         max_force = get_float(self, 'max_force', lo=0.0, lo_open=True)
         max_duration = get_float(self, 'max_duration', lo=0.0, lo_open=True)
-        default_height = get_float(self, 'push_height', load_sim_config().push_height, lo=0.0,
+        own = {k: v for k, v in robot_settings(self) if k == 'push_height'}     # the robot's, if it has one
+        default_height = get_float(self, 'push_height', load_sim_config(**own).push_height, lo=0.0,
                                    hi=desc.torso.length)
         horizon = get_float(self, 'horizon', lo=0.0, lo_open=True)
         declare_executor(self)

@@ -301,6 +301,9 @@ def parse_args(argv=None):
     ap.add_argument('--live', action='store_true',
                     help='start the Foxglove WebSocket bridge; simulator paced at real_time_factor 1.0')
     ap.add_argument('--port', type=int, default=None, help='--live: WebSocket port (default: the params file, 8765)')
+    ap.add_argument('--robot', default=None, metavar='NAME|PATH',
+                    help="the robot: a name under robots/ or a robot directory's path (default biped7): the "
+                         "simulator's, controller's and disturbance node's parameter robot (docs/robots.md)")
     return ap.parse_args(argv)
 
 
@@ -343,6 +346,18 @@ def main(argv=None) -> int:
              'controller': [x for kv in args.ctrl_param for x in ('-p', kv)]}
     if args.steps is not None:
         extra['simulator'] += ['-p', f'max_steps:={args.steps}']
+    if args.robot is not None:      # checked here: one line naming the file, exit 2, before any node starts
+        from biped_model.robot import RobotError, resolve_robot
+        try:
+            r = resolve_robot(args.robot)
+            r.description()
+            r.check_stamp()
+        except RobotError as exc:
+            log(str(exc))
+            return 2
+        for name in ('simulator', 'controller', 'disturbance'):
+            extra.setdefault(name, [])
+            extra[name] = ['-p', f'robot:={r.directory}'] + extra[name]
     if args.live:   # before the --sim-param values, which win
         extra['simulator'] = ['-p', 'real_time_factor:=1.0'] + extra['simulator']
         extra['bridge'] = ['-p', f'port:={args.port}'] if args.port is not None else []
@@ -355,7 +370,7 @@ def main(argv=None) -> int:
         if key.strip() == 'max_time':
             try:
                 if float(value) > 0:
-                    extra['disturbance'] = ['-p', f'horizon:={float(value)}']
+                    extra['disturbance'] = extra.get('disturbance', []) + ['-p', f'horizon:={float(value)}']
             except ValueError:
                 pass   # the simulator itself rejects the bad value, naming it
 

@@ -137,6 +137,22 @@ def get_profile(node: Node):
         raise ParameterError('profile', str(exc)) from exc
 
 
+def get_robot_name(node: Node) -> str:
+    """The parameter ``robot`` (a name under robots/ or a path; '' the default robot), declared once."""
+    return node.get_parameter('robot').value if node.has_parameter('robot') else get_str(node, 'robot')
+
+
+def robot_settings(node: Node) -> tuple[tuple[str, object], ...]:
+    """The robot's own settings (robots/<name>/settings.yaml, ``biped_model.robot.Robot.settings``: its
+    size-dependent controller and simulator values; none for the default robot); a bad robot or file raises
+    ParameterError naming ``robot``."""
+    from biped_model.robot import RobotError, resolve_robot
+    try:
+        return resolve_robot(get_robot_name(node) or None).settings()
+    except RobotError as exc:
+        raise ParameterError('robot', str(exc)) from exc
+
+
 def get_float_list(node: Node, name: str) -> list[float]:
     """A list of numbers (default: empty). An empty list in YAML has no type: accepted too."""
     desc = ParameterDescriptor(name=name, dynamic_typing=True)
@@ -157,13 +173,15 @@ def get_float_list(node: Node, name: str) -> list[float]:
 
 
 def load_robot_files(node: Node):
-    """(description, gait family) from the parameters ``description_path`` and ``gait_family_path``
-    (empty = robots/biped7/description.yaml, robots/biped7/gait_family.json), checked against each other."""
+    """(description, gait family) from the parameters ``robot`` (a name under robots/ or a path; empty = the
+    default robot, robots/biped7), ``description_path`` and ``gait_family_path`` (empty = the robot's),
+    checked against each other."""
     from biped_sim.graph.checks import RobotFilesError, load_robot_files as _load
+    robot = get_robot_name(node)
     desc_path = get_str(node, 'description_path')
     fam_path = get_str(node, 'gait_family_path')
     try:
-        return _load(desc_path, fam_path)
+        return _load(desc_path, fam_path, robot)
     except RobotFilesError as exc:
         raise ParameterError(exc.field, str(exc)) from exc
 

@@ -101,6 +101,7 @@ from biped_sim.graph.params import (
     get_float,
     get_int,
     get_profile,
+    robot_settings,
     get_str,
     load_robot_files,
     run_node,
@@ -197,8 +198,9 @@ def read_sim_config(node: Node) -> SimConfig:
     profile of parameter ``profile``, config/profiles/; an unknown profile raises ParameterError naming
     ``profile`` and the known ones)."""
     profile = get_profile(node)
+    own = dict(robot_settings(node))        # the robot's size-dependent values, under the profile's
     try:
-        base = load_sim_config(**{k: v for k, v in profile.settings if k in SimConfig.__dataclass_fields__})
+        base = load_sim_config(**{k: v for k, v in (*own.items(), *profile.settings) if k in SimConfig.__dataclass_fields__})
     except SimConfigError as exc:
         raise ParameterError('profile', f"profile {profile.name}: {exc}") from exc
     kw = {}

@@ -23,6 +23,7 @@ from biped_controller.closed_loop.executor import ProgressBar
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_settings_args, controller_arg,
                                                  finite_float,
                                                  positive_float, positive_int, settings_from_args)
+from biped_controller.studies.trial.context import scaled_force
 from biped_controller.studies.trial.settings import print_settings
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies import provenance
@@ -53,11 +54,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
     ap.add_argument("--phases", type=positive_int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
     ap.add_argument("--durations", nargs="+", type=positive_float, default=list(DEFAULT_DURATIONS), help="push durations [s]")
-    ap.add_argument("--resolution", type=positive_float, default=DEFAULT_RESOLUTION, help="bisection resolution [N]")
-    ap.add_argument("--coarse", type=positive_float, default=DEFAULT_COARSE, help="coarse scan step [N]")
-    ap.add_argument("--max", type=positive_float, default=DEFAULT_MAX, help="largest force scanned [N]")
-    ap.add_argument("--max-impulse", type=float, default=DEFAULT_MAX_IMPULSE,
-                    help="largest impulse scanned [N s] (inf: none): long pushes scan up to this / duration")
+    ap.add_argument("--resolution", type=positive_float, default=None,
+                    help=f"bisection resolution [N] (default {DEFAULT_RESOLUTION:g} N; another robot: x its M sqrt(g L) / biped7's)")
+    ap.add_argument("--coarse", type=positive_float, default=None,
+                    help=f"coarse scan step [N] (default {DEFAULT_COARSE:g} N, scaled likewise)")
+    ap.add_argument("--max", type=positive_float, default=None,
+                    help=f"largest force scanned [N] (default {DEFAULT_MAX:g} N, scaled likewise)")
+    ap.add_argument("--max-impulse", type=float, default=None,
+                    help=f"largest impulse scanned [N s] (inf: none): long pushes scan up to this / duration (default "
+                         f"{DEFAULT_MAX_IMPULSE:g} N s, scaled likewise)")
     ap.add_argument("--search", choices=("neighbours", "full"), default=None,
                     help="neighbours: bracket each cell's edge from its lower-phase neighbour's (bracket_check_below "
                          "coarse steps checked under it, islands within island_window coarse steps above the edge); "
@@ -80,6 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     provenance.track(args.json, args.out, args.store, args=args, argv=argv)   # record of each file written (results/README.md)
     settings = settings_from_args(ap, args)
+    for name, default in (("resolution", DEFAULT_RESOLUTION), ("coarse", DEFAULT_COARSE), ("max", DEFAULT_MAX),
+                          ("max_impulse", DEFAULT_MAX_IMPULSE)):
+        if getattr(args, name) is None:     # the search ranges scale with the robot (biped7: the defaults)
+            setattr(args, name, scaled_force(default, settings.robot))
     try:
         names = list(args.modes) if args.modes is not None else ([] if args.controller else list(PAPER_MODES))
         spec = MapSpec(tuple(dict.fromkeys(names + list(args.controller))), tuple(_split(args.directions)), phases_of(args.phases),

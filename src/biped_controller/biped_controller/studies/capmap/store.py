@@ -9,7 +9,6 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Iterable
 
-from biped_model.settings import default_robot_dir
 
 from biped_controller.studies.trial import record, stop, survival
 from biped_controller.studies.trial.context import context
@@ -46,7 +45,7 @@ def fingerprint(spec: MapSpec) -> str:
         "height": spec.height,
     }
     h.update(json.dumps(inputs, sort_keys=True, default=str).encode())
-    h.update((default_robot_dir() / "gait_family.json").read_bytes())
+    h.update(ctx.robot.family_path.read_bytes())
     return h.hexdigest()[:16]
 
 

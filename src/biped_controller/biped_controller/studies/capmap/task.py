@@ -48,7 +48,7 @@ def simulate(spec: SimSpec, settings: RunSettings = DEFAULT_SETTINGS, height: fl
     or on a worker's objects after any other trials: tests/test_history.py). ``pool``: ``trials.survives``'s
     (True: this process's loop pool, as the map's workers run)."""
     c = spec.cell
-    T = context().family.T
+    T = context(settings.activate().robot).family.T
     start = onset_time(c.phase, T)
     signed = DIRECTIONS[c.direction] * spec.force
     trial = trials.survives(Push(start, c.duration, float(signed), height), c.mode, settings, pool)

@@ -11,20 +11,21 @@ import sys
 from biped_sim.plant.config import SimConfigError
 from biped_sim.plant.perturbation import PerturbationError
 from biped_model.profiles import DEFAULT_PROFILE, ProfileError, profile_names
-from biped_model.settings import SettingsError
+from biped_model.robot import RobotError
+from biped_model.settings import DEFAULT_ROBOT, SettingsError
 
 from biped_controller.core.control.config import MODES, ControllerConfigError
 from biped_controller.studies.trial.settings import OverrideError, RunSettings, run_settings
 from biped_controller.studies.trial.stop import StudySettingsError
 from biped_controller.studies.trial.survival import survival_rule
 
-__all__ = ["StudyArgumentParser", "add_settings_args", "settings_from_args", "SETTINGS_ERRORS", "finite_float",
+__all__ = ["StudyArgumentParser", "add_settings_args", "add_robot_arg", "settings_from_args", "SETTINGS_ERRORS", "finite_float",
            "positive_float", "nonnegative_float", "positive_int", "nonnegative_int", "profile_arg", "modes_arg",
            "add_modes_arg", "controller_arg"]
 
 #: the errors a bad settings flag raises (each names the key or the profile)
 SETTINGS_ERRORS = (OverrideError, ProfileError, ControllerConfigError, SimConfigError, PerturbationError, SettingsError,
-                   StudySettingsError)
+                   StudySettingsError, RobotError)
 
 
 class StudyArgumentParser(argparse.ArgumentParser):
@@ -140,8 +141,9 @@ def controller_arg(text: str) -> str:
 
 def add_settings_args(a: argparse.ArgumentParser, *, observer: bool = True, perturb: bool = True,
                       full_trials: bool = True) -> None:
-    """The settings flags: ``--profile``, ``--set`` and, unless switched off, ``--observer``, ``--perturb``
-    and ``--full-trials`` (read them back with :func:`settings_from_args`)."""
+    """The settings flags: ``--robot``, ``--profile``, ``--set`` and, unless switched off, ``--observer``,
+    ``--perturb`` and ``--full-trials`` (read them back with :func:`settings_from_args`)."""
+    add_robot_arg(a)
     a.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE,
                    help=f"named settings of config/profiles/ (one of {', '.join(profile_names())}; default "
                         f"{DEFAULT_PROFILE}); --set and --observer override it")
@@ -160,6 +162,15 @@ def add_settings_args(a: argparse.ArgumentParser, *, observer: bool = True, pert
                             "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation)")
 
 
+def add_robot_arg(a: argparse.ArgumentParser) -> None:
+    """``--robot NAME|PATH``: a robot under ``robots/`` by name, or a robot directory by path (default the
+    default robot, ``robots/biped7``); checked in :func:`settings_from_args` (its description and its
+    family's stamp: a bad one is one line naming the file, exit status 2)."""
+    a.add_argument("--robot", default=None, metavar="NAME|PATH",
+                   help=f"the robot: a directory name under robots/ or a path to a robot directory (default "
+                        f"{DEFAULT_ROBOT}; docs/robots.md)")
+
+
 def settings_from_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> RunSettings:
     """The :class:`RunSettings` of the flags of :func:`add_settings_args`; a bad one is ``ap.error`` (exit
     status 2) with the message naming the key or the profile; the survival rule's settings
@@ -168,6 +179,6 @@ def settings_from_args(ap: argparse.ArgumentParser, args: argparse.Namespace) ->
         survival_rule()
         return run_settings(getattr(args, "profile", None), getattr(args, "overrides", ()),
                             getattr(args, "observer", None), getattr(args, "perturb", ()),
-                            getattr(args, "full_trials", False))
+                            getattr(args, "full_trials", False), getattr(args, "robot", None))
     except SETTINGS_ERRORS as exc:
         ap.error(str(exc))

@@ -121,6 +121,7 @@ class BuiltinMode(TrialController):
     def band(self, settings: RunSettings, steps: int) -> Band:
         """``SurvivalRule.band_from_walk`` of the unpushed walk, once per process (settings, impacts, the
         config files' modification times)."""
+        settings.activate()
         return _walk_band(survival_rule(), self.name, replace(settings, full_trials=False), int(steps),
                           _config_stamp())
 
@@ -133,6 +134,7 @@ class BuiltinMode(TrialController):
         ``settings.full_trials`` or a perturbed plant) the trial ends at the first impact where its outcome is
         decided (``stop.EarlyStop`` on the rigid plant, ``stop.MujocoEarlyStop`` on MuJoCo); ``pool`` True:
         this process's ``runs.loop_pool``."""
+        settings.activate()
         mode = self.name
         end = push.start + push.duration
         if pool is True:
@@ -196,6 +198,7 @@ class PluginController(TrialController):
              keep_records: bool = True, integration_rate: bool = False) -> RunResult:
         """``PluginLoop.run`` of this process's loop for ``settings`` (``plugin_trials.trials_for``). The
         loop holds torques over the control period: ``integration_rate`` is the adaptive controller's."""
+        settings.activate()
         if integration_rate:
             raise ValueError(f"controller {self.name!r}: the torque law at the integration rate is the adaptive "
                              f"controller's (a plug-in's torque is held over the control period)")

@@ -156,7 +156,7 @@ def trials_for(controller: str, settings: RunSettings) -> PushTrials:
     """This process's :class:`PushTrials` of ``controller`` (a registered name, resolved here: in a sweep's
     worker process or Ray task) on the plant of ``settings`` (its simulator settings and perturbation)."""
     from biped_controller.studies.trial.context import context
-    ctx = context()
+    ctx = context(settings.activate().robot)
     return PushTrials(controller, sim_config=settings.sim_config(), family=ctx.family, desc=ctx.desc,
                       perturbation=settings.perturbation)
 
@@ -166,6 +166,7 @@ def survives_push(push: Push, controller: str, settings: RunSettings) -> dict:
     (force, mode = the controller's name, survived, reason, fall cause and time, steps walked,
     ``decided_at_step`` None: run in full) plus ``fault`` (the fault's kind, None without one). The
     rule is :func:`survival` with the band of the controller's own unpushed walk (:func:`plugin_band`)."""
+    settings.activate()
     tr = trials_for(controller, settings)
     steps = push_step_index(push, tr.family.T) + 1 + SURVIVAL_STEPS
     res = tr.loop.run(steps, (push,), keep_records=False)

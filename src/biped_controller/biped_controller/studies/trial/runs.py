@@ -30,10 +30,11 @@ def run(steps: int, mode: str, pushes: tuple[Push, ...] = (), *, integration_rat
         keep_records: bool = True, on_impact=None, pool: runner.LoopPool | None = None) -> RunResult:
     """``runner.run`` for ``steps`` impacts in ``mode`` with ``settings`` (``observer`` True/False overrides
     the disturbance observer); the other arguments are ``runner.run``'s."""
-    ctx = context()
+    ctx = context(settings.activate().robot)
     if observer is not None:
         settings = RunSettings(tuple(sorted({**dict(settings.controller), "disturbance_observer": observer}.items())),
-                               settings.simulator, settings.perturbation, settings.full_trials, settings.profile)
+                               settings.simulator, settings.perturbation, settings.full_trials, settings.profile,
+                               settings.robot)
     ccfg = settings.ctrl_config(mode)
     return runner.run(steps=steps, mode=mode, pushes=pushes, sim_config=settings.sim_config(), ctrl_config=ccfg,
                       family=ctx.family, desc=ctx.desc, integration_rate=integration_rate, keep_qp=keep_qp,
@@ -57,6 +58,7 @@ def push_run(push: Push, mode: str = "both", *, steps_after: int = SURVIVAL_STEP
     """One push, then ``steps_after`` more steps (:func:`trial_steps`). ``keep_records`` False: the outcome
     only (``runner.run``), as a survival trial needs; ``on_impact``: ``runner.run``'s early stop; ``pool``:
     ``runner.run``'s reuse of the loop and of the walk up to the push."""
+    settings.activate()
     return run(trial_steps(push, steps_after), mode, (push,), keep_qp=keep_qp, settings=settings,
                keep_records=keep_records, on_impact=on_impact, pool=pool)
 

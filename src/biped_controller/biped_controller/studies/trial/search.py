@@ -27,6 +27,7 @@ PAPER_MAX_PUSH: dict[str, float | None] = {"both": 650.0, "tau": 455.0, "p": 320
 
 def _trial(args: tuple) -> dict:
     push, mode, settings = args
+    settings.activate()
     return trials.survives(push, mode, settings)
 
 
@@ -76,6 +77,7 @@ def bisect_both(mode: str, coarse_trials: list[dict], resolution: float, *, dura
 
 def _bisect_task(args: tuple) -> tuple[str, dict]:
     mode, coarse_trials, resolution, duration, start, height, sign, settings = args
+    settings.activate()
     return mode, bisect_both(mode, coarse_trials, resolution, duration=duration, start=start, height=height,
                              sign=sign, settings=settings)
 

@@ -20,7 +20,7 @@ from biped_model.profiles import DEFAULT_PROFILE, ProfileError, load_profile, pr
 from biped_model.settings import default_config_dir
 
 from biped_controller.core.control.config import MODES, ControllerConfig, load_controller_config
-from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.context import context, select_robot
 
 __all__ = ["OverrideError", "ProfileError", "CONTROLLER_KEYS", "SIMULATOR_KEYS", "RunSettings", "DEFAULT_SETTINGS",
            "DEFAULT_PROFILE", "profile_names", "parse_overrides", "parse_perturbation", "run_settings",
@@ -51,13 +51,21 @@ class RunSettings:
     the plant's model error, friction and sensing, given to the simulator only (None: none).
     ``full_trials``: run every survival trial in full (no early stop). ``profile``: the name of the profile
     the overrides start from. Neither ``full_trials`` nor ``profile`` is part of :meth:`describe` (an
-    early-stopped trial has the outcome of the full one; a profile is its overrides)."""
+    early-stopped trial has the outcome of the full one; a profile is its overrides). ``robot``: the robot
+    (a name under ``robots/`` or a path; "" the default robot), which every process that runs a trial with
+    these settings selects (:meth:`activate`); :meth:`describe` names it only when it is not the default."""
 
     controller: tuple[tuple[str, object], ...] = ()
     simulator: tuple[tuple[str, object], ...] = ()
     perturbation: PlantPerturbation | None = None
     full_trials: bool = False
     profile: str = DEFAULT_PROFILE
+    robot: str = ""
+
+    def activate(self) -> "RunSettings":
+        """Select this run's robot in this process (``trial.context.select_robot``); returns self."""
+        select_robot(self.robot)
+        return self
 
     def sim_config(self) -> SimConfig:
         return _sim_config(self.simulator)
@@ -81,6 +89,9 @@ class RunSettings:
                "controller": ctrl, "simulator": sim}
         if self.perturbation is not None and not self.perturbation.is_zero:   # (absent: nominal plant)
             out["perturbation"] = self.perturbation.as_dict()
+        if self.robot:                      # (absent: the default robot, as every record before robots)
+            ctx = context(self.robot)
+            out["robot"] = {"name": ctx.robot.name, "description_sha256": ctx.robot_hash}
         return out
 
 
@@ -134,7 +145,7 @@ def _place(key: str, value: object, ctrl: dict, sim: dict, origin: str) -> None:
 
 
 def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | bool | None = None,
-                    full_trials: bool = False, profile: str | None = None) -> RunSettings:
+                    full_trials: bool = False, profile: str | None = None, robot: str | None = None) -> RunSettings:
     """``RunSettings`` from the profile ``profile`` (None: ``default``), ``KEY=VALUE`` strings over it and
     the observer switch ("on"/"off"/bool/None = as the profile and the config file say). The profile's
     plant perturbation is set too. Raises :class:`ProfileError` naming the known profiles for an unknown
@@ -145,6 +156,12 @@ def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | boo
     prof = load_profile(name)
     ctrl: dict[str, object] = {}
     sim: dict[str, object] = {}
+    robot = canonical_robot(robot)
+    if robot:                           # the robot's own settings (robots/<name>/settings.yaml), under the profile
+        from biped_model.robot import resolve_robot
+        r = resolve_robot(robot)
+        for key, value in r.settings():
+            _place(key, value, ctrl, sim, f"{r.settings_path}:")
     for key, value in prof.settings:
         _place(key, value, ctrl, sim, f"profile {name}:")
     given: set[str] = set()
@@ -171,7 +188,22 @@ def parse_overrides(items: list[str] | tuple[str, ...] = (), observer: str | boo
         except ValueError as exc:
             raise OverrideError(f"profile {name}: perturbation: {exc}") from exc
     return RunSettings(tuple(sorted(ctrl.items())), tuple(sorted(sim.items())), pert, full_trials=bool(full_trials),
-                       profile=name)
+                       profile=name, robot=robot)
+
+
+def canonical_robot(robot: str | None) -> str:
+    """The ``RunSettings.robot`` of ``--robot`` ``robot``: "" for None, "" or the default robot (so that its
+    settings equal the settings before robots existed), else the name under ``robots/`` or the absolute path.
+    Raises ``RobotError`` (one line naming the directory or file) for a robot that cannot be used."""
+    from biped_model.robot import resolve_robot
+    from biped_model.settings import robots_dir
+    if robot is None or str(robot) == "":
+        return ""
+    r = resolve_robot(robot)
+    if r.is_default:
+        return ""
+    context(r.name if r.directory.parent == robots_dir().resolve() else str(r.directory))    # fails now, not in a worker
+    return r.name if r.directory.parent == robots_dir().resolve() else str(r.directory)
 
 
 def parse_perturbation(items: list[str] | tuple[str, ...] = (),
@@ -200,13 +232,16 @@ def parse_perturbation(items: list[str] | tuple[str, ...] = (),
 
 def run_settings(profile: str | None = None, overrides: list[str] | tuple[str, ...] = (),
                  observer: str | bool | None = None, perturb: list[str] | tuple[str, ...] = (),
-                 full_trials: bool = False) -> RunSettings:
+                 full_trials: bool = False, robot: str | None = None) -> RunSettings:
     """:func:`parse_overrides` and :func:`parse_perturbation` together, the configs built once
-    (:func:`check_settings`): the settings of a command line. Raises what those raise."""
-    settings = parse_overrides(overrides, observer, full_trials, profile)
+    (:func:`check_settings`): the settings of a command line (``robot``: ``--robot``, selected in this
+    process too). Raises what those raise."""
+    settings = parse_overrides(overrides, observer, full_trials, profile, robot)
     pert = parse_perturbation(perturb, settings.perturbation)
     if pert is not settings.perturbation:
-        settings = RunSettings(settings.controller, settings.simulator, pert, settings.full_trials, settings.profile)
+        settings = RunSettings(settings.controller, settings.simulator, pert, settings.full_trials, settings.profile,
+                               settings.robot)
+    settings.activate()
     check_settings(settings)
     return settings
 
@@ -229,6 +264,8 @@ def differences(settings: RunSettings) -> dict:
     out = {"profile": settings.profile, "differs": dict(sorted(diff.items()))}
     if settings.perturbation is not None and not settings.perturbation.is_zero:
         out["perturbation"] = settings.perturbation.changed()
+    if settings.robot:                  # (absent: the default robot)
+        out["robot"] = settings.robot
     return out
 
 
@@ -237,7 +274,7 @@ def print_settings(settings: RunSettings) -> None:
     plant perturbation."""
     d = differences(settings)
     diff = d["differs"]
-    print(f"profile {d['profile']}; settings differing from config/: "
+    print((f"robot {d['robot']}; " if "robot" in d else "") + f"profile {d['profile']}; settings differing from config/: "
           + (", ".join(f"{k}={v}" for k, v in diff.items()) if diff else "none"))
     if settings.perturbation is not None and not settings.perturbation.is_zero:
         print("plant perturbation: " + settings.perturbation.label())

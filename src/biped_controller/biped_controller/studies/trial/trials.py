@@ -20,6 +20,7 @@ __all__ = ["band", "walk_band", "survives", "parameter_excursion", "out_of_range
 def band(mode: str, push: Push, settings: RunSettings) -> Band:
     """The survival rule's band for a trial of ``push`` by the controller ``mode`` with ``settings``: the
     unpushed walk's of the same impacts (``runs.trial_steps``), computed once per process."""
+    settings.activate()
     return walk_band(mode, settings, runs.trial_steps(push))
 
 
@@ -42,6 +43,7 @@ def survives(push: Push, mode: str, settings: RunSettings = DEFAULT_SETTINGS,
     plant and controller, walked from t = 0. Any other controller's trial runs in full through the generic
     loop (a controller fault is that trial's outcome, recorded as ``fault``). Every record also carries the
     trial record's ``seed`` and ``fault_kind`` (:mod:`.record`)."""
+    settings.activate()
     rec = resolve(mode).survives(push, settings, pool)
     rec["seed"] = record.seed_of(settings.perturbation)
     rec["fault_kind"] = record.fault_kind_of(rec.get("fault"))
