@@ -61,6 +61,8 @@ from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_
                                                  finite_float, nonnegative_float, positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.context import scaled_force
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
+from biped_controller.studies.trial.seeded import is_random, print_seeded, seeded_table
+from biped_controller.studies.trial.uncertainty import DEFAULT_LEVELS, UncertaintyError, check_level
 from biped_controller.studies.trial.search import max_push_modes, ordering_finding, print_max_push
 from biped_controller.studies.trial.settings import differences, print_settings
 from biped_controller.studies import provenance
@@ -105,6 +107,17 @@ def _controller_arg(a: argparse.ArgumentParser) -> None:
     a.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
                    help="any registered controller (python -m biped_controller.studies.controllers list) in place "
                         "of --mode")
+
+
+def levels_arg(text: str) -> tuple[float, ...]:
+    """``--levels 0.9,0.5``: distinct survival levels, each in (0, 1)."""
+    try:
+        out = tuple(check_level(finite_float(t.strip())) for t in text.split(","))
+    except (argparse.ArgumentTypeError, UncertaintyError) as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (in {text!r})") from None
+    if len(set(out)) != len(out):
+        raise argparse.ArgumentTypeError(f"a level is given twice in {text!r}")
+    return out
 
 
 #: the push searches' defaults [N] for the default robot (scaled for another: ``trial.context.scaled_force``)
@@ -161,6 +174,13 @@ def parser() -> StudyArgumentParser:
         _push_window_args(a, with_force=False)
         a.add_argument("--backward", action="store_true", help="push backwards (on the chest) instead")
         a.add_argument("--workers", type=positive_int, default=1, help="processes (each builds its own models)")
+        a.add_argument("--seeds", type=positive_int, default=None,
+                       help="seeds per force where the settings draw noise (sensor noise): survival rates with "
+                            "Wilson 95 %% intervals and the crossing forces of --levels (trial.seeded); a profile "
+                            "without randomness runs one trial per force as without it")
+        a.add_argument("--levels", type=levels_arg, default=DEFAULT_LEVELS, metavar="C,C,...",
+                       help="with --seeds: the survival levels whose crossing forces are searched, each in (0, 1) "
+                            "(default 0.9,0.5)")
         a.add_argument("--json", type=Path)
         add_settings_args(a)
     return ap
@@ -198,6 +218,20 @@ def main(argv: list[str] | None = None) -> int:
         else:
             modes = tuple(dict.fromkeys(tuple(args.modes) + tuple(args.controller)))
         t0 = time.perf_counter()
+        if args.seeds is not None and is_random(settings):
+            res = seeded_table(modes, args.seeds, args.resolution, args.max, args.coarse, levels=args.levels,
+                               duration=args.duration, start=args.start, height=args.height, workers=args.workers,
+                               sign=-1.0 if args.backward else 1.0, settings=settings)
+            print_seeded(res)
+            r = {"modes": res, "seeds": args.seeds, "wall_time": time.perf_counter() - t0}
+            print(f"wall time {r['wall_time']:.1f} s")
+            r["settings"] = differences(settings)
+            r["argv"] = given
+            _dump(args.json, r)
+            return 0
+        if args.seeds is not None:
+            print(f"--seeds {args.seeds}: these settings draw nothing random (no sensor noise on the plant), "
+                  "so every seed gives the same trial: one trial per force")
         res = max_push_modes(modes, args.resolution, args.max, args.coarse, duration=args.duration, start=args.start,
                              height=args.height, workers=args.workers, sign=-1.0 if args.backward else 1.0,
                              settings=settings)
