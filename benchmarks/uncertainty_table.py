@@ -9,7 +9,7 @@ encoder_bits=14``; the profile alone puts no noise on the plant):
 2. the table over seeds: ``--seeds N`` (``seeds_N.json``);
 
 each as its own ``python -m biped_controller.studies.experiment table ...`` process (each records its own
-provenance beside its JSON), and writes ``timing.json``: both wall times (the processes' own ``wall_time``
+provenance beside its JSON; their printed tables go to ``tables.txt``), and writes ``timing.json``: both wall times (the processes' own ``wall_time``
 and the benchmark's clock around each process), the trial counts and the load average at each end.
 """
 from __future__ import annotations
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     from biped_controller.studies import provenance
     timing_path = args.out / "timing.json"
-    provenance.track(timing_path, argv=argv, plant="rigid", profile="real-sensors")
+    provenance.track(timing_path, args.out / "tables.txt", argv=argv, plant="rigid", profile="real-sensors")
     with open(args.out / "tables.txt", "w", encoding="utf-8") as log:
         det = run_one(args.out / "deterministic.json", args.modes, args.workers, None, log)
         log.flush()
