@@ -156,6 +156,8 @@ def _fmt(x) -> str:
 
 def print_seeded(results: dict[str, dict]) -> None:
     """The table of :func:`seeded_table`: per mode the rate at each force tried and the crossings."""
+    print("noise seeds: one per cell and seed index (trial.uncertainty.trial_seed), in place of the perturbation's "
+          "seed; each trial's seed is in its record")
     for m, r in results.items():
         print(f"mode {m}: {r['seeds']} seeds per force; survival rate k/n (Wilson 95 %), seeds counted apart "
               f"(unpushed walk fell / controller fault)")
