@@ -24,6 +24,7 @@ NOISE = ["noise_q=5e-4", "noise_qd=5e-2", "encoder_bits=14"]
     (["table", "--levels", "0.5,0.5"], "--levels"), (["table", "--levels", "nan"], "--levels"),
     (["table", "--seeds", "4", "--resolution", "0"], "--resolution"),
     (["table", "--seeds", "4", "--resolution", "-5"], "--resolution"),
+    (["table", "--ray"], "--ray"), (["table", "--seeds", "4", "--profile", "real-sensors", "--ray"], "--ray"),
 ])
 def test_bad_seed_counts_levels_and_resolutions_are_one_line_exit_2(argv, needle, capsys):
     with pytest.raises(SystemExit) as e:

@@ -16,6 +16,11 @@ no ROS). Run through ``scripts/experiment SUBCOMMAND [options]``:
                                                max-push for the four modes (or the modes named, e.g.
                                                none,tau,p,both,wbc,hybrid, and the controllers named)
                                                next to the paper's values
+            [--seeds N [--levels 0.9,0.5] [--ray [ADDRESS]]]
+                                               (table, max-push) where the plant draws sensor noise:
+                                               N seeds per force, survival rates with Wilson 95 %
+                                               intervals and the forces where survival crosses each
+                                               level (trial.seeded; docs/experiments.md)
   band      [--mode M] [--duration D] [--start S]
                                                the survival rule's band: the unpushed walk of a trial's
                                                impacts, its excursions step by step, the band
@@ -178,6 +183,9 @@ def parser() -> StudyArgumentParser:
                        help="seeds per force where the settings draw noise (sensor noise): survival rates with "
                             "Wilson 95 %% intervals and the crossing forces of --levels (trial.seeded); a profile "
                             "without randomness runs one trial per force as without it")
+        a.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                       help="with --seeds on noisy settings: run the trials on Ray, a local instance (num_cpus = "
+                            "--workers) or the cluster at ADDRESS (the same answer: decisions on complete batches)")
         a.add_argument("--levels", type=levels_arg, default=DEFAULT_LEVELS, metavar="C,C,...",
                        help="with --seeds: the survival levels whose crossing forces are searched, each in (0, 1) "
                             "(default 0.9,0.5)")
@@ -217,11 +225,14 @@ def main(argv: list[str] | None = None) -> int:
             modes = (args.controller or args.mode,)
         else:
             modes = tuple(dict.fromkeys(tuple(args.modes) + tuple(args.controller)))
+        seeded = args.seeds is not None and is_random(settings)
+        if args.ray is not None and not seeded:
+            ap.error("argument --ray: only with --seeds on settings that draw noise (the seeded table)")
         t0 = time.perf_counter()
-        if args.seeds is not None and is_random(settings):
+        if seeded:
             res = seeded_table(modes, args.seeds, args.resolution, args.max, args.coarse, levels=args.levels,
                                duration=args.duration, start=args.start, height=args.height, workers=args.workers,
-                               sign=-1.0 if args.backward else 1.0, settings=settings)
+                               ray=args.ray, sign=-1.0 if args.backward else 1.0, settings=settings)
             print_seeded(res)
             r = {"modes": res, "seeds": args.seeds, "wall_time": time.perf_counter() - t0}
             print(f"wall time {r['wall_time']:.1f} s")
