@@ -30,7 +30,9 @@ def test_wilson_equals_the_closed_form(k, n):
 
 # Newcombe R. G. (1998), "Two-sided confidence intervals for the single proportion: comparison of seven
 # methods", Statistics in Medicine 17:857-872, Table I, method 3 (score method without continuity
-# correction, i.e. Wilson), 95 % limits to 4 decimals, for the table's four examples r/n.
+# correction, i.e. Wilson), 95 % limits to 4 decimals, for the table's four examples r/n. Typed from the
+# paper's Table I as recalled: the search found the paper (its abstract and first page) but not the
+# table's text, so these four rows were not checked against a retrieved copy of the table.
 NEWCOMBE_1998_TABLE_I_WILSON = {
     (81, 263): (0.2553, 0.3662),
     (15, 148): (0.0624, 0.1605),
