@@ -4,9 +4,10 @@
   fields changed, e.g. ``foot.length=0.1``) and writes its ``gait.yaml`` with the size-dependent settings
   derived from the new description (:func:`derive_gait_settings`, each with its reason), into
   ``robots/NAME`` (or the path NAME);
-- ``build NAME|PATH`` optimises, fits and checks its gait family (progress on stdout), stamps it with the
+- ``build NAME|PATH`` optimises, fits and checks its gait family (progress on stdout) with the two-process
+  build (:mod:`biped_controller.gaits.build`: the same file for any ``--workers``), stamps it with the
   description's hash and replaces ``gait_family.json`` atomically: an interrupted build leaves the previous
-  family in place (the generator keeps no partial state, so a build interrupted starts again from nothing);
+  family in place (the build keeps no partial state, so a build interrupted starts again from nothing);
   a family that fails its checks is not written unless ``--force``;
 - ``check NAME|PATH`` the family's stamp, then its checks (fit at the fitted and the held-out strides,
   periodicity, the true-constraint margins and clearance between the strides);
@@ -33,10 +34,10 @@ import yaml
 from biped_model.description import DescriptionError, RobotDescription, parse_description
 from biped_model.gait_family import GaitFamily, GaitFamilyError
 from biped_model.robot import (DESCRIPTION_FILE, FAMILY_FILE, GAIT_FILE, SETTINGS_FILE, STAMP_KEY, Robot, RobotError,
-                               is_path_spec, resolve_robot, robot_names)
+                               description_hash, is_path_spec, resolve_robot, robot_names)
 from biped_model.settings import SettingsError, load_yaml_tree, robots_dir
 
-from biped_controller.gaits import generation
+from biped_controller.gaits import build, generation
 from biped_controller.gaits.optimizer import GaitConfigError, StepOptimizer, load_gait_settings
 
 PROG = "scripts/robot"
@@ -256,14 +257,16 @@ def warm_start(spec: str) -> np.ndarray:
     raise UsageError(f"{w.family_path}: no stored stride at p_d = {p_d}")
 
 
-def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None = None) -> int:
+def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None = None, workers: int = 2,
+              evaluator: str = "fast") -> int:
     r = resolve_robot(spec)
     desc, st = _check_inputs(r)
     first = warm_start(warm_from) if warm_from else None
     tmp = r.directory / f".{FAMILY_FILE}.{os.getpid()}.tmp"
     print(f"building the gait family of {r.name} ({r.directory}): {len(st.strides)} strides "
           f"{st.strides[0]:g}-{st.strides[-1]:g} m, p_d {st.p_d:g} m, T {st.T:g} s, {len(st.smoothing_weights)} "
-          f"smoothing passes, at most {st.max_iterations} iterations per solve (the generator keeps no partial "
+          f"smoothing passes, at most {st.max_iterations} iterations per solve, the two-process build "
+          f"(biped_controller.gaits.build, {workers} worker(s), evaluator {evaluator}; it keeps no partial "
           f"state: an interrupted build starts again; the previous {FAMILY_FILE} stays until this one is complete)",
           flush=True)
     # the preferred stride first, on its own: without a gait there, no family (one line naming the binding
@@ -279,9 +282,13 @@ def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None =
               f"{r.family_path} not written (docs/robots.md, 'When the build finds no gait')", file=sys.stderr)
         return 1
     try:
-        data = generation.generate(tmp, progress=True, settings_path=r.gait_path,
-                                   description_path=r.description_path, speed_sweep=speed_sweep,
-                                   first_guess=sol.c)
+        t1 = time.perf_counter()
+        data, times = build.build_family(st, desc=desc, workers=workers, evaluator=evaluator, progress=True,
+                                         speed=speed_sweep, first_guess=sol.c)
+        # the stamp as generation.generate writes it (the description this family was built for)
+        data[STAMP_KEY] = {"description_sha256": description_hash(desc)}
+        print(f"family: {times['family']:.1f} s, total {time.perf_counter() - t1:.1f} s ({workers} worker(s), "
+              f"evaluator {evaluator}, single-threaded BLAS)", flush=True)
         validation = data["validation"]
         generation.print_report(data, validation)
         ok, why = generation.within_tolerance(validation, st)
@@ -366,6 +373,11 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--warm-from", default=None, metavar="ROBOT",
                    help="start the preferred stride's solve from ROBOT's step there instead of the stated initial "
                         "guess (a robot close to ROBOT builds faster)")
+    a.add_argument("--workers", type=int, default=2, metavar="N",
+                   help="worker processes of the build (1: everything in this process; the same file for any N)")
+    a.add_argument("--evaluator", choices=build.EVALUATORS, default="fast",
+                   help="fast (exact impact-map derivative, default) or reference (generation.generate's numbers "
+                        "under single-threaded BLAS)")
     a = sub.add_parser("check", help="the family's stamp and checks")
     a.add_argument("robot", metavar="NAME|PATH")
     sub.add_parser("list", help="the robots under robots/")
@@ -374,7 +386,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.cmd == "new":
             return cmd_new(args.name, args.source, args.items, args.speed)
         if args.cmd == "build":
-            return cmd_build(args.robot, args.force, not args.no_speed_sweep, args.warm_from)
+            if args.workers < 1:
+                raise UsageError(f"--workers must be >= 1, got {args.workers}")
+            return cmd_build(args.robot, args.force, not args.no_speed_sweep, args.warm_from, args.workers,
+                             args.evaluator)
         if args.cmd == "check":
             return cmd_check(args.robot)
         return cmd_list()
