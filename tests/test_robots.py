@@ -574,3 +574,21 @@ def test_build_rejects_zero_workers(tmp_path):
     p = robot_cli("build", str(d), "--workers", "0")
     assert p.returncode == 2 and p.stderr.count("\n") == 1 and "--workers" in p.stderr
     assert _files(d) == before
+
+
+# ------------------------------------------------------------------------------------------ the shipped robots
+#: robots shipped beside biped7 (docs/robots_compared.md), each with its built family committed
+SHIPPED = ("biped7_foot10", "biped7_foot05", "human70")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_robot_loads_and_its_family_passes_check(name):
+    """The committed family (no rebuild) is stamped for the committed description and passes scripts/robot
+    check (fit, periodicity, margins, clearance); the description loads and is not biped7's."""
+    from biped_controller.studies import robots
+    r = resolve_robot(name)
+    d = r.description()
+    assert d.total_mass > 0 and d.leg_length > 0
+    assert r.description_hash() != resolve_robot("biped7").description_hash()
+    assert r.check_stamp() == r.description_hash()
+    assert robots.cmd_check(name) == 0
