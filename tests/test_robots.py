@@ -592,3 +592,23 @@ def test_shipped_robot_loads_and_its_family_passes_check(name):
     assert r.description_hash() != resolve_robot("biped7").description_hash()
     assert r.check_stamp() == r.description_hash()
     assert robots.cmd_check(name) == 0
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_robot_walks_10_steps_unpushed_rigid(name):
+    """10 steps unpushed (mode both, the control period's held torques, rigid plant): no fall (0.3-1.5 s each
+    at load 12; the integration-rate walks are committed results, results/robots/NAME_walk_*.json)."""
+    from biped_controller.studies.trial.runs import run
+    from biped_controller.studies.trial.settings import parse_overrides
+    res = run(10, "both", settings=parse_overrides((), robot=name))
+    assert res.steps_walked == 10 and not res.fallen
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_robot_walks_10_steps_unpushed_mujoco(name):
+    """The same on the MuJoCo plant (0.5-0.8 s each at load 12; its impact times are those of the committed
+    ZOH walk in results/robots/NAME_walk_mujoco.json)."""
+    from biped_controller.studies.trial.runs import run
+    from biped_controller.studies.trial.settings import parse_overrides
+    res = run(10, "both", settings=parse_overrides(("plant=mujoco",), robot=name))
+    assert res.steps_walked == 10 and not res.fallen
