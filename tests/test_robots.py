@@ -612,3 +612,21 @@ def test_shipped_robot_walks_10_steps_unpushed_mujoco(name):
     from biped_controller.studies.trial.settings import parse_overrides
     res = run(10, "both", settings=parse_overrides(("plant=mujoco",), robot=name))
     assert res.steps_walked == 10 and not res.fallen
+
+
+def test_compare_gives_the_dimensionless_impulse(tmp_path):
+    """scripts/robot compare: each table's robot and plant from its argv, the boundary F and F dt / (M sqrt(g L))."""
+    import math
+    out = tmp_path / "cmp.json"
+    p = robot_cli("compare", "results/paper_table/rigid_default.json", "results/paper_table/mujoco_default.json",
+                  "--json", str(out))
+    assert p.returncode == 0, p.stderr
+    data = json.loads(out.read_text())
+    rigid = data["rows"][data["by"]["biped7/rigid"]]
+    table = json.loads((ROOT / "results/paper_table/rigid_default.json").read_text())
+    F = table["modes"]["both"]["max_force"]
+    assert rigid["modes"]["both"]["max_force"] == F
+    assert rigid["modes"]["both"]["impulse"] == pytest.approx(F * 0.025 / (41.0 * math.sqrt(9.81 * 0.8)))
+    assert data["rows"][data["by"]["biped7/mujoco"]]["plant"] == "mujoco"
+    p = robot_cli("compare", str(tmp_path / "none.json"))
+    assert p.returncode == 2 and "none.json" in p.stderr and p.stderr.count("\n") == 1

@@ -11,7 +11,9 @@
   a family that fails its checks is not written unless ``--force``;
 - ``check NAME|PATH`` the family's stamp, then its checks (fit at the fitted and the held-out strides,
   periodicity, the true-constraint margins and clearance between the strides);
-- ``list`` every robot under ``robots/``: mass [kg], leg length [m], foot length [m], family.
+- ``list`` every robot under ``robots/``: mass [kg], leg length [m], foot length [m], family;
+- ``compare TABLE.json ... [--json FILE]`` max-push tables (``scripts/experiment table --robot NAME --json``)
+  side by side, each boundary also as the dimensionless impulse F * duration / (M sqrt(g L)).
 
 Bad input (a description with a missing, unknown or non-positive field, a torque limit that cannot hold the
 robot standing, bad gait settings, a robot without a built family, a family built for another description):
@@ -356,6 +358,56 @@ def cmd_list() -> int:
     return 0
 
 
+def _table_meta(path: Path) -> tuple[str, str, float]:
+    """(robot, plant, push duration [s]) of a ``scripts/experiment table --json`` file, from its ``argv``."""
+    from biped_controller.studies.trial.runs import DEFAULT_DURATION
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    argv = [str(a) for a in data.get("argv", [])]
+
+    def opt(name: str, default: str) -> str:
+        return argv[argv.index(name) + 1] if name in argv and argv.index(name) + 1 < len(argv) else default
+    plant = "mujoco" if any(a.replace(" ", "") == "plant=mujoco" for a in argv) else "rigid"
+    return opt("--robot", "") or "biped7", plant, float(opt("--duration", str(DEFAULT_DURATION)))
+
+
+def compare_tables(paths: list[Path]) -> dict:
+    """Max-push tables of several robots side by side: per table (robot, plant) each mode's largest survived
+    push ``max_force`` [N] and the same boundary as a dimensionless impulse F * duration / (M sqrt(g L)),
+    M the robot's total mass, L its leg length (thigh + shin)."""
+    rows = []
+    for path in paths:
+        robot, plant, dt = _table_meta(path)
+        d = resolve_robot(robot).description()
+        scale = d.total_mass * math.sqrt(d.gravity * d.leg_length)
+        modes = json.loads(Path(path).read_text(encoding="utf-8"))["modes"]
+        rows.append({"table": str(path), "robot": robot, "plant": plant, "duration": dt, "mass": d.total_mass,
+                     "leg_length": d.leg_length, "foot_length": d.foot.length, "impulse_scale": scale,
+                     "modes": {m: {"max_force": r["max_force"],
+                                   "impulse": None if r["max_force"] is None else r["max_force"] * dt / scale}
+                               for m, r in modes.items()}})
+    return {"definition": "impulse = max_force * duration / (mass * sqrt(g * leg_length)), dimensionless",
+            "rows": rows, "by": {f"{r['robot']}/{r['plant']}": i for i, r in enumerate(rows)}}
+
+
+def cmd_compare(paths: list[Path], out: Path | None) -> int:
+    for p in paths:
+        if not Path(p).is_file():
+            raise UsageError(f"{p}: missing (a scripts/experiment table --json file)")
+    data = compare_tables(paths)
+    modes = list(dict.fromkeys(m for r in data["rows"] for m in r["modes"]))
+    print(f"{'robot':<16} {'plant':<7} {'M [kg]':>6} {'L [m]':>6} {'foot':>5}  " + "  ".join(f"{m:>20}" for m in modes))
+    for r in data["rows"]:
+        cells = []
+        for m in modes:
+            c = r["modes"].get(m)
+            cells.append(f"{'-':>20}" if c is None or c["max_force"] is None else f"{c['max_force']:9.3f} N {c['impulse']:.4f}")
+        print(f"{r['robot']:<16} {r['plant']:<7} {r['mass']:6.1f} {r['leg_length']:6.3f} {r['foot_length']:5.2f}  " + "  ".join(cells))
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -381,7 +433,13 @@ def main(argv: list[str] | None = None) -> int:
     a = sub.add_parser("check", help="the family's stamp and checks")
     a.add_argument("robot", metavar="NAME|PATH")
     sub.add_parser("list", help="the robots under robots/")
+    a = sub.add_parser("compare", help="max-push tables of several robots side by side, also as dimensionless impulses")
+    a.add_argument("tables", nargs="+", type=Path, metavar="TABLE.json", help="scripts/experiment table --json files")
+    a.add_argument("--json", type=Path, default=None, help="write the comparison here")
     args = ap.parse_args(argv)
+    if args.cmd == "compare":
+        from biped_controller.studies import provenance
+        provenance.track(args.json, argv=argv)
     try:
         if args.cmd == "new":
             return cmd_new(args.name, args.source, args.items, args.speed)
@@ -392,6 +450,8 @@ def main(argv: list[str] | None = None) -> int:
                              args.evaluator)
         if args.cmd == "check":
             return cmd_check(args.robot)
+        if args.cmd == "compare":
+            return cmd_compare(args.tables, args.json)
         return cmd_list()
     except (UsageError, RobotError, SettingsError, GaitConfigError) as exc:
         print(f"{PROG}: error: {str(exc).splitlines()[0]}", file=sys.stderr)
