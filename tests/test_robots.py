@@ -250,17 +250,17 @@ def test_list_names_the_default_robot():
 
 
 def test_interrupted_build_leaves_the_previous_family(tmp_path, monkeypatch):
-    """A build interrupted inside the generator (after it wrote part of its file) leaves the previous family
-    byte for byte and no temporary file."""
-    from biped_controller.gaits import generation
+    """A build interrupted inside the two-process build (after part of the family file was written) leaves the
+    previous family byte for byte and no temporary file."""
+    from biped_controller.gaits import build
     from biped_controller.studies import robots
     d = robot_dir(tmp_path, "strong", {"torque_limits.hip": 160.0})
     before = _files(d)
 
-    def interrupted(path, **kw):
-        Path(path).write_text('{"family": ')
+    def interrupted(st, **kw):
+        (d / f".{FAMILY_FILE}.{__import__('os').getpid()}.tmp").write_text('{"family": ')   # cmd_build's temporary
         raise KeyboardInterrupt
-    monkeypatch.setattr(generation, "generate", interrupted)
+    monkeypatch.setattr(build, "build_family", interrupted)
     with pytest.raises(KeyboardInterrupt):
         robots.cmd_build(str(d), force=False, speed_sweep=False, warm_from="biped7")
     assert _files(d) == before
@@ -484,7 +484,7 @@ def test_no_gait_is_one_line_naming_the_binding_constraint(tmp_path, monkeypatch
     the smallest margin, exit 1, the previous family untouched (the solver's answer is replaced by a failed
     one here: a real infeasible robot costs minutes of SLSQP)."""
     from types import SimpleNamespace
-    from biped_controller.gaits import generation
+    from biped_controller.gaits import build, generation
     from biped_controller.studies import robots
     d = robot_dir(tmp_path, "strong", {"torque_limits.hip": 160.0})
     before = _files(d)
@@ -498,6 +498,7 @@ def test_no_gait_is_one_line_naming_the_binding_constraint(tmp_path, monkeypatch
                                    message="Positive directional derivative for linesearch", c=None)
     monkeypatch.setattr(robots, "StepOptimizer", Failing)
     monkeypatch.setattr(generation, "generate", lambda *a, **k: pytest.fail("the generator must not run"))
+    monkeypatch.setattr(build, "build_family", lambda *a, **k: pytest.fail("the build must not run"))
     assert robots.cmd_build(str(d), force=False, speed_sweep=False) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no feasible gait" in err and "zmp_toe" in err and "-0.0123" in err
@@ -530,3 +531,102 @@ def test_bad_gait_settings_are_one_line_naming_the_file(tmp_path):
     assert p.returncode == 2 and p.stderr.count("\n") == 1, p.stderr
     assert str(d / "gait.yaml") in p.stderr and "preferred_stride" in p.stderr and "biped7" not in p.stderr
     assert _files(d) == before
+
+
+# ------------------------------------------------------------------------------------------ build: two processes
+def _reduced_robot(tmp: Path, name: str) -> Path:
+    """biped7's description and a reduced gait.yaml (4 strides around p_d, one smoothing pass, 150 iterations)."""
+    d = robot_dir(tmp, name, family=False)
+    g = yaml.safe_load((d / "gait.yaml").read_text())
+    g["strides"]["value"] = [0.45, 0.463, 0.475, 0.4875]
+    g["smoothing_breakpoints"]["value"] = [0.45, 0.463, 0.475, 0.4875]
+    g["smoothing_weights"]["value"] = [1.0e4]
+    g["max_iterations"]["value"] = 150
+    (d / "gait.yaml").write_text(yaml.safe_dump(g, sort_keys=False))
+    return d
+
+
+@pytest.mark.slow
+def test_build_is_the_two_process_build_bit_identical_across_workers(tmp_path):
+    """scripts/robot build goes through biped_controller.gaits.build: the family file is the same bit for bit
+    with one worker and with two, carries generation.generate's stamp (the description's hash) and passes
+    scripts/robot check's stamp test; the build's log names the two-process build."""
+    files, outs = [], []
+    for workers in (1, 2):
+        d = _reduced_robot(tmp_path, f"w{workers}")
+        p = robot_cli("build", str(d), "--warm-from", "biped7", "--no-speed-sweep", "--force", "--workers", str(workers))
+        assert (d / FAMILY_FILE).is_file(), p.stdout + p.stderr
+        assert f"biped_controller.gaits.build, {workers} worker(s)" in p.stdout
+        files.append((d / FAMILY_FILE).read_bytes())
+        outs.append(d)
+    assert files[0] == files[1]
+    data = json.loads(files[0])
+    assert data[STAMP_KEY]["description_sha256"] == resolve_robot(str(outs[0])).description_hash()
+    assert "biped_controller.gaits.build" in data["solver"]["build"]
+    assert not list(outs[0].glob(".*.tmp"))
+    p = robot_cli("check", str(outs[1]))
+    assert "matches" in p.stdout and p.returncode in (0, 1), p.stdout + p.stderr
+
+
+def test_build_rejects_zero_workers(tmp_path):
+    d = robot_dir(tmp_path, "w0")
+    before = _files(d)
+    p = robot_cli("build", str(d), "--workers", "0")
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "--workers" in p.stderr
+    assert _files(d) == before
+
+
+# ------------------------------------------------------------------------------------------ the shipped robots
+#: robots shipped beside biped7 (docs/robots_compared.md), each with its built family committed
+SHIPPED = ("biped7_foot10", "biped7_foot05", "human70")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_robot_loads_and_its_family_passes_check(name):
+    """The committed family (no rebuild) is stamped for the committed description and passes scripts/robot
+    check (fit, periodicity, margins, clearance); the description loads and is not biped7's."""
+    from biped_controller.studies import robots
+    r = resolve_robot(name)
+    d = r.description()
+    assert d.total_mass > 0 and d.leg_length > 0
+    assert r.description_hash() != resolve_robot("biped7").description_hash()
+    assert r.check_stamp() == r.description_hash()
+    assert robots.cmd_check(name) == 0
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_robot_walks_10_steps_unpushed_rigid(name):
+    """10 steps unpushed (mode both, the control period's held torques, rigid plant): no fall (0.3-1.5 s each
+    at load 12; the integration-rate walks are committed results, results/robots/NAME_walk_*.json)."""
+    from biped_controller.studies.trial.runs import run
+    from biped_controller.studies.trial.settings import parse_overrides
+    res = run(10, "both", settings=parse_overrides((), robot=name))
+    assert res.steps_walked == 10 and not res.fallen
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_robot_walks_10_steps_unpushed_mujoco(name):
+    """The same on the MuJoCo plant (0.5-0.8 s each at load 12; its impact times are those of the committed
+    ZOH walk in results/robots/NAME_walk_mujoco.json)."""
+    from biped_controller.studies.trial.runs import run
+    from biped_controller.studies.trial.settings import parse_overrides
+    res = run(10, "both", settings=parse_overrides(("plant=mujoco",), robot=name))
+    assert res.steps_walked == 10 and not res.fallen
+
+
+def test_compare_gives_the_dimensionless_impulse(tmp_path):
+    """scripts/robot compare: each table's robot and plant from its argv, the boundary F and F dt / (M sqrt(g L))."""
+    import math
+    out = tmp_path / "cmp.json"
+    p = robot_cli("compare", "results/paper_table/rigid_default.json", "results/paper_table/mujoco_default.json",
+                  "--json", str(out))
+    assert p.returncode == 0, p.stderr
+    data = json.loads(out.read_text())
+    rigid = data["rows"][data["by"]["biped7/rigid"]]
+    table = json.loads((ROOT / "results/paper_table/rigid_default.json").read_text())
+    F = table["modes"]["both"]["max_force"]
+    assert rigid["modes"]["both"]["max_force"] == F
+    assert rigid["modes"]["both"]["impulse"] == pytest.approx(F * 0.025 / (41.0 * math.sqrt(9.81 * 0.8)))
+    assert data["rows"][data["by"]["biped7/mujoco"]]["plant"] == "mujoco"
+    p = robot_cli("compare", str(tmp_path / "none.json"))
+    assert p.returncode == 2 and "none.json" in p.stderr and p.stderr.count("\n") == 1

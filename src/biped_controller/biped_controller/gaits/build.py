@@ -173,8 +173,9 @@ def _sweep_pass(run: Runner, out: dict[float, StepSolution], order: list[float])
 
 
 def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str = "fast", progress: bool = True,
-                 speed: bool = True, max_sweeps: int = 4) -> tuple[dict, dict]:
-    """The family file's contents (as ``generation.generate`` writes them) and the build's timings."""
+                 speed: bool = True, max_sweeps: int = 4, first_guess: np.ndarray | None = None) -> tuple[dict, dict]:
+    """The family file's contents (as ``generation.generate`` writes them) and the build's timings;
+    ``first_guess``: the normalised coefficients p_d's solve starts from (None: the stated initial guess)."""
     from biped_controller.gaits.generation import (_fit_from_solutions, _solution_record, _validate, fit_and_restrict,
                                                    restrict_to_held_out)
     set_blas_threads(1)
@@ -185,7 +186,7 @@ def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str =
     try:
         # 1. p_d from the stated initial guess, then the two chains outwards (independent of each other)
         p_d = st.p_d
-        sols: dict[float, StepSolution] = {p_d: run.submit(_solve, p_d, None, None, 0.0, False).result()}
+        sols: dict[float, StepSolution] = {p_d: run.submit(_solve, p_d, first_guess, None, 0.0, False).result()}
         up = sorted(s for s in st.strides if s > p_d)
         down = sorted((s for s in st.strides if s < p_d), reverse=True)
         fu, fd = run.submit(_chain, up, sols[p_d].c), run.submit(_chain, down, sols[p_d].c)

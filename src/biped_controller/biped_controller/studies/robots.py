@@ -4,13 +4,16 @@
   fields changed, e.g. ``foot.length=0.1``) and writes its ``gait.yaml`` with the size-dependent settings
   derived from the new description (:func:`derive_gait_settings`, each with its reason), into
   ``robots/NAME`` (or the path NAME);
-- ``build NAME|PATH`` optimises, fits and checks its gait family (progress on stdout), stamps it with the
+- ``build NAME|PATH`` optimises, fits and checks its gait family (progress on stdout) with the two-process
+  build (:mod:`biped_controller.gaits.build`: the same file for any ``--workers``), stamps it with the
   description's hash and replaces ``gait_family.json`` atomically: an interrupted build leaves the previous
-  family in place (the generator keeps no partial state, so a build interrupted starts again from nothing);
+  family in place (the build keeps no partial state, so a build interrupted starts again from nothing);
   a family that fails its checks is not written unless ``--force``;
 - ``check NAME|PATH`` the family's stamp, then its checks (fit at the fitted and the held-out strides,
   periodicity, the true-constraint margins and clearance between the strides);
-- ``list`` every robot under ``robots/``: mass [kg], leg length [m], foot length [m], family.
+- ``list`` every robot under ``robots/``: mass [kg], leg length [m], foot length [m], family;
+- ``compare TABLE.json ... [--json FILE]`` max-push tables (``scripts/experiment table --robot NAME --json``)
+  side by side, each boundary also as the dimensionless impulse F * duration / (M sqrt(g L)).
 
 Bad input (a description with a missing, unknown or non-positive field, a torque limit that cannot hold the
 robot standing, bad gait settings, a robot without a built family, a family built for another description):
@@ -33,10 +36,10 @@ import yaml
 from biped_model.description import DescriptionError, RobotDescription, parse_description
 from biped_model.gait_family import GaitFamily, GaitFamilyError
 from biped_model.robot import (DESCRIPTION_FILE, FAMILY_FILE, GAIT_FILE, SETTINGS_FILE, STAMP_KEY, Robot, RobotError,
-                               is_path_spec, resolve_robot, robot_names)
+                               description_hash, is_path_spec, resolve_robot, robot_names)
 from biped_model.settings import SettingsError, load_yaml_tree, robots_dir
 
-from biped_controller.gaits import generation
+from biped_controller.gaits import build, generation
 from biped_controller.gaits.optimizer import GaitConfigError, StepOptimizer, load_gait_settings
 
 PROG = "scripts/robot"
@@ -256,14 +259,16 @@ def warm_start(spec: str) -> np.ndarray:
     raise UsageError(f"{w.family_path}: no stored stride at p_d = {p_d}")
 
 
-def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None = None) -> int:
+def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None = None, workers: int = 2,
+              evaluator: str = "fast") -> int:
     r = resolve_robot(spec)
     desc, st = _check_inputs(r)
     first = warm_start(warm_from) if warm_from else None
     tmp = r.directory / f".{FAMILY_FILE}.{os.getpid()}.tmp"
     print(f"building the gait family of {r.name} ({r.directory}): {len(st.strides)} strides "
           f"{st.strides[0]:g}-{st.strides[-1]:g} m, p_d {st.p_d:g} m, T {st.T:g} s, {len(st.smoothing_weights)} "
-          f"smoothing passes, at most {st.max_iterations} iterations per solve (the generator keeps no partial "
+          f"smoothing passes, at most {st.max_iterations} iterations per solve, the two-process build "
+          f"(biped_controller.gaits.build, {workers} worker(s), evaluator {evaluator}; it keeps no partial "
           f"state: an interrupted build starts again; the previous {FAMILY_FILE} stays until this one is complete)",
           flush=True)
     # the preferred stride first, on its own: without a gait there, no family (one line naming the binding
@@ -279,9 +284,13 @@ def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None =
               f"{r.family_path} not written (docs/robots.md, 'When the build finds no gait')", file=sys.stderr)
         return 1
     try:
-        data = generation.generate(tmp, progress=True, settings_path=r.gait_path,
-                                   description_path=r.description_path, speed_sweep=speed_sweep,
-                                   first_guess=sol.c)
+        t1 = time.perf_counter()
+        data, times = build.build_family(st, desc=desc, workers=workers, evaluator=evaluator, progress=True,
+                                         speed=speed_sweep, first_guess=sol.c)
+        # the stamp as generation.generate writes it (the description this family was built for)
+        data[STAMP_KEY] = {"description_sha256": description_hash(desc)}
+        print(f"family: {times['family']:.1f} s, total {time.perf_counter() - t1:.1f} s ({workers} worker(s), "
+              f"evaluator {evaluator}, single-threaded BLAS)", flush=True)
         validation = data["validation"]
         generation.print_report(data, validation)
         ok, why = generation.within_tolerance(validation, st)
@@ -349,6 +358,56 @@ def cmd_list() -> int:
     return 0
 
 
+def _table_meta(path: Path) -> tuple[str, str, float]:
+    """(robot, plant, push duration [s]) of a ``scripts/experiment table --json`` file, from its ``argv``."""
+    from biped_controller.studies.trial.runs import DEFAULT_DURATION
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    argv = [str(a) for a in data.get("argv", [])]
+
+    def opt(name: str, default: str) -> str:
+        return argv[argv.index(name) + 1] if name in argv and argv.index(name) + 1 < len(argv) else default
+    plant = "mujoco" if any(a.replace(" ", "") == "plant=mujoco" for a in argv) else "rigid"
+    return opt("--robot", "") or "biped7", plant, float(opt("--duration", str(DEFAULT_DURATION)))
+
+
+def compare_tables(paths: list[Path]) -> dict:
+    """Max-push tables of several robots side by side: per table (robot, plant) each mode's largest survived
+    push ``max_force`` [N] and the same boundary as a dimensionless impulse F * duration / (M sqrt(g L)),
+    M the robot's total mass, L its leg length (thigh + shin)."""
+    rows = []
+    for path in paths:
+        robot, plant, dt = _table_meta(path)
+        d = resolve_robot(robot).description()
+        scale = d.total_mass * math.sqrt(d.gravity * d.leg_length)
+        modes = json.loads(Path(path).read_text(encoding="utf-8"))["modes"]
+        rows.append({"table": str(path), "robot": robot, "plant": plant, "duration": dt, "mass": d.total_mass,
+                     "leg_length": d.leg_length, "foot_length": d.foot.length, "impulse_scale": scale,
+                     "modes": {m: {"max_force": r["max_force"],
+                                   "impulse": None if r["max_force"] is None else r["max_force"] * dt / scale}
+                               for m, r in modes.items()}})
+    return {"definition": "impulse = max_force * duration / (mass * sqrt(g * leg_length)), dimensionless",
+            "rows": rows, "by": {f"{r['robot']}/{r['plant']}": i for i, r in enumerate(rows)}}
+
+
+def cmd_compare(paths: list[Path], out: Path | None) -> int:
+    for p in paths:
+        if not Path(p).is_file():
+            raise UsageError(f"{p}: missing (a scripts/experiment table --json file)")
+    data = compare_tables(paths)
+    modes = list(dict.fromkeys(m for r in data["rows"] for m in r["modes"]))
+    print(f"{'robot':<16} {'plant':<7} {'M [kg]':>6} {'L [m]':>6} {'foot':>5}  " + "  ".join(f"{m:>20}" for m in modes))
+    for r in data["rows"]:
+        cells = []
+        for m in modes:
+            c = r["modes"].get(m)
+            cells.append(f"{'-':>20}" if c is None or c["max_force"] is None else f"{c['max_force']:9.3f} N {c['impulse']:.4f}")
+        print(f"{r['robot']:<16} {r['plant']:<7} {r['mass']:6.1f} {r['leg_length']:6.3f} {r['foot_length']:5.2f}  " + "  ".join(cells))
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -366,17 +425,33 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--warm-from", default=None, metavar="ROBOT",
                    help="start the preferred stride's solve from ROBOT's step there instead of the stated initial "
                         "guess (a robot close to ROBOT builds faster)")
+    a.add_argument("--workers", type=int, default=2, metavar="N",
+                   help="worker processes of the build (1: everything in this process; the same file for any N)")
+    a.add_argument("--evaluator", choices=build.EVALUATORS, default="fast",
+                   help="fast (exact impact-map derivative, default) or reference (generation.generate's numbers "
+                        "under single-threaded BLAS)")
     a = sub.add_parser("check", help="the family's stamp and checks")
     a.add_argument("robot", metavar="NAME|PATH")
     sub.add_parser("list", help="the robots under robots/")
+    a = sub.add_parser("compare", help="max-push tables of several robots side by side, also as dimensionless impulses")
+    a.add_argument("tables", nargs="+", type=Path, metavar="TABLE.json", help="scripts/experiment table --json files")
+    a.add_argument("--json", type=Path, default=None, help="write the comparison here")
     args = ap.parse_args(argv)
+    if args.cmd == "compare":
+        from biped_controller.studies import provenance
+        provenance.track(args.json, argv=argv)
     try:
         if args.cmd == "new":
             return cmd_new(args.name, args.source, args.items, args.speed)
         if args.cmd == "build":
-            return cmd_build(args.robot, args.force, not args.no_speed_sweep, args.warm_from)
+            if args.workers < 1:
+                raise UsageError(f"--workers must be >= 1, got {args.workers}")
+            return cmd_build(args.robot, args.force, not args.no_speed_sweep, args.warm_from, args.workers,
+                             args.evaluator)
         if args.cmd == "check":
             return cmd_check(args.robot)
+        if args.cmd == "compare":
+            return cmd_compare(args.tables, args.json)
         return cmd_list()
     except (UsageError, RobotError, SettingsError, GaitConfigError) as exc:
         print(f"{PROG}: error: {str(exc).splitlines()[0]}", file=sys.stderr)
