@@ -37,3 +37,20 @@ def test_a_quicker_reference_moves_the_dcm_it_compares_with(pair):
     finally:
         var.tau_dot = 1.0
     assert type(base.layer) is DcmStepLayer and var.s == base.s       # nothing else changed
+
+
+def test_the_cell_table_by_hand():
+    """Two phases, one direction, one plant: the differences done by hand; a variant measured at one phase."""
+    from lab.step_layer_causes import cell_markdown, cell_table
+    b = {"forward": {"boundaries": {"0": 100.0, "0.5": 200.0}}}
+    slices = {"plants": {"rigid": {"directions": ["forward"], "stats": {
+        "dcm_wbc": b, "wbc": {"forward": {"boundaries": {"0": 150.0, "0.5": 180.0}}},
+        "both": {"forward": {"boundaries": {"0": 400.0, "0.5": 500.0}}}}}}}
+    var = {"rigid": {"boundaries": [{"direction": "forward", "phase": 0.5, "force": 450.0}]}}
+    t = cell_table(slices, "dcm_wbc", ("wbc", "both"), {"v": var})
+    r0, r1 = t["plants"]["rigid"]["rows"]
+    assert (r0["dcm_wbc - wbc"], r0["dcm_wbc - both"], r0["v"]) == (-50.0, -300.0, None)
+    assert (r1["dcm_wbc - wbc"], r1["dcm_wbc - both"]) == (20.0, -300.0)
+    assert (r1["v - dcm_wbc"], r1["v - wbc"], r1["v - both"]) == (250.0, 270.0, -50.0)
+    md = cell_markdown(t)
+    assert "| forward | 0.5 | 200 | 180 | 500 | +20 | -300 | 450 | +250 | +270 | -50 |" in md
