@@ -13,7 +13,7 @@ import doc_figures as df
 ROOT = Path(__file__).resolve().parents[1]
 #: the reports (the README's "Reports" list): each carries markers on its findings' figures
 REPORTS = ("paper_table", "paper_method", "mujoco_plant", "baseline_wbc", "torso_parameter", "robustness",
-           "capability_map", "gait_family_range")
+           "capability_map", "gait_family_range", "step_layer")
 
 
 def test_every_marker_holds():

@@ -20,5 +20,10 @@ setup(
         'console_scripts': [
             'controller = biped_controller.graph.controller_node:main',
         ],
+        # controllers shipped with the product that run through the controller interface like any plug-in
+        # (docs/controllers.md): the DCM step layer above the whole-body QP (plugin/step_layer.py)
+        'biped.controllers': [
+            'dcm_wbc = biped_controller.plugin.step_layer:DcmWholeBody',
+        ],
     },
 )

@@ -1,0 +1,149 @@
+"""What the DCM step layer of ``dcm_wbc`` compares the measured DCM with: one variant that changes only that.
+
+Question (docs/step_layer.md, "Why it loses"): ``dcm_wbc`` falls two to three steps after a push it has
+survived, with its DCM error growing from step to step. Is the cause that the layer compares the measured DCM
+xi [m] with the *preferred* step's DCM xi_n(tau) (the table along q_d(p_d, .) at tau' = 1), while its own
+outputs p and tau' change the reference's speed, so that the layer reads its own command as a DCM error?
+
+:class:`CommandedDcm` is ``dcm_wbc`` with that one thing changed: the DCM it compares xi with (in the dead band,
+the step location law and the reported ``dcm_error``) is the DCM of the reference it commands,
+
+    xi_r = x_r + x_r' / omega,   x_r = x_G(q_d(p, tau)),   x_r' = J_G(q_d) (dq/dp p' + dq/dtau tau')   [m],
+
+at the period's p [m], p' [m/s], tau [s] (held to [0, T]) and tau' [-]; with p = p_d, tau' = 1 it is xi_n(tau).
+Everything else (omega, the offset law, the timing, the gains, the whole-body QP, the observer, the settings)
+is ``dcm_wbc``'s. Run it by its ``module:Class`` name from the repository root, e.g.
+
+    .venv/bin/python -m biped_controller.studies.controllers max-push lab.step_layer_causes:CommandedDcm --max 800 \\
+        --json results/step_layer/causes/commanded_dcm_paper_cell_rigid.json
+"""
+from __future__ import annotations
+
+import sys
+
+from biped_controller.plugin.step_layer import DcmStepLayer, DcmWholeBody
+
+
+class _CommandedLayer(DcmStepLayer):
+    """The layer with xi_n(tau) replaced by the commanded reference's DCM at the controller's (p, p', tau')."""
+
+    ctrl: "CommandedDcm"
+
+    def xi_n(self, tau: float) -> float:
+        c = self.ctrl
+        g = self.ref.at(c.p, min(max(float(tau), 0.0), self.T))
+        st = c.model.com_state(g.q, g.dq_dp * c.p_dot + g.dq_dtau * c.tau_dot)
+        return float(st.position[0] + st.velocity[0] / self.omega)
+
+
+class CommandedDcm(DcmWholeBody):
+    """``dcm_wbc`` whose DCM error is measured against the commanded reference's DCM (module docstring)."""
+
+    description = "dcm_wbc with the DCM error taken against the commanded reference's DCM (lab.step_layer_causes)"
+
+    def __init__(self, setup):
+        super().__init__(setup)
+        lay = self.layer
+        self.layer = _CommandedLayer.__new__(_CommandedLayer)
+        self.layer.__dict__.update(lay.__dict__)
+        self.layer.ctrl = self
+
+
+# ---------------------------------------------------------------------------------------------------------- cells
+def cell_table(slices: dict, subject: str, against: tuple[str, ...], extra: dict[str, dict] | None = None) -> dict:
+    """Cell by cell (plant, direction, onset phase): the boundary [N] of ``subject`` and of each controller of
+    ``against`` from a ``controllers slices`` JSON (``plants/<plant>/stats/<name>/<direction>/boundaries``), and
+    subject - other [N]; ``extra``: name -> {plant: capability-map summary} of a variant measured at some of the
+    phases (its ``boundaries`` rows), with variant - other where it was measured. A controller missing on a plant
+    is left out of that plant."""
+    out = {"subject": subject, "against": list(against), "extra": sorted(extra or {}), "plants": {}}
+    for plant, pdata in slices["plants"].items():
+        stats = pdata["stats"]
+        if subject not in stats:
+            continue
+        names = [a for a in against if a in stats]
+        rows = []
+        for direction in pdata["directions"]:
+            bounds = stats[subject][direction]["boundaries"]
+            for phase, force in bounds.items():
+                row = {"direction": direction, "phase": float(phase), subject: force}
+                for a in names:
+                    other = stats[a][direction]["boundaries"].get(phase)
+                    row[a] = other
+                    row[f"{subject} - {a}"] = None if other is None or force is None else force - other
+                for name, maps in (extra or {}).items():
+                    summary = maps.get(plant)
+                    hit = [b for b in (summary or {}).get("boundaries", [])
+                           if b["direction"] == direction and abs(b["phase"] - float(phase)) < 1e-9]
+                    v = hit[0]["force"] if hit else None
+                    row[name] = v
+                    for a in [subject] + names:
+                        ref = row[a]
+                        row[f"{name} - {a}"] = None if v is None or ref is None else v - ref
+                rows.append(row)
+        out["plants"][plant] = {"rows": rows}
+    return out
+
+
+def cell_markdown(table: dict) -> str:
+    """The cell table as one markdown table per plant (N; '-' where not measured)."""
+    subject, against, extra = table["subject"], table["against"], table["extra"]
+    lines = []
+    for plant, pdata in table["plants"].items():
+        cols = [subject] + against + [f"{subject} - {a}" for a in against]
+        for name in extra:
+            cols += [name] + [f"{name} - {a}" for a in [subject] + against]
+        lines.append(f"{plant}:\n")
+        lines.append("| direction | phase | " + " | ".join(cols) + " |")
+        lines.append("| --- | ---: | " + " | ".join("---:" for _ in cols) + " |")
+        for r in pdata["rows"]:
+            vals = ["-" if r.get(c) is None else f"{r[c]:+g}" if " - " in c else f"{r[c]:g}" for c in cols]
+            lines.append(f"| {r['direction']} | {r['phase']:g} | " + " | ".join(vals) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    """``cells SLICES.json [--extra NAME=PLANT:MAP.json ...] --json F --markdown F``: :func:`cell_table`."""
+    import argparse
+    import json
+    from pathlib import Path
+
+    from biped_controller.studies import provenance
+    ap = argparse.ArgumentParser(prog="python -m lab.step_layer_causes", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("cells", help="cell-by-cell boundaries and differences from a controllers-slices JSON")
+    c.add_argument("slices", type=Path)
+    c.add_argument("--subject", default="dcm_wbc")
+    c.add_argument("--against", nargs="+", default=["wbc", "both"])
+    c.add_argument("--extra", action="append", default=[], help="NAME=PLANT:MAP.json (repeatable)")
+    c.add_argument("--json", type=Path)
+    c.add_argument("--markdown", type=Path)
+    args = ap.parse_args(argv)
+    provenance.track(args.json, args.markdown, argv=argv)
+    try:
+        slices = json.loads(args.slices.read_text(encoding="utf-8"))
+        extra: dict[str, dict] = {}
+        for e in args.extra:
+            name, _, rest = e.partition("=")
+            plant, _, path = rest.partition(":")
+            if not (name and plant and path):
+                ap.error(f"--extra {e!r}: expected NAME=PLANT:MAP.json")
+            extra.setdefault(name, {})[plant] = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        ap.error(str(exc))
+    if "plants" not in slices:
+        ap.error(f"{args.slices}: not a controllers-slices JSON (no 'plants')")
+    table = cell_table(slices, args.subject, tuple(args.against), extra)
+    text = cell_markdown(table)
+    print(text)
+    for path, body in ((args.json, json.dumps(table, indent=1) + "\n"), (args.markdown, text)):
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(body, encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
