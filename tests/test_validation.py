@@ -203,8 +203,15 @@ def test_biped_description_rejects_bad_value_naming_key(biped_tree, data):
 def test_biped_description_accepts_scaled_valid_masses(biped_tree, data):
     from biped_model.description import parse_description
     tree = copy.deepcopy(biped_tree)
+    ratio = 1.0
     for seg in ('torso', 'thigh', 'shin'):
-        _set(tree, f'{seg}.mass', data.draw(st.floats(0.5, 100.0)))
+        m = data.draw(st.floats(0.5, 100.0))
+        ratio = max(ratio, m / tree[seg]['mass']['value'])
+        _set(tree, f'{seg}.mass', m)
+    # the torque needed to stand on one leg is linear in the masses (positive coefficients): limits scaled by
+    # the largest mass ratio keep the robot able to stand, which the description also checks
+    for joint in ('ankle', 'knee', 'hip'):
+        _set(tree, f'torque_limits.{joint}', tree['torque_limits'][joint]['value'] * ratio)
     parse_description(tree)
 
 
