@@ -139,7 +139,7 @@ def main(argv=None) -> int:
     R["dds"] = {"pingpong": pp, "lockstep": bench_lockstep(0.5 if quick else 5.0, pp)}
     log(f"   ping-pong {pp.get('rate_hz', 'failed')}; lockstep {R['dds']['lockstep'].get('steps_per_s', R['dds']['lockstep'].get('reason'))}")
     log("4. in-process speed")
-    R["inprocess"] = bench_inprocess(1 if quick else 5)
+    R["inprocess"] = bench_inprocess(1, repeats=1) if quick else bench_inprocess(5)
     log("5. max-push table")
     R["experiment"] = bench_experiment(quick)
     log("6. sweep: the default capability map (early stop, bracketed search)")

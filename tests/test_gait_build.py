@@ -22,6 +22,8 @@ from biped_controller.gaits.fast_eval import FastStepOptimizer, compare_evaluati
 from biped_controller.gaits.generation import _solution_record, smooth_family, solve_family
 from biped_controller.gaits.optimizer import StepOptimizer, load_gait_settings
 
+# the fewest strides a family takes (a not-a-knot spline needs four breakpoints), p_d among them
+FOUR = [0.45, 0.463, 0.475, 0.4875]
 FAMILY = json.loads((ROOT / "robots" / "biped7" / "gait_family.json").read_text(encoding="utf-8"))
 
 
@@ -112,7 +114,7 @@ def test_fast_impact_derivative_is_exact_in_velocity():
 
 @pytest.fixture(scope="module")
 def fast_builds():
-    st = _reduced()
+    st = _reduced(strides=FOUR, smoothing_breakpoints=FOUR, smoothing_weights=[1.0e4])
     one, _ = build_family(st, workers=1, evaluator="fast", progress=False, speed=False, max_sweeps=2)
     two, _ = build_family(st, workers=2, evaluator="fast", progress=False, speed=False, max_sweeps=2)
     return st, one, two
@@ -142,12 +144,11 @@ def test_reduced_build_passes_its_checks(fast_builds):
 def test_reference_evaluator_gives_the_generators_numbers():
     """The build with the reference evaluator (2 workers, speculative sweeps, lazy diagnostics) gives the
     stride records of generation.solve_family + smooth_family (serial, this process) bit for bit."""
-    st = _reduced(strides=[0.45, 0.463, 0.475, 0.4875], smoothing_breakpoints=[0.45, 0.463, 0.475, 0.4875],
-                  smoothing_weights=[1.0e4])
+    st = _reduced(strides=FOUR, smoothing_breakpoints=FOUR, smoothing_weights=[1.0e4])
     set_blas_threads(1)
-    data, _ = build_family(st, workers=2, evaluator="reference", progress=False, speed=False, max_sweeps=2)
+    data, _ = build_family(st, workers=2, evaluator="reference", progress=False, speed=False, max_sweeps=1)
     opt = StepOptimizer(settings=st)
-    sols = solve_family(opt, list(st.strides), st.p_d, progress=False, max_sweeps=2)
+    sols = solve_family(opt, list(st.strides), st.p_d, progress=False, max_sweeps=1)
     sols = smooth_family(opt, sols, st.p_d, st.smoothing_weights, progress=False)
     serial = [_solution_record(sols[p]) for p in sorted(sols)]
     assert json.dumps(data["strides"], sort_keys=True) == json.dumps(serial, sort_keys=True)

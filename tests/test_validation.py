@@ -20,6 +20,8 @@ def validate_push_request(force, duration, start, height, now, limits, scheduled
 
 SETTINGS = settings(derandomize=True, max_examples=300, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
+# the config loaders read their YAML files at each call (tens of ms): their properties get fewer examples
+CONFIG_SETTINGS = settings(SETTINGS, max_examples=60)
 HORIZON = 1e5
 LIMITS = PushLimits(max_force=2000.0, max_duration=1.0, torso_length=0.625, default_height=0.3125,
                     horizon=HORIZON)
@@ -255,7 +257,7 @@ def test_simulator_config_non_finite_substeps(tmp_path, bad):
     assert 'substeps' in str(ei.value)
 
 
-@SETTINGS
+@CONFIG_SETTINGS
 @given(period=st.floats(1e-5, 0.05), sub=st.integers(1, 1000))
 def test_simulator_config_accepts_valid(period, sub):
     from biped_sim.plant.config import load_sim_config
@@ -266,7 +268,7 @@ def test_simulator_config_accepts_valid(period, sub):
 CTRL_NUMERIC = ['Kp', 'Kv', 'kp', 'kv', 'weight_p', 'weight_tau', 'tau_dot_min', 'tau_dot_max']
 
 
-@SETTINGS
+@CONFIG_SETTINGS
 @given(key=st.sampled_from(CTRL_NUMERIC), bad=st.sampled_from([math.nan, math.inf, -1.0]))
 def test_controller_config_rejects_naming_key(key, bad):
     from biped_controller.core.control.config import ControllerConfigError, load_controller_config
@@ -292,7 +294,7 @@ def _modes():
 _MODES = _modes()   # every valid mode (none, tau, p, both, wbc, hybrid, lambda, all)
 
 
-@SETTINGS
+@CONFIG_SETTINGS
 @given(mode=st.text(max_size=8).filter(lambda m: m not in _MODES))
 def test_controller_config_rejects_unknown_mode(mode):
     from biped_controller.core.control.config import ControllerConfigError, load_controller_config
@@ -301,7 +303,7 @@ def test_controller_config_rejects_unknown_mode(mode):
     assert 'mode' in str(ei.value)
 
 
-@SETTINGS
+@CONFIG_SETTINGS
 @given(mode=st.sampled_from(['none', 'tau', 'p', 'both']), kp=st.floats(1.0, 1000.0))
 def test_controller_config_accepts_valid(mode, kp):
     from biped_controller.core.control.config import load_controller_config
@@ -411,3 +413,18 @@ def test_literal_default_checker_finds_a_planted_one(tmp_path):
     f = tmp_path / 'node.py'
     f.write_text("x = get_float(self, 'max_time', 0.0, lo=0.0)\ny = get_int(self, 'max_steps', lo=0)\n")
     assert _literal_defaults(f) == [('get_float', 'max_time')]
+
+
+def test_settings_loader_gives_pyyaml_safe_load_trees():
+    """The settings reader's loader (libyaml's parser where the wheel has it) gives, for every YAML file of
+    the repository, the tree of PyYAML's pure-Python safe loader."""
+    import subprocess
+
+    from biped_model.settings import YAML_LOADER, repo_root
+    root = repo_root()
+    files = subprocess.run(['git', 'ls-files', '*.yaml', '*.yml'], cwd=root, capture_output=True, text=True,
+                           check=True).stdout.split()
+    assert len(files) >= 10
+    for f in files:
+        text = (root / f).read_text(encoding='utf-8')
+        assert yaml.load(text, Loader=YAML_LOADER) == yaml.load(text, Loader=yaml.SafeLoader), f

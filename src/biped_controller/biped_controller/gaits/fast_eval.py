@@ -171,23 +171,10 @@ class FastStepOptimizer(StepOptimizer):
         clear_rows = ((tz[inner, None] + self._ls[None, :] * np.sin(ang)[:, None] - h[:, None]) / 0.01).ravel()
         row = Jz[inner, None, :] + (self._ls[None, :, None] * np.cos(ang)[:, None, None])    # (n-1, 2, 6)
         clear_jac = (row[:, :, :, None] * self.phi[inner][:, None, None, :]).reshape(2 * (n - 1), 30) / 0.01
-        obj *= self.obj_scale / self.p
-        gobj *= self.obj_scale / self.p
-        crit = obj
-        if self.penalty_target is not None and self.penalty_weight > 0:
-            dz = z - self.penalty_target
-            obj = obj + self.penalty_weight * float(dz @ dz)
-            gobj = gobj + 2.0 * self.penalty_weight * dz
-        kmin = max(st.knee_min_flexion, self.desc.knee_min_flexion)
-        kmax = self.desc.knee_max_flexion
-        knee_rows = np.concatenate([q[:, 1] - kmin, kmax - q[:, 1], -q[:, 4] - kmin, kmax + q[:, 4]])
+        obj, gobj, crit = self._objective_terms(obj, gobj, z)
+        knee_rows = self._knee_rows(q)
         if self._knee_jac is None:
-            kj = np.zeros((4 * (n + 1), 30))
-            kj[0:n + 1, 5:10] = self.phi
-            kj[n + 1:2 * (n + 1), 5:10] = -self.phi
-            kj[2 * (n + 1):3 * (n + 1), 20:25] = -self.phi
-            kj[3 * (n + 1):, 20:25] = self.phi
-            self._knee_jac = kj
+            self._knee_jac = self._knee_jacobian(n)
         # d(q(0)), d(q'(0)), d(q(T)), d(q'(T)) / dz: (6, 30) each (from the current basis: the 1 m/s question
         # changes T, hence dphi, between solves)
         self._dq0, self._dqd0, self._dqT, self._dqdT = (np.kron(np.eye(NJ), row[None, :]) for row in

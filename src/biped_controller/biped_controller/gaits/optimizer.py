@@ -242,6 +242,36 @@ class StepOptimizer:
         ])
         return qd_new, ineq
 
+    def _objective_terms(self, obj: float, gobj: np.ndarray, z: np.ndarray) -> tuple[float, np.ndarray, float]:
+        """Scale the raw effort integral to the criterion per metre (obj_scale / p) and add the penalty.
+
+        Returns (objective, its gradient, criterion): the criterion is the scaled effort alone, the objective
+        adds ``penalty_weight * |z - penalty_target|^2`` when a penalty target is set.
+        """
+        obj *= self.obj_scale / self.p
+        gobj *= self.obj_scale / self.p
+        crit = obj
+        if self.penalty_target is not None and self.penalty_weight > 0:
+            dz = z - self.penalty_target
+            obj = obj + self.penalty_weight * float(dz @ dz)
+            gobj = gobj + 2.0 * self.penalty_weight * dz
+        return obj, gobj, crit
+
+    def _knee_rows(self, q: np.ndarray) -> np.ndarray:
+        """Knee limits as rows >= 0 (linear in q): stance flexion is q2, swing flexion is -q5 (rad)."""
+        kmin = max(self.st.knee_min_flexion, self.desc.knee_min_flexion)
+        kmax = self.desc.knee_max_flexion
+        return np.concatenate([q[:, 1] - kmin, kmax - q[:, 1], -q[:, 4] - kmin, kmax + q[:, 4]])
+
+    def _knee_jacobian(self, n: int) -> np.ndarray:
+        """d(knee rows)/dz, (4 (n+1), 30): constant, the basis values at the n+1 instants."""
+        knee_jac = np.zeros((4 * (n + 1), 30))
+        knee_jac[0:n + 1, 5:10] = self.phi
+        knee_jac[n + 1:2 * (n + 1), 5:10] = -self.phi
+        knee_jac[2 * (n + 1):3 * (n + 1), 20:25] = -self.phi
+        knee_jac[3 * (n + 1):, 20:25] = self.phi
+        return knee_jac
+
     def evaluate(self, z: np.ndarray) -> dict[str, np.ndarray]:
         key = z.tobytes()
         if key == self._cache_key:
@@ -285,22 +315,9 @@ class StepOptimizer:
                     row = J[2, 3:] + l * math.cos(ang) * np.ones(6)
                     clear_rows.append(val / 0.01)
                     clear_jac.append((row[:, None] * self.phi[k][None, :]).ravel() / 0.01)
-        obj *= self.obj_scale / self.p
-        gobj *= self.obj_scale / self.p
-        crit = obj
-        if self.penalty_target is not None and self.penalty_weight > 0:
-            dz = z - self.penalty_target
-            obj = obj + self.penalty_weight * float(dz @ dz)
-            gobj = gobj + 2.0 * self.penalty_weight * dz
-        # knee limits (linear): q2 flexion = q2, swing flexion = -q5
-        kmin = max(st.knee_min_flexion, self.desc.knee_min_flexion)
-        kmax = self.desc.knee_max_flexion
-        knee_rows = np.concatenate([q[:, 1] - kmin, kmax - q[:, 1], -q[:, 4] - kmin, kmax + q[:, 4]])
-        knee_jac = np.zeros((4 * (n + 1), 30))
-        knee_jac[0:n + 1, 5:10] = self.phi
-        knee_jac[n + 1:2 * (n + 1), 5:10] = -self.phi
-        knee_jac[2 * (n + 1):3 * (n + 1), 20:25] = -self.phi
-        knee_jac[3 * (n + 1):, 20:25] = self.phi
+        obj, gobj, crit = self._objective_terms(obj, gobj, z)
+        knee_rows = self._knee_rows(q)
+        knee_jac = self._knee_jacobian(n)
         # end of step
         qT, qdT = q[-1], qd[-1]
         qd0_req, end_ineq = self._endpoint(qT, qdT)
