@@ -68,3 +68,15 @@ def rclpy_context(ros_domain):
     finally:
         if context.ok():
             rclpy.shutdown(context=context)
+
+
+@pytest.fixture(scope='session')
+def ray_session():
+    """One local Ray instance (2 CPUs, no dashboard) for the whole run, shut down at its end: the tests that
+    compare Ray with the process pool share it (starting Ray and its workers costs seconds each time). The
+    executors find it connected, so they neither start nor stop it (``RayExecutor.owned`` is False)."""
+    import ray
+    if not ray.is_initialized():
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()

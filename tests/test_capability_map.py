@@ -347,17 +347,12 @@ def pool_store(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_ray_and_pool_give_identical_records(pool_store, tmp_path):
-    import ray
+def test_ray_and_pool_give_identical_records(pool_store, tmp_path, ray_session):
     path, pool_run = pool_store
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        ex = cm.RayExecutor(None, 2)
-        assert not ex.owned
-        run = cm.run_map(REAL_SPEC, ex, cm.RecordStore(tmp_path / "ray.jsonl"), batch=2)
-        ex.close()
-    finally:
-        ray.shutdown()
+    ex = cm.RayExecutor(None, 2)
+    assert not ex.owned
+    run = cm.run_map(REAL_SPEC, ex, cm.RecordStore(tmp_path / "ray.jsonl"), batch=2)
+    ex.close()
     a = _sorted(cm.RecordStore(path).load())
     b = _sorted(cm.RecordStore(tmp_path / "ray.jsonl").load())
     assert len(a) == len(b) == run.simulated

@@ -46,16 +46,11 @@ def test_pool_workers_resolve_the_plugin_by_name(serial, tmp_path):
 
 
 @pytest.mark.slow
-def test_ray_tasks_resolve_the_plugin_by_name(serial, tmp_path):
-    import ray
+def test_ray_tasks_resolve_the_plugin_by_name(serial, tmp_path, ray_session):
     recs, run = serial
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        ex = cm.RayExecutor(None, 2)
-        got = cm.run_map(SPEC, ex, cm.RecordStore(tmp_path / "ray.jsonl"), batch=2)
-        ex.close()
-    finally:
-        ray.shutdown()
+    ex = cm.RayExecutor(None, 2)
+    got = cm.run_map(SPEC, ex, cm.RecordStore(tmp_path / "ray.jsonl"), batch=2)
+    ex.close()
     assert _sorted(cm.RecordStore(tmp_path / "ray.jsonl").load()) == recs
     assert got.boundaries == run.boundaries
 
