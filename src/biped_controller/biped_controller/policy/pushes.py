@@ -92,12 +92,16 @@ def parse_push_option(option: object) -> tuple[Push, ...]:
     return tuple(out)
 
 
-def push_info(p: Push) -> dict:
-    """JSON-ready: the push as ``info["push"]`` carries it (force magnitude, signed force, onset, duration,
-    direction, height [m] or None for the default)."""
+def push_info(p: Push | None) -> dict:
+    """The push as ``info["push"]`` carries it, the same keys and types with or without one (so a vector of
+    environments stacks them): ``force`` [N] magnitude, ``signed_force`` [N] (+ forward), ``onset`` [s],
+    ``duration`` [s], ``direction`` ("forward", "backward", "none" without a push), ``height`` [m] (NaN:
+    the simulator's default). Without a push: force 0, onset and duration NaN."""
+    if p is None:
+        return {"force": 0.0, "signed_force": 0.0, "onset": math.nan, "duration": math.nan, "direction": "none",
+                "height": math.nan}
     return {"force": abs(p.force), "signed_force": p.force, "onset": p.start, "duration": p.duration,
-            "direction": "forward" if p.force >= 0 else "backward",
-            "height": None if math.isnan(p.height) else p.height}
+            "direction": "forward" if p.force >= 0 else "backward", "height": p.height}
 
 
 @dataclass(frozen=True)
