@@ -20,8 +20,10 @@ What is timed (the policy's own evaluation is not: only ``env.reset`` and ``env.
   periods per second summed, over the vector run's plant periods per env step.
 
 Keys: ``policy_env.<plant>.single.env_steps_per_s``, ``...floor_single.env_steps_per_s``,
-``...single.over_floor`` (target >= 0.7; ``...single.over_floor_cpu`` the same in CPU time), the same for
-``vector2``. The single-core run and its floor alternate ``--repeats`` times and are summed. The machine is shared: the ratios
+``...single.over_floor`` (target >= 0.7; ``...over_floor_cpu`` the same in CPU time: the vector run's CPU is
+its workers' whole lives plus this process's time in ``reset`` and ``step``, its floor's the two replays'),
+the same for ``vector2``. A vector step waits for both workers, so on a loaded machine its wall-time rate
+pays for the slower one each step, which the free-running replays do not: the CPU ratio separates that. The single-core run and its floor alternate ``--repeats`` times and are summed. The machine is shared: the ratios
 compare figures of this one run; the target is printed, never asserted.
 """
 from __future__ import annotations
@@ -31,6 +33,7 @@ import json
 import multiprocessing as mp
 import os
 import platform
+import resource
 import time
 from pathlib import Path
 
@@ -121,24 +124,34 @@ def _replay_worker(args):
     return replay(plant, episodes)
 
 
+def child_cpu() -> float:
+    """CPU seconds [user + system] of this process's ended and reaped children."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def run_vector(plant: str, steps: int) -> dict:
     """``steps`` env steps per environment on an AsyncVectorEnv of two (module docstring)."""
     import gymnasium as gym
+    cc0 = child_cpu()
     vec = gym.vector.AsyncVectorEnv([lambda: make_env(plant) for _ in range(2)], context="fork")
     pol = policy()
+    c_main = 0.0
     try:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         obs, info = vec.reset(seed=[0, 1000])
         t_env = time.perf_counter() - t0
+        c_main += time.process_time() - c0
         n = 0
         autoreset = np.zeros(2, dtype=bool)
         periods = 0
         prev = np.zeros(2)
         while n < 2 * steps:
             a = pol(obs)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             obs, r, term, trunc, info = vec.step(a)
             t_env += time.perf_counter() - t0
+            c_main += time.process_time() - c0
             n += int((~autoreset).sum())
             # plant periods of this step: the plant's period count since its reset, minus the count before
             k = np.asarray(info["plant_periods"], dtype=float)
@@ -147,8 +160,9 @@ def run_vector(plant: str, steps: int) -> dict:
             autoreset = np.logical_or(term, trunc)
     finally:
         vec.close()
+    cpu = child_cpu() - cc0 + c_main      # the workers' whole lives and this process's time in reset and step
     return {"env_steps": n, "seconds": t_env, "env_steps_per_s": n / t_env, "plant_periods": periods,
-            "periods_per_env_step": periods / n}
+            "periods_per_env_step": periods / n, "cpu_seconds": cpu, "env_steps_per_cpu_s": n / cpu}
 
 
 def main(argv=None) -> int:
@@ -189,10 +203,14 @@ def main(argv=None) -> int:
     floor.update(periods_per_s=floor["plant_periods"] / floor["seconds"],
                  periods_per_cpu_s=floor["plant_periods"] / floor["cpu_seconds"])
     vector = run_vector(a.plant, steps)
-    with mp.get_context("fork").Pool(2) as pool:
-        t0 = time.perf_counter()
-        both = pool.map(_replay_worker, [(a.plant, episodes)] * 2)
-        wall2 = time.perf_counter() - t0
+    cc0 = child_cpu()
+    pool = mp.get_context("fork").Pool(2)
+    t0 = time.perf_counter()
+    both = pool.map(_replay_worker, [(a.plant, episodes)] * 2)
+    wall2 = time.perf_counter() - t0
+    pool.close()
+    pool.join()
+    cpu2 = child_cpu() - cc0
     floor2_pps = sum(b["plant_periods"] for b in both) / wall2
     res = {
         "single": single,
@@ -200,12 +218,14 @@ def main(argv=None) -> int:
                          "env_steps_per_cpu_s": floor["periods_per_cpu_s"] / single["periods_per_env_step"]},
         "vector2": vector,
         "floor_vector2": {"plant_periods": sum(b["plant_periods"] for b in both), "wall_seconds": wall2,
-                          "periods_per_s": floor2_pps,
-                          "env_steps_per_s": floor2_pps / vector["periods_per_env_step"]},
+                          "periods_per_s": floor2_pps, "cpu_seconds": cpu2,
+                          "env_steps_per_s": floor2_pps / vector["periods_per_env_step"],
+                          "env_steps_per_cpu_s": sum(b["plant_periods"] for b in both) / cpu2
+                          / vector["periods_per_env_step"]},
     }
     res["single"]["over_floor"] = res["single"]["env_steps_per_s"] / res["floor_single"]["env_steps_per_s"]
-    res["single"]["over_floor_cpu"] = (res["single"]["env_steps_per_cpu_s"]
-                                       / res["floor_single"]["env_steps_per_cpu_s"])
+    for k, f in (("single", "floor_single"), ("vector2", "floor_vector2")):
+        res[k]["over_floor_cpu"] = res[k]["env_steps_per_cpu_s"] / res[f]["env_steps_per_cpu_s"]
     res["vector2"]["over_floor"] = res["vector2"]["env_steps_per_s"] / res["floor_vector2"]["env_steps_per_s"]
     meta = {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "plant": a.plant, "steps": steps,
             "policy_period": period, "control_period": control, "cpus": os.cpu_count(),
@@ -217,7 +237,7 @@ def main(argv=None) -> int:
         keys[f"policy_env.{a.plant}.{k}.env_steps_per_s"] = res[k]["env_steps_per_s"]
     for k in ("single", "vector2"):
         keys[f"policy_env.{a.plant}.{k}.over_floor"] = res[k]["over_floor"]
-    keys[f"policy_env.{a.plant}.single.over_floor_cpu"] = res["single"]["over_floor_cpu"]
+        keys[f"policy_env.{a.plant}.{k}.over_floor_cpu"] = res[k]["over_floor_cpu"]
     out = {"meta": meta, "target_over_floor": TARGET, "results": res, "keys": keys}
     a.json.parent.mkdir(parents=True, exist_ok=True)
     a.json.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
@@ -229,9 +249,11 @@ def main(argv=None) -> int:
         r = res[k]
         print(f"| {k} | {r['env_steps_per_s']:.0f} | {r['periods_per_env_step']:.2f} | "
               f"{res[f]['env_steps_per_s']:.0f} | {r['over_floor']:.2f} |")
-    print(f"single, in CPU time: {res['single']['env_steps_per_cpu_s']:.0f} env steps per CPU s beside a floor of "
-          f"{res['floor_single']['env_steps_per_cpu_s']:.0f}: {res['single']['over_floor_cpu']:.2f}; wall-time "
-          f"ratio of each repeat: {', '.join(f'{x:.2f}' for x in res['single']['over_floor_each_repeat'])}")
+    for k, f in (("single", "floor_single"), ("vector2", "floor_vector2")):
+        print(f"{k}, in CPU time: {res[k]['env_steps_per_cpu_s']:.0f} env steps per CPU s beside a floor of "
+              f"{res[f]['env_steps_per_cpu_s']:.0f}: {res[k]['over_floor_cpu']:.2f}")
+    print(f"single, wall-time ratio of each repeat: "
+          f"{', '.join(f'{x:.2f}' for x in res['single']['over_floor_each_repeat'])}")
     return 0
 
 
