@@ -174,7 +174,8 @@ class BipedPushEnv(gym.Env):
 
     def _info(self) -> dict:
         fall = self.sim.fall
-        return {"push": push_info(self._pushes[0] if self._pushes else None), "pushes": len(self._pushes),
+        return {"push": push_info(self._pushes[0] if self._pushes else None, self.scfg.push_height),
+                "pushes": len(self._pushes),
                 "fall_cause": fall.cause if fall is not None else "",
                 "fall_detail": fall.detail if fall is not None else "",
                 "t": float(self.sim.t), "plant_periods": int(self.sim.step_index),
