@@ -294,6 +294,11 @@ def test_committed_policy_is_a_controller_by_name(tmp_path, monkeypatch):
     assert "tiny_pd" in regs and "catalog" in regs["tiny_pd"].source
     cls = load_controller("tiny_pd")
     assert issubclass(cls, OnnxPolicy) and cls.description == "a test policy"
+    import argparse
+    from biped_controller.studies.trial.args import controller_arg
+    assert controller_arg("tiny_pd") == "tiny_pd"              # the studies take it by name
+    with pytest.raises(argparse.ArgumentTypeError, match="onnx_policy.*option.*file"):
+        controller_arg("onnx_policy")                         # the studies pass no file option
     res = PluginLoop("tiny_pd", options={}).run(1, limit=0.05)
     assert res.fault is None and res.periods > 0
     assert PluginLoop("tiny_pd").ctrl.inner.policy_period == 0.02
