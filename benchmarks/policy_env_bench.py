@@ -21,7 +21,8 @@ What is timed (the policy's own evaluation is not: only ``env.reset`` and ``env.
 
 Keys: ``policy_env.<plant>.single.env_steps_per_s``, ``...floor_single.env_steps_per_s``,
 ``...single.over_floor`` (target >= 0.7; ``...over_floor_cpu`` the same in CPU time: the vector run's CPU is
-its workers' whole lives plus this process's time in ``reset`` and ``step``, its floor's the two replays'),
+its workers' from after the first reset to the last step, read in each worker, plus this process's in
+``step``; its floor's the two replays' own),
 the same for ``vector2``. A vector step waits for both workers, so on a loaded machine its wall-time rate
 pays for the slower one each step, which the free-running replays do not: the CPU ratio separates that. The single-core run and its floor alternate ``--repeats`` times and are summed. The machine is shared: the ratios
 compare figures of this one run; the target is printed, never asserted.
@@ -33,7 +34,6 @@ import json
 import multiprocessing as mp
 import os
 import platform
-import resource
 import time
 from pathlib import Path
 
@@ -54,9 +54,16 @@ def policy(seed: int = 2, scale: float = 0.01):
 
 
 def make_env(plant: str, keep_records: bool = False):
+    import gymnasium as gym
     import biped_controller.policy  # noqa: F401
     from biped_controller.policy.env import make_random_push_env
-    return make_random_push_env(DIST, seed=0, plant=plant, keep_records=keep_records)
+
+    class CpuClock(gym.Wrapper):
+        """``cpu_seconds()``: this process's CPU time (read in a vector env's worker through ``call``)."""
+
+        def cpu_seconds(self) -> float:
+            return time.process_time()
+    return CpuClock(make_random_push_env(DIST, seed=0, plant=plant, keep_records=keep_records))
 
 
 def run_single(plant: str, steps: int, record: bool) -> dict:
@@ -124,24 +131,17 @@ def _replay_worker(args):
     return replay(plant, episodes)
 
 
-def child_cpu() -> float:
-    """CPU seconds [user + system] of this process's ended and reaped children."""
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
 def run_vector(plant: str, steps: int) -> dict:
     """``steps`` env steps per environment on an AsyncVectorEnv of two (module docstring)."""
     import gymnasium as gym
-    cc0 = child_cpu()
     vec = gym.vector.AsyncVectorEnv([lambda: make_env(plant) for _ in range(2)], context="fork")
     pol = policy()
     c_main = 0.0
     try:
-        t0, c0 = time.perf_counter(), time.process_time()
+        t0 = time.perf_counter()
         obs, info = vec.reset(seed=[0, 1000])
         t_env = time.perf_counter() - t0
-        c_main += time.process_time() - c0
+        w0 = np.array(vec.call("cpu_seconds"))
         n = 0
         autoreset = np.zeros(2, dtype=bool)
         periods = 0
@@ -158,9 +158,10 @@ def run_vector(plant: str, steps: int) -> dict:
             periods += int(np.where(autoreset, 0.0, k - prev).sum())
             prev = k
             autoreset = np.logical_or(term, trunc)
+        w1 = np.array(vec.call("cpu_seconds"))
     finally:
         vec.close()
-    cpu = child_cpu() - cc0 + c_main      # the workers' whole lives and this process's time in reset and step
+    cpu = float((w1 - w0).sum()) + c_main     # the workers' CPU over the steps and this process's in step
     return {"env_steps": n, "seconds": t_env, "env_steps_per_s": n / t_env, "plant_periods": periods,
             "periods_per_env_step": periods / n, "cpu_seconds": cpu, "env_steps_per_cpu_s": n / cpu}
 
@@ -203,14 +204,11 @@ def main(argv=None) -> int:
     floor.update(periods_per_s=floor["plant_periods"] / floor["seconds"],
                  periods_per_cpu_s=floor["plant_periods"] / floor["cpu_seconds"])
     vector = run_vector(a.plant, steps)
-    cc0 = child_cpu()
-    pool = mp.get_context("fork").Pool(2)
-    t0 = time.perf_counter()
-    both = pool.map(_replay_worker, [(a.plant, episodes)] * 2)
-    wall2 = time.perf_counter() - t0
-    pool.close()
-    pool.join()
-    cpu2 = child_cpu() - cc0
+    with mp.get_context("fork").Pool(2) as pool:
+        t0 = time.perf_counter()
+        both = pool.map(_replay_worker, [(a.plant, episodes)] * 2)
+        wall2 = time.perf_counter() - t0
+    cpu2 = sum(b["cpu_seconds"] for b in both)
     floor2_pps = sum(b["plant_periods"] for b in both) / wall2
     res = {
         "single": single,
