@@ -149,6 +149,21 @@ def loop_records(env, policy, pushes, t_end):
     return loop.run(1000, pushes, limit=t_end - 1e-9)
 
 
+def computed_torque_policy(env):
+    """Mode none's law as a policy of the observation vector: w = q_d'' + Kv (q_d' - q') + Kp (q_d - q) on
+    the fixed gait q_d(p_d, time in stance), torque A w + H, over the limits (the rigid plant, which
+    takes off at once under a torque that does not carry the robot, walks with it at a 1 ms policy period)."""
+    setup = ControllerSetup(env.desc, env.family, env.scfg.control_period, {})
+    model, ref, g, lim = setup.model, setup.reference, setup.gains, env.limits
+
+    def f(vec):
+        q, qd = vec[:6], vec[6:12]
+        r = ref.at(ref.p_d, min(vec[15], ref.T))
+        d = model.dynamics(q, qd)
+        return (d.A @ (r.d2q_dtau2 + g.Kv * (r.dq_dtau - qd) + g.Kp * (r.q - q)) + d.H) / lim
+    return f
+
+
 @pytest.mark.parametrize("case", ["mujoco", "mujoco_sensors", "rigid"])
 def test_env_step_is_the_plugin_loop(case, mujoco_env):
     if case == "mujoco":
@@ -157,10 +172,15 @@ def test_env_step_is_the_plugin_loop(case, mujoco_env):
         env = BipedPushEnv(plant="mujoco", perturbation={"noise_q": 5e-4, "noise_qd": 5e-2, "delay": 2, "seed": 4},
                            keep_records=True)
     else:
-        env = BipedPushEnv(plant="rigid", keep_records=True)
+        env = BipedPushEnv(plant="rigid", policy_period=0.001, keep_records=True)
     env.config = env.config.__class__(**{**env.config.__dict__, "reset_noise_scale": 0.0})
-    pol = numpy_policy(*weights(2, 0.01))      # falls after a touchdown on MuJoCo (a cut-short period)
-    _, _, info = episode(env, pol, options={"push": PUSH}, max_steps=60)
+    if case == "rigid":                  # walks through its first touchdown, pushed
+        pol = computed_torque_policy(env)
+        _, _, info = episode(env, pol, options={"push": {**PUSH, "force": 50.0}}, max_steps=520)
+        assert info["steps_walked"] >= 1 and not info["fall_cause"]
+    else:
+        pol = numpy_policy(*weights(2, 0.01))      # falls after a touchdown on MuJoCo (a cut-short period)
+        _, _, info = episode(env, pol, options={"push": PUSH}, max_steps=60)
     recs = env.records
     res = loop_records(env, pol, env._pushes, info["t"])
     assert len(res.records) == len(recs) and res.fault is None
