@@ -12,7 +12,10 @@ the step location law and the reported ``dcm_error``) is the DCM of the referenc
 
 at the period's p [m], p' [m/s], tau [s] (held to [0, T]) and tau' [-]; with p = p_d, tau' = 1 it is xi_n(tau).
 Everything else (omega, the offset law, the timing, the gains, the whole-body QP, the observer, the settings)
-is ``dcm_wbc``'s. Run it by its ``module:Class`` name from the repository root, e.g.
+is ``dcm_wbc``'s. The product adopted this law after the first map (``step_layer_commanded_dcm: true``,
+``plugin.step_layer.DcmStepLayer.reference_dcm``; the same pushed run gives the same record to the last digit,
+docs/step_layer.md): this class stays as the record of the runs under ``results/step_layer/causes/``, and
+``--option commanded_dcm=false`` of ``dcm_wbc`` is now the first law. Run it by its ``module:Class`` name from the repository root, e.g.
 
     .venv/bin/python -m biped_controller.studies.controllers max-push lab.step_layer_causes:CommandedDcm --max 800 \\
         --json results/step_layer/causes/commanded_dcm_paper_cell_rigid.json

@@ -27,8 +27,16 @@ and chooses the timing by the weighted cost min w_u (u - p_d)^2 + w_t (sigma - s
 
 held to the bounds T_r in [max(t_min T - t_s, dt_min), t_max T - t_s] (t_s [s] since the touchdown). When u then
 leaves the family's range [p_min, p_max] the range wins: sigma solves u = the violated bound (within the same
-bounds) and p* = u held to the range. A DCM error |xi - xi_n(tau)| below the dead band [m] counts as none, a
-larger one is reduced by it (xi -> xi_n + sign(e) (|e| - dead_band)). The targets handed on are the stride p*
+bounds) and p* = u held to the range. The DCM the measured one is compared with (in the dead band, in c and in the
+reported error) is, by default (``commanded_dcm``), the DCM of the reference the layer commands,
+
+    xi_r = x_r + x_r' / omega,   x_r = x_G(q_d(p, tau)),   x_r' = J_G(q_d) (dq/dp p' + dq/dtau tau')   [m]
+
+at the period's p, p', tau, tau' (so c = xi_r e^{omega (T - tau)}); with p = p_d, tau' = 1 it is xi_n(tau). The
+first law compared it with xi_n(tau) always (``commanded_dcm`` false), and so read its own quicker, longer
+reference as a DCM error (docs/step_layer.md, "The correction"). Below, xi_n stands for the compared DCM. A DCM
+error |xi - xi_n| below the dead band [m] counts as none, a larger one is reduced by it (xi -> xi_n + sign(e)
+(|e| - dead_band)). The targets handed on are the stride p*
 [m] and the time scaling tau'* = (T - tau) / T_r [-] (the reference reaches tau = T when the foot should land),
 held to [tau_dot_min, tau_dot_max] (``config/controller.yaml``, the other modes' limits). From
 ``freeze_phase`` T on (the swing foot landing) the targets are held.
@@ -56,7 +64,7 @@ reason), any of them overridden by the setup's options under its name without th
 :class:`StepLayerSettingsError` naming it.
 
 Status (per period): p [m], p_dot [m/s], p_ddot [m/s^2], tau [s], tau_dot [-], tau_ddot [1/s], p_target [m],
-tau_dot_target [-], dcm [m], dcm_error [m] (xi - xi_n(tau)), time_left [s], step_frozen, timing_adapted,
+tau_dot_target [-], dcm [m], dcm_error [m] (xi - the compared DCM), time_left [s], step_frozen, timing_adapted,
 wbc_status, wbc_deviation [rad/s^2], wbc_active (bit mask of the 17 rows), force_estimate [N], zmp [m],
 tightest, max_tracking_error [rad].
 """
