@@ -53,12 +53,13 @@ class CommandedDcm(DcmWholeBody):
 
 
 # ---------------------------------------------------------------------------------------------------------- cells
-def cell_table(slices: dict, subject: str, against: tuple[str, ...], extra: dict[str, dict] | None = None) -> dict:
+def cell_table(slices: dict, subject: str, against: tuple[str, ...], extra: dict[str, dict] | None = None,
+               tie: float = 5.0) -> dict:
     """Cell by cell (plant, direction, onset phase): the boundary [N] of ``subject`` and of each controller of
     ``against`` from a ``controllers slices`` JSON (``plants/<plant>/stats/<name>/<direction>/boundaries``), and
     subject - other [N]; ``extra``: name -> {plant: capability-map summary} of a variant measured at some of the
     phases (its ``boundaries`` rows), with variant - other where it was measured. A controller missing on a plant
-    is left out of that plant."""
+    is left out of that plant; ``extra_stats``: :func:`extra_stats` of each variant (``tie`` [N])."""
     out = {"subject": subject, "against": list(against), "extra": sorted(extra or {}), "plants": {}}
     for plant, pdata in slices["plants"].items():
         stats = pdata["stats"]
@@ -85,7 +86,52 @@ def cell_table(slices: dict, subject: str, against: tuple[str, ...], extra: dict
                         row[f"{name} - {a}"] = None if v is None or ref is None else v - ref
                 rows.append(row)
         out["plants"][plant] = {"rows": rows}
+    out["extra_stats"] = {name: extra_stats(out, name, [subject] + list(against), tie) for name in sorted(extra or {})}
     return out
+
+
+def extra_stats(table: dict, name: str, others: list[str], tie: float = 5.0) -> dict:
+    """Over the cells where the variant ``name`` was measured, per plant and direction: ``cells`` (how many,
+    and their phases), ``mean`` [N] of the variant and of each controller of ``others`` over the same cells
+    (``means``), and per other ``a``: ``ahead`` / ``behind`` / ``equal`` = cells where the variant is ahead by
+    more than ``tie`` [N] / behind by more than ``tie`` / within it, ``mean_difference`` [N] = mean of variant - a.
+    A controller missing in a measured cell is left out of that plant's comparison."""
+    out: dict = {}
+    for plant, pdata in table["plants"].items():
+        for direction in sorted({r["direction"] for r in pdata["rows"]}):
+            rows = [r for r in pdata["rows"] if r["direction"] == direction and r.get(name) is not None]
+            if not rows:
+                continue
+            entry = {"cells": len(rows), "phases": [r["phase"] for r in rows],
+                     "mean": sum(r[name] for r in rows) / len(rows), "means": {}, "versus": {}}
+            for a in others:
+                if any(r.get(a) is None for r in rows):
+                    continue
+                d = [r[name] - r[a] for r in rows]
+                entry["means"][a] = sum(r[a] for r in rows) / len(rows)
+                entry["versus"][a] = {"ahead": sum(x > tie for x in d), "behind": sum(x < -tie for x in d),
+                                      "equal": sum(abs(x) <= tie for x in d), "mean_difference": sum(d) / len(d)}
+            out.setdefault(plant, {})[direction] = entry
+    return out
+
+
+def stats_markdown(table: dict) -> str:
+    """The variants' cell-subset means and leads as one markdown table."""
+    lines = []
+    for name, plants in table.get("extra_stats", {}).items():
+        lines.append(f"{name}, over the cells where it was measured (mean [N]; cells {name} ahead / behind / "
+                     "within 5 N, mean difference [N]):\n")
+        lines.append("| plant | direction | cells | " + name + " | controller | its mean | ahead / behind / equal | "
+                     f"mean {name} - it |")
+        lines.append("| --- | --- | ---: | ---: | --- | ---: | --- | ---: |")
+        for plant, dirs in plants.items():
+            for direction, e in dirs.items():
+                for a, v in e["versus"].items():
+                    lines.append(f"| {plant} | {direction} | {e['cells']} | {e['mean']:.1f} | {a} | "
+                                 f"{e['means'][a]:.1f} | {v['ahead']} / {v['behind']} / {v['equal']} | "
+                                 f"{v['mean_difference']:+.1f} |")
+        lines.append("")
+    return "\n".join(lines)
 
 
 def cell_markdown(table: dict) -> str:
@@ -139,7 +185,7 @@ def main(argv=None) -> int:
     if "plants" not in slices:
         ap.error(f"{args.slices}: not a controllers-slices JSON (no 'plants')")
     table = cell_table(slices, args.subject, tuple(args.against), extra)
-    text = cell_markdown(table)
+    text = cell_markdown(table) + ("\n" + stats_markdown(table) if extra else "")
     print(text)
     for path, body in ((args.json, json.dumps(table, indent=1) + "\n"), (args.markdown, text)):
         if path is not None:

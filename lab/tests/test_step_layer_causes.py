@@ -54,3 +54,7 @@ def test_the_cell_table_by_hand():
     assert (r1["v - dcm_wbc"], r1["v - wbc"], r1["v - both"]) == (250.0, 270.0, -50.0)
     md = cell_markdown(t)
     assert "| forward | 0.5 | 200 | 180 | 500 | +20 | -300 | 450 | +250 | +270 | -50 |" in md
+    st = t["extra_stats"]["v"]["rigid"]["forward"]
+    assert st["cells"] == 1 and st["mean"] == 450.0 and st["means"]["wbc"] == 180.0
+    assert st["versus"]["both"] == {"ahead": 0, "behind": 1, "equal": 0, "mean_difference": -50.0}
+    assert st["versus"]["wbc"]["ahead"] == 1
