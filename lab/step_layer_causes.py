@@ -54,13 +54,16 @@ class CommandedDcm(DcmWholeBody):
 
 # ---------------------------------------------------------------------------------------------------------- cells
 def cell_table(slices: dict, subject: str, against: tuple[str, ...], extra: dict[str, dict] | None = None,
-               tie: float = 5.0) -> dict:
+               tie: float = 5.0, label: str | None = None) -> dict:
     """Cell by cell (plant, direction, onset phase): the boundary [N] of ``subject`` and of each controller of
     ``against`` from a ``controllers slices`` JSON (``plants/<plant>/stats/<name>/<direction>/boundaries``), and
     subject - other [N]; ``extra``: name -> {plant: capability-map summary} of a variant measured at some of the
     phases (its ``boundaries`` rows), with variant - other where it was measured. A controller missing on a plant
-    is left out of that plant; ``extra_stats``: :func:`extra_stats` of each variant (``tie`` [N])."""
-    out = {"subject": subject, "against": list(against), "extra": sorted(extra or {}), "plants": {}}
+    is left out of that plant; ``extra_stats``: :func:`extra_stats` of each variant (``tie`` [N]). ``label``: the
+    name the subject's column goes by (default its name; e.g. ``first_law`` when a variant of the same name is
+    an extra)."""
+    col = label or subject
+    out = {"subject": col, "against": list(against), "extra": sorted(extra or {}), "plants": {}}
     for plant, pdata in slices["plants"].items():
         stats = pdata["stats"]
         if subject not in stats:
@@ -70,23 +73,23 @@ def cell_table(slices: dict, subject: str, against: tuple[str, ...], extra: dict
         for direction in pdata["directions"]:
             bounds = stats[subject][direction]["boundaries"]
             for phase, force in bounds.items():
-                row = {"direction": direction, "phase": float(phase), subject: force}
+                row = {"direction": direction, "phase": float(phase), col: force}
                 for a in names:
                     other = stats[a][direction]["boundaries"].get(phase)
                     row[a] = other
-                    row[f"{subject} - {a}"] = None if other is None or force is None else force - other
+                    row[f"{col} - {a}"] = None if other is None or force is None else force - other
                 for name, maps in (extra or {}).items():
                     summary = maps.get(plant)
                     hit = [b for b in (summary or {}).get("boundaries", [])
                            if b["direction"] == direction and abs(b["phase"] - float(phase)) < 1e-9]
                     v = hit[0]["force"] if hit else None
                     row[name] = v
-                    for a in [subject] + names:
+                    for a in [col] + names:
                         ref = row[a]
                         row[f"{name} - {a}"] = None if v is None or ref is None else v - ref
                 rows.append(row)
         out["plants"][plant] = {"rows": rows}
-    out["extra_stats"] = {name: extra_stats(out, name, [subject] + list(against), tie) for name in sorted(extra or {})}
+    out["extra_stats"] = {name: extra_stats(out, name, [col] + list(against), tie) for name in sorted(extra or {})}
     return out
 
 
@@ -165,6 +168,7 @@ def main(argv=None) -> int:
     c = sub.add_parser("cells", help="cell-by-cell boundaries and differences from a controllers-slices JSON")
     c.add_argument("slices", type=Path)
     c.add_argument("--subject", default="dcm_wbc")
+    c.add_argument("--label", help="the subject's column name (default its name)")
     c.add_argument("--against", nargs="+", default=["wbc", "both"])
     c.add_argument("--extra", action="append", default=[], help="NAME=PLANT:MAP.json (repeatable)")
     c.add_argument("--json", type=Path)
@@ -184,7 +188,7 @@ def main(argv=None) -> int:
         ap.error(str(exc))
     if "plants" not in slices:
         ap.error(f"{args.slices}: not a controllers-slices JSON (no 'plants')")
-    table = cell_table(slices, args.subject, tuple(args.against), extra)
+    table = cell_table(slices, args.subject, tuple(args.against), extra, label=args.label)
     text = cell_markdown(table) + ("\n" + stats_markdown(table) if extra else "")
     print(text)
     for path, body in ((args.json, json.dumps(table, indent=1) + "\n"), (args.markdown, text)):

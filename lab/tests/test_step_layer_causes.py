@@ -58,3 +58,6 @@ def test_the_cell_table_by_hand():
     assert st["cells"] == 1 and st["mean"] == 450.0 and st["means"]["wbc"] == 180.0
     assert st["versus"]["both"] == {"ahead": 0, "behind": 1, "equal": 0, "mean_difference": -50.0}
     assert st["versus"]["wbc"]["ahead"] == 1
+    t2 = cell_table(slices, "dcm_wbc", ("wbc",), {"dcm_wbc": var}, label="first_law")
+    r1 = t2["plants"]["rigid"]["rows"][1]
+    assert (r1["first_law"], r1["dcm_wbc"], r1["dcm_wbc - first_law"]) == (200.0, 450.0, 250.0)
