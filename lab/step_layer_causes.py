@@ -1,6 +1,6 @@
 """What the DCM step layer of ``dcm_wbc`` compares the measured DCM with: one variant that changes only that.
 
-Question (docs/step_layer.md, "Why it loses"): ``dcm_wbc`` falls two to three steps after a push it has
+Question (docs/step_layer.md, "Why the first law lost"): ``dcm_wbc`` (its first law) falls two to three steps after a push it has
 survived, with its DCM error growing from step to step. Is the cause that the layer compares the measured DCM
 xi [m] with the *preferred* step's DCM xi_n(tau) (the table along q_d(p_d, .) at tau' = 1), while its own
 outputs p and tau' change the reference's speed, so that the layer reads its own command as a DCM error?
