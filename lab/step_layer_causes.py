@@ -137,6 +137,23 @@ def stats_markdown(table: dict) -> str:
     return "\n".join(lines)
 
 
+class MapMergeError(ValueError):
+    """Two maps of one variant disagree at a cell they both measured."""
+
+
+def merge_maps(a: dict, b: dict) -> dict:
+    """The ``boundaries`` of two capability-map summaries of one controller on one plant measured on different
+    onset grids (e.g. 4 and 10 phases), as one summary {"boundaries": [...]}; a cell (direction, phase) in both
+    must have the same boundary, else :class:`MapMergeError`."""
+    cells: dict = {}
+    for b_ in list(a.get("boundaries", [])) + list(b.get("boundaries", [])):
+        key = (b_["direction"], round(float(b_["phase"]), 9))
+        if key in cells and cells[key]["force"] != b_["force"]:
+            raise MapMergeError(f"{key[0]} onset {key[1]:g}: {cells[key]['force']} N in one map, {b_['force']} N in the other")
+        cells.setdefault(key, b_)
+    return {"boundaries": [cells[k] for k in sorted(cells)]}
+
+
 def cell_markdown(table: dict) -> str:
     """The cell table as one markdown table per plant (N; '-' where not measured)."""
     subject, against, extra = table["subject"], table["against"], table["extra"]
@@ -170,7 +187,8 @@ def main(argv=None) -> int:
     c.add_argument("--subject", default="dcm_wbc")
     c.add_argument("--label", help="the subject's column name (default its name)")
     c.add_argument("--against", nargs="+", default=["wbc", "both"])
-    c.add_argument("--extra", action="append", default=[], help="NAME=PLANT:MAP.json (repeatable)")
+    c.add_argument("--extra", action="append", default=[],
+                   help="NAME=PLANT:MAP.json (repeatable; maps of one NAME and PLANT on different onset grids merge)")
     c.add_argument("--json", type=Path)
     c.add_argument("--markdown", type=Path)
     args = ap.parse_args(argv)
@@ -183,8 +201,10 @@ def main(argv=None) -> int:
             plant, _, path = rest.partition(":")
             if not (name and plant and path):
                 ap.error(f"--extra {e!r}: expected NAME=PLANT:MAP.json")
-            extra.setdefault(name, {})[plant] = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+            summary = json.loads(Path(path).read_text(encoding="utf-8"))
+            have = extra.setdefault(name, {})
+            have[plant] = merge_maps(have[plant], summary) if plant in have else summary
+    except (OSError, ValueError) as exc:          # MapMergeError is a ValueError
         ap.error(str(exc))
     if "plants" not in slices:
         ap.error(f"{args.slices}: not a controllers-slices JSON (no 'plants')")
