@@ -37,12 +37,18 @@ from biped_controller.plugin.registry import (ControllerLoadError, UnknownContro
                                               load_registration, registered, summary)
 
 
-def _option(text: str) -> tuple[str, float | str]:
-    """KEY=VALUE: the value a number where it reads as one, else the word or path as given (e.g.
-    ``file=policies/x/policy.onnx``)."""
+#: the words ``--option`` reads as a switch (any case)
+SWITCH_WORDS = {"true": True, "false": False}
+
+
+def _option(text: str) -> tuple[str, float | bool | str]:
+    """``KEY=VALUE``: VALUE a number (float) where it reads as one, a switch for ``true`` / ``false`` (bool, any
+    case, e.g. ``whole_body=false``), else the word or path as given (e.g. ``file=policies/x/policy.onnx``)."""
     key, sep, value = text.partition("=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"--option takes KEY=VALUE, got {text!r}")
+    if value.strip().lower() in SWITCH_WORDS:
+        return key, SWITCH_WORDS[value.strip().lower()]
     try:
         return key, float(value)
     except ValueError:
@@ -96,11 +102,11 @@ def main(argv: list[str] | None = None) -> int:
     chk.add_argument("name")
     chk.add_argument("--time", type=float, default=0.0,
                      help="the synthetic observation's time t [s] (default 0: a run's first period)")
-    chk.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE")
+    chk.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE (a number, or true/false)")
     mp = sub.add_parser("max-push", help="largest survivable push at the paper's cell")
     mp.add_argument("name")
     mp.add_argument("--plant", choices=("rigid", "mujoco"), default="rigid")
-    mp.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE")
+    mp.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE (a number, or true/false)")
     mp.add_argument("--resolution", type=float, default=5.0, help="bisection resolution [N]")
     mp.add_argument("--max", type=float, default=2000.0, help="largest force scanned [N]")
     mp.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
