@@ -40,6 +40,7 @@ class FastStepOptimizer(StepOptimizer):
         self._P_new = PAPER_FROM_URDF[1 - LEFT]    # paper q' of the new stance from URDF joint velocities
         self._R = -np.eye(6)[::-1]
         self._knee_jac = None
+        self._basis_key = None
         self._upper = np.triu(np.ones((9, 9), dtype=bool))
 
     # ------------------------------------------------------------ end of step
@@ -67,8 +68,7 @@ class FastStepOptimizer(StepOptimizer):
             t = data.oMf[st_id].translation
             x[0] -= t[0]
             x[1] -= t[2]
-            pin.computeJointJacobians(model, data, x)
-            pin.updateFramePlacements(model, data)
+            pin.computeJointJacobians(model, data, x)      # (getFrameJacobian places the frame itself)
             Jst[b] = pin.getFrameJacobian(model, data, st_id, lwa)[[0, 2, 4]]
             Jn[b] = pin.getFrameJacobian(model, data, new_id, lwa)[[0, 2, 4]]
             M[b] = pin.crba(model, data, x)
@@ -190,8 +190,11 @@ class FastStepOptimizer(StepOptimizer):
             self._knee_jac = kj
         # d(q(0)), d(q'(0)), d(q(T)), d(q'(T)) / dz: (6, 30) each (from the current basis: the 1 m/s question
         # changes T, hence dphi, between solves)
-        self._dq0, self._dqd0, self._dqT, self._dqdT = (np.kron(np.eye(NJ), row[None, :]) for row in
-                                                        (self.phi[0], self.dphi[0], self.phi[-1], self.dphi[-1]))
+        rows = (self.phi[0], self.dphi[0], self.phi[-1], self.dphi[-1])
+        bkey = b"".join(r.tobytes() for r in rows)
+        if bkey != self._basis_key:           # the same matrices while the basis is unchanged (most solves)
+            self._basis_key = bkey
+            self._dq0, self._dqd0, self._dqT, self._dqdT = (np.kron(np.eye(NJ), row[None, :]) for row in rows)
         qT, qdT = q[-1], qd[-1]
         qd0_req, J_req, end_ineq, J_end = self._end_terms(qT, qdT)
         D_end = np.vstack([self._dqT, self._dqdT])        # (12, 30)
