@@ -114,3 +114,26 @@ def test_a_module_without_the_flag_is_found(capsys):
     assert "--robot" not in _help("biped_controller.studies.controllers", ["list"], capsys)
     assert _subcommands("usage: x [-h] [--observer {on,off} [{on,off} ...]] [--what {a,b}]") == []
     assert _subcommands("usage: x [-h]\n       {walk,push} ...") == ["walk", "push"]
+
+
+def test_soak_scales_its_forces_and_judges_with_the_bags_robot():
+    """scripts/soak --robot: its force defaults scale with M sqrt(g L) (exactly 1 for the default robot, named
+    or not; the ratio of the descriptions' values for another), and the bag check's model can be built from a
+    recorded /robot_description: another robot's URDF gives that robot's mass, not the default robot's (the
+    check computed a 70 kg robot's impulses with the 41 kg model before)."""
+    import math
+
+    from biped_model.description import load_description, make_urdf
+    from biped_model.floating import FloatingModel
+    from biped_model.robot import RobotError, resolve_robot
+    from biped_sim.graph.soak import robot_force_scale
+    assert robot_force_scale(None) == robot_force_scale("biped7") == 1.0
+    d, b = resolve_robot("human70").description(), load_description()
+    k = robot_force_scale("human70")
+    assert math.isclose(k, d.total_mass * math.sqrt(d.leg_length) / (b.total_mass * math.sqrt(b.leg_length)), rel_tol=1e-12)
+    assert k > 1.5
+    with pytest.raises(RobotError):
+        robot_force_scale("no_such_robot")
+    fm = FloatingModel(urdf=make_urdf(d))
+    assert math.isclose(fm.mass, d.total_mass, rel_tol=1e-9) and not math.isclose(fm.mass, b.total_mass, rel_tol=1e-3)
+    assert FloatingModel().urdf == make_urdf(b)
