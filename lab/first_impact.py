@@ -1,6 +1,6 @@
 """Why modes none and capture_point fall unpushed on the rigid plant on the new robots, at their first impact.
 
-    .venv/bin/python -m lab.first_impact [--robots biped7,biped7_foot10,biped7_foot05,human70] --json F
+    .venv/bin/python -m lab.first_impact [--robots biped7,biped7_foot10,biped7_foot05,human70] [--labels A,B,...] --json F
 
 For each robot, unpushed, on the rigid plant (the robot's own settings, the default profile):
 
@@ -102,11 +102,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m lab.first_impact", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", default="biped7,biped7_foot10,biped7_foot05,human70")
+    ap.add_argument("--labels", default=None, help="a name for each robot's row (default the robot as given)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     from biped_controller.studies import provenance
     provenance.track(args.json, plant="rigid", argv=argv)
-    rows = [robot_row(n) for n in args.robots.split(",")]
+    names = args.robots.split(",")
+    labels = args.labels.split(",") if args.labels else names
+    if len(labels) != len(names):
+        ap.error("--labels: one label per robot")
+    rows = [{"label": lab, **robot_row(n)} for n, lab in zip(names, labels)]
     for r in rows:
         d, f = r["design_t0"], r["first_period_after_impact_none"]
         print(f"{r['robot']:14s} design l(0) {d['cop']:+.4f} (heel {r['foot'][0]:+.3f}, slack {d['slack_to_heel']:.4f} m, "
