@@ -24,7 +24,7 @@ NOISE = ["noise_q=5e-4", "noise_qd=5e-2", "encoder_bits=14"]
     (["table", "--levels", "0.5,0.5"], "--levels"), (["table", "--levels", "nan"], "--levels"),
     (["table", "--seeds", "4", "--resolution", "0"], "--resolution"),
     (["table", "--seeds", "4", "--resolution", "-5"], "--resolution"),
-    (["table", "--ray"], "--ray"), (["table", "--seeds", "4", "--profile", "real-sensors", "--ray"], "--ray"),
+    (["table", "--ray"], "--ray"), (["table", "--seeds", "4", "--profile", "real-sensors", "--perturb", "none", "--ray"], "--ray"),
 ])
 def test_bad_seed_counts_levels_and_resolutions_are_one_line_exit_2(argv, needle, capsys):
     with pytest.raises(SystemExit) as e:
@@ -35,9 +35,11 @@ def test_bad_seed_counts_levels_and_resolutions_are_one_line_exit_2(argv, needle
 
 
 def test_only_noisy_settings_are_random():
-    for prof in ("paper", "default", "real-sensors", "real-sensors-mujoco"):
+    for prof in ("paper", "default", "delay2"):
         assert not seeded.is_random(ts.run_settings(prof))
-    assert not seeded.is_random(ts.run_settings("real-sensors", perturb=["torso_mass_scale=0.8"]))
+    for prof in ("real-sensors", "real-sensors-mujoco"):      # the profile's own noise on the plant
+        assert seeded.is_random(ts.run_settings(prof))
+        assert not seeded.is_random(ts.run_settings(prof, perturb=["none", "torso_mass_scale=0.8"]))
     assert seeded.is_random(ts.run_settings("real-sensors", perturb=NOISE))
 
 
@@ -52,8 +54,8 @@ def test_deterministic_settings_ignore_seeds(monkeypatch, capsys):
     monkeypatch.setattr(ex, "print_max_push", lambda res: None)
     monkeypatch.setattr(ex, "ordering_finding", lambda res: "")
     monkeypatch.setattr(ex, "seeded_table", lambda *a, **k: pytest.fail("seeded search on deterministic settings"))
-    ex.main(["table", "--modes", "both", "--profile", "real-sensors"])
-    ex.main(["table", "--modes", "both", "--profile", "real-sensors", "--seeds", "8"])
+    ex.main(["table", "--modes", "both", "--profile", "real-sensors", "--perturb", "none"])
+    ex.main(["table", "--modes", "both", "--profile", "real-sensors", "--perturb", "none", "--seeds", "8"])
     assert len(calls) == 2 and calls[0] == calls[1]
     assert "draw nothing random" in capsys.readouterr().out
 

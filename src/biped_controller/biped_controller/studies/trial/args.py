@@ -159,7 +159,8 @@ def add_settings_args(a: argparse.ArgumentParser, *, observer: bool = True, pert
     if perturb:
         a.add_argument("--perturb", dest="perturb", action="append", default=[], metavar="FIELD=VALUE",
                        help="a field of the plant's PlantPerturbation, e.g. torso_mass_scale=0.8, noise_q=5e-4, "
-                            "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation)")
+                            "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation), over the profile's own "
+                            "(real-sensors profiles put their sensor noise on the plant); 'none' drops the profile's")
 
 
 def add_robot_arg(a: argparse.ArgumentParser) -> None:
