@@ -21,9 +21,11 @@ from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATI
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.closed_loop.executor import ProgressBar
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_settings_args, controller_arg,
-                                                 finite_float,
+                                                 finite_float, levels_arg,
                                                  positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.context import scaled_force
+from biped_controller.studies.trial.seeded import is_random
+from biped_controller.studies.trial.uncertainty import DEFAULT_LEVELS
 from biped_controller.studies.trial.settings import print_settings
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies import provenance
@@ -40,6 +42,35 @@ def _dump(path: Path, data: dict) -> None:
 
 def _terminate(signum, frame):
     raise SystemExit(128 + signum)
+
+
+def _seeded(args, spec: MapSpec, argv) -> int:
+    """``--seeds N`` on noisy settings: :func:`capmap.seeded.seeded_map`, its table, figure and JSON."""
+    from biped_controller.studies.capmap import seeded as sm
+    if args.report_only and not args.store.exists():
+        print(f"error: --report-only: no store {args.store}", file=sys.stderr)
+        return 2
+    print(f"scripts/capability_map {' '.join(sys.argv[1:] if argv is None else argv)}")
+    print_settings(spec.settings)
+    n = len(spec.directions) * len(spec.phases) * len(spec.durations)
+    print(f"{n} cells over {args.seeds} seeds (modes {','.join(spec.modes)} on common seeds), levels "
+          f"{','.join(f'{c:g}' for c in args.levels)}; store {args.store}")
+    signal.signal(signal.SIGTERM, _terminate)
+    res = sm.seeded_map(spec, args.seeds, args.levels, workers=args.workers, ray=args.ray, store=args.store)
+    res["argv"] = list(sys.argv[1:] if argv is None else argv)
+    res["workers"] = args.workers
+    res["executor"] = "ray" if args.ray else ("pool" if args.workers > 1 else "in process")
+    res["git"] = git_state()
+    for line in sm.crossing_table(res):
+        print(line)
+    print(f"{res['trials_run']} trials run, {res['cells_resumed']} cells resumed from the store; wall time "
+          f"{res['wall_time']:.1f} s")
+    if args.out is not None:
+        print(f"figure: {sm.band_figure(res, args.out / 'seeded_bands.png')}")
+    if args.json is not None:
+        _dump(args.json, res)
+        print(f"summary: {args.json}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,6 +112,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--report-only", action="store_true",
                     help="run nothing: summary and figures from the store (incomplete cells are left out)")
+    ap.add_argument("--seeds", type=positive_int, default=None,
+                    help="seeds per force where the settings draw noise (e.g. --profile real-sensors-mujoco): per cell "
+                         "the survival rates with Wilson 95 %% intervals, the crossings of --levels and the modes "
+                         "compared on common seeds (capmap.seeded; --store: finished cells, resumed); settings "
+                         "without noise: the map as without it")
+    ap.add_argument("--levels", type=levels_arg, default=DEFAULT_LEVELS, metavar="C,C,...",
+                    help="with --seeds: survival levels whose crossing forces are searched, each in (0, 1) (default "
+                         "0.9,0.5)")
     add_settings_args(ap)
     args = ap.parse_args(argv)
     provenance.track(args.json, args.out, args.store, args=args, argv=argv)   # record of each file written (results/README.md)
@@ -96,6 +135,11 @@ def main(argv: list[str] | None = None) -> int:
                        args.height, settings, None if args.search is None else args.search == "neighbours")
     except MapError as exc:
         ap.error(str(exc))
+    if args.seeds is not None and is_random(settings):
+        return _seeded(args, spec, argv)
+    if args.seeds is not None:
+        print(f"--seeds {args.seeds}: these settings draw nothing random (no sensor noise on the plant), one trial "
+              f"per force decides: the map as without --seeds")
     batch = args.batch if args.batch is not None else DEFAULT_BATCH["ray" if args.ray else "pool"]
     print(f"scripts/capability_map {' '.join(sys.argv[1:] if argv is None else argv)}")
     print_settings(settings)

@@ -77,9 +77,11 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
                  coarse: float = 50.0, *, levels: tuple[float, ...] = uncertainty.DEFAULT_LEVELS,
                  duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, height: float | None = None,
                  workers: int = 1, ray: str | None = None, progress: bool = True, sign: float = 1.0,
-                 settings: RunSettings) -> dict[str, dict]:
+                 settings: RunSettings, executor=None) -> dict[str, dict]:
     """Per mode: the survival rate at every force tried (Wilson 95 %) and the forces where it crosses each
-    of ``levels`` with their intervals (module docstring). Forces [N], window [start, start + duration) [s]."""
+    of ``levels`` with their intervals (module docstring). Forces [N], window [start, start + duration) [s].
+    ``executor``: one of ``closed_loop.executor`` to run the trials on (left open; None: one made from
+    ``workers`` and ``ray`` and closed here)."""
     check_settings(settings)
     if not is_random(settings):
         raise ValueError("seeded_table needs settings that draw noise (record.seed_of is None)")
@@ -94,7 +96,7 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
     bar = CountingBar(len(modes) * seeds * (n_coarse + n_bis),
                       ProgressBar(sys.stderr if progress else None, label="seeded max-push " + ",".join(modes)),
                       f"at most {n_coarse} coarse + {n_bis} bisection batches of {seeds} seeds per mode")
-    ex = make_executor(workers, ray=ray, initializer=context)
+    ex = make_executor(workers, ray=ray, initializer=context) if executor is None else executor
     cell = cell_of(settings, start=start, duration=duration, sign=sign, height=height)
     common = [uncertainty.trial_seed(cell, i) for i in range(seeds)]
     seed_list = {m: common for m in modes}
@@ -134,7 +136,8 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
                 crossings[m].append(uncertainty.crossing_search(lambda x, m=m: run([(m, x)])[(m, x)], c, lo, hi,
                                                                 resolution, rates=rates[m]))
     finally:
-        ex.close()
+        if executor is None:
+            ex.close()
     bar.close()
     rule = survival_rule()
     out = {}
