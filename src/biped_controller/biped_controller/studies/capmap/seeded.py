@@ -66,7 +66,7 @@ def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, 
                         t1 = time.perf_counter()
                         res = seeded.seeded_table(spec.modes, seeds, s.resolution, s.fmax, s.coarse, levels=levels,
                                                   duration=duration, start=onset_time(phase, T), height=spec.height,
-                                                  sign=1.0 if direction == "forward" else -1.0, progress=False,
+                                                  sign=1.0 if direction == "forward" else -1.0, progress=log is not None,
                                                   settings=spec.settings, executor=ex)
                         n = sum(len(r["trials"]) for r in res.values())
                         run += n
