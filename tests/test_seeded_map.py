@@ -58,6 +58,7 @@ def test_seeded_map_cells_resume_and_figure(monkeypatch, tmp_path):
     ("capability_map", ["--seeds", "0"], "--seeds"), ("capability_map", ["--seeds", "-2"], "--seeds"),
     ("capability_map", ["--seeds", "1.5"], "--seeds"), ("capability_map", ["--seeds", "4", "--levels", "1"], "--levels"),
     ("capability_map", ["--seeds", "4", "--resolution", "0"], "--resolution"),
+    ("capability_map", ["--phases", "4", "--only-phases", "0.3"], "--only-phases"),
     ("robustness", ["--seeds", "0"], "--seeds"), ("robustness", ["--seeds", "3", "--survival-levels", "0.9,0"],
                                                   "--survival-levels"),
 ])

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import signal
@@ -84,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
                          "beside the --modes given")
     ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
     ap.add_argument("--phases", type=positive_int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
+    ap.add_argument("--only-phases", type=finite_float, nargs="+", default=None, metavar="PHASE",
+                    help="map only these of the --phases onsets (each must be one of k/N): a part of a map, whose "
+                         "cells the whole map's store then resumes")
     ap.add_argument("--durations", nargs="+", type=positive_float, default=list(DEFAULT_DURATIONS), help="push durations [s]")
     ap.add_argument("--resolution", type=positive_float, default=None,
                     help=f"bisection resolution [N] (default {DEFAULT_RESOLUTION:g} N; another robot: x its M sqrt(g L) / biped7's)")
@@ -133,6 +137,12 @@ def main(argv: list[str] | None = None) -> int:
         spec = MapSpec(tuple(dict.fromkeys(names + list(args.controller))), tuple(_split(args.directions)), phases_of(args.phases),
                        tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
                        args.height, settings, None if args.search is None else args.search == "neighbours")
+        if args.only_phases is not None:
+            wrong = [p for p in args.only_phases if p not in spec.phases]
+            if wrong:
+                raise MapError(f"--only-phases {' '.join(f'{p:g}' for p in wrong)}: not among the {len(spec.phases)} "
+                               f"phases k/{len(spec.phases)}")
+            spec = dataclasses.replace(spec, phases=tuple(p for p in spec.phases if p in args.only_phases))
     except MapError as exc:
         ap.error(str(exc))
     if args.seeds is not None and is_random(settings):
