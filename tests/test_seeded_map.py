@@ -49,6 +49,10 @@ def test_seeded_map_cells_resume_and_figure(monkeypatch, tmp_path):
     more = sm.seeded_map(MapSpec(("both", "wbc"), ("forward",), (0.0, 0.25, 0.5), (0.025,), Search(100.0, 800.0, 25.0),
                                  None, SETTINGS), 4, store=store, log=None)
     assert more["cells_resumed"] == 2 and [c["phase"] for c in more["cells"]] == [0.0, 0.25, 0.5]
+    only = sm.seeded_map(MapSpec(("both", "wbc"), ("forward",), (0.0, 0.75), (0.025,), Search(100.0, 800.0, 25.0),
+                                 None, SETTINGS), 4, store=store, log=None, simulate=False)
+    assert only["trials_run"] == 0 and [c["phase"] for c in only["cells"]] == [0.0]
+    assert only["cells_missing"] == [{"direction": "forward", "phase": 0.75, "duration": 0.025}]
     rows = sm.crossing_table(res)
     assert len(rows) == 2 + 2 * 2 and "90 % crossing" in rows[0]
     assert sm.band_figure(res, tmp_path / "bands.png").stat().st_size > 0

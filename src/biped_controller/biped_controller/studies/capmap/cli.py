@@ -57,15 +57,19 @@ def _seeded(args, spec: MapSpec, argv) -> int:
     print(f"{n} cells over {args.seeds} seeds (modes {','.join(spec.modes)} on common seeds), levels "
           f"{','.join(f'{c:g}' for c in args.levels)}; store {args.store}")
     signal.signal(signal.SIGTERM, _terminate)
-    res = sm.seeded_map(spec, args.seeds, args.levels, workers=args.workers, ray=args.ray, store=args.store)
+    res = sm.seeded_map(spec, args.seeds, args.levels, workers=args.workers, ray=args.ray, store=args.store,
+                        simulate=not args.report_only)
     res["argv"] = list(sys.argv[1:] if argv is None else argv)
     res["workers"] = args.workers
     res["executor"] = "ray" if args.ray else ("pool" if args.workers > 1 else "in process")
     res["git"] = git_state()
     for line in sm.crossing_table(res):
         print(line)
-    print(f"{res['trials_run']} trials run, {res['cells_resumed']} cells resumed from the store; wall time "
-          f"{res['wall_time']:.1f} s")
+    print(f"{res['trials_run']} trials run, {res['cells_resumed']} cells resumed from the store"
+          + (f", {len(res['cells_missing'])} cells not in the store (--report-only)" if res["cells_missing"] else "")
+          + f"; wall time {res['wall_time']:.1f} s")
+    if not res["cells"]:
+        return 0
     if args.out is not None:
         print(f"figure: {sm.band_figure(res, args.out / 'seeded_bands.png')}")
     if args.json is not None:

@@ -43,13 +43,14 @@ def _load(store: Path | None) -> list[dict]:
 
 
 def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, workers: int = 1,
-               ray: str | None = None, store: Path | None = None, log=sys.stdout) -> dict:
+               ray: str | None = None, store: Path | None = None, log=sys.stdout, simulate: bool = True) -> dict:
     """Every cell of ``spec`` over ``seeds`` seeds (module docstring): {"cells": [{direction, phase,
     duration, start, modes: {mode: seeded_table's result without its trial records}, comparisons}],
-    "trials_run", "cells_resumed", "wall_time"}. Trial records are kept in the store only."""
+    "trials_run", "cells_resumed", "cells_missing", "wall_time"}. Trial records are kept in the store only.
+    ``simulate`` False: only the cells the store holds (the others listed in ``cells_missing``)."""
     T = context(spec.settings.activate().robot).family.T
     done = {json.dumps(r["key"], sort_keys=True): r for r in _load(store)}
-    cells, run, resumed, t0 = [], 0, 0, time.perf_counter()
+    cells, missing, run, resumed, t0 = [], [], 0, 0, time.perf_counter()
     ex = None
     try:
         for duration in spec.durations:
@@ -60,6 +61,9 @@ def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, 
                     k = json.dumps(key, sort_keys=True)
                     if k in done:
                         res, resumed = done[k]["result"], resumed + 1
+                    elif not simulate:
+                        missing.append({"direction": direction, "phase": phase, "duration": duration})
+                        continue
                     else:
                         if ex is None:
                             ex = make_executor(workers, ray=ray, initializer=context)
@@ -89,7 +93,7 @@ def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, 
         if ex is not None:
             ex.close()
     return {"cells": cells, "seeds": seeds, "levels": list(levels), "modes": list(spec.modes),
-            "trials_run": run, "cells_resumed": resumed, "wall_time": time.perf_counter() - t0,
+            "trials_run": run, "cells_resumed": resumed, "cells_missing": missing, "wall_time": time.perf_counter() - t0,
             "estimator": uncertainty.ESTIMATOR, "interval_method": uncertainty.INTERVAL,
             "difference_interval": uncertainty.DIFFERENCE_INTERVAL}
 
