@@ -45,7 +45,8 @@ def _load(store: Path | None) -> list[dict]:
 def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, workers: int = 1,
                ray: str | None = None, store: Path | None = None, log=sys.stdout, simulate: bool = True) -> dict:
     """Every cell of ``spec`` over ``seeds`` seeds (module docstring): {"cells": [{direction, phase,
-    duration, start, modes: {mode: seeded_table's result without its trial records}, comparisons}],
+    duration, start, modes: {mode: seeded_table's result without its trial records}, comparisons,
+    trials, wall_time (s, of the run that simulated the cell; None when its store line predates it)}],
     "trials_run", "cells_resumed", "cells_missing", "wall_time"}. Trial records are kept in the store only.
     ``simulate`` False: only the cells the store holds (the others listed in ``cells_missing``)."""
     T = context(spec.settings.activate().robot).family.T
@@ -61,6 +62,7 @@ def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, 
                     k = json.dumps(key, sort_keys=True)
                     if k in done:
                         res, resumed = done[k]["result"], resumed + 1
+                        wall = done[k].get("wall_time")
                     elif not simulate:
                         missing.append({"direction": direction, "phase": phase, "duration": duration})
                         continue
@@ -74,10 +76,12 @@ def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, 
                                                   settings=spec.settings, executor=ex)
                         n = sum(len(r["trials"]) for r in res.values())
                         run += n
+                        wall = time.perf_counter() - t1
                         if store is not None:
                             store.parent.mkdir(parents=True, exist_ok=True)
                             with store.open("a", encoding="utf-8") as fh:
-                                fh.write(json.dumps({"key": key, "result": res}, allow_nan=False) + "\n")
+                                fh.write(json.dumps({"key": key, "result": res, "wall_time": wall},
+                                                    allow_nan=False) + "\n")
                         if log is not None:
                             print(f"cell {direction} phase {phase:g} {duration:g} s: {n} trials in "
                                   f"{time.perf_counter() - t1:.1f} s; " + "; ".join(
@@ -86,6 +90,7 @@ def seeded_map(spec: MapSpec, seeds: int, levels=uncertainty.DEFAULT_LEVELS, *, 
                                   file=log, flush=True)
                     cells.append({"direction": direction, "phase": phase, "duration": duration,
                                   "start": onset_time(phase, T),
+                                  "trials": sum(len(r["trials"]) for r in res.values()), "wall_time": wall,
                                   "modes": {m: {k2: v for k2, v in r.items() if k2 not in ("trials", "comparisons")}
                                             for m, r in res.items()},
                                   "comparisons": next(iter(res.values())).get("comparisons", [])})
