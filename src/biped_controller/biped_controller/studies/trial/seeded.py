@@ -217,7 +217,8 @@ def print_seeded(results: dict[str, dict]) -> None:
                 continue
             seen.add((comp["a"], comp["b"]))
             print(f"{comp['a']} - {comp['b']} on common seeds: difference of survival rates (paired 95 % interval, "
-                  f"Newcombe 1998 method 10); pairs both/{comp['a']} only/{comp['b']} only/neither")
+                  f"Newcombe 1998 method 10); seed pairs: survived by both controllers / {comp['a']} only / {comp['b']} only / "
+                  f"neither")
             for row in comp["forces"]:
                 print(f"  {row['force']:9g} {row['difference']:+.3f} [{row['lo']:+.3f}, {row['hi']:+.3f}]  "
                       f"{row['both']}/{row['a_only']}/{row['b_only']}/{row['neither']}")
