@@ -101,7 +101,6 @@ BAD_VALUES = [
     (("biped_controller.studies.capability_map", "--workers", "0"), "--workers", "0"),
     (("biped_controller.studies.capability_map", "--profile", "nope"), "--profile", "known profiles"),
     (("biped_controller.studies.robustness", "--profile", "nope"), "--profile", "known profiles"),
-    (("biped_controller.studies.robustness", "--profile", "delay2"), "delay2", "perturbation"),
     (("biped_controller.studies.plant_compare", "push", "--force", "inf"), "--force", "inf"),
 ]
 

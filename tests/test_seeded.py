@@ -24,7 +24,7 @@ NOISE = ["noise_q=5e-4", "noise_qd=5e-2", "encoder_bits=14"]
     (["table", "--levels", "0.5,0.5"], "--levels"), (["table", "--levels", "nan"], "--levels"),
     (["table", "--seeds", "4", "--resolution", "0"], "--resolution"),
     (["table", "--seeds", "4", "--resolution", "-5"], "--resolution"),
-    (["table", "--ray"], "--ray"), (["table", "--seeds", "4", "--profile", "real-sensors", "--ray"], "--ray"),
+    (["table", "--ray"], "--ray"), (["table", "--seeds", "4", "--profile", "real-sensors", "--perturb", "none", "--ray"], "--ray"),
 ])
 def test_bad_seed_counts_levels_and_resolutions_are_one_line_exit_2(argv, needle, capsys):
     with pytest.raises(SystemExit) as e:
@@ -35,9 +35,11 @@ def test_bad_seed_counts_levels_and_resolutions_are_one_line_exit_2(argv, needle
 
 
 def test_only_noisy_settings_are_random():
-    for prof in ("paper", "default", "real-sensors", "real-sensors-mujoco"):
+    for prof in ("paper", "default", "delay2"):
         assert not seeded.is_random(ts.run_settings(prof))
-    assert not seeded.is_random(ts.run_settings("real-sensors", perturb=["torso_mass_scale=0.8"]))
+    for prof in ("real-sensors", "real-sensors-mujoco"):      # the profile's own noise on the plant
+        assert seeded.is_random(ts.run_settings(prof))
+        assert not seeded.is_random(ts.run_settings(prof, perturb=["none", "torso_mass_scale=0.8"]))
     assert seeded.is_random(ts.run_settings("real-sensors", perturb=NOISE))
 
 
@@ -52,15 +54,15 @@ def test_deterministic_settings_ignore_seeds(monkeypatch, capsys):
     monkeypatch.setattr(ex, "print_max_push", lambda res: None)
     monkeypatch.setattr(ex, "ordering_finding", lambda res: "")
     monkeypatch.setattr(ex, "seeded_table", lambda *a, **k: pytest.fail("seeded search on deterministic settings"))
-    ex.main(["table", "--modes", "both", "--profile", "real-sensors"])
-    ex.main(["table", "--modes", "both", "--profile", "real-sensors", "--seeds", "8"])
+    ex.main(["table", "--modes", "both", "--profile", "real-sensors", "--perturb", "none"])
+    ex.main(["table", "--modes", "both", "--profile", "real-sensors", "--perturb", "none", "--seeds", "8"])
     assert len(calls) == 2 and calls[0] == calls[1]
     assert "draw nothing random" in capsys.readouterr().out
 
 
 def test_a_seeded_trial_rerun_alone_equals_its_record():
     settings = ts.run_settings("real-sensors", perturb=NOISE)
-    cell = seeded.cell_of("both", settings, start=0.2315, duration=0.025, sign=1.0, height=None)
+    cell = seeded.cell_of(settings, start=0.2315, duration=0.025, sign=1.0, height=None)
     seed = uncertainty.trial_seed(cell, 1)
     push = paper_push(450.0, start=0.2315, duration=0.025)
     rec = seeded._task((push, "both", seeded.seeded_settings(settings, seed), 1))
@@ -80,7 +82,7 @@ def _synthetic_trial(f50=400.0, width=30.0, fell_seed_index=3, fault_force=200.0
         seed = settings.perturbation.seed
         ok = bool(np.random.default_rng([seed % 2**32, int(round(f * 1000))]).random()
                   < 1.0 / (1.0 + math.exp((f - f50) / width)))
-        fell = seed == SEEDS[fell_seed_index]
+        fell = fell_seed_index is not None and seed == SEEDS[fell_seed_index]
         fault = "step" if (f == fault_force and seed == SEEDS[0]) else None
         return {"force": push.force, "mode": mode, "survived": ok and not fell and fault is None, "seed": seed,
                 "fault_kind": fault, "unpushed_fall": "fell: test" if fell else "",
@@ -89,7 +91,7 @@ def _synthetic_trial(f50=400.0, width=30.0, fell_seed_index=3, fault_force=200.0
 
 
 SETTINGS = ts.run_settings("real-sensors", perturb=NOISE)
-CELL = seeded.cell_of("both", SETTINGS, start=0.2315, duration=0.025, sign=1.0, height=None)
+CELL = seeded.cell_of(SETTINGS, start=0.2315, duration=0.025, sign=1.0, height=None)
 SEEDS = [uncertainty.trial_seed(CELL, i) for i in range(16)]
 
 
@@ -122,3 +124,28 @@ def test_seeded_table_counts_apart_and_finds_the_crossings(monkeypatch):
     assert {t["seed"] for t in res["trials"]} == set(SEEDS)
     # the coarse scan stopped at the first batch below the lowest level: nothing tried past it
     assert max(by_force) < 600.0
+
+
+def test_controllers_share_seeds_and_compare_paired(monkeypatch):
+    """Two modes on a synthetic curve whose draw depends on (seed, force) only, survival 50 % at 400 N for
+    both and 300 N for wbc: the same seeds for both modes, and at every common force the paired counts
+    recounted here from the trial records, with Newcombe's paired interval."""
+    base = {"both": _synthetic_trial(fell_seed_index=None, fault_force=-1.0),
+            "wbc": _synthetic_trial(f50=300.0, fell_seed_index=None, fault_force=-1.0)}
+    monkeypatch.setattr(seeded, "seeded_trial", lambda push, mode, s: base[mode](push, mode, s))
+    res = seeded.seeded_table(("both", "wbc"), 16, resolution=25.0, fmax=800.0, coarse=100.0, settings=SETTINGS,
+                              progress=False)
+    assert res["both"]["seed_list"] == res["wbc"]["seed_list"] == SEEDS
+    comp = res["both"]["comparisons"]
+    assert comp == res["wbc"]["comparisons"] and len(comp) == 1 and (comp[0]["a"], comp[0]["b"]) == ("both", "wbc")
+    rows = {r["force"]: r for r in comp[0]["forces"]}
+    assert {0.0, 100.0, 200.0, 300.0} <= set(rows)
+    for f, row in rows.items():
+        a = {r["seed_index"]: r["survived"] for r in res["both"]["trials"] if r["force"] == f}
+        b = {r["seed_index"]: r["survived"] for r in res["wbc"]["trials"] if r["force"] == f}
+        counts = [sum(1 for i in a if (a[i], b[i]) == pair) for pair in ((True, True), (True, False), (False, True),
+                                                                         (False, False))]
+        assert [row["both"], row["a_only"], row["b_only"], row["neither"]] == counts
+        assert row == {"force": f, **uncertainty.paired_difference(*counts)}
+    assert rows[0.0]["difference"] == 0.0 and rows[0.0]["lo"] < 0.0 < rows[0.0]["hi"]
+    assert any(r["lo"] > 0.0 for r in rows.values())     # both ahead of wbc somewhere, beyond the interval

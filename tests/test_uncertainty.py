@@ -30,9 +30,10 @@ def test_wilson_equals_the_closed_form(k, n):
 
 # Newcombe R. G. (1998), "Two-sided confidence intervals for the single proportion: comparison of seven
 # methods", Statistics in Medicine 17:857-872, Table I, method 3 (score method without continuity
-# correction, i.e. Wilson), 95 % limits to 4 decimals, for the table's four examples r/n. Typed from the
-# paper's Table I as recalled: the search found the paper (its abstract and first page) but not the
-# table's text, so these four rows were not checked against a retrieved copy of the table.
+# correction, i.e. Wilson), 95 % limits to 4 decimals. The first two rows are the paper's examples as the
+# test suite of the R package propint (github.com/m-Py/propint, tests/testthat/test_Single_Proportion_CI.R,
+# "the results reported in Newcombe1998") states them; the last two were typed from memory and are
+# checked only by scipy below (no retrieved copy of the table held them).
 NEWCOMBE_1998_TABLE_I_WILSON = {
     (81, 263): (0.2553, 0.3662),
     (15, 148): (0.0624, 0.1605),
@@ -46,6 +47,64 @@ def test_wilson_matches_newcombe_table_I(kn):
     lo, hi = U.wilson(*kn)
     tlo, thi = NEWCOMBE_1998_TABLE_I_WILSON[kn]
     assert round(lo, 4) == tlo and round(hi, 4) == thi
+
+
+@pytest.mark.parametrize("k,n", [(0, 1), (3, 8), (8, 8), (5, 32), (31, 32), (0, 20), (1, 29), (81, 263)])
+def test_wilson_equals_scipy(k, n):
+    """An independent implementation: scipy.stats.binomtest(k, n).proportion_ci(method='wilson')."""
+    from scipy.stats import binomtest
+    ci = binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
+    assert U.wilson(k, n) == pytest.approx((ci.low, ci.high), abs=1e-12)
+
+
+# Newcombe R. G. (1998), "Improved confidence intervals for the difference between binomial proportions
+# based on paired data", Stat. Med. 17:2635-2650, method 10, 95 % limits of the paper's four examples
+# (a, b, c, d) = (both, first only, second only, neither), as propint's tests state them
+# (tests/testthat/test_Two_Dependent_Props_CI.R, "the results reported in Newcombe1998").
+NEWCOMBE_1998_PAIRED = {(36, 12, 2, 0): (0.0569, 0.3404), (18, 12, 2, 18): (0.0562, 0.3290),
+                        (53, 0, 0, 1): (-0.0729, 0.0729), (0, 30, 0, 0): (0.8395, 1.0)}
+# Newcombe R. G. (1998), "Interval estimation for the difference between independent proportions:
+# comparison of eleven methods", Stat. Med. 17:873-890, method 10, as propint's
+# tests/testthat/test_Two_Independent_Props_CI.R states them: (k1, n1, k2, n2) -> limits.
+NEWCOMBE_1998_INDEPENDENT = {(56, 70, 48, 80): (0.0524, 0.3339), (9, 10, 3, 10): (0.1705, 0.8090)}
+
+
+@pytest.mark.parametrize("abcd", sorted(NEWCOMBE_1998_PAIRED))
+def test_paired_difference_matches_newcombe(abcd):
+    r = U.paired_difference(*abcd)
+    a, b, c, d = abcd
+    assert r["difference"] == (b - c) / sum(abcd)
+    assert (round(r["lo"], 4), round(r["hi"], 4)) == NEWCOMBE_1998_PAIRED[abcd]
+
+
+def test_paired_difference_closed_form_by_hand():
+    """(18, 12, 2, 18), n = 50: phi^ from the corrected numerator 18*18 - 12*2 - 25 = 275 over
+    sqrt(30*20*20*30) = 600; the limits from scipy's Wilson limits of 30/50 and 20/50."""
+    from scipy.stats import binomtest
+    w1 = binomtest(30, 50).proportion_ci(method="wilson")
+    w2 = binomtest(20, 50).proportion_ci(method="wilson")
+    phi = 275.0 / 600.0
+    d1, e2 = 0.6 - w1.low, w2.high - 0.4
+    e1, d2 = w1.high - 0.6, 0.4 - w2.low
+    r = U.paired_difference(18, 12, 2, 18)
+    assert r["phi"] == pytest.approx(phi, abs=1e-15)
+    assert r["lo"] == pytest.approx(0.2 - math.sqrt(d1 * d1 - 2 * phi * d1 * e2 + e2 * e2), abs=1e-12)
+    assert r["hi"] == pytest.approx(0.2 + math.sqrt(e1 * e1 - 2 * phi * e1 * d2 + d2 * d2), abs=1e-12)
+    # with no correlation the paired interval is the independent one of the same margins
+    ind = U.independent_difference(30, 50, 20, 50)
+    none = U.paired_difference(12, 18, 8, 12)        # a d = b c: phi^ = 0, margins 30/50 and 20/50
+    assert none["phi"] == 0.0 and (none["lo"], none["hi"]) == pytest.approx(ind[1:], abs=1e-12)
+    assert r["hi"] - r["lo"] < ind[2] - ind[1]      # correlated pairs: a narrower interval
+    with pytest.raises(U.UncertaintyError):
+        U.paired_difference(0, 0, 0, 0)
+    with pytest.raises(U.UncertaintyError):
+        U.paired_difference(1, -1, 0, 0)
+
+
+@pytest.mark.parametrize("kk", sorted(NEWCOMBE_1998_INDEPENDENT))
+def test_independent_difference_matches_newcombe(kk):
+    d, lo, hi = U.independent_difference(*kk)
+    assert (round(lo, 4), round(hi, 4)) == NEWCOMBE_1998_INDEPENDENT[kk]
 
 
 def test_wilson_edges_and_bad_counts():

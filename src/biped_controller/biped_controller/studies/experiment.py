@@ -63,11 +63,12 @@ import numpy as np
 from biped_controller.core.control.config import MODES
 from biped_controller.studies import single_runs
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_settings_args, controller_arg,
+                                                 levels_arg,
                                                  finite_float, nonnegative_float, positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.context import scaled_force
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.seeded import is_random, print_seeded, seeded_table
-from biped_controller.studies.trial.uncertainty import DEFAULT_LEVELS, UncertaintyError, check_level
+from biped_controller.studies.trial.uncertainty import DEFAULT_LEVELS
 from biped_controller.studies.trial.search import max_push_modes, ordering_finding, print_max_push
 from biped_controller.studies.trial.settings import differences, print_settings
 from biped_controller.studies import provenance
@@ -112,17 +113,6 @@ def _controller_arg(a: argparse.ArgumentParser) -> None:
     a.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
                    help="any registered controller (python -m biped_controller.studies.controllers list) in place "
                         "of --mode")
-
-
-def levels_arg(text: str) -> tuple[float, ...]:
-    """``--levels 0.9,0.5``: distinct survival levels, each in (0, 1)."""
-    try:
-        out = tuple(check_level(finite_float(t.strip())) for t in text.split(","))
-    except (argparse.ArgumentTypeError, UncertaintyError) as exc:
-        raise argparse.ArgumentTypeError(f"{exc} (in {text!r})") from None
-    if len(set(out)) != len(out):
-        raise argparse.ArgumentTypeError(f"a level is given twice in {text!r}")
-    return out
 
 
 #: the push searches' defaults [N] for the default robot (scaled for another: ``trial.context.scaled_force``)

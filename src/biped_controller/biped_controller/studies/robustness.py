@@ -29,8 +29,15 @@ Noise is one realisation (seed 0): a boundary under noise is that realisation's.
 plant); ``--full-trials`` turns it off there too.
 
 ``--profile NAME`` (config/profiles/) sets the controller's and the simulator's settings of every row (the
-observer is the table's own column; a profile with a plant perturbation is refused: the rows are the
-perturbations); ``--set`` adds simulator settings over it.
+observer is the table's own column); a profile's own plant perturbation (the real-sensor profiles' sensor
+noise) lies under every row: the row's fields replace the profile's, the others stay (so ``nominal`` under
+``real-sensors`` is the nominal model with the design-point noise). ``--set`` adds simulator settings over it.
+
+Over seeds (``--seeds N``, ``--survival-levels C,C``): every (row, mode, observer) whose plant draws noise
+gets the max-push table over seeds at the push cell (``trial.seeded.seeded_table``, the row's own search
+ranges): survival rates with Wilson 95 % intervals and the forces where survival crosses each level, with
+intervals; printed as a second table and stored under ``seeded_pushes``. Rows without noise are exact (one
+trial decides: survival 1 up to the boundary, 0 at the first failure). These searches are not resumable.
 """
 from __future__ import annotations
 
@@ -53,7 +60,8 @@ from biped_controller.closed_loop.executor import make_executor
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies.trial.survival import survival_rule
 from biped_controller.studies.trial.args import (SETTINGS_ERRORS, StudyArgumentParser, add_modes_arg, add_robot_arg,
-                                                 controller_arg, positive_int, profile_arg)
+                                                 controller_arg, levels_arg, positive_int, profile_arg)
+from biped_controller.studies.trial import seeded, uncertainty
 from biped_controller.studies.trial.context import context, scaled_force
 from biped_controller.studies.trial.record import faulted
 from biped_controller.studies.trial.scan import no_fall_undefined
@@ -350,6 +358,68 @@ def run_pushes(levels, modes, observers, store: cmap.RecordStore, executor, log=
     return out
 
 
+def under_profile(levels, base: PlantPerturbation | None) -> tuple[Level, ...]:
+    """``levels`` with the profile's plant perturbation ``base`` under each (the row's non-default fields
+    replace base's); ``levels`` unchanged when ``base`` is None."""
+    if base is None:
+        return tuple(levels)
+    zero = PlantPerturbation().as_dict()
+    return tuple(Level(lv.name, lv.group, PlantPerturbation.from_dict(
+        {**base.as_dict(), **{k: v for k, v in lv.perturbation.as_dict().items() if v != zero[k]}}), lv.key)
+        for lv in levels)
+
+
+def run_seeded_pushes(levels, modes, observers, seeds: int, survival_levels, workers: int, full_trials: bool,
+                      log=print) -> list[dict]:
+    """The max push over ``seeds`` seeds (``trial.seeded.seeded_table`` at :data:`PUSH_CELL`, the row's
+    search of :func:`search_for`) of every (level, mode, observer) whose plant draws noise; one record
+    each (the seeded table's result without its trial records)."""
+    from biped_controller.closed_loop.executor import make_executor
+    from biped_controller.studies.trial.record import seed_of
+    out = []
+    rows = [(lv, m, obs) for m, obs in combos(modes, observers) for lv in levels if seed_of(lv.perturbation) is not None]
+    if not rows:
+        log("--seeds: no row draws noise: every row is exact (one trial decides)")
+        return out
+    T = context(ROBOT or None).family.T
+    with make_executor(workers, initializer=context) as ex:
+        for lv, m, obs in rows:
+            sr = search_for(m)
+            t0 = time.perf_counter()
+            r = seeded.seeded_table((m,), seeds, sr.resolution, sr.fmax, sr.coarse, levels=survival_levels,
+                                    duration=PUSH_CELL["duration"], start=PUSH_CELL["phase"] * T, progress=False,
+                                    settings=settings_for(lv.perturbation, obs, full_trials), executor=ex)[m]
+            rec = {k: v for k, v in r.items() if k != "trials"}
+            rec.update(level=lv.name, observer=obs, trials=len(r["trials"]))
+            out.append(rec)
+            log(f"  seeded max push {lv.name:<28} {m:<4} observer {'on ' if obs else 'off'}: " + ", ".join(
+                f"{100 * c['level']:g} % {c['estimate']} N {c['interval']}" for c in r["crossings"])
+                + f" ({len(r['trials'])} trials, {time.perf_counter() - t0:.0f} s)")
+    return out
+
+
+def seeded_markdown(records: list[dict], seeds: int) -> list[str]:
+    """The table of :func:`run_seeded_pushes`: per noisy row, mode and observer, the crossing forces with
+    their intervals and the seeds counted apart at the largest force tried."""
+    levels = records[0]["levels"]
+    out = [f"Max push over {seeds} seeds (rows whose plant draws noise; the others are exact): the force [N] at "
+           f"which survival crosses each level, its interval in brackets (Wilson 95 %; 0 / unbounded: no force "
+           f"tried excludes the level on that side)", "",
+           "| perturbation | mode | observer | " + " | ".join(f"{100 * c:g} % crossing [N]" for c in levels)
+           + " | seeds apart (unpushed fall / fault) |", "|" + " --- |" * (4 + len(levels))]
+    for r in records:
+        cells = []
+        for c in r["crossings"]:
+            lo, hi = c["interval"]
+            cells.append("-" if c["estimate"] is None else
+                         f"{c['estimate']:g} [{'0' if lo is None else format(lo, 'g')}, "
+                         f"{'unbounded' if hi is None else format(hi, 'g')}]")
+        last = r["rates"][-1] if r["rates"] else {"unpushed_falls": 0, "faults": 0}
+        out.append(f"| {r['level']} | {r['mode']} | {'on' if r['observer'] else 'off'} | " + " | ".join(cells)
+                   + f" | {last['unpushed_falls']} / {last['faults']} |")
+    return out
+
+
 # ------------------------------------------------------------------------------------------ table
 def _walk_cell(r: dict | None) -> str:
     if r is None:
@@ -473,6 +543,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="run every survival trial in full (no early stop; it applies to the nominal plant only)")
     ap.add_argument("--report-only", action="store_true",
                     help="no simulation: the table, figure and JSON of what the store holds")
+    ap.add_argument("--seeds", type=positive_int, default=None,
+                    help="seeds per force for the rows whose plant draws noise: the max push as survival "
+                         "probabilities over seeds (Wilson 95 %% intervals, crossing forces of --survival-levels)")
+    ap.add_argument("--survival-levels", type=levels_arg, default=uncertainty.DEFAULT_LEVELS, metavar="C,C,...",
+                    help="with --seeds: survival levels whose crossing forces are searched, each in (0, 1) "
+                         "(default 0.9,0.5)")
     add_robot_arg(ap)
     ap.add_argument("--profile", type=profile_arg, default=DEFAULT_PROFILE,
                     help="config/profiles/ NAME: the controller and simulator settings of every row (the observer "
@@ -488,9 +564,6 @@ def main(argv: list[str] | None = None) -> int:
             raise RobustnessError("--set: only config/simulator.yaml keys here (the table sets the controller's "
                                   f"observer itself), got {', '.join(k for k, _ in given.controller)}")
         st = parse_overrides(args.overrides, profile=args.profile, robot=args.robot)
-        if st.perturbation is not None:
-            raise RobustnessError(f"--profile {args.profile}: sets a plant perturbation; the table's rows are the "
-                                  "perturbations (choose a profile without one)")
         SIMULATOR_OVERRIDES = st.simulator
         CONTROLLER_OVERRIDES = tuple((k, v) for k, v in st.controller if k != "disturbance_observer")
         PROFILE = args.profile
@@ -500,9 +573,13 @@ def main(argv: list[str] | None = None) -> int:
     except (*SETTINGS_ERRORS, RobustnessError) as exc:
         ap.error(str(exc))
     try:
-        levels = _levels(args.levels)
+        levels = under_profile(_levels(args.levels), st.perturbation)
     except (RobustnessError, PerturbationError) as exc:
         ap.error(str(exc))
+    if st.perturbation is not None:
+        print("the profile's plant perturbation lies under every row (a row's fields replace it): "
+              + ", ".join(f"{k}={v}" for k, v in st.perturbation.as_dict().items()
+                          if v != PlantPerturbation().as_dict()[k]))
     modes = tuple(dict.fromkeys((list(args.modes) if args.modes is not None else ([] if args.controller else ["both", "none"]))
                                 + list(args.controller)))
     observers = tuple(o == "on" for o in args.observer)
@@ -524,9 +601,15 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if ex is not None:
             ex.close()
+    seeded_pushes = []
+    if args.seeds is not None and not args.report_only:
+        seeded_pushes = run_seeded_pushes(levels, modes, observers, args.seeds, args.survival_levels, args.workers,
+                                          args.full_trials, log)
     wall = time.perf_counter() - t0
     log(f"wall time {wall:.1f} s ({args.workers} workers)")
     table = table_markdown(levels, modes, observers, walks, pushes)
+    if seeded_pushes:
+        table += "\n" + "\n".join(seeded_markdown(seeded_pushes, args.seeds)) + "\n"
     print(table)
     if args.table is not None:
         args.table.parent.mkdir(parents=True, exist_ok=True)
@@ -543,6 +626,7 @@ def main(argv: list[str] | None = None) -> int:
             "push_cell": PUSH_CELL, "walk_steps": WALK_STEPS, "figures": figs,
             "git": git_state(), "wall_time": wall, "workers": args.workers,
             "full_trials": args.full_trials,
+            **({"seeded_pushes": seeded_pushes, "seeds": args.seeds} if seeded_pushes else {}),
             # the profile and what differs from the configuration files in every row (the observer: per row)
             "settings": differences(RunSettings(CONTROLLER_OVERRIDES, SIMULATOR_OVERRIDES, profile=PROFILE, robot=ROBOT))},
             indent=1), encoding="utf-8")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import signal
@@ -21,9 +22,11 @@ from biped_controller.studies.capmap.spec import (DEFAULT_COARSE, DEFAULT_DURATI
 from biped_controller.studies.capmap.store import RecordStore
 from biped_controller.closed_loop.executor import ProgressBar
 from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_settings_args, controller_arg,
-                                                 finite_float,
+                                                 finite_float, levels_arg,
                                                  positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.context import scaled_force
+from biped_controller.studies.trial.seeded import is_random
+from biped_controller.studies.trial.uncertainty import DEFAULT_LEVELS
 from biped_controller.studies.trial.settings import print_settings
 from biped_controller.studies.provenance import git_state
 from biped_controller.studies import provenance
@@ -42,6 +45,39 @@ def _terminate(signum, frame):
     raise SystemExit(128 + signum)
 
 
+def _seeded(args, spec: MapSpec, argv) -> int:
+    """``--seeds N`` on noisy settings: :func:`capmap.seeded.seeded_map`, its table, figure and JSON."""
+    from biped_controller.studies.capmap import seeded as sm
+    if args.report_only and not args.store.exists():
+        print(f"error: --report-only: no store {args.store}", file=sys.stderr)
+        return 2
+    print(f"scripts/capability_map {' '.join(sys.argv[1:] if argv is None else argv)}")
+    print_settings(spec.settings)
+    n = len(spec.directions) * len(spec.phases) * len(spec.durations)
+    print(f"{n} cells over {args.seeds} seeds (modes {','.join(spec.modes)} on common seeds), levels "
+          f"{','.join(f'{c:g}' for c in args.levels)}; store {args.store}")
+    signal.signal(signal.SIGTERM, _terminate)
+    res = sm.seeded_map(spec, args.seeds, args.levels, workers=args.workers, ray=args.ray, store=args.store,
+                        simulate=not args.report_only)
+    res["argv"] = list(sys.argv[1:] if argv is None else argv)
+    res["workers"] = args.workers
+    res["executor"] = "ray" if args.ray else ("pool" if args.workers > 1 else "in process")
+    res["git"] = git_state()
+    for line in sm.crossing_table(res):
+        print(line)
+    print(f"{res['trials_run']} trials run, {res['cells_resumed']} cells resumed from the store"
+          + (f", {len(res['cells_missing'])} cells not in the store (--report-only)" if res["cells_missing"] else "")
+          + f"; wall time {res['wall_time']:.1f} s")
+    if not res["cells"]:
+        return 0
+    if args.out is not None:
+        print(f"figure: {sm.band_figure(res, args.out / 'seeded_bands.png')}")
+    if args.json is not None:
+        _dump(args.json, res)
+        print(f"summary: {args.json}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     ap = StudyArgumentParser(prog="scripts/capability_map", description=capmap.__doc__,
@@ -53,6 +89,9 @@ def main(argv: list[str] | None = None) -> int:
                          "beside the --modes given")
     ap.add_argument("--directions", nargs="+", default=list(DIRECTIONS), help="forward backward (default both)")
     ap.add_argument("--phases", type=positive_int, default=DEFAULT_PHASES, help="onsets k/N of the first step, k < N")
+    ap.add_argument("--only-phases", type=finite_float, nargs="+", default=None, metavar="PHASE",
+                    help="map only these of the --phases onsets (each must be one of k/N): a part of a map, whose "
+                         "cells the whole map's store then resumes")
     ap.add_argument("--durations", nargs="+", type=positive_float, default=list(DEFAULT_DURATIONS), help="push durations [s]")
     ap.add_argument("--resolution", type=positive_float, default=None,
                     help=f"bisection resolution [N] (default {DEFAULT_RESOLUTION:g} N; another robot: x its M sqrt(g L) / biped7's)")
@@ -81,6 +120,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--report-only", action="store_true",
                     help="run nothing: summary and figures from the store (incomplete cells are left out)")
+    ap.add_argument("--seeds", type=positive_int, default=None,
+                    help="seeds per force where the settings draw noise (e.g. --profile real-sensors-mujoco): per cell "
+                         "the survival rates with Wilson 95 %% intervals, the crossings of --levels and the modes "
+                         "compared on common seeds (capmap.seeded; --store: finished cells, resumed); settings "
+                         "without noise: the map as without it")
+    ap.add_argument("--levels", type=levels_arg, default=DEFAULT_LEVELS, metavar="C,C,...",
+                    help="with --seeds: survival levels whose crossing forces are searched, each in (0, 1) (default "
+                         "0.9,0.5)")
     add_settings_args(ap)
     args = ap.parse_args(argv)
     provenance.track(args.json, args.out, args.store, args=args, argv=argv)   # record of each file written (results/README.md)
@@ -94,8 +141,19 @@ def main(argv: list[str] | None = None) -> int:
         spec = MapSpec(tuple(dict.fromkeys(names + list(args.controller))), tuple(_split(args.directions)), phases_of(args.phases),
                        tuple(float(d) for d in args.durations), Search(args.coarse, args.max, args.resolution, args.max_impulse),
                        args.height, settings, None if args.search is None else args.search == "neighbours")
+        if args.only_phases is not None:
+            wrong = [p for p in args.only_phases if p not in spec.phases]
+            if wrong:
+                raise MapError(f"--only-phases {' '.join(f'{p:g}' for p in wrong)}: not among the {len(spec.phases)} "
+                               f"phases k/{len(spec.phases)}")
+            spec = dataclasses.replace(spec, phases=tuple(p for p in spec.phases if p in args.only_phases))
     except MapError as exc:
         ap.error(str(exc))
+    if args.seeds is not None and is_random(settings):
+        return _seeded(args, spec, argv)
+    if args.seeds is not None:
+        print(f"--seeds {args.seeds}: these settings draw nothing random (no sensor noise on the plant), one trial "
+              f"per force decides: the map as without --seeds")
     batch = args.batch if args.batch is not None else DEFAULT_BATCH["ray" if args.ray else "pool"]
     print(f"scripts/capability_map {' '.join(sys.argv[1:] if argv is None else argv)}")
     print_settings(settings)

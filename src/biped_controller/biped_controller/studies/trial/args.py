@@ -18,6 +18,7 @@ from biped_controller.core.control.config import MODES, ControllerConfigError
 from biped_controller.studies.trial.settings import OverrideError, RunSettings, run_settings
 from biped_controller.studies.trial.stop import StudySettingsError
 from biped_controller.studies.trial.survival import survival_rule
+from biped_controller.studies.trial import uncertainty
 
 __all__ = ["StudyArgumentParser", "add_settings_args", "add_robot_arg", "settings_from_args", "SETTINGS_ERRORS", "finite_float",
            "positive_float", "nonnegative_float", "positive_int", "nonnegative_int", "profile_arg", "modes_arg",
@@ -165,7 +166,8 @@ def add_settings_args(a: argparse.ArgumentParser, *, observer: bool = True, pert
     if perturb:
         a.add_argument("--perturb", dest="perturb", action="append", default=[], metavar="FIELD=VALUE",
                        help="a field of the plant's PlantPerturbation, e.g. torso_mass_scale=0.8, noise_q=5e-4, "
-                            "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation)")
+                            "encoder_bits=14, delay=2 (repeatable; biped_sim.plant.perturbation), over the profile's own "
+                            "(real-sensors profiles put their sensor noise on the plant); 'none' drops the profile's")
 
 
 def add_robot_arg(a: argparse.ArgumentParser) -> None:
@@ -188,3 +190,14 @@ def settings_from_args(ap: argparse.ArgumentParser, args: argparse.Namespace) ->
                             getattr(args, "full_trials", False), getattr(args, "robot", None))
     except SETTINGS_ERRORS as exc:
         ap.error(str(exc))
+
+
+def levels_arg(text: str) -> tuple[float, ...]:
+    """``--levels 0.9,0.5``: distinct survival levels, each in (0, 1)."""
+    try:
+        out = tuple(uncertainty.check_level(finite_float(t.strip())) for t in text.split(","))
+    except (argparse.ArgumentTypeError, uncertainty.UncertaintyError) as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (in {text!r})") from None
+    if len(set(out)) != len(out):
+        raise argparse.ArgumentTypeError(f"a level is given twice in {text!r}")
+    return out

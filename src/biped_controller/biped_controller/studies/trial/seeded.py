@@ -1,19 +1,25 @@
 """The max-push table over seeds: survival as a probability where the settings draw noise.
 
-For a cell (plant, profile, mode, push onset, duration, direction, height) and ``seeds`` = N, seed index
+For a cell (plant, profile, push onset, duration, direction, height) and ``seeds`` = N, seed index
 i in 0..N-1 runs with the plant's noise seeded by ``uncertainty.trial_seed(cell, i)`` (recorded in each
-trial record's ``seed``): the same seed at every force of the cell, and its own unpushed walk and band
-(the band is the unpushed walk of the same seed). At a force F the batch is all N seeds; a seed whose
+trial record's ``seed``): the same seed at every force of the cell and for every controller (common
+seeds), and its own unpushed walk and band (the band is the unpushed walk of the same seed and
+controller). At a force F the batch is all N seeds; a seed whose
 unpushed walk already falls (``Band.unpushed_fall``) and a trial ended by a controller fault are counted
 apart (``excluded``), in no rate. The survival rate is k / n over the n counted seeds, with its Wilson 95 %
 interval (:mod:`.uncertainty`).
 
 Search, per mode: coarse batches at 0, coarse, 2 coarse, ... [N] (ascending, one batch at a time) until
-the first whose rate is below the lowest crossing level; then, per level c (0.9 and 0.5 by default), the
+the first whose Wilson interval lies wholly below the lowest crossing level (so that every crossing has
+a force tried that bounds it from above), or the scan's top; then, per level c (0.9 and 0.5 by default), the
 bracket (last coarse force with rate >= c, first with rate < c) bisected on complete batches to the
 resolution (``uncertainty.crossing_search``; the levels share batches at equal forces). Every decision
 is taken on a complete batch, whose trials are each a pure function of (settings, seed, push), so a
 process pool, this process or Ray give the same answer.
+
+Comparison (two or more modes): at every force both modes ran, seed index i pairs mode A's trial with
+mode B's (the same seed); the pairs where both count give the difference of the survival rates with
+Newcombe's paired interval (``uncertainty.paired_difference``), in ``comparisons``.
 
 A profile without randomness (no sensor noise: ``record.seed_of`` is None) draws nothing a seed could
 change: :func:`seeded_table` is then not used (the deterministic search, one trial per force, as before).
@@ -37,10 +43,10 @@ def is_random(settings: RunSettings) -> bool:
     return record.seed_of(settings.perturbation) is not None
 
 
-def cell_of(mode: str, settings: RunSettings, *, start: float, duration: float, sign: float,
-            height: float | None) -> dict:
-    """The cell a seed is derived from (module docstring): plant, profile, mode and the push window."""
-    return {"plant": settings.sim_config().plant, "profile": settings.profile, "mode": mode, "start": float(start),
+def cell_of(settings: RunSettings, *, start: float, duration: float, sign: float, height: float | None) -> dict:
+    """The cell a seed is derived from (module docstring): plant, profile and the push window (not the
+    controller: every controller runs the same seeds)."""
+    return {"plant": settings.sim_config().plant, "profile": settings.profile, "start": float(start),
             "duration": float(duration), "direction": "forward" if sign > 0 else "backward",
             "height": None if height is None else float(height)}
 
@@ -71,9 +77,11 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
                  coarse: float = 50.0, *, levels: tuple[float, ...] = uncertainty.DEFAULT_LEVELS,
                  duration: float = DEFAULT_DURATION, start: float = DEFAULT_START, height: float | None = None,
                  workers: int = 1, ray: str | None = None, progress: bool = True, sign: float = 1.0,
-                 settings: RunSettings) -> dict[str, dict]:
+                 settings: RunSettings, executor=None) -> dict[str, dict]:
     """Per mode: the survival rate at every force tried (Wilson 95 %) and the forces where it crosses each
-    of ``levels`` with their intervals (module docstring). Forces [N], window [start, start + duration) [s]."""
+    of ``levels`` with their intervals (module docstring). Forces [N], window [start, start + duration) [s].
+    ``executor``: one of ``closed_loop.executor`` to run the trials on (left open; None: one made from
+    ``workers`` and ``ray`` and closed here)."""
     check_settings(settings)
     if not is_random(settings):
         raise ValueError("seeded_table needs settings that draw noise (record.seed_of is None)")
@@ -88,9 +96,10 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
     bar = CountingBar(len(modes) * seeds * (n_coarse + n_bis),
                       ProgressBar(sys.stderr if progress else None, label="seeded max-push " + ",".join(modes)),
                       f"at most {n_coarse} coarse + {n_bis} bisection batches of {seeds} seeds per mode")
-    ex = make_executor(workers, ray=ray, initializer=context)
-    seed_list = {m: [uncertainty.trial_seed(cell_of(m, settings, start=start, duration=duration, sign=sign,
-                                                    height=height), i) for i in range(seeds)] for m in modes}
+    ex = make_executor(workers, ray=ray, initializer=context) if executor is None else executor
+    cell = cell_of(settings, start=start, duration=duration, sign=sign, height=height)
+    common = [uncertainty.trial_seed(cell, i) for i in range(seeds)]
+    seed_list = {m: common for m in modes}
     records: dict[str, list[dict]] = {m: [] for m in modes}
 
     def run(batch: list[tuple[str, float]]) -> dict[tuple[str, float], tuple[int, int]]:
@@ -113,7 +122,7 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
             got = run([(m, f) for m in active])
             for m in list(active):
                 k, n = rates[m][f] = got[(m, f)]
-                if n == 0 or k / n < levels[-1]:
+                if n == 0 or uncertainty.wilson(k, n)[1] < levels[-1]:
                     active.remove(m)
             f += coarse
         crossings: dict[str, list[dict]] = {m: [] for m in modes}
@@ -127,7 +136,8 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
                 crossings[m].append(uncertainty.crossing_search(lambda x, m=m: run([(m, x)])[(m, x)], c, lo, hi,
                                                                 resolution, rates=rates[m]))
     finally:
-        ex.close()
+        if executor is None:
+            ex.close()
     bar.close()
     rule = survival_rule()
     out = {}
@@ -142,11 +152,38 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
             row["faults"] = sum(1 for r in at if r["fault_kind"] is not None)
             rows.append(row)
         out[m] = {"mode": m, "seeds": seeds, "seed_list": seed_list[m],
-                  "cell": cell_of(m, settings, start=start, duration=duration, sign=sign, height=height),
+                  "cell": cell,
                   "levels": list(levels), "resolution": resolution, "coarse_step": coarse, "scan_max": fmax,
                   "estimator": uncertainty.ESTIMATOR, "interval_method": uncertainty.INTERVAL,
                   "rates": rows, "crossings": crossings[m], "settings": differences(settings),
                   "survival": rule.text(), "trials": recs}
+    if len(modes) > 1:
+        comps = compare_modes(out)
+        for m in modes:
+            out[m]["comparisons"] = [c for c in comps if m in (c["a"], c["b"])]
+    return out
+
+
+def compare_modes(results: dict[str, dict]) -> list[dict]:
+    """Every pair of modes (a, b) in ``results``' order, at every force both ran: the paired 2 x 2 counts
+    over the seed indices where both trials count, the difference of the rates (a - b) and its Newcombe
+    interval (module docstring)."""
+    out = []
+    modes = list(results)
+    for i, ma in enumerate(modes):
+        for mb in modes[i + 1:]:
+            ta = {(r["force"], r["seed_index"]): r for r in results[ma]["trials"]}
+            tb = {(r["force"], r["seed_index"]): r for r in results[mb]["trials"]}
+            rows = []
+            for force in sorted({f for f, _ in ta} & {f for f, _ in tb}):
+                pairs = [(ta[k], tb[k]) for k in ta if k[0] == force and k in tb and ta[k]["counted"] and tb[k]["counted"]]
+                if not pairs:
+                    continue
+                a = sum(1 for x, y in pairs if x["survived"] and y["survived"])
+                b = sum(1 for x, y in pairs if x["survived"] and not y["survived"])
+                c = sum(1 for x, y in pairs if not x["survived"] and y["survived"])
+                rows.append({"force": force, **uncertainty.paired_difference(a, b, c, len(pairs) - a - b - c)})
+            out.append({"a": ma, "b": mb, "interval_method": uncertainty.DIFFERENCE_INTERVAL, "forces": rows})
     return out
 
 
@@ -173,4 +210,16 @@ def print_seeded(results: dict[str, dict]) -> None:
                   f"{_fmt(c['bracket'][1])} N; interval [{'0' if lo is None else _fmt(lo)}, "
                   f"{'unbounded' if hi is None else _fmt(hi)}] N)" + (f" {c['note']}" if c.get("note") else ""))
     r0 = next(iter(results.values()))
+    seen = set()
+    for m, r in results.items():
+        for comp in r.get("comparisons", []):
+            if (comp["a"], comp["b"]) in seen:
+                continue
+            seen.add((comp["a"], comp["b"]))
+            print(f"{comp['a']} - {comp['b']} on common seeds: difference of survival rates (paired 95 % interval, "
+                  f"Newcombe 1998 method 10); seed pairs: survived by both controllers / {comp['a']} only / {comp['b']} only / "
+                  f"neither")
+            for row in comp["forces"]:
+                print(f"  {row['force']:9g} {row['difference']:+.3f} [{row['lo']:+.3f}, {row['hi']:+.3f}]  "
+                      f"{row['both']}/{row['a_only']}/{row['b_only']}/{row['neither']}")
     print(f"(estimator: {r0['estimator']}; interval: {r0['interval_method']}; resolution {r0['resolution']:g} N)")

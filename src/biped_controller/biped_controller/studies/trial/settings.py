@@ -209,9 +209,18 @@ def canonical_robot(robot: str | None) -> str:
 def parse_perturbation(items: list[str] | tuple[str, ...] = (),
                        base: PlantPerturbation | None = None) -> PlantPerturbation | None:
     """A ``PlantPerturbation`` from ``FIELD=VALUE`` strings over ``base`` (a profile's; values parsed as
-    YAML scalars; ``base`` when empty). Raises :class:`OverrideError` for a malformed or repeated item and
+    YAML scalars; ``base`` when empty). The item ``none`` drops ``base`` (the profile's plant perturbation,
+    e.g. the sensor noise of ``real-sensors``): the other items then apply to the unperturbed plant, and
+    ``none`` alone gives None. Raises :class:`OverrideError` for a malformed or repeated item and
     ``PerturbationError`` naming a bad field or value."""
     vals: dict[str, object] = {}
+    if "none" in (str(i).strip() for i in items):
+        if sum(1 for i in items if str(i).strip() == "none") > 1:
+            raise OverrideError("--perturb none: given twice")
+        items = [i for i in items if str(i).strip() != "none"]
+        base = None
+        if not items:
+            return None
     for item in items:
         key, sep, text = item.partition("=")
         key = key.strip()

@@ -13,11 +13,28 @@ Solving the quadratic in p:
 always inside [0, 1]; k = 0 gives lo = 0 exactly and k = n gives hi = 1 exactly (set so, the closed form
 gives them up to rounding).
 
+Difference of two survival rates (controllers A and B at one force). On common seeds (the same seed
+index i runs both; a pair counts when both trials count) the pairs give the 2 x 2 table a (both survive),
+b (A only), c (B only), d (neither), n = a + b + c + d, and theta^ = p^_A - p^_B = (b - c) / n. Interval:
+Newcombe's hybrid score interval for paired data (Newcombe 1998, Stat. Med. 17:2635, method 10): with
+the Wilson intervals (l1, u1) of p^_A = (a + b) / n and (l2, u2) of p^_B = (a + c) / n and the
+correlation phi^ = N / sqrt((a + b)(c + d)(a + c)(b + d)), N = a d - b c, lowered to max(N - n / 2, 0)
+when N > 0 (0 when a margin is empty),
+
+    delta   = sqrt((p^_A - l1)^2 - 2 phi^ (p^_A - l1)(u2 - p^_B) + (u2 - p^_B)^2)
+    epsilon = sqrt((u1 - p^_A)^2 - 2 phi^ (u1 - p^_A)(p^_B - l2) + (p^_B - l2)^2)
+    [theta^ - delta, theta^ + epsilon].
+
+For independent samples (different seeds) phi^ = 0 and the margins are k1 / n1, k2 / n2 (Newcombe 1998,
+Stat. Med. 17:873, method 10). Common seeds remove the noise both controllers share: the interval is
+narrower when the outcomes correlate (phi^ > 0).
+
 Seed of a trial: ``trial_seed(cell, index)`` = the first 8 bytes of SHA-256 over the cell's canonical JSON
 (sorted keys) and the index, big-endian, masked to 63 bits (a non-negative int64, a valid
-``PlantPerturbation.seed``). The cell names what the trial's draws may depend on (plant, profile, mode,
-push onset, duration, direction, height); the force is not in it, so a seed index is the same noise
-sequence at every force of a cell (common random numbers along the force axis).
+``PlantPerturbation.seed``). The cell names what the trial's draws may depend on (plant, profile, push onset,
+duration, direction, height); neither the force nor the controller is in it, so a seed index is the same
+noise sequence at every force of a cell and for every controller (common random numbers along the force
+axis and across controllers: the paired comparison above).
 
 Crossing search (:func:`crossing_search`): survival s(F) at force F is estimated by the rate k / n of a
 complete batch of the n seeds; for a level c in (0, 1) the crossing F_c is where s falls through c. The
@@ -71,6 +88,43 @@ def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     lo = 0.0 if k == 0 else max(0.0, centre - half)
     hi = 1.0 if k == n else min(1.0, centre + half)
     return lo, hi
+
+
+def paired_difference(a: int, b: int, c: int, d: int, z: float = Z95) -> dict:
+    """p^_A - p^_B on common seeds and its Newcombe hybrid score interval (module docstring): ``a`` pairs
+    where both survive, ``b`` A only, ``c`` B only, ``d`` neither; a + b + c + d >= 1."""
+    counts = (a, b, c, d)
+    if any(isinstance(x, bool) or int(x) != x or x < 0 for x in counts) or sum(counts) < 1:
+        raise UncertaintyError(f"the paired counts must be integers >= 0 with a positive sum, got {counts!r}")
+    a, b, c, d = (int(x) for x in counts)
+    n = a + b + c + d
+    pa, pb = (a + b) / n, (a + c) / n
+    l1, u1 = wilson(a + b, n, z)
+    l2, u2 = wilson(a + c, n, z)
+    margins = (a + b) * (c + d) * (a + c) * (b + d)
+    num = a * d - b * c
+    if num > 0:
+        num = max(num - n / 2.0, 0.0)
+    phi = 0.0 if margins == 0 else num / math.sqrt(margins)
+    delta = math.sqrt(max((pa - l1) ** 2 - 2.0 * phi * (pa - l1) * (u2 - pb) + (u2 - pb) ** 2, 0.0))
+    eps = math.sqrt(max((u1 - pa) ** 2 - 2.0 * phi * (u1 - pa) * (pb - l2) + (pb - l2) ** 2, 0.0))
+    theta = (b - c) / n
+    return {"pairs": n, "both": a, "a_only": b, "b_only": c, "neither": d, "rate_a": pa, "rate_b": pb,
+            "difference": theta, "lo": max(-1.0, theta - delta), "hi": min(1.0, theta + eps), "phi": phi}
+
+
+def independent_difference(k1: int, n1: int, k2: int, n2: int, z: float = Z95) -> tuple[float, float, float]:
+    """k1 / n1 - k2 / n2 of independent samples and its Newcombe hybrid score interval (module docstring):
+    (difference, lo, hi)."""
+    l1, u1 = wilson(k1, n1, z)
+    l2, u2 = wilson(k2, n2, z)
+    p1, p2 = k1 / n1, k2 / n2
+    return (p1 - p2, p1 - p2 - math.hypot(p1 - l1, u2 - p2), p1 - p2 + math.hypot(u1 - p1, p2 - l2))
+
+
+#: the name of the comparison's interval, stored beside the numbers
+DIFFERENCE_INTERVAL = ("Newcombe hybrid score interval for paired data (Stat. Med. 17:2635, 1998, method 10) on "
+                       "common seeds: the Wilson limits of both rates combined with their correlation")
 
 
 def trial_seed(cell: Mapping, index: int) -> int:
