@@ -33,22 +33,18 @@ from pathlib import Path
 import numpy as np
 
 from biped_controller.plugin.interface import ControllerFault, ControlResult, InterfaceError
+from biped_controller.plugin.options import ControllerOptionError, parse_option
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               load_registration, registered, summary)
 
 
 def _option(text: str) -> tuple[str, float | str]:
-    """KEY=VALUE: the value a number where it reads as one, else the word or path as given (e.g.
-    ``file=policies/x/policy.onnx``)."""
-    key, sep, value = text.partition("=")
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"--option takes KEY=VALUE, got {text!r}")
+    """KEY=VALUE (``plugin.options.parse_option``, the controller node's ``controller_options`` parser): the
+    value a number where it reads as one, else the word or path as given (e.g. ``file=policies/x/policy.onnx``)."""
     try:
-        return key, float(value)
-    except ValueError:
-        if not value:
-            raise argparse.ArgumentTypeError(f"--option {key}: the value is empty") from None
-        return key, value
+        return parse_option(text, "--option")
+    except ControllerOptionError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 #: what ``check`` can and cannot tell, printed with a passed check
