@@ -13,13 +13,16 @@ one push scheduled by the disturbance node, for ``T`` s of sim time
   same, bit for bit, and the torques are the same, bit for bit (the policy sees the same observation: its time
   is the stamp's, ``interface.stamp_time``, in both), through the push and the fall (the bag's ``/fall`` cause
   is the in-process run's);
-- the status carries the controller's name;
+- the status carries the controller's name; the latched ``/controller/info`` and the bag's MCAP metadata
+  record ``biped_controller`` (read with the ``mcap`` package) name the controller, its options and the
+  policy file's SHA-256 (the file's own hash, computed here);
 - a negative control: another policy (other gains) gives other torques, so the comparison can fail.
 
 A bad option stops the node at start naming ``controller_options`` (exit 2, nothing published).
 """
 from __future__ import annotations
 
+import hashlib
 import subprocess
 from pathlib import Path
 
@@ -78,6 +81,7 @@ def _params(tmp: Path) -> Path:
 def test_onnx_policy_in_graph_equals_in_process(ros_env, tmp_path):
     from biped_sim.plant.push import Push
     from biped_sim.recording.bag_reader import read_bag
+    from mcap.reader import make_reader
     from biped_sim.plant.config import load_sim_config
     from biped_controller.plugin import loop as plugin_loop
 
@@ -124,6 +128,18 @@ def test_onnx_policy_in_graph_equals_in_process(ros_env, tmp_path):
         # the same torque, bit for bit (the policy saw the same observation)
         assert np.array_equal(np.clip(np.array(torques[k].effort), -150.0, 150.0), rec.torque), k
         assert status[k].mode == 'onnx_policy'
+    # the controller and its policy file, in the bag: the latched /controller/info and the MCAP metadata
+    # record 'biped_controller' (read with the mcap package), against the file's hash computed here
+    sha = hashlib.sha256(policy.read_bytes()).hexdigest()
+    (info_msg,) = [m for t, _, _, m in d['messages'] if t == '/controller/info']
+    (mcap_file,) = bag.glob('*.mcap')
+    with open(mcap_file, 'rb') as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert meta['biped_controller']['yaml'] == info_msg.data
+    info = yaml.safe_load(info_msg.data)
+    assert info['controller'] == 'onnx_policy' and info['options'] == {'file': str(policy)}
+    assert info['policy_sha256'] == info['files']['file']['sha256'] == sha
+    assert info['policy_file'] == str(policy.resolve()) and info['policy_period'] == 0.01
     tq = np.array([r.torque for r in ref.records])
     assert np.abs(tq).max() > 10.0                       # the policy acts (not a zero torque)
     # negative control: other gains, other torques on the same first state

@@ -21,6 +21,11 @@ and ``Observation.pitch_rate`` (the state estimator fuses the pitch, and the rat
 without the estimator neither is used). Without ``use_imu`` both are NaN (no IMU). An IMU message that is not
 the planar torso IMU is logged naming the field and dropped (the simulator then reports the missing torque).
 
+At start it publishes the latched ``/controller/info`` (``std_msgs/String``, YAML of
+``plugin.provenance.controller_provenance``: ``controller``, ``options``, the SHA-256 of every file an option
+names, a policy's ``policy_file`` and ``policy_sha256``; a built-in mode's ``mode``), which the recorder
+also writes as the bag's metadata record ``biped_controller``.
+
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
   ``effort`` = paper torques q1..q6 [N m], ``header.stamp`` = the state's stamp;
@@ -67,9 +72,11 @@ import time
 from typing import Optional
 
 import numpy as np
+import yaml
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
 
 from biped_msgs_py.msg import ControllerStatus, SimState
 from biped_sim.graph import cdr
@@ -98,6 +105,7 @@ from biped_controller.plugin.builtin import compiled_mode
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, InterfaceError,
                                                Observation, stamp_time)
 from biped_controller.plugin.options import ControllerOptionError, parse_options
+from biped_controller.plugin.provenance import controller_provenance
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               make_controller)
 
@@ -242,6 +250,12 @@ class ControllerNode(Node):
         self._last_torque, self._last_stance, self._faulted = np.zeros(6), None, False
         self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
         self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
+        # latched: the run's controller, its options and the hashes of the files it reads (plugin.provenance)
+        self.info = controller_provenance(self.controller_name, self.controller_options, self.controller)
+        if self.controller_name in MODES:
+            self.info['mode'] = self.cfg.mode
+        self.pub_info = self.create_publisher(String, gn.CONTROLLER_INFO, gn.QOS_LATCHED)
+        self.pub_info.publish(String(data=yaml.safe_dump(self.info, sort_keys=False)))
         self.state_sub = None
         self.imu_sub = None
         # stamp [ns] -> the IMU's (pitch [rad], pitch rate [rad/s]), not yet used
