@@ -443,8 +443,8 @@ def test_node_controller_options_reach_a_plug_in_and_bad_ones_name_the_parameter
     from biped_controller.studies.controllers import _option
     f = tmp_path / "gains.txt"
     f.write_text("not a policy\n")
-    opts = parse_options(["gain=2.5", f"file={f}", "label=a=b"], "controller_options")
-    assert opts == {"gain": 2.5, "file": str(f), "label": "a=b"}
+    opts = parse_options(["gain=2.5", f"file={f}", "label=a=b", "switch=False"], "controller_options")
+    assert opts == {"gain": 2.5, "file": str(f), "label": "a=b", "switch": False}
     assert [_option(t) for t in ("gain=2.5", f"file={f}")] == list(opts.items())[:2]   # the --option parser's
     for bad, what in ((["gain"], "takes KEY=VALUE"), (["=1"], "takes KEY=VALUE"), (["gain="], "value is empty"),
                       (["a=1", "a=2"], "given twice")):

@@ -9,7 +9,10 @@ Oracles, independent of the code under test:
   whole-body QP is q_d(p, tau) of the family at the layer's reported p, tau, with its p', tau', p'', tau'';
 - mode ``wbc`` through the same loop: with the layer's dead band infinite the controller's torques are mode
   wbc's (to round-off), pushed or not;
-- the plant: a short walk stays upright on the preferred gait, and a forward push lengthens the target stride.
+- the plant: a short walk stays upright on the preferred gait, and a forward push lengthens the target stride;
+- the commanded reference's DCM (the adopted law, ``step_layer_commanded_dcm``): on the preferred gait it is the
+  table xi_n(tau), and its velocity term is the central finite difference of the family's CoM along the
+  commanded path (p + p' h, tau + tau' h).
 """
 from __future__ import annotations
 
@@ -141,7 +144,8 @@ def test_without_the_step_layer_it_is_mode_wbc():
     assert d < 1e-7
     assert any(st["wbc_status"] != 0 for st in a.statuses)      # the QP acted in the push
     c = _records("dcm_wbc", 2, (PAPER_PUSH,))                    # and the layer, on, changes the run
-    assert max(abs(st["p"] - 0.463) for st in c.statuses) > 1e-3
+    assert max(abs(st["p"] - 0.463) for st in c.statuses) > 1e-4
+    assert max(abs(st["tau_dot"] - 1.0) for st in c.statuses) > 1e-3
 
 
 def test_a_short_walk_stays_upright_on_the_preferred_gait():
@@ -151,11 +155,54 @@ def test_a_short_walk_stays_upright_on_the_preferred_gait():
     assert max(abs(st["dcm_error"]) for st in r.statuses) < settings_for().dead_band
 
 
-def test_a_forward_push_lengthens_the_target_stride_and_hastens_the_step():
-    r = _records("dcm_wbc", 2, (Push(0.2315, 0.025, 150.0),))
-    assert not r.fallen
-    pushed = [st for st in r.statuses if not st["step_frozen"] and st["dcm_error"] > 0.01]
-    assert pushed and all(st["p_target"] > 0.463 and st["tau_dot_target"] > 1.0 for st in pushed)
+def test_a_forward_push_lengthens_the_target_stride_and_hastens_the_step(ctrl):
+    """And the error it answers is measured against the commanded reference's DCM at the reported p, p', tau,
+    tau' (the adopted law); with ``commanded_dcm`` off, against the preferred step's xi_n(tau) (the first law)."""
+    lay = ctrl.layer
+    for commanded in (True, False):
+        r = _records("dcm_wbc", 2, (Push(0.2315, 0.025, 150.0),), commanded_dcm=commanded)
+        assert not r.fallen
+        pushed = [st for st in r.statuses if not st["step_frozen"] and st["dcm_error"] > 0.01]
+        assert pushed and all(st["p_target"] > 0.463 and st["tau_dot_target"] > 1.0 for st in pushed)
+        for st in r.statuses[::7]:
+            ref = (lay.reference_dcm(st["p"], st["p_dot"], st["tau"], st["tau_dot"]) if commanded
+                   else lay.xi_n(st["tau"]))
+            assert st["dcm_error"] == pytest.approx(st["dcm"] - ref, abs=1e-12)
+        if commanded:
+            moved = [st for st in r.statuses if abs(st["tau_dot"] - 1.0) > 0.01]
+            assert moved and max(abs(lay.reference_dcm(st["p"], st["p_dot"], st["tau"], st["tau_dot"])
+                                     - lay.xi_n(st["tau"])) for st in moved) > 1e-3   # the two laws differ here
+
+
+def test_the_commanded_reference_dcm_is_the_family_com_s(ctrl):
+    """xi_r(p_d, 0, tau, 1) = xi_n(tau) (the table, to its interpolation); off the preferred gait
+    xi_r = x_G + x_G' / omega with x_G' the central difference of the family's CoM along (p + p' h, tau + tau' h)."""
+    lay, ref, model = ctrl.layer, ctrl.ref, ctrl.model
+    for tau in (0.0, 0.1, 0.2315, ref.T):
+        assert abs(lay.reference_dcm(ref.p_d, 0.0, tau, 1.0) - lay.xi_n(tau)) < 2e-6
+    h = 1e-6
+    for p, p_dot, tau, tau_dot in ((0.48, 0.3, 0.12, 1.4), (0.44, -0.2, 0.3, 0.8)):
+        x = model.com(ref.at(p, tau).q)[0]
+        dx = (model.com(ref.at(p + p_dot * h, tau + tau_dot * h).q)[0]
+              - model.com(ref.at(p - p_dot * h, tau - tau_dot * h).q)[0]) / (2 * h)
+        assert lay.reference_dcm(p, p_dot, tau, tau_dot) == pytest.approx(x + dx / lay.omega, abs=1e-7)
+
+
+def test_the_command_line_reads_switches_and_numbers(capsys):
+    """``--option whole_body=false`` is a switch (the run without the whole-body QP), a number stays a number,
+    another word is passed on as text (a plug-in's file name), which the step layer refuses naming its key."""
+    from biped_controller.plugin.step_layer import StepLayerSettingsError
+    from biped_controller.studies.controllers import _option, main
+    assert _option("whole_body=false") == ("whole_body", False) and _option("commanded_dcm=True") == ("commanded_dcm", True)
+    assert _option("dead_band=1e9") == ("dead_band", 1e9)
+    assert _option("whole_body=maybe") == ("whole_body", "maybe")
+    assert StepLayerSettings.load({"whole_body": False}).whole_body is False
+    with pytest.raises(StepLayerSettingsError, match="step_layer_whole_body"):
+        StepLayerSettings.load({"whole_body": "maybe"})
+    assert main(["check", "dcm_wbc", "--option", "whole_body=false"]) == 0
+    capsys.readouterr()
+    assert main(["check", "dcm_wbc", "--option", "whole_body=maybe"]) == 1
+    assert "step_layer_whole_body must be true or false, got 'maybe'" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("key,value,words", [
@@ -166,6 +213,7 @@ def test_a_forward_push_lengthens_the_target_stride_and_hastens_the_step():
     ("min_time_left", 0.0, "step_layer_min_time_left"),
     ("weight_step", math.nan, "step_layer_weight_step"),
     ("whole_body", "maybe", "step_layer_whole_body"),
+    ("commanded_dcm", 1.0, "step_layer_commanded_dcm"),
     ("dead_bandd", 1.0, "dead_bandd"),
 ])
 def test_bad_settings_are_refused_naming_the_key(key, value, words):

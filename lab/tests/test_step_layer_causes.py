@@ -54,3 +54,22 @@ def test_the_cell_table_by_hand():
     assert (r1["v - dcm_wbc"], r1["v - wbc"], r1["v - both"]) == (250.0, 270.0, -50.0)
     md = cell_markdown(t)
     assert "| forward | 0.5 | 200 | 180 | 500 | +20 | -300 | 450 | +250 | +270 | -50 |" in md
+    st = t["extra_stats"]["v"]["rigid"]["forward"]
+    assert st["cells"] == 1 and st["mean"] == 450.0 and st["means"]["wbc"] == 180.0
+    assert st["versus"]["both"] == {"ahead": 0, "behind": 1, "equal": 0, "mean_difference": -50.0}
+    assert st["versus"]["wbc"]["ahead"] == 1
+    t2 = cell_table(slices, "dcm_wbc", ("wbc",), {"dcm_wbc": var}, label="first_law")
+    r1 = t2["plants"]["rigid"]["rows"][1]
+    assert (r1["first_law"], r1["dcm_wbc"], r1["dcm_wbc - first_law"]) == (200.0, 450.0, 250.0)
+
+
+def test_maps_on_two_grids_merge_and_must_agree():
+    from lab.step_layer_causes import MapMergeError, merge_maps
+    a = {"boundaries": [{"direction": "forward", "phase": 0.0, "force": 10.0},
+                        {"direction": "forward", "phase": 0.5, "force": 20.0}]}
+    b = {"boundaries": [{"direction": "forward", "phase": 0.5, "force": 20.0},
+                        {"direction": "forward", "phase": 0.1, "force": 30.0}]}
+    assert [x["phase"] for x in merge_maps(a, b)["boundaries"]] == [0.0, 0.1, 0.5]
+    b["boundaries"][0]["force"] = 21.0
+    with pytest.raises(MapMergeError, match="onset 0.5"):
+        merge_maps(a, b)

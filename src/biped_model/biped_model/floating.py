@@ -81,13 +81,15 @@ class ImpactResult:
 class FloatingModel:
     """Simulator-side model: owns its Pinocchio ``Data`` (never shared with the controller)."""
 
-    def __init__(self, desc: RobotDescription | None = None):
+    def __init__(self, desc: RobotDescription | None = None, urdf: str | None = None):
+        """``urdf``: build the model from this URDF text (e.g. a bag's ``/robot_description``) instead of
+        ``make_urdf(desc)``; ``desc`` still gives gravity and the sizes the URDF does not carry."""
         self.desc = desc if desc is not None else load_description()
         root = pin.JointModelComposite()
         root.addJoint(pin.JointModelPX())
         root.addJoint(pin.JointModelPZ())
         root.addJoint(pin.JointModelRevoluteUnaligned(AXIS))
-        self.urdf = make_urdf(self.desc)
+        self.urdf = urdf if urdf is not None else make_urdf(self.desc)
         self.model = pin.buildModelFromXML(self.urdf, root)
         self.model.gravity = pin.Motion(np.array([0.0, 0.0, -self.desc.gravity]), np.zeros(3))
         self.data = self.model.createData()

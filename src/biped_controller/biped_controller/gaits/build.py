@@ -301,12 +301,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="worker processes (1: everything in this process; same file)")
     ap.add_argument("--evaluator", choices=EVALUATORS, default="fast")
     ap.add_argument("--no-speed", action="store_true", help="skip the 1 m/s question")
+    ap.add_argument("--robot", default=None, metavar="NAME|PATH",
+                    help="the robot (a name under robots/ or a robot directory; default biped7): its description and "
+                         "its gait.yaml (unless --settings); scripts/robot build writes a robot's own family")
     args = ap.parse_args(argv)
+    from biped_model.robot import RobotError, resolve_robot
+    try:
+        robot = resolve_robot(args.robot)
+        desc = robot.description()
+    except RobotError as exc:
+        print(f"build: error: {exc}", file=sys.stderr)
+        return 2
+    if args.settings is None and not robot.is_default:
+        args.settings = robot.gait_path
     st = load_gait_settings(args.settings) if args.settings else load_gait_settings()
     if args.out.resolve() == (default_robot_dir() / "gait_family.json").resolve():
         print("build: refusing to overwrite the committed family; give another --out", file=sys.stderr)
         return 2
-    data, times = build_family(st, workers=args.workers, evaluator=args.evaluator, speed=not args.no_speed)
+    data, times = build_family(st, desc=None if robot.is_default else desc, workers=args.workers,
+                               evaluator=args.evaluator, speed=not args.no_speed)
+    if not robot.is_default:          # the stamp as generation.generate writes it (biped_model.robot)
+        from biped_model.robot import STAMP_KEY, description_hash
+        data[STAMP_KEY] = {"description_sha256": description_hash(desc)}
     write_family(data, args.out)
     print_report(data, data["validation"])
     print("times [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in times.items()) + f"; BLAS {blas_info()}")

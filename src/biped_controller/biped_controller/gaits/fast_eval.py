@@ -7,8 +7,10 @@
   q'(T); only the derivative in q(T) is still taken by central differences (6 columns, 12 evaluations,
   instead of 12 columns and 24 evaluations of the whole impact).
 * **Grid**: inverse dynamics and its derivatives at the 41 instants with one Pinocchio call each
-  (``computeRNEADerivatives`` fills ``data.tau`` too), the chain rule through the polynomial basis,
-  the criterion and the 17 margin rows batched over the grid in NumPy.
+  (``computeRNEADerivatives`` fills ``data.tau``, and the joint placements and Jacobians the swing foot's
+  height and its Jacobian are read from, too), the chain rule through the polynomial basis (one batched
+  product with the stacked basis phi, phi', phi''), the criterion and the 17 margin rows batched over the
+  grid in NumPy; the matrices that depend on the basis alone are made again only when it changes.
 
 The values agree with :meth:`StepOptimizer.evaluate` to round-off and the gradients to the accuracy
 of its finite differences (``tests/test_gait_build.py``); the iterates, hence the family, differ in
@@ -40,6 +42,7 @@ class FastStepOptimizer(StepOptimizer):
         self._P_new = PAPER_FROM_URDF[1 - LEFT]    # paper q' of the new stance from URDF joint velocities
         self._R = -np.eye(6)[::-1]
         self._knee_jac = None
+        self._basis_key = None
         self._upper = np.triu(np.ones((9, 9), dtype=bool))
 
     # ------------------------------------------------------------ end of step
@@ -67,8 +70,7 @@ class FastStepOptimizer(StepOptimizer):
             t = data.oMf[st_id].translation
             x[0] -= t[0]
             x[1] -= t[2]
-            pin.computeJointJacobians(model, data, x)
-            pin.updateFramePlacements(model, data)
+            pin.computeJointJacobians(model, data, x)      # (getFrameJacobian places the frame itself)
             Jst[b] = pin.getFrameJacobian(model, data, st_id, lwa)[[0, 2, 4]]
             Jn[b] = pin.getFrameJacobian(model, data, new_id, lwa)[[0, 2, 4]]
             M[b] = pin.crba(model, data, x)
@@ -122,6 +124,19 @@ class FastStepOptimizer(StepOptimizer):
         return val[:6], D[:6], ineq, J_end
 
     # ------------------------------------------------------------ the NLP
+    def _basis_terms(self) -> None:
+        """The matrices that depend on the basis alone, made again only when it changed (the 1 m/s question
+        changes T, hence phi' and phi'', between solves): the stacked basis ``_B`` (n+1, 3, 5) and
+        d(q(0)), d(q'(0)), d(q(T)), d(q'(T)) / dz, (6, 30) each, and ``_D_end`` = [d q(T); d q'(T)]."""
+        key = self.phi.tobytes() + self.dphi.tobytes() + self.ddphi.tobytes()
+        if key == self._basis_key:
+            return
+        self._basis_key = key
+        self._B = np.stack([self.phi, self.dphi, self.ddphi], axis=1)
+        rows = (self.phi[0], self.dphi[0], self.phi[-1], self.dphi[-1])
+        self._dq0, self._dqd0, self._dqT, self._dqdT = (np.kron(np.eye(NJ), row[None, :]) for row in rows)
+        self._D_end = np.vstack([self._dqT, self._dqdT])
+
     def evaluate(self, z: np.ndarray) -> dict[str, np.ndarray]:
         key = z.tobytes()
         if key == self._cache_key:
@@ -149,21 +164,21 @@ class FastStepOptimizer(StepOptimizer):
             Dq[k] = dq_[:, 3:]
             Dv[k] = dv_[:, 3:]
             Mf[k] = ma_
-            if 0 < k < n:
-                pin.computeJointJacobians(model, data, q9)
-                pin.updateFramePlacement(model, data, fid)
+            if 0 < k < n:       # computeRNEADerivatives has filled data.oMi and data.J at q9 (the same bits as
+                pin.updateFramePlacement(model, data, fid)   # computeJointJacobians would; the fast-vs-reference tests cover it)
                 tz[k] = data.oMf[fid].translation[2]
                 Jz[k] = pin.getFrameJacobian(model, data, fid, lwa)[2, 3:]
         Ma = np.where(self._upper[None], Mf, Mf.transpose(0, 2, 1))[:, :, 3:]   # CRBA part: upper triangle
-        # d tau_k / dz: (n+1, 9, 30)
-        dtau = (Dq[:, :, :, None] * self.phi[:, None, None, :] + Dv[:, :, :, None] * self.dphi[:, None, None, :]
-                + Ma[:, :, :, None] * self.ddphi[:, None, None, :]).reshape(n + 1, 9, 30)
+        self._basis_terms()
+        # d tau_k / dz: (n+1, 9, 30), [k, i, 5 j + m] = Dq[k,i,j] phi[k,m] + Dv[k,i,j] phi'[k,m] + Ma[k,i,j] phi''[k,m]
+        # (one batched product with the stacked basis, self._B)
+        dtau = (np.stack([Dq, Dv, Ma], axis=-1).reshape(n + 1, 54, 3) @ self._B).reshape(n + 1, 9, 30)
         gam = tau[:, 3:]
         wk = self.w
         obj = float(np.sum(wk * np.einsum("ki,ki->k", gam, gam)))
-        gobj = 2.0 * np.einsum("k,ki,kin->n", wk, gam, dtau[:, 3:, :])
+        gobj = 2.0 * ((wk[:, None] * gam).ravel() @ dtau[:, 3:, :].reshape(-1, 30))
         g_rows = tau @ self.C.T + self.d                                  # (n+1, 17)
-        g_jac = np.einsum("rj,kjn->krn", self.C, dtau).reshape(-1, 30)    # rows k*17 + r
+        g_jac = np.matmul(self.C, dtau).reshape(-1, 30)                   # rows k*17 + r
         # clearance of heel and toe at the inner instants
         inner = self._inner
         ang = np.sum(q[inner], axis=1)
@@ -175,13 +190,9 @@ class FastStepOptimizer(StepOptimizer):
         knee_rows = self._knee_rows(q)
         if self._knee_jac is None:
             self._knee_jac = self._knee_jacobian(n)
-        # d(q(0)), d(q'(0)), d(q(T)), d(q'(T)) / dz: (6, 30) each (from the current basis: the 1 m/s question
-        # changes T, hence dphi, between solves)
-        self._dq0, self._dqd0, self._dqT, self._dqdT = (np.kron(np.eye(NJ), row[None, :]) for row in
-                                                        (self.phi[0], self.dphi[0], self.phi[-1], self.dphi[-1]))
         qT, qdT = q[-1], qd[-1]
         qd0_req, J_req, end_ineq, J_end = self._end_terms(qT, qdT)
-        D_end = np.vstack([self._dqT, self._dqdT])        # (12, 30)
+        D_end = self._D_end                               # (12, 30)
         pose, _ = self.fixed.swing_foot(qT)
         Jsw = self.fixed.swing_foot_jacobian(qT)
         R = self._R

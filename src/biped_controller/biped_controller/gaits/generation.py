@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from biped_model.settings import default_robot_dir
 from biped_model.description import load_description
 from biped_model.robot import STAMP_KEY, description_hash
 from biped_model.floating import impact_paper
@@ -374,12 +373,15 @@ def _validate(fam: GaitFamily, data: dict, opt: StepOptimizer, probe_many=None) 
     return v
 
 
-def refit(path: Path, settings_path: Path | None = None, progress: bool = True) -> dict:
+def refit(path: Path, settings_path: Path | None = None, progress: bool = True,
+          description_path: Path | None = None) -> dict:
     """Re-fit the family and its valid range from the committed (smoothed) stride solutions, re-solve
     the held-out strides against it (their targets depend on the family) and re-validate: every step
-    of ``generate`` after the smoothing passes, without re-optimising the fitted strides."""
+    of ``generate`` after the smoothing passes, without re-optimising the fitted strides (the robot of
+    ``description_path``; None: the default robot)."""
     data = json.loads(path.read_text(encoding="utf-8"))
-    opt = StepOptimizer(settings=load_gait_settings(settings_path) if settings_path else None)
+    opt = StepOptimizer(desc=load_description(description_path) if description_path else None,
+                        settings=load_gait_settings(settings_path) if settings_path else None)
     st = opt.st
     records = data["strides"]
     fam = fit_and_restrict(records, st, opt)
@@ -490,18 +492,33 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--settings", type=Path, default=None, help="gait settings (default robots/biped7/gait.yaml)")
     ap.add_argument("--refit", action="store_true", help="re-fit the family and the valid range from the stored strides and re-solve the held-out strides (the fitted strides are not re-optimised)")
     ap.add_argument("--json", type=Path, help="write the validation figures as JSON")
-    ap.add_argument("--out", type=Path, default=default_robot_dir() / "gait_family.json")
+    ap.add_argument("--out", type=Path, default=None, help="the family file (default the robot's gait_family.json)")
+    ap.add_argument("--robot", default=None, metavar="NAME|PATH",
+                    help="the robot (a name under robots/ or a robot directory; default biped7): its description, "
+                         "its gait.yaml (unless --settings) and its family file (unless --out); docs/robots.md")
     args = ap.parse_args(argv)
+    from biped_model.robot import RobotError, resolve_robot
+    try:
+        robot = resolve_robot(args.robot)
+        robot.description()
+    except RobotError as exc:
+        print(f"generate_gait_family: error: {exc}", file=sys.stderr)
+        return 2
+    desc_path = None if robot.is_default else robot.description_path
+    if args.settings is None and not robot.is_default:
+        args.settings = robot.gait_path
+    if args.out is None:
+        args.out = robot.family_path
     st = load_gait_settings(args.settings) if args.settings else load_gait_settings()
     if args.refit:
-        data = refit(args.out, args.settings)
+        data = refit(args.out, args.settings, description_path=desc_path)
         validation = data["validation"]
     elif args.check:
         data = json.loads(args.out.read_text(encoding="utf-8"))
         fam = GaitFamily.load(args.out)
-        validation = _validate(fam, data, StepOptimizer(settings=st))
+        validation = _validate(fam, data, StepOptimizer(desc=robot.description() if desc_path else None, settings=st))
     else:
-        data = generate(args.out, settings_path=args.settings)
+        data = generate(args.out, settings_path=args.settings, description_path=desc_path)
         validation = data["validation"]
     print_report(data, validation)
     if args.json:

@@ -48,7 +48,7 @@ controller runs behind the controller interface (``biped_controller.plugin.inter
 description, the gait family and ``control_period``; a built-in mode's options are the controller
 parameters above, a plug-in's are the parameter ``controller_options``: a string array of ``KEY=VALUE``
 (default ``config/graph.yaml``: ``[]``), parsed by ``plugin.options.parse_options``, the parser of the study
-commands' ``--option`` (a value a float where it reads as one, else the text; e.g.
+commands' ``--option`` (a value a float where it reads as one, ``true`` / ``false`` a bool, else the text; e.g.
 ``-p controller_options:="['file=/path/policy.onnx']"`` for ``onnx_policy``, docs/policies.md). A malformed
 item, a key given twice, options for a built-in mode, a plug-in's missing ``required_options`` or options its
 constructor refuses (a missing or malformed policy file) stop the node at start naming ``controller_options``). Each state becomes its ``Observation``: t = the stamp [s], step = the state's step,

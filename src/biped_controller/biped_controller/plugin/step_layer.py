@@ -27,8 +27,16 @@ and chooses the timing by the weighted cost min w_u (u - p_d)^2 + w_t (sigma - s
 
 held to the bounds T_r in [max(t_min T - t_s, dt_min), t_max T - t_s] (t_s [s] since the touchdown). When u then
 leaves the family's range [p_min, p_max] the range wins: sigma solves u = the violated bound (within the same
-bounds) and p* = u held to the range. A DCM error |xi - xi_n(tau)| below the dead band [m] counts as none, a
-larger one is reduced by it (xi -> xi_n + sign(e) (|e| - dead_band)). The targets handed on are the stride p*
+bounds) and p* = u held to the range. The DCM the measured one is compared with (in the dead band, in c and in the
+reported error) is, by default (``commanded_dcm``), the DCM of the reference the layer commands,
+
+    xi_r = x_r + x_r' / omega,   x_r = x_G(q_d(p, tau)),   x_r' = J_G(q_d) (dq/dp p' + dq/dtau tau')   [m]
+
+at the period's p, p', tau, tau' (so c = xi_r e^{omega (T - tau)}); with p = p_d, tau' = 1 it is xi_n(tau). The
+first law compared it with xi_n(tau) always (``commanded_dcm`` false), and so read its own quicker, longer
+reference as a DCM error (docs/step_layer.md, "The correction"). Below, xi_n stands for the compared DCM. A DCM
+error |xi - xi_n| below the dead band [m] counts as none, a larger one is reduced by it (xi -> xi_n + sign(e)
+(|e| - dead_band)). The targets handed on are the stride p*
 [m] and the time scaling tau'* = (T - tau) / T_r [-] (the reference reaches tau = T when the foot should land),
 held to [tau_dot_min, tau_dot_max] (``config/controller.yaml``, the other modes' limits). From
 ``freeze_phase`` T on (the swing foot landing) the targets are held.
@@ -56,7 +64,7 @@ reason), any of them overridden by the setup's options under its name without th
 :class:`StepLayerSettingsError` naming it.
 
 Status (per period): p [m], p_dot [m/s], p_ddot [m/s^2], tau [s], tau_dot [-], tau_ddot [1/s], p_target [m],
-tau_dot_target [-], dcm [m], dcm_error [m] (xi - xi_n(tau)), time_left [s], step_frozen, timing_adapted,
+tau_dot_target [-], dcm [m], dcm_error [m] (xi - the compared DCM), time_left [s], step_frozen, timing_adapted,
 wbc_status, wbc_deviation [rad/s^2], wbc_active (bit mask of the 17 rows), force_estimate [N], zmp [m],
 tightest, max_tracking_error [rad].
 """
@@ -77,6 +85,8 @@ from biped_controller.plugin.interface import ControllerSetup, ControlResult, Ob
 
 #: the prefix of the layer's keys in config/controller.yaml
 PREFIX = "step_layer_"
+#: the settings that are switches (true / false)
+BOOLEANS = ("whole_body", "disturbance_observer", "commanded_dcm")
 
 
 class StepLayerSettingsError(ValueError):
@@ -96,6 +106,7 @@ class StepLayerSettings:
     weight_time: float        # [-] w_t of (sigma - sigma_0)^2
     whole_body: bool          # the whole-body QP under the reference (False: plain computed torque)
     disturbance_observer: bool    # mode wbc's acceleration-residual observer feeds the QP's rows
+    commanded_dcm: bool       # the DCM error against the commanded reference's DCM (False: the preferred step's)
 
     @classmethod
     def keys(cls) -> list[str]:
@@ -113,7 +124,7 @@ class StepLayerSettings:
         finite_number(self.freeze_phase, PREFIX + "freeze_phase", above=0, at_most=1, error=StepLayerSettingsError)
         if self.weight_step + self.weight_time <= 0:
             raise StepLayerSettingsError(f"{PREFIX}weight_step and {PREFIX}weight_time must not both be 0")
-        for name in ("whole_body", "disturbance_observer"):
+        for name in BOOLEANS:
             if not isinstance(getattr(self, name), bool):
                 raise StepLayerSettingsError(f"{PREFIX}{name} must be true or false, got {getattr(self, name)!r}")
         return self
@@ -132,11 +143,11 @@ class StepLayerSettings:
             name = key[len(PREFIX):] if isinstance(key, str) and key.startswith(PREFIX) else key
             if name not in known:
                 raise StepLayerSettingsError(f"dcm_wbc: unknown option {key!r}; known: {sorted(known)}")
-            if name in ("whole_body", "disturbance_observer") and isinstance(value, str):
+            if name in BOOLEANS and isinstance(value, str):
                 if value.lower() not in ("true", "false", "1", "0", "on", "off"):
                     raise StepLayerSettingsError(f"{PREFIX}{name} must be true or false, got {value!r}")
                 value = value.lower() in ("true", "1", "on")
-            elif name not in ("whole_body", "disturbance_observer") and isinstance(value, str):
+            elif name not in BOOLEANS and isinstance(value, str):
                 try:
                     value = float(value)
                 except ValueError:
@@ -163,7 +174,7 @@ class DcmStepLayer:
     N_TABLE = 401      # points of xi_n over [0, T] (linear interpolation: micrometres on this gait)
 
     def __init__(self, reference, model, settings: StepLayerSettings, tau_dot_min: float, tau_dot_max: float):
-        self.ref, self.s = reference, settings
+        self.ref, self.model, self.s = reference, model, settings
         self.T, self.p_d, self.p_min, self.p_max = reference.T, reference.p_d, reference.p_min, reference.p_max
         self.tau_dot_min, self.tau_dot_max = float(tau_dot_min), float(tau_dot_max)
         taus = np.linspace(0.0, self.T, self.N_TABLE)
@@ -185,11 +196,21 @@ class DcmStepLayer:
         """The preferred step's DCM at phase ``tau`` [s] (held to [0, T])."""
         return float(np.interp(min(max(tau, 0.0), self.T), self.taus, self.xi_table))
 
-    def targets(self, xi: float, tau: float, since_touchdown: float) -> StepTargets:
-        """p*, T_r and tau'* for the DCM ``xi`` [m] at phase ``tau`` [s], ``since_touchdown`` [s] into the step."""
+    def reference_dcm(self, p: float, p_dot: float, tau: float, tau_dot: float) -> float:
+        """The commanded reference's DCM xi_r = x_r + x_r' / omega [m] at (p [m], p' [m/s], tau [s] held to
+        [0, T], tau' [-]): x_r = x_G(q_d(p, tau)), x_r' = J_G(q_d) (dq/dp p' + dq/dtau tau'). With p = p_d,
+        p' = 0 and tau' = 1 it is xi_n(tau) (to the table's interpolation)."""
+        g = self.ref.at(p, min(max(float(tau), 0.0), self.T))
+        st = self.model.com_state(g.q, g.dq_dp * p_dot + g.dq_dtau * tau_dot)
+        return float(st.position[0] + st.velocity[0] / self.omega)
+
+    def targets(self, xi: float, tau: float, since_touchdown: float, xi_ref: float | None = None) -> StepTargets:
+        """p*, T_r and tau'* for the DCM ``xi`` [m] at phase ``tau`` [s], ``since_touchdown`` [s] into the step,
+        ``xi_ref`` [m] the DCM it is compared with (the error xi - xi_ref, and c = xi_ref sigma_n); None: the
+        preferred step's xi_n(tau)."""
         s, om, T = self.s, self.omega, self.T
         tau = min(max(float(tau), 0.0), T)
-        xn = self.xi_n(tau)
+        xn = self.xi_n(tau) if xi_ref is None else float(xi_ref)
         e = float(xi) - xn
         xi = xn + math.copysign(max(abs(e) - s.dead_band, 0.0), e)
         c = xn * math.exp(om * (T - tau))
@@ -251,9 +272,10 @@ class DcmWholeBody:
         lay, T = self.layer, self.ref.T
         com = self.model.com_state(q, qd)
         xi = lay.dcm(com.position[0], com.velocity[0])
+        xi_ref = self._compared_dcm()
         frozen = self.tau >= self.s.freeze_phase * T
         if not frozen:
-            self.targets = lay.targets(xi, self.tau, float(obs.t) - self.t_step)
+            self.targets = lay.targets(xi, self.tau, float(obs.t) - self.t_step, xi_ref)
         kp, kv = self.cfg.kp, self.cfg.kv
         self.p_ddot = kp * (self.targets.p - self.p) - kv * self.p_dot
         self.tau_ddot = kv * (self.targets.tau_dot - self.tau_dot)
@@ -270,7 +292,7 @@ class DcmWholeBody:
         self.t_last, self.decided = float(obs.t), True
         status = {"p": self.p, "p_dot": self.p_dot, "p_ddot": self.p_ddot, "tau": self.tau,
                   "tau_dot": self.tau_dot, "tau_ddot": self.tau_ddot, "p_target": self.targets.p,
-                  "tau_dot_target": self.targets.tau_dot, "dcm": xi, "dcm_error": xi - lay.xi_n(self.tau),
+                  "tau_dot_target": self.targets.tau_dot, "dcm": xi, "dcm_error": xi - xi_ref,
                   "time_left": self.targets.time_left, "step_frozen": bool(frozen),
                   "timing_adapted": bool(self.targets.timing_adapted), "force_estimate": self.force,
                   "zmp": zmp, "tightest": int(tightest), "max_tracking_error": float(np.max(np.abs(ref.q - q))),
@@ -278,6 +300,13 @@ class DcmWholeBody:
         return ControlResult(np.asarray(torque, dtype=float), status)
 
     # ------------------------------------------------------------------ pieces
+    def _compared_dcm(self) -> float:
+        """The DCM the measured one is compared with [m]: the commanded reference's at this period's (p, p', tau,
+        tau') when ``commanded_dcm`` (the adopted law), else the preferred step's xi_n(tau) (the first law)."""
+        if self.s.commanded_dcm:
+            return self.layer.reference_dcm(self.p, self.p_dot, self.tau, self.tau_dot)
+        return self.layer.xi_n(self.tau)
+
     def _advance(self, h: float) -> None:
         """(p, p', tau, tau') over ``h`` [s] with the held p'', tau'' (exact for constant accelerations), p held
         to [p_min, p_max] (on a bound, the outward part of p' removed)."""

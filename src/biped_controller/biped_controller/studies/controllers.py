@@ -33,14 +33,20 @@ from pathlib import Path
 import numpy as np
 
 from biped_controller.plugin.interface import ControllerFault, ControlResult, InterfaceError
+from biped_controller.plugin.options import SWITCH_WORDS as OPTION_SWITCH_WORDS
 from biped_controller.plugin.options import ControllerOptionError, parse_option
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               load_registration, registered, summary)
 
 
-def _option(text: str) -> tuple[str, float | str]:
-    """KEY=VALUE (``plugin.options.parse_option``, the controller node's ``controller_options`` parser): the
-    value a number where it reads as one, else the word or path as given (e.g. ``file=policies/x/policy.onnx``)."""
+#: the words ``--option`` reads as a switch (any case; ``plugin.options``)
+SWITCH_WORDS = OPTION_SWITCH_WORDS
+
+
+def _option(text: str) -> tuple[str, float | bool | str]:
+    """``KEY=VALUE`` (``plugin.options.parse_option``, also the controller node's ``controller_options``
+    parser): VALUE a number (float) where it reads as one, a switch for ``true`` / ``false`` (bool, any case,
+    e.g. ``whole_body=false``), else the word or path as given (e.g. ``file=policies/x/policy.onnx``)."""
     try:
         return parse_option(text, "--option")
     except ControllerOptionError as exc:
@@ -83,7 +89,8 @@ def _numbers(x) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m biped_controller.studies.controllers",
+    from biped_controller.studies.trial.args import StudyArgumentParser, add_robot_arg, settings_from_args
+    ap = StudyArgumentParser(prog="python -m biped_controller.studies.controllers",
                                  description="Controllers behind the controller interface.")
     sub = ap.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="the registered controllers, one a line")
@@ -92,14 +99,19 @@ def main(argv: list[str] | None = None) -> int:
     chk.add_argument("name")
     chk.add_argument("--time", type=float, default=0.0,
                      help="the synthetic observation's time t [s] (default 0: a run's first period)")
-    chk.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE")
+    chk.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE (a number, true/false, or a word such as a file name)")
+    add_robot_arg(chk)
     mp = sub.add_parser("max-push", help="largest survivable push at the paper's cell")
     mp.add_argument("name")
     mp.add_argument("--plant", choices=("rigid", "mujoco"), default="rigid")
-    mp.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE")
-    mp.add_argument("--resolution", type=float, default=5.0, help="bisection resolution [N]")
-    mp.add_argument("--max", type=float, default=2000.0, help="largest force scanned [N]")
-    mp.add_argument("--coarse", type=float, default=50.0, help="coarse scan step [N]")
+    mp.add_argument("--option", type=_option, action="append", default=[], help="controller option KEY=VALUE (a number, true/false, or a word such as a file name)")
+    mp.add_argument("--resolution", type=float, default=None,
+                    help="bisection resolution [N] (default 5, scaled with the robot's M sqrt(g L))")
+    mp.add_argument("--max", type=float, default=None,
+                    help="largest force scanned [N] (default 2000, scaled with the robot's M sqrt(g L))")
+    mp.add_argument("--coarse", type=float, default=None,
+                    help="coarse scan step [N] (default 50, scaled with the robot's M sqrt(g L))")
+    add_robot_arg(mp)
     mp.add_argument("--start", type=float, default=None, help="push onset [s] (default the paper's, 0.2315 s)")
     mp.add_argument("--duration", type=float, default=None, help="push duration [s] (default the paper's, 0.025 s)")
     mp.add_argument("--backward", action="store_true", help="push backwards (on the chest) instead")
@@ -129,6 +141,9 @@ def main(argv: list[str] | None = None) -> int:
     except (UnknownControllerError, ControllerLoadError, InterfaceError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    # the robot (--robot, checked: one line naming the file, exit 2) and, for max-push, its plant's settings
+    settings = settings_from_args(ap, argparse.Namespace(robot=args.robot, overrides=(
+        [f"plant={args.plant}"] if args.cmd == "max-push" else [])))
     if args.cmd == "check":
         print(f"{args.name}: {cls.__module__}.{cls.__qualname__} satisfies the interface: {summary(cls)}")
         if not (math.isfinite(args.time) and args.time >= 0.0):
@@ -157,12 +172,16 @@ def main(argv: list[str] | None = None) -> int:
     except (OverrideError, PerturbationError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    from biped_sim.plant.config import load_sim_config      # the plant and the studies only for a run
-    from biped_controller.studies import provenance
+    from biped_controller.studies import provenance        # the plant and the studies only for a run
+    from biped_controller.studies.trial.context import context, scaled_force
     from biped_controller.studies.trial.plugin_trials import PushTrials
-    provenance.track(args.json, plant=args.plant, argv=argv)   # record of the file written (results/README.md)
-    trials = PushTrials(args.name, sim_config=load_sim_config(plant=args.plant), options=dict(args.option),
-                        perturbation=perturbation)
+    for name, default in (("resolution", 5.0), ("max", 2000.0), ("coarse", 50.0)):
+        if getattr(args, name) is None:
+            setattr(args, name, scaled_force(default, settings.robot))
+    provenance.track(args.json, plant=args.plant, args=args, argv=argv)   # record of the file written (results/README.md)
+    ctx = context(settings.robot)
+    trials = PushTrials(args.name, sim_config=settings.sim_config(), family=ctx.family, desc=ctx.desc,
+                        options=dict(args.option), perturbation=perturbation)
     r = trials.max_push(args.resolution, args.max, args.coarse, duration=duration, start=start,
                         sign=-1.0 if args.backward else 1.0)
     ff = "none" if r["first_failure"] is None else f"{r['first_failure']:g} N"

@@ -1,6 +1,8 @@
-"""Figures of the reference gait family (robots/biped7/gait_family.json), written as PNG files.
+"""Figures of a robot's gait family (default robots/biped7/gait_family.json), written as PNG files.
 
-Run through ``scripts/figures [--out results/gait_family] [--family FILE]``:
+Run through ``scripts/figures [--robot NAME|PATH] [--out DIR] [--family FILE]``: ``--robot`` the robot
+(its description draws the links and the foot; its family, stamp-checked, unless ``--family``); ``--out``
+default ``results/gait_family`` for the default robot, ``results/robots/<name>/gait_family`` for another:
 
   gait_stick_diagram.png   the preferred step (paper's Fig. 2): the links at 11 instants, stance foot
                            fixed at the origin, with the swing ankle's (and heel's and toe's) path
@@ -175,9 +177,17 @@ def zmp_figure(fam: GaitFamily, model: FixedFootModel, path: Path) -> Path:
     return path
 
 
-def make_all(out: Path, family: Path | None = None) -> list[Path]:
-    fam = GaitFamily.load(family)
-    model = FixedFootModel(load_description())
+def make_all(out: Path, family: Path | None = None, robot: str | None = None) -> list[Path]:
+    """The three figures of ``robot``'s family (or of the family file ``family``, drawn with ``robot``'s
+    description; None: the default robot) into ``out``."""
+    if robot is None:
+        fam, desc = GaitFamily.load(family), load_description()
+    else:
+        from biped_model.robot import resolve_robot
+        r = resolve_robot(robot)
+        desc = r.description()
+        fam = GaitFamily.load(family) if family is not None else r.family()
+    model = FixedFootModel(desc)
     out.mkdir(parents=True, exist_ok=True)
     return [stick_diagram(fam, model, out / "gait_stick_diagram.png"),
             family_joints(fam, out / "gait_family_joints.png"),
@@ -185,13 +195,30 @@ def make_all(out: Path, family: Path | None = None) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="scripts/figures", description=__doc__,
+    from biped_controller.studies.trial.args import StudyArgumentParser
+    ap = StudyArgumentParser(prog="scripts/figures", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=repo_root() / "results" / "gait_family")
-    ap.add_argument("--family", type=Path, default=default_robot_dir() / "gait_family.json")
+    ap.add_argument("--robot", default=None, metavar="NAME|PATH",
+                    help="the robot: a name under robots/ or a robot directory (default biped7; docs/robots.md)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="default results/gait_family (default robot), results/robots/<name>/gait_family (another)")
+    ap.add_argument("--family", type=Path, default=None, help="a family file (default the robot's)")
     args = ap.parse_args(argv)
+    from biped_model.robot import RobotError, resolve_robot
+    try:
+        r = resolve_robot(args.robot)
+        r.description()
+        if args.family is None:
+            r.check_stamp()
+    except RobotError as exc:
+        ap.error(str(exc))
+    robot = None if r.is_default else str(r.directory)
+    if args.family is None and robot is None:
+        args.family = default_robot_dir() / "gait_family.json"
+    if args.out is None:
+        args.out = repo_root() / "results" / ("gait_family" if robot is None else f"robots/{r.name}/gait_family")
     provenance.track(args.out, args=args, argv=argv)   # record of each file written (results/README.md)
-    for p in make_all(args.out, args.family):
+    for p in make_all(args.out, args.family, robot):
         print(p)
     return 0
 

@@ -1,12 +1,12 @@
 """The torso parameter's results: cost in tracking and energy, and the p / tau / lambda figure.
 
     python -m biped_controller.studies.torso cost [--force 500] [--start 0.2315] [--duration 0.025]
-        [--modes both,lambda,all] [--backward] [--steps 12] [--json FILE]
+        [--modes both,lambda,all] [--backward] [--steps 12] [--robot NAME|PATH] [--json FILE]
     python -m biped_controller.studies.torso figure --force F [--start S] [--duration D] [--backward]
-        [--modes both,all] --out FILE.png [--json FILE]
+        [--modes both,all] [--robot NAME|PATH] --out FILE.png [--json FILE]
 
 ``cost``: one push (or none, ``--force 0``) per mode, the in-process closed loop on the rigid plant
-(``runner.run``, ``steps`` impacts), and per mode: survival (``trial.survival``), the largest and the
+(``trial.runs.run``, ``steps`` impacts, on the ``--robot``), and per mode: survival (``trial.survival``), the largest and the
 rms tracking error max_i |q_d,i - q_i| [rad] over the run (q_d = q_d(p, tau, lambda), the controller's own
 reference), the actuators' absolute work sum_k sum_i |Gamma_i q'_i| dt_k [J] and the torque-squared
 integral sum_k |Gamma|^2 dt_k [N^2 m^2 s] (a Joule-loss proxy), both over the same time span for every
@@ -30,30 +30,31 @@ from pathlib import Path
 import numpy as np
 
 from biped_sim.plant.push import Push
-from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, nonnegative_float,
-                                                 positive_float, positive_int)
+from biped_controller.studies.trial.args import (StudyArgumentParser, add_modes_arg, add_robot_arg,
+                                                 nonnegative_float, positive_float, positive_int, settings_from_args)
 from biped_controller.studies.trial.context import context
-from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START
-from biped_controller.studies.trial.settings import DEFAULT_SETTINGS
+from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, run
+from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
 from biped_controller.studies.trial import trials
 from biped_controller.studies.trial.survival import FLOOR_BAND, survival_rule
-from biped_controller.closed_loop.runner import RunResult, run
+from biped_controller.closed_loop.runner import RunResult
 from biped_controller.studies import provenance
 
 
-def push_runs(push: Push, modes, steps: int) -> dict[str, RunResult]:
-    """One run of ``steps`` impacts per mode with ``push`` (a zero force: no push)."""
+def push_runs(push: Push, modes, steps: int, settings: RunSettings = DEFAULT_SETTINGS) -> dict[str, RunResult]:
+    """One run of ``steps`` impacts per mode with ``push`` (a zero force: no push), on the robot and the
+    plant of ``settings``."""
     pushes = (push,) if push.force != 0 else ()
-    return {m: run(steps, m, pushes) for m in modes}
+    return {m: run(steps, m, pushes, settings=settings) for m in modes}
 
 
-def costs(runs: dict[str, RunResult], push_end: float) -> dict:
+def costs(runs: dict[str, RunResult], push_end: float, settings: RunSettings = DEFAULT_SETTINGS) -> dict:
     """Per mode: survival, tracking error (max, rms) [rad], absolute work [J], torque-squared integral
     [N^2 m^2 s] over the common horizon [s] (the shortest run's end), largest |lambda| [rad]."""
     horizon = min(r.records[-1].t_end for r in runs.values())
     out = {"horizon_s": horizon, "modes": {}}
     for m, r in runs.items():
-        band = FLOOR_BAND if r.fallen else trials.walk_band(m, DEFAULT_SETTINGS, r.steps_walked)
+        band = FLOOR_BAND if r.fallen else trials.walk_band(m, settings, r.steps_walked)
         v = survival_rule().verdict(r, push_end, band)
         ok, why = v.survived, v.reason
         keep = [k for k, rec in enumerate(r.records) if rec.t < horizon]
@@ -115,19 +116,21 @@ def main(argv=None) -> int:
         add_modes_arg(a, ("both", "lambda", "all") if name == "cost" else ("both", "all"),
                       "both,lambda,all" if name == "cost" else "both,all", controller=False)
         a.add_argument("--steps", type=positive_int, default=12, help="impacts to walk")
+        add_robot_arg(a)
         a.add_argument("--json", type=Path)
         if name == "figure":
             a.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
+    settings = settings_from_args(ap, args)
     provenance.track(getattr(args, "json", None), getattr(args, "out", None), args=args, argv=argv)   # record of each file written (results/README.md)
     if not (math.isfinite(args.force) and args.force >= 0):
         ap.error(f"--force must be a finite number >= 0 (use --backward for the sign), got {args.force}")
     force = -args.force if args.backward else args.force
     push = Push(args.start, args.duration, force)
-    runs = push_runs(push, args.modes, args.steps)
+    runs = push_runs(push, args.modes, args.steps, settings)
     push_end = args.start + args.duration
     res = {"argv": list(sys.argv[1:] if argv is None else argv), "force": force, "start": args.start,
-           "duration": args.duration, **costs(runs, push_end)}
+           "duration": args.duration, **costs(runs, push_end, settings)}
     print(f"push {force:g} N for {args.duration:g} s at t = {args.start:g} s; sums over the first {res['horizon_s']:.3f} s")
     print(f"{'mode':<7} {'survived':<9} {'max err':>9} {'rms err':>9} {'|work| J':>9} {'int G^2':>10} {'max|lam|':>9}")
     for m, c in res["modes"].items():

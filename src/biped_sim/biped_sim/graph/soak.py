@@ -1,4 +1,5 @@
-"""Soak run over DDS: ``python -m biped_sim.graph.soak [--minutes N] [--json FILE] [--seed S] [--bag DIR]``.
+"""Soak run over DDS: ``python -m biped_sim.graph.soak [--minutes N] [--json FILE] [--seed S] [--bag DIR]
+[--robot NAME|PATH]``.
 
 1. launches the node graph (``biped_sim.graph.launch``, ``--steps 0``, simulator ``max_time`` = N minutes of
    sim time) with the bag under ``runs/soak_<timestamp>/``;
@@ -53,6 +54,23 @@ MEMORY_GROWTH_LIMIT = 0.10
 
 
 # ----------------------------------------------------------------------------- plan
+def robot_force_scale(robot: str | None) -> float:
+    """The ratio of ``robot``'s M sqrt(g L) to the default robot's (M total mass [kg], L leg length [m]):
+    a push of the same dimensionless impulse F dt / (M sqrt(g L)) is this many times the default robot's
+    force. Exactly 1.0 for the default robot (or None). Raises ``RobotError`` naming a robot that cannot be
+    used (its directory, its description or its family's stamp)."""
+    from biped_model.description import load_description
+    from biped_model.robot import description_hash, resolve_robot
+    if robot is None:
+        return 1.0
+    r = resolve_robot(robot)
+    d, b = r.description(), load_description()
+    r.check_stamp()
+    if description_hash(d) == description_hash(b):
+        return 1.0
+    return (d.total_mass * math.sqrt(d.gravity * d.leg_length)) / (b.total_mass * math.sqrt(b.gravity * b.leg_length))
+
+
 def push_plan(total_time: float, seed: int, every: float = 3.0, min_force: float = 80.0,
               max_forward: float = 150.0, max_backward: float = 150.0, first: float = 5.0,
               tail: float = 1.5) -> list[dict]:
@@ -136,7 +154,8 @@ def push_delay(planned_start: float, seen_sim_time: float, min_lead: float, not_
 
 def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_force: float = 80.0,
              max_forward: float = 150.0, max_backward: float = 150.0, lead: float = 1.0, min_lead: float = 0.5,
-             mem_every: float = 10.0, timeout: float | None = None, real_time_factor: float = 1.0) -> dict:
+             mem_every: float = 10.0, timeout: float | None = None, real_time_factor: float = 1.0,
+             robot: str | None = None) -> dict:
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy
     from rclpy.signals import SignalHandlerOptions
@@ -157,6 +176,8 @@ def run_soak(minutes: float, bag: Path, seed: int = 1, every: float = 3.0, min_f
         cmd = [sys.executable, '-m', 'biped_sim.graph.launch', '--bag', str(bag), '--steps', '0',
                '--sim-param', f'max_time:={total}', '--sim-param', 'linger:=1.0',
                '--sim-param', f'real_time_factor:={real_time_factor}', '--ready-file', str(ready)]
+        if robot is not None:
+            cmd += ['--robot', str(robot)]
         launcher = subprocess.Popen(cmd)
         ctx = rclpy.Context()
         rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
@@ -298,11 +319,15 @@ def main(argv=None) -> int:
     ap.add_argument('--bag', type=Path, default=None)
     ap.add_argument('--seed', type=int, default=1)
     ap.add_argument('--every', type=float, default=3.0, help='mean sim s between pushes')
-    ap.add_argument('--min-force', type=float, default=80.0)
-    ap.add_argument('--max-forward', type=float, default=150.0)
-    # within the capability map's weakest boundaries for 0.025 s pushes in mode both (backward 193.75 N at
+    # [N] for the default robot, scaled for another by its M sqrt(g L) (robot_force_scale): within the
+    # capability map's weakest boundaries for 0.025 s pushes in mode both (backward 193.75 N at
     # phase 0.25, forward 353 N at 0.85; docs/capability_map.md): a soak tests the software, not the robot
-    ap.add_argument('--max-backward', type=float, default=150.0)
+    ap.add_argument('--min-force', type=float, default=None, help='[N] (default 80, scaled for --robot)')
+    ap.add_argument('--max-forward', type=float, default=None, help='[N] (default 150, scaled for --robot)')
+    ap.add_argument('--max-backward', type=float, default=None, help='[N] (default 150, scaled for --robot)')
+    ap.add_argument('--robot', default=None, metavar='NAME|PATH',
+                    help='the robot the graph walks: a name under robots/ or a robot directory (default biped7; '
+                         'docs/robots.md); the force defaults and the 250 N bound scale with its M sqrt(g L)')
     ap.add_argument('--timeout', type=float, default=None, help='wall s (default 600 + 30 per sim s)')
     ap.add_argument('--real-time-factor', type=float, default=1.0,
                     help="the simulator's pacing (1.0: sim time follows the wall clock, as a robot would; the "
@@ -318,15 +343,24 @@ def main(argv=None) -> int:
         ap.error('--real-time-factor must be in (0, 2]')
     if not a.minutes > 0:
         ap.error('--minutes must be > 0')
+    try:
+        k = robot_force_scale(a.robot)
+    except ValueError as exc:      # RobotError / DescriptionError: one line naming the file or the field
+        print(f'soak: error: {exc}', file=sys.stderr)
+        return 2
+    for name, default in (('min_force', 80.0), ('max_forward', 150.0), ('max_backward', 150.0)):
+        if getattr(a, name) is None:
+            setattr(a, name, default if k == 1.0 else round(default * k, 3))
+    bound = 250.0 if k == 1.0 else round(250.0 * k, 3)
     for name in ('max_forward', 'max_backward'):
-        if not 0 < getattr(a, name) <= 250:
-            ap.error(f'--{name.replace("_", "-")} must be in (0, 250] N')
+        if not 0 < getattr(a, name) <= bound:
+            ap.error(f'--{name.replace("_", "-")} must be in (0, {bound:g}] N')
     from biped_model.settings import repo_root
     bag = (a.bag or repo_root() / 'runs' / f'soak_{_dt.datetime.now().strftime("%Y%m%d_%H%M%S")}').resolve()
     bag.parent.mkdir(parents=True, exist_ok=True)
     r = run_soak(a.minutes, bag, seed=a.seed, every=a.every, min_force=a.min_force, max_forward=a.max_forward,
                  max_backward=a.max_backward, lead=a.lead, min_lead=a.min_lead, timeout=a.timeout,
-                 real_time_factor=a.real_time_factor)
+                 real_time_factor=a.real_time_factor, robot=a.robot)
     print_summary(r)
     if a.json:
         a.json.write_text(json.dumps(r, indent=2, default=float) + '\n')

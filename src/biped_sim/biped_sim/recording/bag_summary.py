@@ -96,7 +96,7 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
 
     path = find_mcap(bag)
     decode_topics = {gn.SIM_STATE, gn.GROUND_REACTION, gn.PUSH_EVENTS, gn.PUSH_REQUESTS, gn.FALL,
-                     gn.CONTROLLER_STATUS, gn.SIM_PUSH}
+                     gn.CONTROLLER_STATUS, gn.SIM_PUSH, gn.ROBOT_DESCRIPTION}
     stamp_topics = {gn.CLOCK: 4, gn.IMU: 4, gn.CONTROLLER_TORQUE: 4, gn.JOINT_STATES: 4, gn.GROUND_REACTION_COP: 4,
                     gn.TF: 8}
     counts: dict[str, int] = {}
@@ -106,6 +106,7 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
     events, requests, falls, applied = [], [], [], []
     qp_counts: dict[int, int] = {}
     last_status = None
+    urdf = None            # the bag's /robot_description: the robot the graph walked (any robot, not only the default)
     factory = DecoderFactory()
     decoders = {}
     with open(path, 'rb') as fh:
@@ -136,6 +137,8 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
             elif topic == gn.GROUND_REACTION:
                 wrench_t.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
                 wrench_fx.append(m.wrench.force.x)
+            elif topic == gn.ROBOT_DESCRIPTION:
+                urdf = m.data
             elif topic == gn.PUSH_EVENTS:
                 events.append(dict(id=int(m.id), start=m.start, duration=m.duration, force=m.force, height=m.height))
             elif topic == gn.PUSH_REQUESTS:
@@ -200,7 +203,7 @@ def analyze_bag(bag, planned: list[dict] | None = None) -> dict:
             if e is None or e['start'] != p['start'] or e['force'] != p['force'] or e['duration'] != p['duration']:
                 problems.append(f'requested push {p} not found as such in /push_events ({e})')
     # effect: impulse from the whole-body horizontal momentum and the ground's horizontal impulse
-    fm = FloatingModel()
+    fm = FloatingModel(urdf=urdf)
     t_state = st_stamp_a * 1e-9
     q_a = np.array(q)[order] if n else np.zeros((0, 6))
     qd_a = np.array(qd)[order] if n else np.zeros((0, 6))
