@@ -399,7 +399,7 @@ def test_cli_max_push_on_a_perturbed_plant(tmp_path, capsys):
 def test_the_node_builds_every_controller_through_the_interface():
     """The controller node's one route: a built-in mode is the registry's class built with the node's controller
     settings as its options (the adaptive controller inside has exactly those settings) and returns its whole
-    status as the result's record; a plug-in gets no options and its result has no record."""
+    status as the result's record; a plug-in given no options gets none and its result has no record."""
     pytest.importorskip("rclpy")
     from dataclasses import replace
 
@@ -417,3 +417,47 @@ def test_the_node_builds_every_controller_through_the_interface():
     ct = build_controller(f"{__name__}:ClassicalComputedTorque", lp.desc, lp.family, cfg)
     assert isinstance(ct.inner, ClassicalComputedTorque)
     assert ct.compute(Observation.frozen(0.0, 0, 0, q0, qd0, np.nan, np.nan, np.zeros(6), 0)).record is None
+
+
+class _OptionsProbe(ClassicalComputedTorque):
+    """ClassicalComputedTorque keeping its setup's options (for the node's controller_options)."""
+
+    def __init__(self, setup: ControllerSetup):
+        super().__init__(setup)
+        self.options = dict(setup.options)
+        if setup.options.get("refuse"):
+            raise ValueError("refused by the plug-in")
+
+
+def test_node_controller_options_reach_a_plug_in_and_bad_ones_name_the_parameter(tmp_path):
+    """``controller_options`` parsed by the study commands' parser (``plugin.options``) reach a plug-in's
+    setup as they are; a malformed item, a repeated key, options for a built-in mode and options the plug-in
+    refuses raise ParameterError naming ``controller_options``; the node's provenance gives an option's file
+    with hashlib's SHA-256 of it."""
+    pytest.importorskip("rclpy")
+    import hashlib
+    from biped_sim.graph.params import ParameterError
+    from biped_controller.graph.controller_node import build_controller
+    from biped_controller.plugin.options import ControllerOptionError, parse_options
+    from biped_controller.plugin.provenance import controller_provenance
+    from biped_controller.studies.controllers import _option
+    f = tmp_path / "gains.txt"
+    f.write_text("not a policy\n")
+    opts = parse_options(["gain=2.5", f"file={f}", "label=a=b", "switch=False"], "controller_options")
+    assert opts == {"gain": 2.5, "file": str(f), "label": "a=b", "switch": False}
+    assert [_option(t) for t in ("gain=2.5", f"file={f}")] == list(opts.items())[:2]   # the --option parser's
+    for bad, what in ((["gain"], "takes KEY=VALUE"), (["=1"], "takes KEY=VALUE"), (["gain="], "value is empty"),
+                      (["a=1", "a=2"], "given twice")):
+        with pytest.raises(ControllerOptionError, match=what):
+            parse_options(bad, "controller_options")
+    lp = plugin_loop.PluginLoop("none")
+    cfg = load_controller_config(mode="both", period=lp.scfg.control_period)
+    c = build_controller(f"{__name__}:_OptionsProbe", lp.desc, lp.family, cfg, opts)
+    assert c.inner.options == opts
+    for name, options in (("both", {"gain": 1.0}), (f"{__name__}:_OptionsProbe", {"refuse": 1.0}),
+                          ("onnx_policy", {}), ("onnx_policy", {"file": str(tmp_path / "none.onnx")})):
+        with pytest.raises(ParameterError, match="'controller_options'"):
+            build_controller(name, lp.desc, lp.family, cfg, options)
+    info = controller_provenance("probe", opts, c)
+    assert info["controller"] == "probe" and info["options"] == opts
+    assert info["files"] == {"file": {"path": str(f.resolve()), "sha256": hashlib.sha256(f.read_bytes()).hexdigest()}}

@@ -21,6 +21,11 @@ and ``Observation.pitch_rate`` (the state estimator fuses the pitch, and the rat
 without the estimator neither is used). Without ``use_imu`` both are NaN (no IMU). An IMU message that is not
 the planar torso IMU is logged naming the field and dropped (the simulator then reports the missing torque).
 
+At start it publishes the latched ``/controller/info`` (``std_msgs/String``, YAML of
+``plugin.provenance.controller_provenance``: ``controller``, ``options``, the SHA-256 of every file an option
+names, a policy's ``policy_file`` and ``policy_sha256``; a built-in mode's ``mode``), which the recorder
+also writes as the bag's metadata record ``biped_controller``.
+
 For every ``/sim/state`` (SimState) it computes the torque and publishes
 - ``/controller/torque`` (sensor_msgs/JointState): ``name`` = ``description.PAPER_JOINTS``,
   ``effort`` = paper torques q1..q6 [N m], ``header.stamp`` = the state's stamp;
@@ -41,7 +46,12 @@ controller in ``mode``): a built-in mode's name sets ``mode``, any other name (a
 entry point or ``module:Class``, ``biped_controller.plugin.registry``) names that controller. Every
 controller runs behind the controller interface (``biped_controller.plugin.interface``, built from the
 description, the gait family and ``control_period``; a built-in mode's options are the controller
-parameters above, a plug-in gets none). Each state becomes its ``Observation``: t = the stamp [s], step = the state's step,
+parameters above, a plug-in's are the parameter ``controller_options``: a string array of ``KEY=VALUE``
+(default ``config/graph.yaml``: ``[]``), parsed by ``plugin.options.parse_options``, the parser of the study
+commands' ``--option`` (a value a float where it reads as one, ``true`` / ``false`` a bool, else the text; e.g.
+``-p controller_options:="['file=/path/policy.onnx']"`` for ``onnx_policy``, docs/policies.md). A malformed
+item, a key given twice, options for a built-in mode, a plug-in's missing ``required_options`` or options its
+constructor refuses (a missing or malformed policy file) stop the node at start naming ``controller_options``). Each state becomes its ``Observation``: t = the stamp [s], step = the state's step,
 the sensed q, q', stance, the IMU's pitch and rate (NaN without ``use_imu``), and the previous period's torque
 clipped to the description's torque limits (what the nominal plant applies); a stance change is announced
 by ``on_touchdown`` before ``compute``. Its torque is published as above; a plug-in's status keys that
@@ -62,9 +72,11 @@ import time
 from typing import Optional
 
 import numpy as np
+import yaml
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
 
 from biped_msgs_py.msg import ControllerStatus, SimState
 from biped_sim.graph import cdr
@@ -80,6 +92,7 @@ from biped_sim.graph.params import (
     get_bool,
     get_float,
     get_str,
+    get_str_list,
     load_robot_files,
     run_node,
 )
@@ -91,6 +104,8 @@ from biped_controller.core.control.status import ControllerStatusData
 from biped_controller.plugin.builtin import compiled_mode
 from biped_controller.plugin.interface import (ControllerFault, ControllerSetup, GuardedController, InterfaceError,
                                                Observation, stamp_time)
+from biped_controller.plugin.options import ControllerOptionError, parse_options
+from biped_controller.plugin.provenance import controller_provenance
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               make_controller)
 
@@ -168,18 +183,41 @@ PLUGIN_STATUS_FIELDS: dict[str, object] = {name: conv for name, conv in STATUS_F
                                            if conv in (int, float) and name not in ('step', 'stance')}
 
 
-def build_controller(name: str, desc, family, cfg: ControllerConfig) -> GuardedController:
+def build_controller(name: str, desc, family, cfg: ControllerConfig,
+                     options: Optional[dict] = None) -> GuardedController:
     """The registered controller ``name`` (a built-in mode or a plug-in) built and reset for a run starting in
     LEFT stance at t = 0, with the period ``cfg.period`` [s]; a built-in mode (``plugin.builtin.compiled_mode``)
-    gets ``cfg``'s settings as its options, a plug-in none. ParameterError naming ``controller`` when it cannot
-    be found, loaded, or fails its reset."""
+    gets ``cfg``'s settings as its options, a plug-in ``options`` (the parsed ``controller_options``).
+    ParameterError naming ``controller`` when it cannot be found or loaded; naming ``controller_options`` when
+    options are given to a built-in mode, a plug-in's ``required_options`` are missing, or the plug-in refuses
+    its options (its constructor or reset raises)."""
+    options = dict(options or {})
     try:
-        builtin = compiled_mode(load_controller(name)) is not None
-        options = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ('mode', 'period')} if builtin else {}
+        cls = load_controller(name)
+    except (UnknownControllerError, ControllerLoadError) as exc:
+        raise ParameterError('controller', str(exc)) from exc
+    builtin = compiled_mode(cls) is not None
+    if builtin and options:
+        raise ParameterError('controller_options', f"{sorted(options)}: the built-in mode {name!r} takes its "
+                             f"settings as this node's own parameters (config/controller.yaml's keys), not options")
+    missing = [k for k in (getattr(cls, 'required_options', ()) or ()) if k not in options]
+    if missing:
+        raise ParameterError('controller_options', f"controller {name!r} needs the option(s) "
+                             f"{', '.join(missing)}: e.g. controller_options:=\"['{missing[0]}=...']\"")
+    if builtin:
+        options = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ('mode', 'period')}
+    try:
         ctrl = make_controller(name, ControllerSetup(desc, family, cfg.period, options))
         ctrl.reset(0.0, LEFT)
-    except (UnknownControllerError, ControllerLoadError, InterfaceError, ControllerFault) as exc:
+    except (UnknownControllerError, ControllerLoadError) as exc:
         raise ParameterError('controller', str(exc)) from exc
+    except (InterfaceError, ControllerFault) as exc:
+        raise ParameterError('controller_options' if options and not builtin else 'controller', str(exc)) from exc
+    except Exception as exc:    # the plug-in's own constructor refuses its options (e.g. PolicyFileError)
+        if builtin:
+            raise
+        raise ParameterError('controller_options' if options else 'controller',
+                             f"controller {name!r} with options {options}: {type(exc).__name__}: {exc}") from exc
     return ctrl
 
 
@@ -199,15 +237,25 @@ class ControllerNode(Node):
         self._cdr_torque, self._cdr_status = cdr.JointState(), cdr.ControllerStatus()
         desc, family = load_robot_files(self)
         name = get_str(self, 'controller')
+        try:
+            self.controller_options = parse_options(get_str_list(self, 'controller_options'), 'controller_options')
+        except ControllerOptionError as exc:
+            raise ParameterError('controller_options', str(exc)) from exc
         if name in MODES:
             self.cfg = dataclasses.replace(self.cfg, mode=name).validate()
         # one route for every controller: the interface (a built-in mode included, its compiled period inside)
         self.controller_name = name or self.cfg.mode
-        self.controller = build_controller(self.controller_name, desc, family, self.cfg)
+        self.controller = build_controller(self.controller_name, desc, family, self.cfg, self.controller_options)
         self._torque_min, self._torque_max = (np.array(v, dtype=float) for v in desc.torque_limits())
         self._last_torque, self._last_stance, self._faulted = np.zeros(6), None, False
         self.pub_torque = self.create_publisher(JointState, gn.CONTROLLER_TORQUE, gn.QOS_LOCKSTEP)
         self.pub_status = self.create_publisher(ControllerStatus, gn.CONTROLLER_STATUS, gn.QOS_SENSOR)
+        # latched: the run's controller, its options and the hashes of the files it reads (plugin.provenance)
+        self.info = controller_provenance(self.controller_name, self.controller_options, self.controller)
+        if self.controller_name in MODES:
+            self.info['mode'] = self.cfg.mode
+        self.pub_info = self.create_publisher(String, gn.CONTROLLER_INFO, gn.QOS_LATCHED)
+        self.pub_info.publish(String(data=yaml.safe_dump(self.info, sort_keys=False)))
         self.state_sub = None
         self.imu_sub = None
         # stamp [ns] -> the IMU's (pitch [rad], pitch rate [rad/s]), not yet used
@@ -224,6 +272,8 @@ class ControllerNode(Node):
         # the simulator is gone or not started yet
         self.create_timer(0.05, self._on_timer, clock=Clock(clock_type=ClockType.STEADY_TIME))
         what = f'mode {self.cfg.mode}' if self.controller_name == self.cfg.mode else f'controller {self.controller_name!r}'
+        if self.controller_options:
+            what += f' with options {self.controller_options}'
         self.get_logger().info(f'controller ready: {what}, period {self.cfg.period} s, profile '
                                f'{self.get_parameter("profile").value}, publishing '
                                f'{"CDR bytes" if self.publish_cdr else "message objects"}')

@@ -189,3 +189,14 @@ class OnnxPolicy(PolicyController):
         self.runner = OnnxRunner(path)
         self.metadata = meta
         super().__init__(setup, self.runner, policy_period=period)
+
+    def provenance(self) -> dict:
+        """The policy's files for a run's record (``plugin.provenance``): the ONNX file's absolute path and
+        SHA-256, the ``policy.json`` beside it (its SHA-256, when there is one) and the policy period [s]."""
+        from biped_controller.plugin.provenance import file_sha256
+        path = self.runner.path.resolve()
+        out = {"policy_file": str(path), "policy_sha256": file_sha256(path), "policy_period": self.policy_period}
+        meta = path.with_name("policy.json")
+        if meta.is_file():
+            out["policy_json_sha256"] = file_sha256(meta)
+        return out

@@ -33,28 +33,24 @@ from pathlib import Path
 import numpy as np
 
 from biped_controller.plugin.interface import ControllerFault, ControlResult, InterfaceError
+from biped_controller.plugin.options import SWITCH_WORDS as OPTION_SWITCH_WORDS
+from biped_controller.plugin.options import ControllerOptionError, parse_option
 from biped_controller.plugin.registry import (ControllerLoadError, UnknownControllerError, load_controller,
                                               load_registration, registered, summary)
 
 
-#: the words ``--option`` reads as a switch (any case)
-SWITCH_WORDS = {"true": True, "false": False}
+#: the words ``--option`` reads as a switch (any case; ``plugin.options``)
+SWITCH_WORDS = OPTION_SWITCH_WORDS
 
 
 def _option(text: str) -> tuple[str, float | bool | str]:
-    """``KEY=VALUE``: VALUE a number (float) where it reads as one, a switch for ``true`` / ``false`` (bool, any
-    case, e.g. ``whole_body=false``), else the word or path as given (e.g. ``file=policies/x/policy.onnx``)."""
-    key, sep, value = text.partition("=")
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"--option takes KEY=VALUE, got {text!r}")
-    if value.strip().lower() in SWITCH_WORDS:
-        return key, SWITCH_WORDS[value.strip().lower()]
+    """``KEY=VALUE`` (``plugin.options.parse_option``, also the controller node's ``controller_options``
+    parser): VALUE a number (float) where it reads as one, a switch for ``true`` / ``false`` (bool, any case,
+    e.g. ``whole_body=false``), else the word or path as given (e.g. ``file=policies/x/policy.onnx``)."""
     try:
-        return key, float(value)
-    except ValueError:
-        if not value:
-            raise argparse.ArgumentTypeError(f"--option {key}: the value is empty") from None
-        return key, value
+        return parse_option(text, "--option")
+    except ControllerOptionError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 #: what ``check`` can and cannot tell, printed with a passed check

@@ -1,5 +1,5 @@
 """The demo over DDS: ``python -m biped_sim.graph.demo [--steps N] [--force F] [--duration D] [--start T]
-[--bag DIR] [--json FILE] [--live [--port N]]``.
+[--bag DIR] [--json FILE] [--live [--port N]] [--ctrl-param KEY:=VALUE ...]``.
 
 1. launches the node graph (``biped_sim.graph.launch``) with the bag under ``runs/demo_<timestamp>/``; the
    simulator is started paused (``wait_for_pushes:=1``) so that sim time cannot run past the push;
@@ -13,6 +13,10 @@
 at real time); connect Foxglove to ``ws://localhost:8765`` (or ``--port N``). The run starts as soon as
 the push is accepted; a client that connects later gets the latched ``/robot_description`` and
 follows from then on.
+
+``--ctrl-param KEY:=VALUE`` (repeatable): a controller parameter, passed to the launcher's ``--ctrl-param``,
+e.g. a policy as the controller: ``--ctrl-param controller:=onnx_policy --ctrl-param
+"controller_options:=['file=PATH']"`` (docs/policies.md).
 
 Exit status 0 when the demo ran (whatever the robot did); 1 when the graph or the push failed.
 """
@@ -69,6 +73,9 @@ def main(argv=None) -> int:
     ap.add_argument('--timeout', type=float, default=600.0, help='wall s for the whole run')
     ap.add_argument('--live', action='store_true', help='Foxglove WebSocket bridge, real-time pacing')
     ap.add_argument('--port', type=int, default=None, help='--live: WebSocket port (default 8765)')
+    ap.add_argument('--ctrl-param', action='append', default=[], metavar='KEY:=VALUE',
+                    help="extra controller parameter, passed to the launcher's --ctrl-param (repeatable), e.g. "
+                         "controller:=onnx_policy and \"controller_options:=['file=PATH']\" (docs/policies.md)")
     ap.add_argument('--robot', default=None, metavar='NAME|PATH',
                     help="the robot: a name under robots/ or a robot directory's path (default biped7; docs/robots.md)")
     a = ap.parse_args(argv)
@@ -91,6 +98,8 @@ def main(argv=None) -> int:
                '--sim-param', 'wait_for_pushes:=1', '--ready-file', str(ready)]
         if a.robot is not None:
             cmd += ['--robot', a.robot]
+        for kv in a.ctrl_param:
+            cmd += ['--ctrl-param', kv]
         if a.live:
             cmd += ['--live'] + (['--port', str(a.port)] if a.port is not None else [])
         launcher = subprocess.Popen(cmd)

@@ -23,6 +23,7 @@ name                       type                                    QoS key
 /sim/plant                 std_msgs/msg/String (YAML)              latched
 /controller/torque         sensor_msgs/msg/JointState (effort)     lockstep
 /controller/status         biped_msgs_py/msg/ControllerStatus      sensor
+/controller/info           std_msgs/msg/String (YAML)              latched
 /push_events               biped_msgs_py/msg/PushEvent             events
 /push_requests             std_msgs/msg/String (YAML, see below)   events
 =========================  ======================================  ==============
@@ -62,8 +63,8 @@ from rclpy.qos import (
 # --------------------------------------------------------------------------- names
 # the topic names live in a pure module (bag readers use them without ROS); re-exported here
 from biped_sim.recording.topics import (  # noqa: E402, F401
-    CLOCK, CONTROLLER_STATUS, CONTROLLER_TORQUE, FALL, GROUND_REACTION, GROUND_REACTION_COP, IMU, JOINT_STATES,
-    PUSH_EVENTS, PUSH_REQUESTS, ROBOT_DESCRIPTION, SIM_IMPACTS, SIM_PLANT, SIM_PUSH, SIM_STATE, STANCE, TF)
+    CLOCK, CONTROLLER_INFO, CONTROLLER_STATUS, CONTROLLER_TORQUE, FALL, GROUND_REACTION, GROUND_REACTION_COP, IMU,
+    JOINT_STATES, PUSH_EVENTS, PUSH_REQUESTS, ROBOT_DESCRIPTION, SIM_IMPACTS, SIM_PLANT, SIM_PUSH, SIM_STATE, STANCE, TF)
 
 IMU_FRAME = 'torso'                 # the IMU is on the torso link (URDF root)
 
@@ -197,6 +198,9 @@ TOPICS: dict[str, TopicSpec] = {t.name: t for t in [
               'joint torques (N m) in effort, controller -> simulator'),
     TopicSpec(CONTROLLER_STATUS, 'biped_msgs_py/msg/ControllerStatus', 'sensor',
               'controller status, one per control step'),
+    TopicSpec(CONTROLLER_INFO, 'std_msgs/msg/String', 'latched',
+              "YAML of the run's controller: its name, its options (controller_options) and the SHA-256 of every "
+              'file it reads, e.g. an ONNX policy (biped_controller.plugin.provenance); published once at start'),
     TopicSpec(PUSH_EVENTS, 'biped_msgs_py/msg/PushEvent', 'events', 'every accepted push'),
     TopicSpec(PUSH_REQUESTS, 'std_msgs/msg/String', 'events',
               'YAML {request, response} of every /apply_push call'),

@@ -172,6 +172,28 @@ def get_float_list(node: Node, name: str) -> list[float]:
     return out
 
 
+def get_str_list(node: Node, name: str, default: Sequence[str] | None = None) -> list[str]:
+    """A list of strings (default ``config/graph.yaml``'s). An empty list in YAML or on the command line has no
+    type: accepted as empty; one string (``-p NAME:=key=value``) is a list of one."""
+    desc = ParameterDescriptor(name=name, dynamic_typing=True)
+    try:
+        v = node.declare_parameter(name, None, desc).value
+    except Exception as exc:
+        raise ParameterError(name, str(exc)) from exc
+    if v is None:
+        v = _default(node, name, default)
+    if isinstance(v, str):
+        return [v]
+    if isinstance(v, (bytes, bool)) or not hasattr(v, '__iter__'):
+        raise ParameterError(name, f"expected a list of strings, got {v!r}")
+    out = []
+    for x in v:
+        if not isinstance(x, str):
+            raise ParameterError(name, f"expected a list of strings, got element {x!r}")
+        out.append(x)
+    return out
+
+
 def load_robot_files(node: Node):
     """(description, gait family) from the parameters ``robot`` (a name under robots/ or a path; empty = the
     default robot, robots/biped7), ``description_path`` and ``gait_family_path`` (empty = the robot's),

@@ -142,6 +142,7 @@ def qos_from_rclpy(profile) -> QosProfile:
 
 
 PLANT_METADATA = "biped_plant"   # MCAP metadata record: {"yaml": the /sim/plant text} (the true plant)
+CONTROLLER_METADATA = "biped_controller"   # MCAP metadata record: {"yaml": the /controller/info text}
 DRAIN_BATCH = 256  # messages taken at most per executor callback, from every subscription (see _on_message)
 DRAIN_PER_TOPIC = 16  # messages taken at most from one subscription per pass (no topic starves another)
 DRAIN_IDLE = 0.3   # s without a new message before the bag is finished after a stop request (publishers left)
@@ -444,6 +445,10 @@ class RecorderNode(Node):
                 # record 'biped_plant'
                 from std_msgs.msg import String
                 self._writer.add_metadata(PLANT_METADATA, {"yaml": deserialize_message(msg, String).data})
+            elif spec.name == graph_names.CONTROLLER_INFO:
+                # the run's controller, its options and its files' hashes, also as the record 'biped_controller'
+                from std_msgs.msg import String
+                self._writer.add_metadata(CONTROLLER_METADATA, {"yaml": deserialize_message(msg, String).data})
         except RecorderError as exc:
             self.failure = exc
             self.get_logger().error(f"recording stopped: {exc}")
