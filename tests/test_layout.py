@@ -48,6 +48,9 @@ ROOMS = {
     "biped_controller.studies": {"biped_model", "biped_sim.plant", "biped_controller.core", "biped_controller.gaits",
                                  "biped_controller.plugin", "biped_controller.closed_loop"},
     "biped_controller.graph": {"biped_model", "biped_sim.graph", "biped_controller.core", "biped_controller.plugin"},
+    # the Gymnasium environment and the policy controllers: the plug-in loop's plant and interface, the studies'
+    # settings (profiles, robots); nothing imports it but by name (entry points, gymnasium ids)
+    "biped_controller.policy": {"biped_model", "biped_sim.plant", "biped_controller.plugin", "biped_controller.studies"},
 }
 ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",
              "builtin_interfaces", "tf2_msgs", "biped_msgs_py", "std_srvs", "ament_index_python"}

@@ -1,0 +1,286 @@
+"""The push-recovery benchmark as a Gymnasium environment: ``BipedPush-v0`` (:class:`BipedPushEnv`) and
+``BipedRandomPush-v0`` (the same wrapped in :class:`RandomPushes`). Guide: docs/policies.md.
+
+The physics is the plug-in loop's (``plugin.loop.PluginLoop``): the plant is built by the same
+``make_plant(scfg.plant, desc, scfg, perturbation)`` from the same settings (``--profile``, ``--set``,
+``--perturb``, ``--robot`` as the studies read them), reset to the gait family's periodic initial state
+(LEFT stance, t = 0), pushes scheduled the same way, one ``plant.step(torque)`` per plant control period
+with one ``plant.observe()`` per period (the sensor model samples every period, as in the loop), the fall
+rule the plant's own. What the loop hands a controller each period the environment hands the policy
+each policy period, as the vector of ``policy.spec``.
+
+One environment step (a policy period, ``policy_period`` [s], default 10 ms, a whole multiple of the
+plant's control period): the action a in [-1, 1]^6 becomes the torques a * tau_max in paper order of the
+observed stance and is held over the plant periods from the step's start to the next instant k *
+policy_period of the policy grid. A period cut short: when the sensed stance changes (a touchdown: the
+plant ends its own control period at the touchdown instant, so the observation after it is the new
+stance's, and the held torques, in paper order of the old stance, would act on the relabelled legs) the
+step ends there, with ``info["touchdown"]`` True; the next step runs from the touchdown instant to the next
+grid instant (a shorter step; the grid is not shifted). A fall ends the step and the episode
+(``terminated``). ``info["period"]`` is the step's duration [s].
+
+Reward of a step of duration dt (f = dt / policy_period, so a cut-short step earns its share):
+
+    forward  = forward_reward_weight * (v_pref - |v - v_pref|) * f,  v = (x_hip(end) - x_hip(start)) / dt
+    healthy  = healthy_reward * f                    (0 for the step that ends in a fall)
+    ctrl     = ctrl_cost_weight * sum(a_i^2) * f
+    upright  = upright_cost_weight * theta^2 * f,    theta the torso's pitch from the vertical at the end [rad]
+    reward   = forward + healthy - ctrl - upright
+
+with v_pref = p_d / T [m/s] the gait family's preferred speed (stride over step duration). The reward reads
+the plant's true state (the trainer's view); the policy sees only its observation.
+
+Termination: the plant's fall rule (``info["fall_cause"]`` names it: the rigid plant's take-off, slip, CoP
+or body contact, MuJoCo's hip height, foot tilt or body contact), the same as in every study; the plant
+cannot go on after a fall, so Walker2d's ``terminate_when_unhealthy=False`` is not offered. Truncation:
+the registered time limit (``max_episode_steps``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from biped_model.description import LEFT
+from biped_model.settings import default_config_dir, read_settings
+from biped_sim.plant.protocol import make_plant
+
+from biped_controller.plugin.interface import stamp_time
+from biped_controller.policy.pushes import (PushDistribution, PushOptionError, parse_push_option, push_info)
+from biped_controller.policy.spec import (GRID_TOL, OBS_SIZE, check_action, check_policy_period,
+                                          decision_grid_end, observation_vector, torque_limits)
+
+ENV_ID = "BipedPush-v0"
+RANDOM_PUSH_ENV_ID = "BipedRandomPush-v0"
+
+
+class EnvConfigError(ValueError):
+    """An environment setting is unknown or out of range (the message names it)."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The environment's settings, their values and reasons in ``config/policy_env.yaml`` (module docstring)."""
+
+    policy_period: float
+    forward_reward_weight: float
+    healthy_reward: float
+    ctrl_cost_weight: float
+    upright_cost_weight: float
+    reset_noise_scale: float
+    max_episode_steps: int
+
+    def validate(self) -> "EnvConfig":
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise EnvConfigError(f"{f.name} must be a finite number >= 0, got {v!r}")
+        if self.policy_period <= 0:
+            raise EnvConfigError(f"policy_period must be > 0 s, got {self.policy_period!r}")
+        return self
+
+
+def load_env_config(path: str | Path | None = None, **overrides: Any) -> EnvConfig:
+    """``config/policy_env.yaml`` (or ``path``) with ``overrides`` (None values ignored) applied."""
+    p = Path(path) if path is not None else default_config_dir() / "policy_env.yaml"
+    kw = read_settings(p, EnvConfig.__dataclass_fields__)
+    for k, v in overrides.items():
+        if k not in kw:
+            raise EnvConfigError(f"unknown environment setting {k!r}; settings: {', '.join(kw)}")
+        if v is not None:
+            kw[k] = v
+    return EnvConfig(**kw).validate()
+
+
+def _override_items(settings: Mapping[str, object] | None, plant: str | None) -> list[str]:
+    items = [f"{k}={v}" for k, v in dict(settings or {}).items()]
+    if plant is not None:
+        if settings and "plant" in settings:
+            raise EnvConfigError("plant: given both as plant= and in settings")
+        items.append(f"plant={plant}")
+    return items
+
+
+class BipedPushEnv(gym.Env):
+    """The planar biped walking and pushed, as a Gymnasium environment (module docstring; docs/policies.md).
+
+    ``plant``: ``"mujoco"`` (default) or ``"rigid"``; ``robot``: a name under ``robots/`` or a path (None:
+    biped7); ``profile``: a profile of ``config/profiles/`` (its simulator settings and plant perturbation:
+    the sensor model the observation goes through); ``settings``: simulator keys of
+    ``config/simulator.yaml`` -> value (as ``--set``); ``perturbation``: plant perturbation fields -> value (as
+    ``--perturb``, over the profile's). The reward and reset settings (``policy_period`` [s],
+    ``forward_reward_weight``, ``healthy_reward``, ``ctrl_cost_weight``, ``upright_cost_weight``,
+    ``reset_noise_scale``) default to ``config/policy_env.yaml``. ``keep_records``: keep every plant period's
+    ``StepRecord`` of the episode in :attr:`records` (tests, analysis)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, plant: str | None = "mujoco", robot: str | None = None, profile: str | None = None,
+                 settings: Mapping[str, object] | None = None, perturbation: Mapping[str, object] | None = None,
+                 policy_period: float | None = None, forward_reward_weight: float | None = None,
+                 healthy_reward: float | None = None, ctrl_cost_weight: float | None = None,
+                 upright_cost_weight: float | None = None, reset_noise_scale: float | None = None,
+                 keep_records: bool = False, render_mode: str | None = None):
+        from biped_controller.studies.trial.context import context
+        from biped_controller.studies.trial.settings import run_settings
+        if render_mode is not None:
+            raise EnvConfigError(f"render_mode: this environment does not render, got {render_mode!r} "
+                                 f"(record a run with the studies or the ROS graph instead)")
+        self.config = load_env_config(policy_period=policy_period, forward_reward_weight=forward_reward_weight,
+                                      healthy_reward=healthy_reward, ctrl_cost_weight=ctrl_cost_weight,
+                                      upright_cost_weight=upright_cost_weight, reset_noise_scale=reset_noise_scale)
+        pert_items = [f"{k}={v}" for k, v in dict(perturbation or {}).items()]
+        self.run_settings = run_settings(profile, _override_items(settings, plant), perturb=pert_items, robot=robot)
+        ctx = context(self.run_settings.robot)
+        self.desc, self.family = ctx.desc, ctx.family
+        self.scfg = self.run_settings.sim_config()
+        self.perturbation = self.run_settings.perturbation
+        self.period = check_policy_period(self.config.policy_period, self.scfg.control_period)
+        # the plug-in loop's plant (plugin.loop.PluginLoop.__init__): the same call
+        self.sim = make_plant(self.scfg.plant, self.desc, self.scfg, self.perturbation)
+        self.limits = torque_limits(self.desc)
+        self.v_pref = self.family.p_d / self.family.T
+        self.keep_records = bool(keep_records)
+        self.records: list = []
+        self.render_mode = None
+        self.observation_space = spaces.Box(-np.inf, np.inf, (OBS_SIZE,), dtype=np.float64)
+        self.action_space = spaces.Box(-1.0, 1.0, (6,), dtype=np.float32)
+        self._identity = self.sim.sensor.identity
+        self._pushes: tuple = ()
+        self._ended = True
+
+    # ------------------------------------------------------------------ helpers
+    def _observe(self):
+        raw = self.sim.observe()
+        self._raw, self._t_obs = raw, stamp_time(raw.t)
+        return raw
+
+    def _obs(self) -> np.ndarray:
+        raw = self._raw
+        return observation_vector(raw.q, raw.qd, raw.pitch, raw.pitch_rate, raw.stance, self._t_obs - self._t_stance,
+                                  self._last_torque, self.limits)
+
+    def _info(self) -> dict:
+        fall = self.sim.fall
+        return {"push": [push_info(p) for p in self._pushes][0] if len(self._pushes) == 1
+                else [push_info(p) for p in self._pushes] or None,
+                "fall_cause": fall.cause if fall is not None else "",
+                "fall_detail": fall.detail if fall is not None else "",
+                "t": float(self.sim.t), "steps_walked": int(self.sim.impact_count),
+                "x_position": float(self.sim.x[0]), "stance": int(self._raw.stance)}
+
+    # ------------------------------------------------------------------ the Gymnasium API
+    def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
+        """Start an episode at the gait family's periodic initial state (LEFT stance, t = 0) plus seeded
+        uniform noise U(-s, s) on each joint angle and rate (s = ``reset_noise_scale``; angles drawn first),
+        with the pushes of ``options["push"]`` (``policy.pushes``). A bad option raises
+        :class:`~biped_controller.policy.pushes.PushOptionError` naming it, before anything changes."""
+        options = dict(options or {})
+        unknown = [k for k in options if k != "push"]
+        if unknown:
+            raise PushOptionError(str(unknown[0]), f"reset options: unknown key {unknown[0]!r} (known: 'push')")
+        pushes = parse_push_option(options.get("push"))
+        for p in pushes:
+            if not math.isnan(p.height) and p.height > self.desc.torso.length:
+                raise PushOptionError("height", f"push: height {p.height} m is above the torso "
+                                                f"({self.desc.torso.length} m above the hip)")
+        super().reset(seed=seed)
+        q0, qd0 = self.family.initial_state()
+        s = self.config.reset_noise_scale
+        if s > 0:
+            q0 = q0 + self.np_random.uniform(-s, s, q0.shape)
+            qd0 = qd0 + self.np_random.uniform(-s, s, qd0.shape)
+        sim = self.sim
+        sim.reset(q0, qd0, LEFT)
+        for p in pushes:                 # as PluginLoop.run schedules them
+            sim.schedule_push(p.start, p.duration, p.force, p.height)
+        self._pushes = pushes
+        self._last_torque = np.zeros(6)
+        self._observe()
+        self._t_stance = self._t_obs
+        self._ended = False
+        self.records = []
+        return self._obs(), self._info()
+
+    def step(self, action):
+        """Hold the action over one policy period (module docstring); returns (obs, reward, terminated,
+        truncated = False, info). A wrong shape or a non-finite entry raises ``spec.ActionError``."""
+        a = check_action(action)
+        if self._ended:
+            raise RuntimeError("BipedPushEnv.step: the episode has ended (a fall) or was never started: call reset()")
+        sim, cfg = self.sim, self.config
+        torque = a * self.limits
+        stance = self._raw.stance
+        t_next = decision_grid_end(self._t_obs, self.period)
+        t0, x0 = sim.t, float(sim.x[0])
+        touchdown = fell = False
+        identity, keep = self._identity, self.keep_records
+        while True:
+            rec = sim.step(torque)
+            if keep:
+                self.records.append(rec)
+            self._last_torque = rec.torque
+            if rec.fallen or sim.fall is not None:
+                fell = True
+                break
+            # the next period's observation, as the plug-in loop takes it (the sensor model samples each period)
+            if identity:
+                st, t = sim.stance, stamp_time(sim.t)
+            else:
+                raw = sim.observe()
+                st, t = raw.stance, stamp_time(raw.t)
+            if st != stance:
+                touchdown = True
+                break
+            if t >= t_next - GRID_TOL:
+                break
+        self._observe()
+        if touchdown:
+            self._t_stance = self._t_obs
+        dt = sim.t - t0
+        f = dt / self.period
+        v = (float(sim.x[0]) - x0) / dt if dt > 0 else 0.0
+        theta = float(sim.x[2])
+        r_fwd = cfg.forward_reward_weight * (self.v_pref - abs(v - self.v_pref)) * f
+        r_healthy = 0.0 if fell else cfg.healthy_reward * f
+        c_ctrl = cfg.ctrl_cost_weight * float(np.dot(a, a)) * f
+        c_up = cfg.upright_cost_weight * theta * theta * f
+        reward = r_fwd + r_healthy - c_ctrl - c_up
+        self._ended = fell
+        info = self._info()
+        info.update(period=dt, touchdown=touchdown, x_velocity=v, reward_forward=r_fwd, reward_healthy=r_healthy,
+                    reward_ctrl=-c_ctrl, reward_upright=-c_up)
+        return self._obs(), float(reward), fell, False, info
+
+
+class RandomPushes(gym.Wrapper):
+    """Draws a random push (``policy.pushes.PushDistribution``) at every reset that names none; the draws
+    come from this wrapper's generator, seeded by ``seed`` and again by every ``reset(seed=...)``
+    (``numpy.random.default_rng([seed, 1])``), so a seeded episode is reproduced with its push."""
+
+    def __init__(self, env: gym.Env, distribution: PushDistribution | None = None, seed: int = 0, **kwargs):
+        super().__init__(env)
+        self.distribution = distribution if distribution is not None else PushDistribution(**kwargs)
+        self._rng = np.random.default_rng([int(seed), 1])
+
+    def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
+        if seed is not None:
+            self._rng = np.random.default_rng([int(seed), 1])
+        options = dict(options or {})
+        if "push" not in options:
+            options["push"] = self.distribution.draw(self._rng)
+        return self.env.reset(seed=seed, options=options)
+
+
+def make_random_push_env(distribution: Mapping[str, object] | PushDistribution | None = None, seed: int = 0,
+                         **env_kwargs) -> gym.Env:
+    """``BipedRandomPush-v0``: :class:`BipedPushEnv` (``env_kwargs``) wrapped in :class:`RandomPushes`
+    (``distribution``: a :class:`PushDistribution` or its fields)."""
+    dist = distribution if isinstance(distribution, PushDistribution) else PushDistribution(**dict(distribution or {}))
+    return RandomPushes(BipedPushEnv(**env_kwargs), dist, seed=seed)
+
