@@ -24,6 +24,12 @@ setup(
         # (docs/controllers.md): the DCM step layer above the whole-body QP (plugin/step_layer.py)
         'biped.controllers': [
             'dcm_wbc = biped_controller.plugin.step_layer:DcmWholeBody',
+            # an ONNX policy file (option file=PATH) held over its policy period (docs/policies.md)
+            'onnx_policy = biped_controller.policy.controller:OnnxPolicy',
+        ],
+        # the committed policies (policies/<name>/policy.onnx + policy.json), each a controller by its name
+        'biped.controller_catalogs': [
+            'policies = biped_controller.policy.catalog:registrations',
         ],
     },
 )

@@ -6,6 +6,9 @@ A package registers a controller in its ``pyproject.toml``::
     [project.entry-points."biped.controllers"]
     my_controller = "my_package.controller:MyController"
 
+or a catalog of controllers found at run time (group ``biped.controller_catalogs``: a function returning
+``[(name, "module:attribute"), ...]``; the product's own lists the committed policies, ``policy.catalog``).
+
 :func:`load_controller` resolves a name (a built-in mode first, then an entry point, then a
 ``module:Class`` string), imports the class and checks it against the interface
 (``interface.check_controller_class``); :func:`make_controller` builds it from a setup, wrapped in
@@ -23,6 +26,8 @@ from biped_controller.plugin.builtin import BUILTIN
 from biped_controller.plugin.interface import ControllerSetup, GuardedController, check_controller_class
 
 ENTRY_POINT_GROUP = "biped.controllers"
+#: entry points of functions that list controllers found at run time (``_catalog_entries``)
+CATALOG_GROUP = "biped.controller_catalogs"
 
 
 class UnknownControllerError(LookupError):
@@ -48,6 +53,23 @@ def _entry_points() -> list[Registration]:
     for ep in md.entry_points(group=ENTRY_POINT_GROUP):
         dist = getattr(ep, "dist", None)
         out.append(Registration(ep.name, ep.value, dist.name if dist is not None else "entry point"))
+    return out + _catalog_entries()
+
+
+def _catalog_entries() -> list[Registration]:
+    """The controllers of the installed catalogs (entry-point group :data:`CATALOG_GROUP`): each entry point
+    names a function returning ``[(name, "module:attribute"), ...]``, the controllers it offers now (e.g. the
+    committed policies under ``policies/``). A catalog that fails is left out of the listing (its error is
+    the name's: loading it by ``module:attribute`` raises)."""
+    out = []
+    for ep in md.entry_points(group=CATALOG_GROUP):
+        dist = getattr(ep, "dist", None)
+        try:
+            pairs = ep.load()()
+        except Exception:            # a broken catalog must not hide every other controller
+            continue
+        src = f"{dist.name if dist is not None else 'entry point'} catalog {ep.name}"
+        out.extend(Registration(str(n), str(t), src) for n, t in pairs)
     return out
 
 

@@ -37,14 +37,18 @@ from biped_controller.plugin.registry import (ControllerLoadError, UnknownContro
                                               load_registration, registered, summary)
 
 
-def _option(text: str) -> tuple[str, float]:
+def _option(text: str) -> tuple[str, float | str]:
+    """KEY=VALUE: the value a number where it reads as one, else the word or path as given (e.g.
+    ``file=policies/x/policy.onnx``)."""
     key, sep, value = text.partition("=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"--option takes KEY=VALUE, got {text!r}")
     try:
         return key, float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--option {key}: {value!r} is not a number") from None
+        if not value:
+            raise argparse.ArgumentTypeError(f"--option {key}: the value is empty") from None
+        return key, value
 
 
 #: what ``check`` can and cannot tell, printed with a passed check
