@@ -142,7 +142,8 @@ def markdown(R: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-SUB_BENCHMARKS = ("wbc_step.json", "model_error.json", "estimation.json", "torso_step.json", "plugin.json")
+SUB_BENCHMARKS = ("wbc_step.json", "model_error.json", "estimation.json", "torso_step.json", "plugin.json",
+                  "policy_env.json")
 
 
 def merge_sub_benchmarks(R: dict, directory: Path) -> dict:

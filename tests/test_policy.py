@@ -104,11 +104,41 @@ def test_seeded_episode_reproduced_exactly():
     a = episode(env, pol, seed=7)
     b = episode(env, pol, seed=7)
     c = episode(env, pol, seed=8)
-    assert a[2]["push"] == b[2]["push"] and a[2]["push"] is not None
+    assert a[2]["push"] == b[2]["push"] and a[2]["push"]["force"] > 0
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_array_equal(a[1], b[1])
     assert a[2]["push"] != c[2]["push"]
     assert not np.array_equal(a[0][0], c[0][0])      # another seed: another reset noise
+
+
+def _random_push_env():
+    from biped_controller.policy.env import make_random_push_env
+    return make_random_push_env({"onset_min": 0.0, "onset_max": 0.05, "p_none": 0.5}, seed=0, plant="mujoco")
+
+
+def test_vector_env_over_two_processes_is_the_single_env():
+    """AsyncVectorEnv (two worker processes) gives each environment's episode as a lone environment does
+    (same seeds, same actions), autoresets included."""
+    vec = gym.vector.AsyncVectorEnv([_random_push_env, _random_push_env], context="fork")
+    try:
+        obs, _ = vec.reset(seed=[3, 4])
+        got = [obs]
+        for _ in range(40):
+            obs, r, term, trunc, info = vec.step(np.zeros((2, 6)))
+            got.append(obs)
+    finally:
+        vec.close()
+    got = np.array(got)
+    for i, seed in enumerate((3, 4)):
+        env = _random_push_env()
+        o, _ = env.reset(seed=seed)
+        np.testing.assert_array_equal(got[0, i], o)
+        for k in range(1, 41):
+            o, r, term, trunc, _ = env.step(np.zeros(6))
+            np.testing.assert_array_equal(got[k, i], o)
+            if term or trunc:
+                break
+        assert term                      # the zero action falls within 40 policy periods
 
 
 # ---------------------------------------------------------------------- the plug-in loop's physics
@@ -264,6 +294,11 @@ def test_committed_policy_is_a_controller_by_name(tmp_path, monkeypatch):
     assert "tiny_pd" in regs and "catalog" in regs["tiny_pd"].source
     cls = load_controller("tiny_pd")
     assert issubclass(cls, OnnxPolicy) and cls.description == "a test policy"
+    import argparse
+    from biped_controller.studies.trial.args import controller_arg
+    assert controller_arg("tiny_pd") == "tiny_pd"              # the studies take it by name
+    with pytest.raises(argparse.ArgumentTypeError, match="onnx_policy.*option.*file"):
+        controller_arg("onnx_policy")                         # the studies pass no file option
     res = PluginLoop("tiny_pd", options={}).run(1, limit=0.05)
     assert res.fault is None and res.periods > 0
     assert PluginLoop("tiny_pd").ctrl.inner.policy_period == 0.02

@@ -57,7 +57,7 @@ def policy_class(name: str, path: str) -> type:
     except (OSError, ValueError, AttributeError):
         desc = ""
     return type(f"Policy_{name}", (OnnxPolicy,), {
-        "policy_file": path, "__module__": __name__, "__qualname__": f"Policy_{name}",
+        "policy_file": path, "required_options": (), "__module__": __name__, "__qualname__": f"Policy_{name}",
         "description": desc or f"committed ONNX policy {name} ({path})"})
 
 

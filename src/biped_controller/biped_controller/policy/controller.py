@@ -176,6 +176,8 @@ class OnnxPolicy(PolicyController):
     description = "an ONNX policy (option file=PATH) held over its policy period (docs/policies.md)"
     #: the file a subclass is bound to (``policy.catalog``); None: the ``file`` option
     policy_file: str | None = None
+    #: options a study must pass (``trial.args.controller_arg`` refuses the name otherwise); none when bound
+    required_options: tuple[str, ...] = ("file",)
 
     def __init__(self, setup: ControllerSetup):
         path = self.policy_file if self.policy_file is not None else setup.options.get("file")

@@ -34,6 +34,13 @@ Termination: the plant's fall rule (``info["fall_cause"]`` names it: the rigid p
 or body contact, MuJoCo's hip height, foot tilt or body contact), the same as in every study; the plant
 cannot go on after a fall, so Walker2d's ``terminate_when_unhealthy=False`` is not offered. Truncation:
 the registered time limit (``max_episode_steps``).
+
+``info`` (the same keys after every reset and step, so a vector of environments stacks them): ``push`` (the
+episode's first push, ``pushes.push_info``; force 0 and direction "none" without one), ``pushes`` (how many),
+``fall_cause`` and ``fall_detail`` ("" while walking), ``t`` [s] sim time, ``plant_periods`` (plant control
+periods since the reset), ``steps_walked`` (touchdowns), ``x_position`` [m] (hip), ``stance``; after a step
+also ``period`` [s], ``touchdown``, ``x_velocity`` [m/s] and the reward's terms ``reward_forward``,
+``reward_healthy``, ``reward_ctrl``, ``reward_upright`` (costs negative).
 """
 from __future__ import annotations
 
@@ -167,11 +174,12 @@ class BipedPushEnv(gym.Env):
 
     def _info(self) -> dict:
         fall = self.sim.fall
-        return {"push": [push_info(p) for p in self._pushes][0] if len(self._pushes) == 1
-                else [push_info(p) for p in self._pushes] or None,
+        return {"push": push_info(self._pushes[0] if self._pushes else None, self.scfg.push_height),
+                "pushes": len(self._pushes),
                 "fall_cause": fall.cause if fall is not None else "",
                 "fall_detail": fall.detail if fall is not None else "",
-                "t": float(self.sim.t), "steps_walked": int(self.sim.impact_count),
+                "t": float(self.sim.t), "plant_periods": int(self.sim.step_index),
+                "steps_walked": int(self.sim.impact_count),
                 "x_position": float(self.sim.x[0]), "stance": int(self._raw.stance)}
 
     # ------------------------------------------------------------------ the Gymnasium API
@@ -196,6 +204,7 @@ class BipedPushEnv(gym.Env):
             q0 = q0 + self.np_random.uniform(-s, s, q0.shape)
             qd0 = qd0 + self.np_random.uniform(-s, s, qd0.shape)
         sim = self.sim
+        self.initial_state = (q0, qd0)
         sim.reset(q0, qd0, LEFT)
         for p in pushes:                 # as PluginLoop.run schedules them
             sim.schedule_push(p.start, p.duration, p.force, p.height)
@@ -229,15 +238,12 @@ class BipedPushEnv(gym.Env):
                 fell = True
                 break
             # the next period's observation, as the plug-in loop takes it (the sensor model samples each period)
-            if identity:
-                st, t = sim.stance, stamp_time(sim.t)
-            else:
-                raw = sim.observe()
-                st, t = raw.stance, stamp_time(raw.t)
+            # (the grid test on the plant's time: its stamp differs by < 1 ns, GRID_TOL is 100 ns)
+            st = sim.stance if identity else sim.observe().stance
             if st != stance:
                 touchdown = True
                 break
-            if t >= t_next - GRID_TOL:
+            if sim.t >= t_next - GRID_TOL:
                 break
         self._observe()
         if touchdown:

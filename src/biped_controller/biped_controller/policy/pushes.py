@@ -92,12 +92,18 @@ def parse_push_option(option: object) -> tuple[Push, ...]:
     return tuple(out)
 
 
-def push_info(p: Push) -> dict:
-    """JSON-ready: the push as ``info["push"]`` carries it (force magnitude, signed force, onset, duration,
-    direction, height [m] or None for the default)."""
+def push_info(p: Push | None, default_height: float) -> dict:
+    """The push as ``info["push"]`` carries it, the same keys and finite values with or without one (so a
+    vector of environments stacks them and equal episodes compare equal): ``force`` [N] magnitude,
+    ``signed_force`` [N] (+ forward), ``onset`` [s], ``duration`` [s], ``direction`` ("forward", "backward";
+    "none" without a push, then every number 0), ``height`` [m] above the hip (``default_height`` when the
+    option gave none)."""
+    if p is None:
+        return {"force": 0.0, "signed_force": 0.0, "onset": 0.0, "duration": 0.0, "direction": "none",
+                "height": 0.0}
     return {"force": abs(p.force), "signed_force": p.force, "onset": p.start, "duration": p.duration,
             "direction": "forward" if p.force >= 0 else "backward",
-            "height": None if math.isnan(p.height) else p.height}
+            "height": default_height if math.isnan(p.height) else p.height}
 
 
 @dataclass(frozen=True)

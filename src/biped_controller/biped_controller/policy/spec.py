@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from biped_model.description import RobotDescription
+from biped_sim.plant.period_grid import grid_end
 
 N_JOINTS = 6
 OBS_FIELDS: tuple[str, ...] = (tuple(f"q{i}" for i in range(1, 7)) + tuple(f"qd{i}" for i in range(1, 7))
@@ -88,7 +89,6 @@ def check_action(action: object) -> np.ndarray:
 def decision_grid_end(t: float, policy_period: float) -> float:
     """The policy grid instant that ends a decision taken at ``t`` [s]: the first k * policy_period > t
     (the plant's own rule for its control grid, ``biped_sim.plant.period_grid.grid_end``)."""
-    from biped_sim.plant.period_grid import grid_end
     return grid_end(t, policy_period)
 
 

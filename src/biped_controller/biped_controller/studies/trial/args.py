@@ -132,10 +132,16 @@ def controller_arg(text: str) -> str:
     satisfying the controller interface, checked by the studies' one resolution step
     (``trial.controller.resolve``; resolved again by name in each worker process)."""
     from biped_controller.studies.trial.controller import RESOLVE_ERRORS, resolve
+    from biped_controller.plugin.registry import load_controller
     try:
         resolve(text)
+        required = tuple(getattr(load_controller(text), "required_options", ()) or ())
     except RESOLVE_ERRORS as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+    if required:                # a controller that cannot be built without options the studies do not pass
+        raise argparse.ArgumentTypeError(
+            f"controller {text!r} needs the option(s) {', '.join(required)}, which this command does not pass "
+            f"(a committed policy is a controller by its name: docs/policies.md)")
     return text
 
 
