@@ -11,7 +11,9 @@ over the rollout, all environments); ``policy_std`` (mean std of the Gaussian po
 ``env_steps_per_s`` (the rollout's policy steps over its wall time, all environments); ``update_s`` (the PPO
 update's wall time [s]). Episode columns are empty when no episode ended.
 
-``python -m biped_controller.learning.curve results/ppo_baseline/curve.csv [--out PNG]`` redraws the figure.
+``python -m biped_controller.learning.curve results/ppo_baseline/curve.csv [--out PNG]`` redraws the figure and
+writes ``curve_summary.json`` beside the CSV (:func:`summary`: the first, last and longest-episode rows, the
+mean speeds of stepping and updating), with its provenance record when it is under ``results/``.
 """
 from __future__ import annotations
 
@@ -63,6 +65,19 @@ def write_curve(path: str | Path, rows: list[dict]) -> None:
     tmp.replace(p)
 
 
+def summary(rows: list[dict[str, float]]) -> dict:
+    """The curve in a few numbers (for the guide's figures): ``updates``, ``first`` / ``last`` rows, ``best`` (the
+    row with the longest mean episode), mean ``env_steps_per_s`` and ``update_s`` over the rows."""
+    if not rows:
+        raise CurveError("summary: the curve has no rows")
+    clean = [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()} for r in rows]
+    with_eps = [r for r in clean if r["length_mean"] is not None]
+    best = max(with_eps, key=lambda r: r["length_mean"]) if with_eps else None
+    return {"updates": len(rows), "first": clean[0], "last": clean[-1], "best": best,
+            "env_steps_per_s_mean": sum(r["env_steps_per_s"] for r in rows) / len(rows),
+            "update_s_mean": sum(r["update_s"] for r in rows) / len(rows)}
+
+
 def draw(rows: list[dict[str, float]], out: str | Path, title: str = "") -> Path:
     """The curve figure: episode return, episode length and forward speed, and env steps/s, against env steps."""
     import matplotlib
@@ -108,8 +123,15 @@ def main(argv: list[str] | None = None) -> int:
         rows = read_curve(a.csv)
     except CurveError as exc:
         ap.error(str(exc))
+    import json
+    from biped_controller.studies.provenance import Run
+    prov = Run(argv)
     out = draw(rows, a.out or Path(a.csv).with_suffix(".png"), a.title or Path(a.csv).parent.name)
-    print(f"curve: {len(rows)} updates -> {out}")
+    js = Path(a.csv).with_name(Path(a.csv).stem + "_summary.json")
+    js.write_text(json.dumps(summary(rows), indent=1) + "\n", encoding="utf-8")
+    if "results" in Path(a.csv).resolve().parts:
+        prov.record(out, js)
+    print(f"curve: {len(rows)} updates -> {out}, {js}")
     return 0
 
 
