@@ -51,6 +51,9 @@ ROOMS = {
     # the Gymnasium environment and the policy controllers: the plug-in loop's plant and interface, the studies'
     # settings (profiles, robots); nothing imports it but by name (entry points, gymnasium ids)
     "biped_controller.policy": {"biped_model", "biped_sim.plant", "biped_controller.plugin", "biped_controller.studies"},
+    # the learned baseline's trainer, export and evaluation: the environment and policy files of policy, the studies'
+    # CLI pieces and provenance; nothing imports it (scripts/train, python -m)
+    "biped_controller.learning": {"biped_model", "biped_controller.policy", "biped_controller.studies"},
 }
 ROS_ROOTS = {"rclpy", "rcl_interfaces", "rosgraph_msgs", "std_msgs", "sensor_msgs", "geometry_msgs",
              "builtin_interfaces", "tf2_msgs", "biped_msgs_py", "std_srvs", "ament_index_python"}
