@@ -20,6 +20,9 @@ SCRIPTS_WITHOUT_ROBOT = {
     "_prelude.sh": "sourced by the other scripts",
     "env.sh": "sourced by the other scripts",
     "setup": "installs the environment",
+    "setup-train": "installs the optional training extra",
+    "train": "trains the baseline its config names (config/training/NAME.yaml) on the default robot only: the "
+             "trainer takes no robot yet (its policy.json records robot biped7)",
     "test": "runs the test suite",
     "bag": "reads a recording, which carries its own robot (/robot_description)",
     "run_node": "one node as ros2 run starts it: the robot is the node's parameter robot (-p robot:=NAME|PATH)",
