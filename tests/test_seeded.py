@@ -126,6 +126,24 @@ def test_seeded_table_counts_apart_and_finds_the_crossings(monkeypatch):
     assert max(by_force) < 600.0
 
 
+def test_no_counted_trial_is_an_undefined_crossing_not_a_survival(monkeypatch, capsys):
+    """Every seed's unpushed walk falls: no rate exists, so each crossing is undefined (not 'no force up to fmax
+    had a rate below the level', which would read as a survival), and the search tries nothing past force 0."""
+    def fell(push, mode, settings):
+        return {"force": push.force, "mode": mode, "survived": False, "seed": settings.perturbation.seed,
+                "fault_kind": None, "unpushed_fall": "fell: test", "counted": False, "reason": "synthetic"}
+    monkeypatch.setattr(seeded, "seeded_trial", fell)
+    res = seeded.seeded_table(("none",), 4, resolution=10.0, fmax=1000.0, coarse=100.0, settings=SETTINGS,
+                              progress=False)["none"]
+    assert [r["force"] for r in res["rates"]] == [0.0] and res["rates"][0]["counted"] == 0
+    assert res["rates"][0]["unpushed_falls"] == 4
+    for c in res["crossings"]:
+        assert c["estimate"] is None and c["interval"] == [None, None] and c["note"].startswith("undefined")
+    seeded.print_seeded({"none": res})
+    out = capsys.readouterr().out
+    assert "crossing 90 %: undefined: no trial counted" in out and "unbounded" not in out
+
+
 def test_controllers_share_seeds_and_compare_paired(monkeypatch):
     """Two modes on a synthetic curve whose draw depends on (seed, force) only, survival 50 % at 400 N for
     both and 300 N for wbc: the same seeds for both modes, and at every common force the paired counts

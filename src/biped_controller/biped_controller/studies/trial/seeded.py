@@ -127,8 +127,15 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
             f += coarse
         crossings: dict[str, list[dict]] = {m: [] for m in modes}
         for m in modes:
+            counted = any(n for _, n in rates[m].values())
             for c in levels:
                 lo, hi = uncertainty.first_bracket(rates[m], c)
+                if not counted:     # no rate at all: not a survival up to fmax, an undefined crossing
+                    crossings[m].append({"level": c, "bracket": [None, None], "estimate": None,
+                                         "interval": [None, None], "tried": [],
+                                         "note": "undefined: no trial counted (every seed's unpushed walk fell or its "
+                                                 "controller faulted)"})
+                    continue
                 if hi is None:
                     crossings[m].append({"level": c, "bracket": [lo, None], "estimate": None, "interval": [None, None],
                                          "tried": [], "note": f"no force up to {fmax:g} N had a rate below {c:g}"})
@@ -206,6 +213,9 @@ def print_seeded(results: dict[str, dict]) -> None:
                   f"{row['unpushed_falls']:>4}/{row['faults']:<4}")
         for c in r["crossings"]:
             lo, hi = c["interval"]
+            if c["bracket"] == [None, None]:     # no trial counted: no bracket, no interval
+                print(f"  crossing {100 * c['level']:g} %: {c['note']}")
+                continue
             print(f"  crossing {100 * c['level']:g} %: {_fmt(c['estimate'])} N (bracket {_fmt(c['bracket'][0])}-"
                   f"{_fmt(c['bracket'][1])} N; interval [{'0' if lo is None else _fmt(lo)}, "
                   f"{'unbounded' if hi is None else _fmt(hi)}] N)" + (f" {c['note']}" if c.get("note") else ""))
