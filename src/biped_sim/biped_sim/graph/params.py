@@ -153,13 +153,19 @@ def robot_settings(node: Node) -> tuple[tuple[str, object], ...]:
         raise ParameterError('robot', str(exc)) from exc
 
 
-def get_float_list(node: Node, name: str) -> list[float]:
-    """A list of numbers (default: empty). An empty list in YAML has no type: accepted too."""
+def _declare_untyped(node: Node, name: str):
+    """The value of parameter ``name`` declared with dynamic typing and no default (None when not given): an
+    empty list in YAML or on the command line has no type, so a typed declaration would refuse it."""
     desc = ParameterDescriptor(name=name, dynamic_typing=True)
     try:
-        v = node.declare_parameter(name, None, desc).value
+        return node.declare_parameter(name, None, desc).value
     except Exception as exc:
         raise ParameterError(name, str(exc)) from exc
+
+
+def get_float_list(node: Node, name: str) -> list[float]:
+    """A list of numbers (default: empty). An empty list in YAML has no type: accepted too."""
+    v = _declare_untyped(node, name)
     if v is None:
         return []
     if isinstance(v, (str, bytes, bool)) or not hasattr(v, '__iter__'):
@@ -175,11 +181,7 @@ def get_float_list(node: Node, name: str) -> list[float]:
 def get_str_list(node: Node, name: str, default: Sequence[str] | None = None) -> list[str]:
     """A list of strings (default ``config/graph.yaml``'s). An empty list in YAML or on the command line has no
     type: accepted as empty; one string (``-p NAME:=key=value``) is a list of one."""
-    desc = ParameterDescriptor(name=name, dynamic_typing=True)
-    try:
-        v = node.declare_parameter(name, None, desc).value
-    except Exception as exc:
-        raise ParameterError(name, str(exc)) from exc
+    v = _declare_untyped(node, name)
     if v is None:
         v = _default(node, name, default)
     if isinstance(v, str):
