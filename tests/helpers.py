@@ -199,3 +199,17 @@ def count_compiled_periods(patch) -> list:
         return out
     patch.setattr(C.CompiledPeriod, "compute", counting)
     return used
+
+
+def graph_params_with_push(tmp: Path, push: dict) -> Path:
+    """config/graph.yaml with one push scheduled by the disturbance node (``push``: force [N], start [s],
+    duration [s]) and the simulator waiting for it, written into ``tmp``; returns its path."""
+    import yaml
+    cfg = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
+    dist = cfg['disturbance']['ros__parameters']
+    dist.update(schedule_forces=[push['force']], schedule_starts=[push['start']],
+                schedule_durations=[push['duration']])
+    cfg['simulator']['ros__parameters']['wait_for_pushes'] = 1
+    out = tmp / 'graph.yaml'
+    out.write_text(yaml.safe_dump(cfg))
+    return out

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
+from helpers import graph_params_with_push
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = ROOT / '.venv' / 'bin' / 'python'
@@ -32,18 +32,6 @@ PUSH = dict(force=40.0, duration=0.025, start=0.2315)
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
-def _params(tmp: Path) -> Path:
-    """config/graph.yaml with the push scheduled and the simulator waiting for it."""
-    cfg = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
-    dist = cfg['disturbance']['ros__parameters']
-    dist.update(schedule_forces=[PUSH['force']], schedule_starts=[PUSH['start']],
-                schedule_durations=[PUSH['duration']])
-    cfg['simulator']['ros__parameters']['wait_for_pushes'] = 1
-    out = tmp / 'graph.yaml'
-    out.write_text(yaml.safe_dump(cfg))
-    return out
-
-
 def test_plugin_in_graph_equals_in_process(ros_env, tmp_path):
     pytest.importorskip('capture_point_stepper')
     from biped_sim.plant.push import Push
@@ -51,7 +39,7 @@ def test_plugin_in_graph_equals_in_process(ros_env, tmp_path):
     from biped_controller.plugin import loop as plugin_loop
 
     bag = tmp_path / 'bag'
-    cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--params', str(_params(tmp_path)), '--bag', str(bag),
+    cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--params', str(graph_params_with_push(tmp_path, PUSH)), '--bag', str(bag),
            '--steps', str(STEPS), '--ctrl-param', f'controller:={NAME}']
     proc = subprocess.Popen(cmd, env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

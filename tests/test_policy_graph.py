@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers import graph_params_with_push
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = ROOT / '.venv' / 'bin' / 'python'
@@ -66,18 +67,6 @@ def pd_policy_file(path: Path, kp: float, kd: float) -> Path:
     return path
 
 
-def _params(tmp: Path) -> Path:
-    """config/graph.yaml with the push scheduled and the simulator waiting for it."""
-    cfg = yaml.safe_load((ROOT / 'config' / 'graph.yaml').read_text())
-    dist = cfg['disturbance']['ros__parameters']
-    dist.update(schedule_forces=[PUSH['force']], schedule_starts=[PUSH['start']],
-                schedule_durations=[PUSH['duration']])
-    cfg['simulator']['ros__parameters']['wait_for_pushes'] = 1
-    out = tmp / 'graph.yaml'
-    out.write_text(yaml.safe_dump(cfg))
-    return out
-
-
 def test_onnx_policy_in_graph_equals_in_process(ros_env, tmp_path):
     from biped_sim.plant.push import Push
     from biped_sim.recording.bag_reader import read_bag
@@ -87,7 +76,7 @@ def test_onnx_policy_in_graph_equals_in_process(ros_env, tmp_path):
 
     policy = pd_policy_file(tmp_path / 'pd.onnx', KP, KD)
     bag = tmp_path / 'bag'
-    cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--params', str(_params(tmp_path)), '--bag', str(bag),
+    cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--params', str(graph_params_with_push(tmp_path, PUSH)), '--bag', str(bag),
            '--sim-param', 'plant:=mujoco', '--sim-param', f'max_time:={T}', '--ctrl-param', 'controller:=onnx_policy',
            '--ctrl-param', f"controller_options:=['file={policy}']"]
     proc = subprocess.Popen(cmd, env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
