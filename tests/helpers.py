@@ -213,3 +213,18 @@ def graph_params_with_push(tmp: Path, push: dict) -> Path:
     out = tmp / 'graph.yaml'
     out.write_text(yaml.safe_dump(cfg))
     return out
+
+
+def run_launch(cmd: list[str], env: dict, timeout: float = 300.0) -> str:
+    """Run the launcher ``cmd`` (from the repository's root) to its end and return its combined output; kill it
+    if it outlives ``timeout`` [s] (then the caller's return-code assertion fails with the output)."""
+    import subprocess
+    proc = subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 0, out[-4000:]
+    return out

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import graph_params_with_push
+from helpers import graph_params_with_push, run_launch
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = ROOT / '.venv' / 'bin' / 'python'
@@ -41,14 +41,7 @@ def test_plugin_in_graph_equals_in_process(ros_env, tmp_path):
     bag = tmp_path / 'bag'
     cmd = [str(PY), '-m', 'biped_sim.graph.launch', '--params', str(graph_params_with_push(tmp_path, PUSH)), '--bag', str(bag),
            '--steps', str(STEPS), '--ctrl-param', f'controller:={NAME}']
-    proc = subprocess.Popen(cmd, env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        out, _ = proc.communicate(timeout=300)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-    assert proc.returncode == 0, out[-4000:]
+    out = run_launch(cmd, ros_env)
     assert f"controller ready: controller '{NAME}'" in out, out[-4000:]
 
     push = Push(PUSH['start'], PUSH['duration'], PUSH['force'])
