@@ -85,6 +85,15 @@ def test_cli_rejects_an_unknown_key_with_its_name(capsys):
     assert "no_such_key" in capsys.readouterr().err
 
 
+def test_cli_rejects_a_json_path_in_a_missing_directory_before_running(capsys, tmp_path):
+    out = tmp_path / "no_such_dir" / "walk.json"
+    with pytest.raises(SystemExit) as e:
+        ex.main(["walk", "--steps", "1", "--json", str(out)])
+    assert e.value.code == 2
+    assert f"--json {out}: its directory" in capsys.readouterr().err
+    assert not (tmp_path / "no_such_dir").exists()
+
+
 # ------------------------------------------------------------------------------------------ closed loop
 def test_probe_loop_is_the_runner_loop():
     s = ts.parse_overrides([], "on")

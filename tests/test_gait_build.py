@@ -158,3 +158,29 @@ def test_build_refuses_the_committed_file():
     proc = subprocess.run([sys.executable, "-m", "biped_controller.gaits.build", "--out",
                            str(ROOT / "robots" / "biped7" / "gait_family.json")], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 2 and "refusing" in proc.stderr
+
+
+def _held(stride, ok, eq, eqd, in_range):
+    return {"stride": stride, "success": ok, "fit_error_q": eq, "fit_error_qdot": eqd, "in_range": in_range}
+
+
+def test_acceptance_names_the_check_that_fails():
+    """within_tolerance's reasons: a range collapsed to p_d names the held-out strides next to p_d with their
+    fit errors (not 'could not be optimised' when every one was); an infeasible held-out stride is named."""
+    from biped_controller.gaits.generation import within_tolerance
+    st = load_gait_settings()
+    clean = {"fitted_min_margin": 0.01, "fitted_min_clearance": 0.001, "fit_error_q_max": 0.0, "fit_error_qdot_max": 0.0}
+    lo, hi = st.p_d - 0.0125, st.p_d + 0.0125
+    collapsed = dict(clean, held_out=[_held(lo, True, 3e-2, 0.2, False), _held(hi, True, 4e-3, 0.05, False),
+                                      _held(hi + 0.05, True, 1e-4, 1e-3, False)])
+    ok, why = within_tolerance(collapsed, st)
+    assert not ok and len(why) == 1
+    assert why[0].startswith("the valid range collapsed to p_d"), why
+    assert f"{lo:.4f} m optimised, fit error q 0.03 rad" in why[0] and f"{hi:.4f} m optimised" in why[0], why
+    assert f"{hi + 0.05:.4f}" not in why[0] and "could not be optimised" not in why[0]
+    inside = dict(clean, held_out=[_held(lo, False, 1e-4, 1e-3, True), _held(hi, True, 1e-4, 1e-3, True)],
+                  held_out_all_feasible=False, held_out_fit_error_q_max=1e-4, held_out_fit_error_qdot_max=1e-3)
+    ok, why = within_tolerance(inside, st)
+    assert not ok and why == [f"a held-out stride could not be optimised: {lo:.4f} m"]
+    good = dict(inside, held_out=[_held(lo, True, 1e-4, 1e-3, True)], held_out_all_feasible=True)
+    assert within_tolerance(good, st) == (True, [])

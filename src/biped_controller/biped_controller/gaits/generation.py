@@ -451,11 +451,28 @@ def within_tolerance(validation: dict, st: GaitSettings) -> tuple[bool, list[str
                      ("held_out_fit_error_q_max", st.fit_tolerance_q), ("held_out_fit_error_qdot_max", st.fit_tolerance_qdot)):
         if key in validation and not validation[key] <= tol:
             why.append(f"{key} = {validation[key]:.3g} > {tol:g}")
-    if not validation.get("held_out", []):
+    held_all = validation.get("held_out", [])
+    held_in = [r for r in held_all if r.get("in_range", True)]
+    if not held_all:
         why.append("no held-out stride inside the range")
+    elif not held_in:
+        why.append(collapsed_range_reason(held_all, st))
     elif not validation.get("held_out_all_feasible", False):
-        why.append("a held-out stride could not be optimised")
+        why.append("a held-out stride could not be optimised: "
+                   + ", ".join(f"{r['stride']:.4f} m" for r in held_in if not r["success"]))
     return not why, why
+
+
+def collapsed_range_reason(held_out: list[dict], st: GaitSettings) -> str:
+    """Why the valid range holds no held-out stride (it collapsed to p_d): the two held-out strides
+    nearest p_d, each with whether it was optimised and its fit errors against the tolerances (the
+    range stops at the first interval whose held-out stride misses, ``restrict_to_held_out``)."""
+    near = sorted(held_out, key=lambda r: abs(r["stride"] - st.p_d))[:2]
+    parts = [f"{r['stride']:.4f} m {'optimised' if r['success'] else 'NOT optimised'}, fit error q "
+             f"{r['fit_error_q']:.2g} rad (tolerance {st.fit_tolerance_q:g}), q' {r['fit_error_qdot']:.2g} rad/s "
+             f"(tolerance {st.fit_tolerance_qdot:g})" for r in sorted(near, key=lambda r: r["stride"])]
+    return ("the valid range collapsed to p_d (no held-out stride inside it); the held-out strides next to p_d: "
+            + "; ".join(parts) + " (docs/robots.md, 'NOT ACCEPTED with the range [p_d, p_d]')")
 
 
 def print_report(data: dict, validation: dict) -> None:

@@ -187,6 +187,9 @@ def parser() -> StudyArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     args = ap.parse_args(argv)
+    out = getattr(args, "json", None)
+    if out is not None and not Path(out).parent.is_dir():
+        ap.error(f"--json {out}: its directory {Path(out).parent} does not exist (nothing was run)")
     provenance.track(getattr(args, "json", None), getattr(args, "figures", None), args=args, argv=argv)   # record of each file written (results/README.md)
     settings = settings_from_args(ap, args)
     for name, default in SEARCH_DEFAULTS.items():
