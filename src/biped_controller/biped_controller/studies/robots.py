@@ -186,6 +186,15 @@ def _target_dir(name: str) -> Path:
     return Path(name).expanduser() if is_path_spec(name) else robots_dir() / name
 
 
+def _shown_path(path: Path) -> str:
+    """``path`` as a file written into a robot shows it: relative to the robots' folder's parent (the
+    repository) when it lies there, so no machine's absolute path is committed; absolute otherwise."""
+    try:
+        return str(Path(path).resolve().relative_to(robots_dir().resolve().parent))
+    except ValueError:
+        return str(path)
+
+
 def cmd_new(name: str, source: str, items: list[str], speed: float | None = None) -> int:
     base = resolve_robot(source)
     base_desc = base.description()
@@ -207,7 +216,7 @@ def cmd_new(name: str, source: str, items: list[str], speed: float | None = None
                                 float(derived["step_duration"]["value"]), base.name)
     target.mkdir(parents=True)
     if items:
-        head = (f"# Physical description of robot {target.name}: {base.name}'s ({base.description_path}) with "
+        head = (f"# Physical description of robot {target.name}: {base.name}'s ({_shown_path(base.description_path)}) with "
                 f"{', '.join(items)} (scripts/robot new). Fields, units and frames: docs/robots.md\n")
         (target / DESCRIPTION_FILE).write_text(head + yaml.safe_dump(new_tree, sort_keys=False, width=120, default_flow_style=None),
                                                encoding="utf-8")
