@@ -1,0 +1,68 @@
+"""Can the model-based teacher drive the policy environment at the policy period?
+
+The teacher is the product's mode ``none`` (computed torque on the fixed reference q_d(p_d, tau), tau the
+time in stance) written as a function of the policy observation alone
+(``biped_controller.learning.teacher.TeacherPolicy``); held over each 10 ms policy period by the policy
+controller (``policy.controller.PolicyController``) it runs on the plug-in loop like any ONNX policy.
+``--period 0.001`` checks it against mode ``none`` itself (the same torques, period by period).
+
+    .venv/bin/python -m lab.ppo_teacher --periods 0.001 0.01 --plant mujoco --steps 20 --json F
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+
+def run_teacher(period: float, plant: str, steps: int) -> dict:
+    from biped_controller.learning.teacher import TeacherPolicy
+    from biped_controller.plugin.interface import ControllerSetup
+    from biped_controller.plugin.loop import PluginLoop
+    from biped_controller.policy.controller import PolicyController
+    from biped_controller.studies.trial.context import context
+    from biped_controller.studies.trial.settings import run_settings
+    rs = run_settings(None, [f"plant={plant}"])
+    ctx = context(rs.robot)
+    scfg = rs.sim_config()
+    setup = ControllerSetup(ctx.desc, ctx.family, scfg.control_period, {})
+    teacher = TeacherPolicy(setup.desc, setup.family)
+    ctrl = PolicyController(setup, teacher, policy_period=period)
+    loop = PluginLoop(ctrl, sim_config=scfg, family=ctx.family, desc=ctx.desc, perturbation=rs.perturbation,
+                      name=f"teacher@{period:g}s")
+    r = loop.run(steps)
+    out = {"policy_period": period, "plant": plant, "steps_walked": r.steps_walked, "fallen": r.fallen,
+           "fall_cause": r.fall_cause, "fall_time": None if not r.fallen else r.fall_time,
+           "periods": r.periods}
+    if period == scfg.control_period:
+        ref = PluginLoop("none", sim_config=scfg, family=ctx.family, desc=ctx.desc,
+                         perturbation=rs.perturbation).run(steps)
+        n = min(len(ref.records), len(r.records))
+        d = max(float(np.max(np.abs(a.torque - b.torque))) for a, b in zip(ref.records[:n], r.records[:n]))
+        out["none_steps_walked"] = ref.steps_walked
+        out["max_torque_diff_vs_none"] = d
+        out["compared_periods"] = n
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--periods", type=float, nargs="+", default=[0.001, 0.01])
+    ap.add_argument("--plant", default="mujoco")
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    rows = [run_teacher(p, a.plant, a.steps) for p in a.periods]
+    for r in rows:
+        print(json.dumps(r))
+    if a.json:
+        with open(a.json, "w", encoding="utf-8") as f:
+            json.dump({"command": "python -m lab.ppo_teacher " + " ".join(sys.argv[1:] if argv is None else argv),
+                       "runs": rows}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
