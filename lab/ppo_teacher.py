@@ -4,9 +4,12 @@ The teacher is the product's mode ``none`` (computed torque on the fixed referen
 time in stance) written as a function of the policy observation alone
 (``biped_controller.learning.teacher.TeacherPolicy``); held over each 10 ms policy period by the policy
 controller (``policy.controller.PolicyController``) it runs on the plug-in loop like any ONNX policy.
-``--period 0.001`` checks it against mode ``none`` itself (the same torques, period by period).
+``--period 0.001`` checks it against mode ``none`` itself (the same torques, period by period). ``--kp``
+runs the 10 ms hold again with other joint gains (critically damped, Kv = 2 sqrt(Kp)): does a softer or
+stiffer law survive the hold?
 
-    .venv/bin/python -m lab.ppo_teacher --periods 0.001 0.01 --plant mujoco --steps 20 --json F
+    .venv/bin/python -m lab.ppo_teacher --periods 0.001 0.002 0.005 0.01 --kp 100 225 900 --plant mujoco \
+        --steps 20 --json F
 """
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ import sys
 import numpy as np
 
 
-def run_teacher(period: float, plant: str, steps: int) -> dict:
+def run_teacher(period: float, plant: str, steps: int, kp: float | None = None) -> dict:
     from biped_controller.learning.teacher import TeacherPolicy
     from biped_controller.plugin.interface import ControllerSetup
     from biped_controller.plugin.loop import PluginLoop
@@ -28,15 +31,17 @@ def run_teacher(period: float, plant: str, steps: int) -> dict:
     ctx = context(rs.robot)
     scfg = rs.sim_config()
     setup = ControllerSetup(ctx.desc, ctx.family, scfg.control_period, {})
-    teacher = TeacherPolicy(setup.desc, setup.family)
+    from biped_controller.plugin.model import Gains
+    gains = Gains(kp, 2.0 * kp ** 0.5) if kp is not None else Gains.from_config()
+    teacher = TeacherPolicy(setup.desc, setup.family, gains)
     ctrl = PolicyController(setup, teacher, policy_period=period)
     loop = PluginLoop(ctrl, sim_config=scfg, family=ctx.family, desc=ctx.desc, perturbation=rs.perturbation,
                       name=f"teacher@{period:g}s")
     r = loop.run(steps)
-    out = {"policy_period": period, "plant": plant, "steps_walked": r.steps_walked, "fallen": r.fallen,
+    out = {"policy_period": period, "Kp": gains.Kp, "Kv": gains.Kv, "plant": plant, "steps_walked": r.steps_walked, "fallen": r.fallen,
            "fall_cause": r.fall_cause, "fall_time": None if not r.fallen else r.fall_time,
            "periods": r.periods}
-    if period == scfg.control_period:
+    if period == scfg.control_period and kp is None:
         ref = PluginLoop("none", sim_config=scfg, family=ctx.family, desc=ctx.desc,
                          perturbation=rs.perturbation).run(steps)
         n = min(len(ref.records), len(r.records))
@@ -52,15 +57,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--periods", type=float, nargs="+", default=[0.001, 0.01])
     ap.add_argument("--plant", default="mujoco")
     ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--kp", type=float, nargs="*", default=[], help="gains to try at 10 ms (Kv = 2 sqrt(Kp))")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
+    from biped_controller.studies.provenance import Run
+    prov = Run(argv, plant=a.plant, command="python -m lab.ppo_teacher " + " ".join(sys.argv[1:] if argv is None
+                                                                                  else argv))
     rows = [run_teacher(p, a.plant, a.steps) for p in a.periods]
+    rows += [run_teacher(0.01, a.plant, a.steps, kp) for kp in a.kp]
     for r in rows:
         print(json.dumps(r))
     if a.json:
         with open(a.json, "w", encoding="utf-8") as f:
-            json.dump({"command": "python -m lab.ppo_teacher " + " ".join(sys.argv[1:] if argv is None else argv),
-                       "runs": rows}, f, indent=1)
+            json.dump({"command": prov.command, "runs": rows}, f, indent=1)
+        prov.record(a.json)
     return 0
 
 
