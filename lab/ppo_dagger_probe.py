@@ -1,6 +1,6 @@
 """Probe: would a demonstration-initialised policy walk at a shorter policy period?
 
-The teacher (mode none from the observation, ``biped_controller.learning.teacher``) walks 20 steps on MuJoCo when
+The teacher (mode none from the observation, ``biped_controller.policy.teacher``) walks 20 steps on MuJoCo when
 held over 2 ms but not over 10 ms (``lab.ppo_teacher``; results/ppo_baseline/teacher_hold.json). Here DAgger
 (Ross et al. 2011) fits the baseline's network (standardised observation, tanh 128 x 128, linear output; the
 standardisation from the data) to the teacher's actions on the states the student visits, at ``--period``: the
@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
-    from biped_controller.learning.teacher import TeacherPolicy
+    from biped_controller.policy.teacher import TeacherPolicy
     from biped_controller.policy.env import BipedPushEnv
     from biped_controller.studies.provenance import Run
     prov = Run(argv, plant="mujoco", command="python -m lab.ppo_dagger_probe " + " ".join(

@@ -2,7 +2,7 @@
 
 The teacher is the product's mode ``none`` (computed torque on the fixed reference q_d(p_d, tau), tau the
 time in stance) written as a function of the policy observation alone
-(``biped_controller.learning.teacher.TeacherPolicy``); held over each 10 ms policy period by the policy
+(``biped_controller.policy.teacher.TeacherPolicy``); held over each 10 ms policy period by the policy
 controller (``policy.controller.PolicyController``) it runs on the plug-in loop like any ONNX policy.
 ``--period 0.001`` checks it against mode ``none`` itself (the same torques, period by period). ``--kp``
 runs the 10 ms hold again with other joint gains (critically damped, Kv = 2 sqrt(Kp)): does a softer or
@@ -24,7 +24,7 @@ import numpy as np
 
 def run_teacher(period: float, plant: str, steps: int, kp: float | None = None, noise: float = 0.0,
                 joints: tuple[int, ...] = tuple(range(6)), seed: int = 0) -> dict:
-    from biped_controller.learning.teacher import TeacherPolicy
+    from biped_controller.policy.teacher import TeacherPolicy
     from biped_controller.plugin.interface import ControllerSetup
     from biped_controller.plugin.loop import PluginLoop
     from biped_controller.policy.controller import PolicyController

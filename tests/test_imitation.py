@@ -1,5 +1,5 @@
 """The imitation reward and reference state initialisation of BipedPush-v0, the teacher, and the training
-config that asks for them (biped_controller.policy.env, biped_controller.learning.teacher, ppo_config;
+config that asks for them (biped_controller.policy.env, biped_controller.policy.teacher, ppo_config;
 docs/policies_training.md).
 
 - with the imitation weights 0 (config/policy_env.yaml) the environment draws nothing more and its reward
@@ -64,7 +64,7 @@ def test_reference_state_init_starts_on_the_reference_at_the_drawn_phase():
 
 
 def test_teacher_is_mode_none_on_the_plugin_loop():
-    from biped_controller.learning.teacher import TeacherPolicy
+    from biped_controller.policy.teacher import TeacherPolicy
     from biped_controller.plugin.interface import ControllerSetup
     from biped_controller.plugin.loop import PluginLoop
     from biped_controller.policy.controller import PolicyController

@@ -10,8 +10,8 @@ limits the same way). Mode none reads its phase from its own clock (tau restarts
 the observation's ``time_in_stance`` is that clock, so on the plug-in loop at the plant's period this
 function gives mode none's torques (lab/ppo_teacher.py compares them period by period).
 
-Pure NumPy over the controller-side model (``plugin.model``), no learner: the trainer queries it for
-DAgger's labels (``learning.dagger``).
+Pure NumPy over the controller-side model (``plugin.model``), no learner: a teacher for imitation and the
+probes of lab/ppo_teacher.py and lab/ppo_dagger_probe.py (docs/policies_training.md).
 """
 from __future__ import annotations
 
