@@ -10,7 +10,11 @@ aggregated, the network refitted (Adam, mean squared error). After each iteratio
 on the plug-in loop (MuJoCo, held over the period), as ``scripts/experiment walk`` would. A probe for the next
 design decision, not the product's baseline (no PPO, no pushes).
 
-    .venv/bin/python -m lab.ppo_dagger_probe --period 0.002 --iterations 4 --json F
+    .venv/bin/python -m lab.ppo_dagger_probe --period 0.002 --iterations 6 --epochs 300 [--standardise-targets] --json F
+
+``--standardise-targets`` fits each joint's action standardised by its spread in the data (the de-standardisation
+folded into the output layer, so the network is the baseline's), so the light swing ankle's small torques weigh
+as much as the stance leg's large ones.
 """
 from __future__ import annotations
 
@@ -34,13 +38,16 @@ def rollout(env, policy, teacher, seed, max_steps):
     return X, Y
 
 
-def fit(X, Y, hidden, epochs, seed, lr=1e-3, batch=256):
+def fit(X, Y, hidden, epochs, seed, lr=1e-3, batch=256, standardise_targets=False):
     import jax
     import jax.numpy as jnp
     import optax
     X = np.asarray(X, np.float32)
     Y = np.asarray(Y, np.float32)
     mu, sd = X.mean(0), X.std(0) + 1e-6
+    ym, ys = (Y.mean(0), Y.std(0) + 1e-6) if standardise_targets else (np.zeros(Y.shape[1], np.float32),
+                                                                        np.ones(Y.shape[1], np.float32))
+    Yn = (Y - ym) / ys
     sizes = [X.shape[1], *hidden, Y.shape[1]]
     key = jax.random.PRNGKey(seed)
     params = []
@@ -73,16 +80,19 @@ def fit(X, Y, hidden, epochs, seed, lr=1e-3, batch=256):
         perm = rng.permutation(n)
         for i in range(0, n - batch + 1, batch):
             j = perm[i:i + batch]
-            params, state, l = step(params, state, X[j], Y[j])
+            params, state, l = step(params, state, X[j], Yn[j])
     pn = [(np.asarray(w), np.asarray(b)) for w, b in params]
-    full = float(np.mean((np.asarray(forward(params, X)) - Y) ** 2))
+    pn[-1] = (pn[-1][0] * ys, pn[-1][1] * ys + ym)       # the output's de-standardisation folded into its layer
+    pred = np.asarray(forward(params, X)) * ys + ym
+    full = float(np.mean((pred - Y) ** 2))
+    per_joint = np.sqrt(np.mean((pred - Y) ** 2, axis=0))
 
     def policy(o):
         h = np.clip((np.asarray(o, np.float32) - mu) / sd, -5.0, 5.0)
         for w, b in pn[:-1]:
             h = np.tanh(h @ w + b)
         return np.clip(h @ pn[-1][0] + pn[-1][1], -1.0, 1.0).astype(float)
-    return policy, full
+    return policy, full, per_joint
 
 
 def walk(policy, period, steps):
@@ -110,6 +120,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-seconds", type=float, default=3.0, help="sim time per rollout [s]")
     ap.add_argument("--epochs", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--standardise-targets", action="store_true",
+                    help="fit the teacher's actions standardised per joint (each joint's error weighed by its spread)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     from biped_controller.policy.teacher import TeacherPolicy
@@ -128,14 +140,15 @@ def main(argv: list[str] | None = None) -> int:
             x, y = rollout(env, policy, teacher, a.seed + 100 * it + r, max_steps)
             X += x
             Y += y
-        policy, mse = fit(X, Y, (128, 128), a.epochs, a.seed + it)
+        policy, mse, rms = fit(X, Y, (128, 128), a.epochs, a.seed + it, standardise_targets=a.standardise_targets)
         w = walk(policy, a.period, 20)
-        rows.append({"iteration": it, "samples": len(X), "fit_mse": mse, **w,
+        rows.append({"iteration": it, "samples": len(X), "fit_mse": mse, "fit_rms_per_joint": rms.tolist(), **w,
                      "wall_s": round(time.monotonic() - t0, 1)})
         print(json.dumps(rows[-1]), flush=True)
     if a.json:
         with open(a.json, "w", encoding="utf-8") as f:
-            json.dump({"command": prov.command, "period": a.period, "iterations": rows}, f, indent=1)
+            json.dump({"command": prov.command, "period": a.period, "standardise_targets": a.standardise_targets,
+                       "iterations": rows}, f, indent=1)
         prov.record(a.json)
     return 0
 
