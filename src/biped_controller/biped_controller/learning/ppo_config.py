@@ -41,6 +41,9 @@ class PpoConfig:
     budget_minutes: float
     smoke_updates: int
     record_observations: int
+    env_settings: dict
+    push_distribution: dict
+    budget_spent_minutes: float
 
     def validate(self) -> "PpoConfig":
         ints = ("seed", "num_envs", "workers", "rollouts", "learning_epochs", "mini_batches", "smoke_updates",
@@ -51,7 +54,8 @@ class PpoConfig:
                 raise TrainConfigError(f"{k} must be an integer >= {0 if k == 'seed' else 1}, got {v!r}")
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ints or f.name in ("plant", "hidden_sizes") or isinstance(v, bool):
+            if f.name in ints or f.name in ("plant", "hidden_sizes", "env_settings",
+                                                        "push_distribution") or isinstance(v, bool):
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise TrainConfigError(f"{f.name} must be a finite number, got {v!r}")
@@ -71,6 +75,20 @@ class PpoConfig:
         for k in ("learning_rate", "checkpoint_minutes", "budget_minutes"):
             if not getattr(self, k) > 0:
                 raise TrainConfigError(f"{k} must be > 0, got {getattr(self, k)!r}")
+        if not isinstance(self.env_settings, dict):
+            raise TrainConfigError(f"env_settings must be a mapping of environment settings, got {self.env_settings!r}")
+        from biped_controller.policy.env import EnvConfigError, load_env_config
+        try:
+            load_env_config(**self.env_settings)
+        except (EnvConfigError, TypeError) as exc:
+            raise TrainConfigError(f"env_settings: {exc}") from None
+        from biped_controller.policy.pushes import PushDistribution, PushOptionError
+        try:
+            PushDistribution(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in dict(self.push_distribution).items()})
+        except (PushOptionError, TypeError, ValueError) as exc:
+            raise TrainConfigError(f"push_distribution: {exc}") from None
+        if not 0 <= self.budget_spent_minutes < self.budget_minutes:
+            raise TrainConfigError(f"budget_spent_minutes must be in [0, budget_minutes), got {self.budget_spent_minutes!r}")
         for k in ("discount_factor", "gae_lambda"):
             if not 0 <= getattr(self, k) <= 1:
                 raise TrainConfigError(f"{k} must be in [0, 1], got {getattr(self, k)!r}")

@@ -97,11 +97,18 @@ class Paths:
 STAT_KEYS = ("x_position", "t", "steps_walked", "fell", "pushed")
 
 
-def _make_one(plant: str):
+def _make_one(env_kwargs: dict):
     import gymnasium as gym
 
     import biped_controller.policy  # noqa: F401  (registers the environments)
-    return gym.make("BipedRandomPush-v0", plant=plant)
+    return gym.make("BipedRandomPush-v0", **env_kwargs)
+
+
+def env_kwargs(cfg: PpoConfig) -> dict:
+    """The training environment's keyword arguments: the plant, the config's ``push_distribution`` (the random
+    pushes' ``policy.pushes.PushDistribution`` fields over its defaults) and ``env_settings``."""
+    dist = {k: (tuple(v) if isinstance(v, list) else v) for k, v in cfg.push_distribution.items()}
+    return {"plant": cfg.plant, "distribution": dist, **cfg.env_settings}
 
 
 class EnvBatch:
@@ -115,8 +122,8 @@ class EnvBatch:
     advantage loop unrolled over the rollout (compile time grows faster than linearly with the rollout: 2.5 s
     at 16 steps, 46 s at 128 here), so it wants many environments and short rollouts, as Isaac Lab runs it."""
 
-    def __init__(self, plant: str, n: int):
-        self.envs = [_make_one(plant) for _ in range(n)]
+    def __init__(self, env_kwargs: dict, n: int):
+        self.envs = [_make_one(env_kwargs) for _ in range(n)]
         self.pushed = np.zeros(n)
 
     def _stats(self, info, i):
@@ -152,8 +159,8 @@ class EnvBatch:
         return obs, rew, term, trunc, stats, final
 
 
-def _worker(conn, plant: str, n: int) -> None:
-    batch = EnvBatch(plant, n)
+def _worker(conn, env_kwargs: dict, n: int) -> None:
+    batch = EnvBatch(env_kwargs, n)
     try:
         while True:
             cmd, arg = conn.recv()
@@ -173,14 +180,14 @@ class VecWorkers:
     """``workers`` processes (spawned: the parent runs JAX's threads), each an :class:`EnvBatch` of
     ``num_envs / workers`` environments; ``reset(seed)`` seeds environment j with ``seed + j``."""
 
-    def __init__(self, plant: str, num_envs: int, workers: int):
+    def __init__(self, env_kwargs: dict, num_envs: int, workers: int):
         import multiprocessing as mp
         ctx = mp.get_context("spawn")
         self.sizes = [num_envs // workers + (1 if w < num_envs % workers else 0) for w in range(workers)]
         self.conns, self.procs = [], []
         for n in self.sizes:
             a, b = ctx.Pipe()
-            p = ctx.Process(target=_worker, args=(b, plant, n), daemon=True)
+            p = ctx.Process(target=_worker, args=(b, env_kwargs, n), daemon=True)
             p.start()
             b.close()
             self.conns.append(a)
@@ -399,7 +406,7 @@ def export_policy(agent, cfg: PpoConfig, name: str, out: Path, meta: dict) -> No
                            f"{cfg.plant} plant, {meta['totals']['env_steps']} env steps "
                            f"({meta['totals']['wall_s'] / 60:.0f} min of a {cfg.budget_minutes:.0f} min budget)",
             "observation": list(OBS_FIELDS), "action": list(ACTION_FIELDS),
-            "policy_period": load_env_config().policy_period, "plant": cfg.plant, "robot": "biped7",
+            "policy_period": load_env_config(**cfg.env_settings).policy_period, "plant": cfg.plant, "robot": "biped7",
             "deterministic_action": "the Gaussian policy's mean (unclipped; the controller clips to [-1, 1])",
             "trainer": "biped_controller.learning.ppo_train (scripts/train)", "config": f"config/training/{name}.yaml",
             "totals": meta["totals"], "stack": meta["stack"], "curve": f"results/{name}/curve.csv",
@@ -477,16 +484,17 @@ def train(name: str, *, resume: bool = False, restart: bool = False, budget_minu
             if paths.curve.is_file() else []
     totals = dict(meta["totals"]) if resume else {"updates": 0, "env_steps": 0, "wall_s": 0.0}
     segment = len(meta["segments"]) if resume else 0
-    left_total = cfg.budget_minutes * 60.0 - totals["wall_s"]
+    left_total = (cfg.budget_minutes - cfg.budget_spent_minutes) * 60.0 - totals["wall_s"]
     sitting = budget_minutes * 60.0 if budget_minutes is not None else math.inf
     if left_total <= 0 and not smoke:
-        raise TrainError(f"the budget of {cfg.budget_minutes} min is spent ({totals['wall_s'] / 60:.1f} min trained)")
+        raise TrainError(f"the budget of {cfg.budget_minutes} min is spent ({totals['wall_s'] / 60:.1f} min trained, "
+                         f"{cfg.budget_spent_minutes} min before this run)")
     stop_after = min(left_total, sitting)
     max_updates = cfg.smoke_updates if smoke else None
 
     import gymnasium as gym
     from biped_controller.policy.spec import OBS_SIZE
-    vec = VecWorkers(cfg.plant, cfg.num_envs, cfg.workers)
+    vec = VecWorkers(env_kwargs(cfg), cfg.num_envs, cfg.workers)
     try:
         agent = build_agent(cfg, gym.spaces.Box(-np.inf, np.inf, (OBS_SIZE,), np.float32),
                             gym.spaces.Box(-1.0, 1.0, (6,), np.float32), paths.results)

@@ -25,10 +25,23 @@ Reward of a step of duration dt (f = dt / policy_period, so a cut-short step ear
     healthy  = healthy_reward * f                    (0 for the step that ends in a fall)
     ctrl     = ctrl_cost_weight * sum(a_i^2) * f
     upright  = upright_cost_weight * theta^2 * f,    theta the torso's pitch from the vertical at the end [rad]
-    reward   = forward + healthy - ctrl - upright
+    imitate  = (w_pose exp(-k_pose |q - q_d|^2) + w_vel exp(-k_vel |q' - q_d'|^2)
+                + w_speed exp(-k_speed (v - v_pref)^2)) * f
+    reward   = forward + healthy - ctrl - upright + imitate
 
-with v_pref = p_d / T [m/s] the gait family's preferred speed (stride over step duration). The reward reads
-the plant's true state (the trainer's view); the policy sees only its observation.
+with v_pref = p_d / T [m/s] the gait family's preferred speed (stride over step duration). The imitation
+term is DeepMimic's (Peng et al. 2018: pose, velocity and centre-of-mass terms, each exp(-k error^2)) on the
+gait family's preferred reference at the time in stance s: q_d = q_d(p_d, min(s, T)), q_d' = dq_d/dtau (tau'
+= 1), q, q' the joint state at the step's end in paper order of its stance (as the plant reports it: the
+true state under the default profile's ideal sensors), the hip's speed standing in for the centre of mass's;
+its weights are 0 in config/policy_env.yaml (the Walker2d-style reward alone) and set by a trainer that asks
+for imitation (config/training/ppo_baseline.yaml). The other terms read the plant's true state (the
+trainer's view); the policy sees only its observation.
+
+Reference state initialisation (DeepMimic's RSI): with probability ``reference_state_init`` a reset starts
+at a uniformly drawn phase s0 in [0, T) of the preferred step instead of its start: (q_d(p_d, s0),
+dq_d/dtau(p_d, s0)) plus the reset noise, LEFT stance, sim time 0, time in stance s0 (the phase drawn after
+the noise, from the same generator; nothing drawn when the probability is 0, the default).
 
 Termination: the plant's fall rule (``info["fall_cause"]`` names it: the rigid plant's take-off, slip, CoP
 or body contact, MuJoCo's hip height, foot tilt or body contact), the same as in every study; the plant
@@ -81,6 +94,13 @@ class EnvConfig:
     upright_cost_weight: float
     reset_noise_scale: float
     max_episode_steps: int
+    imitation_pose_weight: float
+    imitation_pose_scale: float
+    imitation_velocity_weight: float
+    imitation_velocity_scale: float
+    imitation_speed_weight: float
+    imitation_speed_scale: float
+    reference_state_init: float
 
     def validate(self) -> "EnvConfig":
         for f in fields(self):
@@ -89,6 +109,8 @@ class EnvConfig:
                 raise EnvConfigError(f"{f.name} must be a finite number >= 0, got {v!r}")
         if self.policy_period <= 0:
             raise EnvConfigError(f"policy_period must be > 0 s, got {self.policy_period!r}")
+        if self.reference_state_init > 1:
+            raise EnvConfigError(f"reference_state_init is a probability in [0, 1], got {self.reference_state_init!r}")
         return self
 
 
@@ -122,7 +144,8 @@ class BipedPushEnv(gym.Env):
     ``config/simulator.yaml`` -> value (as ``--set``); ``perturbation``: plant perturbation fields -> value (as
     ``--perturb``, over the profile's). The reward and reset settings (``policy_period`` [s],
     ``forward_reward_weight``, ``healthy_reward``, ``ctrl_cost_weight``, ``upright_cost_weight``,
-    ``reset_noise_scale``) default to ``config/policy_env.yaml``. ``keep_records``: keep every plant period's
+    ``reset_noise_scale``, and as keywords the imitation terms' ``imitation_*`` and ``reference_state_init``)
+    default to ``config/policy_env.yaml``. ``keep_records``: keep every plant period's
     ``StepRecord`` of the episode in :attr:`records` (tests, analysis)."""
 
     metadata = {"render_modes": []}
@@ -132,7 +155,7 @@ class BipedPushEnv(gym.Env):
                  policy_period: float | None = None, forward_reward_weight: float | None = None,
                  healthy_reward: float | None = None, ctrl_cost_weight: float | None = None,
                  upright_cost_weight: float | None = None, reset_noise_scale: float | None = None,
-                 keep_records: bool = False, render_mode: str | None = None):
+                 keep_records: bool = False, render_mode: str | None = None, **reward_settings: float):
         from biped_controller.studies.trial.context import context
         from biped_controller.studies.trial.settings import run_settings
         if render_mode is not None:
@@ -140,7 +163,8 @@ class BipedPushEnv(gym.Env):
                                  f"(record a run with the studies or the ROS graph instead)")
         self.config = load_env_config(policy_period=policy_period, forward_reward_weight=forward_reward_weight,
                                       healthy_reward=healthy_reward, ctrl_cost_weight=ctrl_cost_weight,
-                                      upright_cost_weight=upright_cost_weight, reset_noise_scale=reset_noise_scale)
+                                      upright_cost_weight=upright_cost_weight, reset_noise_scale=reset_noise_scale,
+                                      **reward_settings)
         pert_items = [f"{k}={v}" for k, v in dict(perturbation or {}).items()]
         self.run_settings = run_settings(profile, _override_items(settings, plant), perturb=pert_items, robot=robot)
         ctx = context(self.run_settings.robot)
@@ -152,6 +176,9 @@ class BipedPushEnv(gym.Env):
         self.sim = make_plant(self.scfg.plant, self.desc, self.scfg, self.perturbation)
         self.limits = torque_limits(self.desc)
         self.v_pref = self.family.p_d / self.family.T
+        c = self.config
+        self._imitate = (c.imitation_pose_weight > 0 or c.imitation_velocity_weight > 0
+                         or c.imitation_speed_weight > 0)
         self.keep_records = bool(keep_records)
         self.records: list = []
         self.render_mode = None
@@ -171,6 +198,15 @@ class BipedPushEnv(gym.Env):
         raw = self._raw
         return observation_vector(raw.q, raw.qd, raw.pitch, raw.pitch_rate, raw.stance, self._t_obs - self._t_stance,
                                   self._last_torque, self.limits)
+
+    def _imitation(self, v: float) -> float:
+        """The imitation term per full period (module docstring) at the current observation."""
+        c, fam, raw = self.config, self.family, self._raw
+        g = fam.evaluate(fam.p_d, min(max(self._t_obs - self._t_stance, 0.0), fam.T))
+        eq, eqd = raw.q - g.q, raw.qd - g.dq_dtau
+        return (c.imitation_pose_weight * math.exp(-c.imitation_pose_scale * float(eq @ eq))
+                + c.imitation_velocity_weight * math.exp(-c.imitation_velocity_scale * float(eqd @ eqd))
+                + c.imitation_speed_weight * math.exp(-c.imitation_speed_scale * (v - self.v_pref) ** 2))
 
     def _info(self) -> dict:
         fall = self.sim.fall
@@ -200,9 +236,16 @@ class BipedPushEnv(gym.Env):
         super().reset(seed=seed)
         q0, qd0 = self.family.initial_state()
         s = self.config.reset_noise_scale
+        nq, nqd = np.zeros_like(q0), np.zeros_like(qd0)
         if s > 0:
-            q0 = q0 + self.np_random.uniform(-s, s, q0.shape)
-            qd0 = qd0 + self.np_random.uniform(-s, s, qd0.shape)
+            nq = self.np_random.uniform(-s, s, q0.shape)
+            nqd = self.np_random.uniform(-s, s, qd0.shape)
+        phase = 0.0
+        if self.config.reference_state_init > 0 and self.np_random.uniform() < self.config.reference_state_init:
+            phase = float(self.np_random.uniform(0.0, self.family.T))
+            g = self.family.evaluate(self.family.p_d, phase)
+            q0, qd0 = g.q.copy(), g.dq_dtau.copy()
+        q0, qd0 = q0 + nq, qd0 + nqd
         sim = self.sim
         self.initial_state = (q0, qd0)
         sim.reset(q0, qd0, LEFT)
@@ -211,7 +254,8 @@ class BipedPushEnv(gym.Env):
         self._pushes = pushes
         self._last_torque = np.zeros(6)
         self._observe()
-        self._t_stance = self._t_obs
+        self._t_stance = self._t_obs - phase
+        self.reset_phase = phase
         self._ended = False
         self.records = []
         return self._obs(), self._info()
@@ -256,11 +300,12 @@ class BipedPushEnv(gym.Env):
         r_healthy = 0.0 if fell else cfg.healthy_reward * f
         c_ctrl = cfg.ctrl_cost_weight * float(np.dot(a, a)) * f
         c_up = cfg.upright_cost_weight * theta * theta * f
-        reward = r_fwd + r_healthy - c_ctrl - c_up
+        r_im = self._imitation(v) * f if self._imitate else 0.0
+        reward = r_fwd + r_healthy - c_ctrl - c_up + r_im
         self._ended = fell
         info = self._info()
         info.update(period=dt, touchdown=touchdown, x_velocity=v, reward_forward=r_fwd, reward_healthy=r_healthy,
-                    reward_ctrl=-c_ctrl, reward_upright=-c_up)
+                    reward_ctrl=-c_ctrl, reward_upright=-c_up, reward_imitation=r_im)
         return self._obs(), float(reward), fell, False, info
 
 
