@@ -9,7 +9,10 @@ output directory; the machine's load average is sampled before and after each. R
 * ``old``: ``biped_controller.gaits.generation`` as today (``scripts/generate_gait_family`` without
   ``--check``), BLAS threads left at their default;
 * ``new``: ``biped_controller.gaits.build`` (2 worker processes, single-threaded BLAS, fast evaluator),
-  ``--repeats`` times: the files of the repeats are compared byte for byte (sha256).
+  ``--repeats`` times: the files of the repeats are compared byte for byte (sha256);
+* ``today`` (``--today``): the same build with ``--no-memo`` (every solve of the continuation sweeps run again,
+  the build as it was before ``SolveMemo``), alternating with the ``new`` runs (today_1, new_1, today_2, ...):
+  its file must be the new one byte for byte (``summary.new_identical_to_today``).
 
 For each family: the wall time, the validation figures the generator stores (fit errors at the fitted and
 held-out strides, the fitted family's smallest true margin, clearance and largest periodicity residual
@@ -180,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2, help="runs of the new build (compared byte for byte)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-old", action="store_true", help="only the new build")
+    ap.add_argument("--today", action="store_true",
+                    help="also the build without its solve memo (gaits.build --no-memo), alternating with the new runs")
     ap.add_argument("--old-single-thread", action="store_true",
                     help="also today's generator with OPENBLAS_NUM_THREADS=1 (row old_blas1): the share of the BLAS threads")
     ap.add_argument("--keep", type=Path, default=None, help="copy the built families into this directory")
@@ -204,8 +209,11 @@ def main(argv: list[str] | None = None) -> int:
         plan = [] if args.skip_old else [("old", [py, "-m", "biped_controller.gaits.generation"], {})]
         if args.old_single_thread:
             plan.append(("old_blas1", [py, "-m", "biped_controller.gaits.generation"], {"OPENBLAS_NUM_THREADS": "1"}))
-        plan += [(f"new_{i + 1}", [py, "-m", "biped_controller.gaits.build", "--workers", str(args.workers)], {})
-                 for i in range(args.repeats)]
+        bcmd = [py, "-m", "biped_controller.gaits.build", "--workers", str(args.workers)]
+        for i in range(args.repeats):
+            if args.today:
+                plan.append((f"today_{i + 1}", bcmd + ["--no-memo"], {}))
+            plan.append((f"new_{i + 1}", bcmd, {}))
         for name, cmd, env in plan:
             d = tmp / name
             d.mkdir()
@@ -213,7 +221,9 @@ def main(argv: list[str] | None = None) -> int:
             env = dict(env, NUMBA_CACHE_DIR=str(d / "numba_cache"))
             print(f"{name}: {' '.join(cmd[1:])} ... (load {os.getloadavg()[0]:.2f})", flush=True)
             r = _run(cmd + ["--out", str(out)] + extra, env, d / "log.txt")
-            r["log_tail"] = (d / "log.txt").read_text(encoding="utf-8", errors="replace").splitlines()[-3:]
+            log = (d / "log.txt").read_text(encoding="utf-8", errors="replace").splitlines()
+            r["log_tail"] = log[-3:]
+            r["times_line"] = next((x for x in log if x.startswith("times [s]:")), None)
             if out.is_file():
                 r["sha256"] = _sha(out)
                 r["figures"] = _figures(out)
@@ -238,6 +248,16 @@ def main(argv: list[str] | None = None) -> int:
     }
     if summary["old_wall_s"] and news:
         summary["ratio_old_over_new"] = [round(summary["old_wall_s"] / r["wall_s"], 2) for r in news]
+    todays = [r for k, r in rows.items() if k.startswith("today")]
+    if todays:
+        summary["today_wall_s"] = [r["wall_s"] for r in todays]
+        summary["new_identical_to_today"] = (len({r.get("sha256") for r in news + todays}) == 1
+                                             and None not in {r.get("sha256") for r in news + todays})
+        # each new run against the today run just before it (the pair ran one after the other)
+        summary["ratio_today_over_new"] = [round(t["wall_s"] / n["wall_s"], 3) for t, n in zip(todays, news)]
+        summary["ratio_today_over_new_median"] = float(np.median(summary["ratio_today_over_new"]))
+        summary["new_wall_s_median"] = float(np.median(summary["new_wall_s"]))
+        summary["today_wall_s_median"] = float(np.median(summary["today_wall_s"]))
     R = {"meta": {"date": provenance._utc_now(), "host": platform.node(), "cpus": os.cpu_count(),
                   "python": platform.python_version(), "blas": blas_info(), "quick": args.quick,
                   "settings": "reduced (benchmarks: --quick)" if args.quick else "robots/biped7/gait.yaml"},
@@ -275,6 +295,9 @@ def markdown(R: dict) -> str:
                      f"{g('fitted_max_periodicity_residual')} | {f.get('range')} | {r.get('accepted')} | {vcs} |")
     if "ratio_old_over_new" in s:
         lines += ["", f"old / new wall time: {s['ratio_old_over_new']}"]
+    if "ratio_today_over_new" in s:
+        lines += ["", f"today / new wall time (pairs run one after the other): {s['ratio_today_over_new']}; "
+                      f"new file identical to today's: {s['new_identical_to_today']}"]
     return "\n".join(lines) + "\n"
 
 
