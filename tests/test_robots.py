@@ -578,7 +578,7 @@ def test_build_rejects_zero_workers(tmp_path):
 
 # ------------------------------------------------------------------------------------------ the shipped robots
 #: robots shipped beside biped7 (docs/robots_compared.md), each with its built family committed
-SHIPPED = ("biped7_foot10", "biped7_foot05", "human70")
+SHIPPED = ("biped7_foot10", "biped7_foot05", "human70", "rabbit")
 
 
 @pytest.mark.parametrize("name", SHIPPED)
