@@ -4,7 +4,8 @@
 
 Each build runs in a fresh process (``python -m ...``), from the robot's description and gait settings
 alone (no committed family read, no warm start), with an empty ``NUMBA_CACHE_DIR`` and its own temporary
-output directory; the machine's load average is sampled before and after each. Rows:
+output directory; the machine's load average is sampled before and after each, its wall time and CPU time
+(``cpu_s``: user + system of the build and of the worker processes it waited for) recorded. Rows:
 
 * ``old``: ``biped_controller.gaits.generation`` as today (``scripts/generate_gait_family`` without
   ``--check``), BLAS threads left at their default;
@@ -37,6 +38,7 @@ import hashlib
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -57,11 +59,15 @@ def _run(cmd: list[str], env_extra: dict, log: Path) -> dict:
     env = dict(os.environ)
     env.update(env_extra)
     load0 = os.getloadavg()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     with open(log, "w", encoding="utf-8") as fh:
         proc = subprocess.run(cmd, cwd=ROOT, env=env, stdout=fh, stderr=subprocess.STDOUT)
     wall = time.perf_counter() - t0
-    return {"command": " ".join(cmd[1:]), "wall_s": round(wall, 2), "exit": proc.returncode,
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    # CPU of the build and of the worker processes it waited for (user + system) [s]
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    return {"command": " ".join(cmd[1:]), "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "exit": proc.returncode,
             "load_before": [round(x, 2) for x in load0], "load_after": [round(x, 2) for x in os.getloadavg()],
             "env": env_extra}
 
@@ -258,6 +264,8 @@ def main(argv: list[str] | None = None) -> int:
         summary["ratio_today_over_new_median"] = float(np.median(summary["ratio_today_over_new"]))
         summary["new_wall_s_median"] = float(np.median(summary["new_wall_s"]))
         summary["today_wall_s_median"] = float(np.median(summary["today_wall_s"]))
+        summary["today_cpu_s"] = [r.get("cpu_s") for r in todays]
+        summary["new_cpu_s"] = [r.get("cpu_s") for r in news]
     R = {"meta": {"date": provenance._utc_now(), "host": platform.node(), "cpus": os.cpu_count(),
                   "python": platform.python_version(), "blas": blas_info(), "quick": args.quick,
                   "settings": "reduced (benchmarks: --quick)" if args.quick else "robots/biped7/gait.yaml"},
@@ -279,9 +287,9 @@ def markdown(R: dict) -> str:
              f"{'reduced family' if R['meta']['quick'] else 'robots/biped7'})", "",
              f"Target: at most {s['target_s']:.0f} s (printed, not asserted). New build identical across runs: "
              f"{s['new_identical_across_runs']}.", "",
-             "| run | wall [s] | load before / after (1 min) | held-out fit q [rad] | q' [rad/s] | fitted min margin | "
+             "| run | wall [s] | CPU [s] | load before / after (1 min) | held-out fit q [rad] | q' [rad/s] | fitted min margin | "
              "max periodicity between strides | range [m] | accepted | vs committed: q [rad] / q' [rad/s] / c |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in R["rows"].items():
         f = r.get("figures", {})
         vc = r.get("vs_committed")
@@ -290,7 +298,7 @@ def markdown(R: dict) -> str:
             v = f.get(k)
             return format(v, fmt) if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
         vcs = (f"{vc['max_abs_dq']:.2e} / {vc['max_abs_dqdot']:.2e} / {vc['max_abs_dc_strides']:.2e}" if vc else "-")
-        lines.append(f"| {name} | {r['wall_s']:.1f} | {r['load_before'][0]:.2f} / {r['load_after'][0]:.2f} | "
+        lines.append(f"| {name} | {r['wall_s']:.1f} | {r.get('cpu_s', float('nan')):.1f} | {r['load_before'][0]:.2f} / {r['load_after'][0]:.2f} | "
                      f"{g('held_out_fit_error_q_max')} | {g('held_out_fit_error_qdot_max')} | {g('fitted_min_margin', '.4f')} | "
                      f"{g('fitted_max_periodicity_residual')} | {f.get('range')} | {r.get('accepted')} | {vcs} |")
     if "ratio_old_over_new" in s:
