@@ -13,7 +13,9 @@ output directory; the machine's load average is sampled before and after each, i
   ``--repeats`` times: the files of the repeats are compared byte for byte (sha256);
 * ``today`` (``--today``): the same build with ``--no-memo`` (every solve of the continuation sweeps run again,
   the build as it was before ``SolveMemo``), alternating with the ``new`` runs (today_1, new_1, today_2, ...):
-  its file must be the new one byte for byte (``summary.new_identical_to_today``).
+  its file must be the new one byte for byte (``summary.new_identical_to_today``). With ``--today-rev REV`` the
+  today rows run the build of commit REV instead (``git archive REV src/``, its packages first on
+  ``PYTHONPATH``, ``BIPED_ROOT`` this tree; each row records the module file it ran, ``module_file``).
 
 For each family: the wall time, the validation figures the generator stores (fit errors at the fitted and
 held-out strides, the fitted family's smallest true margin, clearance and largest periodicity residual
@@ -70,6 +72,25 @@ def _run(cmd: list[str], env_extra: dict, log: Path) -> dict:
     return {"command": " ".join(cmd[1:]), "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "exit": proc.returncode,
             "load_before": [round(x, 2) for x in load0], "load_after": [round(x, 2) for x in os.getloadavg()],
             "env": env_extra}
+
+
+def _archive(rev: str, dest: Path) -> dict:
+    """Commit ``rev``'s ``src/`` unpacked under ``dest``; the environment that runs its packages (first on
+    ``PYTHONPATH``) with this tree's configuration and robots (``BIPED_ROOT``)."""
+    dest.mkdir(parents=True)
+    arc = subprocess.run(["git", "archive", rev, "src/"], cwd=ROOT, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=arc, check=True)
+    pkgs = [str(p) for p in sorted((dest / "src").iterdir()) if (p / p.name / "__init__.py").is_file()]
+    return {"PYTHONPATH": os.pathsep.join(pkgs), "BIPED_ROOT": str(ROOT), "TODAY_REV": rev}
+
+
+def _module_file(env_extra: dict) -> str:
+    """The file ``biped_controller.gaits.build`` is imported from under ``env_extra`` (which code a row ran)."""
+    env = dict(os.environ)
+    env.update({k: v for k, v in env_extra.items() if k != "NUMBA_CACHE_DIR"})
+    proc = subprocess.run([sys.executable, "-c", "import biped_controller.gaits.build as b; print(b.__file__)"],
+                          cwd=ROOT, env=env, capture_output=True, text=True)
+    return proc.stdout.strip() or proc.stderr.strip()[-300:]
 
 
 def _distance(path: Path, ref_path: Path) -> dict:
@@ -191,6 +212,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-old", action="store_true", help="only the new build")
     ap.add_argument("--today", action="store_true",
                     help="also the build without its solve memo (gaits.build --no-memo), alternating with the new runs")
+    ap.add_argument("--today-rev", default=None, metavar="REV",
+                    help="with --today: the today rows run commit REV's build (git archive of its src/) instead")
     ap.add_argument("--old-single-thread", action="store_true",
                     help="also today's generator with OPENBLAS_NUM_THREADS=1 (row old_blas1): the share of the BLAS threads")
     ap.add_argument("--keep", type=Path, default=None, help="copy the built families into this directory")
@@ -216,9 +239,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.old_single_thread:
             plan.append(("old_blas1", [py, "-m", "biped_controller.gaits.generation"], {"OPENBLAS_NUM_THREADS": "1"}))
         bcmd = [py, "-m", "biped_controller.gaits.build", "--workers", str(args.workers)]
+        today_cmd, today_env = bcmd + ["--no-memo"], {}
+        if args.today_rev:
+            today_env = _archive(args.today_rev, tmp / "today_src")
+            today_cmd = bcmd
         for i in range(args.repeats):
             if args.today:
-                plan.append((f"today_{i + 1}", bcmd + ["--no-memo"], {}))
+                plan.append((f"today_{i + 1}", today_cmd, today_env))
             plan.append((f"new_{i + 1}", bcmd, {}))
         for name, cmd, env in plan:
             d = tmp / name
@@ -227,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
             env = dict(env, NUMBA_CACHE_DIR=str(d / "numba_cache"))
             print(f"{name}: {' '.join(cmd[1:])} ... (load {os.getloadavg()[0]:.2f})", flush=True)
             r = _run(cmd + ["--out", str(out)] + extra, env, d / "log.txt")
+            r["module_file"] = _module_file(env)
             log = (d / "log.txt").read_text(encoding="utf-8", errors="replace").splitlines()
             r["log_tail"] = log[-3:]
             r["times_line"] = next((x for x in log if x.startswith("times [s]:")), None)
