@@ -4,7 +4,7 @@
 
 Same steps as ``generate`` (p_d from the stated initial guess, the two warm-started chains outwards, the
 continuation sweeps, the smoothing passes, the fit and its range, the held-out strides, the 1 m/s
-question, the validation), with four differences in how they are computed, none in what is computed:
+question, the validation), with five differences in how they are computed, none in what is computed:
 
 * **single-threaded BLAS** in every process (:mod:`.blas`): SLSQP's subproblem goes through OpenBLAS,
   whose multi-threaded result differs in the last bits from the single-threaded one, and two
@@ -18,7 +18,10 @@ question, the validation), with four differences in how they are computed, none 
   b, and that guess is kept only if b's answer was not replaced (it rarely is after the first sweep),
   so the sweep gives exactly the sequential result;
 * **diagnostics only for the solutions kept** (``StepOptimizer.diagnose`` depends on the solution
-  alone): candidates rejected by a sweep are not diagnosed.
+  alone): candidates rejected by a sweep are not diagnosed;
+* **no solve made twice** (:class:`SolveMemo`): a sweep's solve with the same stride and warm start as an
+  earlier one (the chain's, or the previous sweep's) is that solve's stored result (``--no-memo``: solved
+  again; the same file).
 
 The default ``--evaluator fast`` also uses :class:`.fast_eval.FastStepOptimizer` (exact derivative of the
 impact map with respect to the pre-impact velocities, on which it is linear, instead of central
