@@ -634,7 +634,8 @@ def test_compare_gives_the_dimensionless_impulse(tmp_path):
 
 def test_compare_merges_tables_of_one_robot_and_plant(tmp_path):
     """A second table of the same robot and plant (e.g. dcm_wbc run apart from the paper's modes) adds its modes
-    to the same row, each naming its table; a mode in both must agree, else one line naming both files, exit 2."""
+    to the same row, each naming its table; a mode in both must agree, else a UsageError naming both files (the
+    CLI's one line and exit status 2 for a UsageError: test_compare_gives_the_dimensionless_impulse)."""
     def table(name: str, modes: dict, argv: list[str] | None = None) -> Path:
         p = tmp_path / name
         p.write_text(json.dumps({"argv": argv or ["table"], "modes": {m: {"max_force": f} for m, f in modes.items()}}))
@@ -644,8 +645,8 @@ def test_compare_merges_tables_of_one_robot_and_plant(tmp_path):
     c = table("c.json", {"none": 45.0})
     m = table("m.json", {"dcm_wbc": 800.0}, ["table", "--set", "plant=mujoco"])
     out = tmp_path / "cmp.json"
-    p = robot_cli("compare", str(a), str(b), str(m), "--json", str(out))
-    assert p.returncode == 0, p.stderr
+    from biped_controller.studies import robots
+    assert robots.cmd_compare([a, b, m], out) == 0
     data = json.loads(out.read_text())
     assert len(data["rows"]) == 2
     rigid = data["rows"][data["by"]["biped7/rigid"]]
@@ -653,6 +654,7 @@ def test_compare_merges_tables_of_one_robot_and_plant(tmp_path):
     assert {k: (v["max_force"], v["table"]) for k, v in rigid["modes"].items()} == {
         "none": (40.0, str(a)), "both": (500.0, str(a)), "dcm_wbc": (520.0, str(b))}
     assert data["rows"][data["by"]["biped7/mujoco"]]["modes"]["dcm_wbc"]["max_force"] == 800.0
-    p = robot_cli("compare", str(a), str(c), "--json", str(tmp_path / "bad.json"))
-    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "a.json" in p.stderr and "c.json" in p.stderr
+    with pytest.raises(robots.UsageError) as exc:
+        robots.cmd_compare([a, c], tmp_path / "bad.json")
+    assert "a.json" in str(exc.value) and "c.json" in str(exc.value) and "\n" not in str(exc.value)
     assert not (tmp_path / "bad.json").exists()
