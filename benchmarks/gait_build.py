@@ -4,12 +4,18 @@
 
 Each build runs in a fresh process (``python -m ...``), from the robot's description and gait settings
 alone (no committed family read, no warm start), with an empty ``NUMBA_CACHE_DIR`` and its own temporary
-output directory; the machine's load average is sampled before and after each. Rows:
+output directory; the machine's load average is sampled before and after each, its wall time and CPU time
+(``cpu_s``: user + system of the build and of the worker processes it waited for) recorded. Rows:
 
 * ``old``: ``biped_controller.gaits.generation`` as today (``scripts/generate_gait_family`` without
   ``--check``), BLAS threads left at their default;
 * ``new``: ``biped_controller.gaits.build`` (2 worker processes, single-threaded BLAS, fast evaluator),
-  ``--repeats`` times: the files of the repeats are compared byte for byte (sha256).
+  ``--repeats`` times: the files of the repeats are compared byte for byte (sha256);
+* ``today`` (``--today``): the same build with ``--no-memo`` (every solve of the continuation sweeps run again,
+  the build as it was before ``SolveMemo``), alternating with the ``new`` runs (today_1, new_1, today_2, ...):
+  its file must be the new one byte for byte (``summary.new_identical_to_today``). With ``--today-rev REV`` the
+  today rows run the build of commit REV instead (``git archive REV src/``, its packages first on
+  ``PYTHONPATH``, ``BIPED_ROOT`` this tree; each row records the module file it ran, ``module_file``).
 
 For each family: the wall time, the validation figures the generator stores (fit errors at the fitted and
 held-out strides, the fitted family's smallest true margin, clearance and largest periodicity residual
@@ -34,6 +40,7 @@ import hashlib
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -54,13 +61,36 @@ def _run(cmd: list[str], env_extra: dict, log: Path) -> dict:
     env = dict(os.environ)
     env.update(env_extra)
     load0 = os.getloadavg()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     with open(log, "w", encoding="utf-8") as fh:
         proc = subprocess.run(cmd, cwd=ROOT, env=env, stdout=fh, stderr=subprocess.STDOUT)
     wall = time.perf_counter() - t0
-    return {"command": " ".join(cmd[1:]), "wall_s": round(wall, 2), "exit": proc.returncode,
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    # CPU of the build and of the worker processes it waited for (user + system) [s]
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    return {"command": " ".join(cmd[1:]), "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "exit": proc.returncode,
             "load_before": [round(x, 2) for x in load0], "load_after": [round(x, 2) for x in os.getloadavg()],
             "env": env_extra}
+
+
+def _archive(rev: str, dest: Path) -> dict:
+    """Commit ``rev``'s ``src/`` unpacked under ``dest``; the environment that runs its packages (first on
+    ``PYTHONPATH``) with this tree's configuration and robots (``BIPED_ROOT``)."""
+    dest.mkdir(parents=True)
+    arc = subprocess.run(["git", "archive", rev, "src/"], cwd=ROOT, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=arc, check=True)
+    pkgs = [str(p) for p in sorted((dest / "src").iterdir()) if (p / p.name / "__init__.py").is_file()]
+    return {"PYTHONPATH": os.pathsep.join(pkgs), "BIPED_ROOT": str(ROOT), "TODAY_REV": rev}
+
+
+def _module_file(env_extra: dict) -> str:
+    """The file ``biped_controller.gaits.build`` is imported from under ``env_extra`` (which code a row ran)."""
+    env = dict(os.environ)
+    env.update({k: v for k, v in env_extra.items() if k != "NUMBA_CACHE_DIR"})
+    proc = subprocess.run([sys.executable, "-c", "import biped_controller.gaits.build as b; print(b.__file__)"],
+                          cwd=ROOT, env=env, capture_output=True, text=True)
+    return proc.stdout.strip() or proc.stderr.strip()[-300:]
 
 
 def _distance(path: Path, ref_path: Path) -> dict:
@@ -180,6 +210,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2, help="runs of the new build (compared byte for byte)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-old", action="store_true", help="only the new build")
+    ap.add_argument("--today", action="store_true",
+                    help="also the build without its solve memo (gaits.build --no-memo), alternating with the new runs")
+    ap.add_argument("--today-rev", default=None, metavar="REV",
+                    help="with --today: the today rows run commit REV's build (git archive of its src/) instead")
     ap.add_argument("--old-single-thread", action="store_true",
                     help="also today's generator with OPENBLAS_NUM_THREADS=1 (row old_blas1): the share of the BLAS threads")
     ap.add_argument("--keep", type=Path, default=None, help="copy the built families into this directory")
@@ -204,8 +238,15 @@ def main(argv: list[str] | None = None) -> int:
         plan = [] if args.skip_old else [("old", [py, "-m", "biped_controller.gaits.generation"], {})]
         if args.old_single_thread:
             plan.append(("old_blas1", [py, "-m", "biped_controller.gaits.generation"], {"OPENBLAS_NUM_THREADS": "1"}))
-        plan += [(f"new_{i + 1}", [py, "-m", "biped_controller.gaits.build", "--workers", str(args.workers)], {})
-                 for i in range(args.repeats)]
+        bcmd = [py, "-m", "biped_controller.gaits.build", "--workers", str(args.workers)]
+        today_cmd, today_env = bcmd + ["--no-memo"], {}
+        if args.today_rev:
+            today_env = _archive(args.today_rev, tmp / "today_src")
+            today_cmd = bcmd
+        for i in range(args.repeats):
+            if args.today:
+                plan.append((f"today_{i + 1}", today_cmd, today_env))
+            plan.append((f"new_{i + 1}", bcmd, {}))
         for name, cmd, env in plan:
             d = tmp / name
             d.mkdir()
@@ -213,7 +254,10 @@ def main(argv: list[str] | None = None) -> int:
             env = dict(env, NUMBA_CACHE_DIR=str(d / "numba_cache"))
             print(f"{name}: {' '.join(cmd[1:])} ... (load {os.getloadavg()[0]:.2f})", flush=True)
             r = _run(cmd + ["--out", str(out)] + extra, env, d / "log.txt")
-            r["log_tail"] = (d / "log.txt").read_text(encoding="utf-8", errors="replace").splitlines()[-3:]
+            r["module_file"] = _module_file(env)
+            log = (d / "log.txt").read_text(encoding="utf-8", errors="replace").splitlines()
+            r["log_tail"] = log[-3:]
+            r["times_line"] = next((x for x in log if x.startswith("times [s]:")), None)
             if out.is_file():
                 r["sha256"] = _sha(out)
                 r["figures"] = _figures(out)
@@ -238,6 +282,18 @@ def main(argv: list[str] | None = None) -> int:
     }
     if summary["old_wall_s"] and news:
         summary["ratio_old_over_new"] = [round(summary["old_wall_s"] / r["wall_s"], 2) for r in news]
+    todays = [r for k, r in rows.items() if k.startswith("today")]
+    if todays:
+        summary["today_wall_s"] = [r["wall_s"] for r in todays]
+        summary["new_identical_to_today"] = (len({r.get("sha256") for r in news + todays}) == 1
+                                             and None not in {r.get("sha256") for r in news + todays})
+        # each new run against the today run just before it (the pair ran one after the other)
+        summary["ratio_today_over_new"] = [round(t["wall_s"] / n["wall_s"], 3) for t, n in zip(todays, news)]
+        summary["ratio_today_over_new_median"] = float(np.median(summary["ratio_today_over_new"]))
+        summary["new_wall_s_median"] = float(np.median(summary["new_wall_s"]))
+        summary["today_wall_s_median"] = float(np.median(summary["today_wall_s"]))
+        summary["today_cpu_s"] = [r.get("cpu_s") for r in todays]
+        summary["new_cpu_s"] = [r.get("cpu_s") for r in news]
     R = {"meta": {"date": provenance._utc_now(), "host": platform.node(), "cpus": os.cpu_count(),
                   "python": platform.python_version(), "blas": blas_info(), "quick": args.quick,
                   "settings": "reduced (benchmarks: --quick)" if args.quick else "robots/biped7/gait.yaml"},
@@ -259,9 +315,9 @@ def markdown(R: dict) -> str:
              f"{'reduced family' if R['meta']['quick'] else 'robots/biped7'})", "",
              f"Target: at most {s['target_s']:.0f} s (printed, not asserted). New build identical across runs: "
              f"{s['new_identical_across_runs']}.", "",
-             "| run | wall [s] | load before / after (1 min) | held-out fit q [rad] | q' [rad/s] | fitted min margin | "
+             "| run | wall [s] | CPU [s] | load before / after (1 min) | held-out fit q [rad] | q' [rad/s] | fitted min margin | "
              "max periodicity between strides | range [m] | accepted | vs committed: q [rad] / q' [rad/s] / c |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in R["rows"].items():
         f = r.get("figures", {})
         vc = r.get("vs_committed")
@@ -270,11 +326,14 @@ def markdown(R: dict) -> str:
             v = f.get(k)
             return format(v, fmt) if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
         vcs = (f"{vc['max_abs_dq']:.2e} / {vc['max_abs_dqdot']:.2e} / {vc['max_abs_dc_strides']:.2e}" if vc else "-")
-        lines.append(f"| {name} | {r['wall_s']:.1f} | {r['load_before'][0]:.2f} / {r['load_after'][0]:.2f} | "
+        lines.append(f"| {name} | {r['wall_s']:.1f} | {r.get('cpu_s', float('nan')):.1f} | {r['load_before'][0]:.2f} / {r['load_after'][0]:.2f} | "
                      f"{g('held_out_fit_error_q_max')} | {g('held_out_fit_error_qdot_max')} | {g('fitted_min_margin', '.4f')} | "
                      f"{g('fitted_max_periodicity_residual')} | {f.get('range')} | {r.get('accepted')} | {vcs} |")
     if "ratio_old_over_new" in s:
         lines += ["", f"old / new wall time: {s['ratio_old_over_new']}"]
+    if "ratio_today_over_new" in s:
+        lines += ["", f"today / new wall time (pairs run one after the other): {s['ratio_today_over_new']}; "
+                      f"new file identical to today's: {s['new_identical_to_today']}"]
     return "\n".join(lines) + "\n"
 
 

@@ -115,21 +115,23 @@ def test_fast_impact_derivative_is_exact_in_velocity():
 @pytest.fixture(scope="module")
 def fast_builds():
     st = _reduced(strides=FOUR, smoothing_breakpoints=FOUR, smoothing_weights=[1.0e4])
-    one, _ = build_family(st, workers=1, evaluator="fast", progress=False, speed=False, max_sweeps=2)
-    two, _ = build_family(st, workers=2, evaluator="fast", progress=False, speed=False, max_sweeps=2)
-    return st, one, two
+    one, times = build_family(st, workers=1, evaluator="fast", progress=False, speed=False, max_sweeps=2)
+    two, _ = build_family(st, workers=2, evaluator="fast", progress=False, speed=False, max_sweeps=2, memo=False)
+    return st, one, two, times
 
 
-def test_build_same_for_any_worker_count(fast_builds):
-    """The file of 1 and of 2 worker processes, byte for byte."""
-    _, one, two = fast_builds
+def test_build_same_for_any_worker_count_and_with_or_without_the_memo(fast_builds):
+    """The file of 1 worker process with the solve memo and of 2 without it, byte for byte; the memo was used
+    (the first sweep's pass in a chain's direction repeats the chain's solves)."""
+    _, one, two, times = fast_builds
     assert json.dumps(one, sort_keys=True) == json.dumps(two, sort_keys=True)
+    assert times["sweep_memo_hits"] >= 2 and times["sweep_solves"] >= 1
 
 
 def test_reduced_build_passes_its_checks(fast_builds):
     """Every stride and held-out stride feasible, the family within the fit tolerances at its held-out
     strides, the fitted family clean between the strides, and close to the committed family."""
-    st, data, _ = fast_builds
+    st, data, _, _ = fast_builds
     v = data["validation"]
     assert all(r["success"] for r in data["strides"]) and v["held_out_all_feasible"]
     assert v["held_out_fit_error_q_max"] <= st.fit_tolerance_q and v["held_out_fit_error_qdot_max"] <= st.fit_tolerance_qdot

@@ -578,7 +578,7 @@ def test_build_rejects_zero_workers(tmp_path):
 
 # ------------------------------------------------------------------------------------------ the shipped robots
 #: robots shipped beside biped7 (docs/robots_compared.md), each with its built family committed
-SHIPPED = ("biped7_foot10", "biped7_foot05", "human70")
+SHIPPED = ("biped7_foot10", "biped7_foot05", "human70", "rabbit")
 
 
 @pytest.mark.parametrize("name", SHIPPED)
@@ -630,3 +630,31 @@ def test_compare_gives_the_dimensionless_impulse(tmp_path):
     assert data["rows"][data["by"]["biped7/mujoco"]]["plant"] == "mujoco"
     p = robot_cli("compare", str(tmp_path / "none.json"))
     assert p.returncode == 2 and "none.json" in p.stderr and p.stderr.count("\n") == 1
+
+
+def test_compare_merges_tables_of_one_robot_and_plant(tmp_path):
+    """A second table of the same robot and plant (e.g. dcm_wbc run apart from the paper's modes) adds its modes
+    to the same row, each naming its table; a mode in both must agree, else a UsageError naming both files (the
+    CLI's one line and exit status 2 for a UsageError: test_compare_gives_the_dimensionless_impulse)."""
+    def table(name: str, modes: dict, argv: list[str] | None = None) -> Path:
+        p = tmp_path / name
+        p.write_text(json.dumps({"argv": argv or ["table"], "modes": {m: {"max_force": f} for m, f in modes.items()}}))
+        return p
+    a = table("a.json", {"none": 40.0, "both": 500.0})
+    b = table("b.json", {"none": 40.0, "dcm_wbc": 520.0})
+    c = table("c.json", {"none": 45.0})
+    m = table("m.json", {"dcm_wbc": 800.0}, ["table", "--set", "plant=mujoco"])
+    out = tmp_path / "cmp.json"
+    from biped_controller.studies import robots
+    assert robots.cmd_compare([a, b, m], out) == 0
+    data = json.loads(out.read_text())
+    assert len(data["rows"]) == 2
+    rigid = data["rows"][data["by"]["biped7/rigid"]]
+    assert rigid["tables"] == [str(a), str(b)]
+    assert {k: (v["max_force"], v["table"]) for k, v in rigid["modes"].items()} == {
+        "none": (40.0, str(a)), "both": (500.0, str(a)), "dcm_wbc": (520.0, str(b))}
+    assert data["rows"][data["by"]["biped7/mujoco"]]["modes"]["dcm_wbc"]["max_force"] == 800.0
+    with pytest.raises(robots.UsageError) as exc:
+        robots.cmd_compare([a, c], tmp_path / "bad.json")
+    assert "a.json" in str(exc.value) and "c.json" in str(exc.value) and "\n" not in str(exc.value)
+    assert not (tmp_path / "bad.json").exists()

@@ -4,7 +4,7 @@
 
 Same steps as ``generate`` (p_d from the stated initial guess, the two warm-started chains outwards, the
 continuation sweeps, the smoothing passes, the fit and its range, the held-out strides, the 1 m/s
-question, the validation), with four differences in how they are computed, none in what is computed:
+question, the validation), with five differences in how they are computed, none in what is computed:
 
 * **single-threaded BLAS** in every process (:mod:`.blas`): SLSQP's subproblem goes through OpenBLAS,
   whose multi-threaded result differs in the last bits from the single-threaded one, and two
@@ -18,7 +18,10 @@ question, the validation), with four differences in how they are computed, none 
   b, and that guess is kept only if b's answer was not replaced (it rarely is after the first sweep),
   so the sweep gives exactly the sequential result;
 * **diagnostics only for the solutions kept** (``StepOptimizer.diagnose`` depends on the solution
-  alone): candidates rejected by a sweep are not diagnosed.
+  alone): candidates rejected by a sweep are not diagnosed;
+* **no solve made twice** (:class:`SolveMemo`): a sweep's solve with the same stride and warm start as an
+  earlier one (the chain's, or the previous sweep's) is that solve's stored result (``--no-memo``: solved
+  again; the same file).
 
 The default ``--evaluator fast`` also uses :class:`.fast_eval.FastStepOptimizer` (exact derivative of the
 impact map with respect to the pre-impact velocities, on which it is linear, instead of central
@@ -68,13 +71,15 @@ def _solve(p: float, c0, target, weight: float, diagnose: bool) -> StepSolution:
     return _W["opt"].solve(p, c0=c0, target=target, weight=weight, diagnose=diagnose)
 
 
-def _chain(strides: list[float], c_start: np.ndarray) -> list[StepSolution]:
+def _chain(strides: list[float], c_start: np.ndarray) -> tuple[list[StepSolution], list[tuple]]:
     """``generation.solve_family``'s chain: each stride warm-started from the last successful one,
-    retried once from the stated initial guess when it fails."""
+    retried once from the stated initial guess when it fails. Returns the chain's solutions and, for
+    :class:`SolveMemo`, each warm-started solve as ``(key, solution)`` (``_solve``'s key)."""
     opt = _W["opt"]
-    out, prev = [], c_start
+    out, prev, solved = [], c_start, []
     for s in strides:
         sol = opt.solve(s, c0=prev, diagnose=False)
+        solved.append((solve_key(s, prev, None, 0.0, False), sol))
         if not sol.success:
             alt = opt.solve(s, diagnose=False)
             if alt.success and (not sol.success or alt.criterion < sol.criterion):
@@ -82,7 +87,7 @@ def _chain(strides: list[float], c_start: np.ndarray) -> list[StepSolution]:
         out.append(sol)
         if sol.success:
             prev = sol.c
-    return out
+    return out, solved
 
 
 def _diagnose(sol: StepSolution) -> StepSolution:
@@ -101,6 +106,41 @@ def _probe(fam, ps: list[float]) -> list[dict]:
     return [probe_family(fam, p, _W["opt"]) for p in ps]
 
 
+def solve_key(p: float, c0, target, weight: float, diagnose: bool) -> tuple:
+    """What a ``_solve`` depends on: the stride, the warm start, the smoothing target and weight, whether it is
+    diagnosed (the optimiser's description and settings are the build's own, the same for every task)."""
+    def b(x):
+        return None if x is None else np.ascontiguousarray(x, dtype=float).ravel().tobytes()
+    return float(p), b(c0), b(target), float(weight), bool(diagnose)
+
+
+class SolveMemo:
+    """The solves already asked for in this build, by :func:`solve_key`.
+
+    A solve is a function of its inputs alone (each task's result depends on them alone, which is also why
+    the file is the same for any number of workers), so a solve asked again with the same inputs returns the
+    stored :class:`StepSolution` instead of running SLSQP again: the same object, the same bits. The
+    continuation sweeps ask for such solves: the first sweep's pass in a chain's own direction re-solves
+    each stride from the very neighbour the chain solved it from, and the last sweep (the one that changes
+    nothing) repeats the previous sweep's solves wherever the neighbour did not change since. Entries are
+    futures (a solve still running is not submitted twice)."""
+
+    def __init__(self):
+        self.store: dict[tuple, object] = {}
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, key: tuple):
+        fut = self.store.get(key)
+        if fut is not None:
+            self.hits += 1
+        return fut
+
+    def put(self, key: tuple, fut) -> object:
+        self.store[key] = fut
+        return fut
+
+
 class _Done:
     def __init__(self, value):
         self._v = value
@@ -112,8 +152,9 @@ class _Done:
 class Runner:
     """Runs the tasks above in ``workers`` spawned processes (or in this process when ``workers`` is 1)."""
 
-    def __init__(self, workers: int, desc, st: GaitSettings, evaluator: str):
+    def __init__(self, workers: int, desc, st: GaitSettings, evaluator: str, memo: bool = True):
         self.workers = max(1, int(workers))
+        self.memo = SolveMemo() if memo else None
         if self.workers > 1:
             set_blas_threads(1)  # before spawning: OPENBLAS_NUM_THREADS=1 for the children too
             self.ex = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_init,
@@ -124,6 +165,17 @@ class Runner:
 
     def submit(self, fn, *args):
         return self.ex.submit(fn, *args) if self.ex is not None else _Done(fn(*args))
+
+    def solve(self, p: float, c0, target, weight: float, diagnose: bool):
+        """``submit(_solve, ...)`` through the memo (``memo`` None: always solved)."""
+        if self.memo is None:
+            return self.submit(_solve, p, c0, target, weight, diagnose)
+        key = solve_key(p, c0, target, weight, diagnose)
+        fut = self.memo.get(key)
+        if fut is None:
+            self.memo.misses += 1
+            fut = self.memo.put(key, self.submit(_solve, p, c0, target, weight, diagnose))
+        return fut
 
     def map(self, fn, arglists: list[tuple]) -> list:
         return [f.result() for f in [self.submit(fn, *a) for a in arglists]]
@@ -160,9 +212,9 @@ def _sweep_pass(run: Runner, out: dict[float, StepSolution], order: list[float])
             continue
         src, fut = spec.pop(k, (None, None))
         if src is not out[a]:
-            fut = run.submit(_solve, b, out[a].c, None, 0.0, False)
+            fut = run.solve(b, out[a].c, None, 0.0, False)
         if k + 1 < len(order) - 1 and out[b].success and run.workers > 1:
-            spec[k + 1] = (out[b], run.submit(_solve, order[k + 2], out[b].c, None, 0.0, False))
+            spec[k + 1] = (out[b], run.solve(order[k + 2], out[b].c, None, 0.0, False))
         cand = fut.result()
         if cand.success and (not out[b].success or cand.criterion < out[b].criterion - 1e-6 * abs(out[b].criterion)):
             out[b] = cand
@@ -173,16 +225,19 @@ def _sweep_pass(run: Runner, out: dict[float, StepSolution], order: list[float])
 
 
 def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str = "fast", progress: bool = True,
-                 speed: bool = True, max_sweeps: int = 4, first_guess: np.ndarray | None = None) -> tuple[dict, dict]:
-    """The family file's contents (as ``generation.generate`` writes them) and the build's timings;
-    ``first_guess``: the normalised coefficients p_d's solve starts from (None: the stated initial guess)."""
+                 speed: bool = True, max_sweeps: int = 4, first_guess: np.ndarray | None = None,
+                 memo: bool = True) -> tuple[dict, dict]:
+    """The family file's contents (as ``generation.generate`` writes them) and the build's timings (and the
+    memo's counts: ``sweep_solves`` run, ``sweep_memo_hits``); ``first_guess``: the normalised coefficients p_d's
+    solve starts from (None: the stated initial guess); ``memo``: reuse the continuation sweeps' repeated solves
+    (:class:`SolveMemo`; False: solve each again, as before it; the same file either way)."""
     from biped_controller.gaits.generation import (_fit_from_solutions, _solution_record, _validate, fit_and_restrict,
                                                    restrict_to_held_out)
     set_blas_threads(1)
     t0 = time.perf_counter()
     times: dict[str, float] = {}
     opt = _make_optimizer(desc, st, evaluator)
-    run = Runner(workers, opt.desc, st, evaluator)
+    run = Runner(workers, opt.desc, st, evaluator, memo=memo)
     try:
         # 1. p_d from the stated initial guess, then the two chains outwards (independent of each other)
         p_d = st.p_d
@@ -191,7 +246,11 @@ def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str =
         down = sorted((s for s in st.strides if s < p_d), reverse=True)
         fu, fd = run.submit(_chain, up, sols[p_d].c), run.submit(_chain, down, sols[p_d].c)
         for chain, fut in ((up, fu), (down, fd)):
-            sols.update(zip(chain, fut.result()))
+            chain_sols, solved = fut.result()
+            sols.update(zip(chain, chain_sols))
+            if run.memo is not None:
+                for key, sol in solved:
+                    run.memo.put(key, _Done(sol))
         times["chains"] = time.perf_counter() - t0
         _log(progress, t0, f"p_d and the two chains: {sum(s.success for s in sols.values())}/{len(sols)} feasible")
         # 2. continuation sweeps
@@ -202,6 +261,8 @@ def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str =
             if changed == 0:
                 break
         times["sweeps"] = time.perf_counter() - t0 - times["chains"]
+        if run.memo is not None:
+            times["sweep_solves"], times["sweep_memo_hits"] = run.memo.misses, run.memo.hits
         # the 1 m/s question needs p_d only (never changed by the smoothing): runs beside the smoothing
         fut_speed = run.submit(_speed, [0.35, 0.40, 0.45, 0.50, 0.55, 0.60, 0.65], 1.0, sols[p_d].c) if speed else None
         # 3. smoothing passes: the strides of one pass are independent given the pass's fit
@@ -301,6 +362,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="worker processes (1: everything in this process; same file)")
     ap.add_argument("--evaluator", choices=EVALUATORS, default="fast")
     ap.add_argument("--no-speed", action="store_true", help="skip the 1 m/s question")
+    ap.add_argument("--no-memo", action="store_true",
+                    help="solve the continuation sweeps' repeated solves again (the build before SolveMemo; same file)")
     ap.add_argument("--robot", default=None, metavar="NAME|PATH",
                     help="the robot (a name under robots/ or a robot directory; default biped7): its description and "
                          "its gait.yaml (unless --settings); scripts/robot build writes a robot's own family")
@@ -319,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
         print("build: refusing to overwrite the committed family; give another --out", file=sys.stderr)
         return 2
     data, times = build_family(st, desc=None if robot.is_default else desc, workers=args.workers,
-                               evaluator=args.evaluator, speed=not args.no_speed)
+                               evaluator=args.evaluator, speed=not args.no_speed, memo=not args.no_memo)
     if not robot.is_default:          # the stamp as generation.generate writes it (biped_model.robot)
         from biped_model.robot import STAMP_KEY, description_hash
         data[STAMP_KEY] = {"description_sha256": description_hash(desc)}

@@ -380,22 +380,43 @@ def _table_meta(path: Path) -> tuple[str, str, float]:
 
 
 def compare_tables(paths: list[Path]) -> dict:
-    """Max-push tables of several robots side by side: per table (robot, plant) each mode's largest survived
+    """Max-push tables of several robots side by side: per (robot, plant) each mode's largest survived
     push ``max_force`` [N] and the same boundary as a dimensionless impulse F * duration / (M sqrt(g L)),
-    M the robot's total mass, L its leg length (thigh + shin)."""
-    rows = []
+    M the robot's total mass, L its leg length (thigh + shin).
+
+    Several tables of one robot on one plant (e.g. the paper's modes in one run, a registered controller such
+    as ``dcm_wbc`` in another) merge into one row, each mode naming the table it came from (``table``). They
+    must share the push duration, and a mode found in two of them must give the same ``max_force`` (the
+    searches are deterministic); otherwise :class:`UsageError` names both files."""
+    rows: list[dict] = []
+    by: dict[str, int] = {}
     for path in paths:
         robot, plant, dt = _table_meta(path)
         d = resolve_robot(robot).description()
         scale = d.total_mass * math.sqrt(d.gravity * d.leg_length)
         modes = json.loads(Path(path).read_text(encoding="utf-8"))["modes"]
-        rows.append({"table": str(path), "robot": robot, "plant": plant, "duration": dt, "mass": d.total_mass,
-                     "leg_length": d.leg_length, "foot_length": d.foot.length, "impulse_scale": scale,
-                     "modes": {m: {"max_force": r["max_force"],
-                                   "impulse": None if r["max_force"] is None else r["max_force"] * dt / scale}
-                               for m, r in modes.items()}})
+        key = f"{robot}/{plant}"
+        if key not in by:
+            by[key] = len(rows)
+            rows.append({"table": str(path), "tables": [], "robot": robot, "plant": plant, "duration": dt,
+                         "mass": d.total_mass, "leg_length": d.leg_length, "foot_length": d.foot.length,
+                         "impulse_scale": scale, "modes": {}})
+        row = rows[by[key]]
+        if dt != row["duration"]:
+            raise UsageError(f"{path}: push duration {dt} s, but {row['tables'][0]} has {row['duration']} s "
+                             f"({key})")
+        row["tables"].append(str(path))
+        for m, r in modes.items():
+            old = row["modes"].get(m)
+            if old is not None:
+                if old["max_force"] != r["max_force"]:
+                    raise UsageError(f"{path}: mode {m} max_force {r['max_force']} N, but {old['table']} gives "
+                                     f"{old['max_force']} N ({key})")
+                continue
+            row["modes"][m] = {"max_force": r["max_force"], "table": str(path),
+                               "impulse": None if r["max_force"] is None else r["max_force"] * dt / scale}
     return {"definition": "impulse = max_force * duration / (mass * sqrt(g * leg_length)), dimensionless",
-            "rows": rows, "by": {f"{r['robot']}/{r['plant']}": i for i, r in enumerate(rows)}}
+            "rows": rows, "by": by}
 
 
 def cmd_compare(paths: list[Path], out: Path | None) -> int:
