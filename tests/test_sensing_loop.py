@@ -102,3 +102,17 @@ def test_a_delay_keeps_the_objects():
     real = run_settings("real-sensors")
     loop = runner.ClosedLoop(real.sim_config(), real.ctrl_config("both"), ctx.family, ctx.desc, real.perturbation)
     assert segment.Segment.eligible(loop.sim, loop.ctrl)
+
+
+def test_an_outcome_only_run_with_real_sensing_keeps_its_last_status():
+    """``keep_records`` False on the objects (a delay, here the compiled loop off): the run's last status is
+    the full run's (the survival rule checks p and tau' on it; without it they went unchecked)."""
+    settings = run_settings("real-sensors")
+    ctx = tcontext.context()
+    kw = dict(sim_config=settings.sim_config(), ctrl_config=settings.ctrl_config("both"), family=ctx.family,
+              desc=ctx.desc, perturbation=settings.perturbation, compiled_loop=False)
+    full = runner.run(2, "both", (), keep_records=True, **kw)
+    lean = runner.run(2, "both", (), keep_records=False, **kw)
+    assert len(lean.statuses) == 1 and len(lean.records) == 1
+    assert digest(lean.records, lean.statuses, lean.impacts, lean) == \
+        digest(full.records[-1:], full.statuses[-1:], full.impacts, full)

@@ -212,7 +212,8 @@ class ClosedLoop:
         keep_qp = self.keep_qp
         seg = self._segment(compiled_loop, keep_records, integration_rate)
         # outcome only without the compiled loop (e.g. a sensor model on MuJoCo): the objects keep the last
-        # period's record and status only, and the controller builds that status once, at the end
+        # period's record and status only, and the controller builds that status once, at the end (with real
+        # sensing it builds every period's: the last one built is kept)
         lean = seg is None and not keep_records and not keep_qp
         if lean:
             ctrl.build_status, ctrl._pending_status = False, None
@@ -289,6 +290,8 @@ class ClosedLoop:
                 rec = sim.step(out.torque)
             if lean:
                 records[:] = (rec,)
+                if out.status is not None:      # built anyway (real sensing): the last period's is kept
+                    statuses[:] = (out.status,)
             else:
                 records.append(rec)
             if rec.fallen or sim.fall is not None:
