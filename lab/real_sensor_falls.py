@@ -16,17 +16,24 @@ Variants (what each isolates):
 * ``design``: the profile as committed (noise_q 5e-4 rad, noise_q' 5e-2 rad/s, 14-bit encoders);
 * ``q-only``, ``qd-only``, ``encoder-only``: one source of the design point at a time;
 * ``scale-0.1``, ``scale-0.25``, ``scale-0.5``: the design point's noise scaled (the encoders kept);
-* ``no-estimator``: the design point with the estimator off (the raw sample acts).
+* ``no-estimator``: the design point with the estimator off (the raw sample acts);
+* ``exact-first``: the design point, but the first period's draws are zero (the first sample is the true
+  state, quantised): the estimator then starts from the truth (its start transient isolated; a lab-only
+  patch of ``SensorModel.noise_rows``, nothing of the product changed);
+* ``exact-first-10``: the same for the first 10 periods.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import statistics
 import sys
 from dataclasses import replace
 from pathlib import Path
+
+from biped_sim.plant.perturbation import SensorModel
 
 from biped_controller.closed_loop import runner
 from biped_controller.studies.trial.context import context
@@ -46,7 +53,30 @@ VARIANTS: dict[str, tuple[str | None, tuple[str, ...], tuple[str, ...]]] = {
     "scale-0.25": ("real-sensors", (), ("none", "noise_q=1.25e-4", "noise_qd=1.25e-2", "encoder_bits=14")),
     "scale-0.5": ("real-sensors", (), ("none", "noise_q=2.5e-4", "noise_qd=2.5e-2", "encoder_bits=14")),
     "no-estimator": ("real-sensors", ("state_estimator=false",), ()),
+    "exact-first": ("real-sensors", (), ()),
+    "exact-first-10": ("real-sensors", (), ()),
 }
+#: variants whose first k periods draw no noise (``exact_first``)
+EXACT_FIRST = {"exact-first": 1, "exact-first-10": 10}
+
+
+@contextlib.contextmanager
+def exact_first(k: int):
+    """``SensorModel.noise_rows`` with the rows of the first ``k`` sampled periods zeroed (lab-only patch)."""
+    orig = SensorModel.noise_rows
+
+    def patched(self, n):
+        fresh = self._first is None and self._zpos == 0 and not getattr(self, "_lab_zeroed", False)
+        rows = orig(self, max(n, k))
+        if fresh:
+            rows[:k] = 0.0
+            self._lab_zeroed = True
+        return rows
+    SensorModel.noise_rows = patched
+    try:
+        yield
+    finally:
+        SensorModel.noise_rows = orig
 
 
 def settings_of(variant: str, seed: int):
@@ -67,8 +97,9 @@ def walk(variant: str, mode: str, seed: int, steps: int) -> dict:
     """One unpushed walk: fell, cause, time, the first period's l [m] and the run's smallest edge margin [m]."""
     ctx = context()
     s = settings_of(variant, seed)
-    res = runner.run(steps, mode, (), sim_config=s.sim_config(), ctrl_config=s.ctrl_config(mode), family=ctx.family,
-                     desc=ctx.desc, perturbation=s.perturbation, keep_records=True)
+    with exact_first(EXACT_FIRST.get(variant, 0)) if variant in EXACT_FIRST else contextlib.nullcontext():
+        res = runner.run(steps, mode, (), sim_config=s.sim_config(), ctrl_config=s.ctrl_config(mode),
+                         family=ctx.family, desc=ctx.desc, perturbation=s.perturbation, keep_records=True)
     ls = [r.cop for r in res.records if math.isfinite(r.cop)]
     l0 = res.records[0].cop if res.records else math.nan
     return {"seed": seed, "fell": bool(res.fallen), "cause": res.fall_cause,
