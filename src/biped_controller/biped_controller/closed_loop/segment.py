@@ -1,7 +1,8 @@
 """Hand the in-process closed loop's quiet periods to the compiled loop (``loop_kernels.run_segment``).
 
 Pure Python + NumPy, no ROS. A :class:`Segment` binds one :class:`rigid.Simulator` and one
-:class:`controller.AdaptiveController` (both on the fast engine, the simulator's sensors ideal): each
+:class:`controller.AdaptiveController` (both on the fast engine; the simulator's sensors ideal, or real
+sensing without a delay on the controller's compiled sensing pipeline, ``Segment.sensing_eligible``): each
 :meth:`Segment.run` hands the objects' own state arrays (the controller's ``memory``, the simulator's
 ``sim_state``; nothing is packed or unpacked) to the kernel, which runs periods until one needs Python
 (the QP, an impact, a fall, ...) and leaves both arrays at the state after the last period it committed;
