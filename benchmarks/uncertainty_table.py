@@ -13,6 +13,13 @@ go to ``tables.txt``):
    deterministic map (``slice_deterministic.json``, its store in a fresh temporary directory) and the map
    over ``--slice-seeds`` seeds (``slice_seeds_N.json``, likewise).
 
+3. with ``--trial-reps K`` (> 0), one survival trial's cost on the two paths, in this process: K seeded trials
+   (``--trial-mode``, ``--trial-force`` at the paper's window, seeds 0..K-1, each its pushed run and its seed's
+   unpushed walk, as the seeded table runs them) with the compiled closed loop (real sensing in the loop:
+   ``loop_kernels.run_segment``'s ``sensing``) and with the objects (``compiled_loop=False``), alternating
+   trial by trial so both see the same load; per path the median wall time per trial and per control period,
+   and the ratio; the two paths' outcomes are compared (they are equal record for record: tests).
+
 ``timing.json``: per run the benchmark's clock around the process, the process's own wall time, the CPU
 seconds of the process and its workers (``resource.getrusage(RUSAGE_CHILDREN)`` before and after: on a
 shared machine the CPU seconds compare where wall times do not), the trial count, the load average at each
@@ -78,6 +85,59 @@ def run_slice(json_path: Path, modes: str, workers: int, phases: int, seeds: int
     return {**out, "json": json_path.name, "trials": n}
 
 
+def trial_cost(reps: int, profile: str, mode: str, force: float) -> dict:
+    """Item 3 of the module docstring: the median wall time of one seeded trial (its pushed run and its
+    unpushed walk, records as the seeded table keeps them) on the compiled loop and on the objects."""
+    import statistics
+    from dataclasses import replace
+
+    from biped_controller.closed_loop import runner
+    from biped_controller.studies.trial import runs
+    from biped_controller.studies.trial.context import context
+    from biped_controller.studies.trial.settings import run_settings
+    from biped_controller.studies.trial.survival import survival_rule
+
+    ctx = context()
+    base = run_settings(profile)
+    push = runs.paper_push(force)
+    steps = runs.trial_steps(push)
+    rule = survival_rule()
+
+    def one(seed: int, compiled: bool) -> tuple[float, int, tuple]:
+        s = replace(base, perturbation=replace(base.perturbation, seed=seed))
+        kw = dict(sim_config=s.sim_config(), ctrl_config=s.ctrl_config(mode), family=ctx.family, desc=ctx.desc,
+                  perturbation=s.perturbation, compiled_loop=compiled)
+        t0 = time.perf_counter()
+        pushed = runner.run(steps, mode, (push,), keep_records=False, **kw)
+        walk = runner.run(steps, mode, (), keep_records=True, **kw)
+        band = rule.band_from_walk(walk)
+        verdict = rule.verdict(pushed, push.start + push.duration, band)
+        dt = time.perf_counter() - t0
+        periods = int(walk.records[-1].step) + 1
+        return dt, periods, (verdict.survived, verdict.reason, pushed.steps_walked, pushed.fall_cause)
+
+    one(10_000, True)           # the kernels loaded (and compiled, on a first run) outside the timing
+    one(10_000, False)
+    times: dict[bool, list[float]] = {True: [], False: []}
+    periods: dict[bool, list[int]] = {True: [], False: []}
+    same = True
+    load0 = os.getloadavg()
+    for seed in range(reps):
+        outcome = {}
+        for compiled in ((True, False) if seed % 2 == 0 else (False, True)):
+            dt, n, outcome[compiled] = one(seed, compiled)
+            times[compiled].append(dt)
+            periods[compiled].append(n)
+        same = same and outcome[True] == outcome[False]
+    med = {k: statistics.median(v) for k, v in times.items()}
+    return {"mode": mode, "force": force, "profile": profile, "reps": reps, "seeds": list(range(reps)),
+            "compiled_s_per_trial": med[True], "objects_s_per_trial": med[False],
+            "ratio_objects_over_compiled": med[False] / med[True],
+            "walk_periods_median": statistics.median(periods[True]),
+            "same_outcomes": same, "times_s": {"compiled": times[True], "objects": times[False]},
+            "load_average_start": list(load0), "load_average_end": list(os.getloadavg())}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.uncertainty_table", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -88,10 +148,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--slice-phases", type=int, default=0, help="onset phases of the timed slice (0: no slice)")
     ap.add_argument("--slice-seeds", type=int, default=16)
     ap.add_argument("--slice-modes", default="both,wbc")
+    ap.add_argument("--trial-reps", type=int, default=0, help="seeded trials per path for the trial's cost "
+                    "(compiled loop against the objects; 0: not timed)")
+    ap.add_argument("--trial-mode", default="both")
+    ap.add_argument("--trial-force", type=float, default=300.0, help="[N] the timed trials' push (paper's window)")
     ap.add_argument("--out", type=Path, default=Path("results/uncertainty"))
     args = ap.parse_args(argv)
-    if min(args.seeds, args.workers, args.slice_seeds) < 1 or args.slice_phases < 0:
-        ap.error("--seeds, --slice-seeds and --workers must be >= 1, --slice-phases >= 0")
+    if min(args.seeds, args.workers, args.slice_seeds) < 1 or args.slice_phases < 0 or args.trial_reps < 0:
+        ap.error("--seeds, --slice-seeds and --workers must be >= 1, --slice-phases and --trial-reps >= 0")
     args.out.mkdir(parents=True, exist_ok=True)
     from biped_controller.studies import provenance
     timing_path = args.out / "timing.json"
@@ -119,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
             out["slice_ratio_process_wall"] = (out["slice_seeded"]["process_wall_s"]
                                                / out["slice_deterministic"]["process_wall_s"])
             out["slice_ratio_cpu"] = out["slice_seeded"]["cpu_s"] / out["slice_deterministic"]["cpu_s"]
+    if args.trial_reps:
+        out["trial_cost"] = trial_cost(args.trial_reps, args.profile, args.trial_mode, args.trial_force)
     timing_path.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     print(json.dumps(out, indent=1))
     return 0

@@ -43,7 +43,9 @@ from biped_sim.plant import period_grid_kernels as pg
 from biped_sim.plant.rigid_layout import L_, S_
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
-from biped_controller.core.control.controller_layout import RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.control.controller_layout import R_, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.sensing import pipeline_kernels as sk
+from biped_controller.core.sensing.pipeline_layout import S_ as SS_
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -54,9 +56,14 @@ REC_ = REC.at
 WORK_ROWS = WORK.size
 RES_SIZE = RES.size
 # why a segment ended
-(END_LIMIT, END_FULL, END_QP, END_SIM_EVENT, END_NONFINITE, END_PUSHES, END_MAX) = range(7)
+(END_LIMIT, END_FULL, END_QP, END_SIM_EVENT, END_NONFINITE, END_PUSHES, END_MAX, END_SENSE, END_NOISE) = range(9)
 END_NAMES = ("t_stop reached", "record arrays full", "QP needed", "simulator event", "non-finite controller value",
-             "two pushes in one interval", "max_periods")
+             "two pushes in one interval", "max_periods", "sensing needs Python (a sensed touchdown, a singular "
+             "matrix)", "noise rows used up")
+# the sensing pipeline's fields of RES (``pipeline_kernels.into_res``'s 8 values)
+_SENS_RES0 = R_.sens_dR
+# the sensors' noise (``SensorModel.compiled_noise``): noise_q, noise_q', encoder step, noise_pitch, noise_pitch_rate
+(NZ_Q, NZ_QD, NZ_STEP, NZ_PITCH, NZ_RATE) = range(5)
 
 _V, _VI, _M, _C4, _I, _F = ck.T_VEC, ck.T_IVEC, ck.T_MAT, ck.T_ARR4, ck.T_INT, ck.T_FLOAT
 _C3 = numba.types.Array(numba.types.float64, 3, "C")
@@ -75,22 +82,66 @@ def _knots(t_start, dt_nom, substeps, pushes, knots):
     return pg.knots(t_start, t_grid_end, n_sub, pushes, knots), t_grid_end
 
 
+@numba.njit(cache=True)
+def _sample(q, qd, pitch, rate, z, nconf, qs, qds, out):
+    """The plant's sensors' sample of (q [rad], q' [rad/s], torso pitch [rad], its rate [rad/s]) with the
+    standard normal draws ``z`` (z_q (6), z_q' (6), z_p, z_r) and the noise's sizes ``nconf`` (NZ_*):
+    ``SensorModel.sample``'s sums in its order, the angles quantised half to even; qs, qds <- the joints,
+    out[0], out[1] <- the pitch and its rate."""
+    for i in range(6):
+        a = q[i]
+        if nconf[NZ_Q] > 0.0:
+            a = a + nconf[NZ_Q] * z[i]
+        if nconf[NZ_STEP] > 0.0:
+            a = nconf[NZ_STEP] * np.rint(a / nconf[NZ_STEP])
+        qs[i] = a
+        b = qd[i]
+        if nconf[NZ_QD] > 0.0:
+            b = b + nconf[NZ_QD] * z[6 + i]
+        qds[i] = b
+    th = pitch
+    if nconf[NZ_PITCH] > 0.0:
+        th += nconf[NZ_PITCH] * z[12]
+    rt = rate
+    if nconf[NZ_RATE] > 0.0:
+        rt += nconf[NZ_RATE] * z[13]
+    out[0] = th
+    out[1] = rt
+
+
 @numba.njit(numba.types.int64(
     _C4, _V, _V, _VI, _V, _V, _V, _V,                           # controller: family, tree, gains, cons, mem
     _VI, _V, _V, _V, _M, _C3,                                   # simulator: tree, sst, slim, pushes, perm
     _F, _I, _B, _M, _M, _V,                                     # t_stop, max_periods, ring, rec, sta, out
     _V,                                                         # wbc: the whole-body stage's constants
-    _M, _V, _V, _M, _V, _B), cache=True)                        # QP: G, h, res, work, x, x given for the 1st period
+    _M, _V, _V, _M, _V, _B,                                     # QP: G, h, res, work, x, x given for the 1st period
+    _B, _VI, _V, _V, _V, _V, _V, _V, _M, _V), cache=True)       # sensing: on, tree, conf, state, backup, estimate, noise
 def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                 sti, stf, sst, slim, pushes, perm,
                 t_stop, max_periods, ring, rec, sta, out, wbc,
-                G, h, res, work, qp_x, qp_given):
+                G, h, res, work, qp_x, qp_given,
+                sensing, s_ti, s_tf, sconf, sstate, sback, qe, qde, noise, nconf):
     """Run periods while nothing needs Python (module docstring). Returns the number of periods done;
     out[0] = why the segment ended (END_*). A period that needs the QP ends the segment with its rows in
     ``G`` (QP_ROWS, 2; modes lambda and all: TORSO_QP_ROWS, 3), ``h``, its ``res`` row (x*, the parameters) and ``work`` (WORK rows); the caller
     solves it and calls again, those arrays untouched, with the decision in ``qp_x`` and ``qp_given`` True:
     the first period (the same one: the state has not moved) then takes x = qp_x
-    (``controller_kernels.period_outputs``, as the controller's ``finish`` does) and the segment goes on."""
+    (``controller_kernels.period_outputs``, as the controller's ``finish`` does) and the segment goes on.
+
+    ``sensing`` True (real sensing, no delay; ``segment.Segment``): step 1 is the plant's sensors and the
+    controller's sensing pipeline -- the sample q_s = q + noise_q z_q quantised to the encoder step
+    (step round(q_s / step), half to even), q_s' = q' + noise_q' z_q', the IMU's pitch x[2] + noise_pitch z_p and
+    rate v[2] + noise_pitch_rate z_r (row k of ``noise``: the k-th period's standard normal draws, as
+    ``SensorModel.sample`` takes them; ``nconf`` the noise's sizes, NZ_*), then ``pipeline_kernels.sense`` on
+    (``s_ti``, ``s_tf``, ``sconf``, ``sstate``) into the estimate (``qe``, ``qde``) and ``into_res`` into
+    the period's RES row -- as ``pipeline_compiled.CompiledSensing.sense`` and ``CompiledPeriod.compute``;
+    the controller then acts on the estimate, the record keeps the true (q, q'), and the committed period
+    records the torque sent in the pipeline's state (``CompiledSensing.record``). A period handed back for
+    any reason leaves the pipeline's state as it was before it (``sback``: its copy) and uses no noise row,
+    so that whoever takes that period (the next call, or the objects) samples and senses it from the same
+    state with the same draws; END_SENSE when the pipeline needs Python (a sensed touchdown with the
+    estimator: the impact map), END_NOISE when ``noise`` has no row left. The period count is the count of
+    noise rows used."""
     cap = rec.shape[0]
     q = np.empty(6)
     qd = np.empty(6)
@@ -102,6 +153,9 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
     vo = np.empty(9)
     w0 = np.empty(3)
     pout = np.empty(pk.PERIOD_OUT_SIZE)
+    qs = np.empty(6)
+    qds = np.empty(6)
+    sens = np.empty(8)
     Gw = np.empty((wk.WBC_ROWS, 6))
     hw = np.empty(wk.WBC_ROWS)
     wmode = wbc[WB_.mode]
@@ -126,23 +180,48 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                 sv += P[i, j] * v[3 + j]
             q[i] = sq
             qd[i] = sv
+        qc = q
+        qdc = qd
+        if sensing:         # 1b. the plant's sensors and the controller's sensing pipeline (docstring)
+            if n_done >= noise.shape[0]:
+                out[0] = END_NOISE
+                return n_done
+            _sample(q, qd, x[2], v[2], noise[n_done], nconf, qs, qds, sens)
+            sback[:] = sstate
+            if sk.sense(s_ti, s_tf, sconf, sstate, t, qs, qds, stance, sens[0], sens[1], qe, qde) != sk.DONE:
+                sstate[:] = sback
+                out[0] = END_SENSE
+                return n_done
+            sk.into_res(sstate, sconf, sens)
+            for k in range(8):
+                res[_SENS_RES0 + k] = sens[k]
+            qc = qe
+            qdc = qde
         # 2. controller: the period's start and step (advance, observer mode; the memory is committed with the
         # period), or the QP period handed back by the last call takes its decision (ck.loop_period)
-        code = ck.loop_period(qp_given and n_done == 0, qp_x, coef, inner, centers, cti, ctf, q, qd, t, stance,
+        code = ck.loop_period(qp_given and n_done == 0, qp_x, coef, inner, centers, cti, ctf, qc, qdc, t, stance,
                               gains, cons, mem, G, h, work, res)
         if code == ck.NEEDS_QP:
+            if sensing:
+                sstate[:] = sback
             out[0] = END_QP
             return n_done
         if code != ck.FEASIBLE:
+            if sensing:
+                sstate[:] = sback
             out[0] = END_NONFINITE
             return n_done
         # 2b. modes wbc, hybrid: the whole-body stage (hybrid: not run, the p/tau answer x* holds its rows)
         if wmode != WBC_MODE_OFF:
             wcode = wk.run_stage(wbc, cons, mem, work, res, Gw, hw, wmode == WBC_MODE_WBC, False)
             if wcode == wk.NEEDS_PIQP:
+                if sensing:
+                    sstate[:] = sback
                 out[0] = END_QP
                 return n_done
             if wcode == wk.NONFINITE:
+                if sensing:
+                    sstate[:] = sback
                 out[0] = END_NONFINITE
                 return n_done
         # 3. torque: clipped, to the URDF joints
@@ -156,6 +235,8 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         # 4. simulator period
         nk, t_end = _knots(t, slim[L_.dt], slim[L_.substeps], pushes, knots)
         if nk < 0:
+            if sensing:
+                sstate[:] = sback
             out[0] = END_PUSHES
             return n_done
         ni = nk - 1
@@ -166,6 +247,8 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
             for k in range(pushes.shape[0]):
                 if pushes[k, 0] <= tm < pushes[k, 1]:
                     if not math.isnan(heights[i]):
+                        if sensing:
+                            sstate[:] = sback
                         out[0] = END_PUSHES
                         return n_done
                     forces[i] = pushes[k, 2]
@@ -179,6 +262,8 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         lim[6] = sst[S_.cleared]
         st = pk.period(sti, stf, x, v, tj, knots[:nk].copy(), forces, heights, stance, anchor, lim, xo, vo, w0, pout)
         if st != pk.PERIOD_DONE:
+            if sensing:
+                sstate[:] = sback
             out[0] = END_SIM_EVENT
             return n_done
         # 5. record and commit
@@ -198,7 +283,13 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         r[REC_.push_force] = forces[0] if not math.isnan(heights[0]) else 0.0
         r[REC_.push_impulse] = pout[2]
         sta[row, :] = res
-        ck.period_commit(mem, res, work, qd, t, stance)
+        ck.period_commit(mem, res, work, qdc, t, stance)
+        if sensing:         # the decision, in the pipeline (CompiledSensing.record: the torque sent, told stance)
+            sstate[SS_.t_prev] = t
+            for i in range(6):
+                sstate[SS_.torque_prev + i] = work[W_.torque, i]
+            sstate[SS_.told_prev] = stance
+            sstate[SS_.decided] = 1.0
         x[:] = xo
         v[:] = vo
         sst[S_.t] = t_end

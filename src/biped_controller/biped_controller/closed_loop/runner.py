@@ -41,7 +41,8 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` goes to the
     simulator only: the plant and the sensors differ, the controller keeps ``desc``.
 
-    ``compiled_loop`` (fast engine, ideal sensors, held torques, no ``keep_qp``): the periods where nothing
+    ``compiled_loop`` (fast engine, ideal sensors -- or on the rigid plant real sensing without a delay, the
+    sensing pipeline compiled --, held torques, no ``keep_qp``): the periods where nothing
     needs Python run in the compiled loop (``segment.Segment`` on the rigid plant, ``segment.MujocoSegment``
     on MuJoCo), with records identical to the objects' period by period (tested); on the rigid plant the
     objects take every period with a QP, an impact or a fall; on MuJoCo the compiled loop runs a period that
@@ -212,7 +213,8 @@ class ClosedLoop:
         keep_qp = self.keep_qp
         seg = self._segment(compiled_loop, keep_records, integration_rate)
         # outcome only without the compiled loop (e.g. a sensor model on MuJoCo): the objects keep the last
-        # period's record and status only, and the controller builds that status once, at the end
+        # period's record and status only, and the controller builds that status once, at the end (with real
+        # sensing it builds every period's: the last one built is kept)
         lean = seg is None and not keep_records and not keep_qp
         if lean:
             ctrl.build_status, ctrl._pending_status = False, None
@@ -289,6 +291,8 @@ class ClosedLoop:
                 rec = sim.step(out.torque)
             if lean:
                 records[:] = (rec,)
+                if out.status is not None:      # built anyway (real sensing): the last period's is kept
+                    statuses[:] = (out.status,)
             else:
                 records.append(rec)
             if rec.fallen or sim.fall is not None:

@@ -1,7 +1,8 @@
 """Hand the in-process closed loop's quiet periods to the compiled loop (``loop_kernels.run_segment``).
 
 Pure Python + NumPy, no ROS. A :class:`Segment` binds one :class:`rigid.Simulator` and one
-:class:`controller.AdaptiveController` (both on the fast engine, the simulator's sensors ideal): each
+:class:`controller.AdaptiveController` (both on the fast engine; the simulator's sensors ideal, or real
+sensing without a delay on the controller's compiled sensing pipeline, ``Segment.sensing_eligible``): each
 :meth:`Segment.run` hands the objects' own state arrays (the controller's ``memory``, the simulator's
 ``sim_state``; nothing is packed or unpacked) to the kernel, which runs periods until one needs Python
 (the QP, an impact, a fall, ...) and leaves both arrays at the state after the last period it committed;
@@ -29,6 +30,8 @@ from biped_controller.core.control.status import (MSG_FIXED_REFERENCE, MSG_X_STA
                                                   ControllerStatusData, status_records)
 from biped_controller.core.control.controller_layout import RES, WORK
 from biped_controller.core.qp.problem import UNCONSTRAINED
+from biped_controller.core.sensing.pipeline_compiled import (PIPELINE_KERNELS, PIPELINE_KERNELS_SOURCES,
+                                                             CompiledSensing, load_pipeline_kernels)
 
 _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 
@@ -36,7 +39,8 @@ LOOP_KERNELS = "biped_controller.closed_loop.loop_kernels"
 # what the compiled loop is compiled against besides its own source
 PERIOD_GRID_KERNELS = "biped_sim.plant.period_grid_kernels"
 LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
-                                                     "biped_sim.plant.rigid_layout")
+                                                     "biped_sim.plant.rigid_layout") + (
+                                                     PIPELINE_KERNELS,) + PIPELINE_KERNELS_SOURCES
 
 
 def load_loop_kernels():
@@ -45,6 +49,7 @@ def load_loop_kernels():
     numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
     numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
     numba_cache.load(PERIOD_GRID_KERNELS)
+    load_pipeline_kernels()
     return numba_cache.load(LOOP_KERNELS, sources=LOOP_KERNELS_SOURCES)
 
 
@@ -62,7 +67,8 @@ class Segment:
 
     def __init__(self, sim: Simulator, ctrl: AdaptiveController, keep_records: bool = True, capacity: int = 8192):
         if not self.eligible(sim, ctrl):
-            raise ValueError("Segment needs the fast engine on both sides and ideal sensors")
+            raise ValueError("Segment needs the fast engine on both sides and ideal sensors, or real sensing "
+                             "without a delay on the compiled sensing pipeline")
         self.lk = load_loop_kernels()
         self.sim, self.ctrl, self.fp = sim, ctrl, ctrl.compiled_period
         self.keep = keep_records
@@ -78,6 +84,27 @@ class Segment:
         # the compiled loop takes the QP periods too, with the controller's decision (not in modes whose
         # whole-body stage follows a QP: hybrid)
         self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
+        # real sensing (``sensing_eligible``): the plant's sensors and the controller's compiled pipeline in the
+        # loop (``loop_kernels.run_segment``'s ``sensing``); otherwise placeholders the kernel does not read
+        self.sensing = not sim.sensor.identity
+        self._no_noise = np.zeros((0, 14))
+        if self.sensing:
+            sp = ctrl._sensing
+            self._sens = (sp.ti, sp.tf, sp.conf, sp.state, np.empty_like(sp.state), sp._q, sp._qd)
+            self.nconf = sim.sensor.compiled_noise
+        else:
+            e = np.zeros(1)
+            self._sens = (np.zeros(1, dtype=np.int64), e, e, e, e, e, e)
+            self.nconf = np.zeros(5)
+
+    @staticmethod
+    def sensing_eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
+        """Real sensing the compiled loop runs (``loop_kernels.run_segment``'s ``sensing``): the plant's sensor
+        model without a delay (``SensorModel.compiled_noise``), the controller's compiled sensing pipeline
+        without a delay compensation, its legs' model-error estimator (if on) in the kernel."""
+        sp = getattr(ctrl, "_sensing", None)
+        return bool(isinstance(sp, CompiledSensing) and sp.d == 0 and not sp._me_python
+                    and ctrl._ref_log is None and sim.sensor.compiled_noise is not None)
 
     @staticmethod
     def eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
@@ -86,9 +113,13 @@ class Segment:
         # oracle, ``python_stage``) never runs in the loop
         # (real sensing: the compiled loop has no sensing pipeline; the controller's compiled step has;
         # modes lambda and all: the compiled period takes lambda, the QP periods are decided as the others')
+        # real sensing without a delay: the compiled sensing pipeline runs in the loop (sensing_eligible)
         fp = getattr(ctrl, "compiled_period", None)
-        return bool(sim.compiled and fp is not None and sim.sensor.identity and not fp.python_stage
-                    and not ctrl.cfg.real_sensing)
+        if not (sim.compiled and fp is not None and not fp.python_stage):
+            return False
+        if sim.sensor.identity and not ctrl.cfg.real_sensing:
+            return True
+        return Segment.sensing_eligible(sim, ctrl)
 
     def run(self, t_stop: float, max_periods: int = 1 << 40, decision: tuple | None = None, build: bool = True
             ) -> tuple[list[StepRecord], list[ControllerStatusData]]:
@@ -102,10 +133,15 @@ class Segment:
         step0, cstep0, stance = sim.step_index, ctrl.step_index, sim.stance
         if decision is not None:
             self.qp_x[:] = decision[0]
+        # the noise of the periods to come (1024 at most: a segment needing more ends there, END_NOISE)
+        noise = sim.sensor.noise_rows(min(int(max_periods), 1024)) if self.sensing else self._no_noise
         self.n = n = lk.run_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
                            sim.fm.ti, sim.fm.tf, sim.sim_state, sim.limits, pushes, _PERM,
                            float(t_stop), int(max_periods), not self.keep, self.rec, self.sta, self.out, ctrl.wbc,
-                           self.G, self.h, self.res, self.work, self.qp_x, decision is not None)
+                           self.G, self.h, self.res, self.work, self.qp_x, decision is not None,
+                           self.sensing, *self._sens, noise, self.nconf)
+        if self.sensing and n > 0:
+            sim.sensor.taken(n, step0 + n - 1, stance)
         self.ended = lk.END_NAMES[int(self.out[0])]
         if n == 0:
             return [], []

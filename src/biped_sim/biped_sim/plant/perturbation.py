@@ -282,6 +282,11 @@ class SensorModel:
         self._rng = np.random.default_rng(self.perturbation.seed)
         self._rng_imu = np.random.default_rng([self.perturbation.seed, 1])
         self._rng_gyro = np.random.default_rng([self.perturbation.seed, 2])
+        # the standard normal draws of the periods to come, drawn ahead in blocks (rows: z_q (6), z_q' (6),
+        # z_p, z_r): row i is what the i-th sampled period draws one by one (a generator's block of standard
+        # normals is its draws one after another: tested), so a compiled loop can take rows too (noise_rows)
+        self._z = np.empty((0, 14))
+        self._zpos = 0
         self._samples: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         self._pitch: dict[int, tuple[float, float]] = {}     # period -> (pitch [rad], pitch rate [rad/s])
         self._first: int | None = None
@@ -301,8 +306,9 @@ class SensorModel:
         if self._last is not None and step < self._last:
             raise ValueError(f"sensor sample for period {step} after period {self._last}")
         p = self.perturbation
-        zq = self._rng.standard_normal(6)
-        zqd = self._rng.standard_normal(6)
+        z = self.noise_rows(1)[0]
+        self._zpos += 1
+        zq, zqd = z[:6], z[6:12]
         qs = np.array(q, dtype=float)
         qds = np.array(qd, dtype=float)
         if p.noise_q > 0.0:
@@ -313,11 +319,11 @@ class SensorModel:
             step_q = p.encoder_step
             qs = step_q * np.round(qs / step_q)
         th = float(q[0] + q[1] + q[2]) if pitch is None else float(pitch)
-        zp = float(self._rng_imu.standard_normal())
+        zp = float(z[12])
         if p.noise_pitch > 0.0:
             th += p.noise_pitch * zp
         rate = float(qd[0] + qd[1] + qd[2]) if pitch_rate is None else float(pitch_rate)
-        zr = float(self._rng_gyro.standard_normal())
+        zr = float(z[13])
         if p.noise_pitch_rate > 0.0:
             rate += p.noise_pitch_rate * zr
         self._pitch[step] = (th, rate)
@@ -332,6 +338,51 @@ class SensorModel:
             del self._samples[old]
             del self._pitch[old]
         return s
+
+    #: periods of noise drawn at once (one block costs about what 100 periods drawn one by one cost)
+    BLOCK = 4096
+
+    def noise_rows(self, n: int) -> np.ndarray:
+        """The standard normal draws of the next ``n`` sampled periods at least (a view, rows as ``_z``:
+        z_q (6), z_q' (6), z_p, z_r; the generators drawn ahead in blocks when fewer rows are left). They are
+        not taken: :meth:`sample` takes one per period, :meth:`taken` records those a compiled loop used."""
+        left = self._z.shape[0] - self._zpos
+        if left < n:
+            m = max(int(n) - left, self.BLOCK)
+            block = np.empty((m, 14))
+            block[:, :12] = self._rng.standard_normal((m, 12))
+            block[:, 12] = self._rng_imu.standard_normal(m)
+            block[:, 13] = self._rng_gyro.standard_normal(m)
+            self._z = np.concatenate([self._z[self._zpos:], block])
+            self._zpos = 0
+        return self._z[self._zpos:]
+
+    @property
+    def compiled_noise(self) -> np.ndarray | None:
+        """(noise_q [rad], noise_q' [rad/s], encoder step [rad] (0: none), noise_pitch [rad], noise_pitch_rate
+        [rad/s]) for a compiled loop that samples as :meth:`sample` does; None where one cannot (a delay: the
+        delay line is Python's; ideal sensors: nothing to sample)."""
+        p = self.perturbation
+        if self.identity or p.delay != 0:
+            return None
+        return np.array([p.noise_q, p.noise_qd, p.encoder_step, p.noise_pitch, p.noise_pitch_rate])
+
+    def taken(self, n: int, last_step: int, stance: int) -> None:
+        """A compiled loop sampled ``n`` > 0 periods, the last ``last_step`` in ``stance``, with the next ``n``
+        rows of :meth:`noise_rows` (delay 0, :attr:`compiled_noise`): the rows are used and the bookkeeping
+        is :meth:`sample`'s after them (the samples themselves are not kept: with no delay no later
+        period reads them)."""
+        if n <= 0:
+            return
+        self._zpos += int(n)
+        self._samples.clear()
+        self._pitch.clear()
+        if self._stance is None or int(stance) != self._stance:
+            # (one call of a compiled loop runs in one stance: an impact ends it)
+            self._segment, self._stance = int(last_step) - int(n) + 1, int(stance)
+        if self._first is None:
+            self._first = int(last_step) - int(n) + 1
+        self._last = int(last_step)
 
     def reading(self, step: int) -> tuple[int, np.ndarray, np.ndarray]:
         """What the controller receives at period ``step``: the sample of period max(step - delay, first
