@@ -186,3 +186,16 @@ def test_acceptance_names_the_check_that_fails():
     assert not ok and why == [f"a held-out stride could not be optimised: {lo:.4f} m"]
     good = dict(inside, held_out=[_held(lo, True, 1e-4, 1e-3, True)], held_out_all_feasible=True)
     assert within_tolerance(good, st) == (True, [])
+
+
+def test_bad_gait_settings_name_their_own_file(tmp_path):
+    """A gait.yaml that breaks a rule is refused naming that file (not the default robot's)."""
+    import yaml
+    from biped_controller.gaits.optimizer import GaitConfigError
+    tree = yaml.safe_load((ROOT / "robots" / "biped7" / "gait.yaml").read_text())
+    bp = tree["smoothing_breakpoints"]["value"]
+    tree["smoothing_breakpoints"]["value"] = [bp[0], tree["preferred_stride"]["value"], bp[-1]]
+    path = tmp_path / "gait.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises(GaitConfigError, match=rf"^{path}: smoothing_breakpoints must be at least 4"):
+        load_gait_settings(path)

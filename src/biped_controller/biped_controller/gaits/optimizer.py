@@ -108,28 +108,28 @@ def load_gait_settings(path: str | Path | None = None) -> GaitSettings:
         max_iterations=int(val("max_iterations")), tolerance=float(val("tolerance")), raw=tree,
     )
     if s.time_degree != 4:
-        raise GaitConfigError("robots/biped7/gait.yaml: time_degree must be 4 (paper eq. 12)")
+        raise GaitConfigError(f"{p}: time_degree must be 4 (paper eq. 12)")
     if s.grid_intervals % 2:
-        raise GaitConfigError("robots/biped7/gait.yaml: grid_intervals must be even (Simpson's rule)")
+        raise GaitConfigError(f"{p}: grid_intervals must be even (Simpson's rule)")
     if s.p_d not in s.strides:
-        raise GaitConfigError("robots/biped7/gait.yaml: strides must contain preferred_stride")
+        raise GaitConfigError(f"{p}: strides must contain preferred_stride")
     if list(s.strides) != sorted(set(s.strides)):
-        raise GaitConfigError("robots/biped7/gait.yaml: strides must be strictly increasing")
+        raise GaitConfigError(f"{p}: strides must be strictly increasing")
     if s.representation not in ("cubic_spline_in_p", "polynomial_in_p"):
-        raise GaitConfigError(f"robots/biped7/gait.yaml: family_representation must be cubic_spline_in_p or "
+        raise GaitConfigError(f"{p}: family_representation must be cubic_spline_in_p or "
                               f"polynomial_in_p, got {s.representation!r}")
     if s.representation == "cubic_spline_in_p":
         bp = s.smoothing_breakpoints
         if list(bp) != sorted(set(bp)) or len(bp) < 4:
-            raise GaitConfigError("robots/biped7/gait.yaml: smoothing_breakpoints must be at least 4 increasing values")
+            raise GaitConfigError(f"{p}: smoothing_breakpoints must be at least 4 increasing values")
         if s.p_d not in bp:
-            raise GaitConfigError("robots/biped7/gait.yaml: smoothing_breakpoints must contain preferred_stride (exact at p_d)")
+            raise GaitConfigError(f"{p}: smoothing_breakpoints must contain preferred_stride (exact at p_d)")
         if bp[0] != s.strides[0] or bp[-1] != s.strides[-1]:
-            raise GaitConfigError("robots/biped7/gait.yaml: smoothing_breakpoints must start and end at the first and last stride")
+            raise GaitConfigError(f"{p}: smoothing_breakpoints must start and end at the first and last stride")
         if len(s.strides) < 4:
-            raise GaitConfigError("robots/biped7/gait.yaml: the spline family needs at least 4 strides")
+            raise GaitConfigError(f"{p}: the spline family needs at least 4 strides")
     if not s.smoothing_weights or any(w <= 0 for w in s.smoothing_weights):
-        raise GaitConfigError("robots/biped7/gait.yaml: smoothing_weights must be positive")
+        raise GaitConfigError(f"{p}: smoothing_weights must be positive")
     return s
 
 
