@@ -199,3 +199,40 @@ def test_bad_gait_settings_name_their_own_file(tmp_path):
     path.write_text(yaml.safe_dump(tree))
     with pytest.raises(GaitConfigError, match=rf"^{path}: smoothing_breakpoints must be at least 4"):
         load_gait_settings(path)
+
+
+class _Interrupt(Exception):
+    pass
+
+
+def test_an_interrupted_build_resumes_to_the_same_file(fast_builds, tmp_path, monkeypatch):
+    """A build stopped right after its first continuation sweep's checkpoint, run again with the same inputs,
+    resumes from that checkpoint (it does not solve p_d and the chains again) and writes the file the
+    uninterrupted build wrote, byte for byte; the checkpoint is gone at the end; other settings ignore it."""
+    from biped_controller.gaits import build as B
+    st, one, _, _ = fast_builds
+    ck = B.checkpoint_path(tmp_path / "gait_family.json")
+    save = B._Checkpoint.save
+
+    def stop_after_sweep(self, phase, index, changed, sols):
+        save(self, phase, index, changed, sols)
+        if phase == "sweep":
+            raise _Interrupt
+    monkeypatch.setattr(B._Checkpoint, "save", stop_after_sweep)
+    with pytest.raises(_Interrupt):
+        build_family(st, workers=1, evaluator="fast", progress=False, speed=False, max_sweeps=2, checkpoint=ck)
+    monkeypatch.setattr(B._Checkpoint, "save", save)
+    assert ck.exists()
+    from biped_model.robot import resolve_robot
+    desc = resolve_robot(None).description()
+    assert B._Checkpoint(ck, B.checkpoint_key(desc, st, "fast", None, 2)).load()["phase"] == "sweep"
+    other = B.checkpoint_key(desc, dataclasses.replace(st, zmp_margin=st.zmp_margin * 1.01), "fast", None, 2)
+    assert B._Checkpoint(ck, other).load() is None
+    solved = []
+    chain = B._chain
+    monkeypatch.setattr(B, "_chain", lambda *a: solved.append(a) or chain(*a))
+    resumed, _ = build_family(st, workers=1, evaluator="fast", progress=False, speed=False, max_sweeps=2,
+                              checkpoint=ck)
+    assert solved == []                          # p_d and the chains came from the checkpoint
+    assert json.dumps(resumed, sort_keys=True) == json.dumps(one, sort_keys=True)
+    assert not ck.exists()

@@ -32,8 +32,11 @@ the reference evaluator's within the fit tolerances, not bit for bit; ``--evalua
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
 import json
 import multiprocessing as mp
+import pickle
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -224,39 +227,111 @@ def _sweep_pass(run: Runner, out: dict[float, StepSolution], order: list[float])
     return changed
 
 
+#: the modules whose code decides a build's numbers: a checkpoint written by other code is not resumed
+_CODE = ("optimizer.py", "fast_eval.py", "build.py", "generation.py")
+
+
+def checkpoint_path(out: Path) -> Path:
+    """Where a build writing ``out`` keeps its checkpoint: ``.<name>.resume.pkl`` beside it (git ignores it)."""
+    out = Path(out)
+    return out.with_name(f".{out.name}.resume.pkl")
+
+
+def checkpoint_key(desc, st: GaitSettings, evaluator: str, first_guess, max_sweeps: int) -> str:
+    """sha256 of what the build's numbers depend on: the description, the gait settings (values, not their
+    reasons), the evaluator, p_d's first guess, the sweep cap and the code of :data:`_CODE` (not the number of
+    worker processes, which changes nothing)."""
+    h = hashlib.sha256()
+    h.update(pickle.dumps((desc, dataclasses.replace(st, raw=None), evaluator,
+                           None if first_guess is None else np.asarray(first_guess, dtype=float).tobytes(),
+                           int(max_sweeps)), protocol=4))
+    here = Path(__file__).resolve().parent
+    for name in _CODE:
+        h.update((here / name).read_bytes())
+    return h.hexdigest()
+
+
+class _Checkpoint:
+    """The build's state at the end of a phase (after p_d and the chains, after each continuation sweep,
+    after each smoothing pass): ``{"key", "phase", "index", "changed", "sols"}`` pickled to ``path`` through
+    a temporary file and a rename, so an interruption leaves the last complete phase. Every solve is a function
+    of its inputs alone, so a build resumed from a phase's state writes the same file, bit for bit, as one
+    that was never interrupted (``tests/test_gait_build.py``). ``path`` None: no checkpoint."""
+
+    def __init__(self, path: Path | None, key: str):
+        self.path, self.key = (None if path is None else Path(path)), key
+
+    def load(self) -> dict | None:
+        """The stored state when it was written for this key, else None (a stale file is left to be replaced)."""
+        if self.path is None or not self.path.exists():
+            return None
+        try:
+            with open(self.path, "rb") as f:
+                state = pickle.load(f)
+        except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ValueError):
+            return None
+        return state if isinstance(state, dict) and state.get("key") == self.key else None
+
+    def save(self, phase: str, index: int, changed: int, sols: dict) -> None:
+        if self.path is None:
+            return
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        with open(tmp, "wb") as f:
+            pickle.dump({"key": self.key, "phase": phase, "index": index, "changed": changed, "sols": dict(sols)},
+                        f, protocol=4)
+        tmp.replace(self.path)
+
+    def remove(self) -> None:
+        if self.path is not None:
+            self.path.unlink(missing_ok=True)
+
+
 def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str = "fast", progress: bool = True,
                  speed: bool = True, max_sweeps: int = 4, first_guess: np.ndarray | None = None,
-                 memo: bool = True) -> tuple[dict, dict]:
+                 memo: bool = True, checkpoint: Path | None = None) -> tuple[dict, dict]:
     """The family file's contents (as ``generation.generate`` writes them) and the build's timings (and the
     memo's counts: ``sweep_solves`` run, ``sweep_memo_hits``); ``first_guess``: the normalised coefficients p_d's
     solve starts from (None: the stated initial guess); ``memo``: reuse the continuation sweeps' repeated solves
-    (:class:`SolveMemo`; False: solve each again, as before it; the same file either way)."""
+    (:class:`SolveMemo`; False: solve each again, as before it; the same file either way); ``checkpoint``: a
+    file (:func:`checkpoint_path`) holding the state after each phase; a build finding one written for the same
+    inputs (:func:`checkpoint_key`) resumes after its phase, and removes it when the family is complete."""
     from biped_controller.gaits.generation import (_fit_from_solutions, _solution_record, _validate, fit_and_restrict,
                                                    restrict_to_held_out)
     set_blas_threads(1)
     t0 = time.perf_counter()
     times: dict[str, float] = {}
     opt = _make_optimizer(desc, st, evaluator)
+    ck = _Checkpoint(checkpoint, checkpoint_key(opt.desc, st, evaluator, first_guess, max_sweeps))
+    state = ck.load()
     run = Runner(workers, opt.desc, st, evaluator, memo=memo)
     try:
-        # 1. p_d from the stated initial guess, then the two chains outwards (independent of each other)
         p_d = st.p_d
-        sols: dict[float, StepSolution] = {p_d: run.submit(_solve, p_d, first_guess, None, 0.0, False).result()}
-        up = sorted(s for s in st.strides if s > p_d)
-        down = sorted((s for s in st.strides if s < p_d), reverse=True)
-        fu, fd = run.submit(_chain, up, sols[p_d].c), run.submit(_chain, down, sols[p_d].c)
-        for chain, fut in ((up, fu), (down, fd)):
-            chain_sols, solved = fut.result()
-            sols.update(zip(chain, chain_sols))
-            if run.memo is not None:
-                for key, sol in solved:
-                    run.memo.put(key, _Done(sol))
+        if state is None:
+            # 1. p_d from the stated initial guess, then the two chains outwards (independent of each other)
+            sols: dict[float, StepSolution] = {p_d: run.submit(_solve, p_d, first_guess, None, 0.0, False).result()}
+            up = sorted(s for s in st.strides if s > p_d)
+            down = sorted((s for s in st.strides if s < p_d), reverse=True)
+            fu, fd = run.submit(_chain, up, sols[p_d].c), run.submit(_chain, down, sols[p_d].c)
+            for chain, fut in ((up, fu), (down, fd)):
+                chain_sols, solved = fut.result()
+                sols.update(zip(chain, chain_sols))
+                if run.memo is not None:
+                    for key, sol in solved:
+                        run.memo.put(key, _Done(sol))
+            ck.save("chains", 0, -1, sols)
+            _log(progress, t0, f"p_d and the two chains: {sum(s.success for s in sols.values())}/{len(sols)} feasible")
+        else:
+            sols = dict(state["sols"])
+            _log(progress, t0, f"resumed from {ck.path} (after {state['phase']} {state['index'] + 1})")
         times["chains"] = time.perf_counter() - t0
-        _log(progress, t0, f"p_d and the two chains: {sum(s.success for s in sols.values())}/{len(sols)} feasible")
-        # 2. continuation sweeps
+        # 2. continuation sweeps (none left when resumed after the last one, or in the smoothing)
         ps = sorted(sols)
-        for sweep in range(max_sweeps):
+        first_sweep = 0 if state is None or state["phase"] == "chains" else state["index"] + 1
+        if state is not None and (state["phase"] == "smooth" or state["changed"] == 0):
+            first_sweep = max_sweeps
+        for sweep in range(first_sweep, max_sweeps):
             changed = _sweep_pass(run, sols, ps) + _sweep_pass(run, sols, ps[::-1])
+            ck.save("sweep", sweep, changed, sols)
             _log(progress, t0, f"continuation sweep {sweep + 1}: {changed} strides improved")
             if changed == 0:
                 break
@@ -267,7 +342,10 @@ def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str =
         fut_speed = run.submit(_speed, [0.35, 0.40, 0.45, 0.50, 0.55, 0.60, 0.65], 1.0, sols[p_d].c) if speed else None
         # 3. smoothing passes: the strides of one pass are independent given the pass's fit
         scale = st.T ** np.arange(5)[None, :]
+        first_pass = state["index"] + 1 if state is not None and state["phase"] == "smooth" else 0
         for it, w in enumerate(st.smoothing_weights):
+            if it < first_pass:
+                continue
             fam = _fit_from_solutions(sols, st)
             todo = [p for p in sorted(sols) if p != p_d and sols[p].success]
             tg = [fam.coefficients(p)[0] * scale for p in todo]
@@ -277,6 +355,7 @@ def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str =
                 if cand.success:
                     sols[p] = cand
                     changed += 1
+            ck.save("smooth", it, changed, sols)
             _log(progress, t0, f"smoothing pass {it + 1} (weight {w:g}): {changed} strides re-solved")
         t_s = time.perf_counter()
         # 4. diagnostics of the strides kept
@@ -319,6 +398,7 @@ def build_family(st: GaitSettings, desc=None, workers: int = 2, evaluator: str =
         times["after_smoothing"] = time.perf_counter() - t_s
         times["total"] = time.perf_counter() - t0
         _log(progress, t0, "validated")
+        ck.remove()
     finally:
         run.close()
     return data, times
@@ -382,7 +462,8 @@ def main(argv: list[str] | None = None) -> int:
         print("build: refusing to overwrite the committed family; give another --out", file=sys.stderr)
         return 2
     data, times = build_family(st, desc=None if robot.is_default else desc, workers=args.workers,
-                               evaluator=args.evaluator, speed=not args.no_speed, memo=not args.no_memo)
+                               evaluator=args.evaluator, speed=not args.no_speed, memo=not args.no_memo,
+                               checkpoint=checkpoint_path(args.out))
     if not robot.is_default:          # the stamp as generation.generate writes it (biped_model.robot)
         from biped_model.robot import STAMP_KEY, description_hash
         data[STAMP_KEY] = {"description_sha256": description_hash(desc)}

@@ -7,7 +7,7 @@
 - ``build NAME|PATH`` optimises, fits and checks its gait family (progress on stdout) with the two-process
   build (:mod:`biped_controller.gaits.build`: the same file for any ``--workers``), stamps it with the
   description's hash and replaces ``gait_family.json`` atomically: an interrupted build leaves the previous
-  family in place (the build keeps no partial state, so a build interrupted starts again from nothing);
+  family in place (an interrupted build resumes after its last complete phase: gaits.build's checkpoint);
   a family that fails its checks is not written unless ``--force``;
 - ``check NAME|PATH`` the family's stamp, then its checks (fit at the fitted and the held-out strides,
   periodicity, the true-constraint margins and clearance between the strides);
@@ -277,8 +277,9 @@ def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None =
     print(f"building the gait family of {r.name} ({r.directory}): {len(st.strides)} strides "
           f"{st.strides[0]:g}-{st.strides[-1]:g} m, p_d {st.p_d:g} m, T {st.T:g} s, {len(st.smoothing_weights)} "
           f"smoothing passes, at most {st.max_iterations} iterations per solve, the two-process build "
-          f"(biped_controller.gaits.build, {workers} worker(s), evaluator {evaluator}; it keeps no partial "
-          f"state: an interrupted build starts again; the previous {FAMILY_FILE} stays until this one is complete)",
+          f"(biped_controller.gaits.build, {workers} worker(s), evaluator {evaluator}; an interrupted build resumes "
+          f"after its last complete phase from {build.checkpoint_path(r.family_path).name}; the previous {FAMILY_FILE} "
+          f"stays until this one is complete)",
           flush=True)
     # the preferred stride first, on its own: without a gait there, no family (one line naming the binding
     # constraint, not a solver trace); with one, the generator starts there (converged at once)
@@ -295,7 +296,8 @@ def cmd_build(spec: str, force: bool, speed_sweep: bool, warm_from: str | None =
     try:
         t1 = time.perf_counter()
         data, times = build.build_family(st, desc=desc, workers=workers, evaluator=evaluator, progress=True,
-                                         speed=speed_sweep, first_guess=sol.c)
+                                         speed=speed_sweep, first_guess=sol.c,
+                                         checkpoint=build.checkpoint_path(r.family_path))
         # the stamp as generation.generate writes it (the description this family was built for)
         data[STAMP_KEY] = {"description_sha256": description_hash(desc)}
         print(f"family: {times['family']:.1f} s, total {time.perf_counter() - t1:.1f} s ({workers} worker(s), "
