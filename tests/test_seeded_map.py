@@ -95,3 +95,22 @@ def test_robustness_over_seeds_runs_only_the_noisy_rows(monkeypatch):
     assert [c["level"] for c in recs[0]["crossings"]] == [0.9, 0.5] and recs[0]["trials"] > 0
     md = rb.seeded_markdown(recs, 4)
     assert len([x for x in md if x.startswith("| noise")]) == 1
+
+
+def test_robustness_over_seeds_resumes_from_its_store(monkeypatch, tmp_path):
+    """Each seeded row is stored as it finishes; a rerun runs no trial and gives the same rows; other seeds
+    are a new row; --report-only (simulate False) gives the stored rows only."""
+    calls = []
+    monkeypatch.setattr(seeded, "seeded_trial", lambda *a: calls.append(1) or _trial(*a))
+    rows = (rb.LEVELS_BY_KEY["nominal"], rb.LEVELS_BY_KEY["noise5e-4"])
+    store = rb.cmap.RecordStore(tmp_path / "seeded.jsonl")
+    first = rb.run_seeded_pushes(rows, ("both",), (True,), 4, (0.9, 0.5), 1, False, log=lambda m: None, store=store)
+    n = len(calls)
+    assert n > 0 and len(store.load()) == 1
+    again = rb.run_seeded_pushes(rows, ("both",), (True,), 4, (0.9, 0.5), 1, False, log=lambda m: None, store=store)
+    assert len(calls) == n and again == first
+    only = rb.run_seeded_pushes(rows, ("both",), (True,), 6, (0.9, 0.5), 1, False, log=lambda m: None, store=store,
+                                simulate=False)
+    assert only == [] and len(calls) == n
+    six = rb.run_seeded_pushes(rows, ("both",), (True,), 6, (0.9, 0.5), 1, False, log=lambda m: None, store=store)
+    assert len(calls) > n and len(store.load()) == 2 and six[0]["seeds"] == 6

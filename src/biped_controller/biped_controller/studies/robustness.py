@@ -369,11 +369,24 @@ def under_profile(levels, base: PlantPerturbation | None) -> tuple[Level, ...]:
         for lv in levels)
 
 
+def _seeded_key(lv, mode: str, observer: bool, seeds: int, survival_levels, full_trials: bool) -> str:
+    """What a seeded row's answer depends on: the row's perturbation (its seed included), the mode, the
+    observer, the seed count, the survival levels, the row's search and the settings' fingerprint (plant,
+    profile, overrides, robot, gait family)."""
+    sr = search_for(mode)
+    st = settings_for(lv.perturbation, observer, full_trials).activate()
+    return json.dumps([lv.perturbation.as_dict(), mode, bool(observer), int(seeds), [float(c) for c in survival_levels],
+                       [sr.resolution, sr.fmax, sr.coarse], bool(full_trials), cmap.fingerprint(cmap.MapSpec(settings=st))],
+                      sort_keys=True)
+
+
 def run_seeded_pushes(levels, modes, observers, seeds: int, survival_levels, workers: int, full_trials: bool,
-                      log=print) -> list[dict]:
+                      log=print, store: cmap.RecordStore | None = None, simulate: bool = True) -> list[dict]:
     """The max push over ``seeds`` seeds (``trial.seeded.seeded_table`` at :data:`PUSH_CELL`, the row's
     search of :func:`search_for`) of every (level, mode, observer) whose plant draws noise; one record
-    each (the seeded table's result without its trial records)."""
+    each (the seeded table's result without its trial records). ``store``: each row's record is appended as
+    it finishes (key :func:`_seeded_key`) and a rerun takes the rows stored (resumable); ``simulate`` False:
+    only the stored rows."""
     from biped_controller.closed_loop.executor import make_executor
     from biped_controller.studies.trial.record import seed_of
     out = []
@@ -381,9 +394,19 @@ def run_seeded_pushes(levels, modes, observers, seeds: int, survival_levels, wor
     if not rows:
         log("--seeds: no row draws noise: every row is exact (one trial decides)")
         return out
+    done = {r["key"]: r for r in (store.load() if store is not None else []) if r.get("kind") == "seeded"}
     T = context(ROBOT or None).family.T
-    with make_executor(workers, initializer=context) as ex:
+    keys = {(lv.name, m, obs): _seeded_key(lv, m, obs, seeds, survival_levels, full_trials) for lv, m, obs in rows}
+    todo = [row for row in rows if keys[(row[0].name, row[1], row[2])] not in done]
+    log(f"seeded rows: {len(todo)} to run, {len(rows) - len(todo)} stored")
+    with make_executor(workers if (todo and simulate) else 1, initializer=context) as ex:
         for lv, m, obs in rows:
+            key = keys[(lv.name, m, obs)]
+            if key in done:
+                out.append(done[key]["row"])
+                continue
+            if not simulate:
+                continue
             sr = search_for(m)
             t0 = time.perf_counter()
             r = seeded.seeded_table((m,), seeds, sr.resolution, sr.fmax, sr.coarse, levels=survival_levels,
@@ -391,6 +414,8 @@ def run_seeded_pushes(levels, modes, observers, seeds: int, survival_levels, wor
                                     settings=settings_for(lv.perturbation, obs, full_trials), executor=ex)[m]
             rec = {k: v for k, v in r.items() if k != "trials"}
             rec.update(level=lv.name, observer=obs, trials=len(r["trials"]))
+            if store is not None:
+                store.append([{"kind": "seeded", "key": key, "row": rec}])
             out.append(rec)
             log(f"  seeded max push {lv.name:<28} {m:<4} observer {'on ' if obs else 'off'}: " + ", ".join(
                 f"{100 * c['level']:g} % {c['estimate']} N {c['interval']}" for c in r["crossings"])
@@ -602,9 +627,10 @@ def main(argv: list[str] | None = None) -> int:
         if ex is not None:
             ex.close()
     seeded_pushes = []
-    if args.seeds is not None and not args.report_only:
+    if args.seeds is not None:
         seeded_pushes = run_seeded_pushes(levels, modes, observers, args.seeds, args.survival_levels, args.workers,
-                                          args.full_trials, log)
+                                          args.full_trials, log, store=cmap.RecordStore(args.store / "seeded.jsonl"),
+                                          simulate=not args.report_only)
     wall = time.perf_counter() - t0
     log(f"wall time {wall:.1f} s ({args.workers} workers)")
     table = table_markdown(levels, modes, observers, walks, pushes)
