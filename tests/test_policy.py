@@ -144,7 +144,8 @@ def test_vector_env_over_two_processes_is_the_single_env():
 # ---------------------------------------------------------------------- the plug-in loop's physics
 def loop_records(env, policy, pushes, t_end):
     setup = ControllerSetup(env.desc, env.family, env.scfg.control_period, {})
-    ctrl = PolicyController(setup, policy, policy_period=env.period)
+    ctrl = PolicyController(setup, policy, policy_period=env.period, action_mode=env.config.action_mode,
+                            residual_scale=env.config.residual_scale)
     loop = PluginLoop(ctrl, sim_config=env.scfg, family=env.family, desc=env.desc, perturbation=env.perturbation)
     return loop.run(1000, pushes, limit=t_end - 1e-9)
 
@@ -164,10 +165,13 @@ def computed_torque_policy(env):
     return f
 
 
-@pytest.mark.parametrize("case", ["mujoco", "mujoco_sensors", "rigid"])
+@pytest.mark.parametrize("case", ["mujoco", "mujoco_sensors", "rigid", "mujoco_residual"])
 def test_env_step_is_the_plugin_loop(case, mujoco_env):
     if case == "mujoco":
         env = mujoco_env
+    elif case == "mujoco_residual":      # the law recomputed every plant period on that period's observation
+        env = BipedPushEnv(plant="mujoco", action_mode="residual", keep_records=True,
+                           perturbation={"noise_q": 2e-4, "noise_qd": 2e-3, "seed": 4})
     elif case == "mujoco_sensors":
         env = BipedPushEnv(plant="mujoco", perturbation={"noise_q": 5e-4, "noise_qd": 5e-2, "delay": 2, "seed": 4},
                            keep_records=True)
@@ -178,6 +182,10 @@ def test_env_step_is_the_plugin_loop(case, mujoco_env):
         pol = computed_torque_policy(env)
         _, _, info = episode(env, pol, options={"push": {**PUSH, "force": 50.0}}, max_steps=520)
         assert info["steps_walked"] >= 1 and not info["fall_cause"]
+    elif case == "mujoco_residual":      # small residuals: walks through a touchdown, then a push fells it
+        pol = numpy_policy(*weights(2, 0.002))
+        _, _, info = episode(env, pol, options={"push": {**PUSH, "onset": 0.6, "force": 400.0}}, max_steps=120)
+        assert info["steps_walked"] >= 1 and info["fall_cause"]
     else:
         pol = numpy_policy(*weights(2, 0.01))      # falls after a touchdown on MuJoCo (a cut-short period)
         _, _, info = episode(env, pol, options={"push": PUSH}, max_steps=60)
@@ -191,8 +199,44 @@ def test_env_step_is_the_plugin_loop(case, mujoco_env):
         np.testing.assert_array_equal(r.torque, s.torque)
     if case == "mujoco":                 # this run crosses a touchdown (a cut-short period)
         assert info["steps_walked"] >= 1
+    if case == "mujoco_residual":        # the torque changes within a policy period (the law runs beneath it)
+        assert not np.array_equal(recs[1].torque, recs[2].torque)
     assert res.steps_walked == info["steps_walked"]
     assert res.fall_cause == info["fall_cause"]
+
+
+def test_zero_residual_is_mode_none():
+    """action_mode residual with a = 0 is mode none's computed-torque law on the preferred reference: the
+    environment's torques equal those of the built-in mode none run on the plug-in loop (an independent
+    implementation: plugin.builtin over the controller core) to rounding, over a walk through a touchdown."""
+    env = BipedPushEnv(plant="mujoco", action_mode="residual", reset_noise_scale=0.0, keep_records=True)
+    _, _, info = episode(env, lambda o: np.zeros(6), max_steps=60)
+    assert info["steps_walked"] >= 1 and not info["fall_cause"]
+    res = PluginLoop("none", sim_config=env.scfg, family=env.family, desc=env.desc).run(
+        1000, (), limit=info["t"] - 1e-9)
+    assert len(res.records) == len(env.records)
+    ta = np.array([r.torque for r in env.records])
+    tb = np.array([r.torque for r in res.records])
+    np.testing.assert_allclose(ta, tb, rtol=0, atol=1e-6)
+    assert np.abs(ta).max() > 10.0
+
+
+def test_residual_offset_moves_the_law_by_kp_a_delta():
+    """One period of the residual law against its closed form: torque(delta) - torque(0) = A(q) Kp delta
+    (inside the limits), the reference and model read independently (plugin.model, the gait family)."""
+    from biped_controller.plugin.model import Gains, RobotModel
+    from biped_controller.policy.residual import ResidualLaw
+    env = BipedPushEnv(plant="mujoco", action_mode="residual", reset_noise_scale=0.0)
+    obs, _ = env.reset(seed=0)
+    law = env.residual
+    delta = law.offset(np.array([0.5, -0.5, 0.2, -0.3, 0.4, -1.5]))
+    np.testing.assert_array_equal(delta, np.array([0.5, -0.5, 0.2, -0.3, 0.4, -1.0]) * law.scale)
+    A = RobotModel(env.desc).dynamics(obs[:6], obs[6:12]).A
+    got = law.torque(obs, delta) - law.torque(obs, np.zeros(6))
+    np.testing.assert_allclose(got, Gains.from_config().Kp * A @ delta, rtol=1e-9, atol=1e-9)
+    assert np.isnan(law.torque(obs, law.offset(np.full(6, np.nan)))).all()
+    with pytest.raises(ValueError, match="residual_scale"):
+        ResidualLaw(env.desc, env.family, [0.1, 0.1, -0.1, 0.1, 0.1, 0.1])
 
 
 # ---------------------------------------------------------------------- ONNX

@@ -26,7 +26,10 @@ def evaluate(name: str, episodes: int = 5, steps: int = 20, plant: str = "mujoco
     from biped_controller.policy.env import BipedPushEnv, load_env_config
     path = policies_dir() / name / "policy.onnx"
     run = OnnxRunner(path)
-    env = BipedPushEnv(plant=plant)
+    meta = json.loads((policies_dir() / name / "policy.json").read_text())
+    kw = {"action_mode": meta["action_mode"], "residual_scale": meta["residual_scale"]} \
+        if meta.get("action_mode", "torque") == "residual" else {}
+    env = BipedPushEnv(plant=plant, **kw)
     limit = int(load_env_config().max_episode_steps)
     out = []
     for k in range(episodes):
@@ -48,7 +51,6 @@ def evaluate(name: str, episodes: int = 5, steps: int = 20, plant: str = "mujoco
                     "return": round(ret, 3), "ended": ended})
     mean = {k: round(float(np.mean([e[k] for e in out])), 4)
             for k in ("length", "duration", "steps_walked", "distance", "speed", "return")}
-    meta = json.loads((policies_dir() / name / "policy.json").read_text())
     return {"policy": name, "plant": plant, "episodes": episodes, "steps_asked": steps, "push": None,
             "policy_totals": meta.get("totals"), "mean": mean,
             "walked_all": all(e["ended"] == "steps" for e in out), "per_episode": out}

@@ -393,7 +393,9 @@ def export_policy(agent, cfg: PpoConfig, name: str, out: Path, meta: dict) -> No
     """``policies/NAME/`` (module docstring) from the agent's current parameters."""
     from biped_controller.learning.onnx_export import export
     from biped_controller.policy.env import load_env_config
-    from biped_controller.policy.spec import ACTION_FIELDS, OBS_FIELDS
+    from biped_controller.plugin.model import Gains
+    from biped_controller.policy.spec import OBS_FIELDS, action_fields
+    env_cfg = load_env_config(**cfg.env_settings)
     mlp = mlp_of(agent, cfg)
     out.mkdir(parents=True, exist_ok=True)
     obs_all = np.asarray(agent.memory.get_tensor_by_name("observations")).reshape(-1, mlp.n_obs)
@@ -405,13 +407,19 @@ def export_policy(agent, cfg: PpoConfig, name: str, out: Path, meta: dict) -> No
     info = {"description": f"{name}: PPO (skrl {meta['stack'].get('skrl')}) on BipedRandomPush-v0, "
                            f"{cfg.plant} plant, {meta['totals']['env_steps']} env steps "
                            f"({meta['totals']['wall_s'] / 60:.0f} min of a {cfg.budget_minutes:.0f} min budget)",
-            "observation": list(OBS_FIELDS), "action": list(ACTION_FIELDS),
-            "policy_period": load_env_config(**cfg.env_settings).policy_period, "plant": cfg.plant, "robot": "biped7",
+            "observation": list(OBS_FIELDS), "action": list(action_fields(env_cfg.action_mode)),
+            "action_mode": env_cfg.action_mode, "policy_period": env_cfg.policy_period,
+            "plant": cfg.plant, "robot": "biped7",
             "deterministic_action": "the Gaussian policy's mean (unclipped; the controller clips to [-1, 1])",
             "trainer": "biped_controller.learning.ppo_train (scripts/train)", "config": f"config/training/{name}.yaml",
             "totals": meta["totals"], "stack": meta["stack"], "curve": f"results/{name}/curve.csv",
             "files": {"weights.npz": "biped_controller.learning.mlp", "recorded.npz":
                       "observations (float32) and the JAX network's mean actions on them"}}
+    if env_cfg.action_mode == "residual":       # the inner loop the policy was trained over (policy.residual)
+        g = Gains.from_config()
+        info.update(residual_scale=list(env_cfg.residual_scale), gains={"Kp": g.Kp, "Kv": g.Kv},
+                    inner_loop="mode none's computed-torque law on the preferred reference offset by "
+                               "action * residual_scale [rad], every plant period (policy.residual)")
     (out / "policy.json").write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
 
 

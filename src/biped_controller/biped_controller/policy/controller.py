@@ -27,8 +27,10 @@ from typing import Callable
 import numpy as np
 
 from biped_controller.plugin.interface import ControllerSetup, ControlResult, Observation
-from biped_controller.policy.spec import (ACTION_FIELDS, GRID_TOL, OBS_FIELDS, OBS_SIZE, check_policy_period,
-                                          decision_grid_end, observation_vector, torque_limits)
+from biped_controller.plugin.model import Gains
+from biped_controller.policy.residual import ResidualLaw
+from biped_controller.policy.spec import (ACTION_MODES, GRID_TOL, OBS_FIELDS, OBS_SIZE, action_fields,
+                                          check_policy_period, decision_grid_end, observation_vector, torque_limits)
 
 
 class PolicyFileError(ValueError):
@@ -43,16 +45,24 @@ class PolicyController:
     description = "a policy network, its action held over its policy period"
 
     def __init__(self, setup: ControllerSetup, forward: Callable[[np.ndarray], np.ndarray] | None = None,
-                 policy_period: float | None = None):
+                 policy_period: float | None = None, action_mode: str | None = None,
+                 residual_scale=None, gains: Gains | None = None):
         self.setup = setup
         if forward is not None:
             self.forward = forward
         if policy_period is None:
             policy_period = setup.options.get("policy_period", None)
-        if policy_period is None:
+        if policy_period is None or action_mode is None or residual_scale is None:
             from biped_controller.policy.env import load_env_config
-            policy_period = load_env_config().policy_period
+            env_cfg = load_env_config()
+            policy_period = env_cfg.policy_period if policy_period is None else policy_period
+            action_mode = env_cfg.action_mode if action_mode is None else action_mode
+            residual_scale = env_cfg.residual_scale if residual_scale is None else residual_scale
         self.policy_period = check_policy_period(float(policy_period), setup.period)
+        action_fields(action_mode)                     # ValueError naming an unknown mode
+        self.action_mode = action_mode
+        self.residual = (ResidualLaw(setup.desc, setup.family, residual_scale, gains)
+                         if action_mode == "residual" else None)
         self.limits = torque_limits(setup.desc)
         self._vec = np.empty(OBS_SIZE)
         self.decisions = 0
@@ -66,21 +76,30 @@ class PolicyController:
         self._next = -math.inf
         self._stance = None
         self._torque = np.zeros(6)
+        self._delta = np.zeros(6)
 
     def on_touchdown(self, t: float, stance: int) -> None:
         self._t_stance = t
 
     def compute(self, obs: Observation) -> ControlResult:
-        if obs.stance != self._stance or obs.t >= self._next - GRID_TOL:
+        law = self.residual
+        decide = obs.stance != self._stance or obs.t >= self._next - GRID_TOL
+        if decide or law is not None:
             vec = observation_vector(obs.q, obs.qd, obs.pitch, obs.pitch_rate, obs.stance, obs.t - self._t_stance,
                                      obs.last_torque, self.limits, out=self._vec)
+        if decide:
             a = np.asarray(self.forward(vec), dtype=float).reshape(-1)
             if a.shape != (6,):
                 raise PolicyFileError(f"the policy returned {a.size} values, expected 6")
-            self._torque = np.clip(a, -1.0, 1.0) * self.limits      # NaN stays NaN: the guard's fault
+            if law is None:
+                self._torque = np.clip(a, -1.0, 1.0) * self.limits      # NaN stays NaN: the guard's fault
+            else:
+                self._delta = law.offset(a)
             self._stance = obs.stance
             self._next = decision_grid_end(obs.t, self.policy_period)
             self.decisions += 1
+        if law is not None:                  # the computed-torque law on the offset reference, every period
+            self._torque = law.torque(vec, self._delta)
         return ControlResult(self._torque.copy(), {"policy_decisions": self.decisions})
 
 
@@ -100,10 +119,27 @@ def check_metadata(meta: dict, where: str) -> dict:
     the environment's (``spec.OBS_FIELDS``, ``spec.ACTION_FIELDS``); :class:`PolicyFileError` otherwise."""
     if not isinstance(meta, dict):
         raise PolicyFileError(f"{where}: expected a JSON object")
-    for key, want in (("observation", OBS_FIELDS), ("action", ACTION_FIELDS)):
+    mode = meta.get("action_mode", "torque")
+    if mode not in ACTION_MODES:
+        raise PolicyFileError(f"{where}: action_mode must be one of {ACTION_MODES}, got {mode!r}")
+    for key, want in (("observation", OBS_FIELDS), ("action", action_fields(mode))):
         if key in meta and list(meta[key]) != list(want):
             raise PolicyFileError(f"{where}: {key} lists {list(meta[key])}, this environment's is {list(want)} "
-                                  f"(biped_controller.policy.spec)")
+                                  f"(biped_controller.policy.spec, action_mode {mode})")
+    if mode == "residual":
+        rs = meta.get("residual_scale")
+        try:
+            ok = rs is not None and ResidualLaw.check_scale(rs) is not None
+        except ValueError:
+            ok = False
+        if not ok:
+            raise PolicyFileError(f"{where}: a residual policy needs residual_scale, a number > 0 [rad] or six, "
+                                  f"got {rs!r}")
+        g = meta.get("gains")
+        if g is not None and not (isinstance(g, dict) and all(
+                isinstance(g.get(k), (int, float)) and not isinstance(g.get(k), bool) and math.isfinite(g[k])
+                and g[k] > 0 for k in ("Kp", "Kv"))):
+            raise PolicyFileError(f"{where}: gains must be {{'Kp': > 0, 'Kv': > 0}}, got {g!r}")
     if "policy_period" in meta:
         p = meta["policy_period"]
         if isinstance(p, bool) or not isinstance(p, (int, float)) or not math.isfinite(p) or p <= 0:
@@ -188,7 +224,10 @@ class OnnxPolicy(PolicyController):
         period = setup.options.get("policy_period", meta.get("policy_period"))
         self.runner = OnnxRunner(path)
         self.metadata = meta
-        super().__init__(setup, self.runner, policy_period=period)
+        mode = meta.get("action_mode", "torque")
+        gains = Gains(Kp=float(meta["gains"]["Kp"]), Kv=float(meta["gains"]["Kv"])) if "gains" in meta else None
+        super().__init__(setup, self.runner, policy_period=period, action_mode=mode,
+                         residual_scale=meta.get("residual_scale", 1.0), gains=gains)
 
     def provenance(self) -> dict:
         """The policy's files for a run's record (``plugin.provenance``): the ONNX file's absolute path and

@@ -10,9 +10,12 @@ rule the plant's own. What the loop hands a controller each period the environme
 each policy period, as the vector of ``policy.spec``.
 
 One environment step (a policy period, ``policy_period`` [s], default 10 ms, a whole multiple of the
-plant's control period): the action a in [-1, 1]^6 becomes the torques a * tau_max in paper order of the
-observed stance and is held over the plant periods from the step's start to the next instant k *
-policy_period of the policy grid. A period cut short: when the sensed stance changes (a touchdown: the
+plant's control period): with ``action_mode: torque`` (the default) the action a in [-1, 1]^6 becomes the
+torques a * tau_max in paper order of the observed stance and is held over the plant periods from the step's
+start to the next instant k * policy_period of the policy grid; with ``action_mode: residual`` the action is
+an offset a * residual_scale [rad] on the gait family's preferred reference, held over the same periods, and
+the torque of each plant period is the computed-torque law on the offset reference at that period's
+observation (``policy.residual``; a = 0 walks as mode ``none``). A period cut short: when the sensed stance changes (a touchdown: the
 plant ends its own control period at the touchdown instant, so the observation after it is the new
 stance's, and the held torques, in paper order of the old stance, would act on the relabelled legs) the
 step ends there, with ``info["touchdown"]`` True; the next step runs from the touchdown instant to the next
@@ -72,7 +75,8 @@ from biped_sim.plant.protocol import make_plant
 
 from biped_controller.plugin.interface import stamp_time
 from biped_controller.policy.pushes import (PushDistribution, PushOptionError, parse_push_option, push_info)
-from biped_controller.policy.spec import (GRID_TOL, OBS_SIZE, check_action, check_policy_period,
+from biped_controller.policy.residual import ResidualLaw
+from biped_controller.policy.spec import (ACTION_MODES, GRID_TOL, OBS_SIZE, check_action, check_policy_period,
                                           decision_grid_end, observation_vector, torque_limits)
 
 ENV_ID = "BipedPush-v0"
@@ -101,9 +105,23 @@ class EnvConfig:
     imitation_speed_weight: float
     imitation_speed_scale: float
     reference_state_init: float
+    action_mode: str
+    residual_scale: tuple[float, ...]
 
     def validate(self) -> "EnvConfig":
+        if self.action_mode not in ACTION_MODES:
+            raise EnvConfigError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
+        rs = self.residual_scale
+        rs = (rs,) * 6 if isinstance(rs, (int, float)) and not isinstance(rs, bool) else rs
+        if (not isinstance(rs, (list, tuple)) or len(rs) != 6
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0
+                       for v in rs)):
+            raise EnvConfigError(f"residual_scale must be a number > 0 [rad] or six of them (paper joint order), "
+                                 f"got {self.residual_scale!r}")
+        object.__setattr__(self, "residual_scale", tuple(float(v) for v in rs))
         for f in fields(self):
+            if f.name in ("action_mode", "residual_scale"):
+                continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise EnvConfigError(f"{f.name} must be a finite number >= 0, got {v!r}")
@@ -187,6 +205,8 @@ class BipedPushEnv(gym.Env):
         self._identity = self.sim.sensor.identity
         self._pushes: tuple = ()
         self._ended = True
+        self.residual = (ResidualLaw(self.desc, self.family, c.residual_scale)
+                         if c.action_mode == "residual" else None)
 
     # ------------------------------------------------------------------ helpers
     def _observe(self):
@@ -267,13 +287,19 @@ class BipedPushEnv(gym.Env):
         if self._ended:
             raise RuntimeError("BipedPushEnv.step: the episode has ended (a fall) or was never started: call reset()")
         sim, cfg = self.sim, self.config
-        torque = a * self.limits
+        law = self.residual
+        if law is None:
+            torque = a * self.limits
+        else:
+            delta = law.offset(a)
+            torque = law.torque(self._obs(), delta)
         stance = self._raw.stance
         t_next = decision_grid_end(self._t_obs, self.period)
         t0, x0 = sim.t, float(sim.x[0])
-        touchdown = fell = False
+        touchdown = fell = observed = False
         identity, keep = self._identity, self.keep_records
         while True:
+            observed = False
             rec = sim.step(torque)
             if keep:
                 self.records.append(rec)
@@ -283,13 +309,20 @@ class BipedPushEnv(gym.Env):
                 break
             # the next period's observation, as the plug-in loop takes it (the sensor model samples each period)
             # (the grid test on the plant's time: its stamp differs by < 1 ns, GRID_TOL is 100 ns)
-            st = sim.stance if identity else sim.observe().stance
+            if law is None:
+                st = sim.stance if identity else sim.observe().stance
+            else:                        # the residual law reads the whole observation every period
+                st = self._observe().stance
+                observed = True
             if st != stance:
                 touchdown = True
                 break
             if sim.t >= t_next - GRID_TOL:
                 break
-        self._observe()
+            if law is not None:
+                torque = law.torque(self._obs(), delta)
+        if not observed:
+            self._observe()
         if touchdown:
             self._t_stance = self._t_obs
         dt = sim.t - t0

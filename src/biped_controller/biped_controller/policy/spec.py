@@ -26,8 +26,14 @@ index       field                   meaning [unit]
 calls; the times are the loop's stamped times (``interface.stamp_time``), so the controller and the
 environment compute the same number. A plant that gives no IMU reading (NaN) is read as 0.
 
-Action (float, shape (6,)): a_i in [-1, 1], the torque tau_i = a_i * tau_max_i [N m] in paper order of the
-observation's stance (``RobotDescription.torque_limits``); an entry outside [-1, 1] is clipped to it.
+Action (float, shape (6,)), a_i in [-1, 1] (an entry outside is clipped to it), in paper order of the
+observation's stance; what it means is the environment's ``action_mode`` (:data:`ACTION_MODES`):
+
+* ``"torque"`` (the default): the torque tau_i = a_i * tau_max_i [N m] (``RobotDescription.torque_limits``),
+  held over the policy period (:data:`ACTION_FIELDS`);
+* ``"residual"``: an offset delta_i = a_i * s [rad] (s the ``residual_scale``) on the gait family's preferred
+  reference q_d(p_d, time in stance), tracked by the computed-torque law at every plant period
+  (``policy.residual``); a = 0 is mode ``none`` (:data:`RESIDUAL_ACTION_FIELDS`).
 """
 from __future__ import annotations
 
@@ -44,11 +50,23 @@ OBS_FIELDS: tuple[str, ...] = (tuple(f"q{i}" for i in range(1, 7)) + tuple(f"qd{
                                + tuple(f"last_torque{i}" for i in range(1, 7)))
 OBS_UNITS: tuple[str, ...] = ("rad",) * 6 + ("rad/s",) * 6 + ("rad", "rad/s", "-", "s") + ("-",) * 6
 ACTION_FIELDS: tuple[str, ...] = tuple(f"torque{i}/limit{i}" for i in range(1, 7))
+RESIDUAL_ACTION_FIELDS: tuple[str, ...] = tuple(f"q_offset{i}/residual_scale" for i in range(1, 7))
+#: what an action means (module docstring), the first the default
+ACTION_MODES: tuple[str, ...] = ("torque", "residual")
 OBS_SIZE = len(OBS_FIELDS)
 
 
 class ActionError(ValueError):
     """An action of the wrong shape or with a non-finite entry (the message names it)."""
+
+
+def action_fields(mode: str) -> tuple[str, ...]:
+    """The action's field names under ``mode`` (:data:`ACTION_MODES`); ``ValueError`` naming an unknown one."""
+    if mode == "torque":
+        return ACTION_FIELDS
+    if mode == "residual":
+        return RESIDUAL_ACTION_FIELDS
+    raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {mode!r}")
 
 
 def torque_limits(desc: RobotDescription) -> np.ndarray:
@@ -79,7 +97,7 @@ def check_action(action: object) -> np.ndarray:
     except (TypeError, ValueError) as exc:
         raise ActionError(f"action: not numeric: {exc}") from None
     if a.shape != (N_JOINTS,):
-        raise ActionError(f"action: shape {a.shape}, expected ({N_JOINTS},) (six joint torques / their limits)")
+        raise ActionError(f"action: shape {a.shape}, expected ({N_JOINTS},) (one value per joint, in [-1, 1])")
     if not np.all(np.isfinite(a)):
         bad = ", ".join(str(int(i) + 1) for i in np.flatnonzero(~np.isfinite(a)))
         raise ActionError(f"action: non-finite entries (joints {bad}): {a.tolist()}")

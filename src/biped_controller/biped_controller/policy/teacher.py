@@ -34,13 +34,16 @@ class TeacherPolicy:
         self.limits = torque_limits(desc)
         self.p_d = float(family.p_d)
 
-    def torque(self, obs: np.ndarray) -> np.ndarray:
+    def torque(self, obs: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
+        """Gamma [N m] (module docstring), unclipped; ``offset`` (6,) [rad], when given, is added to q_d (the
+        residual action of ``policy.residual``: Kp (q_d + offset - q))."""
         o = np.asarray(obs, dtype=float).reshape(-1)
         if o.shape != (OBS_SIZE,):
             raise ValueError(f"teacher: observation of shape {o.shape}, expected ({OBS_SIZE},)")
         q, qd, s = o[0:6], o[6:12], float(o[15])
         g = self.family.evaluate(self.p_d, s)
-        w = g.d2q_dtau2 + self.gains.Kv * (g.dq_dtau - qd) + self.gains.Kp * (g.q - q)
+        e = g.q - q if offset is None else (g.q + offset) - q
+        w = g.d2q_dtau2 + self.gains.Kv * (g.dq_dtau - qd) + self.gains.Kp * e
         dyn = self.model.dynamics(q, qd)
         return dyn.A @ w + dyn.H
 
