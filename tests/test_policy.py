@@ -239,6 +239,32 @@ def test_residual_offset_moves_the_law_by_kp_a_delta():
         ResidualLaw(env.desc, env.family, [0.1, 0.1, -0.1, 0.1, 0.1, 0.1])
 
 
+def test_residual_onnx_controller_runs_the_numpy_policy(tmp_path):
+    """A residual policy's file (policy.json action_mode residual) runs the residual law as a controller: the
+    same plant records as the NumPy policy in the environment; bad residual metadata is named."""
+    from biped_controller.policy.spec import RESIDUAL_ACTION_FIELDS
+    env = BipedPushEnv(plant="mujoco", action_mode="residual", reset_noise_scale=0.0, keep_records=True)
+    W, b = weights(2, 0.002)
+    f = onnx_file(tmp_path / "policy.onnx", W, b)
+    meta = {"observation": list(OBS_FIELDS), "action": list(RESIDUAL_ACTION_FIELDS), "policy_period": 0.01,
+            "action_mode": "residual", "residual_scale": list(env.config.residual_scale)}
+    (tmp_path / "policy.json").write_text(json.dumps(meta))
+    _, _, info = episode(env, numpy_policy(W, b), max_steps=30)
+    res = PluginLoop("onnx_policy", sim_config=env.scfg, family=env.family, desc=env.desc,
+                     options={"file": str(f)}).run(2, (), limit=info["t"] - 1e-9)
+    assert len(res.records) == len(env.records) == 300
+    np.testing.assert_allclose([r.torque for r in res.records], [r.torque for r in env.records], rtol=0, atol=1e-6)
+    for bad, what in (({**meta, "residual_scale": None}, "residual_scale"),
+                      ({**meta, "residual_scale": [0.1, -1, 0.1, 0.1, 0.1, 0.1]}, "residual_scale"),
+                      ({**meta, "action": list(ACTION_FIELDS)}, "action lists"),
+                      ({**meta, "action_mode": "position"}, "action_mode"),
+                      ({**meta, "gains": {"Kp": 400}}, "gains")):
+        with pytest.raises(PolicyFileError, match=what):
+            check_metadata(bad, "policy.json")
+    with pytest.raises(Exception, match="action_mode"):
+        BipedPushEnv(plant="rigid", action_mode="position")
+
+
 # ---------------------------------------------------------------------- ONNX
 def test_onnx_equals_numpy_on_recorded_observations(tmp_path, mujoco_env):
     W, b = weights(5, 0.2)

@@ -6,8 +6,10 @@ a sensed stance change, or the first period at or after the next instant k * pol
 grid) it builds the observation vector of ``policy.spec`` from the interface's observation and its own
 count of the time in stance (``reset``, ``on_touchdown``), evaluates the network, and returns the torques
 a * tau_max (a clipped to [-1, 1], a NaN kept: the loop's guard records it as the controller's fault); in
-the periods between two decisions it returns the held torques. On the plug-in loop it reproduces the
-environment's episode period by period (the test: tests/test_policy.py).
+the periods between two decisions it returns the held torques. With ``action_mode`` ``"residual"``
+(``policy.residual``) the decision holds the offset a * residual_scale [rad] instead, and every period's
+torque is the computed-torque law on the offset reference at that period's observation. On the plug-in loop
+it reproduces the environment's episode period by period (the test: tests/test_policy.py).
 
 :class:`OnnxPolicy` (registered as ``onnx_policy``; option ``file``: the ``.onnx`` path, ``policy_period``:
 [s], default the file's metadata or config/policy_env.yaml's) evaluates an ONNX file with onnxruntime
@@ -15,7 +17,8 @@ environment's episode period by period (the test: tests/test_policy.py).
 (1, 22) or (22,) float32 or float64, its first output gives the (6,) action as (1, 6) or (6,); a file whose
 input or output does not match raises :class:`PolicyFileError` naming the file and the shape. A committed
 policy (``policies/<name>/``: ``policy.onnx`` and ``policy.json``) is a controller by its name
-(``policy.catalog``).
+(``policy.catalog``). A ``policy.json`` with ``"action_mode": "residual"`` makes it a residual policy, with
+that file's ``residual_scale`` and ``gains`` (``Kp``, ``Kv``; default config/controller.yaml's).
 """
 from __future__ import annotations
 
