@@ -1,5 +1,5 @@
 """The demo over DDS: ``python -m biped_sim.graph.demo [--steps N] [--force F] [--duration D] [--start T]
-[--bag DIR] [--json FILE] [--live [--port N]] [--ctrl-param KEY:=VALUE ...]``.
+[--bag DIR] [--json FILE] [--live [--port N]] [--ctrl-param KEY:=VALUE ...] [--sim-param KEY:=VALUE ...]``.
 
 1. launches the node graph (``biped_sim.graph.launch``) with the bag under ``runs/demo_<timestamp>/``; the
    simulator is started paused (``wait_for_pushes:=1``) so that sim time cannot run past the push;
@@ -16,7 +16,8 @@ follows from then on.
 
 ``--ctrl-param KEY:=VALUE`` (repeatable): a controller parameter, passed to the launcher's ``--ctrl-param``,
 e.g. a policy as the controller: ``--ctrl-param controller:=onnx_policy --ctrl-param
-"controller_options:=['file=PATH']"`` (docs/policies.md).
+"controller_options:=['file=PATH']"`` (docs/policies.md). ``--sim-param KEY:=VALUE`` (repeatable): a simulator
+parameter, passed to the launcher's ``--sim-param``, e.g. ``plant:=mujoco``.
 
 Exit status 0 when the demo ran (whatever the robot did); 1 when the graph or the push failed.
 """
@@ -76,6 +77,9 @@ def main(argv=None) -> int:
     ap.add_argument('--ctrl-param', action='append', default=[], metavar='KEY:=VALUE',
                     help="extra controller parameter, passed to the launcher's --ctrl-param (repeatable), e.g. "
                          "controller:=onnx_policy and \"controller_options:=['file=PATH']\" (docs/policies.md)")
+    ap.add_argument('--sim-param', action='append', default=[], metavar='KEY:=VALUE',
+                    help="extra simulator parameter, passed to the launcher's --sim-param (repeatable), e.g. "
+                         "plant:=mujoco")
     ap.add_argument('--robot', default=None, metavar='NAME|PATH',
                     help="the robot: a name under robots/ or a robot directory's path (default biped7; docs/robots.md)")
     a = ap.parse_args(argv)
@@ -100,6 +104,8 @@ def main(argv=None) -> int:
             cmd += ['--robot', a.robot]
         for kv in a.ctrl_param:
             cmd += ['--ctrl-param', kv]
+        for kv in a.sim_param:
+            cmd += ['--sim-param', kv]
         if a.live:
             cmd += ['--live'] + (['--port', str(a.port)] if a.port is not None else [])
         launcher = subprocess.Popen(cmd)
