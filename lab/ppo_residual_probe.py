@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from biped_controller.policy.env import BipedPushEnv
+from biped_controller.studies import provenance
 
 
 def episode(env, scale, std, seed, limit=500):
@@ -35,6 +36,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json")
     a = ap.parse_args(argv)
+    run = provenance.Run(plant="mujoco", profile="default")
     env = BipedPushEnv(plant="mujoco", action_mode="residual", residual_scale=1.0)
     rows = []
     t0 = time.time()
@@ -52,6 +54,7 @@ def main(argv=None):
         with open(a.json, "w") as f:
             json.dump(out, f, indent=1)
             f.write("\n")
+        run.record(a.json)
 
 
 if __name__ == "__main__":
