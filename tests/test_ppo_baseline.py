@@ -74,6 +74,7 @@ def test_export_of_a_random_network_equals_its_numpy_pass(tmp_path):
     (["ppo_baseline", "--resume", "--restart"], "exclude each other"),
     (["ppo_baseline", "--resume"], "no checkpoint"),
     (["ppo_baseline", "--bogus"], "unrecognized arguments"),
+    (["ppo_baseline", "--robot", "no_such_robot"], "robot"),
 ])
 def test_training_command_bad_input_is_one_line_and_exit_2(argv, fragment, tmp_path, monkeypatch, capsys):
     paths = ppo_train.Paths

@@ -19,6 +19,7 @@ class PpoConfig:
 
     seed: int
     plant: str
+    robot: str
     num_envs: int
     workers: int
     rollouts: int
@@ -54,7 +55,7 @@ class PpoConfig:
                 raise TrainConfigError(f"{k} must be an integer >= {0 if k == 'seed' else 1}, got {v!r}")
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ints or f.name in ("plant", "hidden_sizes", "env_settings",
+            if f.name in ints or f.name in ("plant", "robot", "hidden_sizes", "env_settings",
                                                         "push_distribution") or isinstance(v, bool):
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -64,6 +65,11 @@ class PpoConfig:
                 raise TrainConfigError(f"{k} must be true or false, got {getattr(self, k)!r}")
         if self.plant not in ("mujoco", "rigid"):
             raise TrainConfigError(f"plant must be mujoco or rigid, got {self.plant!r}")
+        from biped_model.robot import RobotError, resolve_robot
+        try:
+            resolve_robot(self.robot).description()
+        except RobotError as exc:
+            raise TrainConfigError(f"robot: {exc}") from None
         if not self.hidden_sizes or any(isinstance(h, bool) or not isinstance(h, int) or h < 1
                                         for h in self.hidden_sizes):
             raise TrainConfigError(f"hidden_sizes must be a list of integers >= 1, got {self.hidden_sizes!r}")

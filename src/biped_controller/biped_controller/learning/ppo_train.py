@@ -1,7 +1,7 @@
 """Train a learned baseline with PPO (skrl's, JAX backend) on ``BipedRandomPush-v0``, resumable, within a
 budget stated in advance; export it as an ONNX policy. Guide: docs/policies_training.md.
 
-    scripts/train NAME [--resume] [--budget-minutes N] [--smoke] [--restart]
+    scripts/train NAME [--resume] [--budget-minutes N] [--smoke] [--restart] [--robot NAME|PATH]
 
 ``NAME`` names ``config/training/NAME.yaml`` (``ppo_config``). A run writes, at every checkpoint (every
 ``checkpoint_minutes`` of wall time, at an update boundary, and when it stops):
@@ -108,7 +108,7 @@ def env_kwargs(cfg: PpoConfig) -> dict:
     """The training environment's keyword arguments: the plant, the config's ``push_distribution`` (the random
     pushes' ``policy.pushes.PushDistribution`` fields over its defaults) and ``env_settings``."""
     dist = {k: (tuple(v) if isinstance(v, list) else v) for k, v in cfg.push_distribution.items()}
-    return {"plant": cfg.plant, "distribution": dist, **cfg.env_settings}
+    return {"plant": cfg.plant, "robot": cfg.robot, "distribution": dist, **cfg.env_settings}
 
 
 class EnvBatch:
@@ -409,7 +409,7 @@ def export_policy(agent, cfg: PpoConfig, name: str, out: Path, meta: dict) -> No
                            f"({meta['totals']['wall_s'] / 60:.0f} min of a {cfg.budget_minutes:.0f} min budget)",
             "observation": list(OBS_FIELDS), "action": list(action_fields(env_cfg.action_mode)),
             "action_mode": env_cfg.action_mode, "policy_period": env_cfg.policy_period,
-            "plant": cfg.plant, "robot": "biped7",
+            "plant": cfg.plant, "robot": cfg.robot,
             "deterministic_action": "the Gaussian policy's mean (unclipped; the controller clips to [-1, 1])",
             "trainer": "biped_controller.learning.ppo_train (scripts/train)", "config": f"config/training/{name}.yaml",
             "totals": meta["totals"], "stack": meta["stack"], "curve": f"results/{name}/curve.csv",
@@ -472,12 +472,18 @@ class _Episodes:
 
 
 def train(name: str, *, resume: bool = False, restart: bool = False, budget_minutes: float | None = None,
-          smoke: bool = False, root: Path | None = None, log=print) -> dict:
-    """Train ``name`` (module docstring); returns the final ``run.json`` contents."""
-    cfg = load_config(name)
+          smoke: bool = False, root: Path | None = None, log=print, robot: str | None = None) -> dict:
+    """Train ``name`` (module docstring) on the config's robot, or ``robot`` (a name under robots/ or a
+    path) when given; returns the final ``run.json`` contents."""
+    cfg = load_config(name, robot=robot)
     paths = Paths(name, smoke=smoke, root=root)
     if resume and not paths.checkpoint.is_file():
         raise TrainError(f"--resume: no checkpoint at {paths.checkpoint}")
+    if resume and paths.run.is_file():
+        ran = json.loads(paths.run.read_text()).get("config", {}).get("robot", "biped7")
+        if ran != cfg.robot:
+            raise TrainError(f"--resume: the run at {paths.results} trained robot {ran!r}, not {cfg.robot!r} "
+                             f"(another robot: another config/training/NAME.yaml, or --restart)")
     if not resume and paths.checkpoint.is_file() and not restart:
         raise TrainError(f"a run exists at {paths.checkpoint}: --resume it, or --restart to start over")
     _require_extra()
@@ -599,13 +605,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budget-minutes", type=positive_float, default=None,
                     help="wall minutes for this sitting (the config's budget_minutes caps the total)")
     ap.add_argument("--smoke", action="store_true", help="a short check run into build/train-smoke/NAME/")
+    ap.add_argument("--robot", default=None, metavar="NAME|PATH",
+                    help="the robot (default the config's robot; docs/robots.md)")
     a = ap.parse_args(argv)
     if a.resume and a.restart:
         ap.error("--resume and --restart exclude each other")
     try:
-        load_config(a.name)
+        load_config(a.name, robot=a.robot)
         meta = train(a.name, resume=a.resume, restart=a.restart, budget_minutes=a.budget_minutes, smoke=a.smoke,
-                     log=lambda s: print(s, flush=True))
+                     log=lambda s: print(s, flush=True), robot=a.robot)
     except (TrainConfigError, TrainError, ExtraMissing) as exc:
         ap.error(str(exc))
     t = meta["totals"]
