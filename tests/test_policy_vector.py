@@ -108,3 +108,36 @@ def test_bad_input_named_and_nothing_moves():
     np.testing.assert_array_equal(env.step(np.zeros(6))[0], o1[2])
     with pytest.raises(ValueError, match="workers must be an integer in"):
         BatchVectorEnv([lambda: env] * 2, workers=3)
+
+
+class _Vec(gym.vector.VectorEnv):
+    def __init__(self, n):
+        self.num_envs = n
+
+
+def _same(a, b, where="info"):
+    assert list(a) == list(b) or set(a) == set(b), (where, set(a) ^ set(b))
+    for k in a:
+        if isinstance(a[k], dict):
+            _same(a[k], b[k], f"{where}[{k}]")
+        else:
+            assert a[k].dtype == b[k].dtype and a[k].shape == b[k].shape, (where, k, a[k], b[k])
+            for x, y in zip(a[k], b[k]):
+                assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y, (where, k, x, y)
+
+
+def test_infos_stacked_as_gymnasium_stacks_them():
+    """The workers' key-by-key stacking equals Gymnasium's own ``VectorEnv._add_info`` environment by
+    environment, on the environment's infos: after a reset and a step (keys only one has), a same-step
+    ``final_obs``/``final_info``, a nested ``push``."""
+    from biped_controller.policy.vector import _merge, _stack
+    env = gym.make("BipedRandomPush-v0", **KW)
+    o, i0 = env.reset(seed=1)
+    o1, _, _, _, i1 = env.step(np.zeros(6))
+    infos = [i1, i0, {**i0, "final_obs": o1, "final_info": i1}, i1, {"x": np.arange(3.0), "tag": ("a", 1)}]
+    want = {}
+    for j, info in enumerate(infos):
+        want = _Vec(len(infos))._add_info(want, info, j)
+    got = _stack(infos)
+    _same(got, want)
+    _same(_merge([_stack(infos[:2]), _stack(infos[2:])], [2, 3]), want)

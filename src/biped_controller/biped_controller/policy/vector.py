@@ -61,11 +61,43 @@ class VectorWorkerError(RuntimeError):
     exception does not pickle); the message names the worker and carries the worker's traceback."""
 
 
-class _Stacker(VectorEnv):
-    """Holds ``num_envs`` for ``VectorEnv._add_info`` (Gymnasium's own info layout) inside a worker."""
-
-    def __init__(self, n: int):
-        self.num_envs = n
+def _stack(infos: list[Mapping[str, Any]]) -> dict:
+    """The infos of a batch of environments in Gymnasium's vector layout, as ``VectorEnv._add_info`` builds
+    it environment by environment, built here key by key (one array per key, not one assignment per
+    environment and key): each key an array over the batch (dtype that of the first environment's value: a
+    Python or NumPy number its type, an array (n, *shape), anything else an object array; ``final_obs``
+    always an object array) with its mask ``"_key"``; a nested dictionary the same, recursively; an
+    environment without the key holds zeros (None) and False. The masks that are all True are one array
+    (``_merge`` copies them into arrays of their own)."""
+    n = len(infos)
+    full = np.ones(n, dtype=bool)      # the mask of every key all environments have: one object, pickled once
+    keys: dict[str, None] = {}
+    for d in infos:
+        keys.update(dict.fromkeys(d))
+    out: dict[str, Any] = {}
+    for k in keys:
+        have = [k in d for d in infos]
+        vals = [d[k] for d in infos if k in d]
+        first = vals[0]
+        if k != "final_obs" and isinstance(first, dict):
+            arr = _stack([d.get(k, {}) for d in infos])
+        else:
+            t = type(first)
+            if k != "final_obs" and (t in (int, float, bool) or issubclass(t, np.number)):
+                arr = np.zeros(n, dtype=t)
+            elif k != "final_obs" and isinstance(first, np.ndarray):
+                arr = np.zeros((n, *first.shape), dtype=first.dtype)
+            else:
+                arr = np.full(n, None, dtype=object)
+            where = range(n) if len(vals) == n else [i for i, h in enumerate(have) if h]
+            if arr.dtype == object:
+                for i, v in zip(where, vals):
+                    arr[i] = v
+            else:
+                arr[list(where)] = vals
+        out[k] = arr
+        out[f"_{k}"] = full if len(vals) == n else np.array(have, dtype=bool)
+    return out
 
 
 def _pick(info: Mapping[str, Any], keys: tuple[str, ...] | None) -> dict:
@@ -87,7 +119,6 @@ def _worker(conn, fns: list, same_step: bool, info_keys: tuple[str, ...] | None)
     try:
         envs = [fn() for fn in fns]
         n = len(envs)
-        stacker = _Stacker(n)
         autoreset = np.zeros(n, dtype=bool)
         e0 = envs[0]
         conn.send(("ok", (e0.observation_space, e0.action_space, dict(e0.metadata), e0.render_mode)))
@@ -95,7 +126,6 @@ def _worker(conn, fns: list, same_step: bool, info_keys: tuple[str, ...] | None)
         conn.send(("error", (_portable(exc), traceback.format_exc())))
         conn.close()
         return
-    add = functools.partial(VectorEnv._add_info, stacker)
     while True:
         try:
             cmd, arg = conn.recv()
@@ -103,29 +133,32 @@ def _worker(conn, fns: list, same_step: bool, info_keys: tuple[str, ...] | None)
             break
         try:
             if cmd == "step":
-                obs, infos = [], {}
+                obs, infos = [], []
                 rew, term, trunc = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
                 for i, env in enumerate(envs):
                     if autoreset[i] and not same_step:
                         o, info = env.reset()
+                        info = _pick(info, info_keys)
                     else:
                         o, rew[i], term[i], trunc[i], info = env.step(arg[i])
+                        info = _pick(info, info_keys)
                         if same_step and (term[i] or trunc[i]):
-                            infos = add(infos, {"final_obs": o, "final_info": _pick(info, info_keys)}, i)
+                            last, last_info = o, info
                             o, info = env.reset()
+                            info = {**_pick(info, info_keys), "final_obs": last, "final_info": last_info}
                     obs.append(o)
-                    infos = add(infos, _pick(info, info_keys), i)
+                    infos.append(info)
                 np.logical_or(term, trunc, out=autoreset)
-                conn.send(("ok", (np.stack(obs), rew, term, trunc, infos)))
+                conn.send(("ok", (np.stack(obs), rew, term, trunc, _stack(infos))))
             elif cmd == "reset":
                 seeds, options = arg
-                obs, infos = [], {}
-                for i, (env, s) in enumerate(zip(envs, seeds)):
+                obs, infos = [], []
+                for env, s in zip(envs, seeds):
                     o, info = env.reset(seed=s, options=options)
                     obs.append(o)
-                    infos = add(infos, _pick(info, info_keys), i)
+                    infos.append(_pick(info, info_keys))
                 autoreset[:] = False
-                conn.send(("ok", (np.stack(obs), infos)))
+                conn.send(("ok", (np.stack(obs), _stack(infos))))
             elif cmd == "call":
                 name, args, kwargs = arg
                 out = []
