@@ -377,7 +377,8 @@ class BatchVectorEnv(VectorEnv):
             self.close()
 
     def __repr__(self) -> str:
-        return f"BatchVectorEnv(num_envs={self.num_envs}, workers={len(self.worker_slices)})"
+        spec = f"{self.spec.id}, " if self.spec is not None else ""
+        return f"BatchVectorEnv({spec}num_envs={self.num_envs}, workers={len(self.worker_slices)})"
 
 
 def _make_registered(env_id: str, max_episode_steps: int | None, kwargs: dict) -> gym.Env:
