@@ -1,8 +1,8 @@
 """Speed of the Gymnasium environment (``BipedPush-v0``) beside the floor its plant's own step cost sets,
 measured in one run.
 
-``.venv/bin/python -m benchmarks.policy_env_bench [--plant mujoco] [--steps 3000] [--quick]
-[--json results/benchmarks/policy_env.json]``
+``.venv/bin/python -m benchmarks.policy_env_bench [--plant mujoco] [--steps 3000] [--repeats 3] [--quick]
+[--workers 2] [--per-worker 8] [--json results/benchmarks/policy_env.json]``
 
 What is timed (the policy's own evaluation is not: only ``env.reset`` and ``env.step`` calls):
 
@@ -17,14 +17,20 @@ What is timed (the policy's own evaluation is not: only ``env.reset`` and ``env.
 * ``vector2``: ``gymnasium.vector.AsyncVectorEnv`` of two environments (two worker processes), the same
   policy on the batch; env steps per second summed over both (the autoreset calls not counted as steps);
 * ``floor_vector2``: two bare-plant replays (``floor_single``'s episodes) at once in two processes, their
-  periods per second summed, over the vector run's plant periods per env step.
+  periods per second summed, over the vector run's plant periods per env step;
+* ``batch``: the product's vector form (``policy.vector.BatchVectorEnv``, next-step autoreset, all infos
+  kept) of ``--workers`` processes (2) of ``--per-worker`` environments each (8), the same environments and
+  policy; about as many env steps in all as ``vector2`` (``2 * --steps``), ``--repeats`` times alternating
+  with ``floor_batch``: two bare-plant replays as ``floor_vector2``'s, over the batch run's plant periods per
+  env step; both summed over the repeats.
 
 Keys: ``policy_env.<plant>.single.env_steps_per_s``, ``...floor_single.env_steps_per_s``,
 ``...single.over_floor`` (target >= 0.7; ``...over_floor_cpu`` the same in CPU time: the vector run's CPU is
 its workers' from after the first reset to the last step, read in each worker, plus this process's in
 ``step``; its floor's the two replays' own),
-the same for ``vector2``. A vector step waits for both workers, so on a loaded machine its wall-time rate
-pays for the slower one each step, which the free-running replays do not: the CPU ratio separates that. The single-core run and its floor alternate ``--repeats`` times and are summed. The machine is shared: the ratios
+the same for ``vector2`` and ``batch``. A vector step waits for both workers, so on a loaded machine its wall-time rate
+pays for the slower one each step, which the free-running replays do not: the CPU ratio separates that. The single-core run and its floor alternate ``--repeats`` times and are summed, as do the batch run and
+its floor. The machine is shared: the ratios
 compare figures of this one run; the target is printed, never asserted.
 """
 from __future__ import annotations
@@ -43,6 +49,7 @@ from biped_controller.studies import provenance
 from benchmarks import RESULTS_DIR
 
 TARGET = 0.7
+RUNS = (("single", "floor_single"), ("vector2", "floor_vector2"), ("batch", "floor_batch"))
 DIST = {"force_min": 0.0, "force_max": 150.0, "onset_min": 0.02, "onset_max": 0.2, "p_none": 0.3}
 
 
@@ -166,17 +173,67 @@ def run_vector(plant: str, steps: int) -> dict:
             "periods_per_env_step": periods / n, "cpu_seconds": cpu, "env_steps_per_cpu_s": n / cpu}
 
 
+def run_batch(plant: str, steps: int, workers: int, per_worker: int) -> dict:
+    """About ``2 * steps`` env steps in all (the vector2 run's) on a ``BatchVectorEnv`` of ``workers`` processes
+    of ``per_worker`` environments each, all infos kept (module docstring)."""
+    from biped_controller.policy.vector import BatchVectorEnv
+    n_env = workers * per_worker
+    vec = BatchVectorEnv([lambda: make_env(plant) for _ in range(n_env)], workers=workers, context="fork")
+    pol = policy()
+    c_main = 0.0
+    first = [s.start for s in vec.worker_slices]
+    try:
+        t0 = time.perf_counter()
+        obs, info = vec.reset(seed=[1000 * j for j in range(n_env)])
+        t_env = time.perf_counter() - t0
+        w0 = np.array(vec.call("cpu_seconds"))[first]
+        n = 0
+        autoreset = np.zeros(n_env, dtype=bool)
+        periods = 0
+        prev = np.zeros(n_env)
+        while n < 2 * steps:
+            a = pol(obs)
+            t0, c0 = time.perf_counter(), time.process_time()
+            obs, r, term, trunc, info = vec.step(a)
+            t_env += time.perf_counter() - t0
+            c_main += time.process_time() - c0
+            n += int((~autoreset).sum())
+            k = np.asarray(info["plant_periods"], dtype=float)
+            periods += int(np.where(autoreset, 0.0, k - prev).sum())
+            prev = k
+            autoreset = np.logical_or(term, trunc)
+        w1 = np.array(vec.call("cpu_seconds"))[first]
+    finally:
+        vec.close()
+    cpu = float((w1 - w0).sum()) + c_main
+    return {"env_steps": n, "seconds": t_env, "plant_periods": periods, "cpu_seconds": cpu}
+
+
+def replay_pair(plant: str, episodes: list[dict]) -> dict:
+    """Two bare-plant replays of ``episodes`` at once in two processes: periods, wall and CPU seconds."""
+    with mp.get_context("fork").Pool(2) as pool:
+        t0 = time.perf_counter()
+        both = pool.map(_replay_worker, [(plant, episodes)] * 2)
+        wall = time.perf_counter() - t0
+    return {"plant_periods": sum(b["plant_periods"] for b in both), "wall_seconds": wall,
+            "cpu_seconds": sum(b["cpu_seconds"] for b in both)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--plant", choices=("mujoco", "rigid"), default="mujoco")
     ap.add_argument("--steps", type=int, default=3000, help="env steps (per environment in the vector run)")
     ap.add_argument("--repeats", type=int, default=3, help="single-core runs, each beside its floor (default 3)")
     ap.add_argument("--quick", action="store_true", help="300 env steps")
+    ap.add_argument("--workers", type=int, default=2, help="BatchVectorEnv worker processes (default 2)")
+    ap.add_argument("--per-worker", type=int, default=8, help="BatchVectorEnv environments per worker (default 8)")
     ap.add_argument("--json", type=Path, default=RESULTS_DIR / "policy_env.json")
     a = ap.parse_args(argv)
     steps = 300 if a.quick else a.steps
     if steps < 1:
         ap.error("--steps must be >= 1")
+    if a.workers < 1 or a.per_worker < 1 or a.repeats < 1:
+        ap.error("--workers, --per-worker and --repeats must be >= 1")
     provenance.track(a.json, argv=argv, plant=a.plant)
     from biped_controller.policy.env import load_env_config
     from biped_sim.plant.config import load_sim_config
@@ -208,6 +265,22 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         both = pool.map(_replay_worker, [(a.plant, episodes)] * 2)
         wall2 = time.perf_counter() - t0
+    # the batched vector form and two bare replays interleaved, repeat by repeat, summed
+    acc_b, acc_bf = [], []
+    for _ in range(a.repeats):
+        acc_b.append(run_batch(a.plant, steps, a.workers, a.per_worker))
+        acc_bf.append(replay_pair(a.plant, episodes))
+    batch = {k: sum(r[k] for r in acc_b) for k in ("env_steps", "plant_periods", "seconds", "cpu_seconds")}
+    batch.update(workers=a.workers, envs_per_worker=a.per_worker, repeats=a.repeats,
+                 env_steps_per_s=batch["env_steps"] / batch["seconds"],
+                 env_steps_per_cpu_s=batch["env_steps"] / batch["cpu_seconds"],
+                 periods_per_env_step=batch["plant_periods"] / batch["env_steps"],
+                 over_floor_each_repeat=[(f["wall_seconds"] / e["seconds"]) * (e["plant_periods"] / f["plant_periods"])
+                                         for e, f in zip(acc_b, acc_bf)])
+    bfloor = {k: sum(r[k] for r in acc_bf) for k in ("plant_periods", "wall_seconds", "cpu_seconds")}
+    bfloor.update(periods_per_s=bfloor["plant_periods"] / bfloor["wall_seconds"],
+                  env_steps_per_s=bfloor["plant_periods"] / bfloor["wall_seconds"] / batch["periods_per_env_step"],
+                  env_steps_per_cpu_s=bfloor["plant_periods"] / bfloor["cpu_seconds"] / batch["periods_per_env_step"])
     cpu2 = sum(b["cpu_seconds"] for b in both)
     floor2_pps = sum(b["plant_periods"] for b in both) / wall2
     res = {
@@ -220,20 +293,23 @@ def main(argv=None) -> int:
                           "env_steps_per_s": floor2_pps / vector["periods_per_env_step"],
                           "env_steps_per_cpu_s": sum(b["plant_periods"] for b in both) / cpu2
                           / vector["periods_per_env_step"]},
+        "batch": batch,
+        "floor_batch": bfloor,
     }
     res["single"]["over_floor"] = res["single"]["env_steps_per_s"] / res["floor_single"]["env_steps_per_s"]
-    for k, f in (("single", "floor_single"), ("vector2", "floor_vector2")):
+    for k, f in RUNS:
         res[k]["over_floor_cpu"] = res[k]["env_steps_per_cpu_s"] / res[f]["env_steps_per_cpu_s"]
-    res["vector2"]["over_floor"] = res["vector2"]["env_steps_per_s"] / res["floor_vector2"]["env_steps_per_s"]
+    for k, f in RUNS[1:]:
+        res[k]["over_floor"] = res[k]["env_steps_per_s"] / res[f]["env_steps_per_s"]
     meta = {"date": time.strftime("%Y-%m-%d %H:%M:%S"), "plant": a.plant, "steps": steps,
             "policy_period": period, "control_period": control, "cpus": os.cpu_count(),
             "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
             "loadavg_1min_before": load0, "loadavg_1min_after": os.getloadavg()[0],
             "episodes_single": rec["episodes"], "random_pushes": DIST}
     keys = {}
-    for k in ("single", "floor_single", "vector2", "floor_vector2"):
+    for k in ("single", "floor_single", "vector2", "floor_vector2", "batch", "floor_batch"):
         keys[f"policy_env.{a.plant}.{k}.env_steps_per_s"] = res[k]["env_steps_per_s"]
-    for k in ("single", "vector2"):
+    for k in ("single", "vector2", "batch"):
         keys[f"policy_env.{a.plant}.{k}.over_floor"] = res[k]["over_floor"]
         keys[f"policy_env.{a.plant}.{k}.over_floor_cpu"] = res[k]["over_floor_cpu"]
     out = {"meta": meta, "target_over_floor": TARGET, "results": res, "keys": keys}
@@ -243,15 +319,17 @@ def main(argv=None) -> int:
           f"{steps} env steps, load average {load0:.1f} -> {meta['loadavg_1min_after']:.1f} on {meta['cpus']} CPUs")
     print("| run | env steps/s | plant periods per env step | floor env steps/s | over floor (target >= 0.7) |")
     print("| --- | ---: | ---: | ---: | ---: |")
-    for k, f in (("single", "floor_single"), ("vector2", "floor_vector2")):
+    for k, f in RUNS:
         r = res[k]
         print(f"| {k} | {r['env_steps_per_s']:.0f} | {r['periods_per_env_step']:.2f} | "
               f"{res[f]['env_steps_per_s']:.0f} | {r['over_floor']:.2f} |")
-    for k, f in (("single", "floor_single"), ("vector2", "floor_vector2")):
+    for k, f in RUNS:
         print(f"{k}, in CPU time: {res[k]['env_steps_per_cpu_s']:.0f} env steps per CPU s beside a floor of "
               f"{res[f]['env_steps_per_cpu_s']:.0f}: {res[k]['over_floor_cpu']:.2f}")
     print(f"single, wall-time ratio of each repeat: "
           f"{', '.join(f'{x:.2f}' for x in res['single']['over_floor_each_repeat'])}")
+    print(f"batch ({a.workers} workers x {a.per_worker} environments), wall-time ratio of each repeat: "
+          f"{', '.join(f'{x:.2f}' for x in res['batch']['over_floor_each_repeat'])}")
     return 0
 
 

@@ -36,6 +36,10 @@ class PushOptionError(ValueError):
         super().__init__(message)
         self.field = field
 
+    def __reduce__(self):
+        # pickled with its field (a vector environment's worker sends it to the main process)
+        return (type(self), (self.field, str(self)))
+
 
 def _number(spec: Mapping, key: str, where: str) -> float:
     v = spec[key]
