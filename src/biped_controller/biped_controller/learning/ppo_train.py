@@ -132,7 +132,7 @@ class EnvBatch:
 
     def _reset(self, i, seed=None):
         obs, info = self.envs[i].reset(seed=seed)
-        self.pushed[i] = float(info.get("push") is not None)
+        self.pushed[i] = float(info["push"]["direction"] != "none")
         return obs, info
 
     def reset(self, seed: int):
@@ -393,7 +393,7 @@ def export_policy(agent, cfg: PpoConfig, name: str, out: Path, meta: dict) -> No
     """``policies/NAME/`` (module docstring) from the agent's current parameters."""
     from biped_controller.learning.onnx_export import export
     from biped_controller.policy.env import load_env_config
-    from biped_controller.plugin.model import Gains
+    from biped_controller.policy.residual import config_gains
     from biped_controller.policy.spec import OBS_FIELDS, action_fields
     env_cfg = load_env_config(**cfg.env_settings)
     mlp = mlp_of(agent, cfg)
@@ -416,8 +416,7 @@ def export_policy(agent, cfg: PpoConfig, name: str, out: Path, meta: dict) -> No
             "files": {"weights.npz": "biped_controller.learning.mlp", "recorded.npz":
                       "observations (float32) and the JAX network's mean actions on them"}}
     if env_cfg.action_mode == "residual":       # the inner loop the policy was trained over (policy.residual)
-        g = Gains.from_config()
-        info.update(residual_scale=list(env_cfg.residual_scale), gains={"Kp": g.Kp, "Kv": g.Kv},
+        info.update(residual_scale=list(env_cfg.residual_scale), gains=config_gains(),
                     inner_loop="mode none's computed-torque law on the preferred reference offset by "
                                "action * residual_scale [rad], every plant period (policy.residual)")
     (out / "policy.json").write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")

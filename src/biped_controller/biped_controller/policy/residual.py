@@ -30,6 +30,13 @@ from biped_controller.policy.spec import torque_limits
 from biped_controller.policy.teacher import TeacherPolicy
 
 
+def config_gains() -> dict[str, float]:
+    """The law's gains as a policy file records them: ``{"Kp": [1/s^2], "Kv": [1/s]}`` of
+    ``config/controller.yaml`` (what the environment's law uses)."""
+    g = Gains.from_config()
+    return {"Kp": g.Kp, "Kv": g.Kv}
+
+
 class ResidualLaw:
     """``torque(obs (22,), delta (6,) [rad]) -> (6,) [N m]`` (module docstring); ``scale`` [rad] is s, a number
     or six (paper joint order)."""
