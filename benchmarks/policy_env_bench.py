@@ -143,34 +143,41 @@ def run_vector(plant: str, steps: int) -> dict:
     import gymnasium as gym
     vec = gym.vector.AsyncVectorEnv([lambda: make_env(plant) for _ in range(2)], context="fork")
     pol = policy()
-    c_main = 0.0
     try:
         t0 = time.perf_counter()
         obs, info = vec.reset(seed=[0, 1000])
         t_env = time.perf_counter() - t0
         w0 = np.array(vec.call("cpu_seconds"))
-        n = 0
-        autoreset = np.zeros(2, dtype=bool)
-        periods = 0
-        prev = np.zeros(2)
-        while n < 2 * steps:
-            a = pol(obs)
-            t0, c0 = time.perf_counter(), time.process_time()
-            obs, r, term, trunc, info = vec.step(a)
-            t_env += time.perf_counter() - t0
-            c_main += time.process_time() - c0
-            n += int((~autoreset).sum())
-            # plant periods of this step: the plant's period count since its reset, minus the count before
-            k = np.asarray(info["plant_periods"], dtype=float)
-            periods += int(np.where(autoreset, 0.0, k - prev).sum())
-            prev = k
-            autoreset = np.logical_or(term, trunc)
+        n, dt, c_main, periods = _drive(vec, pol, obs, 2, 2 * steps)
+        t_env += dt
         w1 = np.array(vec.call("cpu_seconds"))
     finally:
         vec.close()
     cpu = float((w1 - w0).sum()) + c_main     # the workers' CPU over the steps and this process's in step
     return {"env_steps": n, "seconds": t_env, "env_steps_per_s": n / t_env, "plant_periods": periods,
             "periods_per_env_step": periods / n, "cpu_seconds": cpu, "env_steps_per_cpu_s": n / cpu}
+
+
+def _drive(vec, pol, obs, n_env: int, steps: int) -> tuple[int, float, float, int]:
+    """Step ``vec`` (``n_env`` environments, next-step autoreset) with ``pol`` from ``obs`` until ``steps`` env
+    steps (autoreset calls not counted): (env steps, wall seconds in ``step``, this process's CPU seconds in
+    ``step``, plant periods)."""
+    n, t_env, c_main, periods = 0, 0.0, 0.0, 0
+    autoreset = np.zeros(n_env, dtype=bool)
+    prev = np.zeros(n_env)
+    while n < steps:
+        a = pol(obs)
+        t0, c0 = time.perf_counter(), time.process_time()
+        obs, r, term, trunc, info = vec.step(a)
+        t_env += time.perf_counter() - t0
+        c_main += time.process_time() - c0
+        n += int((~autoreset).sum())
+        # plant periods of this step: the plant's period count since its reset, minus the count before
+        k = np.asarray(info["plant_periods"], dtype=float)
+        periods += int(np.where(autoreset, 0.0, k - prev).sum())
+        prev = k
+        autoreset = np.logical_or(term, trunc)
+    return n, t_env, c_main, periods
 
 
 def run_batch(plant: str, steps: int, workers: int, per_worker: int) -> dict:
@@ -180,28 +187,14 @@ def run_batch(plant: str, steps: int, workers: int, per_worker: int) -> dict:
     n_env = workers * per_worker
     vec = BatchVectorEnv([lambda: make_env(plant) for _ in range(n_env)], workers=workers, context="fork")
     pol = policy()
-    c_main = 0.0
     first = [s.start for s in vec.worker_slices]
     try:
         t0 = time.perf_counter()
         obs, info = vec.reset(seed=[1000 * j for j in range(n_env)])
         t_env = time.perf_counter() - t0
         w0 = np.array(vec.call("cpu_seconds"))[first]
-        n = 0
-        autoreset = np.zeros(n_env, dtype=bool)
-        periods = 0
-        prev = np.zeros(n_env)
-        while n < 2 * steps:
-            a = pol(obs)
-            t0, c0 = time.perf_counter(), time.process_time()
-            obs, r, term, trunc, info = vec.step(a)
-            t_env += time.perf_counter() - t0
-            c_main += time.process_time() - c0
-            n += int((~autoreset).sum())
-            k = np.asarray(info["plant_periods"], dtype=float)
-            periods += int(np.where(autoreset, 0.0, k - prev).sum())
-            prev = k
-            autoreset = np.logical_or(term, trunc)
+        n, dt, c_main, periods = _drive(vec, pol, obs, n_env, 2 * steps)
+        t_env += dt
         w1 = np.array(vec.call("cpu_seconds"))[first]
     finally:
         vec.close()
