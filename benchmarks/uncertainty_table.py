@@ -14,11 +14,13 @@ go to ``tables.txt``):
    over ``--slice-seeds`` seeds (``slice_seeds_N.json``, likewise).
 
 3. with ``--trial-reps K`` (> 0), one survival trial's cost on the two paths, in this process: K seeded trials
-   (``--trial-mode``, ``--trial-force`` at the paper's window, seeds 0..K-1, each its pushed run and its seed's
-   unpushed walk, as the seeded table runs them) with the compiled closed loop (real sensing in the loop:
-   ``loop_kernels.run_segment``'s ``sensing``) and with the objects (``compiled_loop=False``), alternating
-   trial by trial so both see the same load; per path the median wall time per trial and per control period,
-   and the ratio; the two paths' outcomes are compared (they are equal record for record: tests).
+   (each mode of ``--trial-mode`` (a comma list), ``--trial-force`` at the paper's window, seeds 0..K-1, each
+   its pushed run and its seed's unpushed walk, as the seeded table runs them) with the compiled closed loop
+   (real sensing in the loop: ``loop_kernels.run_segment``'s ``sensing`` on the rigid plant,
+   ``mujoco_loop_kernels.run_mujoco_segment``'s on MuJoCo) and with the objects (``compiled_loop=False``, the
+   only path a MuJoCo real-sensor trial had before), alternating trial by trial so both see the same load; per
+   path the median wall time and CPU time per trial, and the ratios; the two paths' outcomes are compared (they
+   are equal record for record: tests). ``--no-tables``: item 3 alone.
 
 ``timing.json``: per run the benchmark's clock around the process, the process's own wall time, the CPU
 seconds of the process and its workers (``resource.getrusage(RUSAGE_CHILDREN)`` before and after: on a
@@ -103,68 +105,49 @@ def trial_cost(reps: int, profile: str, mode: str, force: float) -> dict:
     steps = runs.trial_steps(push)
     rule = survival_rule()
 
-    def one(seed: int, compiled: bool) -> tuple[float, int, tuple]:
+    def one(seed: int, compiled: bool) -> tuple[float, float, int, tuple]:
         s = replace(base, perturbation=replace(base.perturbation, seed=seed))
         kw = dict(sim_config=s.sim_config(), ctrl_config=s.ctrl_config(mode), family=ctx.family, desc=ctx.desc,
                   perturbation=s.perturbation, compiled_loop=compiled)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         pushed = runner.run(steps, mode, (push,), keep_records=False, **kw)
         walk = runner.run(steps, mode, (), keep_records=True, **kw)
         band = rule.band_from_walk(walk)
         verdict = rule.verdict(pushed, push.start + push.duration, band)
-        dt = time.perf_counter() - t0
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
         periods = int(walk.records[-1].step) + 1
-        return dt, periods, (verdict.survived, verdict.reason, pushed.steps_walked, pushed.fall_cause)
+        return dt, dc, periods, (verdict.survived, verdict.reason, pushed.steps_walked, pushed.fall_cause)
 
     one(10_000, True)           # the kernels loaded (and compiled, on a first run) outside the timing
     one(10_000, False)
     times: dict[bool, list[float]] = {True: [], False: []}
+    cpus: dict[bool, list[float]] = {True: [], False: []}
     periods: dict[bool, list[int]] = {True: [], False: []}
     same = True
     load0 = os.getloadavg()
     for seed in range(reps):
         outcome = {}
         for compiled in ((True, False) if seed % 2 == 0 else (False, True)):
-            dt, n, outcome[compiled] = one(seed, compiled)
+            dt, dc, n, outcome[compiled] = one(seed, compiled)
             times[compiled].append(dt)
+            cpus[compiled].append(dc)
             periods[compiled].append(n)
         same = same and outcome[True] == outcome[False]
     med = {k: statistics.median(v) for k, v in times.items()}
+    cmed = {k: statistics.median(v) for k, v in cpus.items()}
     return {"mode": mode, "force": force, "profile": profile, "reps": reps, "seeds": list(range(reps)),
             "compiled_s_per_trial": med[True], "objects_s_per_trial": med[False],
             "ratio_objects_over_compiled": med[False] / med[True],
+            "compiled_cpu_s_per_trial": cmed[True], "objects_cpu_s_per_trial": cmed[False],
+            "ratio_cpu_objects_over_compiled": cmed[False] / cmed[True],
             "walk_periods_median": statistics.median(periods[True]),
             "same_outcomes": same, "times_s": {"compiled": times[True], "objects": times[False]},
+            "cpu_s": {"compiled": cpus[True], "objects": cpus[False]},
             "load_average_start": list(load0), "load_average_end": list(os.getloadavg())}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.uncertainty_table", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", type=int, default=8)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--modes", default="both")
-    ap.add_argument("--profile", default="real-sensors", choices=("real-sensors", "real-sensors-mujoco"))
-    ap.add_argument("--slice-phases", type=int, default=0, help="onset phases of the timed slice (0: no slice)")
-    ap.add_argument("--slice-seeds", type=int, default=16)
-    ap.add_argument("--slice-modes", default="both,wbc")
-    ap.add_argument("--trial-reps", type=int, default=0, help="seeded trials per path for the trial's cost "
-                    "(compiled loop against the objects; 0: not timed)")
-    ap.add_argument("--trial-mode", default="both")
-    ap.add_argument("--trial-force", type=float, default=300.0, help="[N] the timed trials' push (paper's window)")
-    ap.add_argument("--out", type=Path, default=Path("results/uncertainty"))
-    args = ap.parse_args(argv)
-    if min(args.seeds, args.workers, args.slice_seeds) < 1 or args.slice_phases < 0 or args.trial_reps < 0:
-        ap.error("--seeds, --slice-seeds and --workers must be >= 1, --slice-phases and --trial-reps >= 0")
-    args.out.mkdir(parents=True, exist_ok=True)
-    from biped_controller.studies import provenance
-    timing_path = args.out / "timing.json"
-    plant = "mujoco" if args.profile.endswith("mujoco") else "rigid"
-    provenance.track(timing_path, args.out / "tables.txt", argv=argv, plant=plant, profile=args.profile)
-    out = {"what": f"the max-push table at the paper's cell, profile {args.profile} (the design-point sensor noise on "
-                   f"the plant): deterministic (one trial per force, seed 0) beside the table over seeds"
-                   + (", and the 25 ms forward slice likewise" if args.slice_phases else ""),
-           "cpu_count": os.cpu_count()}
+def run_tables(args, out: dict) -> None:
+    """Items 1 and 2 of the module docstring into ``out`` (their printed tables to ``tables.txt``)."""
     with open(args.out / "tables.txt", "w", encoding="utf-8") as log:
         out["deterministic"] = run_table(args.out / "deterministic.json", args.modes, args.workers, None,
                                          args.profile, log)
@@ -183,8 +166,44 @@ def main(argv: list[str] | None = None) -> int:
             out["slice_ratio_process_wall"] = (out["slice_seeded"]["process_wall_s"]
                                                / out["slice_deterministic"]["process_wall_s"])
             out["slice_ratio_cpu"] = out["slice_seeded"]["cpu_s"] / out["slice_deterministic"]["cpu_s"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.uncertainty_table", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--modes", default="both")
+    ap.add_argument("--profile", default="real-sensors", choices=("real-sensors", "real-sensors-mujoco"))
+    ap.add_argument("--slice-phases", type=int, default=0, help="onset phases of the timed slice (0: no slice)")
+    ap.add_argument("--slice-seeds", type=int, default=16)
+    ap.add_argument("--slice-modes", default="both,wbc")
+    ap.add_argument("--trial-reps", type=int, default=0, help="seeded trials per path for the trial's cost "
+                    "(compiled loop against the objects; 0: not timed)")
+    ap.add_argument("--trial-mode", default="both", help="mode(s) of the timed trials, a comma list")
+    ap.add_argument("--no-tables", action="store_true", help="only the trial's cost (item 3)")
+    ap.add_argument("--trial-force", type=float, default=300.0, help="[N] the timed trials' push (paper's window)")
+    ap.add_argument("--out", type=Path, default=Path("results/uncertainty"))
+    args = ap.parse_args(argv)
+    if min(args.seeds, args.workers, args.slice_seeds) < 1 or args.slice_phases < 0 or args.trial_reps < 0:
+        ap.error("--seeds, --slice-seeds and --workers must be >= 1, --slice-phases and --trial-reps >= 0")
+    args.out.mkdir(parents=True, exist_ok=True)
+    from biped_controller.studies import provenance
+    timing_path = args.out / "timing.json"
+    plant = "mujoco" if args.profile.endswith("mujoco") else "rigid"
+    provenance.track(timing_path, args.out / "tables.txt", argv=argv, plant=plant, profile=args.profile)
+    what = (f"one seeded survival trial's cost, profile {args.profile}: the compiled closed loop against the "
+            f"objects" if args.no_tables else
+            f"the max-push table at the paper's cell, profile {args.profile} (the design-point sensor noise on "
+            f"the plant): deterministic (one trial per force, seed 0) beside the table over seeds"
+            + (", and the 25 ms forward slice likewise" if args.slice_phases else ""))
+    out = {"what": what, "cpu_count": os.cpu_count()}
+    if not args.no_tables:
+        run_tables(args, out)
     if args.trial_reps:
-        out["trial_cost"] = trial_cost(args.trial_reps, args.profile, args.trial_mode, args.trial_force)
+        modes = [m for m in args.trial_mode.split(",") if m]
+        out["trial_costs"] = {m: trial_cost(args.trial_reps, args.profile, m, args.trial_force) for m in modes}
+        out["trial_cost"] = out["trial_costs"][modes[0]]
     timing_path.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     print(json.dumps(out, indent=1))
     return 0

@@ -1,8 +1,9 @@
-"""Real sensing in the compiled closed loop (``loop_kernels.run_segment``'s ``sensing``, issue 43): the plant's
-sensor noise drawn ahead in blocks is the generators' one-by-one draws, and a noisy run with the compiled
-loop is the objects' run (``SensorModel.sample`` + ``AdaptiveController.compute`` on the compiled sensing
-pipeline + ``Simulator.step``) record for record, status for status (the statuses carry the pipeline's
-outputs: the observer's dR, F_x and the rows' widening)."""
+"""Real sensing in the compiled closed loops (``loop_kernels.run_segment``'s and
+``mujoco_loop_kernels.run_mujoco_segment``'s ``sensing``, issue 43): the plant's sensor noise drawn ahead in
+blocks is the generators' one-by-one draws, and a noisy run with the compiled loop is the objects' run
+(``SensorModel.sample`` + ``AdaptiveController.compute`` on the compiled sensing pipeline + ``Simulator.step`` or
+``MujocoPlant.step``) record for record, status for status (the statuses carry the pipeline's outputs: the
+observer's dR, F_x and the rows' widening), on either plant."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -50,40 +51,50 @@ def test_block_draws_are_the_one_by_one_draws_and_a_compiled_take_skips_them():
 
 
 def _run(settings, mode, pushes, compiled_loop, steps=3):
+    settings.activate()
     ctx = tcontext.context()
     return runner.run(steps, mode, pushes, sim_config=settings.sim_config(), ctrl_config=settings.ctrl_config(mode),
                       family=ctx.family, desc=ctx.desc, perturbation=settings.perturbation,
                       compiled_loop=compiled_loop)
 
 
-# (mode, settings overrides, plant perturbation overrides, push force [N]): the design point with the QP's
-# periods (both, pushed backward), the whole-body stage (wbc), the observer without the estimator and an IMU
-@pytest.mark.parametrize("mode,overrides,perturb,force", [
-    ("both", (), {"seed": 5}, -250.0),
-    ("wbc", (), {"seed": 6}, 100.0),
-    ("tau", ("state_estimator=false",), {"seed": 7, "noise_pitch": 1e-3, "noise_pitch_rate": 1e-2}, 50.0),
-])
-def test_the_compiled_loop_with_real_sensing_is_the_objects_run(monkeypatch, mode, overrides, perturb, force):
-    settings = run_settings("real-sensors", list(overrides))
+# (profile, mode, settings overrides, plant perturbation overrides, push force [N], steps): the design point with
+# the QP's periods (both, pushed backward), the whole-body stage (wbc), the observer without the estimator and an
+# IMU; on the rigid plant and on MuJoCo (two steps there: its objects cost more; a touchdown in each)
+CASES = [("both", (), {"seed": 5}, -250.0), ("wbc", (), {"seed": 6}, 100.0),
+         ("tau", ("state_estimator=false",), {"seed": 7, "noise_pitch": 1e-3, "noise_pitch_rate": 1e-2}, 50.0)]
+
+
+@pytest.mark.parametrize("profile,mode,overrides,perturb,force,steps",
+                         [("real-sensors", *c, 3) for c in CASES] + [("real-sensors-mujoco", *c, 2) for c in CASES])
+def test_the_compiled_loop_with_real_sensing_is_the_objects_run(monkeypatch, profile, mode, overrides, perturb, force,
+                                                                steps):
+    settings = run_settings(profile, list(overrides))
     settings = replace(settings, perturbation=replace(settings.perturbation, **perturb))
     pushes = (Push(0.2315, 0.05, force),)
     ran, ends = [], []
-    orig = segment.Segment.run
+    kind = segment.MujocoSegment if settings.sim_config().plant == "mujoco" else segment.Segment
+    orig = kind.run
 
     def counting(self, *a, **k):
         out = orig(self, *a, **k)
         ran.append(self.n)
         ends.append(self.ended)
         return out
-    monkeypatch.setattr(segment.Segment, "run", counting)
+    monkeypatch.setattr(kind, "run", counting)
+    if mode == "wbc":           # few noise rows handed to the compiled loop: its segments end there (END_NOISE)
+        rows = SensorModel.noise_rows
+        monkeypatch.setattr(SensorModel, "noise_rows", lambda self, n: rows(self, n)[:7])
     loops = {}
     for cl in (True, False):
-        loops[cl] = _run(settings, mode, pushes, cl)
+        loops[cl] = _run(settings, mode, pushes, cl, steps)
     fast, objects = loops[True], loops[False]
     # the compiled loop ran most periods, and handed the sensed touchdowns back (with the estimator)
     assert sum(ran) >= 0.7 * len(objects.records), (sum(ran), len(objects.records))
     if "state_estimator=false" not in overrides:
         assert any(e.startswith("sensing needs Python") for e in ends)
+    if mode == "wbc":
+        assert ends.count("noise rows used up") >= 20
     assert len(fast.records) == len(objects.records)
     assert digest(fast.records, fast.statuses, fast.impacts, fast) == \
         digest(objects.records, objects.statuses, objects.impacts, objects)
@@ -92,16 +103,18 @@ def test_the_compiled_loop_with_real_sensing_is_the_objects_run(monkeypatch, mod
 
 
 def test_a_delay_keeps_the_objects():
-    """A measurement delay (the plant's delay line, the controller's predictor) is not the compiled loop's."""
-    settings = run_settings("delay2", perturb=["noise_q=5e-4"])
+    """A measurement delay (the plant's delay line, the controller's predictor) is not the compiled loop's, on
+    either plant."""
     ctx = tcontext.context()
-    loop = runner.ClosedLoop(settings.sim_config(), settings.ctrl_config("both"), ctx.family, ctx.desc,
-                             settings.perturbation)
-    assert loop.sim.sensor.compiled_noise is None
-    assert not segment.Segment.eligible(loop.sim, loop.ctrl)
-    real = run_settings("real-sensors")
-    loop = runner.ClosedLoop(real.sim_config(), real.ctrl_config("both"), ctx.family, ctx.desc, real.perturbation)
-    assert segment.Segment.eligible(loop.sim, loop.ctrl)
+    for kind, extra in ((segment.Segment, []), (segment.MujocoSegment, ["plant=mujoco"])):
+        settings = run_settings("delay2", extra, perturb=["noise_q=5e-4"])
+        loop = runner.ClosedLoop(settings.sim_config(), settings.ctrl_config("both"), ctx.family, ctx.desc,
+                                 settings.perturbation)
+        assert loop.sim.sensor.compiled_noise is None
+        assert not kind.eligible(loop.sim, loop.ctrl)
+        real = run_settings("real-sensors", extra)
+        loop = runner.ClosedLoop(real.sim_config(), real.ctrl_config("both"), ctx.family, ctx.desc, real.perturbation)
+        assert kind.eligible(loop.sim, loop.ctrl)
 
 
 def test_an_outcome_only_run_with_real_sensing_keeps_its_last_status():

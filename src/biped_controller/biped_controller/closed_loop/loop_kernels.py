@@ -40,6 +40,7 @@ from biped_model import numba_cache
 from biped_model import planar_kernels as pk
 from biped_model.layout import Layout
 from biped_sim.plant import period_grid_kernels as pg
+from biped_sim.plant import sensor_kernels as sn
 from biped_sim.plant.rigid_layout import L_, S_
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
@@ -62,8 +63,6 @@ END_NAMES = ("t_stop reached", "record arrays full", "QP needed", "simulator eve
              "matrix)", "noise rows used up")
 # the sensing pipeline's fields of RES (``pipeline_kernels.into_res``'s 8 values)
 _SENS_RES0 = R_.sens_dR
-# the sensors' noise (``SensorModel.compiled_noise``): noise_q, noise_q', encoder step, noise_pitch, noise_pitch_rate
-(NZ_Q, NZ_QD, NZ_STEP, NZ_PITCH, NZ_RATE) = range(5)
 
 _V, _VI, _M, _C4, _I, _F = ck.T_VEC, ck.T_IVEC, ck.T_MAT, ck.T_ARR4, ck.T_INT, ck.T_FLOAT
 _C3 = numba.types.Array(numba.types.float64, 3, "C")
@@ -80,33 +79,6 @@ def _knots(t_start, dt_nom, substeps, pushes, knots):
     dt = t_grid_end - t_start
     n_sub = max(1, int(math.ceil(substeps * dt / dt_nom - 1e-9)))
     return pg.knots(t_start, t_grid_end, n_sub, pushes, knots), t_grid_end
-
-
-@numba.njit(cache=True)
-def _sample(q, qd, pitch, rate, z, nconf, qs, qds, out):
-    """The plant's sensors' sample of (q [rad], q' [rad/s], torso pitch [rad], its rate [rad/s]) with the
-    standard normal draws ``z`` (z_q (6), z_q' (6), z_p, z_r) and the noise's sizes ``nconf`` (NZ_*):
-    ``SensorModel.sample``'s sums in its order, the angles quantised half to even; qs, qds <- the joints,
-    out[0], out[1] <- the pitch and its rate."""
-    for i in range(6):
-        a = q[i]
-        if nconf[NZ_Q] > 0.0:
-            a = a + nconf[NZ_Q] * z[i]
-        if nconf[NZ_STEP] > 0.0:
-            a = nconf[NZ_STEP] * np.rint(a / nconf[NZ_STEP])
-        qs[i] = a
-        b = qd[i]
-        if nconf[NZ_QD] > 0.0:
-            b = b + nconf[NZ_QD] * z[6 + i]
-        qds[i] = b
-    th = pitch
-    if nconf[NZ_PITCH] > 0.0:
-        th += nconf[NZ_PITCH] * z[12]
-    rt = rate
-    if nconf[NZ_RATE] > 0.0:
-        rt += nconf[NZ_RATE] * z[13]
-    out[0] = th
-    out[1] = rt
 
 
 @numba.njit(numba.types.int64(
@@ -132,7 +104,8 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
     controller's sensing pipeline -- the sample q_s = q + noise_q z_q quantised to the encoder step
     (step round(q_s / step), half to even), q_s' = q' + noise_q' z_q', the IMU's pitch x[2] + noise_pitch z_p and
     rate v[2] + noise_pitch_rate z_r (row k of ``noise``: the k-th period's standard normal draws, as
-    ``SensorModel.sample`` takes them; ``nconf`` the noise's sizes, NZ_*), then ``pipeline_kernels.sense`` on
+    ``SensorModel.sample`` takes them; ``nconf`` the noise's sizes, ``sensor_kernels.NZ_*``;
+    ``sensor_kernels.sample``), then ``pipeline_kernels.sense`` on
     (``s_ti``, ``s_tf``, ``sconf``, ``sstate``) into the estimate (``qe``, ``qde``) and ``into_res`` into
     the period's RES row -- as ``pipeline_compiled.CompiledSensing.sense`` and ``CompiledPeriod.compute``;
     the controller then acts on the estimate, the record keeps the true (q, q'), and the committed period
@@ -186,7 +159,7 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
             if n_done >= noise.shape[0]:
                 out[0] = END_NOISE
                 return n_done
-            _sample(q, qd, x[2], v[2], noise[n_done], nconf, qs, qds, sens)
+            sn.sample(q, qd, x[2], v[2], noise[n_done], nconf, qs, qds, sens)
             sback[:] = sstate
             if sk.sense(s_ti, s_tf, sconf, sstate, t, qs, qds, stance, sens[0], sens[1], qe, qde) != sk.DONE:
                 sstate[:] = sback

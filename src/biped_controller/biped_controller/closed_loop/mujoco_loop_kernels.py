@@ -7,6 +7,9 @@ twin of ``loop_kernels.run_segment``: the in-process runner (``runner.run``) han
 ``compute`` and ``MujocoPlant.step`` with held torques), in the same order and with the same kernels --
 
   1. the sensors: ``MujocoPlant.observe`` with ideal sensors, ``mujoco_kernels.measure`` (q1 against the ground);
+     with real sensing (``sensing``, no delay) then the plant's sensors' sample (``sensor_kernels.sample``) and the
+     controller's compiled sensing pipeline (``pipeline_kernels.sense``), as ``loop_kernels.run_segment``'s
+     step 1b;
   2. the controller: ``controller_kernels.period_start`` and ``period_step`` (a period that needs the QP ends
      the segment before it, its rows handed back; the next call takes it with the caller's decision,
      ``controller_kernels.period_outputs``) and, modes wbc and hybrid, the whole-body stage
@@ -37,10 +40,13 @@ import numpy as np
 
 from biped_sim.plant import mujoco_kernels as mk
 from biped_sim.plant import period_grid_kernels as pg
+from biped_sim.plant import sensor_kernels as sn
 from biped_model import numba_cache
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
-from biped_controller.core.control.controller_layout import W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.control.controller_layout import R_, W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC
+from biped_controller.core.sensing import pipeline_kernels as sk
+from biped_controller.core.sensing.pipeline_layout import S_ as SS_
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -48,9 +54,13 @@ numba_cache.require_configured(__name__)   # a check: import this module with nu
 C_T, C_T_END, C_PUSH_FORCE, C_PUSH_IMPULSE = mk.ROW_SIZE, mk.ROW_SIZE + 1, mk.ROW_SIZE + 2, mk.ROW_SIZE + 3
 REC_SIZE = mk.ROW_SIZE + 4
 # why a segment ended
-(END_LIMIT, END_FULL, END_QP, END_PLANT_EVENT, END_NONFINITE, END_MAX, END_KNOTS) = range(7)
+(END_LIMIT, END_FULL, END_QP, END_PLANT_EVENT, END_NONFINITE, END_MAX, END_KNOTS, END_SENSE,
+ END_NOISE) = range(9)
 END_NAMES = ("t_stop reached", "record arrays full", "QP needed", "plant event", "non-finite controller value",
-             "max_periods", "too many knots in a period")
+             "max_periods", "too many knots in a period", "sensing needs Python (a sensed touchdown, a singular "
+             "matrix)", "noise rows used up")
+# the sensing pipeline's fields of RES (``pipeline_kernels.into_res``'s 8 values)
+_SENS_RES0 = R_.sens_dR
 # out: why the segment ended, then for END_PLANT_EVENT: substeps' code, the intervals done, the knots' count, the
 # period's start and grid end [s], the pushes' impulse so far [N s], the record row of the period; the knots
 O_END, O_CODE, O_DONE, O_NK, O_T_START, O_T_GRID_END, O_IMPULSE, O_ROW = range(8)
@@ -82,23 +92,39 @@ _WARN = numba.types.Array(numba.types.int32, 1, "A")     # MjData.warning.number
                _I, _I, _V, _M, _M, _M, _V, _V, _M, _V, _V, _VI, _V,   # MuJoCo: model, data, timestep, arrays
                _WARN, _VI, _V, _V, _C3, _M, _F, _F, _F, _V,           # warnings, limits, perm, pushes, clock
                _F, _I, _B, _M, _M, _V, _V,                            # t_stop, max_periods, ring, rec, sta, out, wbc
-               _M, _V, _V, _M, _V, _B), cache=True, nogil=True)       # QP: G, h, res, work, x, x given
+               _M, _V, _V, _M, _V, _B,                                # QP: G, h, res, work, x, x given
+               _B, _VI, _V, _V, _V, _V, _V, _V, _M, _V), cache=True, nogil=True)   # sensing (loop_kernels')
 def run_mujoco_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
                        model, data, timestep, cfrc, xpos, scom, qpos, qvel, xfrc, ctrl, acc, ip, fp, warn, bad_warn,
                        lo, hi, perm, pushes, torso_com, h_mj, dt_nom, clock,
                        t_stop, max_periods, ring, rec, sta, out, wbc,
-                       G, h, res, work, qp_x, qp_given):  # pragma: no cover (compiled)
+                       G, h, res, work, qp_x, qp_given,
+                       sensing, s_ti, s_tf, sconf, sstate, sback, qe, qde, noise, nconf):  # pragma: no cover (compiled)
     """Run periods while nothing needs Python (module docstring). Returns the number of periods committed on
     both sides; out[O_END] = why the segment ended (END_*). ``model``, ``data``: the ``mjModel*``, ``mjData*``
     addresses; ``timestep`` the view of ``opt.timestep``; ``warn`` MuJoCo's warning counters, ``bad_warn`` the
     indices that make a numerical fall; ``lo``, ``hi`` the torque limits (paper order); ``perm`` (2, 6, 6)
     PAPER_FROM_URDF per stance; ``pushes`` (n, 4) the scheduled pushes (start, end, force, height);
     ``h_mj`` the MuJoCo step, ``dt_nom`` the control period [s]. The QP hand-back is ``loop_kernels.run_segment``'s
-    (``G``, ``h``, ``res``, ``work``; ``qp_x``, ``qp_given``)."""
+    (``G``, ``h``, ``res``, ``work``; ``qp_x``, ``qp_given``).
+
+    ``sensing`` True (real sensing, no delay; ``segment.MujocoSegment``): ``loop_kernels.run_segment``'s sensing
+    on this plant -- the sample of the measured (q, q') and of the IMU's torso pitch qpos[2] and its rate
+    qvel[2] with row k of ``noise`` (``sensor_kernels.sample``, ``nconf`` the noise's sizes), the pipeline
+    (``s_ti``, ``s_tf``, ``sconf``, ``sstate``) into the estimate (``qe``, ``qde``) the controller acts on and
+    into the period's RES row; the record keeps the measured (q, q'); the committed period records the torque
+    sent in the pipeline's state. A period handed back before its commit (the QP, a non-finite value, the
+    knots) leaves the pipeline's state as before it (``sback``) and uses no noise row; END_SENSE when the
+    pipeline needs Python (a sensed touchdown with the estimator), END_NOISE when ``noise`` has no row left. A
+    period ending in a plant event is committed on both sides (its noise row used): the rows used are the
+    periods returned plus that one."""
     cap = rec.shape[0]
     q = np.empty(6)
     qd = np.empty(6)
     meas = np.empty(12)
+    qs = np.empty(6)
+    qds = np.empty(6)
+    sens = np.empty(8)
     torque = np.empty(6)
     knots = out[O_KNOTS:O_KNOTS + MAX_KNOTS]
     sub_out = np.zeros(mk.OUT_SIZE)
@@ -120,26 +146,53 @@ def run_mujoco_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         for i in range(6):
             q[i] = meas[i]
             qd[i] = meas[6 + i]
+        qc = q
+        qdc = qd
+        if sensing:         # 1b. the plant's sensors and the controller's sensing pipeline (docstring)
+            if n_done >= noise.shape[0]:
+                out[O_END] = END_NOISE
+                return n_done
+            sn.sample(q, qd, qpos[2], qvel[2], noise[n_done], nconf, qs, qds, sens)
+            sback[:] = sstate
+            if sk.sense(s_ti, s_tf, sconf, sstate, t, qs, qds, stance, sens[0], sens[1], qe, qde) != sk.DONE:
+                sstate[:] = sback
+                out[O_END] = END_SENSE
+                return n_done
+            sk.into_res(sstate, sconf, sens)
+            for k in range(8):
+                res[_SENS_RES0 + k] = sens[k]
+            qc = qe
+            qdc = qde
         # 2. controller
-        code = ck.loop_period(qp_given and n_done == 0, qp_x, coef, inner, centers, cti, ctf, q, qd, t, stance,
+        code = ck.loop_period(qp_given and n_done == 0, qp_x, coef, inner, centers, cti, ctf, qc, qdc, t, stance,
                               gains, cons, mem, G, h, work, res)
         if code == ck.NEEDS_QP:
+            if sensing:
+                sstate[:] = sback
             out[O_END] = END_QP
             return n_done
         if code != ck.FEASIBLE:
+            if sensing:
+                sstate[:] = sback
             out[O_END] = END_NONFINITE
             return n_done
         if wmode != WBC_MODE_OFF:
             wcode = wk.run_stage(wbc, cons, mem, work, res, Gw, hw, wmode == WBC_MODE_WBC, False)
             if wcode == wk.NEEDS_PIQP:
+                if sensing:
+                    sstate[:] = sback
                 out[O_END] = END_QP
                 return n_done
             if wcode == wk.NONFINITE:
+                if sensing:
+                    sstate[:] = sback
                 out[O_END] = END_NONFINITE
                 return n_done
         # 3. plant: knots, the period's start, the MuJoCo steps
         nk, t_grid_end = period_knots(t, dt_nom, h_mj, pushes, knots)
         if nk < 0:
+            if sensing:
+                sstate[:] = sback
             out[O_END] = END_KNOTS
             return n_done
         row_i = n_done % cap
@@ -159,7 +212,13 @@ def run_mujoco_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         scode = mk.substeps(model, data, timestep, knots[:nk], 0, pushes, torso_com, cfrc, xpos, scom, qpos, qvel,
                             xfrc, ctrl, acc, ip, fp, sub_out)
         # 4. the controller's commit (the objects commit before the plant's period: nothing reads it in between)
-        ck.period_commit(mem, res, work, qd, t, stance)
+        ck.period_commit(mem, res, work, qdc, t, stance)
+        if sensing:         # the decision, in the pipeline (CompiledSensing.record: the torque sent, told stance)
+            sstate[SS_.t_prev] = t
+            for i in range(6):
+                sstate[SS_.torque_prev + i] = work[W_.torque, i]
+            sstate[SS_.told_prev] = stance
+            sstate[SS_.decided] = 1.0
         sta[row_i, :] = res
         r[C_T] = t
         r[C_PUSH_FORCE] = push_force

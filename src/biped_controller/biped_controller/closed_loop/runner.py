@@ -41,8 +41,8 @@ def run(steps: int = 10, mode: str = "both", pushes: tuple[Push, ...] = (), *,
     evaluated at every RK4 stage (no QP re-solve inside a period). ``perturbation`` goes to the
     simulator only: the plant and the sensors differ, the controller keeps ``desc``.
 
-    ``compiled_loop`` (fast engine, ideal sensors -- or on the rigid plant real sensing without a delay, the
-    sensing pipeline compiled --, held torques, no ``keep_qp``): the periods where nothing
+    ``compiled_loop`` (fast engine, ideal sensors -- or real sensing without a delay, the sensing pipeline
+    compiled, on either plant --, held torques, no ``keep_qp``): the periods where nothing
     needs Python run in the compiled loop (``segment.Segment`` on the rigid plant, ``segment.MujocoSegment``
     on MuJoCo), with records identical to the objects' period by period (tested); on the rigid plant the
     objects take every period with a QP, an impact or a fall; on MuJoCo the compiled loop runs a period that

@@ -12,7 +12,9 @@ it returns the periods' ``StepRecord`` and ``ControllerStatusData``, identical t
 :class:`MujocoSegment` is the same for the MuJoCo plant (``mujoco_loop_kernels.run_mujoco_segment``): the
 controller's arrays and the plant's (``MujocoPlant.compiled_plant()``: MuJoCo's ``mjData`` and the plant's
 bookkeeping arrays, its public description of what a compiled loop needs) go to the kernel; a period that
-ends in a touchdown or a fall is run there and finished by the plant's Python.
+ends in a touchdown or a fall is run there and finished by the plant's Python. Real sensing without a delay
+runs in both loops (the plant's sensors' sample, ``biped_sim.plant.sensor_kernels``, and the controller's
+compiled sensing pipeline).
 """
 from __future__ import annotations
 
@@ -38,8 +40,9 @@ _PERM = np.ascontiguousarray(np.array(PAPER_FROM_URDF, dtype=float))
 LOOP_KERNELS = "biped_controller.closed_loop.loop_kernels"
 # what the compiled loop is compiled against besides its own source
 PERIOD_GRID_KERNELS = "biped_sim.plant.period_grid_kernels"
+SENSOR_KERNELS = "biped_sim.plant.sensor_kernels"
 LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
-                                                     "biped_sim.plant.rigid_layout") + (
+                                                     "biped_sim.plant.rigid_layout", SENSOR_KERNELS) + (
                                                      PIPELINE_KERNELS,) + PIPELINE_KERNELS_SOURCES
 
 
@@ -49,8 +52,24 @@ def load_loop_kernels():
     numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
     numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
     numba_cache.load(PERIOD_GRID_KERNELS)
+    numba_cache.load(SENSOR_KERNELS)
     load_pipeline_kernels()
     return numba_cache.load(LOOP_KERNELS, sources=LOOP_KERNELS_SOURCES)
+
+
+_NO_NOISE = np.zeros((0, 14))
+
+
+def _sensing_arguments(sim, ctrl: AdaptiveController) -> tuple[bool, tuple, np.ndarray]:
+    """What a compiled loop's ``sensing`` arguments are for this pair: (on, the pipeline's arrays (tree ti, tf,
+    conf, state, a backup of the state, the estimate q, q'), the noise's sizes). On with real sensing
+    (``Segment.sensing_eligible``): the controller's compiled pipeline's own arrays, so the objects go on from
+    the state the kernel leaves; off: placeholders the kernel does not read."""
+    if not sim.sensor.identity:
+        sp = ctrl._sensing
+        return True, (sp.ti, sp.tf, sp.conf, sp.state, np.empty_like(sp.state), sp._q, sp._qd), sim.sensor.compiled_noise
+    e = np.zeros(1)
+    return False, (np.zeros(1, dtype=np.int64), e, e, e, e, e, e), np.zeros(5)
 
 
 def _decision_buffers(fp):
@@ -84,18 +103,7 @@ class Segment:
         # the compiled loop takes the QP periods too, with the controller's decision (not in modes whose
         # whole-body stage follows a QP: hybrid)
         self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
-        # real sensing (``sensing_eligible``): the plant's sensors and the controller's compiled pipeline in the
-        # loop (``loop_kernels.run_segment``'s ``sensing``); otherwise placeholders the kernel does not read
-        self.sensing = not sim.sensor.identity
-        self._no_noise = np.zeros((0, 14))
-        if self.sensing:
-            sp = ctrl._sensing
-            self._sens = (sp.ti, sp.tf, sp.conf, sp.state, np.empty_like(sp.state), sp._q, sp._qd)
-            self.nconf = sim.sensor.compiled_noise
-        else:
-            e = np.zeros(1)
-            self._sens = (np.zeros(1, dtype=np.int64), e, e, e, e, e, e)
-            self.nconf = np.zeros(5)
+        self.sensing, self._sens, self.nconf = _sensing_arguments(sim, ctrl)
 
     @staticmethod
     def sensing_eligible(sim: Simulator, ctrl: AdaptiveController) -> bool:
@@ -111,8 +119,7 @@ class Segment:
         # modes wbc, hybrid: the compiled whole-body stage runs in the loop (wbc_kernels); a period where it
         # needs PIQP, or where hybrid's p/tau QP runs, goes to the objects; the Python stage (the tests'
         # oracle, ``python_stage``) never runs in the loop
-        # (real sensing: the compiled loop has no sensing pipeline; the controller's compiled step has;
-        # modes lambda and all: the compiled period takes lambda, the QP periods are decided as the others')
+        # (modes lambda and all: the compiled period takes lambda, the QP periods are decided as the others')
         # real sensing without a delay: the compiled sensing pipeline runs in the loop (sensing_eligible)
         fp = getattr(ctrl, "compiled_period", None)
         if not (sim.compiled and fp is not None and not fp.python_stage):
@@ -134,7 +141,7 @@ class Segment:
         if decision is not None:
             self.qp_x[:] = decision[0]
         # the noise of the periods to come (1024 at most: a segment needing more ends there, END_NOISE)
-        noise = sim.sensor.noise_rows(min(int(max_periods), 1024)) if self.sensing else self._no_noise
+        noise = sim.sensor.noise_rows(min(int(max_periods), 1024)) if self.sensing else _NO_NOISE
         self.n = n = lk.run_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
                            sim.fm.ti, sim.fm.tf, sim.sim_state, sim.limits, pushes, _PERM,
                            float(t_stop), int(max_periods), not self.keep, self.rec, self.sta, self.out, ctrl.wbc,
@@ -215,7 +222,8 @@ class Segment:
 
 MUJOCO_LOOP_KERNELS = "biped_controller.closed_loop.mujoco_loop_kernels"
 MUJOCO_LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
-                                                            "biped_sim.plant.mujoco_kernels")
+                                                            "biped_sim.plant.mujoco_kernels", SENSOR_KERNELS) + (
+                                                            PIPELINE_KERNELS,) + PIPELINE_KERNELS_SOURCES
 
 
 def load_mujoco_loop_kernels():
@@ -228,6 +236,8 @@ def load_mujoco_loop_kernels():
     numba_cache.load(CONTROLLER_KERNELS, sources=CONTROLLER_KERNELS_SOURCES)
     numba_cache.load(WBC_KERNELS, sources=WBC_KERNELS_SOURCES)
     numba_cache.load(PERIOD_GRID_KERNELS)
+    numba_cache.load(SENSOR_KERNELS)
+    load_pipeline_kernels()
     return numba_cache.load(MUJOCO_LOOP_KERNELS, sources=MUJOCO_LOOP_KERNELS_SOURCES)
 
 
@@ -236,11 +246,13 @@ class MujocoSegment:
     with :class:`Segment`'s interface (``run``, ``last``, ``decide``, ``needs_qp``, ``n``, ``ended``). A period
     whose MuJoCo steps end in a touchdown, a possible fall or a numerical problem is finished by the plant's
     Python (``MujocoPlant.finish_compiled_period``) inside :meth:`run` and ends the call; it is counted in
-    ``n`` and its record and status are returned with the others."""
+    ``n`` and its record and status are returned with the others. Real sensing without a delay
+    (``Segment.sensing_eligible``) runs in the loop as on the rigid plant (``mujoco_loop_kernels``' ``sensing``)."""
 
     def __init__(self, sim, ctrl: AdaptiveController, keep_records: bool = True, capacity: int = 8192):
         if not self.eligible(sim, ctrl):
-            raise ValueError("MujocoSegment needs the compiled period, ideal sensors and the plant's compiled steps")
+            raise ValueError("MujocoSegment needs the compiled period, ideal sensors or real sensing without a "
+                             "delay on the compiled sensing pipeline, and the plant's compiled steps")
         self.mk = load_mujoco_loop_kernels()
         self.plant = sim.compiled_plant()       # the plant's arrays the compiled steps take (biped_sim's CompiledPlant)
         self.pk = self.plant.kernels
@@ -255,15 +267,20 @@ class MujocoSegment:
         self._last = None
         self.G, self.h, self.res, self.work, self.qp_x = _decision_buffers(self.fp)
         self.takes_qp = ctrl.whole_body is None and bool(ctrl.adapted)
+        self.sensing, self._sens, self.nconf = _sensing_arguments(sim, ctrl)
 
     @staticmethod
     def eligible(sim, ctrl: AdaptiveController) -> bool:
-        """The compiled period on the controller's side (no Python whole-body stage, no real sensing), ideal
-        sensors, held torques on the plant's compiled steps (no probe, no trace)."""
+        """The compiled period on the controller's side (no Python whole-body stage), ideal sensors and no
+        real sensing, or real sensing without a delay on the compiled sensing pipeline
+        (``Segment.sensing_eligible``), held torques on the plant's compiled steps (no probe, no trace)."""
         fp = getattr(ctrl, "compiled_period", None)
-        return bool(getattr(sim, "name", "") == "mujoco" and getattr(sim, "compiled_steps", False)
-                    and fp is not None and sim.sensor.identity and not fp.python_stage
-                    and not ctrl.cfg.real_sensing and sim.probe is None and sim.trace is None)
+        if not (getattr(sim, "name", "") == "mujoco" and getattr(sim, "compiled_steps", False)
+                and fp is not None and not fp.python_stage and sim.probe is None and sim.trace is None):
+            return False
+        if sim.sensor.identity and not ctrl.cfg.real_sensing:
+            return True
+        return Segment.sensing_eligible(sim, ctrl)
 
     @property
     def needs_qp(self) -> bool:
@@ -289,12 +306,20 @@ class MujocoSegment:
         clock[0], clock[1] = sim.t, sim.step_index
         d = sim.data
         plant = self.plant
+        # the noise of the periods to come (1024 at most: a segment needing more ends there, END_NOISE)
+        noise = sim.sensor.noise_rows(min(int(max_periods), 1024)) if self.sensing else _NO_NOISE
         n = mk.run_mujoco_segment(fp.coef, fp.inner, fp.centers, fp.ti, fp.tf, ctrl.gains, ctrl.cons, ctrl.memory,
                                   *plant.step_arguments(), _PERM, sim.push_rows(), plant.torso_com,
                                   plant.mujoco_step, sim.cfg.control_period, clock, float(t_stop),
                                   int(max_periods), not self.keep, self.rec, self.sta, out, ctrl.wbc, self.G, self.h,
-                                  self.res, self.work, self.qp_x, decision is not None)
+                                  self.res, self.work, self.qp_x, decision is not None,
+                                  self.sensing, *self._sens, noise, self.nconf)
         end = int(out[mk.O_END])
+        # the noise rows used: the periods committed, and a period ending in a plant event (committed on the
+        # controller's side, finished below)
+        used = n + (end == mk.END_PLANT_EVENT)
+        if self.sensing and used > 0:
+            sim.sensor.taken(used, step0 + used - 1, stance)
         self.ended = mk.END_NAMES[end]
         if n > 0:
             sim.t, sim.step_index = float(clock[0]), int(clock[1])

@@ -1,0 +1,97 @@
+"""Do two runs of the capability map over seeds give the same answers, trial for trial? Compares the cells two
+seeded-map stores (``scripts/capability_map --seeds N --store F``: one JSON line per finished cell, its key and
+its result with every trial record) both hold under the same key, e.g. a run on Ray against a local run, or a
+run on one code path against another.
+
+    .venv/bin/python -m lab.seeded_store_compare A.jsonl B.jsonl [--label-a local] [--label-b ray] --json F
+
+Per common cell and mode: the survival rates (force, survived, counted, excluded, rate, Wilson limits,
+unpushed falls, faults), the crossings (bracket, estimate, interval, forces tried), the paired comparisons
+(every force's pairs, counts, difference and Newcombe limits) and the trial records (sorted by force and seed
+index; every field: verdict, reason, fall, steps, the parameter excursion to the last bit, seed), each compared
+for exact equality; the JSON lists every difference (none when the runs agree) and the cells only one store
+holds. Exit status 0 when every common cell is equal, 1 otherwise.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+#: a mode's result fields compared (besides its trial records); the rest (settings, texts) describe the run
+FIELDS = ("seeds", "seed_list", "levels", "resolution", "coarse_step", "scan_max", "rates", "crossings", "comparisons")
+
+
+def load(path: Path) -> dict[str, dict]:
+    """The store's cells by their key (JSON, sorted keys); a later line of the same key replaces an earlier."""
+    out = {}
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.strip():
+            rec = json.loads(line)
+            out[json.dumps(rec["key"], sort_keys=True)] = rec
+    return out
+
+
+def _trials(result: dict) -> list[dict]:
+    return sorted(result.get("trials", []), key=lambda r: (r["force"], r["seed_index"]))
+
+
+def compare_cell(a: dict, b: dict) -> list[str]:
+    """The differences between two results of one cell (every mode), as readable lines."""
+    diffs = []
+    if sorted(a) != sorted(b):
+        return [f"modes differ: {sorted(a)} against {sorted(b)}"]
+    for mode in sorted(a):
+        ra, rb = a[mode], b[mode]
+        for f in FIELDS:
+            if ra.get(f) != rb.get(f):
+                diffs.append(f"{mode}: {f} differs")
+        ta, tb = _trials(ra), _trials(rb)
+        if len(ta) != len(tb):
+            diffs.append(f"{mode}: {len(ta)} trials against {len(tb)}")
+            continue
+        for x, y in zip(ta, tb):
+            if x != y:
+                keys = sorted(k for k in set(x) | set(y) if x.get(k) != y.get(k))
+                diffs.append(f"{mode}: trial at {x['force']:g} N, seed index {x['seed_index']}: {', '.join(keys)}")
+    return diffs
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("a", type=Path)
+    ap.add_argument("b", type=Path)
+    ap.add_argument("--label-a", default="a")
+    ap.add_argument("--label-b", default="b")
+    ap.add_argument("--json", type=Path, required=True)
+    args = ap.parse_args(argv)
+    from biped_controller.studies import provenance
+    provenance.track(args.json, argv=argv)
+    sa, sb = load(args.a), load(args.b)
+    common = [k for k in sb if k in sa]
+    cells = []
+    for k in common:
+        key = json.loads(k)
+        d = compare_cell(sa[k]["result"], sb[k]["result"])
+        n = sum(len(r.get("trials", [])) for r in sb[k]["result"].values())
+        cells.append({"direction": key["direction"], "phase": key["phase"], "duration": key["duration"],
+                      "modes": key["modes"], "seeds": key["seeds"], "trials": n, "equal": not d, "differences": d,
+                      f"wall_time_{args.label_a}": sa[k].get("wall_time"),
+                      f"wall_time_{args.label_b}": sb[k].get("wall_time")})
+    only = lambda s, o: [json.loads(k) for k in s if k not in o]   # noqa: E731
+    out = {"a": {"label": args.label_a, "store": str(args.a)}, "b": {"label": args.label_b, "store": str(args.b)},
+           "compared": FIELDS + ("trials",), "cells": cells, "common_cells": len(cells),
+           "equal_cells": sum(c["equal"] for c in cells), "trials_compared": sum(c["trials"] for c in cells),
+           "only_in_a": len(only(sa, sb)), "only_in_b": only(sb, sa)}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    for c in cells:
+        print(f"{c['direction']} {c['phase']:g} {c['duration']:g} s: {c['trials']} trials, "
+              + ("equal" if c["equal"] else f"{len(c['differences'])} differences: " + "; ".join(c["differences"][:5])))
+    print(f"{out['equal_cells']} of {len(cells)} common cells equal ({out['trials_compared']} trials compared); "
+          f"{out['only_in_a']} cells only in {args.label_a}, {len(out['only_in_b'])} only in {args.label_b}")
+    return 0 if out["equal_cells"] == len(cells) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
