@@ -40,12 +40,11 @@ import numpy as np
 
 from biped_sim.plant import mujoco_kernels as mk
 from biped_sim.plant import period_grid_kernels as pg
-from biped_sim.plant import sensor_kernels as sn
 from biped_model import numba_cache
 from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
 from biped_controller.core.control.controller_layout import R_, W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC
-from biped_controller.core.sensing import pipeline_kernels as sk
+from biped_controller.closed_loop import sensing_step_kernels as sp
 from biped_controller.core.sensing.pipeline_layout import S_ as SS_
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
@@ -152,15 +151,10 @@ def run_mujoco_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
             if n_done >= noise.shape[0]:
                 out[O_END] = END_NOISE
                 return n_done
-            sn.sample(q, qd, qpos[2], qvel[2], noise[n_done], nconf, qs, qds, sens)
-            sback[:] = sstate
-            if sk.sense(s_ti, s_tf, sconf, sstate, t, qs, qds, stance, sens[0], sens[1], qe, qde) != sk.DONE:
-                sstate[:] = sback
+            if not sp.sense_period(q, qd, qpos[2], qvel[2], noise[n_done], nconf, qs, qds, sens, sback, s_ti, s_tf, sconf,
+                                   sstate, t, stance, qe, qde, res, _SENS_RES0):
                 out[O_END] = END_SENSE
                 return n_done
-            sk.into_res(sstate, sconf, sens)
-            for k in range(8):
-                res[_SENS_RES0 + k] = sens[k]
             qc = qe
             qdc = qde
         # 2. controller
