@@ -45,7 +45,6 @@ from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
 from biped_controller.core.control.controller_layout import R_, RES, W_, WB_, WORK, WBC_MODE_OFF, WBC_MODE_WBC
 from biped_controller.closed_loop import sensing_step_kernels as sp
-from biped_controller.core.sensing.pipeline_layout import S_ as SS_
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -252,11 +251,7 @@ def run_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         sta[row, :] = res
         ck.period_commit(mem, res, work, qdc, t, stance)
         if sensing:         # the decision, in the pipeline (CompiledSensing.record: the torque sent, told stance)
-            sstate[SS_.t_prev] = t
-            for i in range(6):
-                sstate[SS_.torque_prev + i] = work[W_.torque, i]
-            sstate[SS_.told_prev] = stance
-            sstate[SS_.decided] = 1.0
+            sp.record_decision(sstate, t, work, stance)
         x[:] = xo
         v[:] = vo
         sst[S_.t] = t_end

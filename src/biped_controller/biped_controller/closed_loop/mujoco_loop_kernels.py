@@ -45,7 +45,6 @@ from biped_controller.core.control import controller_kernels as ck
 from biped_controller.core.control import wbc_kernels as wk
 from biped_controller.core.control.controller_layout import R_, W_, WB_, WBC_MODE_OFF, WBC_MODE_WBC
 from biped_controller.closed_loop import sensing_step_kernels as sp
-from biped_controller.core.sensing.pipeline_layout import S_ as SS_
 
 numba_cache.require_configured(__name__)   # a check: import this module with numba_cache.load
 
@@ -208,11 +207,7 @@ def run_mujoco_segment(coef, inner, centers, cti, ctf, gains, cons, mem,
         # 4. the controller's commit (the objects commit before the plant's period: nothing reads it in between)
         ck.period_commit(mem, res, work, qdc, t, stance)
         if sensing:         # the decision, in the pipeline (CompiledSensing.record: the torque sent, told stance)
-            sstate[SS_.t_prev] = t
-            for i in range(6):
-                sstate[SS_.torque_prev + i] = work[W_.torque, i]
-            sstate[SS_.told_prev] = stance
-            sstate[SS_.decided] = 1.0
+            sp.record_decision(sstate, t, work, stance)
         sta[row_i, :] = res
         r[C_T] = t
         r[C_PUSH_FORCE] = push_force
