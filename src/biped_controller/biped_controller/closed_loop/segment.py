@@ -41,9 +41,14 @@ LOOP_KERNELS = "biped_controller.closed_loop.loop_kernels"
 # what the compiled loop is compiled against besides its own source
 PERIOD_GRID_KERNELS = "biped_sim.plant.period_grid_kernels"
 SENSOR_KERNELS = "biped_sim.plant.sensor_kernels"
+# one period of real sensing, shared by both compiled loops, and what it is compiled against
+SENSING_STEP_KERNELS = "biped_controller.closed_loop.sensing_step_kernels"
+SENSING_STEP_SOURCES = (SENSOR_KERNELS, PIPELINE_KERNELS, "biped_controller.core.control.controller_layout") + \
+    PIPELINE_KERNELS_SOURCES
 LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
                                                      "biped_sim.plant.rigid_layout", SENSOR_KERNELS) + (
-                                                     PIPELINE_KERNELS,) + PIPELINE_KERNELS_SOURCES
+                                                     PIPELINE_KERNELS,) + PIPELINE_KERNELS_SOURCES + (
+                                                     SENSING_STEP_KERNELS,)
 
 
 def load_loop_kernels():
@@ -54,6 +59,7 @@ def load_loop_kernels():
     numba_cache.load(PERIOD_GRID_KERNELS)
     numba_cache.load(SENSOR_KERNELS)
     load_pipeline_kernels()
+    numba_cache.load(SENSING_STEP_KERNELS, sources=SENSING_STEP_SOURCES)
     return numba_cache.load(LOOP_KERNELS, sources=LOOP_KERNELS_SOURCES)
 
 
@@ -223,7 +229,8 @@ class Segment:
 MUJOCO_LOOP_KERNELS = "biped_controller.closed_loop.mujoco_loop_kernels"
 MUJOCO_LOOP_KERNELS_SOURCES = CONTROLLER_KERNELS_SOURCES + (CONTROLLER_KERNELS, WBC_KERNELS, PERIOD_GRID_KERNELS,
                                                             "biped_sim.plant.mujoco_kernels", SENSOR_KERNELS) + (
-                                                            PIPELINE_KERNELS,) + PIPELINE_KERNELS_SOURCES
+                                                            PIPELINE_KERNELS,) + PIPELINE_KERNELS_SOURCES + (
+                                                            SENSING_STEP_KERNELS,)
 
 
 def load_mujoco_loop_kernels():
@@ -238,6 +245,7 @@ def load_mujoco_loop_kernels():
     numba_cache.load(PERIOD_GRID_KERNELS)
     numba_cache.load(SENSOR_KERNELS)
     load_pipeline_kernels()
+    numba_cache.load(SENSING_STEP_KERNELS, sources=SENSING_STEP_SOURCES)
     return numba_cache.load(MUJOCO_LOOP_KERNELS, sources=MUJOCO_LOOP_KERNELS_SOURCES)
 
 
