@@ -41,7 +41,7 @@ def evaluate(name: str, episodes: int = 5, steps: int = 20, plant: str = "mujoco
     meta = json.loads((policies_dir() / name / "policy.json").read_text())
     kw = {"action_mode": meta["action_mode"], "residual_scale": meta["residual_scale"]} \
         if meta.get("action_mode", "torque") == "residual" else {}
-    env = BipedPushEnv(plant=plant, **kw)
+    env = BipedPushEnv(plant=plant, robot=meta.get("robot"), **kw)       # the robot it was trained on
     if pushes is not None:
         dist = PushDistribution(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in pushes.items()})
         env = RandomPushes(env, dist, seed=seed)
@@ -97,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     if not (policies_dir() / a.name / "policy.onnx").is_file():
         ap.error(f"no committed policy {a.name!r} (policies/{a.name}/policy.onnx)")
     from biped_controller.studies.provenance import Run
-    prov = Run(argv, plant=a.plant)
+    meta = json.loads((policies_dir() / a.name / "policy.json").read_text())
+    prov = Run(argv, plant=a.plant, robot=meta.get("robot"))
     res = evaluate(a.name, a.episodes, a.steps, a.plant, pushes=pushes, zero=a.zero)
     m = res["mean"]
     for e in res["per_episode"]:

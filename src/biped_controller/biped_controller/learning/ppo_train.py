@@ -488,7 +488,7 @@ def train(name: str, *, resume: bool = False, restart: bool = False, budget_minu
     _require_extra()
     import jax.numpy as jnp
     from biped_controller.studies.provenance import Run
-    prov = Run(plant=cfg.plant)
+    prov = Run(plant=cfg.plant, robot=cfg.robot)
 
     meta = json.loads(paths.run.read_text()) if resume else None
     rows = []
