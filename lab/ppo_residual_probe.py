@@ -48,7 +48,12 @@ def main(argv=None):
             rows.append({"stance_scale_rad": stance_s, "swing_scale_rad": swing_s, "std": std, "episodes": eps})
             print(f"stance joints s={stance_s:<6} swing joints s={swing_s:<4} std={std:<5} periods walked:",
                   [e["policy_periods"] for e in eps], [e["fall_cause"] or "-" for e in eps])
+    q0, qd0 = env.family.initial_state()
+    a_diag = np.diag(env.residual.teacher.model.dynamics(q0, qd0).A)
     out = {"what": __doc__.splitlines()[0], "plant": "mujoco", "limit_policy_periods": 500, "seeds": [0, 1, 2],
+           "mass_matrix_diagonal_at_start_kg_m2": [round(float(x), 4) for x in a_diag],
+           "kp": float(env.residual.gains.Kp),
+           "kp_a11_n_m_per_rad": round(float(env.residual.gains.Kp * a_diag[0]), 1),
            "rows": rows, "wall_s": round(time.time() - t0, 1)}
     if a.json:
         with open(a.json, "w") as f:
