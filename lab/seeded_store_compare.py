@@ -11,6 +11,12 @@ unpushed falls, faults), the crossings (bracket, estimate, interval, forces trie
 index; every field: verdict, reason, fall, steps, the parameter excursion to the last bit, seed), each compared
 for exact equality; the JSON lists every difference (none when the runs agree) and the cells only one store
 holds. Exit status 0 when every common cell is equal, 1 otherwise.
+
+``--outcomes``: a run whose trials were ended by the early stop (``trial.stop.applies_mujoco_sensors``) against
+the same cells' trials run in full. The cells are matched on their keys without ``early_stop``, and each trial
+record is compared on its outcome only (:data:`OUTCOME`: verdict, reason, fall, whether it counts, seed); the
+fields a stopped trial cannot share with the full one (the impacts walked, the parameter excursion up to the
+stop, ``decided_at_step``) are left out. The rates, crossings and paired comparisons are compared whole.
 """
 from __future__ import annotations
 
@@ -22,13 +28,19 @@ from pathlib import Path
 FIELDS = ("seeds", "seed_list", "levels", "resolution", "coarse_step", "scan_max", "rates", "crossings", "comparisons")
 
 
-def load(path: Path) -> dict[str, dict]:
-    """The store's cells by their key (JSON, sorted keys); a later line of the same key replaces an earlier."""
+#: a trial record's outcome (``--outcomes``)
+OUTCOME = ("force", "mode", "seed_index", "seed", "survived", "fell", "reason", "fall_cause", "fall_time", "counted",
+           "unpushed_fall", "fault_kind")
+
+
+def load(path: Path, drop: tuple[str, ...] = ()) -> dict[str, dict]:
+    """The store's cells by their key (JSON, sorted keys, without the key's fields ``drop``); a later line of
+    the same key replaces an earlier."""
     out = {}
     for line in path.read_text(encoding="utf-8").splitlines():
         if line.strip():
             rec = json.loads(line)
-            out[json.dumps(rec["key"], sort_keys=True)] = rec
+            out[json.dumps({k: v for k, v in rec["key"].items() if k not in drop}, sort_keys=True)] = rec
     return out
 
 
@@ -36,8 +48,9 @@ def _trials(result: dict) -> list[dict]:
     return sorted(result.get("trials", []), key=lambda r: (r["force"], r["seed_index"]))
 
 
-def compare_cell(a: dict, b: dict) -> list[str]:
-    """The differences between two results of one cell (every mode), as readable lines."""
+def compare_cell(a: dict, b: dict, outcomes: bool = False) -> list[str]:
+    """The differences between two results of one cell (every mode), as readable lines (``outcomes``: each
+    trial on :data:`OUTCOME` only)."""
     diffs = []
     if sorted(a) != sorted(b):
         return [f"modes differ: {sorted(a)} against {sorted(b)}"]
@@ -51,6 +64,8 @@ def compare_cell(a: dict, b: dict) -> list[str]:
             diffs.append(f"{mode}: {len(ta)} trials against {len(tb)}")
             continue
         for x, y in zip(ta, tb):
+            if outcomes:
+                x, y = {k: x.get(k) for k in OUTCOME}, {k: y.get(k) for k in OUTCOME}
             if x != y:
                 keys = sorted(k for k in set(x) | set(y) if x.get(k) != y.get(k))
                 diffs.append(f"{mode}: trial at {x['force']:g} N, seed index {x['seed_index']}: {', '.join(keys)}")
@@ -63,24 +78,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("b", type=Path)
     ap.add_argument("--label-a", default="a")
     ap.add_argument("--label-b", default="b")
+    ap.add_argument("--outcomes", action="store_true",
+                    help="keys without early_stop, trials on their outcome (a stopped run against a full one)")
     ap.add_argument("--json", type=Path, required=True)
     args = ap.parse_args(argv)
     from biped_controller.studies import provenance
     provenance.track(args.json, argv=argv)
-    sa, sb = load(args.a), load(args.b)
+    drop = ("early_stop",) if args.outcomes else ()
+    sa, sb = load(args.a, drop), load(args.b, drop)
     common = [k for k in sb if k in sa]
     cells = []
     for k in common:
         key = json.loads(k)
-        d = compare_cell(sa[k]["result"], sb[k]["result"])
+        d = compare_cell(sa[k]["result"], sb[k]["result"], args.outcomes)
         n = sum(len(r.get("trials", [])) for r in sb[k]["result"].values())
+        stopped = {lab: sum(1 for r in s_[k]["result"].values() for t in r.get("trials", [])
+                            if t.get("decided_at_step") is not None)
+                   for lab, s_ in ((args.label_a, sa), (args.label_b, sb))}
         cells.append({"direction": key["direction"], "phase": key["phase"], "duration": key["duration"],
                       "modes": key["modes"], "seeds": key["seeds"], "trials": n, "equal": not d, "differences": d,
+                      "stopped_early": stopped,
                       f"wall_time_{args.label_a}": sa[k].get("wall_time"),
                       f"wall_time_{args.label_b}": sb[k].get("wall_time")})
     only = lambda s, o: [json.loads(k) for k in s if k not in o]   # noqa: E731
     out = {"a": {"label": args.label_a, "store": str(args.a)}, "b": {"label": args.label_b, "store": str(args.b)},
-           "compared": FIELDS + ("trials",), "cells": cells, "common_cells": len(cells),
+           "compared": FIELDS + (("trial outcomes",) if args.outcomes else ("trials",)), "outcomes_only": args.outcomes,
+           "cells": cells, "common_cells": len(cells),
            "equal_cells": sum(c["equal"] for c in cells), "trials_compared": sum(c["trials"] for c in cells),
            "only_in_a": len(only(sa, sb)), "only_in_b": only(sb, sa)}
     args.json.parent.mkdir(parents=True, exist_ok=True)

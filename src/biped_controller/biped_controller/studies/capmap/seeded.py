@@ -23,17 +23,22 @@ from pathlib import Path
 
 from biped_controller.closed_loop.executor import make_executor
 from biped_controller.studies.capmap.spec import MapSpec, onset_time
-from biped_controller.studies.trial import seeded, uncertainty
+from biped_controller.studies.trial import seeded, stop, uncertainty
 from biped_controller.studies.trial.context import context
 from biped_controller.studies.trial.settings import differences
 
 
 def _key(spec: MapSpec, direction: str, phase: float, duration: float, seeds: int, levels) -> dict:
     s = spec.search.for_duration(duration)
-    return {"direction": direction, "phase": phase, "duration": duration, "modes": list(spec.modes),
-            "seeds": seeds, "levels": list(levels), "coarse": s.coarse, "max": s.fmax,
-            "resolution": s.resolution, "height": spec.height,
-            "settings": json.loads(json.dumps(differences(spec.settings)))}
+    key = {"direction": direction, "phase": phase, "duration": duration, "modes": list(spec.modes),
+           "seeds": seeds, "levels": list(levels), "coarse": s.coarse, "max": s.fmax,
+           "resolution": s.resolution, "height": spec.height,
+           "settings": json.loads(json.dumps(differences(spec.settings)))}
+    if stop.stops_early(spec.settings):
+        # trials ended early by the stop under sensor noise (stop.applies_mujoco_sensors): its settings; a cell's
+        # key without them is the cell's trials run in full (every store made before that stop existed)
+        key["early_stop"] = stop.identity(spec.settings)
+    return key
 
 
 def _load(store: Path | None) -> list[dict]:

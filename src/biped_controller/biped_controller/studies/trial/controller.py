@@ -92,6 +92,10 @@ class TrialController(ABC):
         """One survival trial of ``push`` (JSON-ready: force, mode, survived, fell, reason, fall cause and
         time, steps walked, decided_at_step)."""
 
+    def give_band(self, settings: RunSettings, steps: int, band: Band) -> None:
+        """Hand this process a band computed elsewhere (``BuiltinMode.give_band``); by default ignored (the
+        controller computes its own)."""
+
     @abstractmethod
     def summary(self, result, push_end: float | None = None) -> dict:
         """The numbers of one run (``trial.summary``; the same keys for every controller)."""
@@ -120,10 +124,23 @@ class BuiltinMode(TrialController):
 
     def band(self, settings: RunSettings, steps: int) -> Band:
         """``SurvivalRule.band_from_walk`` of the unpushed walk, once per process (settings, impacts, the
-        config files' modification times)."""
+        config files' modification times), or the band :meth:`give_band` handed this process for them."""
         settings.activate()
-        return _walk_band(survival_rule(), self.name, replace(settings, full_trials=False), int(steps),
-                          _config_stamp())
+        key = (survival_rule(), self.name, replace(settings, full_trials=False), int(steps), _config_stamp())
+        given = _GIVEN_BANDS.get(key)
+        if given is not None:
+            return given
+        return _walk_band(*key)
+
+    def give_band(self, settings: RunSettings, steps: int, band: Band) -> None:
+        """Hand this process the band of (``settings``, ``steps``) computed elsewhere by :meth:`band` (another
+        worker of the same code and config files: the walk is a pure function of them), so that its walk is
+        not run again here. The last :data:`GIVEN_BANDS_KEPT` bands are kept."""
+        settings.activate()
+        key = (survival_rule(), self.name, replace(settings, full_trials=False), int(steps), _config_stamp())
+        if len(_GIVEN_BANDS) >= GIVEN_BANDS_KEPT:
+            del _GIVEN_BANDS[next(iter(_GIVEN_BANDS))]
+        _GIVEN_BANDS[key] = band
 
     def verdict(self, result: runner.RunResult, push_end: float, band: Band) -> Verdict:
         return survival_rule().verdict(result, push_end, band)
@@ -132,7 +149,8 @@ class BuiltinMode(TrialController):
                  pool: runner.LoopPool | None | bool = True) -> dict:
         """One survival trial (``trials.survives``): with the early stop (``config/studies.yaml``, unless
         ``settings.full_trials`` or a perturbed plant) the trial ends at the first impact where its outcome is
-        decided (``stop.EarlyStop`` on the rigid plant, ``stop.MujocoEarlyStop`` on MuJoCo); ``pool`` True:
+        decided (``stop.EarlyStop`` on the rigid plant, ``stop.MujocoEarlyStop`` on MuJoCo, there also under
+        sensor noise where ``stop.applies_mujoco_sensors``); ``pool`` True:
         this process's ``runs.loop_pool``."""
         settings.activate()
         mode = self.name
@@ -154,7 +172,7 @@ class BuiltinMode(TrialController):
                 return False
             on_impact = stop_if_decided
         mj = None if settings.full_trials else stop.mujoco_early_stop()
-        if mj is not None and mj.enabled and stop.applies_mujoco(settings):
+        if mj is not None and mj.enabled and (stop.applies_mujoco(settings) or stop.applies_mujoco_sensors(settings)):
             fam, dt = context().family, settings.sim_config().control_period
             band = self.band(settings, runs.trial_steps(push))      # the trial's band, known before it
 
@@ -179,6 +197,11 @@ class BuiltinMode(TrialController):
 
     def summary(self, result: runner.RunResult, push_end: float | None = None) -> dict:
         return summarize(result, push_end=push_end)
+
+
+#: how many handed bands (:meth:`BuiltinMode.give_band`) a process keeps: a seeded cell's seeds x modes, and more
+GIVEN_BANDS_KEPT = 256
+_GIVEN_BANDS: dict[tuple, Band] = {}
 
 
 @functools.lru_cache(maxsize=256)

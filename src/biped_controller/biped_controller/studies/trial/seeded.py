@@ -33,6 +33,7 @@ from dataclasses import replace
 from biped_controller.closed_loop.executor import CountingBar, ProgressBar, make_executor
 from biped_controller.studies.trial import record, trials, uncertainty
 from biped_controller.studies.trial.context import context
+from biped_controller.studies.trial.controller import resolve
 from biped_controller.studies.trial.runs import DEFAULT_DURATION, DEFAULT_START, paper_push
 from biped_controller.studies.trial.settings import RunSettings, check_settings, differences
 from biped_controller.studies.trial.survival import survival_rule
@@ -68,8 +69,19 @@ def seeded_trial(push, mode: str, settings: RunSettings) -> dict:
     return rec
 
 
+def _band_task(args: tuple):
+    """The band of a seed's trials (``trials.band``: its unpushed walk), run in a worker."""
+    push, mode, settings = args
+    settings.activate()
+    return trials.band(mode, push, settings)
+
+
 def _task(args: tuple) -> dict:
-    push, mode, settings, index = args
+    """One trial of a batch: (push, mode, settings, seed index[, the seed's band computed elsewhere])."""
+    push, mode, settings, index = args[:4]
+    band = args[4] if len(args) > 4 else None
+    if band is not None:
+        trials.give_band(mode, push, settings, band)
     return dict(seeded_trial(push, mode, settings), seed_index=index)
 
 
@@ -101,10 +113,19 @@ def seeded_table(modes: tuple[str, ...], seeds: int, resolution: float = 5.0, fm
     common = [uncertainty.trial_seed(cell, i) for i in range(seeds)]
     seed_list = {m: common for m in modes}
     records: dict[str, list[dict]] = {m: [] for m in modes}
+    # each (built-in mode, seed)'s band (its unpushed walk: the same for every force of the cell) run once, on the
+    # executor, and handed to every trial of it, not run again by each worker that meets the seed (a plug-in
+    # controller's trials compute their own)
+    window = paper_push(0.0, start=start, duration=duration, height=height)
+    bands: dict[tuple[str, int], object] = {}
 
     def run(batch: list[tuple[str, float]]) -> dict[tuple[str, float], tuple[int, int]]:
+        need = sorted({(m, i) for m, _ in batch if resolve(m).adaptive for i in range(seeds)} - set(bands))
+        if need:
+            got = ex.map(_band_task, [((window, m, seeded_settings(settings, seed_list[m][i])),) for m, i in need])
+            bands.update(zip(need, got))
         tasks = [(paper_push(sign * f, start=start, duration=duration, height=height), m,
-                  seeded_settings(settings, s), i) for m, f in batch for i, s in enumerate(seed_list[m])]
+                  seeded_settings(settings, s), i, bands.get((m, i))) for m, f in batch for i, s in enumerate(seed_list[m])]
         res = ex.map(_task, [(t,) for t in tasks], on_result=lambda r: bar())
         out = {}
         for (m, f), j in zip(batch, range(0, len(res), seeds)):

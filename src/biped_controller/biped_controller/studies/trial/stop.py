@@ -109,6 +109,43 @@ def applies_mujoco(settings) -> bool:
     return settings.sim_config().plant == "mujoco" and (p is None or p.is_zero)
 
 
+def applies_mujoco_sensors(settings) -> bool:
+    """The MuJoCo plant's early stop may end a trial with these ``RunSettings`` under sensor noise: the MuJoCo
+    plant, the nominal model (no mass, centre-of-mass, inertia or friction change), no measurement delay, a
+    sensor model that draws noise or quantises (``PlantPerturbation.sensing_is_perfect`` False), and
+    ``early_stop_mujoco_sensors`` switched on in ``config/studies.yaml``. The criterion is
+    :class:`MujocoEarlyStop`'s on the plant's true state, with the trial's own band (its seed's unpushed walk).
+    Why it may decide such a trial: the rest of the run is a noisy walk from a state on the gait's orbit, and
+    its seed's unpushed walk is one (measured against the same trials run in full: ``lab.noisy_early_stop``,
+    docs/robustness.md, "Early stop under sensor noise")."""
+    p = settings.perturbation
+    return (settings.sim_config().plant == "mujoco" and p is not None and p.model_is_nominal and p.delay == 0
+            and not p.sensing_is_perfect and sensors_switch())
+
+
+def stops_early(settings) -> bool:
+    """A survival trial with these ``RunSettings`` may be ended by an early stop: not ``full_trials``, the
+    plant's early stop switched on, and the trial's plant and sensing among those it applies to
+    (:func:`applies`, :func:`applies_mujoco`, :func:`applies_mujoco_sensors`)."""
+    if settings.full_trials or not enabled(settings):
+        return False
+    return applies(settings) or applies_mujoco(settings) or applies_mujoco_sensors(settings)
+
+
+@functools.lru_cache(maxsize=4)
+def _sensors_switch(stamp: int) -> bool:
+    p = default_config_dir() / "studies.yaml"
+    v = read_settings(p, ("early_stop_mujoco_sensors",))["early_stop_mujoco_sensors"]
+    if not isinstance(v, bool):
+        raise StudySettingsError(f"{p}: 'early_stop_mujoco_sensors' must be true or false, got {v!r}")
+    return v
+
+
+def sensors_switch() -> bool:
+    """``config/studies.yaml``'s ``early_stop_mujoco_sensors`` (read again whenever the file changed)."""
+    return _sensors_switch(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
+
+
 @functools.lru_cache(maxsize=4)
 def _early_stop(stamp: int) -> EarlyStop:
     return EarlyStop.load()
@@ -228,9 +265,13 @@ def mujoco_early_stop() -> MujocoEarlyStop:
 def identity(settings) -> dict:
     """JSON-ready: the early stop's settings for trials with these ``RunSettings`` (the capability map's store
     fingerprint hashes them): the rigid plant's on the rigid plant (the dict it always was), the MuJoCo
-    plant's on MuJoCo."""
+    plant's on MuJoCo, marked ``"sensors": true`` where it ends trials under sensor noise
+    (:func:`applies_mujoco_sensors`: a store of such trials run in full is not resumed by one stopped early)."""
     if settings.sim_config().plant == "mujoco":
-        return mujoco_early_stop().identity()
+        out = mujoco_early_stop().identity()
+        if applies_mujoco_sensors(settings):
+            out["sensors"] = True
+        return out
     return early_stop().identity()
 
 

@@ -14,7 +14,7 @@ from biped_controller.studies.trial.controller import parameter_excursion, resol
 from biped_controller.studies.trial.settings import DEFAULT_SETTINGS, RunSettings
 from biped_controller.studies.trial.survival import Band
 
-__all__ = ["band", "walk_band", "survives", "parameter_excursion", "out_of_range", "RANGE_TOL"]
+__all__ = ["band", "give_band", "walk_band", "survives", "parameter_excursion", "out_of_range", "RANGE_TOL"]
 
 
 def band(mode: str, push: Push, settings: RunSettings) -> Band:
@@ -22,6 +22,13 @@ def band(mode: str, push: Push, settings: RunSettings) -> Band:
     unpushed walk's of the same impacts (``runs.trial_steps``), computed once per process."""
     settings.activate()
     return walk_band(mode, settings, runs.trial_steps(push))
+
+
+def give_band(mode: str, push: Push, settings: RunSettings, band: Band) -> None:
+    """Hand this process the band :func:`band` returns for (``mode``, ``push``, ``settings``), computed in
+    another process (``TrialController.give_band``): its unpushed walk is then not run here."""
+    settings.activate()
+    resolve(mode).give_band(settings, runs.trial_steps(push), band)
 
 
 def walk_band(mode: str, settings: RunSettings, steps: int) -> Band:
