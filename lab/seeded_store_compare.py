@@ -59,6 +59,10 @@ def compare_cell(a: dict, b: dict, outcomes: bool = False) -> list[str]:
         for f in FIELDS:
             if ra.get(f) != rb.get(f):
                 diffs.append(f"{mode}: {f} differs")
+        for ca, cb in zip(ra.get("crossings", []), rb.get("crossings", [])):
+            if ca.get("estimate") != cb.get("estimate"):
+                diffs.append(f"{mode}: crossing estimate at level {ca['level']:g}: {ca.get('estimate')} against "
+                             f"{cb.get('estimate')}")
         ta, tb = _trials(ra), _trials(rb)
         if len(ta) != len(tb):
             diffs.append(f"{mode}: {len(ta)} trials against {len(tb)}")
@@ -68,7 +72,8 @@ def compare_cell(a: dict, b: dict, outcomes: bool = False) -> list[str]:
                 x, y = {k: x.get(k) for k in OUTCOME}, {k: y.get(k) for k in OUTCOME}
             if x != y:
                 keys = sorted(k for k in set(x) | set(y) if x.get(k) != y.get(k))
-                diffs.append(f"{mode}: trial at {x['force']:g} N, seed index {x['seed_index']}: {', '.join(keys)}")
+                diffs.append(f"{mode}: trial at {x['force']:g} N, seed index {x['seed_index']}: {', '.join(keys)}"
+                             + (f" ({x['reason']!r} against {y['reason']!r})" if outcomes and "reason" in keys else ""))
     return diffs
 
 
@@ -105,6 +110,9 @@ def main(argv: list[str] | None = None) -> int:
            "compared": FIELDS + (("trial outcomes",) if args.outcomes else ("trials",)), "outcomes_only": args.outcomes,
            "cells": cells, "common_cells": len(cells),
            "equal_cells": sum(c["equal"] for c in cells), "trials_compared": sum(c["trials"] for c in cells),
+           "trials_differing": sum(1 for c in cells for d in c["differences"] if ": trial at " in d),
+           "crossing_estimates_differing": sum(1 for c in cells for d in c["differences"] if "crossing estimate" in d),
+           "stopped_early": {lab: sum(c["stopped_early"][lab] for c in cells) for lab in (args.label_a, args.label_b)},
            "only_in_a": len(only(sa, sb)), "only_in_b": only(sb, sa)}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")

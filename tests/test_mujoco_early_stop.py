@@ -131,3 +131,93 @@ def test_mujoco_criterion_checks_every_tolerance_and_the_push_end():
         assert not es.inside(d | {k: 1.1 * v}, band), k
     assert not es.inside(d | {"after_push": False}, band)
     assert not es.inside(d, Band(1e-3, 1e-3, 0.0, 0.0))          # the floors' band: p, tau' too far
+
+
+# ------------------------------------------------------------------ the early stop under sensor noise
+NOISY = ts.run_settings("real-sensors-mujoco")
+
+# (mode, force [N], onset phase, seed index): trials of the 25 ms forward slice under real-sensors-mujoco, its cell's
+# seed index i (results/uncertainty/noisy_early_stop/forward_mixed.json): a survival the criterion decides at the
+# second touchdown, a fall of the same batch, and mode both's survival decided at the ninth of eleven
+NOISY_CASES = [("wbc", 400.0, 0.25, 10), ("wbc", 400.0, 0.25, 5), ("both", 550.0, 0.0, 2)]
+
+
+def _noisy(phase: float, index: int):
+    from biped_controller.studies.trial import seeded, uncertainty
+    T = tcontext.context().family.T
+    cell = seeded.cell_of(NOISY, start=phase * T, duration=0.025, sign=1.0, height=None)
+    return seeded.seeded_settings(NOISY, uncertainty.trial_seed(cell, index))
+
+
+@pytest.mark.parametrize("mode,force,phase,index", NOISY_CASES)
+def test_under_sensor_noise_the_mujoco_early_stop_gives_the_full_trials_verdict(mode, force, phase, index):
+    """A seeded trial of the noisy profile with the early stop and in full: the same verdict, reason, fall
+    cause and time; the survival is decided before the trial's end, the fall runs as long as in full."""
+    s = _noisy(phase, index)
+    push = _push(force, 0.025, phase)
+    a = trials.survives(push, mode, s, pool=False)
+    b = trials.survives(push, mode, dataclasses.replace(s, full_trials=True), pool=False)
+    assert b["decided_at_step"] is None
+    assert (a["survived"], a["fell"], a["reason"], a["fall_cause"], a["fall_time"]) == \
+           (b["survived"], b["fell"], b["reason"], b["fall_cause"], b["fall_time"]), (mode, force, index)
+    if a["survived"]:
+        assert a["decided_at_step"] is not None and a["decided_at_step"] < b["steps_walked"], a
+    else:
+        assert a["decided_at_step"] is None and a["steps_walked"] == b["steps_walked"]
+
+
+def test_the_noisy_early_stop_applies_to_sensor_noise_on_mujoco_only(monkeypatch):
+    """It applies to a nominal MuJoCo plant with sensor noise and no delay, switched on; not to the rigid plant's
+    noise, a model error, a delay, full trials or the switch off; its store identity says so."""
+    assert stop.applies_mujoco_sensors(NOISY) and not stop.applies_mujoco(NOISY) and stop.stops_early(NOISY)
+    assert not stop.applies_mujoco_sensors(MUJOCO) and stop.applies_mujoco(MUJOCO)
+    assert not stop.applies_mujoco_sensors(ts.run_settings("real-sensors"))
+    pert = NOISY.perturbation
+    for bad in (dataclasses.replace(pert, torso_mass_scale=1.1), dataclasses.replace(pert, delay=1),
+                dataclasses.replace(pert, mu=0.5)):
+        assert not stop.applies_mujoco_sensors(dataclasses.replace(NOISY, perturbation=bad)), bad
+    assert not stop.stops_early(dataclasses.replace(NOISY, full_trials=True))
+    assert stop.identity(NOISY) == {**stop.mujoco_early_stop().identity(), "sensors": True}
+    monkeypatch.setattr(stop, "sensors_switch", lambda: False)
+    assert not stop.applies_mujoco_sensors(NOISY) and not stop.stops_early(NOISY)
+    assert stop.identity(NOISY) == stop.mujoco_early_stop().identity()
+
+
+def test_the_sensors_switch_must_be_a_boolean(tmp_path, monkeypatch):
+    """``early_stop_mujoco_sensors`` that is not true or false stops the study naming the key."""
+    src = (Path(default_config_dir()) / "studies.yaml").read_text()
+    lines = ["early_stop_mujoco_sensors: {value: 1, reason: \"bad\"}" if ln.startswith("early_stop_mujoco_sensors:")
+             else ln for ln in src.splitlines()]
+    (tmp_path / "studies.yaml").write_text("\n".join(lines) + "\n")
+    monkeypatch.setattr(stop, "default_config_dir", lambda: tmp_path)
+    with pytest.raises(stop.StudySettingsError, match="'early_stop_mujoco_sensors'"):
+        stop.sensors_switch()
+
+
+def test_a_seeded_cell_stopped_early_has_its_own_store_key():
+    """The seeded map's cell key names the early stop where it ends noisy trials; with ``--full-trials`` the
+    key is the one every store made before that stop had (its fields unchanged)."""
+    from biped_controller.studies.capmap import seeded as cms
+    spec = cm.MapSpec(modes=("both", "wbc"), directions=("forward",), phases=(0.5,), durations=(0.025,),
+                      settings=NOISY)
+    full = dataclasses.replace(spec, settings=dataclasses.replace(NOISY, full_trials=True))
+    k, kf = cms._key(spec, "forward", 0.5, 0.025, 16, (0.9, 0.5)), cms._key(full, "forward", 0.5, 0.025, 16, (0.9, 0.5))
+    assert k["early_stop"] == stop.identity(NOISY) and "early_stop" not in kf
+    assert sorted(kf) == ["coarse", "direction", "duration", "height", "levels", "max", "modes", "phase",
+                          "resolution", "seeds", "settings"]
+    assert {a: b for a, b in k.items() if a != "early_stop"} == kf
+
+
+def test_a_band_handed_to_the_process_is_the_one_its_trials_use(monkeypatch):
+    """``trials.give_band``: the band of (mode, push, settings) handed in is what ``trials.band`` returns, without
+    the walk being run here; another seed's band is still its own walk's; a plug-in controller ignores it."""
+    from biped_controller.studies.trial import controller as tc
+    push = runs.paper_push(100.0)
+    s = _noisy(0.5, 0)
+    mine = Band(0.5, 0.25, 0.1, 0.05)
+    trials.give_band("wbc", push, s, mine)
+    monkeypatch.setattr(tc, "_walk_band", lambda *a: (_ for _ in ()).throw(AssertionError("walk run again")))
+    assert trials.band("wbc", push, s) is mine
+    with pytest.raises(AssertionError, match="walk run again"):
+        trials.band("wbc", push, _noisy(0.5, 1))
+    tc.TrialController.give_band(tc.resolve("wbc"), s, 3, mine)       # the interface's default: ignored

@@ -392,3 +392,22 @@ def test_committed_policy_is_a_controller_by_name(tmp_path, monkeypatch):
     res = PluginLoop("tiny_pd", options={}).run(1, limit=0.05)
     assert res.fault is None and res.periods > 0
     assert PluginLoop("tiny_pd").ctrl.inner.policy_period == 0.02
+
+
+def test_a_policy_is_not_run_on_another_robot(tmp_path):
+    """A ``policy.json`` naming the robot it was trained on: the ONNX controller on that robot's description
+    builds; on another robot's it stops naming both robots and the file; without a robot in the file, or for a
+    description built in code (no source), nothing is checked."""
+    from dataclasses import replace
+    from biped_controller.policy.controller import check_robot
+    from biped_model.robot import resolve_robot
+    env = BipedPushEnv(plant="rigid")
+    f = onnx_file(tmp_path / "p.onnx", *weights())
+    (tmp_path / "policy.json").write_text(json.dumps({"robot": "biped7"}))
+    ok = ControllerSetup(env.desc, env.family, 0.001, {"file": str(f)})
+    assert OnnxPolicy(ok).metadata["robot"] == "biped7"
+    other = ControllerSetup(resolve_robot("biped7_foot05").description(), env.family, 0.001, {"file": str(f)})
+    with pytest.raises(PolicyFileError, match="p.onnx.*'biped7'.*'biped7_foot05'"):
+        OnnxPolicy(other)
+    check_robot({}, other, f)
+    check_robot({"robot": "biped7"}, ControllerSetup(replace(env.desc, source=""), env.family, 0.001, {}), f)

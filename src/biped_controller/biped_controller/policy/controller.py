@@ -207,6 +207,22 @@ def read_metadata(onnx_path: Path) -> dict:
     return check_metadata(meta, str(meta_path))
 
 
+def check_robot(meta: dict, setup: ControllerSetup, path: Path) -> None:
+    """A policy trained on one robot (its ``policy.json``'s ``robot``, as ``biped_model.robot.robot_label``
+    names it) is not run on another: :class:`PolicyFileError` naming both when the controller's description
+    (``setup.desc.source``, its robot's directory) is another robot's. Nothing is checked when either is
+    unknown (no ``robot`` in the file, a description built in code)."""
+    want = meta.get("robot")
+    src = getattr(setup.desc, "source", "")
+    if not want or not src:
+        return
+    from biped_model.robot import robot_label
+    have = robot_label(str(Path(src).resolve().parent))
+    if have != want:
+        raise PolicyFileError(f"{path}: trained on robot {want!r} (its policy.json), asked to run on robot {have!r}; "
+                              f"train one for that robot (scripts/train --robot {have}) or run this one on {want!r}")
+
+
 class OnnxPolicy(PolicyController):
     """An ONNX policy file run by onnxruntime, its action held over its policy period (options ``file``:
     the ``.onnx`` path; ``policy_period`` [s]: default the ``policy.json`` beside the file, else
@@ -224,6 +240,7 @@ class OnnxPolicy(PolicyController):
             raise PolicyFileError("onnx_policy: give the policy file as the option file=PATH")
         path = Path(str(path))
         meta = read_metadata(path)
+        check_robot(meta, setup, path)
         period = setup.options.get("policy_period", meta.get("policy_period"))
         self.runner = OnnxRunner(path)
         self.metadata = meta
