@@ -17,6 +17,10 @@ resolution (``uncertainty.crossing_search``; the levels share batches at equal f
 is taken on a complete batch, whose trials are each a pure function of (settings, seed, push), so a
 process pool, this process or Ray give the same answer.
 
+Each (built-in mode, seed)'s band is run once per cell on the executor and handed with the seed's trials
+(``trials.give_band``), so no worker walks it again. A trial under sensor noise on MuJoCo may be ended by the
+early stop (``stop.applies_mujoco_sensors``: an approximation, measured; ``full_trials`` runs it in full).
+
 Comparison (two or more modes): at every force both modes ran, seed index i pairs mode A's trial with
 mode B's (the same seed); the pairs where both count give the difference of the survival rates with
 Newcombe's paired interval (``uncertainty.paired_difference``), in ``comparisons``.
