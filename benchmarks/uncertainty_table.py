@@ -9,9 +9,12 @@ go to ``tables.txt``):
    rigid plant, ``real-sensors-mujoco``: MuJoCo; both put the design-point sensor noise on the plant):
    deterministic, one trial per force with the noise's seed 0 (``deterministic.json``), then over seeds,
    ``--seeds N`` (``seeds_N.json``);
-2. with ``--slice-phases P`` (> 0), the 25 ms slice of the capability map (forward, onset phases k / P): the
-   deterministic map (``slice_deterministic.json``, its store in a fresh temporary directory) and the map
-   over ``--slice-seeds`` seeds (``slice_seeds_N.json``, likewise).
+2. with ``--slice-phases P`` (> 0), the 25 ms slice of the capability map (forward, onset phases k / P; the map's
+   search, or ``--slice-coarse``, ``--slice-resolution``): the deterministic map (``slice_deterministic.json``,
+   its store in a fresh temporary directory) and the map over ``--slice-seeds`` seeds (``slice_seeds_N.json``,
+   likewise); with ``--slice-full`` also the map over seeds with ``--full-trials`` (``slice_seeds_N_full.json``:
+   every noisy trial run in full, as before the early stop under sensor noise), after it, and the ratio of
+   the two, with the outcomes compared cell by cell (rates and crossings).
 
 3. with ``--trial-reps K`` (> 0), one survival trial's cost on the two paths, in this process: K seeded trials
    (each mode of ``--trial-mode`` (a comma list), ``--trial-force`` at the paper's window, seeds 0..K-1, each
@@ -48,12 +51,17 @@ def command(json_path: Path, modes: str, workers: int, seeds: int | None, profil
 
 
 def slice_command(json_path: Path, store: Path, modes: str, workers: int, phases: int, seeds: int | None,
-                  profile: str) -> list[str]:
-    """The capability map's command line of the 25 ms forward slice (deterministic, or over seeds)."""
+                  profile: str, search: tuple[float | None, float | None] = (None, None),
+                  full_trials: bool = False) -> list[str]:
+    """The capability map's command line of the 25 ms forward slice (deterministic, or over seeds; ``search``:
+    its coarse step and resolution [N], None: the map's; ``full_trials``: no early stop)."""
     cmd = [sys.executable, "-m", "biped_controller.studies.capability_map", "--modes", modes, "--profile", profile,
            "--durations", "0.025", "--directions", "forward", "--phases", str(phases), "--workers", str(workers),
            "--no-progress", "--store", str(store), "--json", str(json_path)]
-    return cmd + (["--seeds", str(seeds)] if seeds is not None else [])
+    for flag, value in zip(("--coarse", "--resolution"), search):
+        if value is not None:
+            cmd += [flag, f"{value:g}"]
+    return cmd + (["--seeds", str(seeds)] if seeds is not None else []) + (["--full-trials"] if full_trials else [])
 
 
 def _cpu_children() -> float:
@@ -78,10 +86,12 @@ def run_table(json_path: Path, modes: str, workers: int, seeds: int | None, prof
             "trials": sum(len(r["trials"]) for r in data["modes"].values())}
 
 
-def run_slice(json_path: Path, modes: str, workers: int, phases: int, seeds: int | None, profile: str, log) -> dict:
+def run_slice(json_path: Path, modes: str, workers: int, phases: int, seeds: int | None, profile: str, log,
+              search: tuple[float | None, float | None] = (None, None), full_trials: bool = False) -> dict:
     """One slice, timed, from an empty store; its simulation count."""
     with tempfile.TemporaryDirectory() as tmp:
-        out = timed(slice_command(json_path, Path(tmp) / "store.jsonl", modes, workers, phases, seeds, profile), log)
+        out = timed(slice_command(json_path, Path(tmp) / "store.jsonl", modes, workers, phases, seeds, profile, search,
+                                  full_trials), log)
     data = json.loads(json_path.read_text(encoding="utf-8"))
     n = data["trials_run"] if seeds is not None else data["run"]["simulations_run"]
     return {**out, "json": json_path.name, "trials": n}
@@ -161,11 +171,39 @@ def run_tables(args, out: dict) -> None:
             out["slice_deterministic"] = run_slice(args.out / "slice_deterministic.json", args.slice_modes,
                                                    args.workers, args.slice_phases, None, args.profile, log)
             log.flush()
-            out["slice_seeded"] = run_slice(args.out / f"slice_seeds_{args.slice_seeds}.json", args.slice_modes,
-                                            args.workers, args.slice_phases, args.slice_seeds, args.profile, log)
+            search = (args.slice_coarse, args.slice_resolution)
+            name = f"slice_seeds_{args.slice_seeds}"
+            out["slice_seeded"] = run_slice(args.out / f"{name}.json", args.slice_modes, args.workers, args.slice_phases,
+                                            args.slice_seeds, args.profile, log, search)
             out["slice_ratio_process_wall"] = (out["slice_seeded"]["process_wall_s"]
                                                / out["slice_deterministic"]["process_wall_s"])
             out["slice_ratio_cpu"] = out["slice_seeded"]["cpu_s"] / out["slice_deterministic"]["cpu_s"]
+            if args.slice_full:
+                log.flush()
+                out["slice_seeded_full"] = run_slice(args.out / f"{name}_full.json", args.slice_modes, args.workers,
+                                                     args.slice_phases, args.slice_seeds, args.profile, log, search,
+                                                     full_trials=True)
+                out["slice_full_over_stopped_process_wall"] = (out["slice_seeded_full"]["process_wall_s"]
+                                                               / out["slice_seeded"]["process_wall_s"])
+                out["slice_full_over_stopped_cpu"] = out["slice_seeded_full"]["cpu_s"] / out["slice_seeded"]["cpu_s"]
+                out["slice_full_vs_stopped_answers"] = same_answers(args.out / f"{name}.json",
+                                                                    args.out / f"{name}_full.json")
+
+
+def same_answers(a: Path, b: Path) -> dict:
+    """Two seeded slices' summaries cell by cell: the cells whose rates or crossings differ (each mode)."""
+    ca, cb = (json.loads(p.read_text(encoding="utf-8"))["cells"] for p in (a, b))
+    key = lambda c: (c["direction"], c["phase"], c["duration"])         # noqa: E731
+    other = {key(c): c for c in cb}
+    diff = []
+    for c in ca:
+        d = other.get(key(c))
+        for m, r in c["modes"].items():
+            rd = None if d is None else d["modes"].get(m)
+            for f in ("rates", "crossings"):
+                if rd is None or r[f] != rd[f]:
+                    diff.append({"cell": list(key(c)), "mode": m, "field": f})
+    return {"cells": len(ca), "differing": diff}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -178,6 +216,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--slice-phases", type=int, default=0, help="onset phases of the timed slice (0: no slice)")
     ap.add_argument("--slice-seeds", type=int, default=16)
     ap.add_argument("--slice-modes", default="both,wbc")
+    ap.add_argument("--slice-coarse", type=float, default=None, help="[N] the slice's coarse step (default the map's)")
+    ap.add_argument("--slice-resolution", type=float, default=None, help="[N] the slice's resolution (default the map's)")
+    ap.add_argument("--slice-full", action="store_true",
+                    help="also the slice over seeds with --full-trials (no early stop under noise), and the ratio")
     ap.add_argument("--trial-reps", type=int, default=0, help="seeded trials per path for the trial's cost "
                     "(compiled loop against the objects; 0: not timed)")
     ap.add_argument("--trial-mode", default="both", help="mode(s) of the timed trials, a comma list")
