@@ -10,7 +10,10 @@ unpushed falls, faults), the crossings (bracket, estimate, interval, forces trie
 (every force's pairs, counts, difference and Newcombe limits) and the trial records (sorted by force and seed
 index; every field: verdict, reason, fall, steps, the parameter excursion to the last bit, seed), each compared
 for exact equality; the JSON lists every difference (none when the runs agree) and the cells only one store
-holds. Exit status 0 when every common cell is equal, 1 otherwise.
+holds. Exit status 0 when every common cell is equal, 1 otherwise. Trials are matched on (force, seed index):
+where the two searches took other paths, the trials only one ran are counted and the others compared.
+``--tables``: A and B are two max-push tables over seeds (``scripts/experiment table --seeds N --json F``), one
+cell each.
 
 ``--outcomes``: a run whose trials were ended by the early stop (``trial.stop.applies_mujoco_sensors``) against
 the same cells' trials run in full. The cells are matched on their keys without ``early_stop``, and each trial
@@ -44,8 +47,12 @@ def load(path: Path, drop: tuple[str, ...] = ()) -> dict[str, dict]:
     return out
 
 
-def _trials(result: dict) -> list[dict]:
-    return sorted(result.get("trials", []), key=lambda r: (r["force"], r["seed_index"]))
+def _as_store(table: dict) -> dict[str, dict]:
+    """A max-push table over seeds (``scripts/experiment table --seeds N --json F``) as a store of one cell: the
+    paper's cell (its key: the table's settings and seed count)."""
+    key = {"direction": "forward", "phase": None, "duration": None, "modes": sorted(table["modes"]),
+           "seeds": table["seeds"]}
+    return {json.dumps(key, sort_keys=True): {"key": key, "result": table["modes"]}}
 
 
 def compare_cell(a: dict, b: dict, outcomes: bool = False) -> list[str]:
@@ -63,15 +70,16 @@ def compare_cell(a: dict, b: dict, outcomes: bool = False) -> list[str]:
             if ca.get("estimate") != cb.get("estimate"):
                 diffs.append(f"{mode}: crossing estimate at level {ca['level']:g}: {ca.get('estimate')} against "
                              f"{cb.get('estimate')}")
-        ta, tb = _trials(ra), _trials(rb)
-        if len(ta) != len(tb):
-            diffs.append(f"{mode}: {len(ta)} trials against {len(tb)}")
-            continue
-        for x, y in zip(ta, tb):
+        ta = {(t["force"], t["seed_index"]): t for t in ra.get("trials", [])}
+        tb = {(t["force"], t["seed_index"]): t for t in rb.get("trials", [])}
+        if set(ta) != set(tb):      # another search path: the trials both ran are still compared
+            diffs.append(f"{mode}: {len(set(ta) - set(tb))} trials only in a, {len(set(tb) - set(ta))} only in b")
+        for k in sorted(set(ta) & set(tb)):
+            x, y = ta[k], tb[k]
             if outcomes:
-                x, y = {k: x.get(k) for k in OUTCOME}, {k: y.get(k) for k in OUTCOME}
+                x, y = {f: x.get(f) for f in OUTCOME}, {f: y.get(f) for f in OUTCOME}
             if x != y:
-                keys = sorted(k for k in set(x) | set(y) if x.get(k) != y.get(k))
+                keys = sorted(f for f in set(x) | set(y) if x.get(f) != y.get(f))
                 diffs.append(f"{mode}: trial at {x['force']:g} N, seed index {x['seed_index']}: {', '.join(keys)}"
                              + (f" ({x['reason']!r} against {y['reason']!r})" if outcomes and "reason" in keys else ""))
     return diffs
@@ -85,12 +93,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--label-b", default="b")
     ap.add_argument("--outcomes", action="store_true",
                     help="keys without early_stop, trials on their outcome (a stopped run against a full one)")
+    ap.add_argument("--tables", action="store_true",
+                    help="A and B are two max-push tables over seeds (scripts/experiment table --seeds N --json F), "
+                         "compared as one cell")
     ap.add_argument("--json", type=Path, required=True)
     args = ap.parse_args(argv)
     from biped_controller.studies import provenance
     provenance.track(args.json, argv=argv)
     drop = ("early_stop",) if args.outcomes else ()
-    sa, sb = load(args.a, drop), load(args.b, drop)
+    if args.tables:
+        sa, sb = (_as_store(json.loads(p.read_text(encoding="utf-8"))) for p in (args.a, args.b))
+    else:
+        sa, sb = load(args.a, drop), load(args.b, drop)
     common = [k for k in sb if k in sa]
     cells = []
     for k in common:
@@ -117,7 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     for c in cells:
-        print(f"{c['direction']} {c['phase']:g} {c['duration']:g} s: {c['trials']} trials, "
+        where = "the table" if c["phase"] is None else f"{c['direction']} {c['phase']:g} {c['duration']:g} s"
+        print(f"{where}: {c['trials']} trials, "
               + ("equal" if c["equal"] else f"{len(c['differences'])} differences: " + "; ".join(c["differences"][:5])))
     print(f"{out['equal_cells']} of {len(cells)} common cells equal ({out['trials_compared']} trials compared); "
           f"{out['only_in_a']} cells only in {args.label_a}, {len(out['only_in_b'])} only in {args.label_b}")

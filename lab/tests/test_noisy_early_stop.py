@@ -69,3 +69,17 @@ def test_outcome_comparison_ignores_what_a_stopped_trial_cannot_share(tmp_path):
     # without --outcomes the keys differ (early_stop) and so do the trials' walked impacts: no common cell
     assert seeded_store_compare.main([str(full), str(fast), "--json", str(out)]) == 0
     assert json.loads(out.read_text())["common_cells"] == 0
+
+
+def test_two_tables_compare_on_the_trials_both_ran(tmp_path):
+    """``--tables``: two max-push tables over seeds as one cell each; where one search ran a force the other did
+    not, those trials are counted apart and the common ones still compared."""
+    def table(path, trials):
+        path.write_text(json.dumps({"seeds": 2, "modes": {"both": {"seeds": 2, "rates": [], "trials": trials}}}))
+    a, b, out = tmp_path / "a.json", tmp_path / "b.json", tmp_path / "c.json"
+    table(a, [_trial(0, True, 11, 0.47), _trial(1, False, 3, 0.5)])
+    table(b, [_trial(0, True, 5, 0.47), _trial(1, True, 5, 0.5), dict(_trial(0, False, 3, 0.5), force=50.0)])
+    assert seeded_store_compare.main([str(a), str(b), "--tables", "--outcomes", "--json", str(out)]) == 1
+    got = json.loads(out.read_text())
+    d = got["cells"][0]["differences"]
+    assert "0 trials only in a, 1 only in b" in d[0] and got["trials_differing"] == 1 and "seed index 1" in d[1]
