@@ -177,10 +177,57 @@ def test_the_noisy_early_stop_applies_to_sensor_noise_on_mujoco_only(monkeypatch
                 dataclasses.replace(pert, mu=0.5)):
         assert not stop.applies_mujoco_sensors(dataclasses.replace(NOISY, perturbation=bad)), bad
     assert not stop.stops_early(dataclasses.replace(NOISY, full_trials=True))
-    assert stop.identity(NOISY) == {**stop.mujoco_early_stop().identity(), "sensors": True}
+    assert stop.identity(NOISY) == {**stop.mujoco_early_stop().identity(), "sensors": list(stop.sensors_modes())}
+    assert stop.applies_mujoco_sensors(NOISY, "both") and not stop.applies_mujoco_sensors(NOISY, "p")
     monkeypatch.setattr(stop, "sensors_switch", lambda: False)
     assert not stop.applies_mujoco_sensors(NOISY) and not stop.stops_early(NOISY)
     assert stop.identity(NOISY) == stop.mujoco_early_stop().identity()
+
+
+# the paper's cell under real-sensors-mujoco (results/uncertainty/paper_cell/compare_seeds32_stopped_full.json):
+# mode p at 50 N, seed index 6, falls at 4.84 s in full after a touchdown the criterion decides; mode none at 0 N,
+# seed index 1, whose seed's unpushed walk falls
+P_LATE_FALL = ("p", 50.0, 6)
+NONE_UNPUSHED_FALL = ("none", 0.0, 1)
+
+
+def _paper_cell(index: int):
+    from biped_controller.studies.trial import seeded, uncertainty
+    cell = seeded.cell_of(NOISY, start=runs.DEFAULT_START, duration=runs.DEFAULT_DURATION, sign=1.0, height=None)
+    return seeded.seeded_settings(NOISY, uncertainty.trial_seed(cell, index))
+
+
+def test_under_noise_the_stop_leaves_modes_it_does_not_hold_for_and_fallen_seeds(monkeypatch):
+    """Mode p (not in ``early_stop_mujoco_sensors_modes``) runs in full and falls late; with p added to the
+    list the criterion would decide that trial survived (the negative control: the list matters). A seed whose
+    unpushed walk fell is never stopped, even for a mode in the list."""
+    mode, force, index = P_LATE_FALL
+    s = _paper_cell(index)
+    push = runs.paper_push(force)
+    got = trials.survives(push, mode, s, pool=False)
+    assert got["fell"] and got["decided_at_step"] is None and got["fall_time"] > 4.0, got
+    monkeypatch.setattr(stop, "sensors_modes", lambda: ("both", "p", "tau", "wbc"))
+    wrong = trials.survives(push, mode, s, pool=False)
+    assert wrong["survived"] and wrong["decided_at_step"] is not None
+    monkeypatch.setattr(stop, "sensors_modes", lambda: ("both", "none", "p", "tau", "wbc"))
+    mode, force, index = NONE_UNPUSHED_FALL
+    s = _paper_cell(index)
+    push = runs.paper_push(force)
+    assert trials.band(mode, push, s).unpushed_fall
+    got = trials.survives(push, mode, s, pool=False)
+    assert got["fell"] and got["decided_at_step"] is None
+
+
+def test_the_sensors_modes_must_be_built_in_modes(tmp_path, monkeypatch):
+    """``early_stop_mujoco_sensors_modes`` that is not a list of built-in modes stops the study naming the key."""
+    src = (Path(default_config_dir()) / "studies.yaml").read_text()
+    for bad in ("both", "[both, walk]"):
+        lines = [f"early_stop_mujoco_sensors_modes: {{value: {bad}, reason: \"bad\"}}"
+                 if ln.startswith("early_stop_mujoco_sensors_modes:") else ln for ln in src.splitlines()]
+        (tmp_path / "studies.yaml").write_text("\n".join(lines) + "\n")
+        monkeypatch.setattr(stop, "default_config_dir", lambda: tmp_path)
+        with pytest.raises(stop.StudySettingsError, match="'early_stop_mujoco_sensors_modes'"):
+            stop.sensors_modes()
 
 
 def test_the_sensors_switch_must_be_a_boolean(tmp_path, monkeypatch):

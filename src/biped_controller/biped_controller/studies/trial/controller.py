@@ -150,7 +150,8 @@ class BuiltinMode(TrialController):
         """One survival trial (``trials.survives``): with the early stop (``config/studies.yaml``, unless
         ``settings.full_trials`` or a perturbed plant) the trial ends at the first impact where its outcome is
         decided (``stop.EarlyStop`` on the rigid plant, ``stop.MujocoEarlyStop`` on MuJoCo, there also under
-        sensor noise where ``stop.applies_mujoco_sensors``); ``pool`` True:
+        sensor noise where ``stop.applies_mujoco_sensors`` for this mode and the seed's unpushed walk walked);
+        ``pool`` True:
         this process's ``runs.loop_pool``."""
         settings.activate()
         mode = self.name
@@ -172,7 +173,8 @@ class BuiltinMode(TrialController):
                 return False
             on_impact = stop_if_decided
         mj = None if settings.full_trials else stop.mujoco_early_stop()
-        if mj is not None and mj.enabled and (stop.applies_mujoco(settings) or stop.applies_mujoco_sensors(settings)):
+        noisy = stop.applies_mujoco_sensors(settings, mode)
+        if mj is not None and mj.enabled and (stop.applies_mujoco(settings) or noisy):
             fam, dt = context().family, settings.sim_config().control_period
             band = self.band(settings, runs.trial_steps(push))      # the trial's band, known before it
 
@@ -181,7 +183,8 @@ class BuiltinMode(TrialController):
                     fired.append(sim.impact_count)
                     return True
                 return False
-            on_impact = stop_if_decided_mujoco
+            if not (noisy and band.unpushed_fall):      # under noise: only where the seed's own walk walks
+                on_impact = stop_if_decided_mujoco
         res = runs.push_run(push, mode, settings=settings, keep_records=False, on_impact=on_impact, pool=pool)
         decided = bool(fired) and not res.fallen
         if decided:

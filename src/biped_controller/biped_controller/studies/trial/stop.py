@@ -110,11 +110,14 @@ def applies_mujoco(settings) -> bool:
     return settings.sim_config().plant == "mujoco" and (p is None or p.is_zero)
 
 
-def applies_mujoco_sensors(settings) -> bool:
+def applies_mujoco_sensors(settings, mode: str | None = None) -> bool:
     """The MuJoCo plant's early stop may end a trial with these ``RunSettings`` under sensor noise: the MuJoCo
     plant, the nominal model (no mass, centre-of-mass, inertia or friction change), no measurement delay, a
-    sensor model that draws noise or quantises (``PlantPerturbation.sensing_is_perfect`` False), and
-    ``early_stop_mujoco_sensors`` switched on in ``config/studies.yaml``. The criterion is
+    sensor model that draws noise or quantises (``PlantPerturbation.sensing_is_perfect`` False),
+    ``early_stop_mujoco_sensors`` switched on in ``config/studies.yaml`` and, given a ``mode``, that mode among
+    ``early_stop_mujoco_sensors_modes`` (the modes it was measured to hold for: mode p's noisy walks fall or
+    leave their band long after a decided touchdown). A trial whose seed's unpushed walk fell is not stopped
+    (``BuiltinMode.survives``): the argument below needs that walk to walk. The criterion is
     :class:`MujocoEarlyStop`'s on the plant's true state, with the trial's own band (its seed's unpushed walk).
     Why it may decide such a trial: the rest of the run is a noisy walk from a state on the gait's orbit, and
     its seed's unpushed walk is one. Not exact: the survival rule judges p and tau' at the run's last status, and
@@ -123,7 +126,7 @@ def applies_mujoco_sensors(settings) -> bool:
     docs/robustness.md, "Early stop under sensor noise")."""
     p = settings.perturbation
     return (settings.sim_config().plant == "mujoco" and p is not None and p.model_is_nominal and p.delay == 0
-            and not p.sensing_is_perfect and sensors_switch())
+            and not p.sensing_is_perfect and sensors_switch() and (mode is None or mode in sensors_modes()))
 
 
 def stops_early(settings) -> bool:
@@ -147,6 +150,23 @@ def _sensors_switch(stamp: int) -> bool:
 def sensors_switch() -> bool:
     """``config/studies.yaml``'s ``early_stop_mujoco_sensors`` (read again whenever the file changed)."""
     return _sensors_switch(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=4)
+def _sensors_modes(stamp: int) -> tuple[str, ...]:
+    from biped_controller.core.control.config import MODES
+    p = default_config_dir() / "studies.yaml"
+    v = read_settings(p, ("early_stop_mujoco_sensors_modes",))["early_stop_mujoco_sensors_modes"]
+    if not isinstance(v, list) or not all(isinstance(m, str) and m in MODES for m in v):
+        raise StudySettingsError(f"{p}: 'early_stop_mujoco_sensors_modes' must be a list of built-in modes "
+                                 f"({', '.join(MODES)}), got {v!r}")
+    return tuple(sorted(set(v)))
+
+
+def sensors_modes() -> tuple[str, ...]:
+    """``config/studies.yaml``'s ``early_stop_mujoco_sensors_modes``, sorted (read again whenever the file
+    changed): the built-in modes whose trials the early stop may end under sensor noise."""
+    return _sensors_modes(os.stat(default_config_dir() / "studies.yaml").st_mtime_ns)
 
 
 @functools.lru_cache(maxsize=4)
@@ -269,12 +289,12 @@ def mujoco_early_stop() -> MujocoEarlyStop:
 def identity(settings) -> dict:
     """JSON-ready: the early stop's settings for trials with these ``RunSettings`` (the capability map's store
     fingerprint hashes them): the rigid plant's on the rigid plant (the dict it always was), the MuJoCo
-    plant's on MuJoCo, marked ``"sensors": true`` where it ends trials under sensor noise
+    plant's on MuJoCo, with ``"sensors"``: the modes whose trials it ends under sensor noise, where it does
     (:func:`applies_mujoco_sensors`: a store of such trials run in full is not resumed by one stopped early)."""
     if settings.sim_config().plant == "mujoco":
         out = mujoco_early_stop().identity()
         if applies_mujoco_sensors(settings):
-            out["sensors"] = True
+            out["sensors"] = list(sensors_modes())
         return out
     return early_stop().identity()
 
